@@ -1,0 +1,51 @@
+//! `strata`: the host tool. Inspect and slice models on the host with the same core the
+//! printer runs.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod inspect;
+mod model;
+mod slice_cmd;
+
+#[derive(Parser)]
+#[command(
+    name = "strata",
+    version,
+    about = "Slice on the printer: inspect, slice and stream STL models"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Show format, triangle count, bounding box and defects of a model.
+    Inspect {
+        /// The STL model.
+        model: PathBuf,
+        /// Print machine-readable JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Slice a model on the host.
+    Slice(slice_cmd::SliceArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Inspect { model, json } => inspect::run(model, *json),
+        Command::Slice(args) => slice_cmd::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("strata: error: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,29 @@
+//! Strata core: an on-board streaming slicer, motion planner and step generator.
+//!
+//! Everything between "an STL triangle arrives" and "a step pulse leaves" lives here, as
+//! bounded-memory state machines that run unchanged on the printer's Cortex-M3 (no FPU, 64 KB
+//! RAM) and on the host (G-code export, the simulated printer, tests).
+//!
+//! Stages (one module each), in data-flow order:
+//! - [`stl`]: incremental push parser for binary and ASCII STL (any chunking, typed errors).
+//! - [`place`]: drop the model onto the bed, centre it, quantise to micrometres.
+//! - [`slice`]: sweep-plane slicer over a zmin-sorted triangle stream, one layer at a time.
+//!
+//! Shared foundations: [`geom`] (integer micrometre geometry) and [`machine`] (printer profile
+//! and print settings with validation).
+//!
+//! Guarantees:
+//! - `no_std`, no allocator: every buffer has a capacity fixed at compile time (const generics);
+//!   exceeding one returns a typed error naming what overflowed, never a panic.
+//! - No panic is reachable from input bytes (the parsers are fuzzed).
+//! - Positions are integer micrometres (`i32`), products in `i64`; rates use `fixed`.
+//! - Time is always an argument; nothing reads a clock.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod geom;
+pub mod machine;
+pub mod place;
+pub mod slice;
+pub mod stl;

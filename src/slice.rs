@@ -1,0 +1,3 @@
+//! Sweep-plane slicer over a zmin-sorted triangle stream.
+//!
+//! PLACEHOLDER: being implemented (issue 3).
