@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Every gate CI enforces, runnable the same way locally: formatting, lints, the no_std core and
+# the firmware for the Cortex-M3, then all tests. Installs the Rust pieces it needs.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n== %s ==\n' "$*"; }
+
+step "toolchain pieces"
+rustup target list --installed | grep -qx thumbv7m-none-eabi || rustup target add thumbv7m-none-eabi
+rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
+rustup component list --installed | grep -q '^clippy' || rustup component add clippy
+
+step "cargo fmt --check"
+cargo fmt --all -- --check
+
+step "cargo clippy (host crates, all targets) -D warnings"
+cargo clippy --all-targets -- -D warnings
+
+step "core for thumbv7m-none-eabi (no_std, no alloc)"
+cargo build -p strata --target thumbv7m-none-eabi --release
+step "firmware for thumbv7m-none-eabi"
+cargo build -p strata-firmware --target thumbv7m-none-eabi --release
+cargo clippy -p strata-firmware --target thumbv7m-none-eabi -- -D warnings
+
+step "docs"
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p strata -p strata-host --quiet
+
+step "tests"
+cargo test --workspace --exclude strata-firmware
