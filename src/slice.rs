@@ -1,3 +1,0 @@
-//! Sweep-plane slicer over a zmin-sorted triangle stream.
-//!
-//! PLACEHOLDER: being implemented (issue 3).
