@@ -14,9 +14,9 @@
 //! **Binary.** 80-byte header, u32 LE facet count, then 50-byte records (normal, three vertices
 //! as f32 LE, u16 attribute). Every complete record present is read, whatever the count says;
 //! at the end, with `k` complete records and `r` bytes left over:
-//! `r == 0, k != count` -> [`StlSummary::count_mismatch`] (data intact, kept);
-//! `r != 0, k < count` -> [`StlErrorKind::TruncatedRecord`] at the cut record;
-//! `r != 0, k >= count` -> [`StlSummary::trailing_bytes`] = `r`.
+//! `r != 0, k < count` -> [`StlErrorKind::TruncatedRecord`] at the cut record; otherwise the
+//! records are intact and kept, `k != count` is reported in [`StlSummary::count_mismatch`] and
+//! `r != 0` in [`StlSummary::trailing_bytes`].
 //!
 //! **ASCII.** `solid NAME`, then facets `facet normal f f f` `outer loop` `vertex f f f` (x3)
 //! `endloop` `endfacet`, then `endsolid NAME`; several solids may follow each other. Keywords
@@ -88,7 +88,7 @@ pub struct StlSummary {
     pub triangles: u32,
     /// Zero-area facets: counted, not passed to the sink.
     pub degenerate: u32,
-    /// Binary: the header count disagrees with the complete records (no bytes left over).
+    /// Binary: the header count disagrees with the complete records (all of them kept).
     pub count_mismatch: Option<CountMismatch>,
     /// Binary: bytes after the last complete record, when at least the declared count is there.
     pub trailing_bytes: u32,
@@ -487,7 +487,8 @@ impl StlReader {
                 return Err(StlError { kind: StlErrorKind::TruncatedRecord, offset: record_start });
             }
             summary.trailing_bytes = left;
-        } else if found != declared {
+        }
+        if found != declared {
             summary.count_mismatch = Some(CountMismatch { declared, found });
         }
         if found == 0 {

@@ -1,0 +1,308 @@
+//! Hand-made broken and odd STL files: each error kind with its exact byte offset, the
+//! non-fatal findings, and the same outcome in every chunking.
+
+mod stl_support;
+
+use stl_support::{parse_chunked, write_binary, Parsed};
+use strata::stl::{CountMismatch, RawTriangle, StlError, StlErrorKind as K, StlFormat, StlSummary};
+
+/// Chunk sizes every case is fed in: whole, bytes, odd, a record, a page.
+const CHUNKINGS: [usize; 6] = [usize::MAX, 1, 2, 7, 50, 4096];
+
+/// Parses in every chunking, checks they agree, returns the whole-buffer parse.
+fn parse_all_ways(bytes: &[u8]) -> Parsed {
+    let whole = parse_chunked(bytes, usize::MAX);
+    for size in CHUNKINGS {
+        let p = parse_chunked(bytes, size);
+        assert_eq!(p.result, whole.result, "{size}-byte chunks");
+        assert!(p.bits() == whole.bits(), "{size}-byte chunks: facets differ");
+    }
+    whole
+}
+
+#[track_caller]
+fn assert_error(bytes: &[u8], kind: K, offset: u64) {
+    assert_eq!(parse_all_ways(bytes).result, Err(StlError { kind, offset }));
+}
+
+#[track_caller]
+fn assert_ok(bytes: &[u8]) -> (StlSummary, Vec<RawTriangle>) {
+    let p = parse_all_ways(bytes);
+    (p.result.unwrap_or_else(|e| panic!("{e}")), p.triangles)
+}
+
+fn tri(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> RawTriangle {
+    RawTriangle { normal: [0.0, 0.0, 1.0], vertices: [a, b, c] }
+}
+
+/// Three distinct non-degenerate facets.
+fn three() -> Vec<RawTriangle> {
+    (0..3).map(|i| tri([i as f32, 0.0, 0.0], [i as f32 + 1.0, 0.0, 0.0], [0.0, 1.0, 0.5])).collect()
+}
+
+/// Offset of coordinate `coord` (0..9 over the three vertices) of record `k`.
+fn coord_offset(k: u64, coord: u64) -> u64 {
+    84 + 50 * k + 12 + 4 * coord
+}
+
+/// An ASCII file: `solid` line padded past the 84-byte detection window, then `body`.
+fn ascii(body: &str) -> (Vec<u8>, u64) {
+    let head = format!("solid {}\n", "n".repeat(90));
+    (format!("{head}{body}").into_bytes(), head.len() as u64)
+}
+
+const FACET: &str = "facet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\n\
+                     endloop\nendfacet\n";
+
+// ---- Empty and truncated ----
+
+#[test]
+fn empty_inputs() {
+    assert_error(b"", K::Empty, 0);
+    assert_error(b"solid x\nendsolid x\n", K::Empty, 19);
+    assert_error(b"solid a\nendsolid a\nSOLID b\r\nENDSOLID b", K::Empty, 38);
+    let blank = " \n".repeat(60);
+    assert_error(blank.as_bytes(), K::Empty, 120);
+    // A valid binary file with no records.
+    assert_error(&write_binary(b"empty", 0, &[]), K::Empty, 84);
+}
+
+#[test]
+fn truncated_binary_header() {
+    let file = write_binary(b"x", 3, &three());
+    assert_error(&file[..83], K::TruncatedHeader, 83);
+    assert_error(&file[..1], K::TruncatedHeader, 1);
+    assert_error(b"\0", K::TruncatedHeader, 1);
+    assert_error(b"STL exported by something", K::TruncatedHeader, 25);
+}
+
+#[test]
+fn truncated_binary_record() {
+    let file = write_binary(b"x", 3, &three());
+    // Two complete records and 30 bytes of the third.
+    assert_error(&file[..84 + 100 + 30], K::TruncatedRecord, 184);
+    assert_error(&file[..84 + 1], K::TruncatedRecord, 84);
+    assert_error(&file[..file.len() - 1], K::TruncatedRecord, 184);
+}
+
+// ---- Binary findings (not errors) ----
+
+#[test]
+fn count_mismatch_keeps_the_intact_records() {
+    let (s, tris) = assert_ok(&write_binary(b"x", 5, &three()));
+    assert_eq!(s.count_mismatch, Some(CountMismatch { declared: 5, found: 3 }));
+    assert_eq!((s.triangles, tris), (3, three()));
+
+    // Some exporters write 0.
+    let (s, tris) = assert_ok(&write_binary(b"x", 0, &three()));
+    assert_eq!(s.count_mismatch, Some(CountMismatch { declared: 0, found: 3 }));
+    assert_eq!(tris.len(), 3);
+}
+
+#[test]
+fn trailing_bytes_after_the_declared_records() {
+    let mut file = write_binary(b"solid but binary", 3, &three());
+    file.extend_from_slice(&[0xAA; 7]);
+    let (s, tris) = assert_ok(&file);
+    assert_eq!((s.format, s.trailing_bytes, s.count_mismatch), (StlFormat::Binary, 7, None));
+    assert_eq!(tris, three());
+
+    // More records than declared and a tail: both reported.
+    let mut file = write_binary(b"x", 2, &three());
+    file.push(0);
+    let (s, _) = assert_ok(&file);
+    assert_eq!(s.trailing_bytes, 1);
+    assert_eq!(s.count_mismatch, Some(CountMismatch { declared: 2, found: 3 }));
+}
+
+// ---- Binary coordinates ----
+
+#[test]
+fn binary_non_finite_coordinates() {
+    let mut t = three();
+    t[1].vertices[1][1] = f32::NAN;
+    assert_error(&write_binary(b"x", 3, &t), K::NonFiniteCoordinate, coord_offset(1, 4));
+    let mut t = three();
+    t[0].vertices[2][2] = f32::NEG_INFINITY;
+    assert_error(&write_binary(b"x", 3, &t), K::NonFiniteCoordinate, coord_offset(0, 8));
+    // The first bad coordinate of a record is named.
+    let mut t = three();
+    t[2].vertices[0][0] = 1e9;
+    t[2].vertices[0][1] = f32::NAN;
+    assert_error(&write_binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(2, 0));
+}
+
+#[test]
+fn binary_absurd_coordinates() {
+    let mut t = three();
+    t[1].vertices[0][2] = 10_000.001;
+    assert_error(&write_binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(1, 2));
+    let mut t = three();
+    t[0].vertices[2][0] = -20_000.0;
+    assert_error(&write_binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(0, 6));
+    // Exactly 10 m is accepted.
+    let mut t = three();
+    t[0].vertices[2] = [10_000.0, -10_000.0, 10_000.0];
+    assert_eq!(assert_ok(&write_binary(b"x", 3, &t)).1, t);
+}
+
+#[test]
+fn nan_normals_are_kept_not_rejected() {
+    let mut t = three();
+    t[0].normal = [f32::NAN, f32::INFINITY, 1e30];
+    let (_, tris) = assert_ok(&write_binary(b"x", 3, &t));
+    assert!(tris[0].normal[0].is_nan() && tris[0].normal[1].is_infinite());
+
+    let (file, _) = ascii(&format!("{}endsolid\n", FACET.replace("0 0 1", "nan -inf 1e300")));
+    let (_, tris) = assert_ok(&file);
+    assert!(tris[0].normal[0].is_nan() && tris[0].normal[2].is_infinite());
+}
+
+#[test]
+fn degenerate_facets_are_counted_not_emitted() {
+    let mut t = three();
+    t.push(tri([1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 0.0, 0.0])); // repeated corner
+    t.push(tri([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], [2.0, 4.0, 6.0])); // collinear
+    let (s, tris) = assert_ok(&write_binary(b"x", 5, &t));
+    assert_eq!((s.triangles, s.degenerate), (5, 2));
+    assert_eq!(tris, three());
+    // Only degenerate facets: read, but nothing emitted (not Empty: the file has facets).
+    let (s, tris) = assert_ok(&write_binary(b"x", 2, &t[3..]));
+    assert_eq!((s.triangles, s.degenerate, tris.len()), (2, 2, 0));
+}
+
+// ---- ASCII ----
+
+#[test]
+fn ascii_coordinates() {
+    let (file, at) = ascii(&FACET.replace("vertex 1 0 0", "vertex 1 nan 0"));
+    let nan_at = at + FACET.find("vertex 1 0 0").unwrap() as u64 + 9;
+    assert_error(&file, K::NonFiniteCoordinate, nan_at);
+    let (file, _) = ascii(&FACET.replace("vertex 1 0 0", "vertex 1 0 -Infinity"));
+    assert_error(&file, K::NonFiniteCoordinate, nan_at + 2);
+    let (file, _) = ascii(&FACET.replace("vertex 1 0 0", "vertex 1 1e5 0"));
+    assert_error(&file, K::AbsurdCoordinate, nan_at);
+    // Overflow to infinity while parsing is non-finite, not a bad number.
+    let (file, _) = ascii(&FACET.replace("vertex 1 0 0", "vertex 1 1e39 0"));
+    assert_error(&file, K::NonFiniteCoordinate, nan_at);
+}
+
+#[test]
+fn ascii_unknown_tokens() {
+    // A misspelled keyword.
+    let (file, at) = ascii(&FACET.replace("endloop", "endloops"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("endloop").unwrap() as u64);
+    // Four numbers after `vertex`: the fourth stands where `vertex` belongs.
+    let (file, at) = ascii(&FACET.replace("vertex 0 1 0", "vertex 0 1 0 7"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("vertex 0 1 0").unwrap() as u64 + 13);
+    // Garbage after the last endsolid.
+    let body = format!("{FACET}endsolid x\n\0\0");
+    let (file, at) = ascii(&body);
+    assert_error(&file, K::UnknownToken, at + body.len() as u64 - 2);
+    // The first word is `solid` but what follows is not a facet.
+    assert_error(b"solid x\nfacets normal", K::UnknownToken, 8);
+    // `solid` expected after `endsolid`.
+    let body = format!("{FACET}endsolid\nfacet");
+    let (file, at) = ascii(&body);
+    assert_error(&file, K::UnknownToken, at + body.len() as u64 - 5);
+}
+
+#[test]
+fn ascii_bad_numbers() {
+    let (file, at) = ascii(&FACET.replace("vertex 0 1 0", "vertex 0 1.2.3 0"));
+    let number_at = at + FACET.find("vertex 0 1 0").unwrap() as u64 + 9;
+    assert_error(&file, K::BadNumber, number_at);
+    let (file, _) = ascii(&FACET.replace("vertex 0 1 0", "vertex 0 endloop"));
+    assert_error(&file, K::BadNumber, number_at);
+    let (file, at) = ascii(&FACET.replace("normal 0 0 1", "normal 0 0 0x1"));
+    assert_error(&file, K::BadNumber, at + 17);
+    // Invalid UTF-8 where a number belongs.
+    let (mut file, at) = ascii(FACET);
+    let pos = (at + 13) as usize;
+    file[pos] = 0xFF;
+    assert_error(&file, K::BadNumber, at + 13);
+}
+
+#[test]
+fn ascii_token_too_long() {
+    let long = format!("0.{}", "0".repeat(63));
+    let (file, at) = ascii(&FACET.replace("vertex 1 0 0", &format!("vertex {long} 0 0")));
+    assert_error(&file, K::TokenTooLong, at + FACET.find("vertex 1 0 0").unwrap() as u64 + 7);
+    // A long solid name is skipped, never buffered.
+    let name = "x".repeat(10_000);
+    let file = format!("solid {name}\n{FACET}endsolid {name}\n");
+    assert_eq!(assert_ok(file.as_bytes()).0.triangles, 1);
+}
+
+#[test]
+fn ascii_ending_inside_a_facet() {
+    let (file, at) = ascii(FACET);
+    // Ends after `facet`, after the normal, inside a vertex, after the last vertex.
+    for end in ["facet", "0 0 1\n", "vertex 1 0", "vertex 0 1 0\n"] {
+        let cut = at as usize + FACET.find(end).unwrap() + end.len();
+        assert_error(&file[..cut], K::UnexpectedEnd, cut as u64);
+    }
+    // Ends inside a keyword: that word is unknown.
+    let cut = at as usize + FACET.find("endloop").unwrap() + 3;
+    assert_error(&file[..cut], K::UnknownToken, cut as u64 - 3);
+    // Cut after `endloop`: the facet went to the sink, but the file is still broken.
+    let cut_file = &file[..file.len() - "endfacet\n".len()];
+    assert_error(cut_file, K::UnexpectedEnd, cut_file.len() as u64);
+}
+
+#[test]
+fn ascii_missing_endsolid_is_a_finding() {
+    let (file, _) = ascii(&format!("{FACET}{FACET}"));
+    let (s, tris) = assert_ok(&file);
+    assert!(s.missing_endsolid);
+    assert_eq!((s.format, s.triangles, tris.len()), (StlFormat::Ascii, 2, 2));
+    let (file, _) = ascii(&format!("{FACET}endsolid"));
+    assert!(!assert_ok(&file).0.missing_endsolid);
+}
+
+#[test]
+fn ascii_layout_variants() {
+    // Several solids, CR-only line ends, tabs, upper case, no final line end.
+    let text = format!(
+        "\t solid A\r{}ENDSOLID A\rsolid\r{}endsolid",
+        FACET.replace('\n', "\r").to_uppercase(),
+        FACET.replace(' ', "\t  ")
+    );
+    let (s, tris) = assert_ok(text.as_bytes());
+    assert_eq!((s.format, s.triangles, s.missing_endsolid), (StlFormat::Ascii, 2, false));
+    assert_eq!(tris[0], tris[1]);
+    assert_eq!(tris[0].vertices, [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+}
+
+#[test]
+fn detection_edge_cases() {
+    // A binary header that starts with "solid": the count's zero top byte makes it binary.
+    let (s, _) = assert_ok(&write_binary(b"solid looks like text", 3, &three()));
+    assert_eq!(s.format, StlFormat::Binary);
+    // An all-zero header.
+    let (s, _) = assert_ok(&write_binary(&[0; 80], 3, &three()));
+    assert_eq!(s.format, StlFormat::Binary);
+    // Leading blank lines before `solid` are fine; text starting with another word is binary.
+    let (file, _) = ascii(FACET);
+    let mut padded = b"\r\n\r\n   ".to_vec();
+    padded.extend_from_slice(&file);
+    assert_eq!(assert_ok(&padded).0.format, StlFormat::Ascii);
+}
+
+#[test]
+fn repo_cube_ascii_and_binary_twins_are_identical() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let ascii = std::fs::read(dir.join("cube10_ascii_crlf.stl")).unwrap();
+    let binary = std::fs::read(dir.join("cube10_binary.stl")).unwrap();
+    let (a, b) = (parse_all_ways(&ascii), parse_all_ways(&binary));
+    let (sa, sb) = (a.result.unwrap(), b.result.unwrap());
+    assert_eq!((sa.format, sa.triangles, sa.degenerate), (StlFormat::Ascii, 12, 0));
+    assert_eq!((sb.format, sb.triangles, sb.count_mismatch), (StlFormat::Binary, 12, None));
+    assert!(a.bits() == b.bits(), "the ASCII and binary cube differ");
+    // The geometry: every corner is 0 or 10 mm, and all 8 corners occur.
+    let mut corners: Vec<[f32; 3]> = a.triangles.iter().flat_map(|t| t.vertices).collect();
+    assert!(corners.iter().flatten().all(|&v| v == 0.0 || v == 10.0));
+    corners.sort_by(|p, q| p.partial_cmp(q).unwrap());
+    corners.dedup();
+    assert_eq!(corners.len(), 8);
+}
