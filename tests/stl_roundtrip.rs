@@ -1,0 +1,148 @@
+//! Property tests: random meshes written by the test writers (not the parser) round-trip
+//! exactly through binary and ASCII, in any chunking; arbitrary bytes never panic and parse the
+//! same in any split.
+
+mod stl_support;
+
+use proptest::prelude::*;
+use stl_support::{bits, parse_chunked, parse_split, write_ascii, write_binary, AsciiStyle};
+use strata::stl::{RawTriangle, StlErrorKind, StlFormat, MAX_COORDINATE};
+
+/// Coordinates: anything finite within 10 m, biased towards the values that make collinear or
+/// repeated corners (and so degenerate facets) likely, plus -0.0 and subnormals.
+fn coordinate() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        4 => -MAX_COORDINATE..=MAX_COORDINATE,
+        2 => (-1000i32..=1000).prop_map(|v| v as f32 / 8.0),
+        1 => prop::sample::select(vec![0.0, -0.0, 1.0, MAX_COORDINATE, -MAX_COORDINATE, 1e-40]),
+    ]
+}
+
+fn triangle(normal: BoxedStrategy<f32>) -> impl Strategy<Value = RawTriangle> {
+    let point = || [coordinate(), coordinate(), coordinate()];
+    ([normal.clone(), normal.clone(), normal], [point(), point(), point()], 0..8u8).prop_map(
+        |(normal, mut vertices, shape)| {
+            // One facet in eight repeats a corner: certainly degenerate.
+            if shape == 0 {
+                vertices[2] = vertices[0];
+            }
+            RawTriangle { normal, vertices }
+        },
+    )
+}
+
+/// Zero area by the reader's documented definition, restated independently here.
+fn zero_area(t: &RawTriangle) -> bool {
+    let p = t.vertices.map(|v| v.map(f64::from));
+    let u: Vec<f64> = (0..3).map(|i| p[1][i] - p[0][i]).collect();
+    let w: Vec<f64> = (0..3).map(|i| p[2][i] - p[0][i]).collect();
+    u[1] * w[2] - u[2] * w[1] == 0.0
+        && u[2] * w[0] - u[0] * w[2] == 0.0
+        && u[0] * w[1] - u[1] * w[0] == 0.0
+}
+
+fn mesh(normal: BoxedStrategy<f32>) -> impl Strategy<Value = Vec<RawTriangle>> {
+    prop::collection::vec(triangle(normal), 1..40)
+}
+
+fn ascii_style() -> impl Strategy<Value = AsciiStyle> {
+    (any::<bool>(), any::<bool>(), any::<bool>(), prop::sample::select(vec!["", " ", "\t  "]))
+        .prop_map(|(crlf, upper, exponent, indent)| AsciiStyle { crlf, upper, exponent, indent })
+}
+
+/// Increasing cut positions inside `0..=len`.
+fn cuts(len: usize) -> impl Strategy<Value = Vec<usize>> {
+    prop::collection::vec(0..=len, 0..20).prop_map(|mut c| {
+        c.sort_unstable();
+        c
+    })
+}
+
+/// Checks one parse of `mesh` written as `format`.
+fn check_round_trip(file: &[u8], mesh: &[RawTriangle], format: StlFormat, cut: &[usize]) {
+    let expected: Vec<[u32; 12]> = mesh.iter().filter(|t| !zero_area(t)).map(bits).collect();
+    let degenerate = mesh.len() - expected.len();
+    for parsed in [parse_split(file, cut), parse_chunked(file, 1), parse_chunked(file, usize::MAX)]
+    {
+        let summary = parsed.result.unwrap();
+        assert_eq!(summary.format, format);
+        assert_eq!(summary.triangles as usize, mesh.len());
+        assert_eq!(summary.degenerate as usize, degenerate);
+        assert_eq!((summary.count_mismatch, summary.trailing_bytes), (None, 0));
+        assert!(parsed.bits() == expected, "facets differ");
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 200, ..ProptestConfig::default() })]
+
+    #[test]
+    fn binary_round_trip(
+        mesh in mesh(any::<f32>().boxed()),
+        header in prop::collection::vec(any::<u8>(), 80),
+        cut in cuts(2100),
+    ) {
+        let file = write_binary(&header, mesh.len() as u32, &mesh);
+        check_round_trip(&file, &mesh, StlFormat::Binary, &cut);
+    }
+
+    #[test]
+    fn ascii_round_trip(
+        mesh in mesh(prop::num::f32::NORMAL.boxed()),
+        style in ascii_style(),
+        name in "[a-zA-Z0-9 _äö中-]{0,20}",
+        cut in cuts(4000),
+    ) {
+        let file = write_ascii(&name, &mesh, style);
+        check_round_trip(&file, &mesh, StlFormat::Ascii, &cut);
+    }
+
+    #[test]
+    fn ascii_and_binary_of_one_mesh_agree(mesh in mesh(prop::num::f32::NORMAL.boxed()), style in ascii_style()) {
+        let a = parse_chunked(&write_ascii("m", &mesh, style), 13);
+        let b = parse_chunked(&write_binary(b"m", mesh.len() as u32, &mesh), 13);
+        prop_assert!(a.bits() == b.bits());
+        let (sa, sb) = (a.result.unwrap(), b.result.unwrap());
+        prop_assert_eq!((sa.triangles, sa.degenerate), (sb.triangles, sb.degenerate));
+    }
+
+    #[test]
+    fn arbitrary_bytes_parse_the_same_in_any_split(bytes in prop::collection::vec(any::<u8>(), 0..600), cut in cuts(600)) {
+        let whole = parse_chunked(&bytes, usize::MAX);
+        prop_assert_eq!(parse_split(&bytes, &cut), whole.clone());
+        if let Err(e) = whole.result {
+            prop_assert!(e.offset <= bytes.len() as u64);
+        }
+    }
+
+    #[test]
+    fn damaged_files_parse_the_same_in_any_split(
+        mesh in mesh(prop::num::f32::NORMAL.boxed()),
+        ascii in any::<bool>(),
+        damage in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..4),
+        truncate in any::<prop::sample::Index>(),
+        cut in cuts(3000),
+    ) {
+        let mut file = if ascii {
+            write_ascii("d", &mesh, AsciiStyle::default())
+        } else {
+            write_binary(b"d", mesh.len() as u32, &mesh)
+        };
+        for (at, byte) in damage {
+            let i = at.index(file.len());
+            file[i] = byte;
+        }
+        file.truncate(truncate.index(file.len() + 1));
+        let whole = parse_chunked(&file, usize::MAX);
+        prop_assert_eq!(parse_split(&file, &cut), whole.clone());
+        prop_assert_eq!(parse_chunked(&file, 1), whole);
+    }
+}
+
+#[test]
+fn an_empty_mesh_is_empty_in_both_formats() {
+    for file in [write_binary(b"e", 0, &[]), write_ascii("e", &[], AsciiStyle::default())] {
+        let r = parse_chunked(&file, 3).result;
+        assert_eq!(r.map_err(|e| e.kind), Err(StlErrorKind::Empty));
+    }
+}
