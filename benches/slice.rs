@@ -1,2 +1,73 @@
-//! Placeholder, filled by its issue.
-fn main() {}
+//! Slicing throughput: 3DBenchy (225k triangles, parsed, placed and sorted before timing) cut
+//! into all 240 layers of closed contours at 0.2 mm, single-threaded, with `peak_needs` (the
+//! host's admission check) alongside. Run: `cargo bench --bench slice`. Skips with a message
+//! when `../shared/models` is absent.
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use strata::geom::Triangle;
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::place::{Bounds, Placement};
+use strata::slice::{peak_needs, Layer, SliceConfig, Slicer};
+
+/// Bench capacities: comfortably above 3DBenchy's peaks (4,685 active, 4,681 segments).
+type BenchSlicer = Slicer<8192, 8192, 256>;
+
+fn placed_sorted(bytes: &[u8]) -> Vec<Triangle> {
+    let mut raw = Vec::new();
+    let mut bounds = Bounds::EMPTY;
+    strata::stl::read_all(bytes, &mut |t| {
+        bounds.include(&t);
+        raw.push(t);
+    })
+    .expect("model parses");
+    let placement = Placement::on_bed(&bounds, &MachineConfig::default()).expect("fits the bed");
+    let mut tris: Vec<Triangle> = raw.iter().map(|t| placement.apply(t)).collect();
+    tris.sort_by_key(Triangle::z_min);
+    tris
+}
+
+/// One full run; returns the points emitted so nothing is optimised out.
+fn slice_all(slicer: &mut BenchSlicer, tris: &[Triangle], config: SliceConfig) -> usize {
+    slicer.reset(config).expect("valid config");
+    let mut points = 0usize;
+    let mut sink = |l: &Layer<'_>| points += black_box(l.points.len());
+    for t in tris {
+        slicer.push(t, &mut sink).expect("slices");
+    }
+    slicer.finish(&mut sink).expect("slices");
+    points
+}
+
+fn slice(c: &mut Criterion) {
+    let Some(dir) = common::shared_models() else {
+        eprintln!("slice: ../shared/models not found, nothing to measure");
+        return;
+    };
+    let bytes = std::fs::read(dir.join("3DBenchy.stl")).expect("read 3DBenchy.stl");
+    let tris = placed_sorted(&bytes);
+    let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
+    let config = SliceConfig::new(&PrintSettings::default(), top).expect("config");
+    let mut slicer = Box::new(BenchSlicer::new(config).expect("config"));
+    let mut group = c.benchmark_group("slice");
+    group
+        .sample_size(20)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(5))
+        .throughput(Throughput::Elements(tris.len() as u64));
+    group.bench_function("3DBenchy/240_layers", |b| {
+        b.iter(|| slice_all(&mut slicer, black_box(&tris), config))
+    });
+    group.bench_function("3DBenchy/peak_needs", |b| {
+        b.iter(|| peak_needs(black_box(&tris), &config).expect("needs"))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, slice);
+criterion_main!(benches);
