@@ -1,0 +1,85 @@
+//! Property tests: closed meshes in random orientations and positions slice into closed loops
+//! with zero repairs, correct orientation, and per-layer areas matching the f64 oracle.
+
+mod slice_support;
+
+use proptest::prelude::*;
+use slice_support::*;
+use strata::slice::LayerRepairs;
+
+/// Rotates `mesh` about its bounding-box centre (angles in radians, about x then y then z),
+/// then moves it so its minimum corner sits at `offset` (mm).
+fn rotate_and_place(mesh: &[TriMm], angles: [f64; 3], offset: [f64; 3]) -> Vec<TriMm> {
+    let (sa, ca) = angles[0].sin_cos();
+    let (sb, cb) = angles[1].sin_cos();
+    let (sc, cc) = angles[2].sin_cos();
+    let rot = |[x, y, z]: [f64; 3]| {
+        let (y, z) = (ca * y - sa * z, sa * y + ca * z);
+        let (x, z) = (cb * x + sb * z, -sb * x + cb * z);
+        [cc * x - sc * y, sc * x + cc * y, z]
+    };
+    let turned: Vec<TriMm> = mesh.iter().map(|t| t.map(rot)).collect();
+    let mut min = [f64::INFINITY; 3];
+    for p in turned.iter().flatten() {
+        for a in 0..3 {
+            min[a] = min[a].min(p[a]);
+        }
+    }
+    turned.iter().map(|t| t.map(|p| [0, 1, 2].map(|a| p[a] - min[a] + offset[a]))).collect()
+}
+
+fn check(mesh: &[TriMm]) -> Result<(), TestCaseError> {
+    let tris = to_um(mesh);
+    let (layers, stats) = slice(&tris, config(&tris, 0));
+    prop_assert_eq!(stats.repairs, LayerRepairs::default());
+    for l in &layers {
+        check_layer(l, &tris, "rotated");
+    }
+    Ok(())
+}
+
+/// Snaps every coordinate to a 0.1 mm grid, so many corners lie exactly on the planes
+/// (z = 0.1, 0.3, ... mm). Shared corners snap alike, so the mesh stays closed.
+fn snapped(mesh: Vec<TriMm>) -> Vec<TriMm> {
+    mesh.into_iter().map(|t| t.map(|p| p.map(|c| (c * 10.0).round() / 10.0))).collect()
+}
+
+fn angles() -> impl Strategy<Value = [f64; 3]> {
+    [0.0..std::f64::consts::TAU, 0.0..std::f64::consts::TAU, 0.0..std::f64::consts::TAU]
+}
+
+fn offset() -> impl Strategy<Value = [f64; 3]> {
+    [50.0..150.0f64, 50.0..150.0f64, 0.0..0.5f64]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    #[test]
+    fn rotated_torus_stays_closed(a in angles(), o in offset()) {
+        check(&rotate_and_place(&torus([0.0, 0.0, 0.0], 8.0, 3.0, 32, 12), a, o))?;
+    }
+
+    #[test]
+    fn rotated_holed_block_stays_closed(a in angles(), o in offset()) {
+        let outer = ngon(4, 0.0, 0.0, 10.0, 0.3);
+        let inner = ngon(4, 0.0, 0.0, 4.0, 0.3);
+        check(&rotate_and_place(&holed_prism(&outer, &inner, 0.0, 6.0), a, o))?;
+    }
+
+    #[test]
+    fn rotated_sphere_in_hollow_cube_stays_closed(a in angles(), o in offset()) {
+        let mut mesh = cuboid([-8.0, -8.0, -8.0], [8.0, 8.0, 8.0]);
+        mesh.extend(inverted(sphere([0.0, 0.0, 0.0], 6.0, 16, 8)));
+        mesh.extend(sphere([0.0, 0.0, 0.0], 3.0, 12, 6));
+        check(&rotate_and_place(&mesh, a, o))?;
+    }
+
+    #[test]
+    fn torus_snapped_to_the_plane_grid_stays_closed(a in angles(), o in offset()) {
+        let mesh = rotate_and_place(&torus([0.0, 0.0, 0.0], 8.0, 3.0, 32, 12), a, o);
+        let mesh = snapped(mesh);
+        prop_assert!(to_um(&mesh).iter().any(|t| t.v.iter().any(|p| p.z % 200 == 100)));
+        check(&mesh)?;
+    }
+}
