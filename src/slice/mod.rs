@@ -509,3 +509,21 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use core::mem::size_of;
+
+    #[test]
+    fn memory_per_capacity_unit_is_as_documented() {
+        assert_eq!(size_of::<PackedTriangle>(), 24);
+        assert_eq!(size_of::<intersect::Segment>() + 4 + 1 + 8 + size_of::<Point2>(), 37);
+        assert_eq!(size_of::<LoopInfo>() + size_of::<chain::Chain>(), 72);
+        let fixed = size_of::<Slicer<0, 0, 0>>();
+        assert!(fixed <= 200, "{fixed}");
+        let device = size_of::<Slicer<1024, 512, 32>>();
+        assert_eq!(device, fixed + 1024 * 24 + 512 * 37 + 32 * 72);
+        assert!(device < 46 * 1024, "{device}");
+    }
+}
