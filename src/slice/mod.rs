@@ -240,15 +240,18 @@ pub struct LayerRepairs {
 impl LayerRepairs {
     /// Joins plus bridges plus dropped chains.
     pub fn total(&self) -> u32 {
-        self.exact_joins + self.tolerance_joins + self.gaps_closed + self.dropped_chains
+        [self.tolerance_joins, self.gaps_closed, self.dropped_chains]
+            .iter()
+            .fold(self.exact_joins, |sum, &n| sum.saturating_add(n))
     }
 
     fn add(&mut self, other: &Self) {
-        self.exact_joins += other.exact_joins;
-        self.tolerance_joins += other.tolerance_joins;
-        self.gaps_closed += other.gaps_closed;
-        self.dropped_chains += other.dropped_chains;
-        self.dropped_segments += other.dropped_segments;
+        // Totals over a whole model: saturate rather than wrap.
+        self.exact_joins = self.exact_joins.saturating_add(other.exact_joins);
+        self.tolerance_joins = self.tolerance_joins.saturating_add(other.tolerance_joins);
+        self.gaps_closed = self.gaps_closed.saturating_add(other.gaps_closed);
+        self.dropped_chains = self.dropped_chains.saturating_add(other.dropped_chains);
+        self.dropped_segments = self.dropped_segments.saturating_add(other.dropped_segments);
     }
 }
 
@@ -420,7 +423,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         }
         let packed = PackedTriangle::pack(tri).ok_or(SliceError::OutOfRange { index })?;
         self.last_z_min = z_min;
-        self.stats.triangles += 1;
+        self.stats.triangles = self.stats.triangles.saturating_add(1);
         // Sorted input: no later triangle reaches below these planes, so they are complete.
         while self.next_layer < self.layers && z_min >= self.next_plane {
             self.cut_next(sink)?;
@@ -431,7 +434,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
             .crossed_planes(z_min, z_max)
             .is_some_and(|(first, _)| first == self.next_layer);
         if !spans {
-            self.stats.dropped_triangles += 1;
+            self.stats.dropped_triangles = self.stats.dropped_triangles.saturating_add(1);
             return Ok(());
         }
         let slot = self.active.get_mut(self.active_len).ok_or(SliceError::Capacity {
@@ -500,8 +503,8 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         st.peak_segments = st.peak_segments.max(out.segments);
         st.peak_points = st.peak_points.max(out.points.len() as u32);
         st.peak_loops = st.peak_loops.max(out.loops.len() as u32);
-        st.loops += out.loops.len() as u32;
-        st.dropped_small_loops += out.dropped_small_loops;
+        st.loops = st.loops.saturating_add(out.loops.len() as u32);
+        st.dropped_small_loops = st.dropped_small_loops.saturating_add(out.dropped_small_loops);
         st.repairs.add(&out.repairs);
         sink(&out);
         self.next_layer += 1;
