@@ -290,3 +290,41 @@ fn every_plane_gives_one_sink_call_and_finish_is_final() {
     slicer.reset(cfg).unwrap();
     assert_eq!(slicer.finish(&mut |_| {}).map(|s| s.layers), Ok(100));
 }
+
+#[test]
+fn nearly_shared_vertex_is_joined_within_tolerance() {
+    // One wall triangle of a cube sees its top corner 15 um off (an unshared duplicate
+    // vertex): its cuts miss the neighbours' by up to 15 um (growing with height; near the
+    // bottom the difference rounds away) and are joined by the near pass.
+    let mut mesh = cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 4.0]);
+    let w = mesh.iter().position(|t| t[0][2] != t[2][2]).unwrap();
+    for v in mesh[w].iter_mut().filter(|v| v[2] == 4.0) {
+        v[0] += 0.015;
+    }
+    let tris = to_um(&mesh);
+    let (layers, stats) = slice(&tris, config(&tris, 0));
+    assert!(layers.iter().all(|l| l.loops.len() == 1));
+    assert!(layers[10..].iter().all(|l| l.repairs.tolerance_joins > 0));
+    assert_eq!((stats.repairs.gaps_closed, stats.repairs.dropped_chains), (0, 0));
+    for l in &layers {
+        assert!((l.area_um2() - 400_000_000).abs() < 200_000, "{}", l.area_um2());
+    }
+}
+
+#[test]
+fn open_strip_shorter_than_its_gap_is_dropped_not_closed() {
+    // A lone vertical quad (an open surface 1 mm wide): one straight chain whose ends are as
+    // far apart as it is long. It must not be closed into a sliver: dropped and counted.
+    let strip = vec![
+        [[100.0, 100.0, 0.0], [101.0, 100.0, 0.0], [101.0, 100.0, 1.0]],
+        [[100.0, 100.0, 0.0], [101.0, 100.0, 1.0], [100.0, 100.0, 1.0]],
+    ];
+    let tris = to_um(&strip);
+    let (layers, stats) = slice(&tris, config(&tris, 0));
+    assert_eq!(layers.len(), 5);
+    for l in &layers {
+        assert!(l.loops.is_empty());
+        assert_eq!((l.repairs.dropped_chains, l.repairs.gaps_closed), (1, 0));
+    }
+    assert_eq!(stats.repairs.dropped_segments, 10);
+}

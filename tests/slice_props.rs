@@ -83,3 +83,43 @@ proptest! {
         check(&mesh)?;
     }
 }
+
+fn any_triangle() -> impl Strategy<Value = strata::geom::Triangle> {
+    // Corners on a coarse grid (so edges are shared, cuts chain, meet and need repairs),
+    // sometimes just outside the packable range.
+    let coord = prop_oneof![
+        20 => (0..8i32).prop_map(|k| k * 400),
+        1 => Just(-1i32),
+        1 => Just(strata::slice::MAX_COORD_UM + 1),
+    ];
+    let corner = (coord.clone(), coord.clone(), coord)
+        .prop_map(|(x, y, z)| strata::geom::Point3::new(x, y, z));
+    [corner.clone(), corner.clone(), corner].prop_map(|v| strata::geom::Triangle { v })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Arbitrary (sorted, broken) triangle soups: an `Ok` or a typed error, never a panic,
+    /// whatever the capacities.
+    #[test]
+    fn arbitrary_soup_never_panics(mut soup in proptest::collection::vec(any_triangle(), 0..60)) {
+        soup.sort_by_key(strata::geom::Triangle::z_min);
+        let top = 3_000; // the grid's top corner is at 2.8 mm
+        let cfg = strata::slice::SliceConfig::new(&strata::machine::PrintSettings::default(), top)
+            .unwrap();
+        let _ = run::<16, 16, 4>(&soup, cfg);
+        if let Ok((layers, _)) = run::<256, 256, 64>(&soup, cfg) {
+            // Whatever came in, what comes out is well formed.
+            prop_assert_eq!(layers.len() as u32, cfg.layer_count());
+            for l in &layers {
+                for lp in &l.loops {
+                    let doubled = strata::geom::doubled_signed_area(&lp.points);
+                    prop_assert!(lp.points.len() >= 3 && doubled != 0);
+                    prop_assert_eq!(doubled > 0, !lp.hole);
+                }
+            }
+        }
+        let _ = strata::slice::peak_needs(&soup, &cfg);
+    }
+}
