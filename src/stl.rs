@@ -277,14 +277,28 @@ impl StlReader {
         chunk: &[u8],
         sink: &mut impl FnMut(RawTriangle),
     ) -> Result<(), StlError> {
-        let result = match self.phase {
-            Phase::Failed(kind) => return Err(StlError { kind, offset: self.pos }),
-            Phase::Done => Err(StlError { kind: StlErrorKind::AfterFinish, offset: self.pos }),
-            Phase::Detect => self.feed_detect(chunk, sink),
-            Phase::Binary => self.feed_binary(chunk, sink),
-            Phase::Ascii => self.feed_ascii(chunk, sink),
-        };
+        let result = self.feed_inner(chunk, sink);
         self.fail_on(result)
+    }
+
+    fn feed_inner(
+        &mut self,
+        chunk: &[u8],
+        sink: &mut impl FnMut(RawTriangle),
+    ) -> Result<(), StlError> {
+        let mut chunk = chunk;
+        if self.phase == Phase::Detect {
+            chunk = self.feed_detect(chunk, sink)?;
+        }
+        match self.phase {
+            Phase::Failed(kind) => Err(StlError { kind, offset: self.pos }),
+            Phase::Done => Err(self.error(StlErrorKind::AfterFinish)),
+            Phase::Detect => Ok(()),
+            Phase::Binary => self.feed_binary(chunk, sink),
+            // One non-generic copy of the ASCII parser: a dynamic call per facet is nothing
+            // next to parsing its twelve numbers.
+            Phase::Ascii => self.feed_ascii(chunk, sink),
+        }
     }
 
     /// Ends the input: reports what the file held, or why it is not a usable STL.
@@ -345,7 +359,7 @@ impl StlReader {
 
     /// Counts a facet and passes it on unless it has zero area.
     #[inline(always)]
-    fn emit(&mut self, t: RawTriangle, sink: &mut impl FnMut(RawTriangle)) {
+    fn emit<F: FnMut(RawTriangle) + ?Sized>(&mut self, t: RawTriangle, sink: &mut F) {
         self.triangles = self.triangles.saturating_add(1);
         if is_degenerate(&t.vertices) {
             self.degenerate = self.degenerate.saturating_add(1);
@@ -356,11 +370,12 @@ impl StlReader {
 
     // ---- detection ----
 
-    fn feed_detect(
+    /// Buffers header bytes; once there are 84, picks the format. Returns the unused rest.
+    fn feed_detect<'c>(
         &mut self,
-        chunk: &[u8],
-        sink: &mut impl FnMut(RawTriangle),
-    ) -> Result<(), StlError> {
+        chunk: &'c [u8],
+        sink: &mut dyn FnMut(RawTriangle),
+    ) -> Result<&'c [u8], StlError> {
         let held = usize::from(self.held);
         let take = HEADER_LEN.saturating_sub(held).min(chunk.len());
         let (head, rest) = chunk.split_at(take);
@@ -369,19 +384,15 @@ impl StlReader {
         }
         self.held += take as u8; // <= 84
         self.pos += take as u64;
-        if usize::from(self.held) < HEADER_LEN {
-            return Ok(());
+        if usize::from(self.held) == HEADER_LEN {
+            self.start(sink)?;
         }
-        self.start(sink)?;
-        match self.phase {
-            Phase::Binary => self.feed_binary(rest, sink),
-            _ => self.feed_ascii(rest, sink),
-        }
+        Ok(rest)
     }
 
     /// Decides the format from the held header bytes (84, or fewer at the end of a short file)
     /// and starts that parser on them.
-    fn start(&mut self, sink: &mut impl FnMut(RawTriangle)) -> Result<(), StlError> {
+    fn start(&mut self, sink: &mut dyn FnMut(RawTriangle)) -> Result<(), StlError> {
         let header = self.buf;
         let head = header.get(..usize::from(self.held)).unwrap_or(&[]);
         self.held = 0;
@@ -502,7 +513,7 @@ impl StlReader {
     fn feed_ascii(
         &mut self,
         chunk: &[u8],
-        sink: &mut impl FnMut(RawTriangle),
+        sink: &mut dyn FnMut(RawTriangle),
     ) -> Result<(), StlError> {
         let start = self.pos;
         let offset_of = |rest: &[u8]| start + (chunk.len() - rest.len()) as u64;
@@ -530,13 +541,16 @@ impl StlReader {
                 break;
             };
             let (tail, after) = rest.split_at(end);
-            if self.held == 0 {
-                self.token(tail, offset_of(rest), sink)?;
+            let facet = if self.held == 0 {
+                self.token(tail, offset_of(rest))?
             } else {
                 // Only at the chunk start: the held bytes end right before `tail`.
                 let at = start - u64::from(self.held);
                 let (buf, len) = self.take_token(tail, at)?;
-                self.token(buf.get(..len).unwrap_or(&[]), at, sink)?;
+                self.token(buf.get(..len).unwrap_or(&[]), at)?
+            };
+            if let Some(t) = facet {
+                self.emit(t, sink);
             }
             rest = after;
         }
@@ -573,14 +587,11 @@ impl StlReader {
         Ok((token, len))
     }
 
-    /// One complete token starting at file offset `at`, checked against the grammar.
-    fn token(
-        &mut self,
-        token: &[u8],
-        at: u64,
-        sink: &mut impl FnMut(RawTriangle),
-    ) -> Result<(), StlError> {
+    /// One complete token starting at file offset `at`, checked against the grammar; returns
+    /// the facet its `endloop` completes.
+    fn token(&mut self, token: &[u8], at: u64) -> Result<Option<RawTriangle>, StlError> {
         let fail = |kind| Err(StlError { kind, offset: at });
+        let mut complete = None;
         if token.len() > MAX_TOKEN {
             return fail(StlErrorKind::TokenTooLong);
         }
@@ -601,11 +612,10 @@ impl StlReader {
                     Some(Step::Keyword(k)) if keyword(token, k) => {}
                     Some(Step::Close(k)) if keyword(token, k) => {
                         let [nx, ny, nz, ax, ay, az, bx, by, bz, cx, cy, cz] = self.facet;
-                        let t = RawTriangle {
+                        complete = Some(RawTriangle {
                             normal: [nx, ny, nz],
                             vertices: [[ax, ay, az], [bx, by, bz], [cx, cy, cz]],
-                        };
-                        self.emit(t, sink);
+                        });
                     }
                     Some(&Step::Number(slot)) => {
                         let Some(v) = parse_f32(token) else {
@@ -631,16 +641,16 @@ impl StlReader {
             }
             _ => return fail(StlErrorKind::UnknownToken),
         }
-        Ok(())
+        Ok(complete)
     }
 
     fn finish_ascii(&mut self) -> Result<StlSummary, StlError> {
         if self.held > 0 {
-            // The last token ends with the input. It cannot complete a facet (`endloop` would
-            // still need `endfacet`), so nothing reaches the sink here.
+            // The last token ends with the input. A facet completed by it (`endloop`) still
+            // lacks its `endfacet`: an error follows, so the facet is dropped.
             let at = self.pos - u64::from(self.held);
             let (buf, len) = self.take_token(&[], at)?;
-            self.token(buf.get(..len).unwrap_or(&[]), at, &mut |_| {})?;
+            self.token(buf.get(..len).unwrap_or(&[]), at)?;
         }
         let mut summary = self.summary(StlFormat::Ascii);
         match self.expect {
