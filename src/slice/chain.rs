@@ -5,7 +5,7 @@
 //! segment is then linked to a not-yet-claimed segment starting where it ends. On a closed,
 //! consistently wound mesh every cut point has as many segments ending as starting there, so
 //! the links form cycles only, whatever is chosen at points where loops touch. Segments left
-//! without predecessor start open chains, which [`repair`](super::repair) joins or drops.
+//! without predecessor start open chains, which `repair` joins or drops.
 
 use crate::geom::{doubled_signed_area, Point2};
 

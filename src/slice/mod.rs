@@ -6,13 +6,13 @@
 //! not yet cut. A triangle crossing no plane is dropped on arrival; a triangle leaves the set
 //! once the sweep has passed its highest z. Every layer goes through these stages:
 //!
-//! 1. [`intersect`]: each active triangle is cut exactly in integers (corners classified
+//! 1. `intersect`: each active triangle is cut exactly in integers (corners classified
 //!    below `z < p` / above `z >= p`; crossings computed on canonically ordered edges, so
 //!    shared edges give identical points);
-//! 2. [`chain`]: segments are linked end-to-start through an open-addressing endpoint hash;
-//! 3. [`repair`]: open chains (broken meshes only) are joined exactly, then within a small
+//! 2. `chain`: segments are linked end-to-start through an open-addressing endpoint hash;
+//! 3. `repair`: open chains (broken meshes only) are joined exactly, then within a small
 //!    tolerance, then across gaps up to 2 mm; the rest are dropped and counted;
-//! 4. [`nest`]: loops below the minimum area are dropped, the rest get their depth, parent
+//! 4. `nest`: loops below the minimum area are dropped, the rest get their depth, parent
 //!    and orientation (outer counter-clockwise, holes clockwise).
 //!
 //! No floats, no allocation, no panics on input: coordinates outside the packable range,
