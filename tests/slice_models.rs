@@ -7,7 +7,8 @@ mod slice_support;
 
 use std::path::Path;
 
-use slice_support::{load_placed, run, top, OwnedLayer};
+use slice_support::{check_layer_within, load_placed, run, top, OwnedLayer};
+use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::slice::{peak_needs, LayerRepairs, SliceConfig, SliceStats};
 
@@ -35,14 +36,23 @@ fn big_machine() -> MachineConfig {
     m
 }
 
-fn slice_file(
-    path: &Path,
-) -> (Vec<OwnedLayer>, SliceStats, SliceConfig, Vec<strata::geom::Triangle>) {
+fn slice_file(path: &Path) -> (Vec<OwnedLayer>, SliceStats, SliceConfig, Vec<Triangle>) {
     let tris = load_placed(path, &big_machine());
     let config = SliceConfig::new(&PrintSettings::default(), top(&tris)).unwrap();
     let (layers, stats) = run::<8192, 8192, 1024>(&tris, config)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     (layers, stats, config, tris)
+}
+
+/// Every layer's area against the f64 oracle, within the area of its dropped small loops.
+fn check_areas(layers: &[OwnedLayer], tris: &[Triangle], config: &SliceConfig, file: &str) {
+    for l in layers {
+        let z = l.z_um;
+        let below = tris.partition_point(|t| t.z_min() < z);
+        let cut: Vec<_> = tris[..below].iter().filter(|t| t.z_max() >= z).copied().collect();
+        let dropped = f64::from(l.dropped_small_loops) * config.min_loop_area_um2 as f64;
+        check_layer_within(l, &cut, file, dropped);
+    }
 }
 
 #[test]
@@ -68,6 +78,10 @@ fn every_model_slices_with_readme_layer_counts_and_closed_mesh_needs_no_repair()
                 assert_eq!(l.repairs, LayerRepairs::default(), "{file} layer {}", l.index);
                 assert!(l.loops.iter().all(|x| x.points.len() >= 3), "{file} layer {}", l.index);
             }
+            // Areas against the f64 Green's-theorem oracle (which sees no chaining or
+            // nesting): outer minus holes must equal the mesh's signed section area, give or
+            // take the loops dropped for being smaller than the minimum area.
+            check_areas(&layers, &tris, &config, file);
             // Every layer of a watertight model has material (fertility's 2 layers included),
             // except where the model's section is below the minimum loop area.
             let empty = layers.iter().filter(|l| l.loops.is_empty()).count();
@@ -99,10 +113,14 @@ fn embodier_bin_is_sliced_and_its_repairs_reported() {
 #[test]
 fn benchy_slices_240_layers_with_repairs_reported() {
     let Some(dir) = common::shared_models() else { return };
-    let (layers, stats, _, tris) = slice_file(&dir.join("3DBenchy.stl"));
+    let (layers, stats, config, tris) = slice_file(&dir.join("3DBenchy.stl"));
     // The parser drops the 19 zero-area facets.
     assert_eq!((tris.len(), layers.len()), (225_135, 240));
     eprintln!("3DBenchy: {stats:?}");
     assert!(layers.iter().all(|l| !l.loops.is_empty()));
     assert_eq!(stats.repairs.dropped_chains, 0, "{:?}", stats.repairs);
+    // Its 6 edges shared by 4 faces are consistently wound, so its cuts close exactly; the
+    // areas then match the f64 oracle like a watertight model's.
+    assert_eq!(stats.repairs, LayerRepairs::default());
+    check_areas(&layers, &tris, &config, "3DBenchy.stl");
 }

@@ -279,9 +279,14 @@ pub fn load_placed(path: &Path, machine: &MachineConfig) -> Vec<Triangle> {
 /// Checks one layer against the oracle: area within 0.1 % (or 1 um x the cut length for
 /// slivers), every loop oriented as its `hole` flag says, holes having a parent.
 pub fn check_layer(layer: &OwnedLayer, tris: &[Triangle], what: &str) {
+    check_layer_within(layer, tris, what, 0.0);
+}
+
+/// [`check_layer`] with `extra_um2` more area tolerance (for loops dropped as too small).
+pub fn check_layer_within(layer: &OwnedLayer, tris: &[Triangle], what: &str, extra_um2: f64) {
     let (oracle, length) = section_area_f64(tris, f64::from(layer.z_um));
     let got = layer.area_um2() as f64;
-    let tol = (oracle.abs() * 1e-3).max(length);
+    let tol = (oracle.abs() * 1e-3).max(length) + extra_um2;
     assert!(
         (got - oracle).abs() <= tol,
         "{what} layer {} z {}: area {got} um^2, oracle {oracle} (tol {tol})",
