@@ -5,6 +5,8 @@
 //! vertices that lie on the other loop). Even depth = outer boundary, turned counter-
 //! clockwise; odd depth = hole, turned clockwise. The parent is the smallest container. This
 //! follows the even-odd rule, so it does not depend on the mesh's winding being right.
+//! Cost: O(L^2) box tests for L loops in a layer, plus one point-in-polygon walk of the
+//! container per box hit.
 
 use crate::geom::Point2;
 
