@@ -7,7 +7,7 @@
 //! Stages (one module each), in data-flow order:
 //! - [`stl`]: incremental push parser for binary and ASCII STL (any chunking, typed errors).
 //! - [`place`]: drop the model onto the bed, centre it, quantise to micrometres.
-//! - [`slice`]: sweep-plane slicer over a zmin-sorted triangle stream, one layer at a time.
+//! - [`slice`](mod@slice): sweep-plane slicer over a zmin-sorted triangle stream, one layer at a time.
 //!
 //! Shared foundations: [`geom`] (integer micrometre geometry) and [`machine`] (printer profile
 //! and print settings with validation).

@@ -1,9 +1,9 @@
 //! Placement: drop the model onto the bed, centre it in X/Y, quantise to micrometres.
 //!
 //! Runs once per job on the host (where the file is read); the device receives placed
-//! triangles. The arithmetic is `f64` on purpose: it is not a hot path on the device, and
-//! `f64` represents every `f32` file coordinate and its offset sum without rounding error
-//! for any model inside the 10 m the STL reader accepts.
+//! triangles. The arithmetic is `f64` on purpose: it is not a hot path on the device, every
+//! `f32` file coordinate converts exactly, and the sum with the offset is off by at most
+//! 1e-12 mm for any model inside the 10 m the STL reader accepts, far below the 1 um grid.
 
 use core::fmt;
 
@@ -87,9 +87,9 @@ impl Bounds {
     /// Grows the bounds to hold every corner of `t`.
     pub fn include(&mut self, t: &RawTriangle) {
         for v in &t.vertices {
-            for axis in 0..3 {
-                self.min[axis] = self.min[axis].min(v[axis]);
-                self.max[axis] = self.max[axis].max(v[axis]);
+            for ((lo, hi), &c) in self.min.iter_mut().zip(self.max.iter_mut()).zip(v) {
+                *lo = lo.min(c);
+                *hi = hi.max(c);
             }
         }
     }
