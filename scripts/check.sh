@@ -27,4 +27,8 @@ step "docs"
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p strata -p strata-host --quiet
 
 step "tests"
-cargo test --workspace --exclude strata-firmware
+log=$(mktemp)
+cargo test --workspace --exclude strata-firmware 2>&1 | tee "$log"
+# One closing line for the whole run (cargo prints one per test binary, doc tests last).
+awk '/^test result:/ { p += $4; f += $6 } END { printf "\ntests: %d passed, %d failed\n", p, f }' "$log"
+rm -f "$log"
