@@ -25,5 +25,7 @@
 pub mod geom;
 pub mod machine;
 pub mod place;
+pub mod plan;
 pub mod slice;
 pub mod stl;
+pub mod toolpath;

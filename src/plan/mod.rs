@@ -1,0 +1,748 @@
+//! Lookahead motion planner: [`Move`]s in, trapezoidal [`Block`]s out.
+//!
+//! # Model
+//! A move goes in a straight line from the previous target to its own target (X, Y, Z, E in
+//! um). Its path length is the XYZ distance (the E distance for an extruder-only move); E is a
+//! coordinated axis that follows the path in proportion. Each move gets
+//! - a cruise limit: the feed rate, lowered so that no axis exceeds its maximum feed rate
+//!   along the move's direction (`v |d_i| / L <= vmax_i`);
+//! - an acceleration: print or travel acceleration by [`MoveKind`], lowered so that no axis
+//!   exceeds its maximum acceleration along the direction (`a |d_i| / L <= amax_i`);
+//! - a start-speed limit at the junction with the previous move: junction
+//!   deviation from the square-corner velocity (Klipper's formulation, so a 90 degree corner
+//!   passes at exactly the square-corner velocity), the cap that keeps the approximating arc
+//!   inside the shorter half of each move, the extruder's allowed velocity jump (1 mm/s by
+//!   default) and both moves' cruise limits. Extruder-only moves start and end at rest.
+//!
+//! # Lookahead
+//! The queue holds up to `N` moves (const generic). Speeds are tracked squared (`v^2`, so
+//! `v_end^2 = v_start^2 + 2 a L` is linear). The end of the queue is always assumed to stop.
+//! Pushing a move runs the backward pass from the new tail only until a move's reachable start
+//! speed comes out unchanged (nothing before it can change either), then the forward pass over
+//! just the changed range. The head's start speed is fixed (the previous block ended there).
+//! The head leaves the queue with [`Planner::pop`] once its exit speed can no longer rise (it
+//! already equals the junction limit or the speed reachable by accelerating through it: more
+//! moves behind it can only relax the stop at the end of the queue), or with
+//! [`Planner::pop_forced`] at any time (end of input, a full queue, a hungry step generator):
+//! its profile then still ends at a speed the queued moves can stop from. A queue that is too
+//! short therefore only slows motion down; it never breaks a limit.
+//!
+//! # Profile and time
+//! A [`Block`] is a trapezoid (accelerate, cruise, decelerate; a short move may never reach
+//! cruise). Its exact duration, in timer ticks with 16 fraction bits, is the sum of the three
+//! phase times, and [`Block::time_at_q16`] gives the time at any distance along the move; the
+//! step generator uses exactly these formulas, so the planner's print-time estimate is the
+//! executed motion's duration.
+//!
+//! # Units (all integer, no floating point)
+//! lengths um q32 (`u64`), speeds um/s q16, speeds squared um^2/s^2 q16, accelerations
+//! um/s^2 q16, times timer ticks q16, directions q62. Square roots are exact
+//! ([`math::isqrt_u128`]). Rates given as [`Rate`] (mm/s, mm/s^2) are clamped to 10 m/s and
+//! 1000 m/s^2, and moves to 2^24 um (16.7 m) per axis, so that no intermediate overflows.
+
+use core::fmt;
+
+use fixed::types::U32F32;
+
+use crate::machine::{MachineConfig, Rate, AXES};
+
+mod junction;
+pub mod math;
+
+use math::{isqrt_u128, sat_u64};
+
+/// Largest per-axis distance of one move, in um (2^24 um = 16.7 m).
+pub const MAX_AXIS_DELTA_UM: i64 = 1 << 24;
+
+/// Cap of every speed-squared value (um^2/s^2 q16); sums of two never overflow `u64`.
+const V2_MAX: u64 = 1 << 62;
+/// 10 m/s in um/s q16.
+const MAX_SPEED_Q16: u64 = 10_000_000 << 16;
+/// 1000 m/s^2 in um/s^2 q16.
+const MAX_ACCEL_Q16: u64 = 1_000_000_000 << 16;
+/// sqrt(2) - 1 in q62.
+const SQRT2_M1_Q62: u128 = math::isqrt_u128(2 << 124) - (1 << 62);
+
+/// What a move does; chooses its acceleration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MoveKind {
+    /// Extruding move: print acceleration.
+    Print,
+    /// Non-extruding move: travel acceleration.
+    Travel,
+    /// Retraction or unretraction (usually extruder only): travel acceleration.
+    Retract,
+}
+
+/// One straight move to an absolute target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Move {
+    /// Target X, Y, Z, E in um.
+    pub target_um: [i32; AXES],
+    /// Requested speed along the path (XYZ, or E for an extruder-only move), mm/s.
+    pub feed_mm_s: Rate,
+    /// Print, travel or retract.
+    pub kind: MoveKind,
+}
+
+impl Move {
+    /// A move to `target_um` at `feed_mm_s`.
+    pub const fn new(target_um: [i32; AXES], feed_mm_s: Rate, kind: MoveKind) -> Self {
+        Self { target_um, feed_mm_s, kind }
+    }
+}
+
+/// Limits and timing for the planner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct PlanConfig {
+    /// Timer frequency the times are expressed in, Hz (72 MHz on the board).
+    pub timer_hz: u32,
+    /// Maximum feed rate per axis X, Y, Z, E in mm/s.
+    pub max_feed_mm_s: [Rate; AXES],
+    /// Maximum acceleration per axis X, Y, Z, E in mm/s^2.
+    pub max_accel_mm_s2: [Rate; AXES],
+    /// Acceleration of print moves, mm/s^2.
+    pub print_accel_mm_s2: Rate,
+    /// Acceleration of travel and retract moves, mm/s^2.
+    pub travel_accel_mm_s2: Rate,
+    /// Square-corner velocity (speed through a 90 degree corner), mm/s.
+    pub square_corner_velocity_mm_s: Rate,
+    /// Largest jump of the extruder's velocity at a junction, mm/s (Klipper's
+    /// `instantaneous_corner_velocity`).
+    pub extruder_corner_velocity_mm_s: Rate,
+}
+
+impl PlanConfig {
+    /// The planner limits of `machine`, a 72 MHz timer and a 1 mm/s extruder corner velocity.
+    pub fn from_machine(machine: &MachineConfig) -> Self {
+        Self {
+            timer_hz: 72_000_000,
+            max_feed_mm_s: machine.max_feed_mm_s,
+            max_accel_mm_s2: machine.max_accel_mm_s2,
+            print_accel_mm_s2: machine.print_accel_mm_s2,
+            travel_accel_mm_s2: machine.travel_accel_mm_s2,
+            square_corner_velocity_mm_s: machine.square_corner_velocity_mm_s,
+            extruder_corner_velocity_mm_s: Rate::ONE,
+        }
+    }
+}
+
+impl Default for PlanConfig {
+    /// The stock Ender-3 ([`MachineConfig::default`]).
+    fn default() -> Self {
+        Self::from_machine(&MachineConfig::default())
+    }
+}
+
+/// Why a move was not queued.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PlanError {
+    /// The lookahead queue is full: pop a block first.
+    QueueFull,
+    /// The feed rate is zero.
+    ZeroFeed,
+    /// One axis moves more than [`MAX_AXIS_DELTA_UM`].
+    MoveTooLong {
+        /// The axis (0 = X .. 3 = E).
+        axis: u8,
+    },
+}
+
+impl fmt::Display for PlanError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::QueueFull => write!(f, "planner queue is full"),
+            Self::ZeroFeed => write!(f, "move has a feed rate of zero"),
+            Self::MoveTooLong { axis } => {
+                write!(f, "move on axis {axis} is longer than {MAX_AXIS_DELTA_UM} um")
+            }
+        }
+    }
+}
+
+/// mm/s (or mm/s^2) as `Rate` to um/s q16, clamped to `max`.
+fn rate_to_q16(r: Rate, max: u64) -> u64 {
+    sat_u64((r.to_bits() as u128 * 1000) >> 16).min(max)
+}
+
+/// um/s q16 (or um/s^2) back to mm/s as `Rate` (saturating).
+fn q16_to_rate(v: u64) -> Rate {
+    Rate::from_bits(sat_u64(((v as u128) << 16) / 1000))
+}
+
+/// Speed q16 squared to v^2 q16.
+fn square_q16(v: u64) -> u64 {
+    sat_u64((v as u128 * v as u128) >> 16).min(V2_MAX)
+}
+
+/// Speed q16 from v^2 q16.
+fn sqrt_q16(v2: u64) -> u64 {
+    isqrt_u128((v2 as u128) << 16) as u64
+}
+
+/// The configuration in internal units.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Limits {
+    vmax2_q16: [u64; AXES],
+    amax_q16: [u64; AXES],
+    print_accel_q16: u64,
+    travel_accel_q16: u64,
+    /// scv^2 (sqrt2 - 1), um^2/s^2 q16.
+    scv2_jd_q16: u64,
+    ecv_q16: u64,
+    timer_hz: u32,
+}
+
+impl Limits {
+    fn new(c: &PlanConfig) -> Self {
+        let scv = rate_to_q16(c.square_corner_velocity_mm_s, MAX_SPEED_Q16);
+        Self {
+            vmax2_q16: c.max_feed_mm_s.map(|r| square_q16(rate_to_q16(r, MAX_SPEED_Q16))),
+            amax_q16: c.max_accel_mm_s2.map(|r| rate_to_q16(r, MAX_ACCEL_Q16)),
+            print_accel_q16: rate_to_q16(c.print_accel_mm_s2, MAX_ACCEL_Q16),
+            travel_accel_q16: rate_to_q16(c.travel_accel_mm_s2, MAX_ACCEL_Q16),
+            scv2_jd_q16: sat_u64((square_q16(scv) as u128 * SQRT2_M1_Q62) >> 62),
+            ecv_q16: rate_to_q16(c.extruder_corner_velocity_mm_s, MAX_SPEED_Q16),
+            timer_hz: c.timer_hz.max(1),
+        }
+    }
+}
+
+/// Geometry and limits of one move, as the junction with the next move needs them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Geom {
+    /// XYZ direction, q62 (zero for an extruder-only move).
+    unit: [i64; 3],
+    /// Path length, um q32.
+    len_q32: u64,
+    /// Acceleration along the path, um/s^2 q16.
+    accel_q16: u64,
+    /// Cruise limit, v^2 q16.
+    cruise_v2: u64,
+    /// E distance per path distance, q62.
+    e_ratio_q62: i128,
+    /// Moves X, Y or Z.
+    kinematic: bool,
+}
+
+/// A queued move and its current plan.
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    start_um: [i32; AXES],
+    end_um: [i32; AXES],
+    kind: MoveKind,
+    len_q32: u64,
+    accel_q16: u64,
+    cruise_v2: u64,
+    /// v^2 gained (or lost) over the whole move at full acceleration: 2 a L.
+    delta_v2: u64,
+    /// Junction limit of the start speed (includes both cruise limits).
+    max_start_v2: u64,
+    /// Largest start speed from which the rest of the queue can still stop.
+    back_v2: u64,
+    /// Planned start speed.
+    start_v2: u64,
+}
+
+impl Entry {
+    const EMPTY: Self = Self {
+        start_um: [0; AXES],
+        end_um: [0; AXES],
+        kind: MoveKind::Travel,
+        len_q32: 0,
+        accel_q16: 0,
+        cruise_v2: 0,
+        delta_v2: 0,
+        max_start_v2: 0,
+        back_v2: 0,
+        start_v2: 0,
+    };
+}
+
+/// A planned move: trapezoidal speed profile with exact phase times.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Block {
+    start_um: [i32; AXES],
+    end_um: [i32; AXES],
+    kind: MoveKind,
+    len_q32: u64,
+    accel_q16: u64,
+    /// Start, cruise and end speed squared, um^2/s^2 q16.
+    v2: [u64; 3],
+    /// Start, cruise and end speed, um/s q16.
+    v: [u64; 3],
+    /// Distance where acceleration ends and where deceleration starts, um q32.
+    accel_end_q32: u64,
+    decel_start_q32: u64,
+    /// Time where acceleration ends, where deceleration starts, and the whole duration, ticks
+    /// q16.
+    t_accel_q16: u64,
+    t_decel_q16: u64,
+    t_total_q16: u64,
+    timer_hz: u32,
+}
+
+impl Block {
+    fn new(e: &Entry, end_v2: u64, timer_hz: u32) -> Self {
+        let (s2, e2) = (e.start_v2, end_v2);
+        let peak = (s2 + e2 + e.delta_v2) / 2;
+        let c2 = e.cruise_v2.min(peak).max(s2).max(e2);
+        let a = e.accel_q16.max(1) as u128;
+        let len = e.len_q32;
+        // Distances of the ramps: (vc^2 - v^2) / 2a, um q32.
+        let ramp = |dv2: u64| sat_u64(((dv2 as u128) << 32) / (2 * a)).min(len);
+        let s_acc = ramp(c2 - s2);
+        let s_dec = ramp(c2 - e2).min(len - s_acc);
+        let s_cruise = len - s_acc - s_dec;
+        let v = [sqrt_q16(s2), sqrt_q16(c2), sqrt_q16(e2)];
+        let f = timer_hz as u128;
+        // Ramp time 2 s / (v_a + v_b); cruise time s / v; ticks q16.
+        let ramp_t = |s: u64, va: u64, vb: u64| {
+            if s == 0 {
+                0
+            } else {
+                sat_u64(2 * s as u128 * f / (va as u128 + vb as u128).max(1))
+            }
+        };
+        let t_acc = ramp_t(s_acc, v[0], v[1]);
+        let t_cruise =
+            if s_cruise == 0 { 0 } else { sat_u64(s_cruise as u128 * f / (v[1] as u128).max(1)) };
+        let t_dec = ramp_t(s_dec, v[1], v[2]);
+        Self {
+            start_um: e.start_um,
+            end_um: e.end_um,
+            kind: e.kind,
+            len_q32: len,
+            accel_q16: e.accel_q16,
+            v2: [s2, c2, e2],
+            v,
+            accel_end_q32: s_acc,
+            decel_start_q32: s_acc + s_cruise,
+            t_accel_q16: t_acc,
+            t_decel_q16: t_acc + t_cruise,
+            t_total_q16: t_acc + t_cruise + t_dec,
+            timer_hz,
+        }
+    }
+
+    /// Start position X, Y, Z, E in um.
+    pub fn start_um(&self) -> [i32; AXES] {
+        self.start_um
+    }
+
+    /// End position X, Y, Z, E in um.
+    pub fn end_um(&self) -> [i32; AXES] {
+        self.end_um
+    }
+
+    /// The kind of the move.
+    pub fn kind(&self) -> MoveKind {
+        self.kind
+    }
+
+    /// Path length in um, q32.
+    pub fn length_um_q32(&self) -> u64 {
+        self.len_q32
+    }
+
+    /// Acceleration along the path, mm/s^2.
+    pub fn accel_mm_s2(&self) -> Rate {
+        q16_to_rate(self.accel_q16)
+    }
+
+    /// Speed at the start, mm/s.
+    pub fn start_speed_mm_s(&self) -> Rate {
+        q16_to_rate(self.v[0])
+    }
+
+    /// Cruise (peak) speed, mm/s.
+    pub fn cruise_speed_mm_s(&self) -> Rate {
+        q16_to_rate(self.v[1])
+    }
+
+    /// Speed at the end, mm/s.
+    pub fn end_speed_mm_s(&self) -> Rate {
+        q16_to_rate(self.v[2])
+    }
+
+    /// Whether the move ends at rest.
+    pub fn ends_at_rest(&self) -> bool {
+        self.v2[2] == 0
+    }
+
+    /// Duration in timer ticks, q16.
+    pub fn duration_ticks_q16(&self) -> u64 {
+        self.t_total_q16
+    }
+
+    /// Duration in seconds.
+    pub fn duration_s(&self) -> U32F32 {
+        ticks_q16_to_s(self.t_total_q16, self.timer_hz)
+    }
+
+    /// Ticks q16 at which acceleration ends, deceleration starts, and the move ends.
+    pub fn phase_ticks_q16(&self) -> [u64; 3] {
+        [self.t_accel_q16, self.t_decel_q16, self.t_total_q16]
+    }
+
+    /// Distances in um q32 at which acceleration ends and deceleration starts.
+    pub fn phase_um_q32(&self) -> [u64; 2] {
+        [self.accel_end_q32, self.decel_start_q32]
+    }
+
+    /// Time (ticks q16 from the start of the move) at which the path reaches `dist_q32` (um
+    /// q32; clamped to the length). Acceleration `t = 2 s / (v0 + sqrt(v0^2 + 2 a s))`, cruise
+    /// `t = t_a + (s - s_a) / vc`, deceleration measured back from the end with the mirror
+    /// formula: no cancellation near either end of the move.
+    pub fn time_at_q16(&self, dist_q32: u64) -> u64 {
+        let s = dist_q32.min(self.len_q32);
+        let f = self.timer_hz as u128;
+        // Time to cover `d` from speed `v` (q16) at full acceleration.
+        let ramp = |d: u64, v: u64, v2: u64| -> u64 {
+            if d == 0 {
+                return 0;
+            }
+            let w = v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32);
+            let vd = isqrt_u128(w << 16);
+            sat_u64(2 * d as u128 * f / (v as u128 + vd).max(1))
+        };
+        if s <= self.accel_end_q32 {
+            ramp(s, self.v[0], self.v2[0]).min(self.t_accel_q16)
+        } else if s <= self.decel_start_q32 {
+            let t = sat_u64((s - self.accel_end_q32) as u128 * f / (self.v[1] as u128).max(1));
+            (self.t_accel_q16 + t).min(self.t_decel_q16)
+        } else {
+            let back = ramp(self.len_q32 - s, self.v[2], self.v2[2]);
+            self.t_total_q16.saturating_sub(back).max(self.t_decel_q16)
+        }
+    }
+}
+
+/// Ticks q16 to seconds.
+fn ticks_q16_to_s(t_q16: u64, timer_hz: u32) -> U32F32 {
+    U32F32::from_bits(sat_u64(((t_q16 as u128) << 16) / timer_hz.max(1) as u128))
+}
+
+/// The lookahead planner with a queue of `N` moves.
+#[derive(Debug, Clone)]
+pub struct Planner<const N: usize> {
+    lim: Limits,
+    ring: [Entry; N],
+    head: usize,
+    len: usize,
+    position_um: [i32; AXES],
+    /// Geometry of the last pushed move, for the junction with the next one.
+    last: Option<Geom>,
+    /// End speed^2 of the last released block: the fixed start of the head.
+    exit_v2: u64,
+    released_q16: u64,
+    released: u32,
+}
+
+impl<const N: usize> Planner<N> {
+    /// An empty planner at `position_um` (X, Y, Z, E), at rest.
+    pub fn new(config: &PlanConfig, position_um: [i32; AXES]) -> Self {
+        Self {
+            lim: Limits::new(config),
+            ring: [Entry::EMPTY; N],
+            head: 0,
+            len: 0,
+            position_um,
+            last: None,
+            exit_v2: 0,
+            released_q16: 0,
+            released: 0,
+        }
+    }
+
+    /// Queue capacity.
+    pub const fn capacity(&self) -> usize {
+        N
+    }
+
+    /// Moves in the queue.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// No move queued.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The queue is full: [`pop`](Self::pop) or [`pop_forced`](Self::pop_forced) first.
+    pub fn is_full(&self) -> bool {
+        self.len == N
+    }
+
+    /// The end of the last pushed move (where the next move starts), X, Y, Z, E in um.
+    pub fn position_um(&self) -> [i32; AXES] {
+        self.position_um
+    }
+
+    /// Blocks released so far.
+    pub fn released_blocks(&self) -> u32 {
+        self.released
+    }
+
+    /// Duration of every released block, ticks q16.
+    pub fn released_ticks_q16(&self) -> u64 {
+        self.released_q16
+    }
+
+    /// Duration of the queued moves as currently planned (ending at rest), ticks q16.
+    pub fn queued_ticks_q16(&self) -> u64 {
+        (0..self.len)
+            .map(|i| {
+                let end = if i + 1 < self.len { self.at(i + 1).start_v2 } else { 0 };
+                Block::new(self.at(i), end, self.lim.timer_hz).t_total_q16
+            })
+            .sum()
+    }
+
+    /// Print time of everything pushed so far if it ended at rest after the queued moves,
+    /// ticks q16: released blocks plus the current plan of the queue.
+    pub fn total_ticks_q16(&self) -> u64 {
+        self.released_q16 + self.queued_ticks_q16()
+    }
+
+    /// Print time in seconds ([`total_ticks_q16`](Self::total_ticks_q16)).
+    pub fn total_time_s(&self) -> U32F32 {
+        ticks_q16_to_s(self.total_ticks_q16(), self.lim.timer_hz)
+    }
+
+    fn idx(&self, i: usize) -> usize {
+        (self.head + i) % N
+    }
+
+    fn at(&self, i: usize) -> &Entry {
+        &self.ring[self.idx(i)]
+    }
+
+    fn at_mut(&mut self, i: usize) -> &mut Entry {
+        let k = self.idx(i);
+        &mut self.ring[k]
+    }
+
+    /// Queues a move from the current position to `mv.target_um`. A move that goes nowhere is
+    /// accepted and dropped.
+    pub fn push(&mut self, mv: Move) -> Result<(), PlanError> {
+        if self.len == N {
+            return Err(PlanError::QueueFull);
+        }
+        if mv.feed_mm_s == 0 {
+            return Err(PlanError::ZeroFeed);
+        }
+        let mut d = [0i64; AXES];
+        for (axis, dst) in d.iter_mut().enumerate() {
+            *dst = mv.target_um[axis] as i64 - self.position_um[axis] as i64;
+            if dst.abs() > MAX_AXIS_DELTA_UM {
+                return Err(PlanError::MoveTooLong { axis: axis as u8 });
+            }
+        }
+        if d == [0; AXES] {
+            return Ok(());
+        }
+        let g = self.geometry(&d, &mv);
+        let max_start_v2 = match self.last {
+            Some(prev) if prev.kinematic && g.kinematic => {
+                junction::junction_v2(&prev, &g, &self.lim)
+            }
+            _ => 0,
+        };
+        let entry = Entry {
+            start_um: self.position_um,
+            end_um: mv.target_um,
+            kind: mv.kind,
+            len_q32: g.len_q32,
+            accel_q16: g.accel_q16,
+            cruise_v2: g.cruise_v2,
+            delta_v2: sat_u64((2 * g.accel_q16 as u128 * g.len_q32 as u128) >> 32).min(V2_MAX),
+            max_start_v2,
+            back_v2: self.exit_v2,
+            start_v2: self.exit_v2,
+        };
+        let n = self.len;
+        *self.at_mut(n) = entry;
+        self.len += 1;
+        self.replan(n);
+        self.position_um = mv.target_um;
+        self.last = Some(g);
+        Ok(())
+    }
+
+    /// Backward pass from the new tail `n` while the reachable start speeds change, then the
+    /// forward pass over the changed range.
+    fn replan(&mut self, n: usize) {
+        if n == 0 {
+            return;
+        }
+        let mut next_back = 0u64;
+        let mut first = n;
+        let mut i = n;
+        loop {
+            let e = self.at_mut(i);
+            let b = e.max_start_v2.min(next_back + e.delta_v2);
+            if i < n && b == e.back_v2 {
+                break;
+            }
+            e.back_v2 = b;
+            first = i;
+            next_back = b;
+            if i == 1 {
+                break;
+            }
+            i -= 1;
+        }
+        for i in first..=n {
+            let prev = self.at(i - 1);
+            let reach = prev.start_v2 + prev.delta_v2;
+            let e = self.at_mut(i);
+            e.start_v2 = e.back_v2.min(reach);
+        }
+    }
+
+    /// Whether the head's plan is final: its exit speed already equals the most it could
+    /// ever be.
+    pub fn head_is_final(&self) -> bool {
+        if self.len < 2 {
+            return false;
+        }
+        let (h, n) = (self.at(0), self.at(1));
+        n.start_v2 == n.max_start_v2.min(h.start_v2 + h.delta_v2)
+    }
+
+    /// Releases the head if its plan can no longer change.
+    pub fn pop(&mut self) -> Option<Block> {
+        if self.head_is_final() {
+            self.pop_forced()
+        } else {
+            None
+        }
+    }
+
+    /// Releases the head with its current plan (it ends at a speed from which the queued moves
+    /// can still stop; at rest if it is the only one).
+    pub fn pop_forced(&mut self) -> Option<Block> {
+        if self.len == 0 {
+            return None;
+        }
+        let end_v2 = if self.len >= 2 { self.at(1).start_v2 } else { 0 };
+        let block = Block::new(self.at(0), end_v2, self.lim.timer_hz);
+        self.head = (self.head + 1) % N;
+        self.len -= 1;
+        self.exit_v2 = end_v2;
+        self.released_q16 += block.t_total_q16;
+        self.released += 1;
+        Some(block)
+    }
+
+    fn geometry(&self, d: &[i64; AXES], mv: &Move) -> Geom {
+        let lim = &self.lim;
+        let sq = |v: i64| (v * v) as u64;
+        let xyz2 = sq(d[0]) + sq(d[1]) + sq(d[2]);
+        let kinematic = xyz2 != 0;
+        let len2 = if kinematic { xyz2 } else { sq(d[3]) };
+        let len_q32 = isqrt_u128((len2 as u128) << 64) as u64;
+        let mut cruise_v2 = square_q16(rate_to_q16(mv.feed_mm_s, MAX_SPEED_Q16));
+        let mut accel_q16 = match mv.kind {
+            MoveKind::Print => lim.print_accel_q16,
+            MoveKind::Travel | MoveKind::Retract => lim.travel_accel_q16,
+        };
+        for (axis, &da) in d.iter().enumerate() {
+            if da == 0 {
+                continue;
+            }
+            // Axis speed v |d|/L <= vmax: v^2 <= vmax^2 L^2 / d^2 (L^2 exact).
+            let cap = lim.vmax2_q16[axis] as u128 * len2 as u128 / sq(da) as u128;
+            cruise_v2 = cruise_v2.min(sat_u64(cap));
+            // Axis acceleration a |d|/L <= amax: a <= amax L / |d|.
+            let cap =
+                lim.amax_q16[axis] as u128 * len_q32 as u128 / ((da.unsigned_abs() as u128) << 32);
+            accel_q16 = accel_q16.min(sat_u64(cap));
+        }
+        let ratio = |v: i64| {
+            if kinematic {
+                ((v as i128) << 94) / len_q32 as i128
+            } else {
+                0
+            }
+        };
+        Geom {
+            unit: [ratio(d[0]) as i64, ratio(d[1]) as i64, ratio(d[2]) as i64],
+            len_q32,
+            accel_q16: accel_q16.max(1),
+            cruise_v2: cruise_v2.max(1),
+            e_ratio_q62: ratio(d[3]),
+            kinematic,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mm(v: u32) -> Rate {
+        Rate::from_num(v)
+    }
+
+    fn to_f(r: Rate) -> f64 {
+        r.to_num::<f64>()
+    }
+
+    #[test]
+    fn square_corner_passes_at_square_corner_velocity() {
+        let mut p: Planner<16> = Planner::new(&PlanConfig::default(), [0; 4]);
+        p.push(Move::new([20_000, 0, 0, 0], mm(60), MoveKind::Travel)).unwrap();
+        p.push(Move::new([20_000, 20_000, 0, 0], mm(60), MoveKind::Travel)).unwrap();
+        let b = p.pop().expect("head is final: its exit is the junction limit");
+        assert!((to_f(b.end_speed_mm_s()) - 5.0).abs() < 1e-6, "{:?}", b.end_speed_mm_s());
+        assert!(p.pop().is_none());
+        let b2 = p.pop_forced().unwrap();
+        assert!((to_f(b2.start_speed_mm_s()) - 5.0).abs() < 1e-6);
+        assert!(b2.ends_at_rest());
+    }
+
+    #[test]
+    fn straight_line_is_not_a_corner() {
+        let mut p: Planner<16> = Planner::new(&PlanConfig::default(), [0; 4]);
+        for i in 1..=4 {
+            p.push(Move::new([i * 50_000, 0, 0, 0], mm(100), MoveKind::Travel)).unwrap();
+        }
+        let b = p.pop().unwrap();
+        assert!((to_f(b.end_speed_mm_s()) - 100.0).abs() < 1e-6);
+        assert!((to_f(b.cruise_speed_mm_s()) - 100.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn short_move_never_cruises_and_time_matches_formula() {
+        let mut p: Planner<4> = Planner::new(&PlanConfig::default(), [0; 4]);
+        // 1 mm at 500 mm/s^2 print accel: peak sqrt(a L) = sqrt(500) mm/s.
+        p.push(Move::new([1000, 0, 0, 0], mm(200), MoveKind::Print)).unwrap();
+        let b = p.pop_forced().unwrap();
+        let peak = (500.0f64).sqrt();
+        assert!((to_f(b.cruise_speed_mm_s()) - peak).abs() < 1e-6);
+        let t = 2.0 * peak / 500.0;
+        assert!((b.duration_s().to_num::<f64>() - t).abs() < 1e-9);
+    }
+
+    #[test]
+    fn extruder_only_moves_start_and_end_at_rest() {
+        let mut p: Planner<8> = Planner::new(&PlanConfig::default(), [0; 4]);
+        p.push(Move::new([10_000, 0, 0, 300], mm(40), MoveKind::Print)).unwrap();
+        p.push(Move::new([10_000, 0, 0, -4700], mm(45), MoveKind::Retract)).unwrap();
+        p.push(Move::new([20_000, 0, 0, -4700], mm(150), MoveKind::Travel)).unwrap();
+        let a = p.pop().unwrap();
+        assert!(a.ends_at_rest());
+        let r = p.pop().unwrap();
+        assert!(r.ends_at_rest());
+        // Retract limited to the E maximum of 25 mm/s.
+        assert!((to_f(r.cruise_speed_mm_s()) - 25.0).abs() < 1e-6);
+    }
+}
