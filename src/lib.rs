@@ -28,4 +28,3 @@ pub mod place;
 pub mod plan;
 pub mod slice;
 pub mod stl;
-pub mod toolpath;
