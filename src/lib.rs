@@ -8,6 +8,7 @@
 //! - [`stl`]: incremental push parser for binary and ASCII STL (any chunking, typed errors).
 //! - [`place`]: drop the model onto the bed, centre it, quantise to micrometres.
 //! - [`slice`](mod@slice): sweep-plane slicer over a zmin-sorted triangle stream, one layer at a time.
+//! - [`toolpath`]: perimeters, infill, skins, skirt, ordering and retraction as a stream of moves.
 //!
 //! Shared foundations: [`geom`] (integer micrometre geometry) and [`machine`] (printer profile
 //! and print settings with validation).
@@ -28,3 +29,4 @@ pub mod place;
 pub mod plan;
 pub mod slice;
 pub mod stl;
+pub mod toolpath;

@@ -1,0 +1,554 @@
+//! Infill and skins along scanlines, linked into long runs.
+//!
+//! For a layer `L` and its angle, the infill domain (the island shrunk past its perimeters)
+//! is cut by lines one line width apart. Along each line, the 1D region is split exactly by
+//! the skin window (the raw regions of the layers above and below, as spans on the same
+//! lines):
+//!
+//! - *top solid* where layer `L + 1` has no material (or `L` is the last layer);
+//! - *solid* where some layer within `top` above or `bottom` below has no material (a top or
+//!   bottom surface is near), or where those layers do not exist (the first and last layers);
+//! - *sparse* elsewhere, on every `k`-th line only (`k = 100 / density`).
+//!
+//! Printed stretches of a line form segments; a segment's ends on the domain boundary are
+//! crossings. Segments are linked into runs (the zigzag): from a segment's end, the boundary
+//! of the domain is walked (in both directions) to the next crossing that ends another
+//! segment; if that segment is free and the walk is short, the run continues along the
+//! boundary into it. Because a walk between consecutive crossings never crosses a line, the
+//! connector stays inside the domain. Solid segments always link; sparse ones link for the
+//! zigzag and grid patterns.
+
+use crate::geom::Point2;
+
+use super::paths::{PathBuf, PathKind};
+use super::poly::{dist, Ring};
+use super::scan::{crossings, intervals, sort_by_line, Angle, Crossing, Interval};
+use super::{Buffer, Feature};
+
+/// No crossing / no segment.
+pub const NONE: u32 = u32::MAX;
+/// Most crossings walked along the boundary looking for a link.
+const MAX_WALK: usize = 64;
+/// Most boundary vertices in one connector.
+const MAX_CONNECTOR_VERTICES: usize = 64;
+
+/// An interval of a layer's raw region along a scanline (skin window storage).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Span {
+    /// Line index.
+    pub line: i32,
+    /// Start along the line.
+    pub u0: i32,
+    /// End along the line.
+    pub u1: i32,
+}
+
+/// What a stretch of a line gets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default)]
+#[repr(u8)]
+pub enum Kind {
+    /// Nothing (sparse zone, not a sparse line).
+    #[default]
+    None = 0,
+    /// Sparse infill.
+    Sparse = 1,
+    /// Solid infill.
+    Solid = 2,
+    /// Solid infill under no material (the top surface).
+    Top = 3,
+}
+
+impl Kind {
+    fn feature(self) -> Feature {
+        match self {
+            Kind::Sparse | Kind::None => Feature::InternalInfill,
+            Kind::Solid => Feature::SolidInfill,
+            Kind::Top => Feature::TopSolidInfill,
+        }
+    }
+}
+
+/// A printed stretch of one line: pieces `piece0 .. piece0 + npieces` give its kinds.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LineSeg {
+    line: i32,
+    u0: i32,
+    u1: i32,
+    c0: u32,
+    c1: u32,
+    piece0: u32,
+    npieces: u32,
+    island: u16,
+    used: bool,
+    linkable: bool,
+}
+
+/// A piece of a segment: up to `u1`, of `kind`.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LinePiece {
+    u1: i32,
+    kind: Kind,
+}
+
+/// The skin window as seen from one layer at one angle.
+#[derive(Debug, Clone, Copy)]
+pub struct SkinView<'a> {
+    /// Spans of layers `L + 1 ..= L + top` (those that exist).
+    pub above: [&'a [Span]; 16],
+    /// Number of entries in `above`.
+    pub n_above: usize,
+    /// All `top` layers above exist (otherwise nothing is covered from above).
+    pub above_complete: bool,
+    /// Spans of layers `L - 1 ..= L - bottom` (those that exist).
+    pub below: [&'a [Span]; 16],
+    /// Number of entries in `below`.
+    pub n_below: usize,
+    /// All `bottom` layers below exist.
+    pub below_complete: bool,
+    /// Whether layer `L + 1` exists (its spans are `above[0]`).
+    pub has_next: bool,
+}
+
+/// Parameters of one infill pass.
+#[derive(Debug, Clone, Copy)]
+pub struct FillParams {
+    /// Line direction.
+    pub angle: Angle,
+    /// Line step in `t` units.
+    pub step: i64,
+    /// Line spacing in um.
+    pub spacing_um: i32,
+    /// Sparse lines are those with `line % sparse_every == 0` (0: no sparse infill).
+    pub sparse_every: i32,
+    /// Print solid and top skins in this pass.
+    pub solid: bool,
+    /// Link sparse segments into runs (zigzag, grid).
+    pub link_sparse: bool,
+    /// Segments shorter than this (in `u` units) are dropped.
+    pub min_len_u: i32,
+    /// Line width in um (connector length allowance).
+    pub width_um: i32,
+}
+
+/// The scratch buffers of the infill stage (`CROSS` entries each).
+pub struct FillWork<'a> {
+    /// Crossings.
+    pub cross: &'a mut [Crossing],
+    /// Crossing order by line.
+    pub order: &'a mut [u32],
+    /// Segment end at each crossing (`2 x seg + end`), or [`NONE`].
+    pub cend: &'a mut [u32],
+    /// Segments.
+    pub segs: &'a mut [LineSeg],
+    /// Their pieces.
+    pub pieces: &'a mut [LinePiece],
+}
+
+/// What one pass used (largest counts).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FillUse {
+    /// Crossings.
+    pub crossings: usize,
+    /// Segments.
+    pub segments: usize,
+    /// Pieces.
+    pub pieces: usize,
+}
+
+/// Per-list cursor over spans sorted by (line, u0).
+struct Cursor<'a> {
+    spans: &'a [Span],
+    idx: usize,
+}
+
+impl<'a> Cursor<'a> {
+    fn set_line(&mut self, line: i32) {
+        while self.idx > 0 && self.spans[self.idx - 1].line >= line {
+            self.idx -= 1;
+        }
+        while self.idx < self.spans.len() && self.spans[self.idx].line < line {
+            self.idx += 1;
+        }
+    }
+
+    /// Whether `pos` (on `line`) is covered, and the next boundary after `pos` (if any).
+    fn probe(&mut self, line: i32, pos: i32) -> (bool, Option<i32>) {
+        while self.idx < self.spans.len()
+            && self.spans[self.idx].line == line
+            && self.spans[self.idx].u1 <= pos
+        {
+            self.idx += 1;
+        }
+        match self.spans.get(self.idx) {
+            Some(s) if s.line == line => {
+                if s.u0 <= pos {
+                    (true, Some(s.u1))
+                } else {
+                    (false, Some(s.u0))
+                }
+            }
+            _ => (false, None),
+        }
+    }
+}
+
+struct Builder<'a> {
+    segs: &'a mut [LineSeg],
+    pieces: &'a mut [LinePiece],
+    nseg: usize,
+    npieces: usize,
+    /// The segment being built: (start u, start crossing, first piece).
+    open: Option<(i32, u32, usize)>,
+    params: FillParams,
+}
+
+impl Builder<'_> {
+    fn add_stretch(&mut self, iv: &Interval, u0: i32, u1: i32, kind: Kind) -> Result<(), Buffer> {
+        if kind == Kind::None {
+            return self.close(iv, u0, NONE);
+        }
+        if self.open.is_none() {
+            let c0 = if u0 == iv.u0 { iv.c0 } else { NONE };
+            self.open = Some((u0, c0, self.npieces));
+        }
+        let first = self.open.map_or(0, |o| o.2);
+        if self.npieces > first && self.pieces[self.npieces - 1].kind == kind {
+            self.pieces[self.npieces - 1].u1 = u1;
+            return Ok(());
+        }
+        let slot = self.pieces.get_mut(self.npieces).ok_or(Buffer::LineSegments)?;
+        *slot = LinePiece { u1, kind };
+        self.npieces += 1;
+        Ok(())
+    }
+
+    /// Ends the open segment at `u1` (crossing `c1`).
+    fn close(&mut self, iv: &Interval, u1: i32, c1: u32) -> Result<(), Buffer> {
+        let Some((u0, c0, piece0)) = self.open.take() else { return Ok(()) };
+        if u1 - u0 < self.params.min_len_u {
+            self.npieces = piece0;
+            return Ok(());
+        }
+        let pieces = &self.pieces[piece0..self.npieces];
+        let solid = pieces.iter().any(|p| p.kind >= Kind::Solid);
+        let slot = self.segs.get_mut(self.nseg).ok_or(Buffer::LineSegments)?;
+        *slot = LineSeg {
+            line: iv.line,
+            u0,
+            u1,
+            c0,
+            c1,
+            piece0: piece0 as u32,
+            npieces: (self.npieces - piece0) as u32,
+            island: iv.island,
+            used: false,
+            linkable: solid || self.params.link_sparse,
+        };
+        self.nseg += 1;
+        Ok(())
+    }
+
+    fn interval(&mut self, iv: Interval, skin: &mut Skin<'_>) -> Result<(), Buffer> {
+        skin.set_line(iv.line);
+        let p = self.params;
+        let sparse_line = p.sparse_every > 0 && iv.line.rem_euclid(p.sparse_every) == 0;
+        let mut pos = iv.u0;
+        while pos < iv.u1 {
+            let (covered, in_next, next) = skin.probe(iv.line, pos, iv.u1);
+            let kind = if !covered {
+                if !p.solid {
+                    Kind::None
+                } else if in_next {
+                    Kind::Solid
+                } else {
+                    Kind::Top
+                }
+            } else if sparse_line {
+                Kind::Sparse
+            } else {
+                Kind::None
+            };
+            self.add_stretch(&iv, pos, next, kind)?;
+            pos = next;
+        }
+        self.close(&iv, iv.u1, iv.c1)
+    }
+}
+
+/// Cursors over the skin window for one pass.
+struct Skin<'a> {
+    above: [Cursor<'a>; 16],
+    below: [Cursor<'a>; 16],
+    view: SkinView<'a>,
+    top: usize,
+    bottom: usize,
+}
+
+impl<'a> Skin<'a> {
+    fn new(view: SkinView<'a>, top: usize, bottom: usize) -> Self {
+        let cur = |s: &'a [Span]| Cursor { spans: s, idx: 0 };
+        Self { above: view.above.map(cur), below: view.below.map(cur), view, top, bottom }
+    }
+
+    fn set_line(&mut self, line: i32) {
+        for c in self.above.iter_mut().take(self.view.n_above) {
+            c.set_line(line);
+        }
+        for c in self.below.iter_mut().take(self.view.n_below) {
+            c.set_line(line);
+        }
+    }
+
+    /// At `pos`: covered by every layer of the window (no surface near), covered by layer
+    /// L + 1, and where that next changes (at most `end`).
+    fn probe(&mut self, line: i32, pos: i32, end: i32) -> (bool, bool, i32) {
+        let mut next = end;
+        let mut all_above = self.top == 0 || self.view.above_complete;
+        let mut all_below = self.bottom == 0 || self.view.below_complete;
+        let mut in_next = false;
+        for (k, c) in self.above.iter_mut().take(self.view.n_above).enumerate() {
+            let (cov, b) = c.probe(line, pos);
+            if let Some(b) = b {
+                next = next.min(b);
+            }
+            if k == 0 && self.view.has_next {
+                in_next = cov;
+            }
+            if k < self.top {
+                all_above &= cov;
+            }
+        }
+        for (k, c) in self.below.iter_mut().take(self.view.n_below).enumerate() {
+            let (cov, b) = c.probe(line, pos);
+            if let Some(b) = b {
+                next = next.min(b);
+            }
+            if k < self.bottom {
+                all_below &= cov;
+            }
+        }
+        (all_above && all_below, in_next, next.max(pos + 1))
+    }
+}
+
+fn seg_point(p: &FillParams, line: i32, u: i32) -> Point2 {
+    p.angle.point(i64::from(line) * p.step, i64::from(u))
+}
+
+fn crossing_point(p: &FillParams, c: &Crossing) -> Point2 {
+    seg_point(p, c.line, c.u)
+}
+
+/// Boundary vertices passed walking from crossing `i` to crossing `k` (`fwd`: along the
+/// loop's direction). Returns false if more than [`MAX_CONNECTOR_VERTICES`].
+fn for_each_vertex(
+    cross: &[Crossing],
+    rings: &[Ring],
+    points: &[Point2],
+    i: usize,
+    k: usize,
+    fwd: bool,
+    mut f: impl FnMut(Point2),
+) -> bool {
+    let (ci, ck) = (&cross[i], &cross[k]);
+    let Some(r) = rings.get(ci.ring as usize) else { return false };
+    let (start, len) = (r.start as usize, r.len as usize);
+    if len == 0 {
+        return false;
+    }
+    let (e1, e2) = (ci.edge as usize - start, ck.edge as usize - start);
+    let wrapped = if fwd { k <= i } else { k >= i };
+    let count = if fwd {
+        if e1 == e2 && !wrapped {
+            0
+        } else {
+            (e2 + len - e1 - 1) % len + 1
+        }
+    } else if e1 == e2 && !wrapped {
+        0
+    } else {
+        (e1 + len - e2 - 1) % len + 1
+    };
+    if e1 == e2 && wrapped {
+        return false;
+    }
+    if count > MAX_CONNECTOR_VERTICES {
+        return false;
+    }
+    for s in 0..count {
+        let v = if fwd { (e1 + 1 + s) % len } else { (e1 + len - s) % len };
+        f(points[start + v]);
+    }
+    true
+}
+
+/// Builds the infill of one layer at one angle into `paths`.
+#[allow(clippy::too_many_arguments)]
+pub fn fill<const N: usize, const R: usize>(
+    points: &[Point2],
+    rings: &[Ring],
+    params: FillParams,
+    view: SkinView<'_>,
+    top: usize,
+    bottom: usize,
+    work: &mut FillWork<'_>,
+    paths: &mut PathBuf<N, R>,
+    usage: &mut FillUse,
+) -> Result<(), Buffer> {
+    let mut n = 0;
+    crossings(points, rings, params.angle, params.step, work.cross, &mut n)?;
+    if n > work.order.len() || n > work.cend.len() {
+        return Err(Buffer::Crossings);
+    }
+    sort_by_line(&work.cross[..n], &mut work.order[..n]);
+    usage.crossings = usage.crossings.max(n);
+    for c in work.cend[..n].iter_mut() {
+        *c = NONE;
+    }
+    let mut skin = Skin::new(view, top, bottom);
+    let (nseg, npieces) = {
+        let (cross, order) = (&work.cross[..n], &work.order[..n]);
+        let mut b = Builder {
+            segs: &mut *work.segs,
+            pieces: &mut *work.pieces,
+            nseg: 0,
+            npieces: 0,
+            open: None,
+            params,
+        };
+        intervals(cross, order, |iv| b.interval(iv, &mut skin))?;
+        (b.nseg, b.npieces)
+    };
+    usage.segments = usage.segments.max(nseg);
+    usage.pieces = usage.pieces.max(npieces);
+    for s in 0..nseg {
+        let sg = work.segs[s];
+        if sg.c0 != NONE {
+            work.cend[sg.c0 as usize] = 2 * s as u32;
+        }
+        if sg.c1 != NONE {
+            work.cend[sg.c1 as usize] = 2 * s as u32 + 1;
+        }
+    }
+    link(points, rings, &params, work, n, nseg, paths)
+}
+
+/// Emits segment `s` (forward: from `u0`) into the open path.
+fn emit_seg<const N: usize, const R: usize>(
+    p: &FillParams,
+    work: &FillWork<'_>,
+    s: usize,
+    forward: bool,
+    paths: &mut PathBuf<N, R>,
+) -> Result<(), Buffer> {
+    let sg = work.segs[s];
+    let pieces = &work.pieces[sg.piece0 as usize..(sg.piece0 + sg.npieces) as usize];
+    let first_kind = if forward { pieces[0].kind } else { pieces[pieces.len() - 1].kind };
+    if forward {
+        paths.push(seg_point(p, sg.line, sg.u0), first_kind.feature())?;
+        for pc in pieces {
+            paths.push(seg_point(p, sg.line, pc.u1), pc.kind.feature())?;
+        }
+    } else {
+        paths.push(seg_point(p, sg.line, sg.u1), first_kind.feature())?;
+        for (i, pc) in pieces.iter().enumerate().rev() {
+            let u = if i == 0 { sg.u0 } else { pieces[i - 1].u1 };
+            paths.push(seg_point(p, sg.line, u), pc.kind.feature())?;
+        }
+    }
+    Ok(())
+}
+
+/// Links segments into runs and emits them as paths.
+fn link<const N: usize, const R: usize>(
+    points: &[Point2],
+    rings: &[Ring],
+    p: &FillParams,
+    work: &mut FillWork<'_>,
+    n: usize,
+    nseg: usize,
+    paths: &mut PathBuf<N, R>,
+) -> Result<(), Buffer> {
+    let cross = &work.cross[..n];
+    for s0 in 0..nseg {
+        if work.segs[s0].used {
+            continue;
+        }
+        work.segs[s0].used = true;
+        let island = work.segs[s0].island;
+        let reversible = work.segs[s0].linkable;
+        emit_seg(p, work, s0, true, paths)?;
+        let mut end_c = work.segs[s0].c1;
+        let mut line = work.segs[s0].line;
+        while work.segs[s0].linkable && end_c != NONE {
+            // Best candidate: (|line step|, length, crossing, forward walk).
+            let mut best: Option<(i32, i64, usize, bool)> = None;
+            let from = end_c as usize;
+            for fwd in [true, false] {
+                let mut k = from;
+                let mut found = None;
+                for _ in 0..MAX_WALK {
+                    let c = &cross[k];
+                    k = if fwd { c.next(k) } else { c.prev(k) };
+                    if k == from {
+                        break;
+                    }
+                    if work.cend[k] != NONE {
+                        found = Some(k);
+                        break;
+                    }
+                }
+                let Some(k) = found else { continue };
+                let seg = (work.cend[k] / 2) as usize;
+                let sg = &work.segs[seg];
+                if sg.used || !sg.linkable {
+                    continue;
+                }
+                let dl = (sg.line - line).abs();
+                let mut length = 0i64;
+                let mut prev = crossing_point(p, &cross[from]);
+                let ok = for_each_vertex(cross, rings, points, from, k, fwd, |v| {
+                    length += dist(prev, v);
+                    prev = v;
+                });
+                if !ok {
+                    continue;
+                }
+                length += dist(prev, crossing_point(p, &cross[k]));
+                let allowed = i64::from(dl) * i64::from(p.spacing_um) * 4 + i64::from(p.width_um);
+                if length > allowed {
+                    continue;
+                }
+                if best.map_or(true, |b| (dl, length) < (b.0, b.1)) {
+                    best = Some((dl, length, k, fwd));
+                }
+            }
+            let Some((_, _, k, fwd)) = best else { break };
+            let seg = (work.cend[k] / 2) as usize;
+            let at_start = work.cend[k] % 2 == 0;
+            let feat = {
+                let sg = work.segs[seg];
+                let pieces = &work.pieces[sg.piece0 as usize..(sg.piece0 + sg.npieces) as usize];
+                if at_start {
+                    pieces[0].kind.feature()
+                } else {
+                    pieces[pieces.len() - 1].kind.feature()
+                }
+            };
+            let mut err = Ok(());
+            for_each_vertex(cross, rings, points, from, k, fwd, |v| {
+                if err.is_ok() {
+                    err = paths.push(v, feat);
+                }
+            });
+            err?;
+            work.segs[seg].used = true;
+            emit_seg(p, work, seg, at_start, paths)?;
+            let sg = work.segs[seg];
+            end_c = if at_start { sg.c1 } else { sg.c0 };
+            line = sg.line;
+        }
+        paths.end(island, PathKind::Infill, false, reversible)?;
+    }
+    Ok(())
+}

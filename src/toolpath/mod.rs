@@ -1,0 +1,1035 @@
+//! Toolpaths: perimeters, infill, skins, skirt, ordering and retraction, as a stream of moves.
+//!
+//! [`Toolpath`] takes the slicer's layers in order ([`Toolpath::push_layer`] from the slicer's
+//! sink) and emits, per layer, a [`ToolEvent::LayerStart`], the [`ToolMove`]s (absolute XY and
+//! Z in um, an extrusion delta in um of filament, a feed rate and the [`Feature`]) and a
+//! [`ToolEvent::LayerEnd`] with the layer's counters. Everything is integer (um, `i64`
+//! products) or fixed point; nothing allocates; every buffer has a capacity given as a const
+//! generic and overflowing one is a [`ToolpathError::Capacity`] naming it and the layer.
+//!
+//! Per layer:
+//! 1. contours are simplified ([`simplify`], 10 um) and grouped into islands (an outer loop
+//!    and its holes);
+//! 2. per island, the perimeters are exact integer offsets of the contours by
+//!    `(k + 1/2) x width` and the infill domain an offset by `perimeters x width + width / 2 -
+//!    overlap` ([`offset`]: offsets of holes and outer loops merge, parts narrower than a line
+//!    vanish instead of leaving a broken loop; an island with no room for even one perimeter
+//!    is counted in [`LayerStats::thin_islands`]);
+//! 3. the infill domain is filled along scanlines ([`scan`], [`infill`]) at 45 degrees on even
+//!    layers and 135 on odd ones: solid where a top or bottom surface is within
+//!    `top_layers`/`bottom_layers` (found exactly along each line from the skin window), top
+//!    solid under no material, sparse every `100 / density`-th line elsewhere; segments are
+//!    linked along the domain boundary into long runs;
+//! 4. the first layer gets a skirt: the convex hull offset 3 mm + width/2 with round joins;
+//! 5. paths are ordered and turned into moves ([`order`]): islands and paths nearest first,
+//!    loops from the rear-most vertex, retraction only for travels that leave the part.
+//!
+//! # Memory
+//!
+//! [`Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>`](Toolpath) holds:
+//! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
+//!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 124 bytes per `PTS`,
+//!   2 x 3 x 40 + 4 bytes per `LOOPS`;
+//! - the infill scratch and the layer's paths: 92 bytes per `CROSS` (crossing 28, order 4,
+//!   segment end 4, segment 32, piece 8, path record 16), 9 bytes per `PATH` point;
+//! - the window: 8 bytes per `RING` point (contours of the `top_layers` layers waiting for
+//!   the layers above them) and 12 bytes per `SPANS` (scanline intervals of up to
+//!   `top + bottom + 1` layers, both angles).
+//!
+//! [`ToolpathStats::needs`] reports the largest use of each, so a model's needs are known
+//! after one host run.
+
+use core::fmt;
+
+use crate::geom::Point2;
+use crate::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
+use crate::slice::Layer;
+
+use infill::{FillParams, FillUse, FillWork, LinePiece, LineSeg, SkinView, Span};
+use offset::{Join, Offsetter};
+use order::{Ctx, Emitter};
+use paths::{PathBuf, PathKind};
+use poly::{LoopBuf, Ring};
+use scan::{Angle, Crossing};
+use window::Fifo;
+
+pub mod infill;
+pub mod offset;
+pub mod order;
+pub mod paths;
+pub mod poly;
+pub mod scan;
+pub mod simplify;
+pub mod window;
+
+/// A bounded buffer of the toolpath stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Buffer {
+    /// Points of one layer's loops (`PTS`).
+    LayerPoints,
+    /// Loops of one layer (`LOOPS`).
+    LayerLoops,
+    /// Raw offset edges of one island (`PTS`).
+    OffsetEdges,
+    /// Intersection points of one island's offset curves (`PTS`).
+    OffsetSplits,
+    /// Arrangement pieces of one island's offset curves (`PTS`).
+    OffsetPieces,
+    /// Scanline crossings of one layer (`CROSS`).
+    Crossings,
+    /// Infill line segments and their feature pieces of one layer (`CROSS`).
+    LineSegments,
+    /// Infill intervals on one scanline (64).
+    LineIntervals,
+    /// Points of one layer's paths (`PATH`).
+    PathPoints,
+    /// Paths of one layer (`CROSS`).
+    Paths,
+    /// Contour points of the layers waiting for the layers above them (`RING`).
+    RingPoints,
+    /// Scanline spans of the skin window (`SPANS`).
+    WindowSpans,
+    /// Layers in the window (top + bottom + 2).
+    WindowLayers,
+}
+
+impl fmt::Display for Buffer {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::LayerPoints => "loop points per layer",
+            Self::LayerLoops => "loops per layer",
+            Self::OffsetEdges => "offset edges per island",
+            Self::OffsetSplits => "offset intersections per island",
+            Self::OffsetPieces => "offset pieces per island",
+            Self::Crossings => "scanline crossings per layer",
+            Self::LineSegments => "infill line segments per layer",
+            Self::LineIntervals => "infill intervals per scanline",
+            Self::PathPoints => "path points per layer",
+            Self::Paths => "paths per layer",
+            Self::RingPoints => "contour points waiting for the layers above",
+            Self::WindowSpans => "scanline spans in the skin window",
+            Self::WindowLayers => "layers in the skin window",
+        })
+    }
+}
+
+/// What an extrusion or move is, named as PrusaSlicer's G-code viewer names its `;TYPE:`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Feature {
+    /// The outermost perimeter.
+    ExternalPerimeter,
+    /// An inner perimeter.
+    Perimeter,
+    /// Sparse infill.
+    InternalInfill,
+    /// Solid infill (near a top or bottom surface).
+    SolidInfill,
+    /// Solid infill on a top surface.
+    TopSolidInfill,
+    /// The skirt around the first layer.
+    Skirt,
+    /// A move without extrusion.
+    #[default]
+    Travel,
+    /// Filament pulled back.
+    Retract,
+    /// Filament pushed forward again after a retraction.
+    Unretract,
+}
+
+/// Where loops start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Seam {
+    /// The rear-most vertex (largest Y): seams line up at the back of the part.
+    Rear,
+    /// The vertex nearest to the nozzle: shortest travel, scattered seams.
+    Nearest,
+}
+
+/// Everything the toolpath stage needs to know, in its units.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ToolpathConfig {
+    /// Extrusion line width, um.
+    pub line_width_um: i32,
+    /// First layer height, um.
+    pub first_layer_height_um: i32,
+    /// Layer height, um.
+    pub layer_height_um: i32,
+    /// Perimeter loops.
+    pub perimeters: u8,
+    /// Sparse infill density, percent.
+    pub infill_percent: u8,
+    /// Sparse infill pattern.
+    pub infill_pattern: InfillPattern,
+    /// Solid layers under a top surface (at most 16).
+    pub top_layers: u8,
+    /// Solid layers over a bottom surface (at most 16).
+    pub bottom_layers: u8,
+    /// Perimeter and skirt speed, mm/s.
+    pub perimeter_speed_mm_s: Rate,
+    /// Infill speed (sparse and solid), mm/s.
+    pub infill_speed_mm_s: Rate,
+    /// Travel speed, mm/s.
+    pub travel_speed_mm_s: Rate,
+    /// Speed of every extrusion on the first layer, mm/s.
+    pub first_layer_speed_mm_s: Rate,
+    /// Retraction length, um (0: never retract).
+    pub retract_length_um: i32,
+    /// Retraction speed, mm/s.
+    pub retract_speed_mm_s: Rate,
+    /// Filament diameter, um.
+    pub filament_diameter_um: i32,
+    /// Print the external perimeter after the inner ones.
+    pub outer_perimeter_last: bool,
+    /// How far infill lines reach into the innermost perimeter, um.
+    pub infill_overlap_um: i32,
+    /// Gap between the first layer and the skirt, um.
+    pub skirt_distance_um: i32,
+    /// Skirt loops (0: no skirt).
+    pub skirt_loops: u8,
+    /// Where loops start.
+    pub seam: Seam,
+    /// Contour simplification tolerance, um.
+    pub simplify_tolerance_um: i32,
+    /// Travels that leave the part retract only from this length on, um.
+    pub min_retract_travel_um: i32,
+    /// Travel inside the part without retraction.
+    pub comb: bool,
+}
+
+impl ToolpathConfig {
+    /// The toolpath settings of `settings` on `machine`, with this stage's defaults: outer
+    /// perimeter last, infill overlap a quarter line, a 3 mm skirt of one loop, rear seams,
+    /// 10 um simplification, combing, retraction for travels over 1.5 mm that leave the part.
+    pub fn new(machine: &MachineConfig, settings: &PrintSettings) -> Self {
+        Self {
+            line_width_um: settings.line_width_um,
+            first_layer_height_um: settings.first_layer_height_um,
+            layer_height_um: settings.layer_height_um,
+            perimeters: settings.perimeters,
+            infill_percent: settings.infill_percent,
+            infill_pattern: settings.infill_pattern,
+            top_layers: settings.top_layers,
+            bottom_layers: settings.bottom_layers,
+            perimeter_speed_mm_s: settings.perimeter_speed_mm_s,
+            infill_speed_mm_s: settings.infill_speed_mm_s,
+            travel_speed_mm_s: settings.travel_speed_mm_s,
+            first_layer_speed_mm_s: settings.first_layer_speed_mm_s,
+            retract_length_um: settings.retract_length_um,
+            retract_speed_mm_s: settings.retract_speed_mm_s,
+            filament_diameter_um: machine.filament_diameter_um,
+            outer_perimeter_last: true,
+            infill_overlap_um: settings.line_width_um / 4,
+            skirt_distance_um: 3_000,
+            skirt_loops: 1,
+            seam: Seam::Rear,
+            simplify_tolerance_um: 10,
+            min_retract_travel_um: 1_500,
+            comb: true,
+        }
+    }
+
+    /// Checks ranges: positive widths and heights, at most 16 top/bottom layers and 20
+    /// perimeters, density at most 100 %, non-negative distances.
+    pub fn validate(&self) -> Result<(), ToolpathError> {
+        let checks = [
+            ("line_width_um", (100..=5_000).contains(&self.line_width_um)),
+            ("first_layer_height_um", (1..=5_000).contains(&self.first_layer_height_um)),
+            ("layer_height_um", (1..=5_000).contains(&self.layer_height_um)),
+            ("perimeters", self.perimeters <= 20),
+            ("infill_percent", self.infill_percent <= 100),
+            ("top_layers", self.top_layers <= 16),
+            ("bottom_layers", self.bottom_layers <= 16),
+            ("retract_length_um", (0..=50_000).contains(&self.retract_length_um)),
+            ("filament_diameter_um", (100..=10_000).contains(&self.filament_diameter_um)),
+            ("infill_overlap_um", (0..=self.line_width_um).contains(&self.infill_overlap_um)),
+            ("skirt_distance_um", (0..=100_000).contains(&self.skirt_distance_um)),
+            ("skirt_loops", self.skirt_loops <= 20),
+            ("simplify_tolerance_um", (0..=200).contains(&self.simplify_tolerance_um)),
+            ("min_retract_travel_um", self.min_retract_travel_um >= 0),
+            ("travel_speed_mm_s", self.travel_speed_mm_s > 0),
+            ("perimeter_speed_mm_s", self.perimeter_speed_mm_s > 0),
+            ("infill_speed_mm_s", self.infill_speed_mm_s > 0),
+            ("first_layer_speed_mm_s", self.first_layer_speed_mm_s > 0),
+            ("retract_speed_mm_s", self.retract_speed_mm_s > 0),
+        ];
+        match checks.iter().find(|(_, ok)| !ok) {
+            Some(&(field, _)) => Err(ToolpathError::InvalidConfig { field }),
+            None => Ok(()),
+        }
+    }
+
+    /// Nozzle height of layer `index` (top of the layer), um.
+    pub fn layer_z_um(&self, index: u32) -> i32 {
+        self.first_layer_height_um + self.layer_height_um * index as i32
+    }
+
+    /// Thickness of layer `index`, um.
+    pub fn layer_height_of(&self, index: u32) -> i32 {
+        if index == 0 {
+            self.first_layer_height_um
+        } else {
+            self.layer_height_um
+        }
+    }
+
+    /// Every how many solid-spacing lines a sparse line runs (per direction), 0 for none.
+    pub fn sparse_every(&self) -> i32 {
+        let p = i32::from(self.infill_percent);
+        if p == 0 {
+            return 0;
+        }
+        let k = ((100 + p / 2) / p).max(1);
+        if self.infill_pattern == InfillPattern::Grid {
+            2 * k
+        } else {
+            k
+        }
+    }
+
+    /// Offset of the infill domain from the contour, um.
+    pub fn infill_inset_um(&self) -> i32 {
+        let w = self.line_width_um;
+        let p = i32::from(self.perimeters);
+        if p == 0 {
+            w / 2
+        } else {
+            p * w + w / 2 - self.infill_overlap_um
+        }
+    }
+}
+
+/// Why the toolpath stage stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ToolpathError {
+    /// A [`ToolpathConfig`] field is out of range.
+    InvalidConfig {
+        /// The field.
+        field: &'static str,
+    },
+    /// A buffer is full.
+    Capacity {
+        /// Which buffer.
+        what: Buffer,
+        /// Its capacity.
+        capacity: u32,
+        /// The layer being built (or stored).
+        layer: u32,
+    },
+    /// Layers must arrive in order from 0.
+    OutOfOrder {
+        /// The index expected.
+        expected: u32,
+        /// The index received.
+        got: u32,
+    },
+    /// `push_layer` or `finish` after `finish` (call `reset`).
+    Finished,
+}
+
+impl fmt::Display for ToolpathError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::InvalidConfig { field } => {
+                write!(f, "toolpath setting `{field}` is out of range")
+            }
+            Self::Capacity { what, capacity, layer } => {
+                write!(f, "too many {what} in layer {layer} (capacity {capacity})")
+            }
+            Self::OutOfOrder { expected, got } => {
+                write!(f, "layer {got} arrived, layer {expected} expected")
+            }
+            Self::Finished => {
+                f.write_str("the toolpath stage has finished; reset it to start again")
+            }
+        }
+    }
+}
+
+/// One move of the print head.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ToolMove {
+    /// Target XY, um (for a retraction: the current position).
+    pub to: Point2,
+    /// Target Z, um.
+    pub z_um: i32,
+    /// Filament fed during the move, um (negative for a retraction).
+    pub e_um: i32,
+    /// Feed rate, mm/s (filament speed for retractions).
+    pub feed_mm_s: Rate,
+    /// What the move is.
+    pub feature: Feature,
+}
+
+/// What the toolpath stage emits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ToolEvent<'a> {
+    /// A layer begins (its first move goes to `z_um`).
+    LayerStart {
+        /// Layer index.
+        index: u32,
+        /// Nozzle height, um.
+        z_um: i32,
+        /// Layer thickness, um.
+        height_um: i32,
+    },
+    /// A move.
+    Move(ToolMove),
+    /// The layer is complete.
+    LayerEnd(&'a LayerStats),
+}
+
+/// Counters of one layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LayerStats {
+    /// Layer index.
+    pub index: u32,
+    /// Nozzle height, um.
+    pub z_um: i32,
+    /// Islands (outer loops with their holes).
+    pub islands: u32,
+    /// Islands too thin for one perimeter (nothing printed for them).
+    pub thin_islands: u32,
+    /// Extrusion paths (loops and runs) before ordering.
+    pub paths: u32,
+    /// Extruding moves.
+    pub extrusion_moves: u32,
+    /// Travel moves (including Z moves).
+    pub travel_moves: u32,
+    /// Retractions.
+    pub retractions: u32,
+    /// Continuous extrusion runs: extrusion stops once per run.
+    pub stops: u32,
+    /// Travel distance in XY, um.
+    pub travel_um: u64,
+    /// Filament fed by extruding moves, um.
+    pub filament_um: i64,
+}
+
+impl LayerStats {
+    /// All zero.
+    pub const EMPTY: Self = Self {
+        index: 0,
+        z_um: 0,
+        islands: 0,
+        thin_islands: 0,
+        paths: 0,
+        extrusion_moves: 0,
+        travel_moves: 0,
+        retractions: 0,
+        stops: 0,
+        travel_um: 0,
+        filament_um: 0,
+    };
+}
+
+/// Largest use of every buffer (the capacities a model needs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ToolpathNeeds {
+    /// Simplified contour points of one layer (and of one offset result): `PTS`.
+    pub layer_points: u32,
+    /// Loops of one layer: `LOOPS`.
+    pub layer_loops: u32,
+    /// Offset edges, splits or pieces of one island: `PTS`.
+    pub offset_edges: u32,
+    /// Scanline crossings, segments or pieces of one layer: `CROSS`.
+    pub crossings: u32,
+    /// Path points of one layer: `PATH`.
+    pub path_points: u32,
+    /// Paths of one layer: `CROSS`.
+    pub paths: u32,
+    /// Contour points waiting in the window: `RING`.
+    pub ring_points: u32,
+    /// Scanline spans in the window: `SPANS`.
+    pub spans: u32,
+}
+
+/// Totals of a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ToolpathStats {
+    /// Layers emitted.
+    pub layers: u32,
+    /// Extruding moves.
+    pub extrusion_moves: u64,
+    /// Travel moves.
+    pub travel_moves: u64,
+    /// Retractions.
+    pub retractions: u64,
+    /// Extrusion runs (stops).
+    pub stops: u64,
+    /// Travel distance, um.
+    pub travel_um: u64,
+    /// Filament, um.
+    pub filament_um: i64,
+    /// Islands too thin for a perimeter, over all layers.
+    pub thin_islands: u64,
+    /// Offset boundary chains that could not be closed (should be 0).
+    pub open_chains: u32,
+    /// Buffer use.
+    pub needs: ToolpathNeeds,
+}
+
+/// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
+const FIRST_LAYER: u32 = 0;
+
+/// The streaming toolpath stage. See the [module docs](self) for capacities and memory.
+pub struct Toolpath<
+    const PTS: usize,
+    const LOOPS: usize,
+    const CROSS: usize,
+    const PATH: usize,
+    const RING: usize,
+    const SPANS: usize,
+> {
+    cfg: ToolpathConfig,
+    step: i64,
+    ring: Fifo<Point2, RING>,
+    spans: Fifo<Span, SPANS>,
+    contour: LoopBuf<PTS, LOOPS>,
+    tmp: LoopBuf<PTS, LOOPS>,
+    fill: LoopBuf<PTS, LOOPS>,
+    eng: Offsetter<PTS>,
+    cross: [Crossing; CROSS],
+    order: [u32; CROSS],
+    cend: [u32; CROSS],
+    segs: [LineSeg; CROSS],
+    pieces: [LinePiece; CROSS],
+    paths: PathBuf<PATH, CROSS>,
+    island_map: [u16; LOOPS],
+    island_stage: [u8; LOOPS],
+    em: Emitter,
+    next_in: u32,
+    next_out: u32,
+    fill_use: FillUse,
+    stats: ToolpathStats,
+    stopped: Option<ToolpathError>,
+}
+
+impl<
+        const PTS: usize,
+        const LOOPS: usize,
+        const CROSS: usize,
+        const PATH: usize,
+        const RING: usize,
+        const SPANS: usize,
+    > Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>
+{
+    /// A stage ready for layer 0. The value is large: build it where the stack allows, or in
+    /// a static/boxed slot and call [`reset`](Self::reset).
+    pub fn new(cfg: ToolpathConfig) -> Result<Self, ToolpathError> {
+        let mut t = Self {
+            cfg,
+            step: 1,
+            ring: Fifo::new(Point2::new(0, 0), Buffer::RingPoints),
+            spans: Fifo::new(Span { line: 0, u0: 0, u1: 0 }, Buffer::WindowSpans),
+            contour: LoopBuf::new(),
+            tmp: LoopBuf::new(),
+            fill: LoopBuf::new(),
+            eng: Offsetter::new(),
+            cross: [Crossing {
+                line: 0,
+                u: 0,
+                edge: 0,
+                rstart: 0,
+                rend: 0,
+                island: 0,
+                ring: 0,
+                dir: 0,
+            }; CROSS],
+            order: [0; CROSS],
+            cend: [0; CROSS],
+            segs: [LineSeg::default(); CROSS],
+            pieces: [LinePiece::default(); CROSS],
+            paths: PathBuf::new(),
+            island_map: [0; LOOPS],
+            island_stage: [0; LOOPS],
+            em: Emitter::new(),
+            next_in: 0,
+            next_out: 0,
+            fill_use: FillUse { crossings: 0, segments: 0, pieces: 0 },
+            stats: ToolpathStats::default(),
+            stopped: None,
+        };
+        t.reset(cfg)?;
+        Ok(t)
+    }
+
+    /// Starts over with `cfg` (buffers kept). The nozzle is assumed at the bed origin.
+    pub fn reset(&mut self, cfg: ToolpathConfig) -> Result<(), ToolpathError> {
+        cfg.validate()?;
+        self.cfg = cfg;
+        self.step = scan::line_step(cfg.line_width_um);
+        self.ring.clear();
+        self.spans.clear();
+        self.em = Emitter::new();
+        self.next_in = 0;
+        self.next_out = 0;
+        self.stats = ToolpathStats::default();
+        self.stopped = None;
+        Ok(())
+    }
+
+    /// Sets where the nozzle is before the first layer (after the start G-code).
+    pub fn set_position(&mut self, p: Point2, z_um: i32) {
+        self.em.pos = p;
+        self.em.z = z_um;
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &ToolpathConfig {
+        &self.cfg
+    }
+
+    /// Totals so far.
+    pub fn stats(&self) -> ToolpathStats {
+        let mut s = self.stats;
+        s.open_chains = self.eng.open_chains;
+        let n = &mut s.needs;
+        n.layer_points = [self.contour.peak_points, self.tmp.peak_points, self.fill.peak_points]
+            .into_iter()
+            .max()
+            .unwrap_or(0) as u32;
+        n.layer_loops = [self.contour.peak_rings, self.tmp.peak_rings, self.fill.peak_rings]
+            .into_iter()
+            .max()
+            .unwrap_or(0) as u32;
+        let p = self.eng.peaks;
+        n.offset_edges = p.edges.max(p.splits).max(p.pieces) as u32;
+        let f = self.fill_use;
+        n.crossings = f.crossings.max(f.segments).max(f.pieces) as u32;
+        n.path_points = self.paths.peak_points as u32;
+        n.paths = self.paths.peak_paths as u32;
+        n.ring_points = self.ring.peak as u32;
+        n.spans = self.spans.peak as u32;
+        s
+    }
+
+    fn capacity(&self, what: Buffer, layer: u32) -> ToolpathError {
+        let capacity = match what {
+            Buffer::LayerPoints
+            | Buffer::OffsetEdges
+            | Buffer::OffsetSplits
+            | Buffer::OffsetPieces => PTS,
+            Buffer::LayerLoops => LOOPS,
+            Buffer::Crossings | Buffer::LineSegments | Buffer::Paths => CROSS,
+            Buffer::LineIntervals => 64,
+            Buffer::PathPoints => PATH,
+            Buffer::RingPoints => RING,
+            Buffer::WindowSpans => SPANS,
+            Buffer::WindowLayers => window::MAX_BLOCKS,
+        };
+        ToolpathError::Capacity { what, capacity: capacity as u32, layer }
+    }
+
+    /// Takes the next layer from the slicer; emits every layer whose `top_layers` layers
+    /// above have now arrived.
+    pub fn push_layer(
+        &mut self,
+        layer: &Layer<'_>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), ToolpathError> {
+        if let Some(e) = self.stopped {
+            return Err(e);
+        }
+        let result = self.push_inner(layer, sink);
+        if let Err(e) = result {
+            self.stopped = Some(e);
+        }
+        result
+    }
+
+    /// Ends the stream: emits the remaining layers (the top ones) and returns the totals.
+    pub fn finish(
+        &mut self,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<ToolpathStats, ToolpathError> {
+        if let Some(e) = self.stopped {
+            return Err(e);
+        }
+        let mut result = Ok(());
+        while result.is_ok() && self.next_out < self.next_in {
+            let l = self.next_out;
+            result = self.process(l, sink).map_err(|w| self.capacity(w, l));
+        }
+        self.stopped = Some(result.err().unwrap_or(ToolpathError::Finished));
+        result.map(|()| self.stats())
+    }
+
+    fn push_inner(
+        &mut self,
+        layer: &Layer<'_>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), ToolpathError> {
+        if layer.index != self.next_in {
+            return Err(ToolpathError::OutOfOrder { expected: self.next_in, got: layer.index });
+        }
+        let index = layer.index;
+        self.store(layer).map_err(|w| self.capacity(w, index))?;
+        self.next_in += 1;
+        let top = u32::from(self.cfg.top_layers);
+        while self.next_out + top < self.next_in {
+            let l = self.next_out;
+            self.process(l, sink).map_err(|w| self.capacity(w, l))?;
+        }
+        Ok(())
+    }
+
+    /// Simplifies and stores the layer's contours, and its skin spans at both angles.
+    fn store(&mut self, layer: &Layer<'_>) -> Result<(), Buffer> {
+        let index = layer.index;
+        let total = 1 + layer.loops.len() + layer.points.len();
+        let tol = i64::from(self.cfg.simplify_tolerance_um);
+        let block = self.ring.reserve(total)?;
+        let mut w = 1;
+        let mut rings = 0;
+        let mut islands = 0u16;
+        for (li, info) in layer.loops.iter().enumerate() {
+            let island = if info.hole {
+                match info.parent {
+                    Some(p) if (p as usize) < li.max(self.island_map.len()) => {
+                        match self.island_map.get(p as usize) {
+                            Some(&i) if i != u16::MAX => i,
+                            _ => continue,
+                        }
+                    }
+                    _ => continue,
+                }
+            } else {
+                islands += 1;
+                islands - 1
+            };
+            let pts = layer.loop_points(info);
+            let head = w;
+            let body = &mut block[head + 1..head + 1 + pts.len()];
+            body.copy_from_slice(pts);
+            let n = simplify::simplify_closed(body, tol);
+            let keep = n >= 3;
+            if let Some(slot) = self.island_map.get_mut(li) {
+                *slot = if keep || info.hole { island } else { u16::MAX };
+            } else if !info.hole {
+                return Err(Buffer::LayerLoops);
+            }
+            if !keep {
+                if !info.hole {
+                    // An outer loop that vanished takes its island (and holes) with it.
+                    if let Some(slot) = self.island_map.get_mut(li) {
+                        *slot = u16::MAX;
+                    }
+                }
+                continue;
+            }
+            block[head] = Point2::new(n as i32, i32::from(island));
+            w = head + 1 + n;
+            rings += 1;
+        }
+        block[0] = Point2::new(rings, i32::from(islands));
+        self.ring.commit(index, w, 0);
+        // Spans of this layer at both angles, from its simplified contours.
+        let blk = self.ring.find(index).ok_or(Buffer::RingPoints)?;
+        decode(self.ring.data(&blk), &mut self.tmp)?;
+        let mut n = 0;
+        let pts = self.tmp.points();
+        let rs = self.tmp.rings();
+        scan::crossings(pts, rs, Angle::D45, self.step, &mut self.cross, &mut n)?;
+        let na = n;
+        scan::crossings(pts, rs, Angle::D135, self.step, &mut self.cross, &mut n)?;
+        self.fill_use.crossings = self.fill_use.crossings.max(n);
+        scan::sort_by_line(&self.cross[..na], &mut self.order[..na]);
+        scan::sort_by_line(&self.cross[na..n], &mut self.order[na..n]);
+        let out = self.spans.reserve(n / 2 + 1)?;
+        let mut k = 0;
+        let put = |out: &mut [Span], k: &mut usize, iv: scan::Interval| {
+            if let Some(s) = out.get_mut(*k) {
+                *s = Span { line: iv.line, u0: iv.u0, u1: iv.u1 };
+                *k += 1;
+            }
+            Ok(())
+        };
+        scan::intervals(&self.cross[..na], &self.order[..na], |iv| put(out, &mut k, iv))?;
+        let split = k;
+        scan::intervals(&self.cross[na..n], &self.order[na..n], |iv| put(out, &mut k, iv))?;
+        self.spans.commit(index, k, split);
+        Ok(())
+    }
+
+    /// Builds and emits layer `l`.
+    fn process(&mut self, l: u32, sink: &mut impl FnMut(&ToolEvent<'_>)) -> Result<(), Buffer> {
+        let cfg = self.cfg;
+        let blk = self.ring.find(l).ok_or(Buffer::RingPoints)?;
+        decode(self.ring.data(&blk), &mut self.contour)?;
+        self.paths.clear();
+        self.fill.clear();
+        let mut layer = LayerStats { index: l, z_um: cfg.layer_z_um(l), ..LayerStats::EMPTY };
+        let islands = self.ring.data(&blk).first().map_or(0, |h| h.y.max(0) as u16);
+        layer.islands = u32::from(islands);
+        let w = cfg.line_width_um;
+        // Skirt around the first layer.
+        if l == FIRST_LAYER && cfg.skirt_loops > 0 && !self.contour.rings().is_empty() {
+            self.skirt()?;
+        }
+        // Perimeters and the infill domain, island by island.
+        let min_width = i64::from(w / 8);
+        for island in 0..islands {
+            for depth in 0..cfg.perimeters {
+                let d = i32::from(depth) * w + w / 2;
+                self.offset_island(island, d)?;
+                self.tmp.clear();
+                self.eng.union_into(&mut self.tmp, island, depth, min_width)?;
+                if self.tmp.rings().is_empty() {
+                    if depth == 0 {
+                        layer.thin_islands += 1;
+                    }
+                    break;
+                }
+                let feature =
+                    if depth == 0 { Feature::ExternalPerimeter } else { Feature::Perimeter };
+                for r in self.tmp.rings() {
+                    let pts = self.tmp.ring_points(r);
+                    self.paths.add_loop(pts, feature, island, PathKind::Perimeter(depth))?;
+                }
+            }
+            self.offset_island(island, cfg.infill_inset_um())?;
+            self.eng.union_into(&mut self.fill, island, 0, min_width)?;
+        }
+        // Infill.
+        if !self.fill.rings().is_empty() {
+            let angle = if l % 2 == 0 { Angle::D45 } else { Angle::D135 };
+            let grid = cfg.infill_pattern == InfillPattern::Grid;
+            self.infill_pass(l, angle, true)?;
+            if grid && cfg.sparse_every() > 0 {
+                self.infill_pass(l, angle.other(), false)?;
+            }
+        }
+        layer.paths = self.paths.recs().len() as u32;
+        // Emit.
+        self.em.layer = layer;
+        self.em.pending_z = Some(layer.z_um);
+        sink(&ToolEvent::LayerStart {
+            index: l,
+            z_um: layer.z_um,
+            height_um: cfg.layer_height_of(l),
+        });
+        let ctx = Ctx {
+            cfg: &self.cfg,
+            points: self.contour.points(),
+            rings: self.contour.rings(),
+            height_um: cfg.layer_height_of(l),
+            first_layer: l == FIRST_LAYER,
+        };
+        order::emit_layer(&mut self.em, &ctx, &mut self.paths, &mut self.island_stage, sink);
+        // A layer without extrusion still moves to its height.
+        if self.em.pending_z.is_some() {
+            let p = self.em.pos;
+            self.em.travel_to(&ctx, p, sink);
+        }
+        let ls = self.em.layer;
+        sink(&ToolEvent::LayerEnd(&ls));
+        let st = &mut self.stats;
+        st.layers += 1;
+        st.extrusion_moves += u64::from(ls.extrusion_moves);
+        st.travel_moves += u64::from(ls.travel_moves);
+        st.retractions += u64::from(ls.retractions);
+        st.stops += u64::from(ls.stops);
+        st.travel_um += ls.travel_um;
+        st.filament_um += ls.filament_um;
+        st.thin_islands += u64::from(ls.thin_islands);
+        // Drop what no later layer needs.
+        self.ring.pop();
+        let bottom = u32::from(cfg.bottom_layers);
+        while let Some(b) = self.spans.block(0) {
+            if b.layer + bottom <= l {
+                self.spans.pop();
+            } else {
+                break;
+            }
+        }
+        self.next_out = l + 1;
+        Ok(())
+    }
+
+    /// Loads the raw offset curves of `island` (distance `d`) into the engine.
+    fn offset_island(&mut self, island: u16, d: i32) -> Result<(), Buffer> {
+        self.eng.begin();
+        for r in self.contour.rings() {
+            if r.island == island {
+                self.eng.add_loop(self.contour.ring_points(r), d, Join::Miter)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The skirt: convex hull of the first layer, offset outwards with round joins.
+    fn skirt(&mut self) -> Result<(), Buffer> {
+        let cfg = self.cfg;
+        // Sort all points (in `tmp`), then Andrew's monotone chain into `fill`.
+        self.tmp.clear();
+        for &p in self.contour.points() {
+            self.tmp.push(p)?;
+        }
+        let sorted = self.tmp.open_points_mut();
+        sorted.sort_unstable_by_key(|p| (p.x, p.y));
+        self.fill.clear();
+        let hull = |buf: &mut LoopBuf<PTS, LOOPS>, p: Point2, floor: usize| -> Result<(), Buffer> {
+            while buf.open_len() >= floor + 2 {
+                let n = buf.open_len();
+                let pts = buf.open_points_mut();
+                if poly::orient(pts[n - 2], pts[n - 1], p) <= 0 {
+                    buf.truncate_open(n - 1);
+                } else {
+                    break;
+                }
+            }
+            buf.push(p)
+        };
+        let n = self.tmp.open_len();
+        for i in 0..n {
+            let p = self.tmp.open_points_mut()[i];
+            hull(&mut self.fill, p, 0)?;
+        }
+        let lower = self.fill.open_len();
+        for i in (0..n.saturating_sub(1)).rev() {
+            let p = self.tmp.open_points_mut()[i];
+            hull(&mut self.fill, p, lower - 1)?;
+        }
+        let h = self.fill.open_len();
+        self.fill.truncate_open(h.saturating_sub(1));
+        self.fill.close(u16::MAX, 0, Ring::NO_PARENT)?;
+        self.tmp.clear();
+        let Some(&hull_ring) = self.fill.rings().first() else { return Ok(()) };
+        for k in 0..i32::from(cfg.skirt_loops) {
+            let d = cfg.skirt_distance_um + cfg.line_width_um / 2 + k * cfg.line_width_um;
+            self.eng.begin();
+            self.eng.add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
+            self.tmp.clear();
+            self.eng.union_into(&mut self.tmp, u16::MAX, 0, 1)?;
+            for r in self.tmp.rings() {
+                if !r.is_hole() {
+                    let pts = self.tmp.ring_points(r);
+                    self.paths.add_loop(pts, Feature::Skirt, u16::MAX, PathKind::Skirt)?;
+                }
+            }
+        }
+        self.fill.clear();
+        Ok(())
+    }
+
+    /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only).
+    fn infill_pass(&mut self, l: u32, angle: Angle, solid: bool) -> Result<(), Buffer> {
+        let cfg = self.cfg;
+        let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
+        let empty: &[Span] = &[];
+        let mut view = SkinView {
+            above: [empty; 16],
+            n_above: 0,
+            above_complete: true,
+            below: [empty; 16],
+            n_below: 0,
+            below_complete: true,
+            has_next: false,
+        };
+        let spans = &self.spans;
+        let part = |b: window::Block| {
+            let all = spans.data(&b);
+            let split = (b.split as usize).min(all.len());
+            if angle == Angle::D45 {
+                &all[..split]
+            } else {
+                &all[split..]
+            }
+        };
+        for k in 1..=top as u32 {
+            match spans.find(l + k) {
+                Some(b) => {
+                    view.above[view.n_above] = part(b);
+                    view.n_above += 1;
+                    if k == 1 {
+                        view.has_next = true;
+                    }
+                }
+                None => {
+                    view.above_complete = false;
+                    break;
+                }
+            }
+        }
+        if top == 0 {
+            // No top skins, but the layer above still tells top surfaces apart.
+            if let Some(b) = spans.find(l + 1) {
+                view.above[0] = part(b);
+                view.n_above = 1;
+                view.has_next = true;
+            }
+        }
+        for k in 1..=bottom as u32 {
+            match l.checked_sub(k).and_then(|x| spans.find(x)) {
+                Some(b) => {
+                    view.below[view.n_below] = part(b);
+                    view.n_below += 1;
+                }
+                None => {
+                    view.below_complete = false;
+                    break;
+                }
+            }
+        }
+        let spacing = cfg.line_width_um;
+        let params = FillParams {
+            angle,
+            step: self.step,
+            spacing_um: spacing,
+            sparse_every: cfg.sparse_every(),
+            solid,
+            link_sparse: cfg.infill_pattern != InfillPattern::Lines,
+            min_len_u: (i64::from(spacing) * 1414 / 1000 / 3) as i32,
+            width_um: cfg.line_width_um,
+        };
+        let mut work = FillWork {
+            cross: &mut self.cross,
+            order: &mut self.order,
+            cend: &mut self.cend,
+            segs: &mut self.segs,
+            pieces: &mut self.pieces,
+        };
+        infill::fill(
+            self.fill.points(),
+            self.fill.rings(),
+            params,
+            view,
+            top,
+            bottom,
+            &mut work,
+            &mut self.paths,
+            &mut self.fill_use,
+        )
+    }
+}
+
+/// Decodes a stored layer (see `store`) into `out`.
+fn decode<const P: usize, const L: usize>(
+    data: &[Point2],
+    out: &mut LoopBuf<P, L>,
+) -> Result<(), Buffer> {
+    out.clear();
+    let Some(head) = data.first() else { return Ok(()) };
+    let mut at = 1;
+    for _ in 0..head.x.max(0) {
+        let Some(h) = data.get(at) else { break };
+        let n = h.x.max(0) as usize;
+        let island = h.y as u16;
+        for &p in data.get(at + 1..at + 1 + n).unwrap_or(&[]) {
+            out.push(p)?;
+        }
+        out.close(island, 0, Ring::NO_PARENT)?;
+        at += 1 + n;
+    }
+    Ok(())
+}

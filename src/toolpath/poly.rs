@@ -1,0 +1,296 @@
+//! Bounded loop buffers and the integer helpers every toolpath stage shares.
+
+use crate::geom::Point2;
+
+use super::Buffer;
+
+/// Integer square root (floor) of a `u64`, exact: Newton's method from a power-of-two start.
+pub fn isqrt(n: u64) -> u64 {
+    if n < 2 {
+        return n;
+    }
+    let bits = 64 - n.leading_zeros();
+    let mut x = 1u64 << bits.div_ceil(2);
+    loop {
+        let y = (x + n / x) / 2;
+        if y >= x {
+            return x;
+        }
+        x = y;
+    }
+}
+
+/// `num / den` rounded to the nearest integer, halves away from zero (`den != 0`).
+pub fn div_round(num: i64, den: i64) -> i64 {
+    let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+    if num >= 0 {
+        (num + den / 2) / den
+    } else {
+        -((-num + den / 2) / den)
+    }
+}
+
+/// [`div_round`] in `i128`.
+pub fn div_round_128(num: i128, den: i128) -> i128 {
+    let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+    if num >= 0 {
+        (num + den / 2) / den
+    } else {
+        -((-num + den / 2) / den)
+    }
+}
+
+/// Cross product of `b - a` and `c - a` (twice the signed triangle area), exact in `i64` for
+/// coordinates below 2^30.
+pub fn orient(a: Point2, b: Point2, c: Point2) -> i64 {
+    let (abx, aby) = (i64::from(b.x) - i64::from(a.x), i64::from(b.y) - i64::from(a.y));
+    let (acx, acy) = (i64::from(c.x) - i64::from(a.x), i64::from(c.y) - i64::from(a.y));
+    abx * acy - aby * acx
+}
+
+/// Squared distance in um^2.
+pub fn dist2(a: Point2, b: Point2) -> i64 {
+    let (dx, dy) = (i64::from(b.x) - i64::from(a.x), i64::from(b.y) - i64::from(a.y));
+    dx * dx + dy * dy
+}
+
+/// Distance rounded down to whole units.
+pub fn dist(a: Point2, b: Point2) -> i64 {
+    isqrt(dist2(a, b) as u64) as i64
+}
+
+/// One closed loop of a [`LoopBuf`]: `points[start..start + len]`, closing edge implied.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Ring {
+    /// Index of the first point.
+    pub start: u32,
+    /// Number of points.
+    pub len: u32,
+    /// Twice the signed area in um^2 (positive counter-clockwise: an outer boundary).
+    pub area2: i64,
+    /// Bounding box corner with the smallest x and y.
+    pub min: Point2,
+    /// Bounding box corner with the largest x and y.
+    pub max: Point2,
+    /// The island (group of loops) this loop belongs to.
+    pub island: u16,
+    /// Perimeter depth (0 = external) or another small tag.
+    pub depth: u8,
+    /// Index of the enclosing loop in the same buffer, `u16::MAX` if none.
+    pub parent: u16,
+}
+
+impl Ring {
+    /// No enclosing loop.
+    pub const NO_PARENT: u16 = u16::MAX;
+
+    /// True for a clockwise loop (a hole).
+    pub fn is_hole(&self) -> bool {
+        self.area2 < 0
+    }
+}
+
+/// Closed loops in bounded storage: `P` points, `L` loops.
+pub struct LoopBuf<const P: usize, const L: usize> {
+    points: [Point2; P],
+    n_points: usize,
+    rings: [Ring; L],
+    n_rings: usize,
+    /// Start of the loop being built.
+    open: usize,
+    /// Largest `n_points` and `n_rings` seen since creation.
+    pub(crate) peak_points: usize,
+    pub(crate) peak_rings: usize,
+}
+
+impl<const P: usize, const L: usize> LoopBuf<P, L> {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self {
+            points: [Point2::new(0, 0); P],
+            n_points: 0,
+            rings: [Ring {
+                start: 0,
+                len: 0,
+                area2: 0,
+                min: Point2::new(0, 0),
+                max: Point2::new(0, 0),
+                island: 0,
+                depth: 0,
+                parent: Ring::NO_PARENT,
+            }; L],
+            n_rings: 0,
+            open: 0,
+            peak_points: 0,
+            peak_rings: 0,
+        }
+    }
+
+    /// Removes every loop.
+    pub fn clear(&mut self) {
+        self.n_points = 0;
+        self.n_rings = 0;
+        self.open = 0;
+    }
+
+    /// The loops.
+    pub fn rings(&self) -> &[Ring] {
+        &self.rings[..self.n_rings]
+    }
+
+    /// All points, loop after loop.
+    pub fn points(&self) -> &[Point2] {
+        &self.points[..self.n_points]
+    }
+
+    /// The points of `r`.
+    pub fn ring_points(&self, r: &Ring) -> &[Point2] {
+        self.points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
+    }
+
+    /// Number of points of the loop being built.
+    pub fn open_len(&self) -> usize {
+        self.n_points - self.open
+    }
+
+    /// The points of the loop being built.
+    pub fn open_points_mut(&mut self) -> &mut [Point2] {
+        &mut self.points[self.open..self.n_points]
+    }
+
+    /// Drops the loop being built.
+    pub fn discard_open(&mut self) {
+        self.n_points = self.open;
+    }
+
+    /// Keeps only the first `len` points of the loop being built.
+    pub fn truncate_open(&mut self, len: usize) {
+        self.n_points = self.open + len.min(self.open_len());
+    }
+
+    /// Appends a point to the loop being built.
+    pub fn push(&mut self, p: Point2) -> Result<(), Buffer> {
+        let slot = self.points.get_mut(self.n_points).ok_or(Buffer::LayerPoints)?;
+        *slot = p;
+        self.n_points += 1;
+        self.peak_points = self.peak_points.max(self.n_points);
+        Ok(())
+    }
+
+    /// Closes the loop being built (area and bounding box computed here); a loop of fewer than
+    /// three points is dropped. Returns its index.
+    pub fn close(&mut self, island: u16, depth: u8, parent: u16) -> Result<Option<usize>, Buffer> {
+        let pts = &self.points[self.open..self.n_points];
+        if pts.len() < 3 {
+            self.n_points = self.open;
+            return Ok(None);
+        }
+        let slot = self.rings.get_mut(self.n_rings).ok_or(Buffer::LayerLoops)?;
+        let (mut min, mut max) = (pts[0], pts[0]);
+        for p in pts {
+            min = Point2::new(min.x.min(p.x), min.y.min(p.y));
+            max = Point2::new(max.x.max(p.x), max.y.max(p.y));
+        }
+        *slot = Ring {
+            start: self.open as u32,
+            len: pts.len() as u32,
+            area2: crate::geom::doubled_signed_area(pts),
+            min,
+            max,
+            island,
+            depth,
+            parent,
+        };
+        self.n_rings += 1;
+        self.peak_rings = self.peak_rings.max(self.n_rings);
+        self.open = self.n_points;
+        Ok(Some(self.n_rings - 1))
+    }
+}
+
+impl<const P: usize, const L: usize> Default for LoopBuf<P, L> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Winding number of the loops in `rings` around `p` (crossings of a ray to +x): non-zero
+/// inside a region bounded by counter-clockwise outer loops and clockwise holes.
+pub fn winding(points: &[Point2], rings: &[Ring], p: Point2) -> i32 {
+    let mut w = 0;
+    for r in rings {
+        if p.y < r.min.y || p.y > r.max.y || p.x > r.max.x {
+            continue;
+        }
+        let pts = points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]);
+        let Some(&last) = pts.last() else { continue };
+        let mut a = last;
+        for &b in pts {
+            if a.y <= p.y {
+                if b.y > p.y && orient(a, b, p) > 0 {
+                    w += 1;
+                }
+            } else if b.y <= p.y && orient(a, b, p) < 0 {
+                w -= 1;
+            }
+            a = b;
+        }
+    }
+    w
+}
+
+/// True when the open segments `a-b` and `c-d` share a point (touching included).
+pub fn segments_touch(a: Point2, b: Point2, c: Point2, d: Point2) -> bool {
+    if a.x.max(b.x) < c.x.min(d.x)
+        || c.x.max(d.x) < a.x.min(b.x)
+        || a.y.max(b.y) < c.y.min(d.y)
+        || c.y.max(d.y) < a.y.min(b.y)
+    {
+        return false;
+    }
+    let (d1, d2) = (orient(c, d, a), orient(c, d, b));
+    let (d3, d4) = (orient(a, b, c), orient(a, b, d));
+    // Collinear segments (all four zero) share a point: their boxes overlap (checked above).
+    !(((d1 > 0 && d2 > 0) || (d1 < 0 && d2 < 0)) || ((d3 > 0 && d4 > 0) || (d3 < 0 && d4 < 0)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn isqrt_is_exact_floor() {
+        for n in (0..10_000u64).chain([u64::MAX, u64::MAX - 1, 1 << 62, (1 << 32) - 1]) {
+            let r = isqrt(n);
+            assert!(u128::from(r) * u128::from(r) <= u128::from(n), "{n}");
+            assert!(u128::from(r + 1) * u128::from(r + 1) > u128::from(n), "{n}");
+        }
+    }
+
+    #[test]
+    fn rounding_division_goes_half_away_from_zero() {
+        assert_eq!(div_round(5, 2), 3);
+        assert_eq!(div_round(-5, 2), -3);
+        assert_eq!(div_round(4, 3), 1);
+        assert_eq!(div_round(-4, -3), 1);
+        assert_eq!(div_round(7, -2), -4);
+        assert_eq!(div_round_128(-7, 2), -4);
+    }
+
+    #[test]
+    fn winding_counts_holes() {
+        let mut b = LoopBuf::<16, 4>::new();
+        for p in [(0, 0), (100, 0), (100, 100), (0, 100)] {
+            b.push(Point2::new(p.0, p.1)).unwrap();
+        }
+        b.close(0, 0, Ring::NO_PARENT).unwrap();
+        for p in [(25, 25), (25, 75), (75, 75), (75, 25)] {
+            b.push(Point2::new(p.0, p.1)).unwrap();
+        }
+        b.close(0, 0, 0).unwrap();
+        assert_eq!(winding(b.points(), b.rings(), Point2::new(10, 50)), 1);
+        assert_eq!(winding(b.points(), b.rings(), Point2::new(50, 50)), 0);
+        assert_eq!(winding(b.points(), b.rings(), Point2::new(150, 50)), 0);
+        assert!(b.rings()[1].is_hole());
+    }
+}
