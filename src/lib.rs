@@ -8,10 +8,14 @@
 //! - [`stl`]: incremental push parser for binary and ASCII STL (any chunking, typed errors).
 //! - [`place`]: drop the model onto the bed, centre it, quantise to micrometres.
 //! - [`slice`](mod@slice): sweep-plane slicer over a zmin-sorted triangle stream, one layer at a time.
+//! - [`plan`]: lookahead motion planner (junction deviation, trapezoids, exact print time).
+//! - [`step`]: exact step times compressed to `(interval, count, add)` sequences, and the
+//!   timer-interrupt executor driving `embedded-hal` step/dir/enable pins.
 //! - [`toolpath`]: perimeters, infill, skins, skirt, ordering and retraction as a stream of moves.
 //!
 //! Shared foundations: [`geom`] (integer micrometre geometry) and [`machine`] (printer profile
-//! and print settings with validation).
+//! and print settings with validation);
+//! [`sim`] is the simulated stepper backend (pins, hand-advanced clock, timing checks, step hash).
 //!
 //! Guarantees:
 //! - `no_std`, no allocator: every buffer has a capacity fixed at compile time (const generics);
@@ -27,6 +31,8 @@ pub mod geom;
 pub mod machine;
 pub mod place;
 pub mod plan;
+pub mod sim;
 pub mod slice;
+pub mod step;
 pub mod stl;
 pub mod toolpath;

@@ -1,0 +1,361 @@
+//! Step-time compression: pending exact step times of one axis become `(interval, count, add)`
+//! sequences, each checked step by step before it is committed.
+//!
+//! Step `i` (from 0) of a sequence is at `last + (i + 1) interval + add i (i + 1) / 2`, where
+//! `last` is the executed time of the axis' previous step. For a fixed `add` every step bounds
+//! `interval` to an integer range; walking the steps and intersecting the ranges gives the
+//! longest run that `add` can cover, and which side the first failing step fell off says
+//! whether a larger or a smaller `add` would go further, so `add` is found by bisection over
+//! the range of the observed second differences. Interval limits (driver high + low time, the
+//! reversal gap after a direction change, [`MAX_INTERVAL_TICKS`]) are constraints of the same
+//! range.
+
+use super::{StepCmd, StepProducer, MAX_INTERVAL_TICKS};
+
+/// The axis' queue is full: try again after the executor has taken some commands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Full;
+
+/// Compression limits in ticks.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Tune {
+    /// Largest error of a compressed step against its exact time.
+    pub tol: i64,
+    /// Shortest interval between steps in one direction.
+    pub min_step: i64,
+    /// Shortest interval across a direction change.
+    pub min_rev: i64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Miss {
+    /// Every pending step fits.
+    Fits,
+    /// A later step needed a longer interval: a larger `add` would go further.
+    Larger,
+    /// A later step needed a shorter interval: a smaller `add` would go further.
+    Smaller,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Fit {
+    count: usize,
+    add: i64,
+    imin: i64,
+    imax: i64,
+    miss: Miss,
+}
+
+/// One axis' pending steps and its committed reference time.
+#[derive(Debug, Clone)]
+pub(crate) struct Compressor<const B: usize> {
+    /// Pending exact step times (generator ticks), ring buffer.
+    buf: [u64; B],
+    head: usize,
+    len: usize,
+    /// Time of the last committed step (or the end of the last wait).
+    last: u64,
+    /// Direction of the pending steps (the DIR command already queued).
+    dir: Option<bool>,
+    /// The next sequence is the first after a DIR command.
+    after_dir: bool,
+    /// The last accepted step and its direction.
+    prev_tick: u64,
+    prev_dir: Option<bool>,
+    /// Steps moved later to respect the driver's minimum intervals.
+    pub clamped: u32,
+    /// Sequences committed.
+    pub sequences: u64,
+    /// Sequences that failed the final check (must stay 0; the fallback is a one-step
+    /// sequence).
+    pub check_failures: u32,
+}
+
+impl<const B: usize> Compressor<B> {
+    pub(crate) const fn new() -> Self {
+        Self {
+            buf: [0; B],
+            head: 0,
+            len: 0,
+            last: 0,
+            dir: None,
+            after_dir: false,
+            prev_tick: 0,
+            prev_dir: None,
+            clamped: 0,
+            sequences: 0,
+            check_failures: 0,
+        }
+    }
+
+    pub(crate) fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub(crate) fn first_pending(&self) -> Option<u64> {
+        (self.len > 0).then(|| self.buf[self.head])
+    }
+
+    /// Time of the last committed step.
+    pub(crate) fn last(&self) -> u64 {
+        self.last
+    }
+
+    fn pending(&self, i: usize) -> u64 {
+        self.buf[(self.head + i) % B]
+    }
+
+    /// Accepts the step at exact time `tick` in direction `dir`. On `Err` nothing about the
+    /// step was recorded and the same call may simply be repeated.
+    pub(crate) fn push_step<const N: usize>(
+        &mut self,
+        axis: usize,
+        tick: u64,
+        dir: bool,
+        out: &mut StepProducer<'_, N>,
+        tune: &Tune,
+    ) -> Result<(), Full> {
+        if self.dir != Some(dir) {
+            while !self.is_empty() {
+                self.emit(axis, out, tune)?;
+            }
+            out.enqueue(axis, StepCmd::Dir(dir)).map_err(|_| Full)?;
+            self.dir = Some(dir);
+            self.after_dir = true;
+        }
+        if self.len == B {
+            self.emit(axis, out, tune)?;
+        }
+        let gap = if self.prev_dir == Some(dir) { tune.min_step } else { tune.min_rev } as u64;
+        let tick = if tick < self.prev_tick + gap {
+            self.clamped += 1;
+            self.prev_tick + gap
+        } else {
+            tick
+        };
+        self.buf[(self.head + self.len) % B] = tick;
+        self.len += 1;
+        self.prev_tick = tick;
+        self.prev_dir = Some(dir);
+        Ok(())
+    }
+
+    /// Commits one sequence (preceded by waits if the first step is far away).
+    pub(crate) fn emit<const N: usize>(
+        &mut self,
+        axis: usize,
+        out: &mut StepProducer<'_, N>,
+        tune: &Tune,
+    ) -> Result<(), Full> {
+        let Some(first) = self.first_pending() else {
+            return Ok(());
+        };
+        let max = MAX_INTERVAL_TICKS as u64;
+        while first > self.last + max - tune.tol as u64 {
+            out.enqueue(axis, StepCmd::Wait(MAX_INTERVAL_TICKS / 2)).map_err(|_| Full)?;
+            self.last += max / 2;
+        }
+        let mut fit = self.fit(tune);
+        let mut interval = fit.imin + (fit.imax - fit.imin) / 2;
+        if !self.check(interval, fit.add, fit.count, tune) {
+            // Unreachable by construction; a single step is always valid.
+            self.check_failures += 1;
+            fit.count = 1;
+            fit.add = 0;
+            let d0 = (first - self.last) as i64;
+            interval = d0.max(self.first_min(tune));
+        }
+        let cmd = StepCmd::Steps {
+            interval: interval as u32,
+            count: fit.count as u16,
+            add: fit.add as i32,
+        };
+        out.enqueue(axis, cmd).map_err(|_| Full)?;
+        let n = fit.count as i64;
+        self.last = (self.last as i64 + n * interval + fit.add * n * (n - 1) / 2) as u64;
+        self.head = (self.head + fit.count) % B;
+        self.len -= fit.count;
+        self.after_dir = false;
+        self.sequences += 1;
+        Ok(())
+    }
+
+    fn first_min(&self, tune: &Tune) -> i64 {
+        if self.after_dir {
+            tune.min_rev
+        } else {
+            tune.min_step
+        }
+    }
+
+    /// Replays the executor's arithmetic and checks every step against its exact time.
+    fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
+        let mut iv = interval;
+        let mut t = self.last as i64;
+        for i in 0..count {
+            if i > 0 {
+                iv += add;
+            }
+            let min_iv = if i == 0 { self.first_min(tune) } else { tune.min_step };
+            t += iv;
+            if iv < min_iv || iv > MAX_INTERVAL_TICKS as i64 {
+                return false;
+            }
+            if (t - self.pending(i) as i64).abs() > tune.tol {
+                return false;
+            }
+        }
+        count >= 1
+    }
+
+    /// The longest sequence from the front of the pending steps.
+    fn fit(&self, tune: &Tune) -> Fit {
+        let n = self.len.min(u16::MAX as usize);
+        // Range of `add` from the second differences (the first interval counts from `last`).
+        let (mut amin, mut amax) = (0i64, 0i64);
+        if n > 1 {
+            (amin, amax) = (i64::MAX, i64::MIN);
+            let mut prev_t = self.last as i64;
+            let mut prev_iv: Option<i64> = None;
+            for i in 0..n {
+                let t = self.pending(i) as i64;
+                let iv = t - prev_t;
+                if let Some(p) = prev_iv {
+                    amin = amin.min(iv - p);
+                    amax = amax.max(iv - p);
+                }
+                prev_iv = Some(iv);
+                prev_t = t;
+            }
+        }
+        let (mut lo, mut hi) = ((amin - 1).max(i32::MIN as i64), (amax + 1).min(i32::MAX as i64));
+        let mut best: Option<Fit> = None;
+        while lo <= hi {
+            let mid = (lo + hi).div_euclid(2);
+            let f = self.eval(mid, n, tune);
+            let better = match best {
+                None => true,
+                Some(b) => f.count > b.count || (f.count == b.count && f.add.abs() < b.add.abs()),
+            };
+            if better && f.count > 0 {
+                best = Some(f);
+            }
+            match f.miss {
+                Miss::Fits => break,
+                Miss::Larger => lo = mid + 1,
+                Miss::Smaller => hi = mid - 1,
+            }
+        }
+        best.unwrap_or_else(|| self.eval(0, 1, tune))
+    }
+
+    /// How many pending steps `add` covers, and the interval range that does it.
+    fn eval(&self, add: i64, n: usize, tune: &Tune) -> Fit {
+        let (mut imin, mut imax) = (i64::MIN, i64::MAX);
+        let last = self.last as i64;
+        for i in 0..n {
+            let ii = i as i64;
+            let d = self.pending(i) as i64 - last;
+            let k = ii + 1;
+            let at = add * (ii * k / 2);
+            // (i + 1) interval + add i (i + 1) / 2 within d +- tol.
+            let mut lo = -(-(d - tune.tol - at)).div_euclid(k);
+            let mut hi = (d + tune.tol - at).div_euclid(k);
+            // The interval of step i is interval + add i.
+            let min_iv = if i == 0 { self.first_min(tune) } else { tune.min_step };
+            lo = lo.max(min_iv - add * ii);
+            hi = hi.min(MAX_INTERVAL_TICKS as i64 - add * ii);
+            let (nlo, nhi) = (imin.max(lo), imax.min(hi));
+            if nlo > nhi {
+                let miss = if lo > imax { Miss::Larger } else { Miss::Smaller };
+                return Fit { count: i, add, imin, imax, miss };
+            }
+            (imin, imax) = (nlo, nhi);
+        }
+        Fit { count: n, add, imin, imax, miss: Miss::Fits }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::step::StepQueue;
+
+    fn tune() -> Tune {
+        Tune { tol: 36, min_step: 144, min_rev: 144 }
+    }
+
+    /// Runs the executor's recurrence over the queued commands of axis 0.
+    fn replay(q: &mut StepQueue<256>) -> Vec<i64> {
+        let (_, mut c) = q.split();
+        let mut t = 0i64;
+        let mut out = Vec::new();
+        while let Some(cmd) = c.dequeue(0) {
+            match cmd {
+                StepCmd::Steps { interval, count, add } => {
+                    let mut iv = interval as i64;
+                    for i in 0..count {
+                        if i > 0 {
+                            iv += add as i64;
+                        }
+                        t += iv;
+                        out.push(t);
+                    }
+                }
+                StepCmd::Wait(w) => t += w as i64,
+                StepCmd::Dir(_) => {}
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn accelerating_steps_compress_within_tolerance() {
+        // x = a t^2 / 2 from rest at 500 mm/s^2 * 80 steps/mm = 40000 steps/s^2, 72 MHz.
+        let exact: Vec<u64> = (1..=2000u64)
+            .map(|k| {
+                let t = ((k as f64 - 0.5) * 2.0 / 40_000.0).sqrt();
+                (t * 72e6).round() as u64 + 1000
+            })
+            .collect();
+        let mut q = StepQueue::<256>::new();
+        let mut c = Compressor::<64>::new();
+        {
+            let (mut p, _) = q.split();
+            for &t in &exact {
+                c.push_step(0, t, true, &mut p, &tune()).unwrap();
+            }
+            while !c.is_empty() {
+                c.emit(0, &mut p, &tune()).unwrap();
+            }
+        }
+        assert_eq!(c.check_failures, 0);
+        assert_eq!(c.clamped, 0);
+        let got = replay(&mut q);
+        assert_eq!(got.len(), exact.len());
+        for (g, e) in got.iter().zip(&exact) {
+            assert!((g - *e as i64).abs() <= 36, "{g} vs {e}");
+        }
+        assert!(c.sequences < 2000 / 8, "poor compression: {} sequences", c.sequences);
+    }
+
+    #[test]
+    fn long_pause_becomes_waits() {
+        let mut q = StepQueue::<256>::new();
+        let mut c = Compressor::<8>::new();
+        let t = [5_000u64, 3_000_000_000, 3_000_000_500];
+        {
+            let (mut p, _) = q.split();
+            for &x in &t {
+                c.push_step(0, x, true, &mut p, &tune()).unwrap();
+            }
+            while !c.is_empty() {
+                c.emit(0, &mut p, &tune()).unwrap();
+            }
+        }
+        let got = replay(&mut q);
+        for (g, e) in got.iter().zip(&t) {
+            assert!((g - *e as i64).abs() <= 36);
+        }
+    }
+}

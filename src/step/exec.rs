@@ -1,0 +1,323 @@
+//! The step executor: runs in the step timer interrupt, integer adds and compares only.
+//!
+//! Per axis it holds the running sequence (`next`, `interval`, `add`, `remaining`). At a due
+//! step it raises STEP, schedules the falling edge `step_high` later, and advances with
+//! `interval += add; next += interval`. After the falling edge of a sequence's last step it
+//! takes the next commands: a direction change sets DIR right then, which is at least the
+//! driver's setup time before the next rising edge because the generator keeps that gap
+//! ([`StepConfig::min_reversal_ticks`]). Times are wrapping `u32` ticks compared with
+//! [`is_before`].
+//!
+//! # Horizon, underrun, restart
+//! The generator publishes the generator time up to which every axis' commands are queued.
+//! No step later than that horizon is executed. Reaching the horizon while the motion is not
+//! at rest there is an **underrun**: the executor counts it ([`ExecStats::underruns`],
+//! [`ExecStats::first_underrun_tick`]), holds every axis (no step dropped, none early) and
+//! polls every [`StepConfig::stall_poll_ticks`]. Once the horizon moves on it resumes with
+//! every later step delayed by the same amount (stall point to `now + start_lead`), so step
+//! counts and relative timing are preserved. Reaching a horizon where the motion rests
+//! makes the executor idle ([`Wake::Idle`]); new commands restart it the same way (call
+//! [`Executor::on_timer`] after queuing them).
+
+use embedded_hal::digital::{OutputPin, PinState};
+
+use super::{is_before, StepCmd, StepConfig, StepConsumer};
+use crate::machine::AXES;
+
+/// The step, direction and shared enable pins.
+#[derive(Debug)]
+pub struct Pins<P> {
+    /// STEP per axis X, Y, Z, E.
+    pub step: [P; AXES],
+    /// DIR per axis X, Y, Z, E.
+    pub dir: [P; AXES],
+    /// The shared enable pin.
+    pub enable: P,
+}
+
+/// When the executor wants to run next.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Wake {
+    /// Call [`Executor::on_timer`] again at this tick.
+    At(u32),
+    /// Nothing queued and the motion is at rest: call again after queuing commands.
+    Idle,
+}
+
+/// Counters of the executor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ExecStats {
+    /// Steps executed per axis.
+    pub steps: [u64; AXES],
+    /// Times the horizon was reached while the motion should have gone on.
+    pub underruns: u32,
+    /// Tick of the first underrun.
+    pub first_underrun_tick: Option<u32>,
+    /// Steps delayed because DIR changed less than the setup time before them (only after
+    /// an underrun-late direction command).
+    pub late_dir_steps: u32,
+    /// Starts from idle.
+    pub starts: u32,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct AxisExec {
+    /// STEP is high; falls at `fall_at`.
+    high: bool,
+    fall_at: u32,
+    /// A sequence is running; its next step is at `next_at`.
+    active: bool,
+    next_at: u32,
+    interval: u32,
+    add: i32,
+    remaining: u16,
+    /// Time of the last step (or the end of the last wait): sequences count from here.
+    reference: u32,
+    /// DIR changed at `dir_at` and no step has followed yet.
+    dir_fresh: bool,
+    dir_at: u32,
+    /// Current direction is positive.
+    positive: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    Idle,
+    Running,
+    /// Waiting for the horizon to pass this generator time.
+    Stalled(u32),
+}
+
+/// Drives the pins from a [`StepConsumer`].
+#[derive(Debug)]
+pub struct Executor<'q, const N: usize> {
+    q: StepConsumer<'q, N>,
+    axes: [AxisExec; AXES],
+    /// Executor tick = generator tick + offset.
+    offset: u32,
+    state: State,
+    /// Generator time at which the motion last came to rest.
+    rest_gen: u32,
+    high_ticks: u32,
+    setup_ticks: u32,
+    lead: u32,
+    poll: u32,
+    invert: [bool; AXES],
+    enable_low: bool,
+    position: [i64; AXES],
+    stats: ExecStats,
+}
+
+impl<'q, const N: usize> Executor<'q, N> {
+    /// An idle executor taking commands from `queue`.
+    pub fn new(config: &StepConfig, queue: StepConsumer<'q, N>) -> Self {
+        Self {
+            q: queue,
+            axes: [AxisExec::default(); AXES],
+            offset: 0,
+            state: State::Idle,
+            rest_gen: 0,
+            high_ticks: config.step_high_ticks(),
+            setup_ticks: config.ns_to_ticks(config.driver.dir_setup_ns),
+            lead: config.start_lead_ticks.max(config.ns_to_ticks(config.driver.dir_setup_ns)),
+            poll: config.stall_poll_ticks.max(1),
+            invert: config.invert_dir,
+            enable_low: config.enable_active_low,
+            position: [0; AXES],
+            stats: ExecStats::default(),
+        }
+    }
+
+    /// Executor tick of generator tick 0 (changes at every start and resume).
+    pub fn offset(&self) -> u32 {
+        self.offset
+    }
+
+    /// Idle: nothing queued, motion at rest.
+    pub fn is_idle(&self) -> bool {
+        self.state == State::Idle
+    }
+
+    /// Stalled by an underrun.
+    pub fn is_stalled(&self) -> bool {
+        matches!(self.state, State::Stalled(_))
+    }
+
+    /// Steps executed per axis, signed by direction, since creation.
+    pub fn position_steps(&self) -> [i64; AXES] {
+        self.position
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> ExecStats {
+        self.stats
+    }
+
+    /// Turns the drivers off; only while idle (returns `Ok(false)` otherwise).
+    pub fn disable<P: OutputPin>(&mut self, pins: &mut Pins<P>) -> Result<bool, P::Error> {
+        if self.state != State::Idle {
+            return Ok(false);
+        }
+        pins.enable.set_state(PinState::from(self.enable_low))?;
+        Ok(true)
+    }
+
+    /// Maps generator time `gen` to executor time `at` from now on.
+    fn shift(&mut self, at: u32, gen: u32) {
+        let offset = at.wrapping_sub(gen);
+        let delta = offset.wrapping_sub(self.offset);
+        for a in &mut self.axes {
+            a.reference = a.reference.wrapping_add(delta);
+            a.next_at = a.next_at.wrapping_add(delta);
+        }
+        self.offset = offset;
+    }
+
+    /// Services every due event at `now` and says when to come back.
+    pub fn on_timer<P: OutputPin>(
+        &mut self,
+        now: u32,
+        pins: &mut Pins<P>,
+    ) -> Result<Wake, P::Error> {
+        let word = self.q.horizon();
+        let (h_gen, at_rest) = (word & !1, word & 1 != 0);
+        match self.state {
+            State::Running => {}
+            State::Idle => {
+                if !self.q.has_data() {
+                    return Ok(Wake::Idle);
+                }
+                self.shift(now.wrapping_add(self.lead), self.rest_gen);
+                pins.enable.set_state(PinState::from(!self.enable_low))?;
+                self.stats.starts += 1;
+                self.state = State::Running;
+            }
+            State::Stalled(stall) => {
+                if at_rest || is_before(stall, h_gen) {
+                    self.shift(now.wrapping_add(self.lead), stall);
+                    self.state = State::Running;
+                }
+            }
+        }
+        let h_exec = h_gen.wrapping_add(self.offset);
+        let mut wake: Option<u32> = None;
+        let mut busy = false;
+        for axis in 0..AXES {
+            if let Some(t) = self.service(axis, now, h_exec, pins)? {
+                wake = Some(match wake {
+                    Some(w) if is_before(w, t) => w,
+                    _ => t,
+                });
+            }
+            busy |= self.axes[axis].high || self.axes[axis].active;
+        }
+        let at_horizon = !is_before(now, h_exec);
+        if let State::Stalled(_) = self.state {
+            let poll = now.wrapping_add(self.poll);
+            return Ok(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
+        }
+        if at_horizon {
+            if at_rest {
+                if !busy && !self.q.has_data() {
+                    self.state = State::Idle;
+                    self.rest_gen = h_gen;
+                    return Ok(Wake::Idle);
+                }
+            } else {
+                self.state = State::Stalled(h_gen);
+                self.stats.underruns += 1;
+                self.stats.first_underrun_tick.get_or_insert(now);
+                let poll = now.wrapping_add(self.poll);
+                return Ok(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
+            }
+        }
+        let horizon_wake = if at_horizon { None } else { Some(h_exec) };
+        Ok(Wake::At(match (wake, horizon_wake) {
+            (Some(w), Some(h)) => {
+                if is_before(h, w) {
+                    h
+                } else {
+                    w
+                }
+            }
+            (Some(w), None) => w,
+            (None, Some(h)) => h,
+            (None, None) => now.wrapping_add(self.poll),
+        }))
+    }
+
+    /// One axis: falling edge, next commands, rising edge; returns its next event time.
+    #[inline]
+    fn service<P: OutputPin>(
+        &mut self,
+        axis: usize,
+        now: u32,
+        h_exec: u32,
+        pins: &mut Pins<P>,
+    ) -> Result<Option<u32>, P::Error> {
+        let a = &mut self.axes[axis];
+        if a.high {
+            if is_before(now, a.fall_at) {
+                return Ok(Some(a.fall_at));
+            }
+            pins.step[axis].set_low()?;
+            a.high = false;
+        }
+        while !a.active {
+            match self.q.dequeue(axis) {
+                None => return Ok(None),
+                Some(StepCmd::Dir(positive)) => {
+                    pins.dir[axis].set_state(PinState::from(positive != self.invert[axis]))?;
+                    a.positive = positive;
+                    a.dir_fresh = true;
+                    a.dir_at = now;
+                }
+                Some(StepCmd::Wait(ticks)) => a.reference = a.reference.wrapping_add(ticks),
+                Some(StepCmd::Steps { interval, count, add }) => {
+                    if count > 0 {
+                        a.interval = interval;
+                        a.add = add;
+                        a.remaining = count;
+                        a.next_at = a.reference.wrapping_add(interval);
+                        a.active = true;
+                    }
+                }
+            }
+        }
+        let due = a.next_at;
+        if is_before(h_exec, due) {
+            // Beyond the horizon: the horizon wake-up covers it.
+            return Ok(None);
+        }
+        let mut fire_at = due;
+        if a.dir_fresh {
+            let ready = a.dir_at.wrapping_add(self.setup_ticks);
+            if is_before(due, ready) {
+                fire_at = ready;
+            }
+        }
+        if is_before(now, fire_at) {
+            return Ok(Some(fire_at));
+        }
+        if fire_at != due {
+            self.stats.late_dir_steps += 1;
+        }
+        pins.step[axis].set_high()?;
+        a.high = true;
+        a.dir_fresh = false;
+        a.fall_at = now.wrapping_add(self.high_ticks);
+        a.reference = due;
+        self.stats.steps[axis] += 1;
+        self.position[axis] += if a.positive { 1 } else { -1 };
+        a.remaining -= 1;
+        if a.remaining > 0 {
+            a.interval = a.interval.wrapping_add(a.add as u32);
+            a.next_at = due.wrapping_add(a.interval);
+        } else {
+            a.active = false;
+        }
+        Ok(Some(a.fall_at))
+    }
+}

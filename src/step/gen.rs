@@ -1,0 +1,303 @@
+//! The step generator: exact step times of planned blocks, axis by axis in time order,
+//! compressed into the step queue incrementally (it stops whenever an axis' queue is full and
+//! resumes where it left off).
+
+use super::compress::{Compressor, Full, Tune};
+use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
+use crate::machine::{Rate, AXES};
+use crate::plan::Block;
+
+/// What [`StepGenerator::run`] stopped for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GenStatus {
+    /// Every block is generated and sent, and the motion ends at rest: nothing to do until
+    /// the next block.
+    Idle,
+    /// The current block is done and the motion goes on: the next block is needed (the
+    /// executor will stall at the horizon without it).
+    NeedBlock,
+    /// An axis' queue is full: call again after the executor has taken commands.
+    QueueFull,
+}
+
+/// Counters of the generator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GenStats {
+    /// Steps generated per axis.
+    pub steps: [u64; AXES],
+    /// Sequences committed per axis.
+    pub sequences: [u64; AXES],
+    /// Steps that had to be moved later to respect the driver's minimum intervals (0 unless
+    /// an axis reverses within a few microseconds).
+    pub clamped: u32,
+    /// Sequences that failed the final check against the exact times (always 0).
+    pub check_failures: u32,
+    /// Blocks completed.
+    pub blocks: u32,
+}
+
+/// Progress of one axis through the current block.
+#[derive(Debug, Clone, Copy, Default)]
+struct AxisRun {
+    /// Steps still to generate in this block.
+    remaining: u32,
+    /// Positive direction.
+    dir: bool,
+    /// Path distance of the next step, um q48.
+    s_q48: u128,
+    /// Path distance per step, um q48.
+    ds_q48: u128,
+    /// Exact time of the next step, generator ticks.
+    next_tick: u64,
+}
+
+/// Turns blocks into compressed step sequences; `B` pending steps per axis at most.
+#[derive(Debug, Clone)]
+pub struct StepGenerator<const B: usize = 64> {
+    tune: Tune,
+    pending_ticks: u64,
+    steps_per_mm: [Rate; AXES],
+    comp: [Compressor<B>; AXES],
+    axes: [AxisRun; AXES],
+    block: Option<Block>,
+    next: Option<Block>,
+    /// Generator time at the start of the current block (or the end of the last), ticks q16.
+    block_start_q16: u64,
+    /// Motor position per axis after every step generated or being generated.
+    motor: [i64; AXES],
+    /// The last completed block ended at rest (true before the first).
+    at_rest: bool,
+    blocks: u32,
+    steps: [u64; AXES],
+}
+
+impl<const B: usize> StepGenerator<B> {
+    /// A generator whose axes stand at `position_um` (X, Y, Z, E), at time 0.
+    pub fn new(config: &StepConfig, position_um: [i32; AXES]) -> Self {
+        let spm = config.steps_per_mm;
+        Self {
+            tune: Tune {
+                tol: config.max_error_ticks as i64,
+                min_step: config.min_step_ticks() as i64,
+                min_rev: config.min_reversal_ticks() as i64,
+            },
+            pending_ticks: config.max_pending_ticks as u64,
+            steps_per_mm: spm,
+            comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
+            axes: [AxisRun::default(); AXES],
+            block: None,
+            next: None,
+            block_start_q16: 0,
+            motor: core::array::from_fn(|i| {
+                nearest_step(step_position_q32(position_um[i], spm[i]))
+            }),
+            at_rest: true,
+            blocks: 0,
+            steps: [0; AXES],
+        }
+    }
+
+    /// There is room for one more block.
+    pub fn wants_block(&self) -> bool {
+        self.next.is_none()
+    }
+
+    /// Hands over the next block; gives it back if one is already waiting.
+    // Giving the item back is the heapless convention; no_std has no Box to shrink it.
+    #[allow(clippy::result_large_err)]
+    pub fn load(&mut self, block: Block) -> Result<(), Block> {
+        if self.next.is_some() {
+            return Err(block);
+        }
+        self.next = Some(block);
+        Ok(())
+    }
+
+    /// No block in progress or waiting and every step sent.
+    pub fn is_idle(&self) -> bool {
+        self.block.is_none() && self.next.is_none() && self.comp.iter().all(|c| c.is_empty())
+    }
+
+    /// Motor positions (steps) once every generated step has run.
+    pub fn motor_steps(&self) -> [i64; AXES] {
+        self.motor
+    }
+
+    /// Generator time at the end of the completed blocks, ticks q16.
+    pub fn time_q16(&self) -> u64 {
+        self.block_start_q16
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> GenStats {
+        GenStats {
+            steps: self.steps,
+            sequences: self.comp.each_ref().map(|c| c.sequences),
+            clamped: self.comp.iter().map(|c| c.clamped).sum(),
+            check_failures: self.comp.iter().map(|c| c.check_failures).sum(),
+            blocks: self.blocks,
+        }
+    }
+
+    /// Generates and sends steps until the blocks run out or a queue is full, publishing the
+    /// horizon as sequences go out.
+    pub fn run<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> GenStatus {
+        let status = self.run_inner(out);
+        self.publish(out);
+        status
+    }
+
+    fn run_inner<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> GenStatus {
+        loop {
+            let Some(block) = self.block else {
+                if let Some(b) = self.next.take() {
+                    self.start_block(b);
+                    continue;
+                }
+                if !self.at_rest {
+                    return GenStatus::NeedBlock;
+                }
+                // A stop with nothing after it: send everything.
+                for axis in 0..AXES {
+                    while !self.comp[axis].is_empty() {
+                        if self.comp[axis].emit(axis, out, &self.tune).is_err() {
+                            return GenStatus::QueueFull;
+                        }
+                        self.publish(out);
+                    }
+                }
+                return GenStatus::Idle;
+            };
+            // The axis with the earliest next step.
+            let mut pick: Option<usize> = None;
+            for axis in 0..AXES {
+                let a = &self.axes[axis];
+                if a.remaining > 0 && pick.map_or(true, |p| a.next_tick < self.axes[p].next_tick) {
+                    pick = Some(axis);
+                }
+            }
+            let Some(axis) = pick else {
+                self.block_start_q16 += block.duration_ticks_q16();
+                self.at_rest = block.ends_at_rest();
+                self.block = None;
+                self.blocks += 1;
+                continue;
+            };
+            let (tick, dir) = (self.axes[axis].next_tick, self.axes[axis].dir);
+            let before = self.sequences();
+            if self.comp[axis].push_step(axis, tick, dir, out, &self.tune).is_err() {
+                self.unblock(axis, out);
+                return GenStatus::QueueFull;
+            }
+            self.steps[axis] += 1;
+            self.advance(axis, &block);
+            // Steps that waited too long for a longer sequence go out now.
+            for c in 0..AXES {
+                if let Some(f) = self.comp[c].first_pending() {
+                    if f + self.pending_ticks < tick {
+                        let _ = self.comp[c].emit(c, out, &self.tune);
+                    }
+                }
+            }
+            if self.sequences() != before {
+                self.publish(out);
+            }
+        }
+    }
+
+    fn sequences(&self) -> u64 {
+        self.comp.iter().map(|c| c.sequences).sum()
+    }
+
+    /// `axis` cannot queue more: send the other axes' steps that are older than its last
+    /// queued one, so that the executor's horizon passes everything in its queue.
+    fn unblock<const N: usize>(&mut self, axis: usize, out: &mut StepProducer<'_, N>) {
+        let limit = self.comp[axis].last();
+        for c in (0..AXES).filter(|&c| c != axis) {
+            while self.comp[c].first_pending().is_some_and(|f| f <= limit) {
+                if let Err(Full) = self.comp[c].emit(c, out, &self.tune) {
+                    break;
+                }
+            }
+        }
+    }
+
+    /// Publishes how far the queued commands reach and whether the motion rests there.
+    fn publish<const N: usize>(&self, out: &StepProducer<'_, N>) {
+        let end = match &self.block {
+            Some(b) => self.block_start_q16 + b.duration_ticks_q16(),
+            None => self.block_start_q16,
+        } >> 16;
+        let complete = self.block.is_none()
+            && self.next.is_none()
+            && self.at_rest
+            && self.comp.iter().all(|c| c.is_empty());
+        if complete {
+            out.publish(pack_horizon(end, true));
+            return;
+        }
+        let mut h = end;
+        for axis in 0..AXES {
+            if let Some(f) = self.comp[axis].first_pending() {
+                h = h.min(f);
+            } else if self.block.is_some() && self.axes[axis].remaining > 0 {
+                h = h.min(self.axes[axis].next_tick);
+            }
+        }
+        // A compressed step may run up to `tol` before its exact time.
+        out.publish(pack_horizon(h.saturating_sub(self.tune.tol as u64 + 2), false));
+    }
+
+    fn start_block(&mut self, b: Block) {
+        let (start, end) = (b.start_um(), b.end_um());
+        let len = b.length_um_q32() as u128;
+        for axis in 0..AXES {
+            let spm = self.steps_per_mm[axis];
+            let (p0, p1) = (step_position_q32(start[axis], spm), step_position_q32(end[axis], spm));
+            let m = self.motor[axis];
+            let m1 = motor_after(m, p1);
+            let run = &mut self.axes[axis];
+            *run = AxisRun::default();
+            if m1 == m {
+                continue;
+            }
+            self.motor[axis] = m1;
+            let half = 1i64 << 31;
+            let (dir, delta0, dp) = if m1 > m {
+                (true, (m << 32) + half - p0, p1 - p0)
+            } else {
+                (false, p0 - ((m << 32) - half), p0 - p1)
+            };
+            // 0 <= delta0 < dp; the first crossing is delta0 / dp of the way along.
+            let dp = dp.max(1) as u128;
+            run.remaining = m1.abs_diff(m) as u32;
+            run.dir = dir;
+            run.s_q48 = ((delta0.max(0) as u128 * len) << 16) / dp;
+            run.ds_q48 = (len << 48) / dp;
+        }
+        self.block = Some(b);
+        for axis in 0..AXES {
+            if self.axes[axis].remaining > 0 {
+                self.axes[axis].next_tick = self.tick_at(&b, self.axes[axis].s_q48);
+            }
+        }
+    }
+
+    fn advance(&mut self, axis: usize, b: &Block) {
+        let run = &mut self.axes[axis];
+        run.remaining -= 1;
+        if run.remaining > 0 {
+            run.s_q48 += run.ds_q48;
+            let s = run.s_q48;
+            self.axes[axis].next_tick = self.tick_at(b, s);
+        }
+    }
+
+    /// Exact time of path distance `s_q48` in `b`, generator ticks rounded to nearest.
+    fn tick_at(&self, b: &Block, s_q48: u128) -> u64 {
+        let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
+        (self.block_start_q16 + b.time_at_q16(s_q32) + (1 << 15)) >> 16
+    }
+}

@@ -1,0 +1,52 @@
+//! Whole jobs through planner, step generator, executor and the simulated board, checked
+//! against the independent `f64` reference: step counts, step times, speeds, accelerations.
+
+mod motion_support;
+
+use motion_support::measure::{check_limits, compare_steps, STEP_TOL_S};
+use motion_support::{assert_clean, mv, reference, run_job, JobConfig};
+use strata::plan::MoveKind::{Print, Retract, Travel};
+
+#[test]
+fn single_move_matches_reference() {
+    let cfg = JobConfig::default();
+    let moves = [mv([30_000, 0, 0, 0], 100.0, Travel)];
+    let r = run_job(&moves, &cfg);
+    assert_clean(&r, &cfg, &moves);
+    let plan = reference::plan(&moves, &cfg);
+    let t = compare_steps(&r, &plan, &cfg);
+    eprintln!("single move: {t:?} seq {:?} wakes {}", r.gen.sequences, r.wakes);
+    assert!(t.max_err_s <= STEP_TOL_S, "{t:?}");
+    let l = check_limits(&r, &plan, &cfg, 1e-3);
+    eprintln!("{l:?}");
+}
+
+#[test]
+fn mixed_moves_match_reference() {
+    let cfg = JobConfig::default();
+    let moves = [
+        mv([20_000, 0, 0, 0], 60.0, Travel),
+        mv([20_000, 20_000, 0, 800], 40.0, Print),
+        mv([5_000, 30_000, 0, 1500], 45.0, Print),
+        mv([5_000, 30_000, 0, -3500], 45.0, Retract),
+        mv([40_000, 2_000, 200, -3500], 150.0, Travel),
+        mv([40_000, 2_000, 200, 1500], 45.0, Retract),
+        mv([41_000, 12_000, 200, 1900], 30.0, Print),
+        mv([0, 0, 0, 1900], 200.0, Travel),
+    ];
+    let r = run_job(&moves, &cfg);
+    assert_clean(&r, &cfg, &moves);
+    let plan = reference::plan(&moves, &cfg);
+    let t = compare_steps(&r, &plan, &cfg);
+    eprintln!("mixed: {t:?} seq {:?} steps {:?}", r.gen.sequences, r.gen.steps);
+    assert!(t.max_err_s <= STEP_TOL_S, "{t:?}");
+    let l = check_limits(&r, &plan, &cfg, 1e-3);
+    eprintln!("{l:?}");
+    let total = reference::total_time(&plan);
+    eprintln!(
+        "planned {} ref {} end {}",
+        r.planned_s,
+        total,
+        (r.end_tick - r.gen0_tick) as f64 / 72e6
+    );
+}
