@@ -12,6 +12,7 @@
 //! - [`step`]: exact step times compressed to `(interval, count, add)` sequences, and the
 //!   timer-interrupt executor driving `embedded-hal` step/dir/enable pins.
 //! - [`toolpath`]: perimeters, infill, skins, skirt, ordering and retraction as a stream of moves.
+//! - [`gcode`]: Marlin-flavoured G-code writer (PrusaSlicer-compatible comments).
 //!
 //! Shared foundations: [`geom`] (integer micrometre geometry) and [`machine`] (printer profile
 //! and print settings with validation);
@@ -27,6 +28,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod gcode;
 pub mod geom;
 pub mod machine;
 pub mod place;

@@ -1,23 +1,34 @@
-//! `strata slice`: run the core slicer on the host and write contours (JSON, SVG).
+//! `strata slice`: run the core on the host and write G-code (`-o`), a summary (`--json`) and
+//! contours (JSON, SVG).
 //!
-//! The model is loaded and placed like every host command (centred on the default Ender-3
-//! bed, refused if larger), then streamed through the same `strata::slice::Slicer` the
-//! printer runs, with host-sized capacities. That slicer is about 9 MB, too large for a
-//! debug build's main-thread stack, so the slicing runs on its own thread with a 256 MB stack
-//! (reserved address space; only the touched pages are used).
+//! The model is loaded and placed like every host command (centred on the Ender-3 bed, or a
+//! `--bed` of another size, refused if larger), then streamed through the same
+//! `strata::slice::Slicer` and `strata::toolpath::Toolpath` the printer runs, with host-sized
+//! capacities, and the moves through `strata::gcode::GcodeWriter` into a `String`. Those
+//! stages are megabytes, too large for a debug build's main-thread stack, so they run on
+//! their own thread with a 256 MB stack (reserved address space; only the touched pages are
+//! used).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
+use strata::gcode::{GcodeOptions, GcodeStats, GcodeWriter};
 use strata::geom::{Point2, Triangle};
-use strata::machine::{MachineConfig, PrintSettings};
+use strata::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
 use strata::slice::{peak_needs, Layer, LayerRepairs, PeakNeeds, SliceConfig, SliceStats, Slicer};
+use strata::toolpath::{
+    LayerStats, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds,
+    ToolpathStats,
+};
 
 use crate::model;
 
 /// Host capacities: active triangles, segments (and points) per layer, loops per layer.
 type HostSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
+/// Host toolpath capacities: PTS, LOOPS, CROSS, PATH, RING, SPANS (about 20 MB).
+type HostToolpath =
+    Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
 const SLICER_STACK_BYTES: usize = 256 << 20;
 
 /// Options of `strata slice`.
@@ -37,6 +48,100 @@ pub struct SliceArgs {
     /// First layer height in mm (default: the 0.2 mm profile).
     #[arg(long, value_name = "MM")]
     pub first_layer_height: Option<f64>,
+    /// Write printable G-code (Marlin, Ender-3) to this file.
+    #[arg(short = 'o', long, value_name = "OUT.gcode")]
+    pub output: Option<PathBuf>,
+    /// Print a machine-readable summary of the toolpaths (JSON) instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Print settings.
+    #[command(flatten)]
+    pub print: Box<PrintArgs>,
+}
+
+/// The print-setting options of `strata slice`.
+#[derive(Debug, clap::Args)]
+pub struct PrintArgs {
+    /// Extrusion line width in mm (default 0.45).
+    #[arg(long, value_name = "MM")]
+    pub line_width: Option<f64>,
+    /// Perimeter loops (default 2).
+    #[arg(long, value_name = "N")]
+    pub perimeters: Option<u8>,
+    /// Sparse infill density in percent (default 20).
+    #[arg(long, value_name = "PERCENT")]
+    pub infill: Option<u8>,
+    /// Sparse infill pattern (default zigzag).
+    #[arg(long, value_enum)]
+    pub pattern: Option<PatternArg>,
+    /// Solid layers under top surfaces (default 4).
+    #[arg(long, value_name = "N")]
+    pub top_layers: Option<u8>,
+    /// Solid layers over bottom surfaces (default 4).
+    #[arg(long, value_name = "N")]
+    pub bottom_layers: Option<u8>,
+    /// Hotend temperature in C (default 200).
+    #[arg(long, value_name = "C")]
+    pub hotend_temp: Option<i16>,
+    /// Bed temperature in C (default 60).
+    #[arg(long, value_name = "C")]
+    pub bed_temp: Option<i16>,
+    /// Perimeter speed in mm/s (default 45).
+    #[arg(long, value_name = "MM_S")]
+    pub perimeter_speed: Option<f64>,
+    /// Infill speed in mm/s (default 60).
+    #[arg(long, value_name = "MM_S")]
+    pub infill_speed: Option<f64>,
+    /// Travel speed in mm/s (default 150).
+    #[arg(long, value_name = "MM_S")]
+    pub travel_speed: Option<f64>,
+    /// First layer speed in mm/s (default 20).
+    #[arg(long, value_name = "MM_S")]
+    pub first_layer_speed: Option<f64>,
+    /// Retraction length in mm (default 5, Bowden; 0 disables).
+    #[arg(long, value_name = "MM")]
+    pub retract_length: Option<f64>,
+    /// Retraction speed in mm/s (default 45).
+    #[arg(long, value_name = "MM_S")]
+    pub retract_speed: Option<f64>,
+    /// Absolute extrusion (M82) instead of relative (M83).
+    #[arg(long)]
+    pub absolute_e: bool,
+    /// Print the external perimeter before the inner ones.
+    #[arg(long)]
+    pub outer_perimeter_first: bool,
+    /// Where loops start (default rear).
+    #[arg(long, value_enum)]
+    pub seam: Option<SeamArg>,
+    /// Skirt loops (default 1; 0 for none).
+    #[arg(long, value_name = "N")]
+    pub skirt_loops: Option<u8>,
+    /// Gap between the skirt and the first layer in mm (default 3).
+    #[arg(long, value_name = "MM")]
+    pub skirt_distance: Option<f64>,
+    /// Build volume X,Y,Z in mm (default 220,220,250).
+    #[arg(long, value_name = "X,Y,Z", value_delimiter = ',', num_args = 3)]
+    pub bed: Option<Vec<f64>>,
+}
+
+/// `--pattern` values.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum PatternArg {
+    /// Parallel lines, all printed in the same direction.
+    Lines,
+    /// Lines joined into continuous runs.
+    Zigzag,
+    /// Lines in both directions on every layer.
+    Grid,
+}
+
+/// `--seam` values.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum SeamArg {
+    /// Rear-most vertex.
+    Rear,
+    /// Vertex nearest to the nozzle.
+    Nearest,
 }
 
 /// One loop in mm, as written to JSON.
@@ -233,23 +338,311 @@ fn summary(stats: &SliceStats, needs: &PeakNeeds, layers: &[LayerOut]) -> Summar
     }
 }
 
+/// A length option in mm to um: positive (or `zero_ok`), finite, below 1 m.
+fn length_um(
+    value: Option<f64>,
+    default_um: i32,
+    flag: &str,
+    zero_ok: bool,
+) -> Result<i32, String> {
+    match value {
+        None => Ok(default_um),
+        Some(v) if v.is_finite() && (v > 0.0 || (zero_ok && v == 0.0)) && v < 1000.0 => {
+            Ok((v * 1000.0).round() as i32)
+        }
+        Some(v) => Err(format!("--{flag} {v}: must be a positive length in mm")),
+    }
+}
+
+/// A speed option in mm/s.
+fn speed(value: Option<f64>, default: Rate, flag: &str) -> Result<Rate, String> {
+    match value {
+        None => Ok(default),
+        Some(v) if v.is_finite() && v > 0.0 && v < 10_000.0 => Ok(Rate::from_num(v)),
+        Some(v) => Err(format!("--{flag} {v}: must be a positive speed in mm/s")),
+    }
+}
+
+/// The machine (default Ender-3, or `--bed`).
+fn machine_of(args: &SliceArgs) -> Result<MachineConfig, String> {
+    let mut machine = MachineConfig::default();
+    if let Some(bed) = &args.print.bed {
+        for (slot, &v) in machine.build_volume_um.iter_mut().zip(bed) {
+            *slot = length_um(Some(v), 0, "bed", false)?;
+        }
+    }
+    Ok(machine)
+}
+
+/// Print settings from the defaults and the options, validated against `machine`.
+fn settings_of(args: &SliceArgs, machine: &MachineConfig) -> Result<PrintSettings, String> {
+    let d = PrintSettings::default();
+    let mut s = d;
+    s.layer_height_um = height_um(args.layer_height, d.layer_height_um, "layer-height")?;
+    s.first_layer_height_um =
+        height_um(args.first_layer_height, d.first_layer_height_um, "first-layer-height")?;
+    s.line_width_um = length_um(args.print.line_width, d.line_width_um, "line-width", false)?;
+    s.perimeters = args.print.perimeters.unwrap_or(d.perimeters);
+    s.infill_percent = args.print.infill.unwrap_or(d.infill_percent);
+    s.infill_pattern = match args.print.pattern {
+        None => d.infill_pattern,
+        Some(PatternArg::Lines) => InfillPattern::Lines,
+        Some(PatternArg::Zigzag) => InfillPattern::Zigzag,
+        Some(PatternArg::Grid) => InfillPattern::Grid,
+    };
+    s.top_layers = args.print.top_layers.unwrap_or(d.top_layers);
+    s.bottom_layers = args.print.bottom_layers.unwrap_or(d.bottom_layers);
+    s.hotend_temp_c = args.print.hotend_temp.unwrap_or(d.hotend_temp_c);
+    s.bed_temp_c = args.print.bed_temp.unwrap_or(d.bed_temp_c);
+    s.perimeter_speed_mm_s =
+        speed(args.print.perimeter_speed, d.perimeter_speed_mm_s, "perimeter-speed")?;
+    s.infill_speed_mm_s = speed(args.print.infill_speed, d.infill_speed_mm_s, "infill-speed")?;
+    s.travel_speed_mm_s = speed(args.print.travel_speed, d.travel_speed_mm_s, "travel-speed")?;
+    s.first_layer_speed_mm_s =
+        speed(args.print.first_layer_speed, d.first_layer_speed_mm_s, "first-layer-speed")?;
+    s.retract_length_um =
+        length_um(args.print.retract_length, d.retract_length_um, "retract-length", true)?;
+    s.retract_speed_mm_s = speed(args.print.retract_speed, d.retract_speed_mm_s, "retract-speed")?;
+    s.validate(machine).map_err(|e| e.to_string())?;
+    Ok(s)
+}
+
+/// Toolpath settings from the print settings and the toolpath-only options.
+fn toolpath_config_of(
+    args: &SliceArgs,
+    machine: &MachineConfig,
+    settings: &PrintSettings,
+) -> Result<ToolpathConfig, String> {
+    let mut cfg = ToolpathConfig::new(machine, settings);
+    cfg.outer_perimeter_last = !args.print.outer_perimeter_first;
+    if let Some(seam) = args.print.seam {
+        cfg.seam = match seam {
+            SeamArg::Rear => Seam::Rear,
+            SeamArg::Nearest => Seam::Nearest,
+        };
+    }
+    cfg.skirt_loops = args.print.skirt_loops.unwrap_or(cfg.skirt_loops);
+    cfg.skirt_distance_um =
+        length_um(args.print.skirt_distance, cfg.skirt_distance_um, "skirt-distance", true)?;
+    cfg.validate().map_err(|e| e.to_string())?;
+    Ok(cfg)
+}
+
+/// What the toolpath run produced.
+struct ToolpathRun {
+    gcode: String,
+    stats: ToolpathStats,
+    gcode_stats: GcodeStats,
+    slice: SliceStats,
+    layers: Vec<LayerStats>,
+}
+
+/// Slices, builds toolpaths and writes G-code on a thread with a large stack.
+fn run_toolpaths(
+    tris: &[Triangle],
+    config: SliceConfig,
+    machine: &MachineConfig,
+    settings: &PrintSettings,
+    cfg: ToolpathConfig,
+    opts: GcodeOptions,
+) -> Result<ToolpathRun, String> {
+    std::thread::scope(|scope| {
+        let worker = std::thread::Builder::new()
+            .name("toolpath".into())
+            .stack_size(SLICER_STACK_BYTES)
+            .spawn_scoped(scope, || {
+                let mut slicer = Box::new(HostSlicer::new(config).map_err(|e| e.to_string())?);
+                let mut tp = Box::new(HostToolpath::new(cfg).map_err(|e| e.to_string())?);
+                let mut gw = GcodeWriter::new(String::new(), opts, &cfg);
+                gw.start(machine, settings, &cfg).map_err(|e| e.to_string())?;
+                let (pos, z) = gw.position();
+                tp.set_position(pos, z);
+                let mut layers = Vec::new();
+                let mut write_error = false;
+                let mut events = |e: &ToolEvent<'_>| {
+                    if let ToolEvent::LayerEnd(s) = e {
+                        layers.push(**s);
+                    }
+                    write_error |= gw.event(e).is_err();
+                };
+                let mut failed: Option<ToolpathError> = None;
+                let mut sink = |l: &Layer<'_>| {
+                    if failed.is_none() {
+                        failed = tp.push_layer(l, &mut events).err();
+                    }
+                };
+                for t in tris {
+                    slicer.push(t, &mut sink).map_err(|e| e.to_string())?;
+                }
+                let slice = slicer.finish(&mut sink).map_err(|e| e.to_string())?;
+                if let Some(e) = failed {
+                    return Err(e.to_string());
+                }
+                let stats = tp.finish(&mut events).map_err(|e| e.to_string())?;
+                if write_error {
+                    return Err("G-code formatting failed".into());
+                }
+                gw.end(machine, &cfg).map_err(|e| e.to_string())?;
+                let gcode_stats = *gw.stats();
+                Ok(ToolpathRun { gcode: gw.into_inner(), stats, gcode_stats, slice, layers })
+            })
+            .map_err(|e| format!("cannot start the toolpath thread: {e}"))?;
+        worker.join().map_err(|_| "the toolpath thread panicked".to_string())?
+    })
+}
+
+#[derive(Serialize)]
+struct NeedsOut {
+    layer_points: u32,
+    layer_loops: u32,
+    offset_edges: u32,
+    crossings: u32,
+    path_points: u32,
+    paths: u32,
+    ring_points: u32,
+    spans: u32,
+}
+
+impl From<ToolpathNeeds> for NeedsOut {
+    fn from(n: ToolpathNeeds) -> Self {
+        Self {
+            layer_points: n.layer_points,
+            layer_loops: n.layer_loops,
+            offset_edges: n.offset_edges,
+            crossings: n.crossings,
+            path_points: n.path_points,
+            paths: n.paths,
+            ring_points: n.ring_points,
+            spans: n.spans,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct LayerSummaryOut {
+    index: u32,
+    z: f64,
+    retractions: u32,
+    travel_mm: f64,
+    stops: u32,
+    extrusion_moves: u32,
+    travel_moves: u32,
+    filament_mm: f64,
+    thin_islands: u32,
+}
+
+#[derive(Serialize)]
+struct GcodeSummaryOut {
+    model: String,
+    output: Option<String>,
+    layers: u32,
+    filament_mm: f64,
+    extrusion_moves: u64,
+    travel_moves: u64,
+    retractions: u64,
+    travel_mm: f64,
+    stops: u64,
+    thin_islands: u64,
+    triangles: u32,
+    gcode_lines: u64,
+    gcode_bytes: usize,
+    needs: NeedsOut,
+    per_layer: Vec<LayerSummaryOut>,
+}
+
 /// Runs `strata slice`.
 pub fn run(args: &SliceArgs) -> Result<(), String> {
-    let machine = MachineConfig::default();
-    let defaults = PrintSettings::default();
-    let mut settings = defaults;
-    settings.layer_height_um =
-        height_um(args.layer_height, defaults.layer_height_um, "layer-height")?;
-    settings.first_layer_height_um =
-        height_um(args.first_layer_height, defaults.first_layer_height_um, "first-layer-height")?;
-    settings.validate(&machine).map_err(|e| e.to_string())?;
-
+    let machine = machine_of(args)?;
+    let settings = settings_of(args, &machine)?;
     let loaded = model::load(&args.model)?;
     let tris = loaded.placed_sorted(&machine)?;
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let config = SliceConfig::new(&settings, top).map_err(|e| e.to_string())?;
-    let needs = peak_needs(&tris, &config).map_err(|e| e.to_string())?;
-    let (layers, stats) = run_slicer(&tris, config)?;
+    let toolpaths = args.output.is_some() || args.json;
+    if args.contours_json.is_some() || args.svg.is_some() || !toolpaths {
+        contours(args, &settings, &tris, config, !toolpaths)?;
+    }
+    if !toolpaths {
+        return Ok(());
+    }
+    let cfg = toolpath_config_of(args, &machine, &settings)?;
+    let mut opts = GcodeOptions::default();
+    opts.relative_e = !args.print.absolute_e;
+    let run = run_toolpaths(&tris, config, &machine, &settings, cfg, opts)?;
+    if let Some(path) = &args.output {
+        std::fs::write(path, &run.gcode).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    let st = &run.stats;
+    if args.json {
+        let doc = GcodeSummaryOut {
+            model: args.model.display().to_string(),
+            output: args.output.as_ref().map(|p| p.display().to_string()),
+            layers: st.layers,
+            filament_mm: mm(st.filament_um),
+            extrusion_moves: st.extrusion_moves,
+            travel_moves: st.travel_moves,
+            retractions: st.retractions,
+            travel_mm: mm(st.travel_um as i64),
+            stops: st.stops,
+            thin_islands: st.thin_islands,
+            triangles: run.slice.triangles,
+            gcode_lines: run.gcode_stats.lines,
+            gcode_bytes: run.gcode.len(),
+            needs: st.needs.into(),
+            per_layer: run
+                .layers
+                .iter()
+                .map(|l| LayerSummaryOut {
+                    index: l.index,
+                    z: mm(l.z_um.into()),
+                    retractions: l.retractions,
+                    travel_mm: mm(l.travel_um as i64),
+                    stops: l.stops,
+                    extrusion_moves: l.extrusion_moves,
+                    travel_moves: l.travel_moves,
+                    filament_mm: mm(l.filament_um),
+                    thin_islands: l.thin_islands,
+                })
+                .collect(),
+        };
+        println!("{}", serde_json::to_string_pretty(&doc).map_err(|e| e.to_string())?);
+    } else {
+        println!(
+            "{}: {} layers, {:.1} mm of filament, {} extrusion moves, {} travel moves \
+             ({:.1} mm), {} retractions, {} extrusion stops",
+            args.model.display(),
+            st.layers,
+            mm(st.filament_um),
+            st.extrusion_moves,
+            st.travel_moves,
+            mm(st.travel_um as i64),
+            st.retractions,
+            st.stops
+        );
+        if st.thin_islands > 0 {
+            println!(
+                "warning: {} island cross-sections are thinner than one line width and were \
+                 not printed",
+                st.thin_islands
+            );
+        }
+        if let Some(path) = &args.output {
+            println!("wrote {} ({} lines)", path.display(), run.gcode_stats.lines);
+        }
+    }
+    Ok(())
+}
+
+/// The contour outputs (JSON, SVG) and, when `print`, the slicing summary text.
+fn contours(
+    args: &SliceArgs,
+    settings: &PrintSettings,
+    tris: &[Triangle],
+    config: SliceConfig,
+    print: bool,
+) -> Result<(), String> {
+    let needs = peak_needs(tris, &config).map_err(|e| e.to_string())?;
+    let (layers, stats) = run_slicer(tris, config)?;
     let sum = summary(&stats, &needs, &layers);
 
     if let Some(path) = &args.contours_json {
@@ -265,9 +658,11 @@ pub fn run(args: &SliceArgs) -> Result<(), String> {
             .map_err(|e| format!("{}: {e}", path.display()))?;
     }
     if let Some(dir) = &args.svg {
-        write_svgs(dir, &layers, &tris)?;
+        write_svgs(dir, &layers, tris)?;
     }
-
+    if !print {
+        return Ok(());
+    }
     let r = &stats.repairs;
     println!(
         "{}: {} layers, {} loops ({} holes), {} triangles ({} span no plane)",
