@@ -34,8 +34,8 @@ pub(super) fn junction_v2(prev: &Geom, next: &Geom, lim: &Limits) -> u64 {
         let omd = (ONE_Q62 - dot) as u128;
         ((cross2 << 62) / (2 * omd), omd / 2)
     };
-    if s2 == 0 {
-        // Full reversal: the head has to stop.
+    if s2 == 0 || dot < -(ONE_Q62 - ONE_Q62 / 1_000_000) {
+        // (Nearly) a full reversal, within 0.08 degrees as Klipper's `0.999999`: stop.
         return 0;
     }
     let s = isqrt_u128(s2 << 62);

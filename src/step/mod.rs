@@ -251,8 +251,9 @@ pub struct StepConsumer<'q, const N: usize> {
 }
 
 impl<const N: usize> StepConsumer<'_, N> {
+    /// Takes the next command of `axis`.
     #[inline]
-    pub(crate) fn dequeue(&mut self, axis: usize) -> Option<StepCmd> {
+    pub fn dequeue(&mut self, axis: usize) -> Option<StepCmd> {
         self.q[axis].dequeue()
     }
 

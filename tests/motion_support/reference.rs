@@ -190,11 +190,12 @@ fn junction_v2(
 ) -> f64 {
     let dot = p.d[0] * d[0] + p.d[1] * d[1] + p.d[2] * d[2];
     let jcos = -dot / (p.len * len);
-    let mut v2 = max_cruise_v2.min(p.max_cruise_v2);
-    let sin_half = (0.5 * (1.0 - jcos)).max(0.0).sqrt();
-    if sin_half == 0.0 {
+    if jcos > 0.999999 {
+        // Klipper: (nearly) a reversal stops.
         return 0.0;
     }
+    let mut v2 = max_cruise_v2.min(p.max_cruise_v2);
+    let sin_half = (0.5 * (1.0 - jcos)).max(0.0).sqrt();
     let cos_half = (0.5 * (1.0 + jcos)).max(0.0).sqrt();
     if cos_half > 1e-9 {
         let jd = |a: f64| scv * scv * (2f64.sqrt() - 1.0) / a;
