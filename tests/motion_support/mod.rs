@@ -77,6 +77,9 @@ pub struct JobResult {
     pub gen0_tick: u64,
     /// Board tick at which the executor went idle at the end.
     pub end_tick: u64,
+    /// Executor offset (executor tick of generator tick 0) at the end; differs from the
+    /// start's after a stall or a restart.
+    pub final_offset: u32,
     pub gen: GenStats,
     pub exec: ExecStats,
     pub positions: [i64; AXES],
@@ -172,6 +175,7 @@ pub fn run_job_with<const P: usize, const Q: usize>(
         planned_s: planner.released_ticks_q16() as f64 / 65536.0 / cfg.plan.timer_hz as f64,
         gen0_tick: gen0_tick.unwrap_or(cfg.start_tick),
         end_tick,
+        final_offset: exec.offset(),
         gen: gen.stats(),
         exec: exec.stats(),
         positions: board.positions(),
