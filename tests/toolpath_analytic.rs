@@ -1,19 +1,490 @@
-//! Toolpaths of analytic parts against independent f64 models.
+//! Toolpaths of analytic parts against independent f64 models: extruded volume, containment
+//! of every extrusion in the contour shrunk by half a line width, coverage of top surfaces,
+//! solid first and last layers, bottom skins over a bridge, skins around a pocket.
 
 mod slice_support;
 mod toolpath_support;
 
-use slice_support::{cuboid, to_um};
-use strata::machine::PrintSettings;
-use toolpath_support::run;
+use std::f64::consts::PI;
+
+use slice_support::{cuboid, holed_prism, ngon, to_um, TriMm};
+use strata::geom::Point2;
+use strata::machine::{InfillPattern, MachineConfig, PrintSettings};
+use strata::toolpath::{Feature, ToolpathConfig};
+use toolpath_support::{extrusions, layer_starts, run, run_cfg, TpLayer, TpRun};
+
+const W: f64 = 450.0; // line width, um
+const H: f64 = 200.0; // layer height, um
+
+/// Filament cross-section in um^2 (1.75 mm).
+fn filament_area() -> f64 {
+    PI * 875.0 * 875.0
+}
+
+fn pt(p: Point2) -> (f64, f64) {
+    (f64::from(p.x), f64::from(p.y))
+}
+
+/// Non-zero winding of `p` in the loops (f64).
+fn inside(loops: &[(Vec<Point2>, bool)], p: (f64, f64)) -> bool {
+    let mut w = 0;
+    for (l, _) in loops {
+        for k in 0..l.len() {
+            let (a, b) = (pt(l[k]), pt(l[(k + 1) % l.len()]));
+            if (a.1 <= p.1) != (b.1 <= p.1) {
+                let x = a.0 + (p.1 - a.1) / (b.1 - a.1) * (b.0 - a.0);
+                if x > p.0 {
+                    w += if b.1 > a.1 { 1 } else { -1 };
+                }
+            }
+        }
+    }
+    w != 0
+}
+
+fn point_seg_dist(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let l2 = dx * dx + dy * dy;
+    let t =
+        if l2 == 0.0 { 0.0 } else { (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / l2).clamp(0.0, 1.0) };
+    ((p.0 - a.0 - t * dx).powi(2) + (p.1 - a.1 - t * dy).powi(2)).sqrt()
+}
+
+fn cross(o: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
+    (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+}
+
+/// Distance between segments a-b and c-d (0 if they cross).
+fn seg_seg_dist(a: (f64, f64), b: (f64, f64), c: (f64, f64), d: (f64, f64)) -> f64 {
+    let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
+    if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
+        return 0.0;
+    }
+    point_seg_dist(a, c, d)
+        .min(point_seg_dist(b, c, d))
+        .min(point_seg_dist(c, a, b))
+        .min(point_seg_dist(d, a, b))
+}
+
+/// Every extrusion except the skirt lies inside the layer's contour and at least
+/// `w/2 - tol` from it: endpoints inside, and the segment's distance to every contour edge.
+fn check_containment(run: &TpRun, what: &str, tol: f64, every: usize) {
+    let starts = layer_starts(run);
+    let mut checked = 0;
+    for (l, &start) in run.layers.iter().zip(&starts).step_by(every.max(1)) {
+        for (a, b, f, _) in extrusions(l, start) {
+            if f == Feature::Skirt {
+                continue;
+            }
+            let (a, b) = (pt(a), pt(b));
+            assert!(
+                inside(&l.contours, a) && inside(&l.contours, b),
+                "{what} layer {}: {f:?} {a:?}-{b:?} outside the contour",
+                l.index
+            );
+            for (c, _) in &l.contours {
+                for k in 0..c.len() {
+                    let d = seg_seg_dist(a, b, pt(c[k]), pt(c[(k + 1) % c.len()]));
+                    assert!(
+                        d >= W / 2.0 - tol,
+                        "{what} layer {}: {f:?} {a:?}-{b:?} is {d:.1} um from the contour",
+                        l.index
+                    );
+                }
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked > 0, "{what}: nothing checked");
+}
+
+/// Raster at 50 um over `[lo, hi]` (um).
+struct Raster {
+    lo: (f64, f64),
+    nx: usize,
+    ny: usize,
+    cells: Vec<bool>,
+}
+
+const CELL: f64 = 50.0;
+
+impl Raster {
+    fn new(lo: (f64, f64), hi: (f64, f64)) -> Self {
+        let nx = ((hi.0 - lo.0) / CELL).ceil() as usize + 1;
+        let ny = ((hi.1 - lo.1) / CELL).ceil() as usize + 1;
+        Self { lo, nx, ny, cells: vec![false; nx * ny] }
+    }
+
+    fn centre(&self, i: usize, j: usize) -> (f64, f64) {
+        (self.lo.0 + (i as f64 + 0.5) * CELL, self.lo.1 + (j as f64 + 0.5) * CELL)
+    }
+
+    /// Marks cells whose centre lies in the rectangle of width `w` around segment a-b.
+    fn line(&mut self, a: (f64, f64), b: (f64, f64), w: f64) {
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let len = (dx * dx + dy * dy).sqrt();
+        if len == 0.0 {
+            return;
+        }
+        let (ux, uy) = (dx / len, dy / len);
+        let r = w / 2.0;
+        let i0 = (((a.0.min(b.0) - r - self.lo.0) / CELL).floor().max(0.0)) as usize;
+        let i1 = ((((a.0.max(b.0) + r - self.lo.0) / CELL).ceil()) as usize).min(self.nx - 1);
+        let j0 = (((a.1.min(b.1) - r - self.lo.1) / CELL).floor().max(0.0)) as usize;
+        let j1 = ((((a.1.max(b.1) + r - self.lo.1) / CELL).ceil()) as usize).min(self.ny - 1);
+        for j in j0..=j1 {
+            for i in i0..=i1 {
+                let c = self.centre(i, j);
+                let (px, py) = (c.0 - a.0, c.1 - a.1);
+                let along = px * ux + py * uy;
+                let across = (px * uy - py * ux).abs();
+                if (0.0..=len).contains(&along) && across <= r {
+                    self.cells[j * self.nx + i] = true;
+                }
+            }
+        }
+    }
+}
+
+/// Fraction of layer `l`'s top surface (its region minus the next layer's) covered by the
+/// layer's deposited lines, each a rectangle one line wide; and the surface area (mm^2).
+fn top_coverage(run: &TpRun, l: usize) -> (f64, f64) {
+    let layer = &run.layers[l];
+    let next = run.layers.get(l + 1);
+    let starts = layer_starts(run);
+    let pts: Vec<(f64, f64)> =
+        layer.contours.iter().flat_map(|(c, _)| c.iter().map(|&p| pt(p))).collect();
+    let lo = pts.iter().fold((f64::MAX, f64::MAX), |m, p| (m.0.min(p.0), m.1.min(p.1)));
+    let hi = pts.iter().fold((f64::MIN, f64::MIN), |m, p| (m.0.max(p.0), m.1.max(p.1)));
+    let mut dep = Raster::new(lo, hi);
+    for (a, b, f, _) in extrusions(layer, starts[l]) {
+        if f != Feature::Skirt {
+            dep.line(pt(a), pt(b), W);
+        }
+    }
+    let (mut top, mut covered) = (0usize, 0usize);
+    for j in 0..dep.ny {
+        for i in 0..dep.nx {
+            let c = dep.centre(i, j);
+            if !inside(&layer.contours, c) || next.is_some_and(|n| inside(&n.contours, c)) {
+                continue;
+            }
+            top += 1;
+            covered += usize::from(dep.cells[j * dep.nx + i]);
+        }
+    }
+    if let Ok(path) = std::env::var("STRATA_DUMP") {
+        let mut img = format!("P2\n{} {}\n2\n", dep.nx, dep.ny);
+        for j in (0..dep.ny).rev() {
+            for i in 0..dep.nx {
+                let c = dep.centre(i, j);
+                let t = inside(&layer.contours, c) && !next.is_some_and(|n| inside(&n.contours, c));
+                let v = if !t {
+                    1
+                } else if dep.cells[j * dep.nx + i] {
+                    2
+                } else {
+                    0
+                };
+                img.push_str(if v == 0 {
+                    "0 "
+                } else if v == 1 {
+                    "1 "
+                } else {
+                    "2 "
+                });
+            }
+            img.push('\n');
+        }
+        std::fs::write(format!("{path}_{l}.pgm"), img).unwrap();
+    }
+    let area = top as f64 * CELL * CELL / 1e6;
+    (if top == 0 { 1.0 } else { covered as f64 / top as f64 }, area)
+}
+
+fn features(l: &TpLayer) -> Vec<Feature> {
+    let mut f: Vec<Feature> = l.moves.iter().filter(|m| m.e_um > 0).map(|m| m.feature).collect();
+    f.sort_by_key(|x| *x as u8);
+    f.dedup();
+    f
+}
+
+/// First and last layers: infill only solid (no sparse lines).
+fn check_solid_ends(run: &TpRun, what: &str) {
+    for l in [run.layers.first().unwrap(), run.layers.last().unwrap()] {
+        let f = features(l);
+        assert!(
+            !f.contains(&Feature::InternalInfill),
+            "{what} layer {}: sparse infill {f:?}",
+            l.index
+        );
+    }
+}
+
+fn default_run(mesh: &[TriMm]) -> TpRun {
+    run(&to_um(mesh), &PrintSettings::default())
+}
 
 #[test]
-fn smoke_cube() {
-    let tris = to_um(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 20.0]));
-    let r = run(&tris, &PrintSettings::default());
-    eprintln!("{:?}", r.stats);
-    for l in r.layers.iter().take(6) {
-        eprintln!("{:?}", l.stats);
-    }
+fn cube_20mm_extrudes_the_volume_of_its_perimeters_skins_and_infill() {
+    let r = default_run(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 20.0]));
     assert_eq!(r.layers.len(), 100);
+    assert_eq!(r.stray, 0);
+    // The model (um): two square perimeter loops per layer at 0.5 w and 1.5 w inside the
+    // 20 mm square; the infill domain is the square shrunk by the infill inset (2 w + w/2 -
+    // overlap, overlap w/4); lines across it one line spacing apart (solid) or every 5th
+    // (20 %), each line as long as its chord, plus zigzag connectors along the domain
+    // boundary that cover half of it. Solid: the 4 bottom and 4 top layers.
+    let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+    let side = 20_000.0;
+    let perims = 4.0 * (side - W) + 4.0 * (side - 3.0 * W);
+    let a = side - 2.0 * f64::from(cfg.infill_inset_um());
+    let spacing = 636.0 / 2f64.sqrt(); // round(450 sqrt 2) along the diagonal
+    let connectors = 2.0 * a;
+    let solid = a * a / spacing + connectors;
+    let sparse = a * a / (5.0 * spacing) + connectors;
+    let expect = 100.0 * perims * W * H + (8.0 * solid + 92.0 * sparse) * W * H;
+    let mut got = 0.0;
+    let mut per_feature = std::collections::BTreeMap::<u8, f64>::new();
+    for l in &r.layers {
+        for m in &l.moves {
+            if m.e_um > 0 && m.feature != Feature::Skirt && m.feature != Feature::Unretract {
+                got += f64::from(m.e_um) * filament_area();
+                *per_feature.entry(m.feature as u8).or_default() +=
+                    f64::from(m.e_um) * filament_area();
+            }
+        }
+    }
+    let perim_got =
+        per_feature[&(Feature::ExternalPerimeter as u8)] + per_feature[&(Feature::Perimeter as u8)];
+    let perim_expect = 100.0 * perims * W * H;
+    assert!(
+        (perim_got - perim_expect).abs() < perim_expect * 0.005,
+        "perimeters {perim_got:.4e} vs {perim_expect:.4e}"
+    );
+    let err = (got - expect) / expect;
+    eprintln!(
+        "cube volume {:.1} mm^3, model {:.1} mm^3 ({:+.2} %)",
+        got / 1e9,
+        expect / 1e9,
+        err * 100.0
+    );
+    assert!(err.abs() < 0.03, "volume {got:.4e} vs {expect:.4e} ({:+.2} %)", err * 100.0);
+    // Every layer: two perimeter loops and one continuous infill run (the skirt on layer 0).
+    for l in &r.layers {
+        let want = if l.index == 0 { 4 } else { 3 };
+        assert_eq!(l.stats.paths, want, "layer {}", l.index);
+        assert_eq!(l.stats.stops, want, "layer {}", l.index);
+    }
+    assert_eq!(r.stats.retractions, 1, "only the skirt-to-part travel leaves the part");
+    check_solid_ends(&r, "cube");
+}
+
+#[test]
+fn extrusions_stay_inside_the_contour_shrunk_by_half_a_line() {
+    let c = 110.0;
+    let cube = to_um(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 6.0]));
+    let r = run(&cube, &PrintSettings::default());
+    check_containment(&r, "cube", 15.0, 1);
+    // A hexagonal prism with a round hole, a cylinder, a thin-walled tube and a comb.
+    let outer = ngon(6, c, c, 12.0, 0.2);
+    let hole = ngon(6, c + 2.0, c - 1.0, 4.0, 0.7);
+    let r = run(&to_um(&holed_prism(&outer, &hole, 0.0, 3.0)), &PrintSettings::default());
+    check_containment(&r, "holed hexagon", 15.0, 1);
+    let cyl =
+        slice_support::loft(&[(0.0, ngon(64, c, c, 8.0, 0.0)), (3.0, ngon(64, c, c, 8.0, 0.0))]);
+    let r = run(&to_um(&cyl), &PrintSettings::default());
+    check_containment(&r, "cylinder", 15.0, 1);
+    let tube = holed_prism(&ngon(48, c, c, 6.0, 0.0), &ngon(48, c, c, 5.2, 0.0), 0.0, 2.0);
+    let r = run(&to_um(&tube), &PrintSettings::default());
+    check_containment(&r, "tube", 15.0, 1);
+    let mut comb = Vec::new();
+    for (k, w) in [0.3, 0.6, 0.9, 1.2, 2.0].iter().enumerate() {
+        let x = 100.0 + 4.0 * k as f64;
+        comb.extend(cuboid([x, 100.0, 0.0], [x + w, 110.0, 2.0]));
+    }
+    comb.extend(cuboid([100.0, 95.0, 0.0], [120.0, 100.0, 2.0]));
+    let r = run(&to_um(&comb), &PrintSettings::default());
+    check_containment(&r, "comb", 15.0, 1);
+}
+
+#[test]
+fn top_surfaces_of_a_cube_and_a_stepped_block_are_covered() {
+    let r = default_run(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 5.0]));
+    let last = r.layers.len() - 1;
+    let (cov, area) = top_coverage(&r, last);
+    eprintln!("cube top: {:.3} % of {area:.1} mm^2", cov * 100.0);
+    assert!(cov >= 0.99, "cube top coverage {cov}");
+    assert!((area - 400.0).abs() < 2.0, "{area}");
+    // Steps: 30 x 30 x 3, 20 x 20 x 3 on it, 10 x 10 x 3 on top.
+    let mut steps = cuboid([95.0, 95.0, 0.0], [125.0, 125.0, 3.0]);
+    steps.extend(cuboid([100.0, 100.0, 3.0], [120.0, 120.0, 6.0]));
+    steps.extend(cuboid([105.0, 105.0, 6.0], [115.0, 115.0, 9.0]));
+    let r = default_run(&steps);
+    assert_eq!(r.layers.len(), 45);
+    let mut tops = 0;
+    for l in 0..r.layers.len() {
+        let (cov, area) = top_coverage(&r, l);
+        if area < 1.0 {
+            continue;
+        }
+        tops += 1;
+        eprintln!("steps layer {l}: top {area:.1} mm^2 covered {:.3} %", cov * 100.0);
+        assert!(cov >= 0.99, "steps layer {l}: top coverage {cov}");
+        // The layer right under each step's top is all top solid where exposed.
+        assert!(features(&r.layers[l]).contains(&Feature::TopSolidInfill), "layer {l}");
+    }
+    assert_eq!(tops, 3, "three top surfaces (14, 29, 44)");
+    // Solid skins: the top layer of each step and the 3 under it are solid where exposed
+    // (the top one labelled top solid); the layer below them has sparse infill only.
+    for l in [11, 12, 13] {
+        assert!(features(&r.layers[l]).contains(&Feature::SolidInfill), "layer {l}");
+    }
+    let f10 = features(&r.layers[10]);
+    assert!(!f10.contains(&Feature::SolidInfill) && f10.contains(&Feature::InternalInfill));
+    check_solid_ends(&r, "steps");
+    check_containment(&r, "steps", 15.0, 3);
+}
+
+#[test]
+fn bridge_plate_gets_bottom_skins_and_pocket_gets_top_skins() {
+    // Two pillars with a plate on top: the plate's first 4 layers are solid over the gap.
+    let mut bridge = cuboid([100.0, 100.0, 0.0], [104.0, 110.0, 4.0]);
+    bridge.extend(cuboid([116.0, 100.0, 0.0], [120.0, 110.0, 4.0]));
+    bridge.extend(cuboid([100.0, 100.0, 4.0], [120.0, 110.0, 8.0]));
+    let r = default_run(&bridge);
+    assert_eq!(r.layers.len(), 40);
+    // Layers 20..24 are the plate's bottom: solid over the gap (x in 104..116 mm).
+    let starts = layer_starts(&r);
+    for (l, &start) in starts.iter().enumerate().take(24).skip(20) {
+        let mid: Vec<_> = extrusions(&r.layers[l], start)
+            .into_iter()
+            .filter(|(a, b, _, _)| (106_000..114_000).contains(&((a.x + b.x) / 2)))
+            .map(|s| s.2)
+            .filter(|f| matches!(f, Feature::InternalInfill | Feature::SolidInfill))
+            .collect();
+        assert!(
+            !mid.is_empty() && mid.iter().all(|&f| f == Feature::SolidInfill),
+            "layer {l}: {mid:?}"
+        );
+    }
+    // Layer 27 (3 mm into the 4 mm plate): sparse in the middle.
+    assert!(features(&r.layers[27]).contains(&Feature::InternalInfill));
+    // A cube with a 10 x 10 mm pocket 4 mm deep from the top: the pocket floor (layer
+    // under z = 6 mm) is a top surface, covered, and solid 4 layers down.
+    let mut pocket = cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 6.0]);
+    let ring = |r: f64| {
+        vec![
+            [110.0 - r, 110.0 - r],
+            [110.0 + r, 110.0 - r],
+            [110.0 + r, 110.0 + r],
+            [110.0 - r, 110.0 + r],
+        ]
+    };
+    pocket.extend(holed_prism(&ring(10.0), &ring(5.0), 6.0, 10.0));
+    let r = default_run(&pocket);
+    assert_eq!(r.layers.len(), 50);
+    let (cov, area) = top_coverage(&r, 29);
+    eprintln!("pocket floor: {area:.1} mm^2 covered {:.3} %", cov * 100.0);
+    assert!((area - 100.0).abs() < 2.0 && cov >= 0.99, "{area} {cov}");
+    let (cov, area) = top_coverage(&r, 49);
+    assert!((area - 300.0).abs() < 3.0 && cov >= 0.99, "{area} {cov}");
+    for l in 26..29 {
+        assert!(features(&r.layers[l]).contains(&Feature::SolidInfill), "layer {l}");
+    }
+    assert!(features(&r.layers[29]).contains(&Feature::TopSolidInfill));
+    assert!(!features(&r.layers[25]).contains(&Feature::SolidInfill));
+    check_solid_ends(&r, "pocket");
+}
+
+#[test]
+fn patterns_first_layer_and_settings() {
+    let tris = to_um(&cuboid([100.0, 100.0, 0.0], [130.0, 130.0, 3.0]));
+    for pattern in [InfillPattern::Lines, InfillPattern::Zigzag, InfillPattern::Grid] {
+        let mut s = PrintSettings::default();
+        s.infill_pattern = pattern;
+        s.top_layers = 2;
+        s.bottom_layers = 2;
+        let r = run(&tris, &s);
+        let sparse = &r.layers[7];
+        let stops = sparse.stats.stops;
+        eprintln!("{pattern:?}: layer 7 stops {stops}, retractions {}", r.stats.retractions);
+        match pattern {
+            // Lines: every line on its own, all in the same direction.
+            InfillPattern::Lines => {
+                assert!(stops > 10, "{stops}");
+                let starts = layer_starts(&r);
+                let dirs: Vec<i64> = extrusions(sparse, starts[7])
+                    .iter()
+                    .filter(|s| s.2 == Feature::InternalInfill)
+                    .map(|(a, b, _, _)| {
+                        i64::from(b.x - a.x).signum() + 2 * i64::from(b.y - a.y).signum()
+                    })
+                    .collect();
+                assert!(dirs.windows(2).all(|w| w[0] == w[1]), "{dirs:?}");
+            }
+            // Zigzag: one continuous run.
+            InfillPattern::Zigzag => assert_eq!(stops, 3),
+            InfillPattern::Grid => assert!(stops <= 6, "{stops}"),
+        }
+        check_containment(&r, "patterns", 15.0, 3);
+    }
+    // First layer: 20 mm/s for every extrusion; skirt 3 mm out; other layers faster.
+    let r = run(&tris, &PrintSettings::default());
+    let l0 = &r.layers[0];
+    assert_eq!(l0.height_um, 200);
+    for m in l0.moves.iter().filter(|m| m.e_um > 0 && m.feature != Feature::Unretract) {
+        assert_eq!(m.feed_mm_s, 20, "{m:?}");
+    }
+    let skirt: Vec<_> = l0.moves.iter().filter(|m| m.feature == Feature::Skirt).collect();
+    assert!(!skirt.is_empty());
+    for m in &skirt {
+        // Outside the 100..130 mm square by 3 mm + w/2 (round corners further out).
+        let (x, y) = (f64::from(m.to.x), f64::from(m.to.y));
+        let dx = (100_000.0 - x).max(x - 130_000.0).max(0.0);
+        let dy = (100_000.0 - y).max(y - 130_000.0).max(0.0);
+        let d = (dx * dx + dy * dy).sqrt();
+        assert!((d - 3_225.0).abs() < 20.0, "skirt point {x},{y} at {d}");
+    }
+    assert!(r.layers[5].moves.iter().any(|m| m.e_um > 0 && m.feed_mm_s > 20));
+    // Outer perimeter last by default: within each island the external loop ends the walls.
+    let walls: Vec<Feature> = r.layers[5]
+        .moves
+        .iter()
+        .filter(|m| {
+            m.e_um > 0 && matches!(m.feature, Feature::ExternalPerimeter | Feature::Perimeter)
+        })
+        .map(|m| m.feature)
+        .collect();
+    assert_eq!(walls.first(), Some(&Feature::Perimeter));
+    assert_eq!(walls.last(), Some(&Feature::ExternalPerimeter));
+    let mut cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+    cfg.outer_perimeter_last = false;
+    let r = run_cfg(&tris, &PrintSettings::default(), cfg).unwrap();
+    let first =
+        r.layers[5].moves.iter().find(|m| m.e_um > 0 && m.feature != Feature::Unretract).unwrap();
+    assert_eq!(first.feature, Feature::ExternalPerimeter);
+}
+
+#[test]
+fn thin_parts_get_no_broken_perimeter_and_are_reported() {
+    // A 0.3 mm fin next to a 5 mm block: the fin has no room for a 0.45 mm line.
+    let mut parts = cuboid([100.0, 100.0, 0.0], [105.0, 105.0, 1.0]);
+    parts.extend(cuboid([110.0, 100.0, 0.0], [110.3, 110.0, 1.0]));
+    let r = default_run(&parts);
+    for l in &r.layers {
+        assert_eq!(l.stats.islands, 2);
+        assert_eq!(l.stats.thin_islands, 1, "layer {}", l.index);
+    }
+    assert_eq!(r.stats.thin_islands, 5);
+    check_containment(&r, "fin", 15.0, 1);
+    // Nothing extruded near the fin.
+    let starts = layer_starts(&r);
+    for (l, s) in r.layers.iter().zip(starts) {
+        for (a, b, f, _) in extrusions(l, s) {
+            if f != Feature::Skirt {
+                assert!(a.x < 106_000 && b.x < 106_000, "layer {}: {a:?}-{b:?}", l.index);
+            }
+        }
+    }
 }

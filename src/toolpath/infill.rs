@@ -21,7 +21,7 @@
 use crate::geom::Point2;
 
 use super::paths::{PathBuf, PathKind};
-use super::poly::{dist, Ring};
+use super::poly::{dist, segments_touch, Ring};
 use super::scan::{crossings, intervals, sort_by_line, Angle, Crossing, Interval};
 use super::{Buffer, Feature};
 
@@ -31,6 +31,8 @@ pub const NONE: u32 = u32::MAX;
 const MAX_WALK: usize = 64;
 /// Most boundary vertices in one connector.
 const MAX_CONNECTOR_VERTICES: usize = 64;
+/// Most stretches of one interval that skin growth handles at once.
+const MAX_STRETCHES: usize = 48;
 
 /// An interval of a layer's raw region along a scanline (skin window storage).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -128,6 +130,10 @@ pub struct FillParams {
     pub min_len_u: i32,
     /// Line width in um (connector length allowance).
     pub width_um: i32,
+    /// Solid skins grow this far (in `u` units) into the sparse zone along each line.
+    pub margin_u: i32,
+    /// Run ends on the domain boundary are pushed this far (in `u` units) further out.
+    pub end_ext_u: i32,
 }
 
 /// The scratch buffers of the infill stage (`CROSS` entries each).
@@ -252,6 +258,11 @@ impl Builder<'_> {
         skin.set_line(iv.line);
         let p = self.params;
         let sparse_line = p.sparse_every > 0 && iv.line.rem_euclid(p.sparse_every) == 0;
+        // Stretches of this interval, then the solid ones grown by `margin_u` into their
+        // non-solid neighbours (skins overlap the sparse zone instead of ending exactly on
+        // the surface's edge).
+        let mut st = [(0i32, 0i32, Kind::None); MAX_STRETCHES];
+        let mut ns = 0;
         let mut pos = iv.u0;
         while pos < iv.u1 {
             let (covered, in_next, next) = skin.probe(iv.line, pos, iv.u1);
@@ -268,8 +279,43 @@ impl Builder<'_> {
             } else {
                 Kind::None
             };
-            self.add_stretch(&iv, pos, next, kind)?;
+            if ns > 0 && st[ns - 1].2 == kind {
+                st[ns - 1].1 = next;
+            } else if ns < MAX_STRETCHES {
+                st[ns] = (pos, next, kind);
+                ns += 1;
+            } else {
+                // Too fragmented to grow: emit what we have as it is.
+                for &(a, b, k) in &st[..ns] {
+                    self.add_stretch(&iv, a, b, k)?;
+                }
+                st[0] = (pos, next, kind);
+                ns = 1;
+            }
             pos = next;
+        }
+        let m = p.margin_u;
+        if m > 0 && p.solid {
+            for i in 0..ns {
+                if st[i].2 < Kind::Solid {
+                    continue;
+                }
+                if i + 1 < ns && st[i + 1].2 < Kind::Solid {
+                    let take = m.min(st[i + 1].1 - st[i + 1].0);
+                    st[i].1 += take;
+                    st[i + 1].0 += take;
+                }
+                if i > 0 && st[i - 1].2 < Kind::Solid {
+                    let take = m.min(st[i - 1].1 - st[i - 1].0);
+                    st[i].0 -= take;
+                    st[i - 1].1 -= take;
+                }
+            }
+        }
+        for &(a, b, k) in &st[..ns] {
+            if b > a {
+                self.add_stretch(&iv, a, b, k)?;
+            }
         }
         self.close(&iv, iv.u1, iv.c1)
     }
@@ -459,6 +505,155 @@ fn emit_seg<const N: usize, const R: usize>(
     Ok(())
 }
 
+/// Does the segment a-b touch the boundary of the domain?
+fn crosses_domain(points: &[Point2], rings: &[Ring], a: Point2, b: Point2) -> bool {
+    let (lo, hi) =
+        (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
+    for r in rings {
+        if r.max.x < lo.x || r.min.x > hi.x || r.max.y < lo.y || r.min.y > hi.y {
+            continue;
+        }
+        let pts = points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]);
+        let Some(&last) = pts.last() else { continue };
+        let mut p = last;
+        for &q in pts {
+            if !(p.x.max(q.x) < lo.x
+                || p.x.min(q.x) > hi.x
+                || p.y.max(q.y) < lo.y
+                || p.y.min(q.y) > hi.y)
+                && segments_touch(a, b, p, q)
+            {
+                return true;
+            }
+            p = q;
+        }
+    }
+    false
+}
+
+/// Where a run stands: at segment `seg`'s `u1` end (`at_u1`) or its `u0` end.
+#[derive(Clone, Copy)]
+struct End {
+    seg: usize,
+    at_u1: bool,
+}
+
+impl End {
+    fn crossing(self, segs: &[LineSeg]) -> u32 {
+        let s = &segs[self.seg];
+        if self.at_u1 {
+            s.c1
+        } else {
+            s.c0
+        }
+    }
+
+    fn u(self, segs: &[LineSeg]) -> i32 {
+        let s = &segs[self.seg];
+        if self.at_u1 {
+            s.u1
+        } else {
+            s.u0
+        }
+    }
+
+    fn point(self, p: &FillParams, segs: &[LineSeg]) -> Point2 {
+        seg_point(p, segs[self.seg].line, self.u(segs))
+    }
+
+    /// The end pushed `ext` further out along the line.
+    fn extended(self, p: &FillParams, segs: &[LineSeg], ext: i32) -> Point2 {
+        let u = if self.at_u1 { self.u(segs) + ext } else { self.u(segs) - ext };
+        seg_point(p, segs[self.seg].line, u)
+    }
+}
+
+/// The next segment reachable along the boundary from crossing `from`: (crossing, walk
+/// direction), if its segment is free, linkable and the walk short enough.
+fn boundary_link(
+    points: &[Point2],
+    rings: &[Ring],
+    p: &FillParams,
+    work: &FillWork<'_>,
+    cross: &[Crossing],
+    from: usize,
+    line: i32,
+) -> Option<(usize, bool)> {
+    let mut best: Option<(i32, i64, usize, bool)> = None;
+    for fwd in [true, false] {
+        let mut k = from;
+        let mut found = None;
+        for _ in 0..MAX_WALK {
+            let c = &cross[k];
+            k = if fwd { c.next(k) } else { c.prev(k) };
+            if k == from {
+                break;
+            }
+            if work.cend[k] != NONE {
+                found = Some(k);
+                break;
+            }
+        }
+        let Some(k) = found else { continue };
+        let sg = &work.segs[(work.cend[k] / 2) as usize];
+        if sg.used || !sg.linkable {
+            continue;
+        }
+        let dl = (sg.line - line).abs();
+        let mut length = 0i64;
+        let mut prev = crossing_point(p, &cross[from]);
+        let ok = for_each_vertex(cross, rings, points, from, k, fwd, |v| {
+            length += dist(prev, v);
+            prev = v;
+        });
+        if !ok {
+            continue;
+        }
+        length += dist(prev, crossing_point(p, &cross[k]));
+        let allowed = i64::from(dl) * i64::from(p.spacing_um) * 4 + i64::from(p.width_um);
+        if length <= allowed && best.map_or(true, |b| (dl, length) < (b.0, b.1)) {
+            best = Some((dl, length, k, fwd));
+        }
+    }
+    best.map(|b| (b.2, b.3))
+}
+
+/// The nearest free segment end on the next lines (at most 2 away) that a straight
+/// connector from `at` reaches without leaving the domain.
+fn interior_link(
+    points: &[Point2],
+    rings: &[Ring],
+    p: &FillParams,
+    segs: &[LineSeg],
+    at: End,
+) -> Option<End> {
+    let here = at.point(p, segs);
+    let line = segs[at.seg].line;
+    let mut best: Option<(i64, End)> = None;
+    for dl in [1, -1, 2, -2] {
+        let target = line + dl;
+        let lo = segs.partition_point(|s| s.line < target);
+        let allowed = 3 * i64::from(dl.abs()) * i64::from(p.spacing_um);
+        for (k, s) in segs[lo..].iter().enumerate().take_while(|(_, s)| s.line == target) {
+            if s.used || !s.linkable {
+                continue;
+            }
+            for at_u1 in [false, true] {
+                let e = End { seg: lo + k, at_u1 };
+                let d = dist(here, e.point(p, segs));
+                if d <= allowed && best.map_or(true, |b| d < b.0) {
+                    best = Some((d, e));
+                }
+            }
+        }
+        if best.is_some() && dl < 0 {
+            break;
+        }
+    }
+    let (_, e) = best?;
+    (!crosses_domain(points, rings, here, e.point(p, segs))).then_some(e)
+}
+
 /// Links segments into runs and emits them as paths.
 fn link<const N: usize, const R: usize>(
     points: &[Point2],
@@ -478,75 +673,52 @@ fn link<const N: usize, const R: usize>(
         let island = work.segs[s0].island;
         let reversible = work.segs[s0].linkable;
         emit_seg(p, work, s0, true, paths)?;
-        let mut end_c = work.segs[s0].c1;
-        let mut line = work.segs[s0].line;
-        while work.segs[s0].linkable && end_c != NONE {
-            // Best candidate: (|line step|, length, crossing, forward walk).
-            let mut best: Option<(i32, i64, usize, bool)> = None;
-            let from = end_c as usize;
-            for fwd in [true, false] {
-                let mut k = from;
-                let mut found = None;
-                for _ in 0..MAX_WALK {
-                    let c = &cross[k];
-                    k = if fwd { c.next(k) } else { c.prev(k) };
-                    if k == from {
-                        break;
-                    }
-                    if work.cend[k] != NONE {
-                        found = Some(k);
-                        break;
-                    }
-                }
-                let Some(k) = found else { continue };
-                let seg = (work.cend[k] / 2) as usize;
-                let sg = &work.segs[seg];
-                if sg.used || !sg.linkable {
-                    continue;
-                }
-                let dl = (sg.line - line).abs();
-                let mut length = 0i64;
-                let mut prev = crossing_point(p, &cross[from]);
-                let ok = for_each_vertex(cross, rings, points, from, k, fwd, |v| {
-                    length += dist(prev, v);
-                    prev = v;
-                });
-                if !ok {
-                    continue;
-                }
-                length += dist(prev, crossing_point(p, &cross[k]));
-                let allowed = i64::from(dl) * i64::from(p.spacing_um) * 4 + i64::from(p.width_um);
-                if length > allowed {
-                    continue;
-                }
-                if best.map_or(true, |b| (dl, length) < (b.0, b.1)) {
-                    best = Some((dl, length, k, fwd));
-                }
-            }
-            let Some((_, _, k, fwd)) = best else { break };
-            let seg = (work.cend[k] / 2) as usize;
-            let at_start = work.cend[k] % 2 == 0;
+        // Unlinked ends on the boundary reach a little into the perimeter.
+        let start = End { seg: s0, at_u1: false };
+        if start.crossing(work.segs) != NONE && p.end_ext_u > 0 {
+            paths.set_open_point(0, true, start.extended(p, work.segs, p.end_ext_u));
+        }
+        let mut at = End { seg: s0, at_u1: true };
+        while work.segs[s0].linkable {
+            let end_c = at.crossing(work.segs);
+            let line = work.segs[at.seg].line;
+            let next = if end_c != NONE {
+                boundary_link(points, rings, p, work, cross, end_c as usize, line).map(
+                    |(k, fwd)| {
+                        let e =
+                            End { seg: (work.cend[k] / 2) as usize, at_u1: work.cend[k] % 2 == 1 };
+                        (e, Some((end_c as usize, k, fwd)))
+                    },
+                )
+            } else {
+                interior_link(points, rings, p, work.segs, at).map(|e| (e, None))
+            };
+            let Some((e, walk)) = next else { break };
             let feat = {
-                let sg = work.segs[seg];
+                let sg = work.segs[e.seg];
                 let pieces = &work.pieces[sg.piece0 as usize..(sg.piece0 + sg.npieces) as usize];
-                if at_start {
-                    pieces[0].kind.feature()
-                } else {
+                if e.at_u1 {
                     pieces[pieces.len() - 1].kind.feature()
+                } else {
+                    pieces[0].kind.feature()
                 }
             };
-            let mut err = Ok(());
-            for_each_vertex(cross, rings, points, from, k, fwd, |v| {
-                if err.is_ok() {
-                    err = paths.push(v, feat);
-                }
-            });
-            err?;
-            work.segs[seg].used = true;
-            emit_seg(p, work, seg, at_start, paths)?;
-            let sg = work.segs[seg];
-            end_c = if at_start { sg.c1 } else { sg.c0 };
-            line = sg.line;
+            if let Some((from, k, fwd)) = walk {
+                let mut err = Ok(());
+                for_each_vertex(cross, rings, points, from, k, fwd, |v| {
+                    if err.is_ok() {
+                        err = paths.push(v, feat);
+                    }
+                });
+                err?;
+            }
+            work.segs[e.seg].used = true;
+            emit_seg(p, work, e.seg, !e.at_u1, paths)?;
+            // Entered at one end: now at the other.
+            at = End { seg: e.seg, at_u1: !e.at_u1 };
+        }
+        if at.crossing(work.segs) != NONE && p.end_ext_u > 0 {
+            paths.set_open_point(0, false, at.extended(p, work.segs, p.end_ext_u));
         }
         paths.end(island, PathKind::Infill, false, reversible)?;
     }

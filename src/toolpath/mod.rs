@@ -204,7 +204,8 @@ pub struct ToolpathConfig {
 
 impl ToolpathConfig {
     /// The toolpath settings of `settings` on `machine`, with this stage's defaults: outer
-    /// perimeter last, infill overlap a quarter line, a 3 mm skirt of one loop, rear seams,
+    /// perimeter last, infill overlap half a line (infill lines reach the innermost
+    /// perimeter's inner edge), a 3 mm skirt of one loop, rear seams,
     /// 10 um simplification, combing, retraction for travels over 1.5 mm that leave the part.
     pub fn new(machine: &MachineConfig, settings: &PrintSettings) -> Self {
         Self {
@@ -224,7 +225,7 @@ impl ToolpathConfig {
             retract_speed_mm_s: settings.retract_speed_mm_s,
             filament_diameter_um: machine.filament_diameter_um,
             outer_perimeter_last: true,
-            infill_overlap_um: settings.line_width_um / 4,
+            infill_overlap_um: settings.line_width_um / 2,
             skirt_distance_um: 3_000,
             skirt_loops: 1,
             seam: Seam::Rear,
@@ -991,6 +992,8 @@ impl<
             link_sparse: cfg.infill_pattern != InfillPattern::Lines,
             min_len_u: (i64::from(spacing) * 1414 / 1000 / 3) as i32,
             width_um: cfg.line_width_um,
+            margin_u: self.step as i32,
+            end_ext_u: if cfg.perimeters > 0 { (self.step / 2) as i32 } else { 0 },
         };
         let mut work = FillWork {
             cross: &mut self.cross,

@@ -106,6 +106,20 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
         Ok(())
     }
 
+    /// The `k`-th point of the path being built, counted from its end (0 = last).
+    pub fn open_point_from_end(&self, k: usize) -> Option<Point2> {
+        (k < self.n - self.open).then(|| self.pts[self.n - 1 - k])
+    }
+
+    /// Moves the `k`-th point from the end of the path being built (0 = last) or, with
+    /// `from_start`, from its start.
+    pub fn set_open_point(&mut self, k: usize, from_start: bool, p: Point2) {
+        if k < self.n - self.open {
+            let i = if from_start { self.open + k } else { self.n - 1 - k };
+            self.pts[i] = p;
+        }
+    }
+
     /// Points of the path being built.
     pub fn open_len(&self) -> usize {
         self.n - self.open
