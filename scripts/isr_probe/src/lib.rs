@@ -1,0 +1,62 @@
+//! The step interrupt as the firmware will build it: `Executor::on_timer` with pins that are
+//! single register writes (BSRR-style set/reset), exported under fixed names for
+//! `scripts/check_isr_asm.sh`.
+#![no_std]
+
+use core::convert::Infallible;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use embedded_hal::digital::{ErrorType, OutputPin};
+use strata::step::{Executor, Pins, Wake};
+
+/// Stand-in for a GPIO port's bit set/reset register.
+static BSRR: AtomicU32 = AtomicU32::new(0);
+
+/// A GPIO pin: one register write per edge.
+pub struct RegPin {
+    mask: u32,
+}
+
+impl ErrorType for RegPin {
+    type Error = Infallible;
+}
+
+impl OutputPin for RegPin {
+    #[inline]
+    fn set_low(&mut self) -> Result<(), Infallible> {
+        BSRR.store(self.mask << 16, Ordering::Relaxed);
+        Ok(())
+    }
+    #[inline]
+    fn set_high(&mut self) -> Result<(), Infallible> {
+        BSRR.store(self.mask, Ordering::Relaxed);
+        Ok(())
+    }
+}
+
+/// The timer interrupt body: service due edges, return the next compare value (0 = idle).
+#[no_mangle]
+pub fn strata_step_isr(exec: &mut Executor<'static, 64>, pins: &mut Pins<RegPin>, now: u32) -> u32 {
+    match exec.on_timer(now, pins) {
+        Ok(Wake::At(t)) => t,
+        Ok(Wake::Idle) => 0,
+        Err(e) => match e {},
+    }
+}
+
+/// Deliberately divides: the check's self-test must flag it.
+#[no_mangle]
+pub fn strata_probe_divides(a: u32, b: u32) -> u32 {
+    a / b.max(1)
+}
+
+/// Deliberately uses floating point: the check's self-test must flag it.
+#[no_mangle]
+pub fn strata_probe_floats(a: u32) -> u32 {
+    (a as f32 * 1.5) as u32
+}
+
+#[panic_handler]
+fn panic(_: &core::panic::PanicInfo) -> ! {
+    loop {}
+}
