@@ -197,14 +197,15 @@ impl<O: EdgeObserver> OutputPin for SimPin<'_, O> {
 }
 
 impl<O: EdgeObserver> SimBoard<O> {
-    /// A board at `start_tick` with every pin low (drivers enabled if enable is active low).
+    /// A board at `start_tick` with every STEP and DIR pin low and the drivers disabled
+    /// (enable at its inactive level, as the board's pull-up holds it).
     pub fn new(timing: SimTiming, start_tick: u64, observer: O) -> Self {
         Self {
             now: Cell::new(start_tick),
             timing,
             state: RefCell::new(SimState {
                 axes: [AxisRecord::default(); AXES],
-                enable_high: false,
+                enable_high: timing.enable_active_low,
                 violations: [0; KINDS],
                 first_violation: None,
                 hash: FNV_OFFSET,
@@ -399,5 +400,90 @@ impl<O: EdgeObserver> SimBoard<O> {
         if let Some((axis, positive, position)) = step {
             obs.on_step(axis, positive, tick, position);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn timing() -> SimTiming {
+        SimTiming::from_config(&StepConfig::default())
+    }
+
+    /// One step on `axis` with `high` ticks of pulse, starting `at`.
+    fn pulse<O: EdgeObserver>(
+        b: &SimBoard<O>,
+        pins: &mut Pins<SimPin<'_, O>>,
+        axis: usize,
+        at: u64,
+        high: u64,
+    ) {
+        b.advance_to(at);
+        pins.step[axis].set_high().unwrap();
+        b.advance_to(at + high);
+        pins.step[axis].set_low().unwrap();
+    }
+
+    #[test]
+    fn clean_steps_count_and_hash() {
+        let b = SimBoard::new(timing(), 100, ());
+        let mut p = b.pins();
+        p.enable.set_low().unwrap();
+        assert!(b.enabled());
+        p.dir[0].set_high().unwrap();
+        b.advance_to(200);
+        pulse(&b, &mut p, 0, 300, 72);
+        pulse(&b, &mut p, 0, 500, 80);
+        // Z is inverted: DIR low is positive.
+        pulse(&b, &mut p, 2, 600, 72);
+        assert_eq!(b.violation_count(), 0, "{:?}", b.first_violation());
+        assert_eq!(b.positions(), [2, 0, 1, 0]);
+        let h = b.step_hash();
+        // The same steps on another board starting elsewhere hash the same (relative ticks).
+        let b2 = SimBoard::new(timing(), 1_000_100, ());
+        let mut p2 = b2.pins();
+        p2.enable.set_low().unwrap();
+        p2.dir[0].set_high().unwrap();
+        pulse(&b2, &mut p2, 0, 1_000_300, 72);
+        pulse(&b2, &mut p2, 0, 1_000_500, 80);
+        pulse(&b2, &mut p2, 2, 1_000_600, 72);
+        assert_eq!(b2.step_hash(), h);
+        // One tick later is another hash.
+        let b3 = SimBoard::new(timing(), 100, ());
+        let mut p3 = b3.pins();
+        p3.enable.set_low().unwrap();
+        p3.dir[0].set_high().unwrap();
+        pulse(&b3, &mut p3, 0, 300, 72);
+        pulse(&b3, &mut p3, 0, 501, 80);
+        pulse(&b3, &mut p3, 2, 600, 72);
+        assert_ne!(b3.step_hash(), h);
+    }
+
+    #[test]
+    fn every_violation_kind_is_caught() {
+        let b = SimBoard::new(timing(), 0, ());
+        let mut p = b.pins();
+        // Drivers still disabled.
+        pulse(&b, &mut p, 1, 100, 72);
+        assert_eq!(b.first_violation().unwrap().kind, ViolationKind::StepWhileDisabled);
+        p.enable.set_low().unwrap();
+        // 71 ticks high: under 1 us.
+        pulse(&b, &mut p, 0, 1_000, 71);
+        // 50 ticks low before the next rise.
+        pulse(&b, &mut p, 0, 1_121, 72);
+        // DIR 10 ticks before a rise (needs 15 = 200 ns).
+        b.advance_to(2_000);
+        p.dir[0].set_high().unwrap();
+        pulse(&b, &mut p, 0, 2_010, 72);
+        // DIR while STEP is high.
+        b.advance_to(3_000);
+        p.step[0].set_high().unwrap();
+        b.advance_to(3_010);
+        p.dir[0].set_low().unwrap();
+        b.advance_to(3_100);
+        p.step[0].set_low().unwrap();
+        assert_eq!(b.violations(), [1, 1, 1, 1, 1]);
+        assert_eq!(b.first_violation().unwrap().axis, 1);
     }
 }

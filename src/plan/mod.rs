@@ -324,8 +324,8 @@ impl Block {
             accel_end_q32: s_acc,
             decel_start_q32: s_acc + s_cruise,
             t_accel_q16: t_acc,
-            t_decel_q16: t_acc + t_cruise,
-            t_total_q16: t_acc + t_cruise + t_dec,
+            t_decel_q16: t_acc.saturating_add(t_cruise),
+            t_total_q16: t_acc.saturating_add(t_cruise).saturating_add(t_dec),
             timer_hz,
         }
     }
@@ -415,7 +415,7 @@ impl Block {
             ramp(s, self.v[0], self.v2[0]).min(self.t_accel_q16)
         } else if s <= self.decel_start_q32 {
             let t = sat_u64((s - self.accel_end_q32) as u128 * f / (self.v[1] as u128).max(1));
-            (self.t_accel_q16 + t).min(self.t_decel_q16)
+            self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
         } else {
             let back = ramp(self.len_q32 - s, self.v[2], self.v2[2]);
             self.t_total_q16.saturating_sub(back).max(self.t_decel_q16)
@@ -445,8 +445,11 @@ pub struct Planner<const N: usize> {
 }
 
 impl<const N: usize> Planner<N> {
+    const CAPACITY_OK: () = assert!(N >= 1, "the planner needs room for at least one move");
+
     /// An empty planner at `position_um` (X, Y, Z, E), at rest.
     pub fn new(config: &PlanConfig, position_um: [i32; AXES]) -> Self {
+        let () = Self::CAPACITY_OK;
         Self {
             lim: Limits::new(config),
             ring: [Entry::EMPTY; N],
@@ -502,13 +505,13 @@ impl<const N: usize> Planner<N> {
                 let end = if i + 1 < self.len { self.at(i + 1).start_v2 } else { 0 };
                 Block::new(self.at(i), end, self.lim.timer_hz).t_total_q16
             })
-            .sum()
+            .fold(0, u64::saturating_add)
     }
 
     /// Print time of everything pushed so far if it ended at rest after the queued moves,
     /// ticks q16: released blocks plus the current plan of the queue.
     pub fn total_ticks_q16(&self) -> u64 {
-        self.released_q16 + self.queued_ticks_q16()
+        self.released_q16.saturating_add(self.queued_ticks_q16())
     }
 
     /// Print time in seconds ([`total_ticks_q16`](Self::total_ticks_q16)).
@@ -637,7 +640,7 @@ impl<const N: usize> Planner<N> {
         self.head = (self.head + 1) % N;
         self.len -= 1;
         self.exit_v2 = end_v2;
-        self.released_q16 += block.t_total_q16;
+        self.released_q16 = self.released_q16.saturating_add(block.t_total_q16);
         self.released += 1;
         Some(block)
     }

@@ -321,3 +321,125 @@ impl<'q, const N: usize> Executor<'q, N> {
         Ok(Some(a.fall_at))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::{SimBoard, SimTiming};
+    use crate::step::{pack_horizon, StepQueue};
+
+    /// Runs the executor on `board` until it idles, stalls or passes `until`.
+    fn run<O: crate::sim::EdgeObserver, const N: usize>(
+        e: &mut Executor<'_, N>,
+        b: &SimBoard<O>,
+        pins: &mut Pins<crate::sim::SimPin<'_, O>>,
+        until: u64,
+    ) -> Wake {
+        loop {
+            let w = e.on_timer(b.now_u32(), pins).unwrap();
+            match w {
+                Wake::At(t) if b.now() < until && !e.is_stalled() => b.advance_to_u32(t),
+                _ => return w,
+            }
+        }
+    }
+
+    #[derive(Default)]
+    struct Rises(std::vec::Vec<(usize, u64)>);
+
+    impl crate::sim::EdgeObserver for Rises {
+        fn on_step(&mut self, axis: usize, _: bool, tick: u64, _: i64) {
+            self.0.push((axis, tick));
+        }
+    }
+
+    #[test]
+    fn idle_without_commands_then_exact_sequence_timing() {
+        let cfg = StepConfig::default();
+        let board = SimBoard::new(SimTiming::from_config(&cfg), 10, Rises::default());
+        let mut pins = board.pins();
+        let mut q: StepQueue<8> = StepQueue::new();
+        let (mut p, c) = q.split();
+        let mut e = Executor::new(&cfg, c);
+        assert_eq!(e.on_timer(board.now_u32(), &mut pins).unwrap(), Wake::Idle);
+        assert!(!board.enabled());
+        p.enqueue(0, StepCmd::Dir(true)).unwrap();
+        p.enqueue(0, StepCmd::Steps { interval: 1000, count: 5, add: 100 }).unwrap();
+        p.enqueue(0, StepCmd::Wait(5_000)).unwrap();
+        p.enqueue(0, StepCmd::Steps { interval: 300, count: 1, add: 0 }).unwrap();
+        p.publish(pack_horizon(20_000, true));
+        assert_eq!(run(&mut e, &board, &mut pins, u64::MAX), Wake::Idle);
+        assert!(board.enabled());
+        let t0 = 10 + cfg.start_lead_ticks as u64;
+        let got: std::vec::Vec<u64> = board.observer().0.iter().map(|&(_, t)| t - t0).collect();
+        assert_eq!(got, [1000, 2100, 3300, 4600, 6000, 11_300]);
+        assert_eq!(board.violation_count(), 0);
+        assert_eq!(e.position_steps(), [6, 0, 0, 0]);
+        assert_eq!(e.stats().starts, 1);
+        assert!(e.disable(&mut pins).unwrap());
+        assert!(!board.enabled());
+    }
+
+    #[test]
+    fn late_direction_command_delays_the_step_by_the_setup_time() {
+        let cfg = StepConfig::default();
+        let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Rises::default());
+        let mut pins = board.pins();
+        let mut q: StepQueue<8> = StepQueue::new();
+        let (mut p, c) = q.split();
+        let mut e = Executor::new(&cfg, c);
+        // X keeps the executor busy; Y's commands arrive late.
+        p.enqueue(0, StepCmd::Dir(true)).unwrap();
+        p.enqueue(0, StepCmd::Steps { interval: 1000, count: 100, add: 0 }).unwrap();
+        p.publish(pack_horizon(200_000, false));
+        let lead = cfg.start_lead_ticks as u64;
+        run(&mut e, &board, &mut pins, lead + 10_000);
+        // Now at lead + 10_000 (an X step). Y: first step due in 5 ticks, DIR with it.
+        let now_gen = board.now() - lead;
+        p.enqueue(1, StepCmd::Dir(true)).unwrap();
+        p.enqueue(1, StepCmd::Steps { interval: now_gen as u32 + 5, count: 1, add: 0 }).unwrap();
+        run(&mut e, &board, &mut pins, lead + 20_000);
+        assert_eq!(e.stats().late_dir_steps, 1);
+        assert_eq!(board.violation_count(), 0, "{:?}", board.first_violation());
+        let y = board.observer().0.iter().find(|s| s.0 == 1).unwrap().1;
+        assert!(y - (lead + now_gen) >= 15, "DIR setup of 200 ns kept");
+    }
+
+    #[test]
+    fn underrun_stalls_every_axis_and_resumes_with_one_shift() {
+        let cfg = StepConfig::default();
+        let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Rises::default());
+        let mut pins = board.pins();
+        let mut q: StepQueue<8> = StepQueue::new();
+        let (mut p, c) = q.split();
+        let mut e = Executor::new(&cfg, c);
+        p.enqueue(0, StepCmd::Dir(true)).unwrap();
+        p.enqueue(0, StepCmd::Steps { interval: 1000, count: 10, add: 0 }).unwrap();
+        p.enqueue(1, StepCmd::Dir(false)).unwrap();
+        p.enqueue(1, StepCmd::Steps { interval: 1500, count: 10, add: 0 }).unwrap();
+        // Queued up to 10_000 for X and 15_000 for Y, but the generator vouches for 9_800 only.
+        p.publish(pack_horizon(9_800, false));
+        run(&mut e, &board, &mut pins, u64::MAX);
+        assert!(e.is_stalled());
+        let s = e.stats();
+        assert_eq!(s.underruns, 1);
+        let lead = cfg.start_lead_ticks as u64;
+        assert_eq!(s.first_underrun_tick, Some((lead + 9_800) as u32));
+        assert_eq!(e.position_steps(), [9, -6, 0, 0]);
+        // Still stalled while nothing new comes: polls.
+        let w = e.on_timer(board.now_u32(), &mut pins).unwrap();
+        assert_eq!(w, Wake::At(board.now_u32() + cfg.stall_poll_ticks));
+        board.advance_to(board.now() + 1_000_000);
+        p.publish(pack_horizon(30_000, true));
+        assert_eq!(run(&mut e, &board, &mut pins, u64::MAX), Wake::Idle);
+        assert_eq!(e.position_steps(), [10, -10, 0, 0]);
+        assert_eq!(board.violation_count(), 0);
+        // After the stall, both axes continue on their old rhythm, shifted alike.
+        let resume = lead + 9_800 + 1_000_000 + lead;
+        let steps = &board.observer().0;
+        let x10 = steps.iter().filter(|s| s.0 == 0).nth(9).unwrap().1;
+        let y7 = steps.iter().filter(|s| s.0 == 1).nth(6).unwrap().1;
+        assert_eq!(x10 - resume, 10_000 - 9_800);
+        assert_eq!(y7 - resume, 10_500 - 9_800);
+    }
+}

@@ -74,8 +74,12 @@ pub struct StepGenerator<const B: usize = 64> {
 }
 
 impl<const B: usize> StepGenerator<B> {
+    const CAPACITY_OK: () =
+        assert!(B >= 2, "the generator needs at least two pending steps per axis");
+
     /// A generator whose axes stand at `position_um` (X, Y, Z, E), at time 0.
     pub fn new(config: &StepConfig, position_um: [i32; AXES]) -> Self {
+        let () = Self::CAPACITY_OK;
         let spm = config.steps_per_mm;
         Self {
             tune: Tune {
@@ -179,7 +183,8 @@ impl<const B: usize> StepGenerator<B> {
                 }
             }
             let Some(axis) = pick else {
-                self.block_start_q16 += block.duration_ticks_q16();
+                self.block_start_q16 =
+                    self.block_start_q16.saturating_add(block.duration_ticks_q16());
                 self.at_rest = block.ends_at_rest();
                 self.block = None;
                 self.blocks += 1;
@@ -227,7 +232,7 @@ impl<const B: usize> StepGenerator<B> {
     /// Publishes how far the queued commands reach and whether the motion rests there.
     fn publish<const N: usize>(&self, out: &StepProducer<'_, N>) {
         let end = match &self.block {
-            Some(b) => self.block_start_q16 + b.duration_ticks_q16(),
+            Some(b) => self.block_start_q16.saturating_add(b.duration_ticks_q16()),
             None => self.block_start_q16,
         } >> 16;
         let complete = self.block.is_none()
@@ -298,6 +303,6 @@ impl<const B: usize> StepGenerator<B> {
     /// Exact time of path distance `s_q48` in `b`, generator ticks rounded to nearest.
     fn tick_at(&self, b: &Block, s_q48: u128) -> u64 {
         let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
-        (self.block_start_q16 + b.time_at_q16(s_q32) + (1 << 15)) >> 16
+        self.block_start_q16.saturating_add(b.time_at_q16(s_q32)).saturating_add(1 << 15) >> 16
     }
 }
