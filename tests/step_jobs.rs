@@ -50,3 +50,48 @@ fn mixed_moves_match_reference() {
         (r.end_tick - r.gen0_tick) as f64 / 72e6
     );
 }
+
+#[test]
+fn memory_footprint_is_bounded() {
+    use std::mem::size_of;
+    use strata::plan::{Block, Planner};
+    use strata::step::{Executor, StepCmd, StepGenerator, StepQueue};
+    let sizes = [
+        ("Planner<32>", size_of::<Planner<32>>()),
+        ("Block", size_of::<Block>()),
+        ("StepGenerator<64>", size_of::<StepGenerator<64>>()),
+        ("StepQueue<64>", size_of::<StepQueue<64>>()),
+        ("StepCmd", size_of::<StepCmd>()),
+        ("Executor<64>", size_of::<Executor<'static, 64>>()),
+    ];
+    eprintln!("host sizes (bytes): {sizes:?}");
+    assert_eq!(size_of::<StepCmd>(), 12);
+    let total: usize =
+        sizes.iter().filter(|s| s.0 != "Block" && s.0 != "StepCmd").map(|s| s.1).sum();
+    assert!(total < 12 * 1024, "motion state {total} bytes");
+}
+
+#[test]
+fn compression_ratio_of_a_print_like_job() {
+    let cfg = JobConfig::default();
+    let mut moves = Vec::new();
+    for i in 0..20 {
+        let y = 50_000 + 450 * i;
+        moves.push(mv(
+            [if i % 2 == 0 { 100_000 } else { 50_000 }, y, 200, 1_700 * (i + 1)],
+            60.0,
+            Print,
+        ));
+    }
+    moves.push(mv([10_000, 10_000, 200, 1_700 * 20], 150.0, Travel));
+    let r = run_job(&moves, &cfg);
+    assert_clean(&r, &cfg, &moves);
+    let steps: u64 = r.gen.steps.iter().sum();
+    let seqs: u64 = r.gen.sequences.iter().sum();
+    eprintln!(
+        "{steps} steps in {seqs} sequences: {:.1} steps per 12-byte command, {:.2} on-timer calls per step",
+        steps as f64 / seqs as f64,
+        r.wakes as f64 / steps as f64
+    );
+    assert!(steps > 10 * seqs);
+}

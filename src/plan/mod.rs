@@ -77,7 +77,6 @@ pub enum MoveKind {
 
 /// One straight move to an absolute target.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Move {
     /// Target X, Y, Z, E in um.
     pub target_um: [i32; AXES],
@@ -85,6 +84,19 @@ pub struct Move {
     pub feed_mm_s: Rate,
     /// Print, travel or retract.
     pub kind: MoveKind,
+}
+
+#[cfg(feature = "defmt")]
+impl defmt::Format for Move {
+    fn format(&self, f: defmt::Formatter<'_>) {
+        defmt::write!(
+            f,
+            "Move {{ target_um: {}, feed_mm_s: {=u64} / 2^32, kind: {} }}",
+            self.target_um,
+            self.feed_mm_s.to_bits(),
+            self.kind
+        )
+    }
 }
 
 impl Move {
