@@ -205,7 +205,7 @@ impl<'q, const N: usize> Executor<'q, N> {
         let mut wake: Option<u32> = None;
         let mut busy = false;
         for axis in 0..AXES {
-            if let Some(t) = self.service(axis, now, h_exec, pins)? {
+            if let Some(t) = self.service(axis, now, h_exec, at_rest, pins)? {
                 wake = Some(match wake {
                     Some(w) if is_before(w, t) => w,
                     _ => t,
@@ -255,6 +255,7 @@ impl<'q, const N: usize> Executor<'q, N> {
         axis: usize,
         now: u32,
         h_exec: u32,
+        at_rest: bool,
         pins: &mut Pins<P>,
     ) -> Result<Option<u32>, P::Error> {
         let a = &mut self.axes[axis];
@@ -287,8 +288,9 @@ impl<'q, const N: usize> Executor<'q, N> {
             }
         }
         let due = a.next_at;
-        if is_before(h_exec, due) {
-            // Beyond the horizon: the horizon wake-up covers it.
+        if !at_rest && is_before(h_exec, due) {
+            // Beyond the horizon: the horizon wake-up covers it. (At rest everything is
+            // queued already.)
             return Ok(None);
         }
         let mut fire_at = due;

@@ -240,7 +240,10 @@ impl<const B: usize> StepGenerator<B> {
             && self.at_rest
             && self.comp.iter().all(|c| c.is_empty());
         if complete {
-            out.publish(pack_horizon(end, true));
+            // Everything is queued; a compressed step may sit up to `tol` after its exact
+            // time, so the rest point is past every step.
+            let last = self.comp.iter().map(|c| c.last()).max().unwrap_or(0);
+            out.publish(pack_horizon(end.max(last + 2), true));
             return;
         }
         let mut h = end;
