@@ -488,3 +488,64 @@ fn thin_parts_get_no_broken_perimeter_and_are_reported() {
         }
     }
 }
+
+/// Does travel a-b touch any contour edge of the layer?
+fn crosses(loops: &[(Vec<Point2>, bool)], a: (f64, f64), b: (f64, f64)) -> bool {
+    loops.iter().any(|(c, _)| {
+        (0..c.len()).any(|k| seg_seg_dist(a, b, pt(c[k]), pt(c[(k + 1) % c.len()])) == 0.0)
+    })
+}
+
+#[test]
+fn travels_inside_the_part_need_no_retraction_and_leaving_it_retracts() {
+    // Four separate holed discs (24-gons, 11.8 mm across, 2 mm holes), 12 mm apart.
+    let c = 110.0;
+    let mut plate = Vec::new();
+    for (dx, dy) in [(-6.0, -6.0), (6.0, -6.0), (-6.0, 6.0), (6.0, 6.0)] {
+        let (hx, hy) = (c + dx, c + dy);
+        plate.extend(holed_prism(
+            &ngon(24, hx, hy, 5.9, 0.0),
+            &ngon(24, hx, hy, 2.0, 0.0),
+            0.0,
+            2.0,
+        ));
+    }
+    let r = default_run(&plate);
+    // Four separate rings (tiles do not touch): one island each per layer.
+    assert_eq!(r.layers[3].stats.islands, 4);
+    let retractions: u32 = r.layers.iter().map(|l| l.stats.retractions).sum();
+    // 3 travels between islands per layer (10 layers) and the skirt's.
+    assert_eq!(retractions, 3 * 10 + 1, "travels between islands retract");
+    // A single holed part: no retraction after the skirt.
+    let outer = ngon(8, c, c, 12.0, 0.3);
+    let hole = ngon(8, c, c, 5.0, 0.1);
+    let r = default_run(&holed_prism(&outer, &hole, 0.0, 4.0));
+    assert_eq!(r.stats.retractions, 1, "only the skirt-to-part travel");
+    // Every travel that crosses a contour happens while retracted or is combed around.
+    for r in [default_run(&plate), r] {
+        let starts = layer_starts(&r);
+        for (l, start) in r.layers.iter().zip(starts) {
+            let (mut pos, mut retracted) = (start, false);
+            for m in &l.moves {
+                match m.feature {
+                    Feature::Retract => retracted = true,
+                    Feature::Unretract => retracted = false,
+                    Feature::Travel if m.to != pos => {
+                        let long =
+                            (f64::from(m.to.x - pos.x)).hypot(f64::from(m.to.y - pos.y)) >= 1_500.0;
+                        if long && !retracted && l.index > 0 {
+                            assert!(
+                                !crosses(&l.contours, pt(pos), pt(m.to)),
+                                "layer {}: travel {pos:?} -> {:?} crosses a contour unretracted",
+                                l.index,
+                                m.to
+                            );
+                        }
+                    }
+                    _ => {}
+                }
+                pos = m.to;
+            }
+        }
+    }
+}

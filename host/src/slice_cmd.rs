@@ -120,7 +120,7 @@ pub struct PrintArgs {
     #[arg(long, value_name = "MM")]
     pub skirt_distance: Option<f64>,
     /// Build volume X,Y,Z in mm (default 220,220,250).
-    #[arg(long, value_name = "X,Y,Z", value_delimiter = ',', num_args = 3)]
+    #[arg(long, value_name = "X,Y,Z", value_delimiter = ',')]
     pub bed: Option<Vec<f64>>,
 }
 
@@ -367,6 +367,9 @@ fn speed(value: Option<f64>, default: Rate, flag: &str) -> Result<Rate, String> 
 fn machine_of(args: &SliceArgs) -> Result<MachineConfig, String> {
     let mut machine = MachineConfig::default();
     if let Some(bed) = &args.print.bed {
+        if bed.len() != 3 {
+            return Err(format!("--bed: 3 sizes in mm expected (X,Y,Z), {} given", bed.len()));
+        }
         for (slot, &v) in machine.build_volume_um.iter_mut().zip(bed) {
             *slot = length_um(Some(v), 0, "bed", false)?;
         }

@@ -82,6 +82,8 @@ pub struct LineSeg {
     npieces: u32,
     island: u16,
     used: bool,
+    /// Solid or top (otherwise sparse).
+    solid: bool,
     linkable: bool,
 }
 
@@ -130,7 +132,11 @@ pub struct FillParams {
     pub min_len_u: i32,
     /// Line width in um (connector length allowance).
     pub width_um: i32,
-    /// Solid skins grow this far (in `u` units) into the sparse zone along each line.
+    /// Skins shrink this far (in `u` units) first: the regions of the window layers count
+    /// as grown by it, so skin slivers narrower than twice this vanish (perimeters cover
+    /// them).
+    pub erode_u: i32,
+    /// Solid skins then grow this far (in `u` units) into the sparse zone along each line.
     pub margin_u: i32,
     /// Run ends on the domain boundary are pushed this far (in `u` units) further out.
     pub end_ext_u: i32,
@@ -161,10 +167,12 @@ pub struct FillUse {
     pub pieces: usize,
 }
 
-/// Per-list cursor over spans sorted by (line, u0).
+/// Per-list cursor over spans sorted by (line, u0); every span counts as grown by `grow`
+/// at both ends.
 struct Cursor<'a> {
     spans: &'a [Span],
     idx: usize,
+    grow: i32,
 }
 
 impl<'a> Cursor<'a> {
@@ -179,18 +187,19 @@ impl<'a> Cursor<'a> {
 
     /// Whether `pos` (on `line`) is covered, and the next boundary after `pos` (if any).
     fn probe(&mut self, line: i32, pos: i32) -> (bool, Option<i32>) {
+        let g = self.grow;
         while self.idx < self.spans.len()
             && self.spans[self.idx].line == line
-            && self.spans[self.idx].u1 <= pos
+            && self.spans[self.idx].u1 + g <= pos
         {
             self.idx += 1;
         }
         match self.spans.get(self.idx) {
             Some(s) if s.line == line => {
-                if s.u0 <= pos {
-                    (true, Some(s.u1))
+                if s.u0 - g <= pos {
+                    (true, Some(s.u1 + g))
                 } else {
-                    (false, Some(s.u0))
+                    (false, Some(s.u0 - g))
                 }
             }
             _ => (false, None),
@@ -212,6 +221,14 @@ impl Builder<'_> {
     fn add_stretch(&mut self, iv: &Interval, u0: i32, u1: i32, kind: Kind) -> Result<(), Buffer> {
         if kind == Kind::None {
             return self.close(iv, u0, NONE);
+        }
+        // Solid and sparse never share a segment: each class is linked on its own.
+        if let Some((_, _, first)) = self.open {
+            if self.npieces > first
+                && (self.pieces[self.npieces - 1].kind >= Kind::Solid) != (kind >= Kind::Solid)
+            {
+                self.close(iv, u0, NONE)?;
+            }
         }
         if self.open.is_none() {
             let c0 = if u0 == iv.u0 { iv.c0 } else { NONE };
@@ -248,6 +265,7 @@ impl Builder<'_> {
             npieces: (self.npieces - piece0) as u32,
             island: iv.island,
             used: false,
+            solid,
             linkable: solid || self.params.link_sparse,
         };
         self.nseg += 1;
@@ -331,8 +349,8 @@ struct Skin<'a> {
 }
 
 impl<'a> Skin<'a> {
-    fn new(view: SkinView<'a>, top: usize, bottom: usize) -> Self {
-        let cur = |s: &'a [Span]| Cursor { spans: s, idx: 0 };
+    fn new(view: SkinView<'a>, top: usize, bottom: usize, grow: i32) -> Self {
+        let cur = |s: &'a [Span]| Cursor { spans: s, idx: 0, grow };
         Self { above: view.above.map(cur), below: view.below.map(cur), view, top, bottom }
     }
 
@@ -451,7 +469,7 @@ pub fn fill<const N: usize, const R: usize>(
     for c in work.cend[..n].iter_mut() {
         *c = NONE;
     }
-    let mut skin = Skin::new(view, top, bottom);
+    let mut skin = Skin::new(view, top, bottom, params.erode_u);
     let (nseg, npieces) = {
         let (cross, order) = (&work.cross[..n], &work.order[..n]);
         let mut b = Builder {
@@ -570,6 +588,7 @@ impl End {
 
 /// The next segment reachable along the boundary from crossing `from`: (crossing, walk
 /// direction), if its segment is free, linkable and the walk short enough.
+#[allow(clippy::too_many_arguments)]
 fn boundary_link(
     points: &[Point2],
     rings: &[Ring],
@@ -577,9 +596,11 @@ fn boundary_link(
     work: &FillWork<'_>,
     cross: &[Crossing],
     from: usize,
-    line: i32,
+    at: End,
+    pref: i32,
 ) -> Option<(usize, bool)> {
-    let mut best: Option<(i32, i64, usize, bool)> = None;
+    let here = &work.segs[at.seg];
+    let mut best: Option<((i32, bool, i64), usize, bool)> = None;
     for fwd in [true, false] {
         let mut k = from;
         let mut found = None;
@@ -596,10 +617,10 @@ fn boundary_link(
         }
         let Some(k) = found else { continue };
         let sg = &work.segs[(work.cend[k] / 2) as usize];
-        if sg.used || !sg.linkable {
+        if sg.used || !sg.linkable || sg.solid != here.solid {
             continue;
         }
-        let dl = (sg.line - line).abs();
+        let step = sg.line - here.line;
         let mut length = 0i64;
         let mut prev = crossing_point(p, &cross[from]);
         let ok = for_each_vertex(cross, rings, points, from, k, fwd, |v| {
@@ -610,44 +631,51 @@ fn boundary_link(
             continue;
         }
         length += dist(prev, crossing_point(p, &cross[k]));
-        let allowed = i64::from(dl) * i64::from(p.spacing_um) * 4 + i64::from(p.width_um);
-        if length <= allowed && best.map_or(true, |b| (dl, length) < (b.0, b.1)) {
-            best = Some((dl, length, k, fwd));
+        let allowed = i64::from(step.abs()) * i64::from(p.spacing_um) * 4 + i64::from(p.width_um);
+        let score = (step.abs(), step.signum() != pref && pref != 0, length);
+        if length <= allowed && best.map_or(true, |b| score < b.0) {
+            best = Some((score, k, fwd));
         }
     }
-    best.map(|b| (b.2, b.3))
+    best.map(|b| (b.1, b.2))
 }
 
-/// The nearest free segment end on the next lines (at most 2 away) that a straight
-/// connector from `at` reaches without leaving the domain.
+/// The nearest free interior segment end of the same class on the next lines (1 or 2 away
+/// for solid, one sparse step for sparse) that a straight connector from `at` reaches
+/// without leaving the domain.
 fn interior_link(
     points: &[Point2],
     rings: &[Ring],
     p: &FillParams,
     segs: &[LineSeg],
     at: End,
+    pref: i32,
 ) -> Option<End> {
     let here = at.point(p, segs);
-    let line = segs[at.seg].line;
-    let mut best: Option<(i64, End)> = None;
-    for dl in [1, -1, 2, -2] {
-        let target = line + dl;
+    let cur = &segs[at.seg];
+    let k = p.sparse_every.max(1);
+    let steps: &[i32] = if cur.solid { &[1, -1, 2, -2] } else { &[1, -1] };
+    let mut best: Option<((i32, bool, i64), End)> = None;
+    for &dl in steps {
+        let dl = if cur.solid { dl } else { dl * k };
+        let target = cur.line + dl;
         let lo = segs.partition_point(|s| s.line < target);
         let allowed = 3 * i64::from(dl.abs()) * i64::from(p.spacing_um);
-        for (k, s) in segs[lo..].iter().enumerate().take_while(|(_, s)| s.line == target) {
-            if s.used || !s.linkable {
+        for (i, s) in segs[lo..].iter().enumerate().take_while(|(_, s)| s.line == target) {
+            if s.used || !s.linkable || s.solid != cur.solid {
                 continue;
             }
             for at_u1 in [false, true] {
-                let e = End { seg: lo + k, at_u1 };
+                let e = End { seg: lo + i, at_u1 };
+                if e.crossing(segs) != NONE {
+                    continue;
+                }
                 let d = dist(here, e.point(p, segs));
-                if d <= allowed && best.map_or(true, |b| d < b.0) {
-                    best = Some((d, e));
+                let score = (dl.abs(), dl.signum() != pref && pref != 0, d);
+                if d <= allowed && best.map_or(true, |b| score < b.0) {
+                    best = Some((score, e));
                 }
             }
-        }
-        if best.is_some() && dl < 0 {
-            break;
         }
     }
     let (_, e) = best?;
@@ -679,11 +707,12 @@ fn link<const N: usize, const R: usize>(
             paths.set_open_point(0, true, start.extended(p, work.segs, p.end_ext_u));
         }
         let mut at = End { seg: s0, at_u1: true };
+        let mut pref = 0;
         while work.segs[s0].linkable {
             let end_c = at.crossing(work.segs);
             let line = work.segs[at.seg].line;
             let next = if end_c != NONE {
-                boundary_link(points, rings, p, work, cross, end_c as usize, line).map(
+                boundary_link(points, rings, p, work, cross, end_c as usize, at, pref).map(
                     |(k, fwd)| {
                         let e =
                             End { seg: (work.cend[k] / 2) as usize, at_u1: work.cend[k] % 2 == 1 };
@@ -691,7 +720,7 @@ fn link<const N: usize, const R: usize>(
                     },
                 )
             } else {
-                interior_link(points, rings, p, work.segs, at).map(|e| (e, None))
+                interior_link(points, rings, p, &work.segs[..nseg], at, pref).map(|e| (e, None))
             };
             let Some((e, walk)) = next else { break };
             let feat = {
@@ -715,6 +744,7 @@ fn link<const N: usize, const R: usize>(
             work.segs[e.seg].used = true;
             emit_seg(p, work, e.seg, !e.at_u1, paths)?;
             // Entered at one end: now at the other.
+            pref = (work.segs[e.seg].line - line).signum();
             at = End { seg: e.seg, at_u1: !e.at_u1 };
         }
         if at.crossing(work.segs) != NONE && p.end_ext_u > 0 {

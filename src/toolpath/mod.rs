@@ -28,16 +28,16 @@
 //!
 //! [`Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>`](Toolpath) holds:
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
-//!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 124 bytes per `PTS`,
-//!   2 x 3 x 40 + 4 bytes per `LOOPS`;
-//! - the infill scratch and the layer's paths: 92 bytes per `CROSS` (crossing 28, order 4,
-//!   segment end 4, segment 32, piece 8, path record 16), 9 bytes per `PATH` point;
+//!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 84 bytes per
+//!   `PTS`, 123 bytes per `LOOPS`;
+//! - the infill scratch and the layer's paths: 96 bytes per `CROSS` (crossing 28, order 4,
+//!   segment end 4, segment 36, piece 8, path record 16), 9 bytes per `PATH` point;
 //! - the window: 8 bytes per `RING` point (contours of the `top_layers` layers waiting for
 //!   the layers above them) and 12 bytes per `SPANS` (scanline intervals of up to
 //!   `top + bottom + 1` layers, both angles).
 //!
 //! [`ToolpathStats::needs`] reports the largest use of each, so a model's needs are known
-//! after one host run.
+//! after one host run, and [`ToolpathNeeds::bytes`] what a stage sized to them takes.
 
 use core::fmt;
 
@@ -453,6 +453,47 @@ pub struct ToolpathNeeds {
     pub spans: u32,
 }
 
+impl ToolpathNeeds {
+    /// Bytes per `PTS`: three loop buffers' points and the offset engine.
+    pub const PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>() + offset::BYTES_PER_EDGE;
+    /// Bytes per `LOOPS`: three loop buffers' loop records, island map and stage scratch.
+    pub const LOOPS_BYTES: usize = 3 * core::mem::size_of::<Ring>() + 2 + 1;
+    /// Bytes per `CROSS`: crossing, its order and segment-end entries, a line segment, a
+    /// segment piece and a path record.
+    pub const CROSS_BYTES: usize = core::mem::size_of::<Crossing>()
+        + 4
+        + 4
+        + core::mem::size_of::<LineSeg>()
+        + core::mem::size_of::<LinePiece>()
+        + core::mem::size_of::<paths::PathRec>();
+    /// Bytes per `PATH`: a point and its feature.
+    pub const PATH_BYTES: usize = core::mem::size_of::<Point2>() + core::mem::size_of::<Feature>();
+    /// Bytes per `RING` point.
+    pub const RING_BYTES: usize = core::mem::size_of::<Point2>();
+    /// Bytes per `SPANS` entry.
+    pub const SPAN_BYTES: usize = core::mem::size_of::<Span>();
+
+    /// RAM of a [`Toolpath`] whose capacities equal these needs, on this target: what the
+    /// stage needs for the model's largest layer (and its window).
+    pub fn bytes(&self) -> usize {
+        let fixed = core::mem::size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
+        let pts = (self.layer_points.max(self.offset_edges)) as usize;
+        let cross = (self.crossings.max(self.paths)) as usize;
+        fixed
+            + pts * Self::PTS_BYTES
+            + self.layer_loops as usize * Self::LOOPS_BYTES
+            + cross * Self::CROSS_BYTES
+            + self.path_points as usize * Self::PATH_BYTES
+            + self.ring_points as usize * Self::RING_BYTES
+            + self.spans as usize * Self::SPAN_BYTES
+    }
+
+    /// RAM of the skin window alone (waiting contours and spans), bytes.
+    pub fn window_bytes(&self) -> usize {
+        self.ring_points as usize * Self::RING_BYTES + self.spans as usize * Self::SPAN_BYTES
+    }
+}
+
 /// Totals of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -576,6 +617,19 @@ impl<
         self.next_out = 0;
         self.stats = ToolpathStats::default();
         self.stopped = None;
+        for b in [&mut self.contour, &mut self.tmp, &mut self.fill] {
+            b.clear();
+            b.peak_points = 0;
+            b.peak_rings = 0;
+        }
+        self.eng.peaks = offset::OffsetPeaks::default();
+        self.eng.open_chains = 0;
+        self.paths.clear();
+        self.paths.peak_points = 0;
+        self.paths.peak_paths = 0;
+        self.ring.peak = 0;
+        self.spans.peak = 0;
+        self.fill_use = FillUse::default();
         Ok(())
     }
 
@@ -830,7 +884,7 @@ impl<
         // A layer without extrusion still moves to its height.
         if self.em.pending_z.is_some() {
             let p = self.em.pos;
-            self.em.travel_to(&ctx, p, sink);
+            self.em.travel_to(&ctx, p, &|_, _, _| false, sink);
         }
         let ls = self.em.layer;
         sink(&ToolEvent::LayerEnd(&ls));
@@ -992,7 +1046,8 @@ impl<
             link_sparse: cfg.infill_pattern != InfillPattern::Lines,
             min_len_u: (i64::from(spacing) * 1414 / 1000 / 3) as i32,
             width_um: cfg.line_width_um,
-            margin_u: self.step as i32,
+            erode_u: (self.step / 2) as i32,
+            margin_u: (3 * self.step / 2) as i32,
             end_ext_u: if cfg.perimeters > 0 { (self.step / 2) as i32 } else { 0 },
         };
         let mut work = FillWork {
@@ -1035,4 +1090,38 @@ fn decode<const P: usize, const L: usize>(
         at += 1 + n;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use core::mem::size_of;
+
+    #[test]
+    fn memory_per_capacity_unit_is_as_documented() {
+        assert_eq!(ToolpathNeeds::PTS_BYTES, 84);
+        assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
+        assert_eq!(ToolpathNeeds::CROSS_BYTES, 96);
+        assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
+        assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (8, 12));
+        let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
+        assert!(fixed < 2048, "{fixed}");
+        let needs = ToolpathNeeds {
+            layer_points: 64,
+            layer_loops: 8,
+            offset_edges: 64,
+            crossings: 128,
+            path_points: 256,
+            paths: 16,
+            ring_points: 200,
+            spans: 96,
+        };
+        let exact = size_of::<Toolpath<64, 8, 128, 256, 200, 96>>();
+        // Alignment padding between arrays only.
+        assert!(
+            exact >= needs.bytes() && exact <= needs.bytes() + 64,
+            "{exact} vs {}",
+            needs.bytes()
+        );
+    }
 }

@@ -27,6 +27,13 @@ use super::poly::{div_round, div_round_128, isqrt, orient, LoopBuf, Ring};
 use super::simplify::simplify_closed;
 use super::Buffer;
 
+/// Bytes of engine state per unit of its capacity `E` (an edge, a split point, a piece and
+/// an active-list entry).
+pub const BYTES_PER_EDGE: usize = core::mem::size_of::<Seg>()
+    + core::mem::size_of::<Split>()
+    + core::mem::size_of::<Piece>()
+    + core::mem::size_of::<u32>();
+
 /// Sub-micrometre grid of the engine: coordinates are multiplied by this.
 pub const SCALE: i32 = 16;
 /// Deviation allowed for round joins, in engine units (4 um).

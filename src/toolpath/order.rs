@@ -15,9 +15,18 @@
 use crate::geom::Point2;
 use crate::machine::Rate;
 
+use super::paths;
 use super::paths::{PathBuf, PathKind, PathRec};
-use super::poly::{dist, dist2, isqrt, segments_touch, Ring};
+use super::poly::{dist, dist2, isqrt, orient, segments_touch, Ring};
 use super::{Feature, LayerStats, Seam, ToolEvent, ToolMove, ToolpathConfig};
+
+/// A comb router: waypoints from the first point to the second, `false` if none.
+pub type CombFn<'a> = dyn Fn(Point2, Point2, &mut dyn FnMut(Point2)) -> bool + 'a;
+
+/// A combed travel may be this much (um) longer than twice the straight one.
+const COMB_EXTRA_UM: i64 = 15_000;
+/// Most loops one combed travel goes around.
+const MAX_COMB_LOOPS: usize = 16;
 
 /// Nozzle state and per-layer counters.
 #[derive(Debug, Clone, Copy)]
@@ -131,14 +140,37 @@ impl Emitter {
         sink(&ToolEvent::Move(m));
     }
 
-    /// Travels to `to`, retracting first when the travel leaves the part.
-    pub fn travel_to(&mut self, ctx: &Ctx<'_>, to: Point2, sink: &mut impl FnMut(&ToolEvent<'_>)) {
+    /// Travels to `to`. A travel that crosses no contour stays inside the part; one that
+    /// does is routed by `comb` (waypoints after the start, ending at `to`) when that route
+    /// crosses no contour and is not much longer; otherwise it retracts first (from
+    /// `min_retract_travel_um` on).
+    pub fn travel_to(
+        &mut self,
+        ctx: &Ctx<'_>,
+        to: Point2,
+        comb: &CombFn<'_>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) {
         if to == self.pos && self.pending_z.is_none() {
             return;
         }
-        let d = dist(self.pos, to);
-        let leaves = d > 0 && (!ctx.cfg.comb || ctx.crosses_contour(self.pos, to));
+        let from = self.pos;
+        let d = dist(from, to);
+        let mut routed = false;
+        let leaves = d > 0 && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
+        if leaves && ctx.cfg.comb {
+            // Check the detour leg by leg, then take it.
+            let (mut prev, mut ok, mut len, mut legs) = (from, true, 0i64, 0u32);
+            let found = comb(from, to, &mut |w| {
+                ok &= !ctx.crosses_contour(prev, w);
+                len += dist(prev, w);
+                legs += 1;
+                prev = w;
+            });
+            routed = found && ok && legs > 1 && len <= 2 * d + COMB_EXTRA_UM;
+        }
         let retract = leaves
+            && !routed
             && d >= i64::from(ctx.cfg.min_retract_travel_um)
             && ctx.cfg.retract_length_um > 0;
         if retract && !self.retracted {
@@ -165,20 +197,29 @@ impl Emitter {
             };
             self.send(sink, m);
         }
-        if to != self.pos {
-            self.layer.travel_moves += 1;
-            self.layer.travel_um += d as u64;
-            self.pos = to;
-            let m = ToolMove {
-                to,
-                z_um: self.z,
-                e_um: 0,
-                feed_mm_s: ctx.feed(Feature::Travel),
-                feature: Feature::Travel,
-            };
-            self.send(sink, m);
+        if routed {
+            comb(from, to, &mut |w| self.travel_leg(ctx, w, sink));
+        } else {
+            self.travel_leg(ctx, to, sink);
         }
         self.extruding = false;
+    }
+
+    fn travel_leg(&mut self, ctx: &Ctx<'_>, to: Point2, sink: &mut impl FnMut(&ToolEvent<'_>)) {
+        if to == self.pos {
+            return;
+        }
+        self.layer.travel_moves += 1;
+        self.layer.travel_um += dist(self.pos, to) as u64;
+        self.pos = to;
+        let m = ToolMove {
+            to,
+            z_um: self.z,
+            e_um: 0,
+            feed_mm_s: ctx.feed(Feature::Travel),
+            feature: Feature::Travel,
+        };
+        self.send(sink, m);
     }
 
     /// Extrudes a line to `to`.
@@ -288,6 +329,141 @@ fn stage(r: &PathRec, cfg: &ToolpathConfig) -> u8 {
     }
 }
 
+/// A crossing of the travel `a`-`b` with a loop: `t = num / den` along the travel.
+#[derive(Clone, Copy)]
+struct Hit {
+    t_in: (i128, i128),
+    t_out: (i128, i128),
+    rec: usize,
+    e_in: usize,
+    e_out: usize,
+    p_in: Point2,
+    p_out: Point2,
+}
+
+fn frac_lt(x: (i128, i128), y: (i128, i128)) -> bool {
+    x.0 * y.1 < y.0 * x.1
+}
+
+/// Parameter of the intersection of `a`-`b` with `p`-`q` (they touch), and the point.
+fn cut(a: Point2, b: Point2, p: Point2, q: Point2) -> ((i128, i128), Point2) {
+    let (da, db) = (i128::from(orient(p, q, a)), i128::from(orient(p, q, b)));
+    let (num, den) = if da != db {
+        (da, da - db)
+    } else {
+        // Collinear: the nearer end of p-q along a-b.
+        let along = |v: Point2| {
+            i128::from(v.x - a.x) * i128::from(b.x - a.x)
+                + i128::from(v.y - a.y) * i128::from(b.y - a.y)
+        };
+        let len2 = i128::from(dist2(a, b)).max(1);
+        (along(p).min(along(q)).max(0), len2)
+    };
+    let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+    let at = |o: i32, e: i32| {
+        let v = i128::from(o) + super::poly::div_round_128(i128::from(e - o) * num, den.max(1));
+        v as i32
+    };
+    ((num, den), Point2::new(at(a.x, b.x), at(a.y, b.y)))
+}
+
+/// The comb route from `a` to `b` around the external perimeter loops of `island` that the
+/// straight travel crosses: for each (outermost first along the travel) the shorter way
+/// along the loop between where the travel meets it first and last. Calls `visit` for every
+/// waypoint after `a`, ending with `b`. False if the travel meets too many loops.
+fn comb_route<const N: usize, const R: usize>(
+    paths: &PathBuf<N, R>,
+    island: u16,
+    a: Point2,
+    b: Point2,
+    visit: &mut dyn FnMut(Point2),
+) -> bool {
+    let mut hits =
+        [Hit { t_in: (0, 1), t_out: (0, 1), rec: 0, e_in: 0, e_out: 0, p_in: a, p_out: a };
+            MAX_COMB_LOOPS];
+    let mut nh = 0;
+    let (lo, hi) =
+        (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
+    for (ri, r) in paths.recs().iter().enumerate() {
+        if r.island != island || r.kind != PathKind::Perimeter(0) {
+            continue;
+        }
+        let pts = paths.points(r);
+        let n = pts.len();
+        let mut hit: Option<Hit> = None;
+        for k in 0..n {
+            let (p, q) = (pts[k], pts[(k + 1) % n]);
+            if p.x.max(q.x) < lo.x
+                || p.x.min(q.x) > hi.x
+                || p.y.max(q.y) < lo.y
+                || p.y.min(q.y) > hi.y
+            {
+                continue;
+            }
+            if !segments_touch(a, b, p, q) {
+                continue;
+            }
+            let (t, at) = cut(a, b, p, q);
+            let h = hit.get_or_insert(Hit {
+                t_in: t,
+                t_out: t,
+                rec: ri,
+                e_in: k,
+                e_out: k,
+                p_in: at,
+                p_out: at,
+            });
+            if frac_lt(t, h.t_in) {
+                (h.t_in, h.e_in, h.p_in) = (t, k, at);
+            }
+            if frac_lt(h.t_out, t) {
+                (h.t_out, h.e_out, h.p_out) = (t, k, at);
+            }
+        }
+        if let Some(h) = hit {
+            if nh == MAX_COMB_LOOPS {
+                return false;
+            }
+            hits[nh] = h;
+            nh += 1;
+        }
+    }
+    let hits = &mut hits[..nh];
+    hits.sort_unstable_by(|x, y| (x.t_in.0 * y.t_in.1).cmp(&(y.t_in.0 * x.t_in.1)));
+    let mut done_to: (i128, i128) = (0, 1);
+    for h in hits.iter() {
+        if frac_lt(h.t_in, done_to) {
+            continue;
+        }
+        let r = paths.recs()[h.rec];
+        let pts = paths.points(&r);
+        let n = pts.len();
+        // Forward: vertices e_in+1 ..= e_out; backward: e_in, e_in-1, ..., e_out+1.
+        let fwd_count = (h.e_out + n - h.e_in) % n;
+        let back_count = (h.e_in + n - h.e_out) % n;
+        let walk_len = |count: usize, fwd: bool| {
+            let mut len = 0i64;
+            let mut prev = h.p_in;
+            for s in 0..count {
+                let v = if fwd { pts[(h.e_in + 1 + s) % n] } else { pts[(h.e_in + n - s) % n] };
+                len += dist(prev, v);
+                prev = v;
+            }
+            len + dist(prev, h.p_out)
+        };
+        let fwd = walk_len(fwd_count, true) <= walk_len(back_count, false);
+        visit(h.p_in);
+        let count = if fwd { fwd_count } else { back_count };
+        for s in 0..count {
+            visit(if fwd { pts[(h.e_in + 1 + s) % n] } else { pts[(h.e_in + n - s) % n] });
+        }
+        visit(h.p_out);
+        done_to = h.t_out;
+    }
+    visit(b);
+    true
+}
+
 fn print_path<const N: usize, const R: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
@@ -300,7 +476,11 @@ fn print_path<const N: usize, const R: usize>(
     let pts = paths.points(r);
     let feat = paths.features(r);
     let n = pts.len();
-    em.travel_to(ctx, pts[start], sink);
+    let island = r.island;
+    let comb = |a: Point2, b: Point2, visit: &mut dyn FnMut(Point2)| {
+        comb_route(paths, island, a, b, visit)
+    };
+    em.travel_to(ctx, pts[start], &comb, sink);
     if r.closed {
         for k in 1..=n {
             let i = (start + k) % n;
@@ -344,6 +524,7 @@ pub fn emit_layer<const N: usize, const R: usize>(
             paths.set_done(i);
         }
     }
+    let infill_stage = stage(&PathRec { kind: PathKind::Infill, ..paths::EMPTY_REC }, cfg);
     loop {
         // Next island: the nearest path among each island's first stage.
         let mut best: Option<(i64, usize)> = None;
@@ -359,8 +540,18 @@ pub fn emit_layer<const N: usize, const R: usize>(
         }
         let Some((_, first)) = best else { break };
         let island = paths.recs()[first].island;
-        // Stages of this island in order, nearest first within each.
-        while let Some(&st) = island_stage.get(island as usize) {
+        // Stages of this island in order, nearest first within each; after a perimeter
+        // loop, the nearest loop of the next perimeter stage if any (the loops around one
+        // hole go together).
+        let mut chain: Option<u8> = None;
+        while let Some(&min_stage) = island_stage.get(island as usize) {
+            let remaining = |st: u8| {
+                paths.recs().iter().any(|r| !r.done && r.island == island && stage(r, cfg) == st)
+            };
+            let st = match chain {
+                Some(c) if remaining(c) => c,
+                _ => min_stage,
+            };
             let mut pick: Option<(i64, usize, usize, bool)> = None;
             for i in 0..n {
                 let r = paths.recs()[i];
@@ -377,8 +568,10 @@ pub fn emit_layer<const N: usize, const R: usize>(
                     let r = paths.recs()[i];
                     print_path(em, ctx, paths, &r, start, rev, sink);
                     paths.set_done(i);
+                    chain = (st + 1 < infill_stage).then_some(st + 1);
                 }
                 None => {
+                    chain = None;
                     // Stage done: the next one present in this island.
                     let next = paths
                         .recs()

@@ -36,6 +36,9 @@ pub struct PathRec {
     pub done: bool,
 }
 
+/// An empty record.
+pub const EMPTY_REC: PathRec = PathRec::EMPTY;
+
 impl PathRec {
     const EMPTY: Self = Self {
         start: 0,

@@ -1,0 +1,181 @@
+//! Per-model toolpath report for every model in `../shared/models` (or the directory given):
+//! layers, retractions, travel and extrusion stops (totals, per-layer mean and maximum), thin
+//! islands, the host time of the whole run (parse to G-code text), and the RAM the toolpath
+//! stage needs for the model's largest layer (a `Toolpath` sized to the model's peak needs,
+//! window included). Default settings (0.2 mm, 0.45 mm lines, 2 perimeters, 20 % zigzag,
+//! 4 top/bottom layers, 5 mm retraction); plate_holes (203 x 305 mm) on a 400 mm bed.
+//!
+//! Run: `cargo run --release --example toolpath_report [MODELS_DIR] [--markdown]`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use strata::gcode::{GcodeOptions, GcodeWriter};
+use strata::geom::Triangle;
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::place::{Bounds, Placement};
+use strata::slice::{Layer, SliceConfig, Slicer};
+use strata::toolpath::{LayerStats, ToolEvent, Toolpath, ToolpathConfig, ToolpathStats};
+
+type HostSlicer = Slicer<{ 1 << 16 }, { 1 << 16 }, 4096>;
+type HostToolpath = Toolpath<{ 1 << 15 }, 4096, { 1 << 16 }, { 1 << 17 }, { 1 << 17 }, { 1 << 17 }>;
+
+fn stl_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let mut entries: Vec<PathBuf> =
+        std::fs::read_dir(dir).expect("read models dir").map(|e| e.unwrap().path()).collect();
+    entries.sort();
+    for p in entries {
+        if p.is_dir() {
+            stl_files(&p, out);
+        } else if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("stl")) {
+            out.push(p);
+        }
+    }
+}
+
+struct Row {
+    stats: ToolpathStats,
+    layers: Vec<LayerStats>,
+    seconds: f64,
+    gcode_bytes: usize,
+}
+
+fn run(
+    bytes: &[u8],
+    machine: &MachineConfig,
+    st: &mut (Box<HostSlicer>, Box<HostToolpath>),
+) -> Option<Row> {
+    let t0 = Instant::now();
+    let mut raw = Vec::new();
+    let mut bounds = Bounds::EMPTY;
+    strata::stl::read_all(bytes, &mut |t| {
+        bounds.include(&t);
+        raw.push(t);
+    })
+    .ok()?;
+    let placement = Placement::on_bed(&bounds, machine).ok()?;
+    let mut tris: Vec<Triangle> = raw.iter().map(|t| placement.apply(t)).collect();
+    tris.sort_by_key(Triangle::z_min);
+    let settings = PrintSettings::default();
+    let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
+    let slice = SliceConfig::new(&settings, top).ok()?;
+    let cfg = ToolpathConfig::new(machine, &settings);
+    let (slicer, tp) = st;
+    slicer.reset(slice).ok()?;
+    tp.reset(cfg).ok()?;
+    let mut gw = GcodeWriter::new(String::new(), GcodeOptions::default(), &cfg);
+    gw.start(machine, &settings, &cfg).ok()?;
+    let (pos, z) = gw.position();
+    tp.set_position(pos, z);
+    let mut layers = Vec::new();
+    let mut events = |e: &ToolEvent<'_>| {
+        if let ToolEvent::LayerEnd(s) = e {
+            layers.push(**s);
+        }
+        let _ = gw.event(e);
+    };
+    let mut failed = None;
+    let mut sink = |l: &Layer<'_>| {
+        if failed.is_none() {
+            failed = tp.push_layer(l, &mut events).err();
+        }
+    };
+    for t in &tris {
+        slicer.push(t, &mut sink).ok()?;
+    }
+    slicer.finish(&mut sink).ok()?;
+    if let Some(e) = failed {
+        eprintln!("toolpath error: {e}");
+        return None;
+    }
+    let stats = tp.finish(&mut events).ok()?;
+    gw.end(machine, &cfg).ok()?;
+    let gcode_bytes = gw.into_inner().len();
+    Some(Row { stats, layers, seconds: t0.elapsed().as_secs_f64(), gcode_bytes })
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let dir = args
+        .iter()
+        .find(|a| !a.starts_with("--"))
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/models"));
+    let mut files = Vec::new();
+    stl_files(&dir, &mut files);
+    // Build the stage values on a thread with a big stack, then work there.
+    let handle = std::thread::Builder::new()
+        .stack_size(512 << 20)
+        .spawn(move || {
+            let mut st = (
+                Box::new(HostSlicer::new(
+                    SliceConfig::new(&PrintSettings::default(), 1000).expect("config"),
+                )
+                .expect("slicer")),
+                Box::new(
+                    HostToolpath::new(ToolpathConfig::new(
+                        &MachineConfig::default(),
+                        &PrintSettings::default(),
+                    ))
+                    .expect("toolpath"),
+                ),
+            );
+            println!(
+                "| model | layers | retractions | per layer (mean / max) | travel mm | per layer \
+                 (mean) | extrusion stops | per layer (mean / max) | thin islands | time ms | \
+                 toolpath RAM KB (window KB) |"
+            );
+            println!("|---|---|---|---|---|---|---|---|---|---|---|");
+            let mut total_ram_device = Vec::new();
+            for f in &files {
+                let name = f.strip_prefix(&dir).unwrap_or(f).display().to_string();
+                let bytes = std::fs::read(f).expect("read model");
+                let mut machine = MachineConfig::default();
+                if name == "plate_holes.stl" {
+                    machine.build_volume_um = [400_000, 400_000, 250_000];
+                }
+                let Some(r) = run(&bytes, &machine, &mut st) else {
+                    println!("| {name} | (not sliced) |||||||||");
+                    continue;
+                };
+                let s = &r.stats;
+                let n = s.layers.max(1) as f64;
+                let max_retr = r.layers.iter().map(|l| l.retractions).max().unwrap_or(0);
+                let max_stops = r.layers.iter().map(|l| l.stops).max().unwrap_or(0);
+                let ram = s.needs.bytes();
+                total_ram_device.push((name.clone(), ram, s.needs));
+                println!(
+                    "| {name} | {} | {} | {:.2} / {max_retr} | {:.0} | {:.1} | {} | {:.1} / {max_stops} \
+                     | {} | {:.1} | {:.1} ({:.1}) |",
+                    s.layers,
+                    s.retractions,
+                    s.retractions as f64 / n,
+                    s.travel_um as f64 / 1000.0,
+                    s.travel_um as f64 / 1000.0 / n,
+                    s.stops,
+                    s.stops as f64 / n,
+                    s.thin_islands,
+                    r.seconds * 1000.0,
+                    ram as f64 / 1024.0,
+                    s.needs.window_bytes() as f64 / 1024.0,
+                );
+                let _ = r.gcode_bytes;
+            }
+            println!();
+            println!("Peak needs (capacities) per model:");
+            for (name, ram, n) in &total_ram_device {
+                println!(
+                    "  {name}: PTS {} LOOPS {} CROSS {} PATH {} RING {} SPANS {} -> {} bytes",
+                    n.layer_points.max(n.offset_edges),
+                    n.layer_loops,
+                    n.crossings.max(n.paths),
+                    n.path_points,
+                    n.ring_points,
+                    n.spans,
+                    ram
+                );
+            }
+        })
+        .expect("spawn");
+    handle.join().expect("report");
+}
