@@ -788,31 +788,26 @@ impl<
         }
         block[0] = Point2::new(rings, i32::from(islands));
         self.ring.commit(index, w, 0);
-        // Spans of this layer at both angles, from its simplified contours.
+        // Spans of this layer at both angles (one block each), from its simplified contours.
         let blk = self.ring.find(index).ok_or(Buffer::RingPoints)?;
         decode(self.ring.data(&blk), &mut self.tmp)?;
-        let mut n = 0;
-        let pts = self.tmp.points();
-        let rs = self.tmp.rings();
-        scan::crossings(pts, rs, Angle::D45, self.step, &mut self.cross, &mut n)?;
-        let na = n;
-        scan::crossings(pts, rs, Angle::D135, self.step, &mut self.cross, &mut n)?;
-        self.fill_use.crossings = self.fill_use.crossings.max(n);
-        scan::sort_by_line(&self.cross[..na], &mut self.order[..na]);
-        scan::sort_by_line(&self.cross[na..n], &mut self.order[na..n]);
-        let out = self.spans.reserve(n / 2 + 1)?;
-        let mut k = 0;
-        let put = |out: &mut [Span], k: &mut usize, iv: scan::Interval| {
-            if let Some(s) = out.get_mut(*k) {
-                *s = Span { line: iv.line, u0: iv.u0, u1: iv.u1 };
-                *k += 1;
-            }
-            Ok(())
-        };
-        scan::intervals(&self.cross[..na], &self.order[..na], |iv| put(out, &mut k, iv))?;
-        let split = k;
-        scan::intervals(&self.cross[na..n], &self.order[na..n], |iv| put(out, &mut k, iv))?;
-        self.spans.commit(index, k, split);
+        for (tag, angle) in [(0, Angle::D45), (1, Angle::D135)] {
+            let mut n = 0;
+            let (pts, rs) = (self.tmp.points(), self.tmp.rings());
+            scan::crossings(pts, rs, angle, self.step, &mut self.cross, &mut n)?;
+            self.fill_use.crossings = self.fill_use.crossings.max(n);
+            scan::sort_by_line(&self.cross[..n], &mut self.order[..n]);
+            let out = self.spans.reserve(n / 2 + 1)?;
+            let mut k = 0;
+            scan::intervals(&self.cross[..n], &self.order[..n], |iv| {
+                if let Some(s) = out.get_mut(k) {
+                    *s = Span { line: iv.line, u0: iv.u0, u1: iv.u1 };
+                    k += 1;
+                }
+                Ok(())
+            })?;
+            self.spans.commit(index, k, tag);
+        }
         Ok(())
     }
 
@@ -992,17 +987,10 @@ impl<
             has_next: false,
         };
         let spans = &self.spans;
-        let part = |b: window::Block| {
-            let all = spans.data(&b);
-            let split = (b.split as usize).min(all.len());
-            if angle == Angle::D45 {
-                &all[..split]
-            } else {
-                &all[split..]
-            }
-        };
+        let tag = u32::from(angle == Angle::D135);
+        let part = |b: window::Block| spans.data(&b);
         for k in 1..=top as u32 {
-            match spans.find(l + k) {
+            match spans.find_tagged(l + k, tag) {
                 Some(b) => {
                     view.above[view.n_above] = part(b);
                     view.n_above += 1;
@@ -1018,14 +1006,14 @@ impl<
         }
         if top == 0 {
             // No top skins, but the layer above still tells top surfaces apart.
-            if let Some(b) = spans.find(l + 1) {
+            if let Some(b) = spans.find_tagged(l + 1, tag) {
                 view.above[0] = part(b);
                 view.n_above = 1;
                 view.has_next = true;
             }
         }
         for k in 1..=bottom as u32 {
-            match l.checked_sub(k).and_then(|x| spans.find(x)) {
+            match l.checked_sub(k).and_then(|x| spans.find_tagged(x, tag)) {
                 Some(b) => {
                     view.below[view.n_below] = part(b);
                     view.n_below += 1;
@@ -1105,7 +1093,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (8, 12));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
-        assert!(fixed < 2048, "{fixed}");
+        assert!(fixed < 3072, "{fixed}");
         let needs = ToolpathNeeds {
             layer_points: 64,
             layer_loops: 8,

@@ -13,9 +13,9 @@
 
 use super::Buffer;
 
-/// Layers a window can hold (`top + 1` pending, `bottom + top + 1` spans): top and bottom
-/// layers are limited to 16 each.
-pub const MAX_BLOCKS: usize = 34;
+/// Blocks a window can hold: `top + 1` pending layers, or two blocks (one per angle) for each
+/// of `bottom + top + 1` layers; top and bottom layers are limited to 16 each.
+pub const MAX_BLOCKS: usize = 68;
 
 /// One block: `start..start + len` of the storage, and the layer it belongs to.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -26,7 +26,7 @@ pub struct Block {
     pub start: u32,
     /// Elements.
     pub len: u32,
-    /// Elements of the first part (e.g. spans at the first angle).
+    /// A tag (the spans' angle).
     pub split: u32,
 }
 
@@ -87,6 +87,13 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
             .find(|b| b.layer == layer)
     }
 
+    /// The block of `layer` with tag `tag`, if held.
+    pub fn find_tagged(&self, layer: u32, tag: u32) -> Option<Block> {
+        (0..self.count)
+            .map(|k| self.blocks[(self.head + k) % MAX_BLOCKS])
+            .find(|b| b.layer == layer && b.split == tag)
+    }
+
     /// The elements of a block.
     pub fn data(&self, b: &Block) -> &[T] {
         self.data.get(b.start as usize..(b.start + b.len) as usize).unwrap_or(&[])
@@ -138,13 +145,12 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
         Ok(&mut self.data[start..start + max])
     }
 
-    /// Adds the reserved block with its first `len` elements (`split` of them in the first
-    /// part).
-    pub fn commit(&mut self, layer: u32, len: usize, split: usize) {
+    /// Adds the reserved block with its first `len` elements, tagged `tag`.
+    pub fn commit(&mut self, layer: u32, len: usize, tag: u32) {
         let Some((start, max)) = self.open.take() else { return };
         let len = len.min(max);
         self.blocks[(self.head + self.count) % MAX_BLOCKS] =
-            Block { layer, start: start as u32, len: len as u32, split: split.min(len) as u32 };
+            Block { layer, start: start as u32, len: len as u32, split: tag };
         self.count += 1;
         self.peak = self.peak.max(self.in_use());
     }
