@@ -158,7 +158,9 @@ impl Emitter {
         let d = dist(from, to);
         let mut routed = false;
         let leaves = d > 0 && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
-        if leaves && ctx.cfg.comb {
+        // Short hops go straight: they retract neither way.
+        let short = d < i64::from(ctx.cfg.min_retract_travel_um);
+        if leaves && ctx.cfg.comb && !short {
             // Check the detour leg by leg, then take it.
             let (mut prev, mut ok, mut len, mut legs) = (from, true, 0i64, 0u32);
             let found = comb(from, to, &mut |w| {
