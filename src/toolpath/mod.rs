@@ -494,6 +494,17 @@ impl ToolpathNeeds {
     }
 }
 
+// The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build
+// checks them for the device).
+const _: () = assert!(
+    ToolpathNeeds::PTS_BYTES == 84
+        && ToolpathNeeds::LOOPS_BYTES == 123
+        && ToolpathNeeds::CROSS_BYTES == 96
+        && ToolpathNeeds::PATH_BYTES == 9
+        && ToolpathNeeds::RING_BYTES == 8
+        && ToolpathNeeds::SPAN_BYTES == 12
+);
+
 /// Totals of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

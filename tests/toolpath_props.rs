@@ -1,0 +1,217 @@
+//! Robustness of the toolpath stage: arbitrary (self-intersecting, degenerate, badly nested)
+//! layers never panic, every extrusion stays within the input's bounding box, small
+//! capacities give typed errors naming the buffer and the layer, and misuse is reported.
+
+mod slice_support;
+mod toolpath_support;
+
+use proptest::prelude::*;
+use proptest::test_runner::{Config, TestRunner};
+use slice_support::{cuboid, to_um};
+use strata::geom::Point2;
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::slice::{Layer, LayerRepairs, LoopInfo};
+use strata::toolpath::{Buffer, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
+use toolpath_support::run_cfg;
+
+type PropToolpath = Toolpath<4096, 64, 4096, 16384, 8192, 8192>;
+
+/// One arbitrary loop: points in a 30 mm square around the bed centre, a hole flag and a
+/// parent index (possibly nonsense).
+fn arb_loop() -> impl Strategy<Value = (Vec<(i32, i32)>, bool, Option<u32>)> {
+    (
+        prop::collection::vec((95_000..125_000i32, 95_000..125_000i32), 0..40),
+        any::<bool>(),
+        prop::option::of(0u32..8),
+    )
+}
+
+/// Loops on a 1.5 mm grid: many collinear and coincident edges, touching and overlapping
+/// loops.
+fn grid_loop() -> impl Strategy<Value = (Vec<(i32, i32)>, bool, Option<u32>)> {
+    (prop::collection::vec((0..20i32, 0..20i32), 3..16), any::<bool>(), prop::option::of(0u32..4))
+        .prop_map(|(pts, hole, parent)| {
+            let pts =
+                pts.into_iter().map(|(x, y)| (95_000 + 1_500 * x, 95_000 + 1_500 * y)).collect();
+            (pts, hole, parent)
+        })
+}
+
+type Layers = Vec<Vec<(Vec<(i32, i32)>, bool, Option<u32>)>>;
+
+fn arb_layers() -> impl Strategy<Value = Layers> {
+    prop_oneof![
+        prop::collection::vec(prop::collection::vec(arb_loop(), 0..6), 1..7),
+        prop::collection::vec(prop::collection::vec(grid_loop(), 1..5), 1..7),
+    ]
+}
+
+fn cfg() -> ToolpathConfig {
+    ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default())
+}
+
+#[test]
+fn arbitrary_layers_never_panic_and_extrusions_stay_in_the_box() {
+    std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(|| {
+            let cell = std::cell::RefCell::new(Box::new(PropToolpath::new(cfg()).unwrap()));
+            // More cases with e.g. `TOOLPATH_CASES=5000 cargo test --release --test toolpath_props`.
+            let cases = std::env::var("TOOLPATH_CASES").ok().and_then(|v| v.parse().ok());
+            let mut runner = TestRunner::new(Config::with_cases(cases.unwrap_or(160)));
+            runner
+                .run(&arb_layers(), |layers| {
+                    let mut tp = cell.borrow_mut();
+                    tp.reset(cfg()).unwrap();
+                    let mut moves = Vec::new();
+                    let mut events = |e: &ToolEvent<'_>| {
+                        if let ToolEvent::Move(m) = e {
+                            moves.push(*m);
+                        }
+                    };
+                    let mut result = Ok(());
+                    for (index, loops) in layers.iter().enumerate() {
+                        let mut points = Vec::new();
+                        let mut infos = Vec::new();
+                        for (pts, hole, parent) in loops {
+                            let start = points.len() as u32;
+                            points.extend(pts.iter().map(|&(x, y)| Point2::new(x, y)));
+                            infos.push(LoopInfo {
+                                start,
+                                len: pts.len() as u32,
+                                hole: *hole,
+                                parent: *parent,
+                                ..LoopInfo::default()
+                            });
+                        }
+                        let layer = Layer {
+                            index: index as u32,
+                            z_um: 100 + 200 * index as i32,
+                            points: &points,
+                            loops: &infos,
+                            repairs: LayerRepairs::default(),
+                            dropped_small_loops: 0,
+                            active_triangles: 0,
+                            segments: 0,
+                        };
+                        result = tp.push_layer(&layer, &mut events);
+                        if result.is_err() {
+                            break;
+                        }
+                    }
+                    if result.is_ok() {
+                        result = tp.finish(&mut events).map(|_| ());
+                    }
+                    // The offset arrangement closes every boundary chain.
+                    prop_assert_eq!(tp.stats().open_chains, 0);
+                    match result {
+                        Ok(()) => {}
+                        Err(ToolpathError::Capacity { layer, .. }) => {
+                            prop_assert!((layer as usize) < layers.len())
+                        }
+                        Err(e) => prop_assert!(false, "unexpected error {e:?}"),
+                    }
+                    // Extrusions (but the skirt) inside the input box.
+                    for m in moves.iter().filter(|m| m.e_um > 0) {
+                        if m.feature == strata::toolpath::Feature::Skirt
+                            || m.feature == strata::toolpath::Feature::Unretract
+                        {
+                            continue;
+                        }
+                        prop_assert!(
+                            (95_000..=125_000).contains(&m.to.x)
+                                && (95_000..=125_000).contains(&m.to.y),
+                            "{m:?}"
+                        );
+                    }
+                    Ok(())
+                })
+                .unwrap();
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+}
+
+#[test]
+fn small_capacities_give_typed_errors_and_misuse_is_reported() {
+    std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(|| {
+            // A 20 mm cube: its layers need more than 8 crossings per line set.
+            let tris = to_um(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 2.0]));
+            let settings = PrintSettings::default();
+            let err = run_cfg_small(&tris, &settings);
+            match err {
+                Err(ToolpathError::Capacity { what, capacity, layer }) => {
+                    assert_eq!((what, capacity, layer), (Buffer::Crossings, 8, 0));
+                    let msg = ToolpathError::Capacity { what, capacity, layer }.to_string();
+                    assert_eq!(
+                        msg,
+                        "too many scanline crossings per layer in layer 0 (capacity 8)"
+                    );
+                }
+                other => panic!("{other:?}"),
+            }
+            // Out of order, then the same error again, then finish refused.
+            let mut tp = Box::new(PropToolpath::new(cfg()).unwrap());
+            let pts = [Point2::new(0, 0), Point2::new(1000, 0), Point2::new(0, 1000)];
+            let info = [LoopInfo { start: 0, len: 3, ..LoopInfo::default() }];
+            let layer = Layer {
+                index: 1,
+                z_um: 300,
+                points: &pts,
+                loops: &info,
+                repairs: LayerRepairs::default(),
+                dropped_small_loops: 0,
+                active_triangles: 0,
+                segments: 3,
+            };
+            let mut sink = |_: &ToolEvent<'_>| {};
+            let e = ToolpathError::OutOfOrder { expected: 0, got: 1 };
+            assert_eq!(tp.push_layer(&layer, &mut sink), Err(e));
+            assert_eq!(tp.finish(&mut sink), Err(e));
+            tp.reset(cfg()).unwrap();
+            assert!(tp.finish(&mut sink).is_ok());
+            assert_eq!(tp.finish(&mut sink), Err(ToolpathError::Finished));
+            // Settings out of range are refused by name.
+            let mut bad = cfg();
+            bad.top_layers = 17;
+            assert_eq!(
+                PropToolpath::new(bad).err(),
+                Some(ToolpathError::InvalidConfig { field: "top_layers" })
+            );
+            // The default settings run the cube fine with test capacities.
+            assert!(run_cfg(&tris, &settings, cfg()).is_ok());
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+}
+
+/// The cube through a stage with only 8 crossings.
+fn run_cfg_small(
+    tris: &[strata::geom::Triangle],
+    settings: &PrintSettings,
+) -> Result<(), ToolpathError> {
+    type Tiny = Toolpath<256, 8, 8, 256, 256, 256>;
+    let top = tris.iter().map(|t| t.z_max()).max().unwrap();
+    let slice_cfg = strata::slice::SliceConfig::new(settings, top).unwrap();
+    let mut slicer = Box::new(toolpath_support::TestSlicer::new(slice_cfg).unwrap());
+    let mut tp = Box::new(Tiny::new(cfg())?);
+    let mut first = None;
+    let mut events = |_: &ToolEvent<'_>| {};
+    let mut sink = |l: &Layer<'_>| {
+        if first.is_none() {
+            first = tp.push_layer(l, &mut events).err();
+        }
+    };
+    for t in tris {
+        slicer.push(t, &mut sink).unwrap();
+    }
+    slicer.finish(&mut sink).unwrap();
+    match first {
+        Some(e) => Err(e),
+        None => tp.finish(&mut events).map(|_| ()),
+    }
+}
