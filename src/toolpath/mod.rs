@@ -11,18 +11,28 @@
 //! 1. contours are simplified ([`simplify`], 10 um) and grouped into islands (an outer loop
 //!    and its holes);
 //! 2. per island, the perimeters are exact integer offsets of the contours by
-//!    `(k + 1/2) x width` and the infill domain an offset by `perimeters x width + width / 2 -
-//!    overlap` ([`offset`]: offsets of holes and outer loops merge, parts narrower than a line
-//!    vanish instead of leaving a broken loop; an island with no room for even one perimeter
-//!    is counted in [`LayerStats::thin_islands`]);
+//!    `(k + 1/2) x width` and the infill domain an offset by `perimeters x width` (infill
+//!    lines reach the innermost perimeter's inner edge) ([`offset`]: offsets of holes and
+//!    outer loops merge, parts narrower than a line vanish instead of leaving a broken loop;
+//!    an island with no room for even one perimeter is counted in
+//!    [`LayerStats::thin_islands`]);
 //! 3. the infill domain is filled along scanlines ([`scan`], [`infill`]) at 45 degrees on even
 //!    layers and 135 on odd ones: solid where a top or bottom surface is within
-//!    `top_layers`/`bottom_layers` (found exactly along each line from the skin window), top
+//!    `top_layers`/`bottom_layers` (found exactly along each line from the skin window, then
+//!    opened: slivers under a line wide go, skins reach a line into the sparse zone), top
 //!    solid under no material, sparse every `100 / density`-th line elsewhere; segments are
-//!    linked along the domain boundary into long runs;
+//!    linked into long runs along the domain boundary (zigzag) and straight between the
+//!    inner ends of skin segments;
 //! 4. the first layer gets a skirt: the convex hull offset 3 mm + width/2 with round joins;
-//! 5. paths are ordered and turned into moves ([`order`]): islands and paths nearest first,
-//!    loops from the rear-most vertex, retraction only for travels that leave the part.
+//! 5. paths are ordered and turned into moves ([`order`]): islands nearest first; in each,
+//!    inner perimeters before the external one (each hole's loops together), then the infill
+//!    runs, nearest first from either end; loops start at the rear-most vertex; a travel that
+//!    would cross a contour is combed along the island's external perimeter, and retracts
+//!    only when no such route exists (another island) and it is at least 1.5 mm long.
+//!
+//! The skin window costs the contours of the `top_layers` layers that wait for the layers
+//! above them and the scanline spans of `bottom + top + 1` layers ([`ToolpathNeeds::window_bytes`]:
+//! 67 KB for 3DBenchy, 13 KB for a 20 mm cube).
 //!
 //! # Memory
 //!
