@@ -107,7 +107,7 @@ pub struct PrintSettings {
     pub infill_speed_mm_s: Rate,
     /// Travel speed in mm/s.
     pub travel_speed_mm_s: Rate,
-    /// Speed of every move on the first layer, in mm/s.
+    /// Speed of every extrusion on the first layer, in mm/s (travels keep their speed).
     pub first_layer_speed_mm_s: Rate,
     /// Retraction length in um (Bowden extruder).
     pub retract_length_um: i32,
