@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# Executed-instruction counts of planner, step generator and step executor on an emulated
+# Cortex-M3 (QEMU lm3s6965evb, 64 KB RAM, -icount shift=0), calibrated against a loop of
+# known length. Needs qemu-system-arm (apt-get install qemu-system-arm).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}/m3_cost"
+cargo build --quiet --manifest-path scripts/m3_cost/Cargo.toml --release \
+  --target thumbv7m-none-eabi --target-dir "$TARGET_DIR"
+timeout 600 qemu-system-arm -cpu cortex-m3 -machine lm3s6965evb -nographic -icount shift=0 \
+  -semihosting-config enable=on,target=native \
+  -kernel "$TARGET_DIR/thumbv7m-none-eabi/release/m3_cost" 2>&1 | grep -v "period zero"

@@ -1,0 +1,290 @@
+//! Counts emulated Cortex-M3 instructions (QEMU `-icount`, read through SysTick and
+//! calibrated against a loop of known length) for: planning moves, generating steps
+//! (exact times + compression), and generating + executing them (the timer interrupt with
+//! register-write pins). Prints one line per figure over semihosting, then exits.
+#![no_std]
+#![no_main]
+
+use core::convert::Infallible;
+use core::fmt::Write;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::SYST;
+use cortex_m_rt::{entry, exception};
+use embedded_hal::digital::{ErrorType, OutputPin};
+use strata::machine::{Rate, AXES};
+use strata::plan::{Block, Move, MoveKind, PlanConfig, Planner};
+use strata::step::{Executor, Pins, StepConfig, StepGenerator, StepQueue, Wake};
+
+static WRAPS: AtomicU32 = AtomicU32::new(0);
+static BSRR: AtomicU32 = AtomicU32::new(0);
+const RELOAD: u32 = 0x00ff_ffff;
+
+#[exception]
+fn SysTick() {
+    WRAPS.fetch_add(1, Ordering::Relaxed);
+}
+
+fn ticks() -> u64 {
+    loop {
+        let w = WRAPS.load(Ordering::Relaxed);
+        let c = SYST::get_current();
+        if WRAPS.load(Ordering::Relaxed) == w {
+            return w as u64 * (RELOAD as u64 + 1) + (RELOAD - c) as u64;
+        }
+    }
+}
+
+struct RegPin(u32);
+impl ErrorType for RegPin {
+    type Error = Infallible;
+}
+impl OutputPin for RegPin {
+    fn set_low(&mut self) -> Result<(), Infallible> {
+        BSRR.store(self.0 << 16, Ordering::Relaxed);
+        Ok(())
+    }
+    fn set_high(&mut self) -> Result<(), Infallible> {
+        BSRR.store(self.0, Ordering::Relaxed);
+        Ok(())
+    }
+}
+
+struct Out {
+    buf: [u8; 400],
+    len: usize,
+}
+impl Write for Out {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for &b in s.as_bytes() {
+            if self.len < self.buf.len() - 1 {
+                self.buf[self.len] = b;
+                self.len += 1;
+            }
+        }
+        Ok(())
+    }
+}
+fn print(args: core::fmt::Arguments<'_>) {
+    let mut o = Out { buf: [0; 400], len: 0 };
+    let _ = o.write_fmt(args);
+    o.buf[o.len] = 0;
+    // SAFETY: semihosting SYS_WRITE0 with a NUL-terminated buffer that outlives the call.
+    unsafe { cortex_m::asm::semihosting_syscall(0x04, o.buf.as_ptr() as u32) };
+}
+
+/// The job: a 20 mm circle in 120 segments at 60 mm/s, then 24 infill lines of 40 mm at
+/// 80 mm/s, then a long travel (169 moves: the blocks must fit in 64 KB of RAM).
+fn next_move(i: usize, e: &mut i32) -> Option<Move> {
+    let n = 120;
+    if i < n {
+        let a = ((i + 1) % n) as i64 * 3;
+        // cos/sin by integer rotation would need floats: use a precomputed-free approximation
+        // via Bhaskara I is too coarse; a 360-gon from integer sine table is enough here.
+        let (c, s) = unit(a);
+        *e += 6;
+        let p = [100_000 + c * 10_000 / 1_000_000, 100_000 + s * 10_000 / 1_000_000];
+        return Some(Move::new(
+            [p[0] as i32, p[1] as i32, 200, *e],
+            Rate::from_num(60),
+            MoveKind::Print,
+        ));
+    }
+    let j = i - n;
+    if j < 48 {
+        let line = (j / 2) as i32;
+        let y = 80_000 + 450 * line + if j % 2 == 1 { 450 } else { 0 };
+        let x = if line % 2 == 0 { 120_000 } else { 80_000 };
+        *e += if j % 2 == 0 { 1_330 } else { 15 };
+        return Some(Move::new([x, y, 200, *e], Rate::from_num(80), MoveKind::Print));
+    }
+    if j == 48 {
+        return Some(Move::new([20_000, 200_000, 200, *e], Rate::from_num(200), MoveKind::Travel));
+    }
+    None
+}
+
+/// cos, sin of `deg` degrees scaled by 1e6, from a quarter-wave table built by integer
+/// rotation (good to a few ppm, plenty for a benchmark path).
+fn unit(deg: i64) -> (i64, i64) {
+    // sin(1 deg), cos(1 deg) * 2^30.
+    const S1: i64 = 18_739_142;
+    const C1: i64 = 1_073_578_288;
+    let (mut c, mut s) = (1i64 << 30, 0i64);
+    for _ in 0..deg {
+        let (nc, ns) = ((c * C1 - s * S1) >> 30, (s * C1 + c * S1) >> 30);
+        c = nc;
+        s = ns;
+    }
+    (c * 1_000_000 >> 30, s * 1_000_000 >> 30)
+}
+
+#[entry]
+fn main() -> ! {
+    print(format_args!("m3_cost: start\n"));
+    let mut cp = unsafe { cortex_m::Peripherals::steal() };
+    cp.SYST.set_clock_source(SystClkSource::External);
+    cp.SYST.set_reload(RELOAD);
+    cp.SYST.clear_current();
+    cp.SYST.enable_interrupt();
+    cp.SYST.enable_counter();
+    // The counter reloads from 0 on its first clock: start measuring after that.
+    while SYST::get_current() == 0 {}
+    WRAPS.store(0, Ordering::Relaxed);
+
+    // Calibration: 2 instructions per iteration (subs + bne).
+    let n = 4_000_000u32;
+    let t0 = ticks();
+    // SAFETY: a register-only countdown loop.
+    unsafe { core::arch::asm!("1: subs {0}, #1", "bne 1b", inout(reg) n => _) };
+    let per_insn = (ticks() - t0) as f64 / (2 * n) as f64;
+    print(format_args!("calibration: {per_insn:.6} SysTick ticks per instruction\n"));
+    let insns = |t: u64| t as f64 / per_insn;
+
+    // Plan (moves made on the fly: their cost is measured apart and subtracted).
+    let mut e = 0;
+    let t0 = ticks();
+    let mut count = 0;
+    while let Some(m) = next_move(count, &mut e) {
+        core::hint::black_box(m);
+        count += 1;
+    }
+    let make_t = ticks() - t0;
+    let start = [110_000, 100_000, 200, 0];
+    let cfg = PlanConfig::default();
+    let mut blocks: heapless::Vec<Block, 200> = heapless::Vec::new();
+    let t0 = ticks();
+    let mut p: Planner<32> = Planner::new(&cfg, start);
+    let mut e = 0;
+    let mut i = 0;
+    while let Some(m) = next_move(i, &mut e) {
+        i += 1;
+        if p.is_full() {
+            let b = p.pop().or_else(|| p.pop_forced()).unwrap();
+            let _ = blocks.push(b);
+        }
+        p.push(m).unwrap();
+        while let Some(b) = p.pop() {
+            let _ = blocks.push(b);
+        }
+    }
+    while let Some(b) = p.pop_forced() {
+        let _ = blocks.push(b);
+    }
+    let plan_t = (ticks() - t0).saturating_sub(make_t);
+    let print_s = p.released_ticks_q16() as f64 / 65536.0 / 72e6;
+    print(format_args!(
+        "plan: {} moves, {:.0} instructions per move (queue 32)\n",
+        count,
+        insns(plan_t) / count as f64
+    ));
+
+    let scfg = StepConfig::default();
+    // Generation alone (queues drained without executing).
+    let steps;
+    let gen_t;
+    {
+        let mut q: StepQueue<64> = StepQueue::new();
+        let (mut prod, mut cons) = q.split();
+        let mut gen: StepGenerator = StepGenerator::new(&scfg, start);
+        let mut next = blocks.iter();
+        let mut pending = next.next();
+        let t0 = ticks();
+        loop {
+            if gen.wants_block() {
+                if let Some(b) = pending {
+                    gen.load(*b).unwrap();
+                    pending = next.next();
+                }
+            }
+            let st = gen.run(&mut prod);
+            for axis in 0..AXES {
+                while cons.dequeue(axis).is_some() {}
+            }
+            if pending.is_none() && gen.is_idle() && st == strata::step::GenStatus::Idle {
+                break;
+            }
+        }
+        let t = ticks() - t0;
+        gen_t = t;
+        let s = gen.stats();
+        steps = s.steps.iter().sum::<u64>();
+        let seqs: u64 = s.sequences.iter().sum();
+        print(format_args!(
+            "generate: {steps} steps, {seqs} sequences, {:.0} instructions per step\n",
+            insns(t) / steps as f64
+        ));
+    }
+    // Generation + execution.
+    {
+        let mut q: StepQueue<64> = StepQueue::new();
+        let (mut prod, cons) = q.split();
+        let mut gen: StepGenerator = StepGenerator::new(&scfg, start);
+        let mut exec = Executor::new(&scfg, cons);
+        let mut pins = Pins {
+            step: [RegPin(1), RegPin(2), RegPin(4), RegPin(8)],
+            dir: [RegPin(16), RegPin(32), RegPin(64), RegPin(128)],
+            enable: RegPin(256),
+        };
+        let mut next = blocks.iter();
+        let mut pending = next.next();
+        let mut now = 0u32;
+        let mut isr_t = 0u64;
+        let mut calls = 0u64;
+        let t0 = ticks();
+        loop {
+            if gen.wants_block() {
+                if let Some(b) = pending {
+                    gen.load(*b).unwrap();
+                    pending = next.next();
+                }
+            }
+            gen.run(&mut prod);
+            for _ in 0..256 {
+                let a = ticks();
+                let w = exec.on_timer(now, &mut pins).unwrap();
+                isr_t += ticks() - a;
+                calls += 1;
+                match w {
+                    Wake::At(t) => now = t,
+                    Wake::Idle => break,
+                }
+            }
+            if pending.is_none() && gen.is_idle() && exec.is_idle() {
+                break;
+            }
+        }
+        let total = ticks() - t0;
+        let executed: u64 = exec.stats().steps.iter().sum();
+        // Subtract the cost of reading the clock around each call.
+        let a = ticks();
+        let b = ticks();
+        let overhead = (b - a) * calls;
+        let isr = insns(isr_t.saturating_sub(overhead));
+        let without_clock = insns(total.saturating_sub(overhead * 2));
+        print(format_args!(
+            "execute: {executed} steps, {calls} interrupts ({:.2} per step): {:.0} instructions per \
+             interrupt, {:.0} per step (timed around each call); generate+execute {:.0} per step, \
+             so execute = {:.0} per step by difference\n",
+            calls as f64 / executed as f64,
+            isr / calls as f64,
+            isr / executed as f64,
+            without_clock / executed as f64,
+            (without_clock - insns(gen_t)) / executed as f64
+        ));
+        let _ = steps;
+    }
+    print(format_args!("job print time {print_s:.2} s\n"));
+    // SAFETY: semihosting SYS_EXIT with ADP_Stopped_ApplicationExit.
+    unsafe { cortex_m::asm::semihosting_syscall(0x18, 0x20026) };
+    loop {}
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    print(format_args!("panic: {info}\n"));
+    // SAFETY: semihosting SYS_EXIT.
+    unsafe { cortex_m::asm::semihosting_syscall(0x18, 0x20026) };
+    loop {}
+}
