@@ -280,6 +280,10 @@ fn block_time_at_distance_is_the_trapezoid() {
             let s = m.len * k as f64 / 100.0;
             let t = b.time_at_q16((s * 1000.0 * 2f64.powi(32)) as u64) as f64 / 65536.0 / 72e6;
             assert!((t - m.time_at(s)).abs() < 2e-9, "s {s}: {t} vs {}", m.time_at(s));
+            // The generator's division-free version: within 2^-8 um/s / a.
+            let fast = b.step_time_q16((s * 1000.0 * 2f64.powi(32)) as u64) as f64 / 65536.0 / 72e6;
+            let bound = 1.0 / 256.0 / (m.accel * 1000.0) + 1e-9;
+            assert!((fast - t).abs() <= bound, "s {s}: fast {fast} vs {t} (bound {bound})");
         }
     }
 }

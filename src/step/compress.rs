@@ -46,6 +46,16 @@ struct Fit {
     miss: Miss,
 }
 
+/// `floor(n / k)` for `k > 0`; 32-bit (a hardware divide on the Cortex-M3) when `n` fits.
+#[inline]
+fn floor_div(n: i64, k: i64) -> i64 {
+    if let (Ok(n32), Ok(k32)) = (i32::try_from(n), i32::try_from(k)) {
+        n32.div_euclid(k32) as i64
+    } else {
+        n.div_euclid(k)
+    }
+}
+
 /// One axis' pending steps and its committed reference time.
 #[derive(Debug, Clone)]
 pub(crate) struct Compressor<const B: usize> {
@@ -259,8 +269,8 @@ impl<const B: usize> Compressor<B> {
             let k = ii + 1;
             let at = add * (ii * k / 2);
             // (i + 1) interval + add i (i + 1) / 2 within d +- tol.
-            let mut lo = -(-(d - tune.tol - at)).div_euclid(k);
-            let mut hi = (d + tune.tol - at).div_euclid(k);
+            let mut lo = -floor_div(-(d - tune.tol - at), k);
+            let mut hi = floor_div(d + tune.tol - at, k);
             // The interval of step i is interval + add i.
             let min_iv = if i == 0 { self.first_min(tune) } else { tune.min_step };
             lo = lo.max(min_iv - add * ii);

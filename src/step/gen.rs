@@ -306,6 +306,6 @@ impl<const B: usize> StepGenerator<B> {
     /// Exact time of path distance `s_q48` in `b`, generator ticks rounded to nearest.
     fn tick_at(&self, b: &Block, s_q48: u128) -> u64 {
         let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
-        self.block_start_q16.saturating_add(b.time_at_q16(s_q32)).saturating_add(1 << 15) >> 16
+        self.block_start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
     }
 }

@@ -14,7 +14,7 @@
 //! boundary `k + 1/2`, so it always sits on the integer nearest to `P`; at an exact tie it stays
 //! where it came from (touching a boundary and turning back makes no step). A move from `P0`
 //! to `P1` therefore takes its steps at the path distances where `P` crosses those boundaries,
-//! and the time of each is [`Block::time_at_q16`](crate::plan::Block::time_at_q16) of that
+//! and the time of each is [`Block::step_time_q16`](crate::plan::Block::step_time_q16) of that
 //! distance: E follows the XY path like any other axis, and straight moves never change an
 //! axis' direction inside a move.
 //!
