@@ -13,6 +13,10 @@
 //!   timer-interrupt executor driving `embedded-hal` step/dir/enable pins.
 //! - [`toolpath`]: perimeters, infill, skins, skirt, ordering and retraction as a stream of moves.
 //! - [`gcode`]: Marlin-flavoured G-code writer (PrusaSlicer-compatible comments).
+//! - [`protocol`]: the host-device link: COBS frames with CRC-32, sequence numbers, acks,
+//!   credits and retransmission; messages and the compact triangle encoding.
+//! - [`printer`]: the device-side job runner: protocol messages in, slicer, toolpaths,
+//!   planner and step generator driven with bounded work per poll, status reports out.
 //!
 //! Shared foundations: [`geom`] (integer micrometre geometry) and [`machine`] (printer profile
 //! and print settings with validation);
@@ -33,6 +37,8 @@ pub mod geom;
 pub mod machine;
 pub mod place;
 pub mod plan;
+pub mod printer;
+pub mod protocol;
 pub mod sim;
 pub mod slice;
 pub mod step;

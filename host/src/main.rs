@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod inspect;
 mod model;
+mod simulate;
 mod slice_cmd;
 
 #[derive(Parser)]
@@ -33,6 +34,8 @@ enum Command {
     },
     /// Slice a model on the host.
     Slice(slice_cmd::SliceArgs),
+    /// Stream a model through the real protocol into a simulated printer.
+    Simulate(simulate::SimulateArgs),
 }
 
 fn main() -> ExitCode {
@@ -40,6 +43,7 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Inspect { model, json } => inspect::run(model, *json),
         Command::Slice(args) => slice_cmd::run(args),
+        Command::Simulate(args) => simulate::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -42,12 +42,6 @@ pub struct SliceArgs {
     /// Write one SVG per layer into this directory.
     #[arg(long)]
     pub svg: Option<PathBuf>,
-    /// Layer height in mm (default: the 0.2 mm profile).
-    #[arg(long, value_name = "MM")]
-    pub layer_height: Option<f64>,
-    /// First layer height in mm (default: the 0.2 mm profile).
-    #[arg(long, value_name = "MM")]
-    pub first_layer_height: Option<f64>,
     /// Write printable G-code (Marlin, Ender-3) to this file.
     #[arg(short = 'o', long, value_name = "OUT.gcode")]
     pub output: Option<PathBuf>,
@@ -59,9 +53,15 @@ pub struct SliceArgs {
     pub print: Box<PrintArgs>,
 }
 
-/// The print-setting options of `strata slice`.
+/// The print-setting options of `strata slice`, `simulate` and `print`.
 #[derive(Debug, clap::Args)]
 pub struct PrintArgs {
+    /// Layer height in mm (default: the 0.2 mm profile).
+    #[arg(long, value_name = "MM")]
+    pub layer_height: Option<f64>,
+    /// First layer height in mm (default: the 0.2 mm profile).
+    #[arg(long, value_name = "MM")]
+    pub first_layer_height: Option<f64>,
     /// Extrusion line width in mm (default 0.45).
     #[arg(long, value_name = "MM")]
     pub line_width: Option<f64>,
@@ -364,9 +364,9 @@ fn speed(value: Option<f64>, default: Rate, flag: &str) -> Result<Rate, String> 
 }
 
 /// The machine (default Ender-3, or `--bed`).
-fn machine_of(args: &SliceArgs) -> Result<MachineConfig, String> {
+pub fn machine_of(args: &PrintArgs) -> Result<MachineConfig, String> {
     let mut machine = MachineConfig::default();
-    if let Some(bed) = &args.print.bed {
+    if let Some(bed) = &args.bed {
         if bed.len() != 3 {
             return Err(format!("--bed: 3 sizes in mm expected (X,Y,Z), {} given", bed.len()));
         }
@@ -378,55 +378,55 @@ fn machine_of(args: &SliceArgs) -> Result<MachineConfig, String> {
 }
 
 /// Print settings from the defaults and the options, validated against `machine`.
-fn settings_of(args: &SliceArgs, machine: &MachineConfig) -> Result<PrintSettings, String> {
+pub fn settings_of(args: &PrintArgs, machine: &MachineConfig) -> Result<PrintSettings, String> {
     let d = PrintSettings::default();
     let mut s = d;
     s.layer_height_um = height_um(args.layer_height, d.layer_height_um, "layer-height")?;
     s.first_layer_height_um =
         height_um(args.first_layer_height, d.first_layer_height_um, "first-layer-height")?;
-    s.line_width_um = length_um(args.print.line_width, d.line_width_um, "line-width", false)?;
-    s.perimeters = args.print.perimeters.unwrap_or(d.perimeters);
-    s.infill_percent = args.print.infill.unwrap_or(d.infill_percent);
-    s.infill_pattern = match args.print.pattern {
+    s.line_width_um = length_um(args.line_width, d.line_width_um, "line-width", false)?;
+    s.perimeters = args.perimeters.unwrap_or(d.perimeters);
+    s.infill_percent = args.infill.unwrap_or(d.infill_percent);
+    s.infill_pattern = match args.pattern {
         None => d.infill_pattern,
         Some(PatternArg::Lines) => InfillPattern::Lines,
         Some(PatternArg::Zigzag) => InfillPattern::Zigzag,
         Some(PatternArg::Grid) => InfillPattern::Grid,
     };
-    s.top_layers = args.print.top_layers.unwrap_or(d.top_layers);
-    s.bottom_layers = args.print.bottom_layers.unwrap_or(d.bottom_layers);
-    s.hotend_temp_c = args.print.hotend_temp.unwrap_or(d.hotend_temp_c);
-    s.bed_temp_c = args.print.bed_temp.unwrap_or(d.bed_temp_c);
+    s.top_layers = args.top_layers.unwrap_or(d.top_layers);
+    s.bottom_layers = args.bottom_layers.unwrap_or(d.bottom_layers);
+    s.hotend_temp_c = args.hotend_temp.unwrap_or(d.hotend_temp_c);
+    s.bed_temp_c = args.bed_temp.unwrap_or(d.bed_temp_c);
     s.perimeter_speed_mm_s =
-        speed(args.print.perimeter_speed, d.perimeter_speed_mm_s, "perimeter-speed")?;
-    s.infill_speed_mm_s = speed(args.print.infill_speed, d.infill_speed_mm_s, "infill-speed")?;
-    s.travel_speed_mm_s = speed(args.print.travel_speed, d.travel_speed_mm_s, "travel-speed")?;
+        speed(args.perimeter_speed, d.perimeter_speed_mm_s, "perimeter-speed")?;
+    s.infill_speed_mm_s = speed(args.infill_speed, d.infill_speed_mm_s, "infill-speed")?;
+    s.travel_speed_mm_s = speed(args.travel_speed, d.travel_speed_mm_s, "travel-speed")?;
     s.first_layer_speed_mm_s =
-        speed(args.print.first_layer_speed, d.first_layer_speed_mm_s, "first-layer-speed")?;
+        speed(args.first_layer_speed, d.first_layer_speed_mm_s, "first-layer-speed")?;
     s.retract_length_um =
-        length_um(args.print.retract_length, d.retract_length_um, "retract-length", true)?;
-    s.retract_speed_mm_s = speed(args.print.retract_speed, d.retract_speed_mm_s, "retract-speed")?;
+        length_um(args.retract_length, d.retract_length_um, "retract-length", true)?;
+    s.retract_speed_mm_s = speed(args.retract_speed, d.retract_speed_mm_s, "retract-speed")?;
     s.validate(machine).map_err(|e| e.to_string())?;
     Ok(s)
 }
 
 /// Toolpath settings from the print settings and the toolpath-only options.
-fn toolpath_config_of(
-    args: &SliceArgs,
+pub fn toolpath_config_of(
+    args: &PrintArgs,
     machine: &MachineConfig,
     settings: &PrintSettings,
 ) -> Result<ToolpathConfig, String> {
     let mut cfg = ToolpathConfig::new(machine, settings);
-    cfg.outer_perimeter_last = !args.print.outer_perimeter_first;
-    if let Some(seam) = args.print.seam {
+    cfg.outer_perimeter_last = !args.outer_perimeter_first;
+    if let Some(seam) = args.seam {
         cfg.seam = match seam {
             SeamArg::Rear => Seam::Rear,
             SeamArg::Nearest => Seam::Nearest,
         };
     }
-    cfg.skirt_loops = args.print.skirt_loops.unwrap_or(cfg.skirt_loops);
+    cfg.skirt_loops = args.skirt_loops.unwrap_or(cfg.skirt_loops);
     cfg.skirt_distance_um =
-        length_um(args.print.skirt_distance, cfg.skirt_distance_um, "skirt-distance", true)?;
+        length_um(args.skirt_distance, cfg.skirt_distance_um, "skirt-distance", true)?;
     cfg.validate().map_err(|e| e.to_string())?;
     Ok(cfg)
 }
@@ -555,8 +555,8 @@ struct GcodeSummaryOut {
 
 /// Runs `strata slice`.
 pub fn run(args: &SliceArgs) -> Result<(), String> {
-    let machine = machine_of(args)?;
-    let settings = settings_of(args, &machine)?;
+    let machine = machine_of(&args.print)?;
+    let settings = settings_of(&args.print, &machine)?;
     let loaded = model::load(&args.model)?;
     let tris = loaded.placed_sorted(&machine)?;
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
@@ -568,7 +568,7 @@ pub fn run(args: &SliceArgs) -> Result<(), String> {
     if !toolpaths {
         return Ok(());
     }
-    let cfg = toolpath_config_of(args, &machine, &settings)?;
+    let cfg = toolpath_config_of(&args.print, &machine, &settings)?;
     let mut opts = GcodeOptions::default();
     opts.relative_e = !args.print.absolute_e;
     let run = run_toolpaths(&tris, config, &machine, &settings, cfg, opts)?;

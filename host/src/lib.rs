@@ -1,0 +1,9 @@
+//! The library half of the `strata` host tool: the host side of a print job over the
+//! protocol ([`session`]), the simulated printer on a virtual clock ([`simjob`]) and
+//! admission control against the device's capacities ([`admission`]). The binary wires them
+//! to the command line; the tests drive them directly.
+
+pub mod admission;
+pub mod model;
+pub mod session;
+pub mod simjob;

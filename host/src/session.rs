@@ -1,0 +1,227 @@
+//! The host side of a print job over a protocol [`Endpoint`], independent of the transport
+//! (serial port or the in-memory simulated link): hello, capacities, job start, triangle
+//! batches as fast as the device's credits allow, end of model, then status until done.
+
+use strata::geom::Triangle;
+use strata::protocol::frame::wire_len;
+use strata::protocol::{
+    BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, LinkError, Message,
+    Status, MAX_PAYLOAD, VERSION,
+};
+
+/// Host endpoint: 8 frames in flight, 8 receive slots.
+pub type HostEndpoint = Endpoint<8, 8>;
+
+/// Where the job stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Hello sent, waiting for the capacities.
+    Hello,
+    /// Streaming triangles.
+    Streaming,
+    /// Every triangle and the end of model sent; waiting for the device to finish.
+    Printing,
+    /// The device reported the job done.
+    Done,
+}
+
+/// Progress and results of a job.
+#[derive(Debug, Clone, Default)]
+pub struct Progress {
+    /// Triangles handed to the link.
+    pub triangles_sent: usize,
+    /// Wire bytes of the triangle frames (first transmission).
+    pub triangle_wire_bytes: u64,
+    /// Device capacities, once known.
+    pub capacities: Option<Capacities>,
+    /// Last status.
+    pub status: Option<Status>,
+    /// Layer hashes in layer order (index = layer).
+    pub layer_hashes: Vec<u64>,
+    /// Time the end of model was acknowledged, ms.
+    pub stream_done_ms: Option<u32>,
+}
+
+/// The host side of one job.
+pub struct HostJob<'a> {
+    tris: &'a [Triangle],
+    job: JobSpec,
+    phase: Phase,
+    next: usize,
+    batch: BatchBuilder,
+    end_queued: bool,
+    hello_sent: bool,
+    abort: bool,
+    abort_sent: bool,
+    /// What the host has seen.
+    pub progress: Progress,
+    /// Every payload sent, in order (for the lossy-link tests' delivery check).
+    pub sent_log: Option<Vec<Vec<u8>>>,
+}
+
+impl<'a> HostJob<'a> {
+    /// A job streaming `tris` (placed, sorted by lowest z) with `job`.
+    pub fn new(tris: &'a [Triangle], job: JobSpec) -> Self {
+        Self {
+            tris,
+            job,
+            phase: Phase::Hello,
+            next: 0,
+            batch: BatchBuilder::new(),
+            end_queued: false,
+            hello_sent: false,
+            abort: false,
+            abort_sent: false,
+            progress: Progress::default(),
+            sent_log: None,
+        }
+    }
+
+    /// Current phase.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Asks the device to abort (sent on the next poll).
+    pub fn abort(&mut self) {
+        self.abort = true;
+    }
+
+    fn send(&mut self, ep: &mut HostEndpoint, payload: &[u8]) -> bool {
+        if ep.send(payload).is_err() {
+            return false;
+        }
+        if let Some(log) = &mut self.sent_log {
+            log.push(payload.to_vec());
+        }
+        true
+    }
+
+    fn send_msg(&mut self, ep: &mut HostEndpoint, m: &Message<'_>) -> bool {
+        let mut buf = [0u8; MAX_PAYLOAD];
+        let n = m.encode(&mut buf).expect("control messages fit a frame");
+        self.send(ep, &buf[..n])
+    }
+
+    /// Handles what arrived and queues what can go out. `Err` ends the job with a message
+    /// for the user.
+    pub fn poll(&mut self, now_ms: u32, ep: &mut HostEndpoint) -> Result<Phase, String> {
+        if let Err(LinkError::Dead { silent_ms }) = ep.check(now_ms) {
+            return Err(format!(
+                "the printer stopped answering: no valid frame for {:.1} s (link dead); \
+                 {} of {} triangles sent",
+                silent_ms as f64 / 1000.0,
+                self.progress.triangles_sent,
+                self.tris.len()
+            ));
+        }
+        while let Some(p) = ep.peek() {
+            let m = Message::decode(p).map_err(|e| format!("the printer sent a bad message: {e}"));
+            let m = m?;
+            match m {
+                Message::Capabilities { version, capacities } => {
+                    if version != VERSION {
+                        return Err(format!(
+                            "the printer speaks protocol version {version}, this host {VERSION}"
+                        ));
+                    }
+                    self.progress.capacities = Some(capacities);
+                }
+                Message::LayerDone { layer, hash } => {
+                    let l = layer as usize;
+                    if self.progress.layer_hashes.len() <= l {
+                        self.progress.layer_hashes.resize(l + 1, 0);
+                    }
+                    self.progress.layer_hashes[l] = hash;
+                }
+                Message::Status(s) => {
+                    self.progress.status = Some(s);
+                    match s.state {
+                        DeviceState::Done if self.phase == Phase::Printing => {
+                            self.phase = Phase::Done
+                        }
+                        DeviceState::Failed => return Err(describe_failure(&s)),
+                        DeviceState::Aborted if self.phase != Phase::Hello => {
+                            return Err("the job was aborted".into())
+                        }
+                        DeviceState::Stopped => {
+                            return Err("the printer is in emergency stop".into())
+                        }
+                        _ => {}
+                    }
+                }
+                _ => {}
+            }
+            ep.pop();
+        }
+        if self.abort && !self.abort_sent {
+            self.abort_sent = self.send_msg(ep, &Message::Abort);
+            return Ok(self.phase);
+        }
+        if !self.hello_sent {
+            self.hello_sent = self.send_msg(ep, &Message::Hello { version: VERSION });
+        }
+        if self.phase == Phase::Hello
+            && self.progress.capacities.is_some()
+            && self.send_msg(ep, &Message::JobStart(self.job))
+        {
+            self.phase = Phase::Streaming;
+        }
+        while self.phase == Phase::Streaming && ep.tx_free() > 0 {
+            if self.next < self.tris.len() {
+                while self.next < self.tris.len() && self.batch.push(&self.tris[self.next]).is_ok()
+                {
+                    self.next += 1;
+                }
+                if self.batch.is_empty() {
+                    return Err(format!(
+                        "triangle {} is outside the wire range (0..1048 mm)",
+                        self.next
+                    ));
+                }
+                let n = self.batch.len();
+                let payload = self.batch.payload().to_vec();
+                if !self.send(ep, &payload) {
+                    // Keep the batch for the next poll: rewind.
+                    self.next -= n;
+                    self.batch.clear();
+                    break;
+                }
+                self.batch.clear();
+                self.progress.triangles_sent += n;
+                self.progress.triangle_wire_bytes += wire_len(&payload) as u64;
+            } else if !self.end_queued {
+                self.end_queued = self.send_msg(ep, &Message::EndOfModel);
+            } else {
+                break;
+            }
+        }
+        if self.end_queued && self.phase == Phase::Streaming && ep.all_acked() {
+            self.phase = Phase::Printing;
+            self.progress.stream_done_ms = Some(now_ms);
+        }
+        Ok(self.phase)
+    }
+}
+
+/// The user-facing text of a failed status.
+pub fn describe_failure(s: &Status) -> String {
+    let what = match s.error {
+        ErrorCode::None => "unknown error".to_string(),
+        ErrorCode::BadJob => "the printer refused the job settings".to_string(),
+        ErrorCode::Slice => format!("slicing failed on the printer at layer {}", s.detail),
+        ErrorCode::Toolpath => format!("toolpath generation failed at layer {}", s.detail),
+        ErrorCode::Plan => format!("the motion planner refused a move of layer {}", s.detail),
+        ErrorCode::Unexpected => {
+            format!("the printer got an unexpected message 0x{:02x}", s.detail)
+        }
+        ErrorCode::BadMessage => {
+            format!("the printer got an undecodable message 0x{:02x}", s.detail)
+        }
+        ErrorCode::Moves => format!("the printer's move buffer overflowed at layer {}", s.detail),
+        ErrorCode::LinkDead => {
+            format!("the printer lost the link after {} ms of silence", s.detail)
+        }
+    };
+    format!("print failed: {what} (layer {} of {})", s.layer, s.layers)
+}

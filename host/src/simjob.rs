@@ -1,0 +1,438 @@
+//! The simulated printer: the device-side job runner (`strata::printer`), the step executor
+//! and the simulated board (`strata::sim`), connected to a [`HostJob`] through an in-memory
+//! serial link, all on one virtual clock.
+//!
+//! Every virtual millisecond: the host and the device exchange what the link carried (at the
+//! baud rate, 10 bits per byte, through the seeded [`Faults`]), the device services its
+//! endpoint and runs its pipeline, and the executor runs every timer event up to the end of
+//! the millisecond on the board's 72 MHz clock. Streaming and printing overlap as on the real
+//! printer, so an underrun means the link did not keep ahead of the print.
+
+use std::collections::VecDeque;
+
+use strata::geom::Triangle;
+use strata::machine::{MachineConfig, AXES};
+use strata::printer::{Printer, CREALITY_CAPACITIES};
+use strata::protocol::{Capacities, Endpoint, JobSpec, LinkConfig, MAX_WIRE};
+use strata::sim::{SimBoard, SimTiming};
+use strata::step::{is_before, Executor, StepQueue, Wake};
+use strata::toolpath::ToolpathNeeds;
+
+use crate::session::{HostEndpoint, HostJob, Phase};
+
+/// The simulated device: slicer at the Creality board's capacities (1024 active triangles,
+/// 768 contour points, 48 loops), a host-sized toolpath stage (the skin window of large models
+/// does not fit 64 KB yet; its real need is reported), 2^17 buffered moves, 32 moves of
+/// lookahead.
+pub type SimPrinter = Printer<
+    1024,
+    768,
+    48,
+    { 1 << 15 },
+    { 1 << 11 },
+    { 1 << 15 },
+    { 1 << 17 },
+    { 1 << 17 },
+    { 1 << 16 },
+    { 1 << 17 },
+    32,
+>;
+/// Device endpoint: 4 frames in flight, 4 receive slots (1.6 KB of payload).
+pub type DeviceEndpoint = Endpoint<4, 4>;
+
+const STACK_BYTES: usize = 512 << 20;
+const STEP_QUEUE: usize = 64;
+
+/// Seeded faults on each direction of the link.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Faults {
+    /// Seed.
+    pub seed: u64,
+    /// Probability a whole frame is lost.
+    pub drop_frame: f64,
+    /// Probability a frame is sent twice.
+    pub duplicate_frame: f64,
+    /// Probability one byte of a frame is flipped.
+    pub corrupt_frame: f64,
+    /// Probability one byte of a frame is lost.
+    pub drop_byte: f64,
+    /// Probability a frame waits up to `max_delay_ms` longer (later frames wait behind it).
+    pub delay_frame: f64,
+    /// Longest extra delay, ms.
+    pub max_delay_ms: u32,
+    /// From this virtual time on, nothing gets through (a dead link).
+    pub cut_at_ms: Option<u32>,
+}
+
+impl Faults {
+    /// Every fault kind at `rate` (drop, corrupt, duplicate, byte loss, delay), seeded.
+    pub fn uniform(rate: f64, seed: u64) -> Self {
+        Self {
+            seed,
+            drop_frame: rate,
+            duplicate_frame: rate,
+            corrupt_frame: rate,
+            drop_byte: rate,
+            delay_frame: rate,
+            max_delay_ms: 50,
+            cut_at_ms: None,
+        }
+    }
+}
+
+/// Options of a simulated job.
+#[derive(Debug, Clone, Copy)]
+pub struct SimOptions {
+    /// Link speed, baud (10 bits per byte).
+    pub baud: u32,
+    /// Faults on the link.
+    pub faults: Faults,
+    /// Capacities the device announces.
+    pub capacities: Capacities,
+    /// Give up after this much virtual time, ms.
+    pub max_ms: u64,
+    /// Check that every payload the device receives equals one the host sent, in order.
+    pub check_delivery: bool,
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        Self {
+            baud: 250_000,
+            faults: Faults::default(),
+            capacities: CREALITY_CAPACITIES,
+            max_ms: 48 * 3600 * 1000,
+            check_delivery: false,
+        }
+    }
+}
+
+/// What a simulated job produced.
+#[derive(Debug, Clone, Default)]
+pub struct SimReport {
+    /// Layers of the job.
+    pub layers: u32,
+    /// From the first step to the last, s.
+    pub print_time_s: f64,
+    /// Planner's estimate, s.
+    pub planned_s: f64,
+    /// Filament fed, mm.
+    pub filament_mm: f64,
+    /// Steps per axis X, Y, Z, E.
+    pub steps: [u64; AXES],
+    /// Bound every step was checked against, us.
+    pub max_step_error_us: f64,
+    /// Steps outside the bound.
+    pub step_check_failures: u32,
+    /// Peak active triangles on the device.
+    pub peak_active_triangles: u32,
+    /// Peak contour points.
+    pub peak_contour_points: u32,
+    /// RAM the pipeline needs for this job (slicer at peak needs, toolpath needs, motion).
+    pub device_ram_bytes: u64,
+    /// Wire bytes per triangle (framing included).
+    pub wire_bytes_per_triangle: f64,
+    /// Per-layer hashes reported by the device.
+    pub layer_hashes: Vec<u64>,
+    /// Time until the last triangle was acknowledged, s.
+    pub stream_time_s: f64,
+    /// Executor underruns (the link or the pipeline fell behind the print).
+    pub underruns: u32,
+    /// Driver timing violations on the board.
+    pub violations: u32,
+    /// The board's step hash (every step, with its tick relative to the first).
+    pub board_hash: u64,
+    /// Triangles sent.
+    pub triangles: usize,
+    /// Host link counters: retransmits, bad frames, duplicates.
+    pub host_link: strata::protocol::LinkStats,
+    /// Device link counters.
+    pub device_link: strata::protocol::LinkStats,
+    /// Payloads the device received that the host never sent at that position.
+    pub delivery_mismatches: u64,
+    /// Virtual time at the end, ms.
+    pub end_ms: u64,
+}
+
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        // xorshift64*
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    fn chance(&mut self, p: f64) -> bool {
+        p > 0.0 && ((self.next() >> 11) as f64 / (1u64 << 53) as f64) < p
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        if n == 0 {
+            0
+        } else {
+            self.next() % n
+        }
+    }
+}
+
+/// One direction of the link: frames wait in a transmit queue, leave at the baud rate,
+/// suffer the faults and arrive after their delay.
+struct Wire {
+    faults: Faults,
+    rng: Rng,
+    bytes_per_ms: f64,
+    budget: f64,
+    /// Bytes waiting for the UART, each with the earliest time it may leave.
+    tx: VecDeque<(u64, u8)>,
+    /// Bytes that left this millisecond.
+    arrived: Vec<u8>,
+}
+
+impl Wire {
+    fn new(faults: Faults, salt: u64, baud: u32) -> Self {
+        Self {
+            faults,
+            rng: Rng(faults.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ salt | 1),
+            bytes_per_ms: baud as f64 / 10.0 / 1000.0,
+            budget: 0.0,
+            tx: VecDeque::new(),
+            arrived: Vec::new(),
+        }
+    }
+
+    fn send_frame(&mut self, now_ms: u64, frame: &[u8]) {
+        let f = self.faults;
+        if self.rng.chance(f.drop_frame) {
+            return;
+        }
+        let mut bytes = frame.to_vec();
+        if self.rng.chance(f.corrupt_frame) {
+            let i = self.rng.below(bytes.len() as u64) as usize;
+            bytes[i] ^= 1 << self.rng.below(8);
+        }
+        if self.rng.chance(f.drop_byte) {
+            let i = self.rng.below(bytes.len() as u64) as usize;
+            bytes.remove(i);
+        }
+        let copies = if self.rng.chance(f.duplicate_frame) { 2 } else { 1 };
+        let at = if self.rng.chance(f.delay_frame) {
+            now_ms + 1 + self.rng.below(f.max_delay_ms as u64)
+        } else {
+            now_ms
+        };
+        for _ in 0..copies {
+            self.tx.extend(bytes.iter().map(|&b| (at, b)));
+        }
+    }
+
+    /// Moves one millisecond's worth of bytes.
+    fn tick(&mut self, now_ms: u64) {
+        self.arrived.clear();
+        self.budget = (self.budget + self.bytes_per_ms).min(self.bytes_per_ms * 2.0);
+        let cut = self.faults.cut_at_ms.is_some_and(|c| now_ms >= c as u64);
+        while self.budget >= 1.0 {
+            match self.tx.front() {
+                Some(&(at, b)) if at <= now_ms => {
+                    self.tx.pop_front();
+                    self.budget -= 1.0;
+                    if !cut {
+                        self.arrived.push(b);
+                    }
+                }
+                _ => break,
+            }
+        }
+        if self.tx.is_empty() {
+            self.budget = self.budget.min(1.0);
+        }
+    }
+}
+
+/// Runs the job through the simulated printer on a thread with a large stack.
+pub fn simulate(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: JobSpec,
+    opts: &SimOptions,
+) -> Result<SimReport, (String, Box<SimReport>)> {
+    std::thread::scope(|scope| {
+        std::thread::Builder::new()
+            .name("simulated-printer".into())
+            .stack_size(STACK_BYTES)
+            .spawn_scoped(scope, || run(tris, machine, job, opts))
+            .expect("cannot start the simulation thread")
+            .join()
+            .unwrap_or_else(|_| Err(("the simulation panicked".into(), Box::default())))
+    })
+}
+
+fn run(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: JobSpec,
+    opts: &SimOptions,
+) -> Result<SimReport, (String, Box<SimReport>)> {
+    let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
+    printer.set_capacities(opts.capacities);
+    let step_cfg = *printer.step_config();
+    let timer_hz = step_cfg.timer_hz as u64;
+    let ticks_per_ms = timer_hz / 1000;
+    let start_tick = 1_000u64;
+    let board = SimBoard::new(SimTiming::from_config(&step_cfg), start_tick, ());
+    let mut pins = board.pins();
+    let mut queue: StepQueue<STEP_QUEUE> = StepQueue::new();
+    let (mut prod, cons) = queue.split();
+    let mut exec = Executor::new(&step_cfg, cons);
+
+    let mut host_ep: HostEndpoint = Endpoint::new(LinkConfig::default());
+    let mut dev_ep: DeviceEndpoint = Endpoint::new(LinkConfig::default());
+    let mut host = HostJob::new(tris, job);
+    if opts.check_delivery {
+        host.sent_log = Some(Vec::new());
+    }
+    let mut h2d = Wire::new(opts.faults, 1, opts.baud);
+    let mut d2h = Wire::new(opts.faults, 2, opts.baud);
+    let mut frame = [0u8; MAX_WIRE];
+    let mut next_wake: Option<u32> = None;
+    let mut first_step: Option<u64> = None;
+    let mut checked = 0usize;
+    let mut rep = SimReport::default();
+    let mut outcome: Result<(), String> = Ok(());
+    let mut now_ms: u64 = 0;
+    let mut done_at: Option<u64> = None;
+
+    loop {
+        now_ms += 1;
+        let t = now_ms as u32;
+        // Link: bytes of this millisecond arrive.
+        h2d.tick(now_ms);
+        d2h.tick(now_ms);
+        host_ep.receive(&d2h.arrived, t);
+        let before = dev_ep.rx_len();
+        dev_ep.receive(&h2d.arrived, t);
+        if let Some(log) = &host.sent_log {
+            for i in before..dev_ep.rx_len() {
+                let got = dev_ep.get(i).unwrap_or(&[]);
+                if log.get(checked).map(Vec::as_slice) != Some(got) {
+                    rep.delivery_mismatches += 1;
+                }
+                checked += 1;
+            }
+        }
+        // Host.
+        match host.poll(t, &mut host_ep) {
+            Ok(Phase::Done) if done_at.is_none() => done_at = Some(now_ms),
+            Ok(_) => {}
+            Err(e) => {
+                outcome = Err(e);
+                break;
+            }
+        }
+        loop {
+            let n = host_ep.poll_transmit(t, &mut frame);
+            if n == 0 {
+                break;
+            }
+            h2d.send_frame(now_ms, &frame[..n]);
+        }
+        // Device.
+        let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
+        printer.service(&mut dev_ep, t, done_ms, 500);
+        for _ in 0..64 {
+            if !printer.poll(&mut prod) {
+                break;
+            }
+        }
+        loop {
+            let n = dev_ep.poll_transmit(t, &mut frame);
+            if n == 0 {
+                break;
+            }
+            d2h.send_frame(now_ms, &frame[..n]);
+        }
+        // Motion up to the end of this millisecond.
+        let end_tick = start_tick + now_ms * ticks_per_ms;
+        let stopped = printer.state() == strata::protocol::DeviceState::Stopped;
+        if !stopped {
+            if next_wake.is_none() {
+                next_wake = wake(exec.on_timer(board.now_u32(), &mut pins));
+            }
+            while let Some(w) = next_wake {
+                if !is_before(w, end_tick as u32) && w != end_tick as u32 {
+                    break;
+                }
+                board.advance_to_u32(w);
+                if first_step.is_none() && !exec.is_idle() {
+                    first_step = Some(board.now());
+                }
+                next_wake = wake(exec.on_timer(board.now_u32(), &mut pins));
+                printer.poll(&mut prod);
+            }
+        }
+        board.advance_to(end_tick.max(board.now()));
+        if done_at.is_some() && exec.is_idle() && printer.motion_finished() {
+            break;
+        }
+        if now_ms >= opts.max_ms {
+            outcome = Err(format!("the job did not finish within {} s", opts.max_ms / 1000));
+            break;
+        }
+    }
+    let gen = printer.generator().stats();
+    let tp = printer.toolpath().stats();
+    let slice = *printer.slicer().stats();
+    rep.layers = printer.layer_count();
+    rep.end_ms = now_ms;
+    rep.steps = board.axes().map(|a| a.steps);
+    rep.print_time_s = match (first_step, last_step_tick(&board)) {
+        (Some(f), Some(l)) => (l - f) as f64 / timer_hz as f64,
+        _ => 0.0,
+    };
+    rep.planned_s = printer.planned_s();
+    rep.filament_mm = tp.filament_um as f64 / 1000.0;
+    rep.max_step_error_us = step_cfg.max_error_ticks as f64 * 1e6 / timer_hz as f64;
+    rep.step_check_failures = gen.check_failures;
+    rep.peak_active_triangles = slice.peak_active;
+    rep.peak_contour_points = slice.peak_points;
+    rep.device_ram_bytes = device_ram(&slice, &tp.needs);
+    rep.triangles = host.progress.triangles_sent;
+    rep.wire_bytes_per_triangle = if rep.triangles > 0 {
+        host.progress.triangle_wire_bytes as f64 / rep.triangles as f64
+    } else {
+        0.0
+    };
+    rep.layer_hashes = host.progress.layer_hashes.clone();
+    rep.stream_time_s = host.progress.stream_done_ms.map_or(0.0, |m| m as f64 / 1000.0);
+    rep.underruns = exec.stats().underruns;
+    rep.violations = board.violation_count();
+    rep.board_hash = board.step_hash();
+    rep.host_link = *host_ep.stats();
+    rep.device_link = *dev_ep.stats();
+    match outcome {
+        Ok(()) => Ok(rep),
+        Err(e) => Err((e, Box::new(rep))),
+    }
+}
+
+fn wake(w: Result<Wake, core::convert::Infallible>) -> Option<u32> {
+    match w {
+        Ok(Wake::At(t)) => Some(t),
+        _ => None,
+    }
+}
+
+fn last_step_tick(board: &SimBoard) -> Option<u64> {
+    board.axes().iter().filter_map(|a| a.last_rise).max()
+}
+
+/// RAM of a device pipeline sized exactly to this job's needs: slicer (24 bytes per active
+/// triangle, 37 per segment, 72 per loop), toolpath stage at its needs, planner and step
+/// generator and queues (12 KB, the motion test's bound).
+pub fn device_ram(slice: &strata::slice::SliceStats, needs: &ToolpathNeeds) -> u64 {
+    let slicer = 200
+        + 24 * slice.peak_active as u64
+        + 37 * slice.peak_segments as u64
+        + 72 * slice.peak_loops as u64;
+    slicer + needs.bytes() as u64 + 12 * 1024
+}

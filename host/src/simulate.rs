@@ -1,0 +1,185 @@
+//! `strata simulate`: the whole job through the real protocol into the simulated printer
+//! (`strata_host::simjob`), with admission control first, a summary (`--json`) and pictures
+//! (`--preview`).
+
+use std::path::PathBuf;
+
+use serde::Serialize;
+use strata::geom::Triangle;
+use strata::protocol::{JobOptions, JobSpec};
+use strata::slice::SliceConfig;
+use strata::toolpath::Seam;
+use strata_host::admission;
+use strata_host::model;
+use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
+
+use crate::slice_cmd::{machine_of, settings_of, toolpath_config_of, PrintArgs};
+
+/// Options of `strata simulate`.
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// The STL model.
+    pub model: PathBuf,
+    /// Print a machine-readable summary (JSON).
+    #[arg(long)]
+    pub json: bool,
+    /// Write a picture per layer and an overview page into this directory.
+    #[arg(long, value_name = "DIR")]
+    pub preview: Option<PathBuf>,
+    /// Link speed of the simulated serial line.
+    #[arg(long, default_value_t = 250_000)]
+    pub baud: u32,
+    /// Largest geometric deviation simplification may introduce, mm.
+    #[arg(long, value_name = "MM", default_value_t = 0.02)]
+    pub max_deviation: f64,
+    /// Loss rate injected on the simulated link (drop, corrupt, duplicate, delay), 0..1.
+    #[arg(long, value_name = "RATE", default_value_t = 0.0)]
+    pub loss: f64,
+    /// Seed of the injected faults.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print settings.
+    #[command(flatten)]
+    pub print: Box<PrintArgs>,
+}
+
+#[derive(Serialize)]
+struct Steps {
+    x: u64,
+    y: u64,
+    z: u64,
+    e: u64,
+}
+
+#[derive(Serialize)]
+struct Simplified {
+    triangles_in: usize,
+    triangles_out: usize,
+    max_deviation_mm: f64,
+}
+
+#[derive(Serialize)]
+struct Summary {
+    layers: u32,
+    print_time_s: f64,
+    filament_mm: f64,
+    steps: Steps,
+    max_step_error_us: f64,
+    peak_active_triangles: u32,
+    peak_contour_points: u32,
+    device_ram_bytes: u64,
+    wire_bytes_per_triangle: f64,
+    simplified: Option<Simplified>,
+    layer_hashes: Vec<String>,
+    triangles: usize,
+    stream_time_s: f64,
+    underruns: u32,
+    retransmits: u64,
+}
+
+/// Builds the job message from the settings flags.
+pub fn job_of(args: &PrintArgs, tris: &[Triangle]) -> Result<JobSpec, String> {
+    let machine = machine_of(args)?;
+    let settings = settings_of(args, &machine)?;
+    let cfg = toolpath_config_of(args, &machine, &settings)?;
+    let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
+    Ok(JobSpec {
+        settings,
+        options: JobOptions {
+            outer_perimeter_last: cfg.outer_perimeter_last,
+            seam: matches!(cfg.seam, Seam::Nearest) as u8,
+            skirt_loops: cfg.skirt_loops,
+            skirt_distance_um: cfg.skirt_distance_um,
+        },
+        model_height_um: top,
+        triangles: tris.len() as u32,
+    })
+}
+
+/// Runs `strata simulate`.
+pub fn run(args: &SimulateArgs) -> Result<(), String> {
+    let machine = machine_of(&args.print)?;
+    let loaded = model::load(&args.model)?;
+    let tris = loaded.placed_sorted(&machine)?;
+    let job = job_of(&args.print, &tris)?;
+    let opts = SimOptions {
+        baud: args.baud,
+        faults: Faults::uniform(args.loss, args.seed),
+        ..SimOptions::default()
+    };
+    let slice_cfg =
+        SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
+    let fit = admission::check(&tris, &slice_cfg, &opts.capacities)?;
+    if !fit.fits {
+        return Err(format!(
+            "{}: needs {} active triangles and {} contour points, the printer holds {} and {}",
+            args.model.display(),
+            fit.needs.active_triangles,
+            fit.needs.contour_points,
+            opts.capacities.active_triangles,
+            opts.capacities.contour_points
+        ));
+    }
+    let rep = simulate(&tris, &machine, job, &opts)
+        .map_err(|(e, _)| format!("{}: {e}", args.model.display()))?;
+    report(args, &rep, None)
+}
+
+fn report(
+    args: &SimulateArgs,
+    rep: &SimReport,
+    simplified: Option<Simplified>,
+) -> Result<(), String> {
+    if args.json {
+        let s = Summary {
+            layers: rep.layers,
+            print_time_s: rep.print_time_s,
+            filament_mm: rep.filament_mm,
+            steps: Steps { x: rep.steps[0], y: rep.steps[1], z: rep.steps[2], e: rep.steps[3] },
+            max_step_error_us: rep.max_step_error_us,
+            peak_active_triangles: rep.peak_active_triangles,
+            peak_contour_points: rep.peak_contour_points,
+            device_ram_bytes: rep.device_ram_bytes,
+            wire_bytes_per_triangle: rep.wire_bytes_per_triangle,
+            simplified,
+            layer_hashes: rep.layer_hashes.iter().map(|h| format!("{h:016x}")).collect(),
+            triangles: rep.triangles,
+            stream_time_s: rep.stream_time_s,
+            underruns: rep.underruns,
+            retransmits: rep.host_link.retransmits,
+        };
+        println!("{}", serde_json::to_string_pretty(&s).map_err(|e| e.to_string())?);
+    } else {
+        println!(
+            "{}: {} layers, print time {}, {:.1} mm of filament, streamed {} triangles in {:.1} s \
+             ({:.1} bytes per triangle at {} baud)",
+            args.model.display(),
+            rep.layers,
+            hms(rep.print_time_s),
+            rep.filament_mm,
+            rep.triangles,
+            rep.stream_time_s,
+            rep.wire_bytes_per_triangle,
+            args.baud
+        );
+        println!(
+            "steps X {} Y {} Z {} E {}, each within {:.2} us; peak active triangles {}, \
+             peak contour points {}, device RAM needed {:.1} KB; underruns {}",
+            rep.steps[0],
+            rep.steps[1],
+            rep.steps[2],
+            rep.steps[3],
+            rep.max_step_error_us,
+            rep.peak_active_triangles,
+            rep.peak_contour_points,
+            rep.device_ram_bytes as f64 / 1024.0,
+            rep.underruns
+        );
+    }
+    Ok(())
+}
+
+fn hms(s: f64) -> String {
+    let t = s.round() as u64;
+    format!("{}:{:02}:{:02}", t / 3600, t / 60 % 60, t % 60)
+}

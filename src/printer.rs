@@ -1,0 +1,598 @@
+//! The device-side job runner: protocol messages in, slicer, toolpaths, planner and step
+//! generator driven incrementally, status reports and per-layer hashes out.
+//!
+//! [`Printer`] owns every pipeline stage with its capacities as const generics (a board picks
+//! them once, see [`CREALITY_CAPACITIES`]); the step queue and the executor stay outside (the
+//! executor runs in the timer interrupt on the board, on a virtual clock in the simulation).
+//! [`Printer::service`] pumps the protocol [`Endpoint`]: it answers `Hello` with the
+//! capacities, hands job messages to [`Printer::handle`] and sends status reports and
+//! `LayerDone` hashes back. [`Printer::poll`] does a bounded amount of work: moves into the
+//! planner (up to its queue), blocks into the step generator, steps into the queue.
+//!
+//! Flow control reaches back to the host: a triangle batch is taken only when the moves of the
+//! previous ones are all in the planner (a batch can complete at most a few layers, whose moves
+//! wait in the `MOVES` buffer); until then it stays in the endpoint's receive slot, so the
+//! device announces fewer credits and the host stops sending.
+//!
+//! Planner blocks are released only when the planner queue is full or the model has ended
+//! (`pop_forced`), never earlier because data happened to be late: the blocks, and the step
+//! sequences they fix, depend only on the job, not on the link's timing. Each layer's blocks
+//! are hashed (FNV-1a over their geometry, kind and timing) and reported with
+//! [`Message::LayerDone`]: identical jobs give identical hashes on the host simulation and on
+//! the firmware.
+
+use heapless::Deque;
+
+use crate::geom::{Point2, Triangle};
+use crate::machine::{MachineConfig, PrintSettings, AXES};
+use crate::plan::{Block, Move, MoveKind, PlanConfig, PlanError, Planner};
+use crate::protocol::{
+    Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
+};
+use crate::slice::{Layer, SliceConfig, Slicer};
+use crate::step::{StepConfig, StepGenerator, StepProducer};
+use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig};
+
+/// The slicer capacities of the Creality 4.2.x board build (64 KB RAM): 1024 active
+/// triangles (24 KB), 512 segments and contour points per layer (19 KB), 32 loops per layer.
+/// The host checks a model against these before streaming (admission control).
+pub const CREALITY_CAPACITIES: Capacities = Capacities {
+    active_triangles: 1024,
+    contour_points: 512,
+    contour_loops: 32,
+    layer_moves: 4096,
+    layer_window: 4,
+    ram_bytes: 64 * 1024,
+};
+
+/// Result of [`Printer::handle`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Accept {
+    /// The message was consumed.
+    Taken,
+    /// Not now (the previous triangles' moves are not planned yet): offer it again later.
+    Busy,
+}
+
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
+
+fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(FNV_PRIME);
+    }
+    h
+}
+
+/// FNV-1a step of one planned block into `h`: start, end, kind, length, acceleration, speeds
+/// and duration (everything the step generator reads).
+pub fn hash_block(mut h: u64, b: &Block) -> u64 {
+    for v in b.start_um().into_iter().chain(b.end_um()) {
+        h = fnv(h, &v.to_le_bytes());
+    }
+    h = fnv(h, &[b.kind() as u8]);
+    for v in [
+        b.length_um_q32(),
+        b.accel_mm_s2().to_bits(),
+        b.start_speed_mm_s().to_bits(),
+        b.cruise_speed_mm_s().to_bits(),
+        b.end_speed_mm_s().to_bits(),
+        b.duration_ticks_q16(),
+    ] {
+        h = fnv(h, &v.to_le_bytes());
+    }
+    h
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Tagged {
+    layer: u32,
+    mv: Move,
+}
+
+/// The job runner. Capacities: slicer `A` active triangles, `S` segments, `L` loops;
+/// toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS` (see [`Toolpath`]); `MOVES`
+/// toolpath moves waiting for the planner; `P` moves of planner lookahead.
+pub struct Printer<
+    const A: usize,
+    const S: usize,
+    const L: usize,
+    const PTS: usize,
+    const LOOPS: usize,
+    const CROSS: usize,
+    const PATH: usize,
+    const RING: usize,
+    const SPANS: usize,
+    const MOVES: usize,
+    const P: usize,
+> {
+    machine: MachineConfig,
+    plan_cfg: PlanConfig,
+    step_cfg: StepConfig,
+    slicer: Slicer<A, S, L>,
+    tp: Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+    moves: Deque<Tagged, MOVES>,
+    planner: Planner<P>,
+    /// Layer of every move in the planner that makes a block.
+    tags: Deque<u32, P>,
+    gen: StepGenerator,
+    state: DeviceState,
+    error: ErrorCode,
+    detail: u32,
+    job: Option<JobSpec>,
+    feed: Feed,
+    triangles: u32,
+    layers: u32,
+    model_ended: bool,
+    toolpath_done: bool,
+    /// Layer whose blocks are being hashed, and the hash so far.
+    hash_layer: Option<(u32, u64)>,
+    done: Deque<(u32, u64), 8>,
+    layers_planned: u32,
+    status_due_ms: u32,
+    capacities: Capacities,
+}
+
+impl<
+        const A: usize,
+        const S: usize,
+        const L: usize,
+        const PTS: usize,
+        const LOOPS: usize,
+        const CROSS: usize,
+        const PATH: usize,
+        const RING: usize,
+        const SPANS: usize,
+        const MOVES: usize,
+        const P: usize,
+    > Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>
+{
+    /// A runner for `machine`, idle. (Large: on the host, build it in a `Box` on a thread
+    /// with a big stack, or in a `static`.)
+    pub fn new(machine: &MachineConfig) -> Self {
+        let settings = PrintSettings::default();
+        let slice_cfg = SliceConfig::new(&settings, settings.layer_height_um)
+            .expect("the default settings are valid");
+        let tp_cfg = ToolpathConfig::new(machine, &settings);
+        let plan_cfg = PlanConfig::from_machine(machine);
+        let step_cfg = StepConfig::from_machine(machine);
+        let ram = core::mem::size_of::<Self>() as u32;
+        Self {
+            machine: *machine,
+            plan_cfg,
+            step_cfg,
+            slicer: Slicer::new(slice_cfg).expect("the default settings are valid"),
+            tp: Toolpath::new(tp_cfg).expect("the default settings are valid"),
+            moves: Deque::new(),
+            planner: Planner::new(&plan_cfg, [0; AXES]),
+            tags: Deque::new(),
+            gen: StepGenerator::new(&step_cfg, [0; AXES]),
+            state: DeviceState::Idle,
+            error: ErrorCode::None,
+            detail: 0,
+            job: None,
+            feed: Feed::default(),
+            triangles: 0,
+            layers: 0,
+            model_ended: false,
+            toolpath_done: false,
+            hash_layer: None,
+            done: Deque::new(),
+            layers_planned: 0,
+            status_due_ms: 0,
+            capacities: Capacities {
+                active_triangles: A as u32,
+                contour_points: S as u32,
+                contour_loops: L as u32,
+                layer_moves: MOVES as u32,
+                layer_window: RING.min(u16::MAX as usize) as u16,
+                ram_bytes: ram,
+            },
+        }
+    }
+
+    /// What this runner holds (announced to the host).
+    pub fn capacities(&self) -> Capacities {
+        self.capacities
+    }
+
+    /// Overrides the announced capacities (a simulated printer posing as a smaller board).
+    pub fn set_capacities(&mut self, capacities: Capacities) {
+        self.capacities = capacities;
+    }
+
+    /// State.
+    pub fn state(&self) -> DeviceState {
+        self.state
+    }
+
+    /// Error and detail (when failed).
+    pub fn error(&self) -> (ErrorCode, u32) {
+        (self.error, self.detail)
+    }
+
+    /// The step generator (its statistics, motor positions).
+    pub fn generator(&self) -> &StepGenerator {
+        &self.gen
+    }
+
+    /// The step configuration the generator uses (the executor must use the same).
+    pub fn step_config(&self) -> &StepConfig {
+        &self.step_cfg
+    }
+
+    /// Layers of the job.
+    pub fn layer_count(&self) -> u32 {
+        self.layers
+    }
+
+    /// Print time of the blocks released so far, seconds.
+    pub fn planned_s(&self) -> f64 {
+        self.planner.released_ticks_q16() as f64 / 65536.0 / self.plan_cfg.timer_hz as f64
+    }
+
+    /// The slicer (statistics: peak active set, peak points).
+    pub fn slicer(&self) -> &Slicer<A, S, L> {
+        &self.slicer
+    }
+
+    /// The toolpath stage (statistics and needs).
+    pub fn toolpath(&self) -> &Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS> {
+        &self.tp
+    }
+
+    /// True when the job's last block went to the step generator and it sent every step.
+    pub fn motion_finished(&self) -> bool {
+        self.state == DeviceState::Done
+    }
+
+    /// True while steps may still come: printing or paused.
+    pub fn is_active(&self) -> bool {
+        matches!(self.state, DeviceState::Printing | DeviceState::Paused)
+    }
+
+    fn fail(&mut self, error: ErrorCode, detail: u32) {
+        if self.is_active() || self.state == DeviceState::Idle {
+            self.state = DeviceState::Failed;
+            self.error = error;
+            self.detail = detail;
+        }
+    }
+
+    /// Ends the job on a dead link.
+    pub fn link_lost(&mut self, silent_ms: u32) {
+        self.fail(ErrorCode::LinkDead, silent_ms);
+    }
+
+    fn start(&mut self, job: &JobSpec) -> Result<(), ErrorCode> {
+        job.settings.validate(&self.machine).map_err(|_| ErrorCode::BadJob)?;
+        let slice_cfg =
+            SliceConfig::new(&job.settings, job.model_height_um).map_err(|_| ErrorCode::BadJob)?;
+        let mut tp_cfg = ToolpathConfig::new(&self.machine, &job.settings);
+        tp_cfg.outer_perimeter_last = job.options.outer_perimeter_last;
+        tp_cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
+        tp_cfg.skirt_loops = job.options.skirt_loops;
+        tp_cfg.skirt_distance_um = job.options.skirt_distance_um;
+        self.slicer.reset(slice_cfg).map_err(|_| ErrorCode::BadJob)?;
+        self.tp.reset(tp_cfg).map_err(|_| ErrorCode::BadJob)?;
+        self.tp.set_position(Point2::new(0, 0), 0);
+        self.moves.clear();
+        self.planner = Planner::new(&self.plan_cfg, [0; AXES]);
+        self.tags.clear();
+        self.gen = StepGenerator::new(&self.step_cfg, [0; AXES]);
+        self.layers = self.slicer.layer_count();
+        self.feed = Feed::default();
+        self.triangles = 0;
+        self.model_ended = false;
+        self.toolpath_done = false;
+        self.hash_layer = None;
+        self.done.clear();
+        self.layers_planned = 0;
+        self.job = Some(*job);
+        Ok(())
+    }
+
+    /// Takes a host message. Misplaced messages fail the job (never executed).
+    pub fn handle(&mut self, msg: &Message<'_>) -> Accept {
+        match (msg, self.state) {
+            (Message::EmergencyStop, _) => {
+                self.state = DeviceState::Stopped;
+                self.moves.clear();
+            }
+            (Message::Abort, s) if s != DeviceState::Stopped => {
+                self.state = DeviceState::Aborted;
+                self.moves.clear();
+            }
+            (Message::JobStart(job), s)
+                if !matches!(s, DeviceState::Printing | DeviceState::Paused) =>
+            {
+                self.error = ErrorCode::None;
+                self.detail = 0;
+                match self.start(job) {
+                    Ok(()) => self.state = DeviceState::Printing,
+                    Err(e) => {
+                        self.state = DeviceState::Failed;
+                        self.error = e;
+                    }
+                }
+            }
+            (Message::Pause, DeviceState::Printing) => self.state = DeviceState::Paused,
+            (Message::Resume, DeviceState::Paused) => self.state = DeviceState::Printing,
+            (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
+                if !self.model_ended =>
+            {
+                if !self.moves.is_empty() {
+                    return Accept::Busy;
+                }
+                for t in batch.iter() {
+                    self.push_triangle(&t);
+                }
+            }
+            (Message::EndOfModel, DeviceState::Printing | DeviceState::Paused)
+                if !self.model_ended =>
+            {
+                if !self.moves.is_empty() {
+                    return Accept::Busy;
+                }
+                self.model_ended = true;
+                self.finish_model();
+            }
+            (Message::Hello { .. }, _) => {}
+            (m, _) => {
+                let ty = match m {
+                    Message::Triangles(_) => 0x11,
+                    Message::EndOfModel => 0x12,
+                    Message::Pause => 0x20,
+                    Message::Resume => 0x21,
+                    Message::JobStart(_) => 0x10,
+                    _ => 0,
+                };
+                // A repeated pause/resume is harmless; everything else out of place fails.
+                if !matches!(m, Message::Pause | Message::Resume) {
+                    self.fail(ErrorCode::Unexpected, ty);
+                }
+            }
+        }
+        Accept::Taken
+    }
+
+    fn push_triangle(&mut self, t: &Triangle) {
+        let Self { slicer, tp, moves, feed, .. } = self;
+        let mut failed = None;
+        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
+        let mut tp_err = None;
+        let mut sink = |l: &Layer<'_>| {
+            if tp_err.is_none() {
+                tp_err = tp.push_layer(l, &mut events).err();
+            }
+        };
+        let r = slicer.push(t, &mut sink);
+        self.triangles += 1;
+        self.check(r.is_err(), tp_err.is_some(), failed);
+    }
+
+    fn finish_model(&mut self) {
+        let Self { slicer, tp, moves, feed, .. } = self;
+        let mut failed = None;
+        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
+        let mut tp_err = None;
+        let mut sink = |l: &Layer<'_>| {
+            if tp_err.is_none() {
+                tp_err = tp.push_layer(l, &mut events).err();
+            }
+        };
+        let r = slicer.finish(&mut sink);
+        if r.is_ok() && tp_err.is_none() {
+            tp_err = tp.finish(&mut events).err();
+        }
+        self.toolpath_done = true;
+        self.check(r.is_err(), tp_err.is_some(), failed);
+    }
+
+    fn check(&mut self, slice_err: bool, tp_err: bool, moves_full: Option<u32>) {
+        let layer = self.slicer.stats().layers;
+        if slice_err {
+            self.fail(ErrorCode::Slice, layer);
+        } else if tp_err {
+            self.fail(ErrorCode::Toolpath, layer);
+        } else if let Some(l) = moves_full {
+            self.fail(ErrorCode::Moves, l);
+        }
+    }
+
+    /// Layer hashes completed since the last call.
+    pub fn take_layer_done(&mut self) -> Option<(u32, u64)> {
+        self.done.pop_front()
+    }
+
+    fn close_layer(&mut self) {
+        if let Some((l, h)) = self.hash_layer.take() {
+            // 8 pending reports at most: the host hears them within a few polls.
+            let _ = self.done.push_back((l, h));
+            self.layers_planned = l + 1;
+        }
+    }
+
+    /// Bounded work: moves into the planner, blocks into the generator, steps into `out`.
+    /// Returns true when something happened.
+    pub fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
+        if !self.is_active() {
+            return false;
+        }
+        let mut worked = false;
+        while let Some(t) = self.moves.front().copied() {
+            let before = self.planner.position_um();
+            match self.planner.push(t.mv) {
+                Ok(()) => {
+                    self.moves.pop_front();
+                    worked = true;
+                    // A move that goes nowhere makes no block and has no tag.
+                    if t.mv.target_um != before {
+                        let _ = self.tags.push_back(t.layer);
+                    }
+                }
+                Err(PlanError::QueueFull) => break,
+                Err(_) => {
+                    self.fail(ErrorCode::Plan, t.layer);
+                    return true;
+                }
+            }
+        }
+        let input_done = self.toolpath_done && self.moves.is_empty();
+        if self.state == DeviceState::Printing {
+            while self.gen.wants_block() && (input_done || self.planner.is_full()) {
+                let Some(b) = self.planner.pop_forced() else { break };
+                let layer = self.tags.pop_front().unwrap_or(0);
+                match self.hash_layer {
+                    Some((l, _)) if l != layer => {
+                        self.close_layer();
+                        self.hash_layer = Some((layer, FNV_OFFSET));
+                    }
+                    None => self.hash_layer = Some((layer, FNV_OFFSET)),
+                    _ => {}
+                }
+                if let Some((_, h)) = &mut self.hash_layer {
+                    *h = hash_block(*h, &b);
+                }
+                // `wants_block` was true: the generator takes it.
+                let _ = self.gen.load(b);
+                worked = true;
+            }
+        }
+        let _ = self.gen.run(out);
+        if input_done && self.planner.is_empty() && self.gen.is_idle() {
+            self.close_layer();
+            self.state = DeviceState::Done;
+            worked = true;
+        }
+        worked
+    }
+
+    /// The status report; `done_ms` is the print time executed so far (the executor's).
+    pub fn status(&self, done_ms: u32) -> Status {
+        Status {
+            state: self.state,
+            layer: self.layers_planned,
+            layers: self.layers,
+            planned_ms: (self.planned_s() * 1000.0) as u32,
+            done_ms,
+            triangles: self.triangles,
+            queue_fill_pct: (self.moves.len() * 100 / MOVES.max(1)) as u8,
+            error: self.error,
+            detail: self.detail,
+        }
+    }
+
+    /// Pumps the link: decodes delivered messages (a message that does not decode is
+    /// reported and dropped, never executed), answers `Hello`, sends layer hashes and a
+    /// status every `status_every_ms` and at once on a state change. A dead link fails the
+    /// job.
+    pub fn service<const TX: usize, const RX: usize>(
+        &mut self,
+        ep: &mut Endpoint<TX, RX>,
+        now_ms: u32,
+        done_ms: u32,
+        status_every_ms: u32,
+    ) {
+        if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
+            self.link_lost(silent_ms);
+        }
+        let before = self.state;
+        let mut buf = [0u8; MAX_PAYLOAD];
+        while ep.tx_free() > 1 {
+            let Some(p) = ep.peek() else { break };
+            match Message::decode(p) {
+                Ok(Message::Hello { .. }) => {
+                    let caps = self.capacities;
+                    let m = Message::Capabilities { version: VERSION, capacities: caps };
+                    if let Ok(n) = m.encode(&mut buf) {
+                        let _ = ep.send(&buf[..n]);
+                    }
+                }
+                Ok(m) => {
+                    if self.handle(&m) == Accept::Busy {
+                        break;
+                    }
+                }
+                Err(_) => self.fail(ErrorCode::BadMessage, p.first().copied().unwrap_or(0) as u32),
+            }
+            ep.pop();
+        }
+        while ep.tx_free() > 1 {
+            let Some((layer, hash)) = self.take_layer_done() else { break };
+            if let Ok(n) = (Message::LayerDone { layer, hash }).encode(&mut buf) {
+                let _ = ep.send(&buf[..n]);
+            }
+        }
+        let due = now_ms.wrapping_sub(self.status_due_ms) < 1 << 31;
+        if (due || self.state != before) && ep.tx_free() > 0 {
+            if let Ok(n) = Message::Status(self.status(done_ms)).encode(&mut buf) {
+                if ep.send(&buf[..n]).is_ok() {
+                    self.status_due_ms = now_ms.wrapping_add(status_every_ms);
+                }
+            }
+        }
+    }
+}
+
+impl<
+        const A: usize,
+        const S: usize,
+        const L: usize,
+        const PTS: usize,
+        const LOOPS: usize,
+        const CROSS: usize,
+        const PATH: usize,
+        const RING: usize,
+        const SPANS: usize,
+        const MOVES: usize,
+        const P: usize,
+    > core::fmt::Debug for Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>
+{
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Printer")
+            .field("state", &self.state)
+            .field("error", &self.error)
+            .field("triangles", &self.triangles)
+            .field("layers", &self.layers)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Where the toolpath stream stands: its layer, absolute E and position.
+#[derive(Debug, Clone, Copy, Default)]
+struct Feed {
+    layer: u32,
+    e_um: i32,
+    xyz: [i32; 3],
+}
+
+/// Toolpath events into planner moves (absolute E); a full move buffer sets `failed`.
+fn on_event<const M: usize>(
+    e: &ToolEvent<'_>,
+    moves: &mut Deque<Tagged, M>,
+    feed: &mut Feed,
+    failed: &mut Option<u32>,
+) {
+    match e {
+        ToolEvent::LayerStart { index, .. } => feed.layer = *index,
+        ToolEvent::Move(m) => {
+            feed.e_um = feed.e_um.wrapping_add(m.e_um);
+            let xyz = [m.to.x, m.to.y, m.z_um];
+            let kind = if xyz == feed.xyz {
+                MoveKind::Retract
+            } else if m.e_um > 0 {
+                MoveKind::Print
+            } else {
+                MoveKind::Travel
+            };
+            feed.xyz = xyz;
+            let mv = Move::new([xyz[0], xyz[1], xyz[2], feed.e_um], m.feed_mm_s, kind);
+            if moves.push_back(Tagged { layer: feed.layer, mv }).is_err() {
+                failed.get_or_insert(feed.layer);
+            }
+        }
+        ToolEvent::LayerEnd(_) => {}
+    }
+}

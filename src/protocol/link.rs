@@ -1,0 +1,352 @@
+//! The reliable link: one [`Endpoint`] on each side (host and device, the same code).
+//!
+//! Data frames carry an 8-bit sequence number and are delivered to the application exactly
+//! once and in order (go-back-N):
+//! - the receiver accepts only the next expected sequence number, and only into a free
+//!   receive slot; anything else (a duplicate, a frame after a lost one, no room) is dropped
+//!   and answered with an ack;
+//! - every frame carries a cumulative ack (the next sequence number expected) and the
+//!   sender's free receive slots (credits): a peer sends sequence number `s` only while
+//!   `s - ack < credits`, so the receive buffer never overflows;
+//! - unacknowledged frames are sent again, all of them from the oldest, when no ack advanced
+//!   for [`LinkConfig::retransmit_ms`];
+//! - an ack frame goes out when one is due and no data frame can carry it, and at least
+//!   every [`LinkConfig::keepalive_ms`]; hearing nothing for [`LinkConfig::dead_ms`] makes
+//!   the link [`LinkError::Dead`].
+//!
+//! Time is an argument (`now_ms`, wrapping `u32`); nothing here reads a clock.
+
+use super::frame::{self, Decoder, FrameType, MAX_PAYLOAD, MAX_WIRE};
+
+/// Timers of an endpoint, milliseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub struct LinkConfig {
+    /// Resend unacknowledged frames after this long without ack progress.
+    pub retransmit_ms: u32,
+    /// Send an ack (with the current credits) at least this often.
+    pub keepalive_ms: u32,
+    /// The link is dead after this long without any valid frame from the peer.
+    pub dead_ms: u32,
+}
+
+impl Default for LinkConfig {
+    /// 100 ms retransmission (a full 16-triangle frame takes 17 ms at 250000 baud), 250 ms
+    /// keepalive, 3 s to declare the link dead.
+    fn default() -> Self {
+        Self { retransmit_ms: 100, keepalive_ms: 250, dead_ms: 3000 }
+    }
+}
+
+/// Why the link stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LinkError {
+    /// No valid frame from the peer for `silent_ms` (at least [`LinkConfig::dead_ms`]).
+    Dead {
+        /// How long the peer was silent.
+        silent_ms: u32,
+    },
+}
+
+impl core::fmt::Display for LinkError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Dead { silent_ms } => {
+                write!(f, "link dead: no valid frame from the peer for {silent_ms} ms")
+            }
+        }
+    }
+}
+
+/// Why [`Endpoint::send`] refused a message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SendError {
+    /// Every transmit slot holds an unacknowledged frame: poll and retry.
+    Full,
+    /// The payload is longer than [`MAX_PAYLOAD`].
+    TooLong,
+}
+
+impl core::fmt::Display for SendError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Full => write!(f, "transmit window full"),
+            Self::TooLong => write!(f, "payload longer than {MAX_PAYLOAD} bytes"),
+        }
+    }
+}
+
+/// Counters of an endpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkStats {
+    /// Frames written (data, resent data and acks).
+    pub frames_sent: u64,
+    /// Bytes written.
+    pub bytes_sent: u64,
+    /// Data frames sent again.
+    pub retransmits: u64,
+    /// Valid frames received.
+    pub frames_received: u64,
+    /// Frames discarded by the decoder (CRC, COBS, length, version, type).
+    pub bad_frames: u64,
+    /// Data frames dropped as duplicates.
+    pub duplicates: u64,
+    /// Data frames dropped as out of order (after a lost one) or for want of a free slot.
+    pub out_of_order: u64,
+    /// Messages delivered to the application.
+    pub delivered: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    len: u16,
+    buf: [u8; MAX_PAYLOAD],
+}
+
+const EMPTY: Slot = Slot { len: 0, buf: [0; MAX_PAYLOAD] };
+
+impl Slot {
+    fn bytes(&self) -> &[u8] {
+        &self.buf[..self.len as usize]
+    }
+}
+
+/// One end of the link with `TX` transmit slots (unacknowledged frames) and `RX` receive
+/// slots (delivered, not yet taken by the application). `TX` and `RX` must be 1..=64.
+#[derive(Debug, Clone)]
+pub struct Endpoint<const TX: usize, const RX: usize> {
+    cfg: LinkConfig,
+    decoder: Decoder,
+    tx: [Slot; TX],
+    /// Slot index of the oldest queued frame.
+    tx_head: usize,
+    /// Queued frames (oldest at `tx_head`).
+    tx_len: usize,
+    /// Queued frames sent since the last (re)start of the window (the next to send).
+    tx_sent: usize,
+    /// Queued frames sent at least once (what an ack may cover).
+    tx_ever: usize,
+    /// Sequence number of the oldest queued frame.
+    tx_base: u8,
+    /// Peer's free slots as of its last frame (counted from `tx_base`).
+    peer_credits: u8,
+    /// Time the retransmission timer started (last ack progress or window restart).
+    tx_timer_ms: u32,
+    rx: [Slot; RX],
+    rx_head: usize,
+    rx_len: usize,
+    /// Next sequence number expected.
+    rx_next: u8,
+    ack_due: bool,
+    last_rx_ms: u32,
+    last_tx_ms: u32,
+    started: bool,
+    stats: LinkStats,
+}
+
+impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
+    const OK: () = assert!(TX >= 1 && TX <= 64 && RX >= 1 && RX <= 64);
+
+    /// A fresh endpoint (sequence numbers from 0; one frame may go out before the peer
+    /// announced its credits).
+    pub const fn new(cfg: LinkConfig) -> Self {
+        let () = Self::OK;
+        Self {
+            cfg,
+            decoder: Decoder::new(),
+            tx: [EMPTY; TX],
+            tx_head: 0,
+            tx_len: 0,
+            tx_sent: 0,
+            tx_ever: 0,
+            tx_base: 0,
+            peer_credits: 1,
+            tx_timer_ms: 0,
+            rx: [EMPTY; RX],
+            rx_head: 0,
+            rx_len: 0,
+            rx_next: 0,
+            ack_due: false,
+            last_rx_ms: 0,
+            last_tx_ms: 0,
+            started: false,
+            stats: LinkStats {
+                frames_sent: 0,
+                bytes_sent: 0,
+                retransmits: 0,
+                frames_received: 0,
+                bad_frames: 0,
+                duplicates: 0,
+                out_of_order: 0,
+                delivered: 0,
+            },
+        }
+    }
+
+    /// The counters.
+    pub fn stats(&self) -> &LinkStats {
+        &self.stats
+    }
+
+    /// Free transmit slots.
+    pub fn tx_free(&self) -> usize {
+        TX - self.tx_len
+    }
+
+    /// True when every sent message has been acknowledged.
+    pub fn all_acked(&self) -> bool {
+        self.tx_len == 0
+    }
+
+    /// Messages waiting for the application.
+    pub fn rx_len(&self) -> usize {
+        self.rx_len
+    }
+
+    /// Queues a message for reliable delivery.
+    pub fn send(&mut self, payload: &[u8]) -> Result<(), SendError> {
+        if payload.len() > MAX_PAYLOAD {
+            return Err(SendError::TooLong);
+        }
+        if self.tx_len == TX {
+            return Err(SendError::Full);
+        }
+        let slot = &mut self.tx[(self.tx_head + self.tx_len) % TX];
+        slot.buf[..payload.len()].copy_from_slice(payload);
+        slot.len = payload.len() as u16;
+        self.tx_len += 1;
+        Ok(())
+    }
+
+    /// The oldest delivered message, if any (stays until [`Endpoint::pop`]).
+    pub fn peek(&self) -> Option<&[u8]> {
+        (self.rx_len > 0).then(|| self.rx[self.rx_head].bytes())
+    }
+
+    /// The `i`-th delivered message not yet released (0 = oldest).
+    pub fn get(&self, i: usize) -> Option<&[u8]> {
+        (i < self.rx_len).then(|| self.rx[(self.rx_head + i) % RX].bytes())
+    }
+
+    /// Releases the oldest delivered message (its slot becomes a credit for the peer).
+    pub fn pop(&mut self) {
+        if self.rx_len > 0 {
+            self.rx_head = (self.rx_head + 1) % RX;
+            self.rx_len -= 1;
+            self.ack_due = true;
+        }
+    }
+
+    /// Feeds received bytes; `now_ms` stamps the peer's liveness.
+    pub fn receive(&mut self, bytes: &[u8], now_ms: u32) {
+        if !self.started {
+            self.start(now_ms);
+        }
+        for &b in bytes {
+            let frame = match self.decoder.push(b) {
+                None => continue,
+                Some(Err(_)) => {
+                    self.stats.bad_frames += 1;
+                    continue;
+                }
+                Some(Ok(f)) => f,
+            };
+            self.stats.frames_received += 1;
+            self.last_rx_ms = now_ms;
+            // Acknowledgement: frames before `ack` arrived; only sent frames can be acked.
+            let acked = frame.ack.wrapping_sub(self.tx_base) as usize;
+            if acked <= self.tx_ever {
+                if acked > 0 {
+                    self.tx_head = (self.tx_head + acked) % TX;
+                    self.tx_len -= acked;
+                    self.tx_ever -= acked;
+                    self.tx_sent = self.tx_sent.saturating_sub(acked);
+                    self.tx_base = frame.ack;
+                    self.tx_timer_ms = now_ms;
+                }
+                self.peer_credits = frame.credits;
+            }
+            if frame.kind != FrameType::Data {
+                continue;
+            }
+            self.ack_due = true;
+            if frame.seq != self.rx_next {
+                if (self.rx_next.wrapping_sub(frame.seq) as i8) > 0 {
+                    self.stats.duplicates += 1;
+                } else {
+                    self.stats.out_of_order += 1;
+                }
+                continue;
+            }
+            if self.rx_len == RX {
+                self.stats.out_of_order += 1;
+                continue;
+            }
+            let slot = &mut self.rx[(self.rx_head + self.rx_len) % RX];
+            slot.buf[..frame.payload.len()].copy_from_slice(frame.payload);
+            slot.len = frame.payload.len() as u16;
+            self.rx_len += 1;
+            self.rx_next = self.rx_next.wrapping_add(1);
+            self.stats.delivered += 1;
+        }
+    }
+
+    fn start(&mut self, now_ms: u32) {
+        self.started = true;
+        self.last_rx_ms = now_ms;
+        self.last_tx_ms = now_ms;
+        self.tx_timer_ms = now_ms;
+    }
+
+    /// Checks the peer's liveness.
+    pub fn check(&mut self, now_ms: u32) -> Result<(), LinkError> {
+        if !self.started {
+            self.start(now_ms);
+        }
+        let silent_ms = now_ms.wrapping_sub(self.last_rx_ms);
+        if silent_ms >= self.cfg.dead_ms && silent_ms < 1 << 31 {
+            return Err(LinkError::Dead { silent_ms });
+        }
+        Ok(())
+    }
+
+    /// The next frame to write, encoded into `out`: a (re)sent data frame the peer has room
+    /// for, else a due ack or keepalive. Returns the wire length, or 0 when nothing is due.
+    /// Call until it returns 0.
+    pub fn poll_transmit(&mut self, now_ms: u32, out: &mut [u8; MAX_WIRE]) -> usize {
+        if !self.started {
+            self.start(now_ms);
+        }
+        if self.tx_sent > 0 && now_ms.wrapping_sub(self.tx_timer_ms) >= self.cfg.retransmit_ms {
+            // Go back N: resend the window from its oldest frame.
+            self.stats.retransmits += self.tx_sent as u64;
+            self.tx_sent = 0;
+            self.tx_timer_ms = now_ms;
+        }
+        let credits = (RX - self.rx_len) as u8;
+        let n = if self.tx_sent < self.tx_len && self.tx_sent < self.peer_credits as usize {
+            let slot = &self.tx[(self.tx_head + self.tx_sent) % TX];
+            let seq = self.tx_base.wrapping_add(self.tx_sent as u8);
+            if self.tx_sent == 0 {
+                self.tx_timer_ms = now_ms;
+            }
+            self.tx_sent += 1;
+            self.tx_ever = self.tx_ever.max(self.tx_sent);
+            frame::encode(FrameType::Data, seq, self.rx_next, credits, slot.bytes(), out)
+        } else if self.ack_due || now_ms.wrapping_sub(self.last_tx_ms) >= self.cfg.keepalive_ms {
+            frame::encode(FrameType::Ack, 0, self.rx_next, credits, &[], out)
+        } else {
+            None
+        };
+        let Some(n) = n else { return 0 };
+        self.ack_due = false;
+        self.last_tx_ms = now_ms;
+        self.stats.frames_sent += 1;
+        self.stats.bytes_sent += n as u64;
+        n
+    }
+}

@@ -1,0 +1,691 @@
+//! Messages: a type byte and little-endian fields, and the compact triangle encoding.
+//!
+//! A triangle is bit-packed (LSB first): a form bit, the first corner as three unsigned
+//! 20-bit coordinates (um, 0..=1048.575 mm), then the other two corners as signed deltas from
+//! the first: 16 bits each in the short form (every edge within +-32.767 mm on every axis,
+//! 157 bits = **20 bytes**), 21 bits each in the long form (187 bits = **24 bytes**).
+
+use crate::geom::{Point3, Triangle};
+use crate::machine::{InfillPattern, PrintSettings, Rate};
+
+use super::frame::MAX_PAYLOAD;
+
+/// Largest coordinate (um) a triangle on the wire may have: 20 bits.
+pub const MAX_WIRE_COORD_UM: i32 = (1 << 20) - 1;
+/// Bytes of a short-form triangle.
+pub const SHORT_TRIANGLE_BYTES: usize = 20;
+/// Bytes of a long-form triangle.
+pub const LONG_TRIANGLE_BYTES: usize = 24;
+/// Bytes before the triangles of a batch (type, count).
+pub const BATCH_HEADER: usize = 2;
+/// Triangles a batch always holds (all in the long form; more short ones fit).
+pub const MAX_BATCH: usize = (MAX_PAYLOAD - BATCH_HEADER) / LONG_TRIANGLE_BYTES;
+
+/// Message type bytes.
+mod ty {
+    pub const HELLO: u8 = 0x01;
+    pub const CAPABILITIES: u8 = 0x02;
+    pub const JOB_START: u8 = 0x10;
+    pub const TRIANGLES: u8 = 0x11;
+    pub const END_OF_MODEL: u8 = 0x12;
+    pub const PAUSE: u8 = 0x20;
+    pub const RESUME: u8 = 0x21;
+    pub const ABORT: u8 = 0x22;
+    pub const EMERGENCY_STOP: u8 = 0x23;
+    pub const STATUS: u8 = 0x30;
+    pub const LAYER_DONE: u8 = 0x31;
+}
+
+/// What a device holds: announced in [`Message::Capabilities`], used for admission control.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Capacities {
+    /// Active triangle set (`Slicer` `ACTIVE`).
+    pub active_triangles: u32,
+    /// Cut segments, and contour points, of one layer (`Slicer` `SEGMENTS`).
+    pub contour_points: u32,
+    /// Loops of one layer (`Slicer` `LOOPS`).
+    pub contour_loops: u32,
+    /// Toolpath moves buffered between the toolpath stage and the planner.
+    pub layer_moves: u32,
+    /// Layers the skin window holds (top solid layers the toolpath stage can wait for).
+    pub layer_window: u16,
+    /// RAM the pipeline's buffers take on the device, bytes.
+    pub ram_bytes: u32,
+}
+
+/// Toolpath choices that are not part of [`PrintSettings`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct JobOptions {
+    /// Print the external perimeter after the inner ones.
+    pub outer_perimeter_last: bool,
+    /// Seam: 0 rear, 1 nearest.
+    pub seam: u8,
+    /// Skirt loops.
+    pub skirt_loops: u8,
+    /// Gap between skirt and first layer, um.
+    pub skirt_distance_um: i32,
+}
+
+impl Default for JobOptions {
+    fn default() -> Self {
+        Self { outer_perimeter_last: true, seam: 0, skirt_loops: 1, skirt_distance_um: 3000 }
+    }
+}
+
+/// A job: settings, options and what the model is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct JobSpec {
+    /// Print settings.
+    pub settings: PrintSettings,
+    /// Toolpath options.
+    pub options: JobOptions,
+    /// Highest z of the placed model, um.
+    pub model_height_um: i32,
+    /// Triangles that will be streamed.
+    pub triangles: u32,
+}
+
+/// What the device is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DeviceState {
+    /// Waiting for a job.
+    #[default]
+    Idle = 0,
+    /// Receiving triangles and printing.
+    Printing = 1,
+    /// Paused (motion stops after the queued moves).
+    Paused = 2,
+    /// Every step executed.
+    Done = 3,
+    /// Stopped by an error (see the status' error).
+    Failed = 4,
+    /// Aborted by the host.
+    Aborted = 5,
+    /// Emergency stop: drivers disabled at once.
+    Stopped = 6,
+}
+
+/// Why a job failed (status error code; the detail is a number explained per code).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ErrorCode {
+    /// No error.
+    #[default]
+    None = 0,
+    /// Settings or model refused (detail: 0).
+    BadJob = 1,
+    /// The slicer failed (detail: layer).
+    Slice = 2,
+    /// The toolpath stage failed (detail: layer).
+    Toolpath = 3,
+    /// The planner refused a move (detail: layer).
+    Plan = 4,
+    /// A message that does not fit the state (detail: message type).
+    Unexpected = 5,
+    /// A message that does not decode (detail: message type).
+    BadMessage = 6,
+    /// The move buffer overflowed (detail: layer).
+    Moves = 7,
+    /// The link went silent (detail: ms).
+    LinkDead = 8,
+}
+
+impl ErrorCode {
+    fn from_u8(v: u8) -> Option<Self> {
+        Some(match v {
+            0 => Self::None,
+            1 => Self::BadJob,
+            2 => Self::Slice,
+            3 => Self::Toolpath,
+            4 => Self::Plan,
+            5 => Self::Unexpected,
+            6 => Self::BadMessage,
+            7 => Self::Moves,
+            8 => Self::LinkDead,
+            _ => return None,
+        })
+    }
+}
+
+impl DeviceState {
+    fn from_u8(v: u8) -> Option<Self> {
+        Some(match v {
+            0 => Self::Idle,
+            1 => Self::Printing,
+            2 => Self::Paused,
+            3 => Self::Done,
+            4 => Self::Failed,
+            5 => Self::Aborted,
+            6 => Self::Stopped,
+            _ => return None,
+        })
+    }
+}
+
+/// A status report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// State.
+    pub state: DeviceState,
+    /// Layers whose moves are planned.
+    pub layer: u32,
+    /// Layers of the job.
+    pub layers: u32,
+    /// Print time of the blocks planned so far, ms.
+    pub planned_ms: u32,
+    /// Print time executed so far, ms.
+    pub done_ms: u32,
+    /// Triangles received.
+    pub triangles: u32,
+    /// Move buffer fill, percent.
+    pub queue_fill_pct: u8,
+    /// Error, if failed.
+    pub error: ErrorCode,
+    /// Error detail (see [`ErrorCode`]).
+    pub detail: u32,
+}
+
+/// A batch of encoded triangles (checked when decoded: iterate with [`TriangleBatch::iter`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TriangleBatch<'a> {
+    count: u8,
+    bytes: &'a [u8],
+}
+
+impl<'a> TriangleBatch<'a> {
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.count as usize
+    }
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+    /// The triangles, in order.
+    pub fn iter(&self) -> impl Iterator<Item = Triangle> + 'a {
+        let mut bytes = self.bytes;
+        (0..self.count).map_while(move |_| {
+            let (t, n) = decode_triangle(bytes)?;
+            bytes = &bytes[n..];
+            Some(t)
+        })
+    }
+}
+
+/// One message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Message<'a> {
+    /// Host greets the device (protocol version).
+    Hello {
+        /// Protocol version.
+        version: u8,
+    },
+    /// Device answers with its capacities.
+    Capabilities {
+        /// Protocol version.
+        version: u8,
+        /// Capacities.
+        capacities: Capacities,
+    },
+    /// A job begins.
+    JobStart(JobSpec),
+    /// Triangles, in zmin order.
+    Triangles(TriangleBatch<'a>),
+    /// Every triangle was sent.
+    EndOfModel,
+    /// Pause after the queued motion.
+    Pause,
+    /// Resume.
+    Resume,
+    /// End the job (motion stops at rest, drivers off).
+    Abort,
+    /// Stop at once: drivers disabled immediately.
+    EmergencyStop,
+    /// Device status.
+    Status(Status),
+    /// A layer's moves are planned: its motion hash.
+    LayerDone {
+        /// Layer index.
+        layer: u32,
+        /// Hash of the layer's planned blocks (which fix its step sequences).
+        hash: u64,
+    },
+}
+
+/// Why a message does not encode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum EncodeError {
+    /// The output buffer is too small.
+    BufferFull,
+    /// A triangle coordinate outside `0..=MAX_WIRE_COORD_UM`.
+    OutOfRange,
+}
+
+/// Why a payload does not decode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DecodeError {
+    /// Empty payload.
+    Empty,
+    /// Unknown message type.
+    UnknownType(u8),
+    /// Wrong length for the type.
+    Length(u8),
+    /// A field has an invalid value.
+    Field(u8),
+}
+
+impl core::fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Empty => write!(f, "empty message"),
+            Self::UnknownType(t) => write!(f, "unknown message type 0x{t:02x}"),
+            Self::Length(t) => write!(f, "message 0x{t:02x} has a wrong length"),
+            Self::Field(t) => write!(f, "message 0x{t:02x} has an invalid field"),
+        }
+    }
+}
+
+struct Writer<'b> {
+    buf: &'b mut [u8],
+    len: usize,
+}
+
+impl Writer<'_> {
+    fn put(&mut self, bytes: &[u8]) -> Result<(), EncodeError> {
+        let end = self.len + bytes.len();
+        self.buf.get_mut(self.len..end).ok_or(EncodeError::BufferFull)?.copy_from_slice(bytes);
+        self.len = end;
+        Ok(())
+    }
+    fn u8(&mut self, v: u8) -> Result<(), EncodeError> {
+        self.put(&[v])
+    }
+    fn u16(&mut self, v: u16) -> Result<(), EncodeError> {
+        self.put(&v.to_le_bytes())
+    }
+    fn u32(&mut self, v: u32) -> Result<(), EncodeError> {
+        self.put(&v.to_le_bytes())
+    }
+    fn i32(&mut self, v: i32) -> Result<(), EncodeError> {
+        self.put(&v.to_le_bytes())
+    }
+    fn u64(&mut self, v: u64) -> Result<(), EncodeError> {
+        self.put(&v.to_le_bytes())
+    }
+    fn rate(&mut self, v: Rate) -> Result<(), EncodeError> {
+        self.u64(v.to_bits())
+    }
+}
+
+struct Reader<'a> {
+    bytes: &'a [u8],
+    ty: u8,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], DecodeError> {
+        if self.bytes.len() < n {
+            return Err(DecodeError::Length(self.ty));
+        }
+        let (a, b) = self.bytes.split_at(n);
+        self.bytes = b;
+        Ok(a)
+    }
+    fn u8(&mut self) -> Result<u8, DecodeError> {
+        Ok(self.take(1)?[0])
+    }
+    fn u16(&mut self) -> Result<u16, DecodeError> {
+        let b = self.take(2)?;
+        Ok(u16::from_le_bytes([b[0], b[1]]))
+    }
+    fn u32(&mut self) -> Result<u32, DecodeError> {
+        let b = self.take(4)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+    fn i32(&mut self) -> Result<i32, DecodeError> {
+        Ok(self.u32()? as i32)
+    }
+    fn u64(&mut self) -> Result<u64, DecodeError> {
+        let b = self.take(8)?;
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        Ok(u64::from_le_bytes(a))
+    }
+    fn rate(&mut self) -> Result<Rate, DecodeError> {
+        Ok(Rate::from_bits(self.u64()?))
+    }
+    fn bool(&mut self) -> Result<bool, DecodeError> {
+        match self.u8()? {
+            0 => Ok(false),
+            1 => Ok(true),
+            _ => Err(DecodeError::Field(self.ty)),
+        }
+    }
+    fn end(&self) -> Result<(), DecodeError> {
+        if self.bytes.is_empty() {
+            Ok(())
+        } else {
+            Err(DecodeError::Length(self.ty))
+        }
+    }
+}
+
+impl<'a> Message<'a> {
+    /// Writes the message into `buf`; returns its length.
+    pub fn encode(&self, buf: &mut [u8]) -> Result<usize, EncodeError> {
+        let mut w = Writer { buf, len: 0 };
+        match self {
+            Self::Hello { version } => {
+                w.u8(ty::HELLO)?;
+                w.u8(*version)?;
+            }
+            Self::Capabilities { version, capacities: c } => {
+                w.u8(ty::CAPABILITIES)?;
+                w.u8(*version)?;
+                w.u32(c.active_triangles)?;
+                w.u32(c.contour_points)?;
+                w.u32(c.contour_loops)?;
+                w.u32(c.layer_moves)?;
+                w.u16(c.layer_window)?;
+                w.u32(c.ram_bytes)?;
+            }
+            Self::JobStart(j) => {
+                let s = &j.settings;
+                w.u8(ty::JOB_START)?;
+                w.i32(s.layer_height_um)?;
+                w.i32(s.first_layer_height_um)?;
+                w.i32(s.line_width_um)?;
+                w.u8(s.perimeters)?;
+                w.u8(s.infill_percent)?;
+                w.u8(match s.infill_pattern {
+                    InfillPattern::Lines => 0,
+                    InfillPattern::Zigzag => 1,
+                    InfillPattern::Grid => 2,
+                })?;
+                w.u8(s.top_layers)?;
+                w.u8(s.bottom_layers)?;
+                w.u16(s.hotend_temp_c as u16)?;
+                w.u16(s.bed_temp_c as u16)?;
+                w.rate(s.perimeter_speed_mm_s)?;
+                w.rate(s.infill_speed_mm_s)?;
+                w.rate(s.travel_speed_mm_s)?;
+                w.rate(s.first_layer_speed_mm_s)?;
+                w.i32(s.retract_length_um)?;
+                w.rate(s.retract_speed_mm_s)?;
+                w.u64(s.min_loop_area_um2 as u64)?;
+                w.u8(j.options.outer_perimeter_last as u8)?;
+                w.u8(j.options.seam)?;
+                w.u8(j.options.skirt_loops)?;
+                w.i32(j.options.skirt_distance_um)?;
+                w.i32(j.model_height_um)?;
+                w.u32(j.triangles)?;
+            }
+            Self::Triangles(b) => {
+                w.u8(ty::TRIANGLES)?;
+                w.u8(b.count)?;
+                w.put(b.bytes)?;
+            }
+            Self::EndOfModel => w.u8(ty::END_OF_MODEL)?,
+            Self::Pause => w.u8(ty::PAUSE)?,
+            Self::Resume => w.u8(ty::RESUME)?,
+            Self::Abort => w.u8(ty::ABORT)?,
+            Self::EmergencyStop => w.u8(ty::EMERGENCY_STOP)?,
+            Self::Status(s) => {
+                w.u8(ty::STATUS)?;
+                w.u8(s.state as u8)?;
+                w.u32(s.layer)?;
+                w.u32(s.layers)?;
+                w.u32(s.planned_ms)?;
+                w.u32(s.done_ms)?;
+                w.u32(s.triangles)?;
+                w.u8(s.queue_fill_pct)?;
+                w.u8(s.error as u8)?;
+                w.u32(s.detail)?;
+            }
+            Self::LayerDone { layer, hash } => {
+                w.u8(ty::LAYER_DONE)?;
+                w.u32(*layer)?;
+                w.u64(*hash)?;
+            }
+        }
+        Ok(w.len)
+    }
+
+    /// Reads and checks a message; every field is validated, a triangle batch completely.
+    pub fn decode(bytes: &'a [u8]) -> Result<Self, DecodeError> {
+        let (&t, rest) = bytes.split_first().ok_or(DecodeError::Empty)?;
+        let mut r = Reader { bytes: rest, ty: t };
+        let bad = DecodeError::Field(t);
+        let m = match t {
+            ty::HELLO => Self::Hello { version: r.u8()? },
+            ty::CAPABILITIES => Self::Capabilities {
+                version: r.u8()?,
+                capacities: Capacities {
+                    active_triangles: r.u32()?,
+                    contour_points: r.u32()?,
+                    contour_loops: r.u32()?,
+                    layer_moves: r.u32()?,
+                    layer_window: r.u16()?,
+                    ram_bytes: r.u32()?,
+                },
+            },
+            ty::JOB_START => {
+                let s = PrintSettings {
+                    layer_height_um: r.i32()?,
+                    first_layer_height_um: r.i32()?,
+                    line_width_um: r.i32()?,
+                    perimeters: r.u8()?,
+                    infill_percent: r.u8()?,
+                    infill_pattern: match r.u8()? {
+                        0 => InfillPattern::Lines,
+                        1 => InfillPattern::Zigzag,
+                        2 => InfillPattern::Grid,
+                        _ => return Err(bad),
+                    },
+                    top_layers: r.u8()?,
+                    bottom_layers: r.u8()?,
+                    hotend_temp_c: r.u16()? as i16,
+                    bed_temp_c: r.u16()? as i16,
+                    perimeter_speed_mm_s: r.rate()?,
+                    infill_speed_mm_s: r.rate()?,
+                    travel_speed_mm_s: r.rate()?,
+                    first_layer_speed_mm_s: r.rate()?,
+                    retract_length_um: r.i32()?,
+                    retract_speed_mm_s: r.rate()?,
+                    min_loop_area_um2: r.u64()? as i64,
+                };
+                let options = JobOptions {
+                    outer_perimeter_last: r.bool()?,
+                    seam: r.u8()?,
+                    skirt_loops: r.u8()?,
+                    skirt_distance_um: r.i32()?,
+                };
+                if options.seam > 1 {
+                    return Err(bad);
+                }
+                Self::JobStart(JobSpec {
+                    settings: s,
+                    options,
+                    model_height_um: r.i32()?,
+                    triangles: r.u32()?,
+                })
+            }
+            ty::TRIANGLES => {
+                let count = r.u8()?;
+                let body = r.bytes;
+                let mut at = 0usize;
+                for _ in 0..count {
+                    let (_, n) = decode_triangle(&body[at..]).ok_or(bad)?;
+                    at += n;
+                }
+                if at != body.len() || count == 0 {
+                    return Err(DecodeError::Length(t));
+                }
+                r.bytes = &[];
+                Self::Triangles(TriangleBatch { count, bytes: body })
+            }
+            ty::END_OF_MODEL => Self::EndOfModel,
+            ty::PAUSE => Self::Pause,
+            ty::RESUME => Self::Resume,
+            ty::ABORT => Self::Abort,
+            ty::EMERGENCY_STOP => Self::EmergencyStop,
+            ty::STATUS => Self::Status(Status {
+                state: DeviceState::from_u8(r.u8()?).ok_or(bad)?,
+                layer: r.u32()?,
+                layers: r.u32()?,
+                planned_ms: r.u32()?,
+                done_ms: r.u32()?,
+                triangles: r.u32()?,
+                queue_fill_pct: r.u8()?,
+                error: ErrorCode::from_u8(r.u8()?).ok_or(bad)?,
+                detail: r.u32()?,
+            }),
+            ty::LAYER_DONE => Self::LayerDone { layer: r.u32()?, hash: r.u64()? },
+            other => return Err(DecodeError::UnknownType(other)),
+        };
+        r.end()?;
+        Ok(m)
+    }
+}
+
+/// Bytes `t` takes on the wire (20 or 24), or `None` when a coordinate is out of range.
+pub fn triangle_len(t: &Triangle) -> Option<usize> {
+    let ok = |c: i32| (0..=MAX_WIRE_COORD_UM).contains(&c);
+    if !t.v.iter().all(|p| ok(p.x) && ok(p.y) && ok(p.z)) {
+        return None;
+    }
+    let short = t.v[1..].iter().all(|p| {
+        let d = [p.x - t.v[0].x, p.y - t.v[0].y, p.z - t.v[0].z];
+        d.iter().all(|&c| i16::try_from(c).is_ok())
+    });
+    Some(if short { SHORT_TRIANGLE_BYTES } else { LONG_TRIANGLE_BYTES })
+}
+
+struct Bits<'b> {
+    buf: &'b mut [u8],
+    bit: usize,
+}
+
+impl Bits<'_> {
+    fn put(&mut self, value: u32, bits: usize) {
+        for i in 0..bits {
+            if value >> i & 1 == 1 {
+                self.buf[(self.bit + i) / 8] |= 1 << ((self.bit + i) % 8);
+            }
+        }
+        self.bit += bits;
+    }
+}
+
+fn get_bits(buf: &[u8], bit: &mut usize, bits: usize) -> u32 {
+    let mut v = 0u32;
+    for i in 0..bits {
+        let b = *bit + i;
+        v |= ((buf[b / 8] >> (b % 8) & 1) as u32) << i;
+    }
+    *bit += bits;
+    v
+}
+
+fn sign_extend(v: u32, bits: usize) -> i32 {
+    ((v << (32 - bits)) as i32) >> (32 - bits)
+}
+
+/// Encodes one triangle into `out`; returns its length (20 or 24).
+pub fn encode_triangle(t: &Triangle, out: &mut [u8]) -> Result<usize, EncodeError> {
+    let n = triangle_len(t).ok_or(EncodeError::OutOfRange)?;
+    let out = out.get_mut(..n).ok_or(EncodeError::BufferFull)?;
+    out.fill(0);
+    let mut w = Bits { buf: out, bit: 0 };
+    let long = n == LONG_TRIANGLE_BYTES;
+    let db = if long { 21 } else { 16 };
+    w.put(long as u32, 1);
+    for c in [t.v[0].x, t.v[0].y, t.v[0].z] {
+        w.put(c as u32, 20);
+    }
+    for p in &t.v[1..] {
+        for d in [p.x - t.v[0].x, p.y - t.v[0].y, p.z - t.v[0].z] {
+            w.put((d as u32) & ((1 << db) - 1), db);
+        }
+    }
+    Ok(n)
+}
+
+/// Decodes one triangle from the front of `bytes`: the triangle and its length, or `None`
+/// when truncated or a corner lies outside `0..=MAX_WIRE_COORD_UM`.
+pub fn decode_triangle(bytes: &[u8]) -> Option<(Triangle, usize)> {
+    let first = *bytes.first()?;
+    let long = first & 1 == 1;
+    let (n, db) = if long { (LONG_TRIANGLE_BYTES, 21) } else { (SHORT_TRIANGLE_BYTES, 16) };
+    let b = bytes.get(..n)?;
+    let mut bit = 1usize;
+    let v0 = [0; 3].map(|_: i32| get_bits(b, &mut bit, 20) as i32);
+    let mut v = [Point3::new(v0[0], v0[1], v0[2]); 3];
+    for p in &mut v[1..] {
+        let d = [0; 3].map(|_: i32| sign_extend(get_bits(b, &mut bit, db), db));
+        *p = Point3::new(v0[0] + d[0], v0[1] + d[1], v0[2] + d[2]);
+    }
+    let t = Triangle { v };
+    // Canonical form only: a long triangle that fits the short form, or stray padding bits,
+    // are refused (every triangle has exactly one encoding).
+    if triangle_len(&t)? != n || (long && b[23] >> 3 != 0) || (!long && b[19] >> 5 != 0) {
+        return None;
+    }
+    Some((t, n))
+}
+
+/// Builds a triangle batch payload in a buffer of [`MAX_PAYLOAD`] bytes.
+#[derive(Debug, Clone)]
+pub struct BatchBuilder {
+    buf: [u8; MAX_PAYLOAD],
+    len: usize,
+    count: u8,
+}
+
+impl Default for BatchBuilder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl BatchBuilder {
+    /// An empty batch.
+    pub const fn new() -> Self {
+        Self { buf: [0; MAX_PAYLOAD], len: BATCH_HEADER, count: 0 }
+    }
+    /// Adds a triangle; `Err(BufferFull)` when it does not fit (send the batch first).
+    pub fn push(&mut self, t: &Triangle) -> Result<(), EncodeError> {
+        if self.count == u8::MAX {
+            return Err(EncodeError::BufferFull);
+        }
+        let n = encode_triangle(t, &mut self.buf[self.len..])?;
+        self.len += n;
+        self.count += 1;
+        Ok(())
+    }
+    /// Triangles in the batch.
+    pub fn len(&self) -> usize {
+        self.count as usize
+    }
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+    /// The finished payload (a [`Message::Triangles`]).
+    pub fn payload(&mut self) -> &[u8] {
+        self.buf[0] = ty::TRIANGLES;
+        self.buf[1] = self.count;
+        &self.buf[..self.len]
+    }
+    /// Empties the batch.
+    pub fn clear(&mut self) {
+        self.len = BATCH_HEADER;
+        self.count = 0;
+    }
+}
