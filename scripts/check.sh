@@ -10,6 +10,7 @@ step "toolchain pieces"
 rustup target list --installed | grep -qx thumbv7m-none-eabi || rustup target add thumbv7m-none-eabi
 rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
 rustup component list --installed | grep -q '^clippy' || rustup component add clippy
+rustup component list --installed | grep -q '^llvm-tools' || rustup component add llvm-tools
 
 step "cargo fmt --check"
 cargo fmt --all -- --check
@@ -22,6 +23,9 @@ cargo build -p strata --target thumbv7m-none-eabi --release
 step "firmware for thumbv7m-none-eabi"
 cargo build -p strata-firmware --target thumbv7m-none-eabi --release
 cargo clippy -p strata-firmware --target thumbv7m-none-eabi -- -D warnings
+
+step "step ISR: no division, no floating point (thumbv7m disassembly)"
+scripts/check_isr_asm.sh
 
 step "docs"
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p strata -p strata-host --quiet
