@@ -138,6 +138,8 @@ pub struct SimReport {
     pub stream_time_s: f64,
     /// Executor underruns (the link or the pipeline fell behind the print).
     pub underruns: u32,
+    /// Executor starts (1 when motion never came to rest waiting for data).
+    pub starts: u32,
     /// Driver timing violations on the board.
     pub violations: u32,
     /// The board's step hash (every step, with its tick relative to the first).
@@ -357,6 +359,11 @@ fn run(
         if !stopped {
             if next_wake.is_none() {
                 next_wake = wake(exec.on_timer(board.now_u32(), &mut pins));
+                if first_step.is_none() && !exec.is_idle() {
+                    // Step ticks are hashed relative to the start of motion.
+                    first_step = Some(board.now());
+                    board.set_hash_origin(board.now());
+                }
             }
             while let Some(w) = next_wake {
                 if !is_before(w, end_tick as u32) && w != end_tick as u32 {
@@ -405,6 +412,7 @@ fn run(
     rep.layer_hashes = host.progress.layer_hashes.clone();
     rep.stream_time_s = host.progress.stream_done_ms.map_or(0.0, |m| m as f64 / 1000.0);
     rep.underruns = exec.stats().underruns;
+    rep.starts = exec.stats().starts;
     rep.violations = board.violation_count();
     rep.board_hash = board.step_hash();
     rep.host_link = *host_ep.stats();

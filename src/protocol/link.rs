@@ -95,8 +95,10 @@ pub struct LinkStats {
     pub bad_frames: u64,
     /// Data frames dropped as duplicates.
     pub duplicates: u64,
-    /// Data frames dropped as out of order (after a lost one) or for want of a free slot.
+    /// Data frames dropped as out of order (after a lost one).
     pub out_of_order: u64,
+    /// Data frames dropped for want of a free receive slot (the peer exceeded the credits).
+    pub no_room: u64,
     /// Messages delivered to the application.
     pub delivered: u64,
 }
@@ -182,6 +184,7 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
                 bad_frames: 0,
                 duplicates: 0,
                 out_of_order: 0,
+                no_room: 0,
                 delivered: 0,
             },
         }
@@ -283,7 +286,7 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
                 continue;
             }
             if self.rx_len == RX {
-                self.stats.out_of_order += 1;
+                self.stats.no_room += 1;
                 continue;
             }
             let slot = &mut self.rx[(self.rx_head + self.rx_len) % RX];

@@ -1,0 +1,152 @@
+//! Two protocol endpoints over a seeded lossy byte channel (drop, corrupt, duplicate,
+//! truncate, delay frames): every message arrives exactly once, in order and unchanged; the
+//! sender never exceeds the receiver's credits; a dead link is reported within bounded time.
+
+use strata::protocol::{Endpoint, LinkConfig, LinkError, MAX_PAYLOAD, MAX_WIRE};
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn chance(&mut self, p_per_mille: u64) -> bool {
+        self.next() % 1000 < p_per_mille
+    }
+}
+
+/// One direction: whole frames with a delivery time; faults applied per frame.
+struct Channel {
+    rng: Rng,
+    loss: u64,
+    queue: Vec<(u32, Vec<u8>)>,
+    cut: bool,
+}
+
+impl Channel {
+    fn send(&mut self, now: u32, frame: &[u8]) {
+        if self.cut || self.rng.chance(self.loss) {
+            return;
+        }
+        let mut f = frame.to_vec();
+        if self.rng.chance(self.loss) {
+            let i = (self.rng.next() % f.len() as u64) as usize;
+            f[i] ^= 1 << (self.rng.next() % 8);
+        }
+        if self.rng.chance(self.loss) {
+            f.truncate((self.rng.next() % f.len() as u64) as usize);
+        }
+        let delay = if self.rng.chance(self.loss) { 1 + (self.rng.next() % 40) as u32 } else { 1 };
+        if self.rng.chance(self.loss) {
+            self.queue.push((now + delay, f.clone()));
+        }
+        self.queue.push((now + delay, f));
+    }
+    fn take(&mut self, now: u32) -> Vec<u8> {
+        let mut out = Vec::new();
+        self.queue.retain(|(at, f)| {
+            if *at <= now {
+                out.extend_from_slice(f);
+                false
+            } else {
+                true
+            }
+        });
+        out
+    }
+}
+
+fn payload(i: u32) -> Vec<u8> {
+    let len = (i as usize * 37) % MAX_PAYLOAD + 1;
+    (0..len).map(|k| (i as usize * 31 + k * 7) as u8).collect()
+}
+
+struct Run {
+    delivered: u32,
+    a: strata::protocol::LinkStats,
+    b: strata::protocol::LinkStats,
+    end_ms: u32,
+    error: Option<LinkError>,
+}
+
+/// Sends `count` messages from A (8 slots) to B (4 slots, the application takes one every
+/// other millisecond) over channels with `loss` per mille of each fault.
+fn transfer(count: u32, loss: u64, seed: u64, cut_at: Option<u32>) -> Run {
+    let mut a: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
+    let mut b: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut ab = Channel { rng: Rng(seed), loss, queue: Vec::new(), cut: false };
+    let mut ba = Channel { rng: Rng(seed ^ 0xdead_beef), loss, queue: Vec::new(), cut: false };
+    let mut frame = [0u8; MAX_WIRE];
+    let (mut sent, mut got) = (0u32, 0u32);
+    let mut now = 0u32;
+    let mut error = None;
+    while got < count && now < 600_000 {
+        now += 1;
+        if cut_at.is_some_and(|c| now >= c) {
+            ab.cut = true;
+            ba.cut = true;
+        }
+        a.receive(&ba.take(now), now);
+        b.receive(&ab.take(now), now);
+        if let Err(e) = a.check(now) {
+            error = Some(e);
+            break;
+        }
+        while sent < count && a.send(&payload(sent)).is_ok() {
+            sent += 1;
+        }
+        if now % 2 == 0 {
+            if let Some(p) = b.peek() {
+                assert_eq!(p, &payload(got)[..], "message {got} altered or out of order");
+                got += 1;
+                b.pop();
+            }
+        }
+        loop {
+            let n = a.poll_transmit(now, &mut frame);
+            if n == 0 {
+                break;
+            }
+            ab.send(now, &frame[..n]);
+        }
+        loop {
+            let n = b.poll_transmit(now, &mut frame);
+            if n == 0 {
+                break;
+            }
+            ba.send(now, &frame[..n]);
+        }
+    }
+    Run { delivered: got, a: *a.stats(), b: *b.stats(), end_ms: now, error }
+}
+
+#[test]
+fn clean_link_respects_credits() {
+    let r = transfer(2_000, 0, 1, None);
+    assert_eq!(r.delivered, 2_000);
+    assert_eq!(r.a.retransmits, 0);
+    assert_eq!(r.b.no_room, 0, "A sent beyond B's credits");
+    assert_eq!(r.b.duplicates + r.b.out_of_order + r.b.bad_frames, 0);
+}
+
+#[test]
+fn lossy_links_deliver_everything_once_in_order() {
+    for (loss, seed) in [(10, 1), (50, 2), (50, 3), (100, 4), (200, 5)] {
+        let r = transfer(1_000, loss, seed, None);
+        eprintln!("loss {loss}/1000: {} ms, A {:?}, B {:?}", r.end_ms, r.a, r.b);
+        assert_eq!(r.delivered, 1_000, "loss {loss}");
+        assert!(r.b.bad_frames > 0 && r.a.retransmits > 0);
+        assert_eq!(r.b.delivered, 1_000);
+    }
+}
+
+#[test]
+fn dead_link_is_reported_in_bounded_time() {
+    let r = transfer(100_000, 0, 1, Some(500));
+    let e = r.error.expect("no error");
+    assert!(matches!(e, LinkError::Dead { silent_ms } if silent_ms >= 3000));
+    assert!(r.end_ms <= 500 + 3_001, "{}", r.end_ms);
+    eprintln!("{e} at {} ms", r.end_ms);
+}

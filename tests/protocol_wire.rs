@@ -1,0 +1,279 @@
+//! Wire formats: golden bytes (frames, messages, triangles), round trips of every message,
+//! the decoder's resynchronisation and its refusal of every corrupted frame.
+
+use proptest::prelude::*;
+use strata::geom::{Point3, Triangle};
+use strata::machine::PrintSettings;
+use strata::protocol::frame::{self, FrameType, MAX_WIRE};
+use strata::protocol::msg::{decode_triangle, encode_triangle};
+use strata::protocol::{
+    BatchBuilder, Capacities, Decoder, DeviceState, ErrorCode, FrameError, JobOptions, JobSpec,
+    Message, Status, MAX_PAYLOAD,
+};
+
+fn wire(kind: FrameType, seq: u8, ack: u8, credits: u8, payload: &[u8]) -> Vec<u8> {
+    let mut out = [0u8; MAX_WIRE];
+    let n = frame::encode(kind, seq, ack, credits, payload, &mut out).unwrap();
+    out[..n].to_vec()
+}
+
+fn decode_all(bytes: &[u8]) -> Vec<Result<(FrameType, u8, u8, u8, Vec<u8>), FrameError>> {
+    let mut d = Decoder::new();
+    let mut out = Vec::new();
+    for &b in bytes {
+        if let Some(r) = d.push(b) {
+            out.push(r.map(|f| (f.kind, f.seq, f.ack, f.credits, f.payload.to_vec())));
+        }
+    }
+    out
+}
+
+#[test]
+fn golden_ack_frame() {
+    // [0x11 (v1, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    let w = wire(FrameType::Ack, 0, 3, 4, &[]);
+    let crc = crc32(&[0x11, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x11, 0x00, 0x03, 0x04];
+    raw.extend_from_slice(&crc.to_le_bytes());
+    assert_eq!(w, cobs(&raw));
+    assert_eq!(w, GOLDEN_ACK.to_vec());
+}
+
+const GOLDEN_ACK: [u8; 10] = [2, 17, 7, 3, 4, 60, 120, 161, 229, 0];
+
+#[test]
+fn golden_hello_frame() {
+    let mut buf = [0u8; 8];
+    let n = Message::Hello { version: 1 }.encode(&mut buf).unwrap();
+    assert_eq!(&buf[..n], &[0x01, 0x01]);
+    let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
+    assert_eq!(w, GOLDEN_HELLO.to_vec());
+}
+
+// [0x10 (v1, data), seq 7, ack 0, credits 8, 0x01 Hello, version 1, CRC] COBS: the zero ack
+// byte becomes a code byte.
+const GOLDEN_HELLO: [u8; 12] = [3, 16, 7, 8, 8, 1, 1, 71, 47, 59, 96, 0];
+
+/// Bitwise CRC-32/ISO-HDLC, independent of the `crc` crate.
+fn crc32(data: &[u8]) -> u32 {
+    let mut c = !0u32;
+    for &b in data {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 != 0 { c >> 1 ^ 0xEDB8_8320 } else { c >> 1 };
+        }
+    }
+    !c
+}
+
+/// Reference COBS with the delimiter.
+fn cobs(raw: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    for chunk in raw.split(|&b| b == 0) {
+        let mut rest = chunk;
+        loop {
+            let take = rest.len().min(254);
+            out.push(take as u8 + 1);
+            out.extend_from_slice(&rest[..take]);
+            rest = &rest[take..];
+            if take < 254 {
+                break;
+            }
+        }
+    }
+    out.push(0);
+    out
+}
+
+#[test]
+fn golden_triangles() {
+    // Short form: corner (1, 2, 3) um, deltas (+1, 0, 0) and (0, +1, -1).
+    let t = Triangle { v: [Point3::new(1, 2, 3), Point3::new(2, 2, 3), Point3::new(1, 3, 2)] };
+    let mut b = [0u8; 24];
+    assert_eq!(encode_triangle(&t, &mut b).unwrap(), 20);
+    assert_eq!(b[..20], GOLDEN_SHORT);
+    // Long form: an edge of 100 mm.
+    let t =
+        Triangle { v: [Point3::new(0, 0, 0), Point3::new(100_000, 0, 0), Point3::new(0, 1, 0)] };
+    assert_eq!(encode_triangle(&t, &mut b).unwrap(), 24);
+    assert_eq!(b, GOLDEN_LONG);
+}
+
+// Bit 0 form 0; x = 1 at bit 1; y = 2 at bit 22; z = 3 at bits 41-42; then 16-bit deltas.
+const GOLDEN_SHORT: [u8; 20] = [2, 0, 64, 0, 0, 6, 0, 32, 0, 0, 0, 0, 0, 0, 0, 32, 0, 224, 255, 31];
+// Bit 0 form 1; corner 0 all zero; 21-bit deltas: x = 100000 at bit 61 (bytes 8, 9), then the
+// second corner's y = 1 at bit 145.
+const GOLDEN_LONG: [u8; 24] =
+    [1, 0, 0, 0, 0, 0, 0, 0, 212, 48, 0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0];
+
+fn all_messages() -> Vec<Vec<u8>> {
+    let mut settings = PrintSettings::default();
+    settings.layer_height_um = 160;
+    settings.infill_percent = 35;
+    let job = JobSpec {
+        settings,
+        options: JobOptions {
+            outer_perimeter_last: false,
+            seam: 1,
+            skirt_loops: 2,
+            skirt_distance_um: 4000,
+        },
+        model_height_um: 48_000,
+        triangles: 225_154,
+    };
+    let caps = Capacities {
+        active_triangles: 1024,
+        contour_points: 768,
+        contour_loops: 48,
+        layer_moves: 4096,
+        layer_window: 4,
+        ram_bytes: 65536,
+    };
+    let status = Status {
+        state: DeviceState::Failed,
+        layer: 12,
+        layers: 240,
+        planned_ms: 123_456,
+        done_ms: 120_000,
+        triangles: 5000,
+        queue_fill_pct: 37,
+        error: ErrorCode::Toolpath,
+        detail: 12,
+    };
+    let mut bb = BatchBuilder::new();
+    bb.push(&Triangle { v: [Point3::new(5, 6, 7), Point3::new(8, 9, 10), Point3::new(5, 6, 900)] })
+        .unwrap();
+    bb.push(&Triangle {
+        v: [Point3::new(0, 0, 0), Point3::new(200_000, 0, 0), Point3::new(0, 200_000, 250_000)],
+    })
+    .unwrap();
+    let msgs = [
+        Message::Hello { version: 1 },
+        Message::Capabilities { version: 1, capacities: caps },
+        Message::JobStart(job),
+        Message::EndOfModel,
+        Message::Pause,
+        Message::Resume,
+        Message::Abort,
+        Message::EmergencyStop,
+        Message::Status(status),
+        Message::LayerDone { layer: 7, hash: 0x0123_4567_89ab_cdef },
+    ];
+    let mut out: Vec<Vec<u8>> = msgs
+        .iter()
+        .map(|m| {
+            let mut b = [0u8; MAX_PAYLOAD];
+            let n = m.encode(&mut b).unwrap();
+            b[..n].to_vec()
+        })
+        .collect();
+    out.push(bb.payload().to_vec());
+    out
+}
+
+#[test]
+fn every_message_round_trips() {
+    for bytes in all_messages() {
+        let m = Message::decode(&bytes).unwrap();
+        let mut again = [0u8; MAX_PAYLOAD];
+        let n = m.encode(&mut again).unwrap();
+        assert_eq!(&again[..n], &bytes[..], "{m:?}");
+        // Every truncation and every extension is refused.
+        for cut in 0..bytes.len() {
+            assert!(Message::decode(&bytes[..cut]).is_err(), "{m:?} cut at {cut}");
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(Message::decode(&longer).is_err(), "{m:?} extended");
+    }
+}
+
+#[test]
+fn batch_triangles_come_back_in_order() {
+    let bytes = all_messages().pop().unwrap();
+    let Message::Triangles(b) = Message::decode(&bytes).unwrap() else { panic!() };
+    let tris: Vec<Triangle> = b.iter().collect();
+    assert_eq!(tris.len(), 2);
+    assert_eq!(tris[1].v[2], Point3::new(0, 200_000, 250_000));
+    assert_eq!(bytes.len(), 2 + 20 + 24);
+}
+
+#[test]
+fn decoder_resynchronises_and_refuses_corruption() {
+    let good = wire(FrameType::Data, 1, 2, 3, b"payload");
+    // Garbage, a frame, a truncated frame, a frame.
+    let mut stream = vec![0x55, 0x13, 0x00];
+    stream.extend_from_slice(&good);
+    stream.extend_from_slice(&good[..5]);
+    stream.push(0);
+    stream.extend_from_slice(&good);
+    let r = decode_all(&stream);
+    let ok: Vec<_> = r.iter().filter_map(|x| x.as_ref().ok()).collect();
+    assert_eq!(ok.len(), 2);
+    assert_eq!(ok[0].4, b"payload");
+    assert_eq!(r.iter().filter(|x| x.is_err()).count(), 2);
+    // Every single-bit flip of the frame is refused (CRC-32 detects all of them).
+    for i in 0..good.len() - 1 {
+        for bit in 0..8 {
+            let mut bad = good.clone();
+            bad[i] ^= 1 << bit;
+            let r = decode_all(&bad);
+            assert!(r.iter().all(|x| x.is_err()), "flip {i}.{bit} accepted: {r:?}");
+        }
+    }
+}
+
+#[test]
+fn wire_bytes_per_triangle() {
+    // A full batch of short-form triangles: 19 x 20 bytes.
+    let mut bb = BatchBuilder::new();
+    let t = Triangle {
+        v: [Point3::new(1000, 1000, 0), Point3::new(2000, 1000, 0), Point3::new(1000, 2000, 300)],
+    };
+    while bb.push(&t).is_ok() {}
+    let n = bb.len();
+    let w = frame::wire_len(bb.payload());
+    let per = w as f64 / n as f64;
+    eprintln!("{n} short triangles per frame, {w} wire bytes, {per:.2} bytes per triangle");
+    assert_eq!(n, 19);
+    assert!(per <= 21.0, "{per}");
+}
+
+fn coord() -> impl Strategy<Value = i32> {
+    0..=strata::protocol::msg::MAX_WIRE_COORD_UM
+}
+
+proptest! {
+    #[test]
+    fn triangles_round_trip(c in proptest::array::uniform9(coord()), near in any::<bool>()) {
+        let mut c = c;
+        if near {
+            for k in 3..9 {
+                c[k] = (c[k % 3] + (c[k] % 60_000) - 30_000).clamp(0, (1 << 20) - 1);
+            }
+        }
+        let t = Triangle { v: [
+            Point3::new(c[0], c[1], c[2]), Point3::new(c[3], c[4], c[5]), Point3::new(c[6], c[7], c[8])] };
+        let mut b = [0u8; 24];
+        let n = encode_triangle(&t, &mut b).unwrap();
+        let (back, m) = decode_triangle(&b[..n]).unwrap();
+        prop_assert_eq!(back, t);
+        prop_assert_eq!(m, n);
+    }
+
+    #[test]
+    fn decoding_noise_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..1200)) {
+        let _ = decode_all(&bytes);
+        let _ = Message::decode(&bytes);
+    }
+
+    #[test]
+    fn frames_round_trip(seq: u8, ack: u8, credits: u8,
+                         payload in proptest::collection::vec(any::<u8>(), 0..=MAX_PAYLOAD)) {
+        let w = wire(FrameType::Data, seq, ack, credits, &payload);
+        prop_assert!(w.len() <= MAX_WIRE);
+        prop_assert_eq!(w.iter().filter(|&&b| b == 0).count(), 1);
+        let r = decode_all(&w);
+        prop_assert_eq!(r, vec![Ok((FrameType::Data, seq, ack, credits, payload))]);
+    }
+}
