@@ -17,7 +17,10 @@ fn wire(kind: FrameType, seq: u8, ack: u8, credits: u8, payload: &[u8]) -> Vec<u
     out[..n].to_vec()
 }
 
-fn decode_all(bytes: &[u8]) -> Vec<Result<(FrameType, u8, u8, u8, Vec<u8>), FrameError>> {
+/// A decoded frame: type, seq, ack, credits, payload.
+type Owned = (FrameType, u8, u8, u8, Vec<u8>);
+
+fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
     let mut d = Decoder::new();
     let mut out = Vec::new();
     for &b in bytes {
