@@ -34,12 +34,13 @@ use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig};
 
 /// The slicer capacities of the Creality 4.2.x board build (64 KB RAM): 1024 active
-/// triangles (24 KB), 512 segments and contour points per layer (19 KB), 32 loops per layer.
+/// triangles (24 KB), 768 segments and contour points per layer (28 KB), 48 loops per layer
+/// (3.4 KB).
 /// The host checks a model against these before streaming (admission control).
 pub const CREALITY_CAPACITIES: Capacities = Capacities {
     active_triangles: 1024,
-    contour_points: 512,
-    contour_loops: 32,
+    contour_points: 768,
+    contour_loops: 48,
     layer_moves: 4096,
     layer_window: 4,
     ram_bytes: 64 * 1024,

@@ -9,7 +9,7 @@ use strata::geom::Triangle;
 use strata::protocol::{JobOptions, JobSpec};
 use strata::slice::SliceConfig;
 use strata::toolpath::Seam;
-use strata_host::admission;
+use strata_host::admission::{self, Admission};
 use strata_host::model;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
 
@@ -55,7 +55,10 @@ struct Steps {
 struct Simplified {
     triangles_in: usize,
     triangles_out: usize,
+    /// Measured (two-sided Hausdorff estimate).
     max_deviation_mm: f64,
+    /// The simplifier's error bound.
+    error_bound_mm: f64,
 }
 
 #[derive(Serialize)]
@@ -109,20 +112,39 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
     };
     let slice_cfg =
         SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
-    let fit = admission::check(&tris, &slice_cfg, &opts.capacities)?;
-    if !fit.fits {
-        return Err(format!(
-            "{}: needs {} active triangles and {} contour points, the printer holds {} and {}",
-            args.model.display(),
-            fit.needs.active_triangles,
-            fit.needs.contour_points,
-            opts.capacities.active_triangles,
-            opts.capacities.contour_points
-        ));
-    }
+    let (tris, simplified) =
+        match admission::admit(&tris, &slice_cfg, &opts.capacities, args.max_deviation)
+            .map_err(|e| format!("{}: {e}", args.model.display()))?
+        {
+            Admission::Unchanged(_) => (tris, None),
+            Admission::Simplified(s) => {
+                if !args.json {
+                    println!(
+                        "{}: simplified from {} to {} triangles to fit the printer \
+                         (error bound {} mm, measured deviation {:.3} mm, peak active triangles \
+                         {}, contour points {})",
+                        args.model.display(),
+                        s.triangles_in,
+                        s.triangles.len(),
+                        s.error_bound_mm,
+                        s.max_deviation_mm,
+                        s.needs.active_triangles,
+                        s.needs.contour_points
+                    );
+                }
+                let info = Simplified {
+                    triangles_in: s.triangles_in,
+                    triangles_out: s.triangles.len(),
+                    max_deviation_mm: s.max_deviation_mm,
+                    error_bound_mm: s.error_bound_mm,
+                };
+                (s.triangles, Some(info))
+            }
+        };
+    let job = JobSpec { triangles: tris.len() as u32, ..job };
     let rep = simulate(&tris, &machine, job, &opts)
         .map_err(|(e, _)| format!("{}: {e}", args.model.display()))?;
-    report(args, &rep, None)
+    report(args, &rep, simplified)
 }
 
 fn report(
