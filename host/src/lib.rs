@@ -5,5 +5,6 @@
 
 pub mod admission;
 pub mod model;
+pub mod serial;
 pub mod session;
 pub mod simjob;

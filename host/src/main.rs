@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 
 mod inspect;
 mod model;
+mod print;
 mod simulate;
 mod slice_cmd;
 
@@ -36,6 +37,10 @@ enum Command {
     Slice(slice_cmd::SliceArgs),
     /// Stream a model through the real protocol into a simulated printer.
     Simulate(simulate::SimulateArgs),
+    /// Stream a model to a printer over a serial port.
+    Print(print::PrintCmdArgs),
+    /// List serial ports.
+    Ports,
 }
 
 fn main() -> ExitCode {
@@ -44,6 +49,8 @@ fn main() -> ExitCode {
         Command::Inspect { model, json } => inspect::run(model, *json),
         Command::Slice(args) => slice_cmd::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Print(args) => print::run(args),
+        Command::Ports => print::ports(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -77,6 +77,14 @@ impl<'a> HostJob<'a> {
         }
     }
 
+    /// A job on a link whose hello was already answered with `caps` (see [`handshake`]).
+    pub fn after_hello(tris: &'a [Triangle], job: JobSpec, caps: Capacities) -> Self {
+        let mut j = Self::new(tris, job);
+        j.hello_sent = true;
+        j.progress.capacities = Some(caps);
+        j
+    }
+
     /// Current phase.
     pub fn phase(&self) -> Phase {
         self.phase
@@ -224,4 +232,65 @@ pub fn describe_failure(s: &Status) -> String {
         }
     };
     format!("print failed: {what} (layer {} of {})", s.layer, s.layers)
+}
+
+/// Sends `Hello` and waits for the device's capacities: `poll_io(ep)` moves bytes both ways
+/// and returns the current time in ms; gives up after `timeout_ms`.
+pub fn handshake(
+    ep: &mut HostEndpoint,
+    timeout_ms: u32,
+    mut poll_io: impl FnMut(&mut HostEndpoint) -> Result<u32, String>,
+) -> Result<Capacities, String> {
+    let placeholder = JobSpec {
+        settings: strata::machine::PrintSettings::default(),
+        options: strata::protocol::JobOptions::default(),
+        model_height_um: 0,
+        triangles: 0,
+    };
+    let mut job = HostJob::new(&[], placeholder);
+    let start = poll_io(ep)?;
+    loop {
+        let now = poll_io(ep)?;
+        // Only the hello goes out: the phase stays `Hello` until capacities arrive, and then
+        // this loop ends before a job start could be queued.
+        if let Some(c) = job.progress.capacities {
+            return Ok(c);
+        }
+        job.poll_hello(now, ep)?;
+        if now.wrapping_sub(start) > timeout_ms {
+            return Err(format!(
+                "no answer from the printer within {:.1} s (is it a strata printer, at this \
+                 baud rate?)",
+                timeout_ms as f64 / 1000.0
+            ));
+        }
+    }
+}
+
+impl HostJob<'_> {
+    /// The hello half of [`HostJob::poll`]: sends `Hello`, takes the capacities.
+    fn poll_hello(&mut self, now_ms: u32, ep: &mut HostEndpoint) -> Result<(), String> {
+        if let Err(LinkError::Dead { silent_ms }) = ep.check(now_ms) {
+            return Err(format!(
+                "no answer from the printer within {:.1} s (is it a strata printer, at this \
+                 baud rate?)",
+                silent_ms as f64 / 1000.0
+            ));
+        }
+        while let Some(p) = ep.peek() {
+            if let Ok(Message::Capabilities { version, capacities }) = Message::decode(p) {
+                if version != VERSION {
+                    return Err(format!(
+                        "the printer speaks protocol version {version}, this host {VERSION}"
+                    ));
+                }
+                self.progress.capacities = Some(capacities);
+            }
+            ep.pop();
+        }
+        if !self.hello_sent {
+            self.hello_sent = self.send_msg(ep, &Message::Hello { version: VERSION });
+        }
+        Ok(())
+    }
 }

@@ -134,6 +134,8 @@ pub struct SimReport {
     pub wire_bytes_per_triangle: f64,
     /// Per-layer hashes reported by the device.
     pub layer_hashes: Vec<u64>,
+    /// Time the triangle frames alone take on the wire at the baud rate, s.
+    pub wire_time_s: f64,
     /// Time until the last triangle was acknowledged, s.
     pub stream_time_s: f64,
     /// Executor underruns (the link or the pipeline fell behind the print).
@@ -409,6 +411,7 @@ fn run(
     } else {
         0.0
     };
+    rep.wire_time_s = host.progress.triangle_wire_bytes as f64 * 10.0 / opts.baud as f64;
     rep.layer_hashes = host.progress.layer_hashes.clone();
     rep.stream_time_s = host.progress.stream_done_ms.map_or(0.0, |m| m as f64 / 1000.0);
     rep.underruns = exec.stats().underruns;

@@ -1,0 +1,116 @@
+//! Every model of `../shared/models/` through admission control and the simulated printer at
+//! 250000 baud (release builds only: `cargo test --release -p strata-host --test models_sim
+//! -- --nocapture` prints the figures).
+//!
+//! - 3DBenchy does not fit the Creality board's capacities; it is simplified (the measured
+//!   deviation and triangle count are printed) and prints in simulation;
+//! - models that fit are streamed unchanged;
+//! - streaming stays ahead of printing for every model: the link and the printer share one
+//!   virtual clock and the step executor never runs dry (no underrun);
+//! - the wire cost per triangle and the time to stream all of 3DBenchy at 250000 baud.
+
+use std::path::{Path, PathBuf};
+
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::printer::CREALITY_CAPACITIES;
+use strata::protocol::frame::wire_len;
+use strata::protocol::{BatchBuilder, JobOptions, JobSpec};
+use strata::slice::SliceConfig;
+use strata_host::admission::{admit, Admission};
+use strata_host::model;
+use strata_host::simjob::{simulate, SimOptions};
+
+fn models() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "stl"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+#[cfg_attr(debug_assertions, ignore = "release only: whole models")]
+fn every_model_streams_ahead_of_printing() {
+    let machine = MachineConfig::default();
+    let settings = PrintSettings::default();
+    for path in models() {
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let m = model::load(&path).unwrap();
+        let tris = match m.placed_sorted(&machine) {
+            Ok(t) => t,
+            Err(e) => {
+                eprintln!("{name}: skipped, {e}");
+                continue;
+            }
+        };
+        // Streaming the whole model as it is, at 250000 baud (10 bits per byte).
+        let mut bb = BatchBuilder::new();
+        let mut bytes = 0usize;
+        for t in &tris {
+            if bb.push(t).is_err() {
+                bytes += wire_len(bb.payload());
+                bb.clear();
+                bb.push(t).unwrap();
+            }
+        }
+        bytes += wire_len(bb.payload());
+        let top = tris.iter().map(|t| t.z_max()).max().unwrap();
+        let cfg = SliceConfig::new(&settings, top).unwrap();
+        let (tris, note) = match admit(&tris, &cfg, &CREALITY_CAPACITIES, 0.02).unwrap() {
+            Admission::Unchanged(n) => (
+                tris,
+                format!(
+                    "unchanged (peak active {}, points {})",
+                    n.active_triangles, n.contour_points
+                ),
+            ),
+            Admission::Simplified(s) => {
+                let n = format!(
+                    "simplified {} -> {} triangles, measured deviation {:.3} mm (bound 0.02), \
+                     peak active {}, points {}",
+                    s.triangles_in,
+                    s.triangles.len(),
+                    s.max_deviation_mm,
+                    s.needs.active_triangles,
+                    s.needs.contour_points
+                );
+                (s.triangles, n)
+            }
+        };
+        let job = JobSpec {
+            settings,
+            options: JobOptions::default(),
+            model_height_um: top,
+            triangles: tris.len() as u32,
+        };
+        let rep = simulate(&tris, &machine, job, &SimOptions::default())
+            .unwrap_or_else(|(e, _)| panic!("{name}: {e}"));
+        eprintln!(
+            "{name}: {note}; whole model {} triangles = {bytes} bytes = {:.1} s at 250000 baud \
+             ({:.2} B/triangle); streamed {} triangles ({:.1} s of wire time), print {:.0} s, \
+             {} layers, underruns {}, device RAM needed {} B",
+            m.triangles.len(),
+            bytes as f64 / 25_000.0,
+            bytes as f64 / m.triangles.len() as f64,
+            rep.triangles,
+            rep.wire_time_s,
+            rep.print_time_s,
+            rep.layers,
+            rep.underruns,
+            rep.device_ram_bytes
+        );
+        assert_eq!(rep.underruns, 0, "{name}: the stream fell behind the print");
+        assert_eq!(rep.violations, 0, "{name}");
+        assert_eq!(rep.layer_hashes.len(), rep.layers as usize, "{name}");
+        assert!(rep.wire_time_s < rep.print_time_s, "{name}");
+        if name == "3DBenchy.stl" {
+            assert!(note.starts_with("simplified"), "{note}");
+        }
+        if name == "xyz_20mm_cube.stl" {
+            assert!(note.starts_with("unchanged"), "{note}");
+        }
+    }
+}
