@@ -1,6 +1,6 @@
 //! Per-model toolpath report for every model in `../shared/models` (or the directory given):
 //! layers, retractions, travel and extrusion stops (totals, per-layer mean and maximum), thin
-//! islands, the host time of the whole run (parse to G-code text), and the RAM the toolpath
+//! islands and the area thinner than a line (summed over layers, and the largest layer's), the host time of the whole run (parse to G-code text), and the RAM the toolpath
 //! stage needs for the model's largest layer (a `Toolpath` sized to the model's peak needs,
 //! window included). Default settings (0.2 mm, 0.45 mm lines, 2 perimeters, 20 % zigzag,
 //! 4 top/bottom layers, 5 mm retraction); plate_holes (203 x 305 mm) on a 400 mm bed.
@@ -122,10 +122,10 @@ fn main() {
             );
             println!(
                 "| model | layers | retractions | per layer (mean / max) | travel mm | per layer \
-                 (mean) | extrusion stops | per layer (mean / max) | thin islands | time ms | \
-                 toolpath RAM KB (window KB) |"
+                 (mean) | extrusion stops | per layer (mean / max) | thin islands | thin area mm^2 \
+                 (max layer: mm^2 @ layer) | time ms | toolpath RAM KB (window KB) |"
             );
-            println!("|---|---|---|---|---|---|---|---|---|---|---|");
+            println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
             let mut total_ram_device = Vec::new();
             for f in &files {
                 let name = f.strip_prefix(&dir).unwrap_or(f).display().to_string();
@@ -135,7 +135,7 @@ fn main() {
                     machine.build_volume_um = [400_000, 400_000, 250_000];
                 }
                 let Some(r) = run(&bytes, &machine, &mut st) else {
-                    println!("| {name} | (not sliced) |||||||||");
+                    println!("| {name} | (not sliced) ||||||||||");
                     continue;
                 };
                 let s = &r.stats;
@@ -146,7 +146,7 @@ fn main() {
                 total_ram_device.push((name.clone(), ram, s.needs));
                 println!(
                     "| {name} | {} | {} | {:.2} / {max_retr} | {:.0} | {:.1} | {} | {:.1} / {max_stops} \
-                     | {} | {:.1} | {:.1} ({:.1}) |",
+                     | {} | {:.2} ({:.3} @ {}) | {:.1} | {:.1} ({:.1}) |",
                     s.layers,
                     s.retractions,
                     s.retractions as f64 / n,
@@ -155,6 +155,9 @@ fn main() {
                     s.stops,
                     s.stops as f64 / n,
                     s.thin_islands,
+                    s.thin_area_um2 as f64 / 1e6,
+                    s.max_thin_area_um2 as f64 / 1e6,
+                    s.max_thin_area_layer,
                     r.seconds * 1000.0,
                     ram as f64 / 1024.0,
                     s.needs.window_bytes() as f64 / 1024.0,

@@ -211,6 +211,15 @@ struct ContoursOut<'a> {
     layers: &'a [LayerOut],
 }
 
+/// Thin (unprinted) cross-section area from which the text output warns, um^2 (the JSON
+/// output always has it).
+const THIN_WARN_UM2: u64 = 10_000;
+
+/// um^2 to mm^2.
+fn mm2(um2: u64) -> f64 {
+    um2 as f64 / 1e6
+}
+
 fn mm(um: i64) -> f64 {
     um as f64 / 1000.0
 }
@@ -532,6 +541,7 @@ struct LayerSummaryOut {
     travel_moves: u32,
     filament_mm: f64,
     thin_islands: u32,
+    thin_wall_area_mm2: f64,
 }
 
 #[derive(Serialize)]
@@ -546,6 +556,9 @@ struct GcodeSummaryOut {
     travel_mm: f64,
     stops: u64,
     thin_islands: u64,
+    thin_wall_area_mm2: f64,
+    max_thin_wall_area_mm2: f64,
+    max_thin_wall_layer: u32,
     triangles: u32,
     gcode_lines: u64,
     gcode_bytes: usize,
@@ -588,6 +601,9 @@ pub fn run(args: &SliceArgs) -> Result<(), String> {
             travel_mm: mm(st.travel_um as i64),
             stops: st.stops,
             thin_islands: st.thin_islands,
+            thin_wall_area_mm2: mm2(st.thin_area_um2),
+            max_thin_wall_area_mm2: mm2(st.max_thin_area_um2),
+            max_thin_wall_layer: st.max_thin_area_layer,
             triangles: run.slice.triangles,
             gcode_lines: run.gcode_stats.lines,
             gcode_bytes: run.gcode.len(),
@@ -605,6 +621,7 @@ pub fn run(args: &SliceArgs) -> Result<(), String> {
                     travel_moves: l.travel_moves,
                     filament_mm: mm(l.filament_um),
                     thin_islands: l.thin_islands,
+                    thin_wall_area_mm2: mm2(l.thin_area_um2),
                 })
                 .collect(),
         };
@@ -627,6 +644,18 @@ pub fn run(args: &SliceArgs) -> Result<(), String> {
                 "warning: {} island cross-sections are thinner than one line width and were \
                  not printed",
                 st.thin_islands
+            );
+        }
+        if st.thin_area_um2 >= THIN_WARN_UM2 {
+            let layers = run.layers.iter().filter(|l| l.thin_area_um2 > 0).count();
+            println!(
+                "warning: {:.2} mm^2 of cross-sections (summed over {layers} layers; at most \
+                 {:.2} mm^2 in layer {}) are thinner than one line width ({:.2} mm) and were not \
+                 printed",
+                mm2(st.thin_area_um2),
+                mm2(st.max_thin_area_um2),
+                st.max_thin_area_layer,
+                mm(cfg.line_width_um.into()),
             );
         }
         if let Some(path) = &args.output {

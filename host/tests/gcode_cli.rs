@@ -172,6 +172,71 @@ fn gcode_has_start_layers_types_and_end_and_matches_the_summary() {
     for key in ["stops", "thin_islands", "gcode_lines", "needs"] {
         assert!(!j[key].is_null(), "{key}");
     }
+    // Square walls and a square hole: nothing thinner than a line.
+    assert_eq!(j["thin_wall_area_mm2"], 0.0);
+    assert!(per_layer.iter().all(|l| l["thin_wall_area_mm2"] == 0.0));
+}
+
+/// A prism (mm) over a simple counter-clockwise polygon from z = 0 to `h`, caps fanned
+/// from the first vertex (watertight; the caps are never cut by a slicing plane).
+fn prism(poly: &[[f32; 2]], h: f32) -> Vec<[[f32; 3]; 3]> {
+    let n = poly.len();
+    let at = |j: usize, z: f32| [poly[j % n][0], poly[j % n][1], z];
+    let mut t = Vec::new();
+    for j in 0..n {
+        t.push([at(j, 0.0), at(j + 1, 0.0), at(j + 1, h)]);
+        t.push([at(j, 0.0), at(j + 1, h), at(j, h)]);
+    }
+    for j in 1..n - 1 {
+        t.push([at(0, h), at(j, h), at(j + 1, h)]);
+        t.push([at(0, 0.0), at(j + 1, 0.0), at(j, 0.0)]);
+    }
+    t
+}
+
+#[test]
+fn a_thin_fin_is_reported_in_the_json_and_the_text_output() {
+    // A 10 mm block with a 5 mm x 0.3 mm fin, 1 mm tall (5 layers): 1.5 mm^2 per layer.
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("fin.stl");
+    let poly = [
+        [-5.0, -5.0],
+        [5.0, -5.0],
+        [5.0, -0.15],
+        [10.0, -0.15],
+        [10.0, 0.15],
+        [5.0, 0.15],
+        [5.0, 5.0],
+        [-5.0, 5.0],
+    ];
+    write_stl(&model, &prism(&poly, 1.0));
+    let out = dir.path().join("fin.gcode");
+    let run = |json: bool| {
+        let mut cmd = Command::cargo_bin("strata").unwrap();
+        cmd.args(["slice", model.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+        if json {
+            cmd.arg("--json");
+        }
+        String::from_utf8(cmd.assert().success().get_output().stdout.clone()).unwrap()
+    };
+    let j: Value = serde_json::from_str(&run(true)).expect("JSON summary");
+    let per_layer = j["per_layer"].as_array().unwrap();
+    assert_eq!(per_layer.len(), 5);
+    // Tolerance: the outline (40.6 mm) x 1 um of offset rounding per layer.
+    for l in per_layer {
+        let a = l["thin_wall_area_mm2"].as_f64().unwrap();
+        assert!((a - 1.5).abs() <= 0.0406, "{a}");
+    }
+    let total = j["thin_wall_area_mm2"].as_f64().unwrap();
+    assert!((total - 7.5).abs() <= 5.0 * 0.0406, "{total}");
+    assert!((j["max_thin_wall_area_mm2"].as_f64().unwrap() - 1.5).abs() <= 0.0406);
+    assert_eq!(j["thin_islands"], 0);
+    let text = run(false);
+    assert!(
+        text.lines()
+            .any(|l| l.starts_with("warning: 7.50 mm^2 of cross-sections (summed over 5 layers")),
+        "{text}"
+    );
 }
 
 #[test]

@@ -15,7 +15,17 @@
 //!    lines reach the innermost perimeter's inner edge) ([`offset`]: offsets of holes and
 //!    outer loops merge, parts narrower than a line vanish instead of leaving a broken loop;
 //!    an island with no room for even one perimeter is counted in
-//!    [`LayerStats::thin_islands`]);
+//!    [`LayerStats::thin_islands`]); what vanishes is reported: the external perimeter's
+//!    centre lines (the island offset inwards by w/2) are grown back outwards by w/2 (miter
+//!    joins, the same exact offsetting), which gives the island's opening by half a line
+//!    width, the part any line can cover; the island's area minus the opening's is the area
+//!    thinner than a line (fins and thin walls attached to thicker parts, whole thin islands,
+//!    corners sharper than 60 degrees), [`LayerStats::thin_area_um2`], summed in
+//!    [`ToolpathStats::thin_area_um2`] (0 for a rectangle: square corners come back whole;
+//!    each pass rounds to the um grid, so the error is at most ~1 um x the outline length).
+//!    It costs one more offset per island and layer and no memory beyond the offset engine's
+//!    (`PTS`), which a model with thin parts may need more of (the grown curves of thin
+//!    slivers overlap);
 //! 3. the infill domain is filled along scanlines ([`scan`], [`infill`]) at 45 degrees on even
 //!    layers and 135 on odd ones: solid where a top or bottom surface is within
 //!    `top_layers`/`bottom_layers` (found exactly along each line from the skin window, then
@@ -26,7 +36,11 @@
 //! 4. the first layer gets a skirt: the convex hull offset 3 mm + width/2 with round joins;
 //! 5. paths are ordered and turned into moves ([`order`]): islands nearest first; in each,
 //!    inner perimeters before the external one (each hole's loops together), then the infill
-//!    runs, nearest first from either end; loops start at the rear-most vertex; a travel that
+//!    runs, nearest first from either end; loops start at the rear-most vertex; the nearest
+//!    path is found in a uniform grid of the paths' entry points ([`near`]) built in the
+//!    infill scratch buffers (cells in one `CROSS` array, two entries per path in another;
+//!    when the layer has more than `CROSS / 2` paths, by scanning them all: same order);
+//!    a travel that
 //!    would cross a contour is combed along the island's external perimeter, and retracts
 //!    only when no such route exists (another island) and it is at least 1.5 mm long.
 //!
@@ -64,6 +78,7 @@ use scan::{Angle, Crossing};
 use window::Fifo;
 
 pub mod infill;
+pub mod near;
 pub mod offset;
 pub mod order;
 pub mod paths;
@@ -408,6 +423,9 @@ pub struct LayerStats {
     pub islands: u32,
     /// Islands too thin for one perimeter (nothing printed for them).
     pub thin_islands: u32,
+    /// Area of the layer's cross-section that no line covers because it is thinner than a
+    /// line width (thin walls, fins and whole thin islands; see the [module docs](self)), um^2.
+    pub thin_area_um2: u64,
     /// Extrusion paths (loops and runs) before ordering.
     pub paths: u32,
     /// Extruding moves.
@@ -431,6 +449,7 @@ impl LayerStats {
         z_um: 0,
         islands: 0,
         thin_islands: 0,
+        thin_area_um2: 0,
         paths: 0,
         extrusion_moves: 0,
         travel_moves: 0,
@@ -535,6 +554,12 @@ pub struct ToolpathStats {
     pub filament_um: i64,
     /// Islands too thin for a perimeter, over all layers.
     pub thin_islands: u64,
+    /// Cross-section area thinner than a line width, summed over all layers, um^2.
+    pub thin_area_um2: u64,
+    /// The largest [`LayerStats::thin_area_um2`] of one layer, um^2.
+    pub max_thin_area_um2: u64,
+    /// The layer with that area.
+    pub max_thin_area_layer: u32,
     /// Offset boundary chains that could not be closed (should be 0).
     pub open_chains: u32,
     /// Buffer use.
@@ -850,6 +875,8 @@ impl<
         // Perimeters and the infill domain, island by island.
         let min_width = i64::from(w / 8);
         for island in 0..islands {
+            // Doubled area of the island's opening by half a line (what lines can cover).
+            let mut opened2 = None;
             for depth in 0..cfg.perimeters {
                 let d = i32::from(depth) * w + w / 2;
                 self.offset_island(island, d)?;
@@ -867,7 +894,24 @@ impl<
                     let pts = self.tmp.ring_points(r);
                     self.paths.add_loop(pts, feature, island, PathKind::Perimeter(depth))?;
                 }
+                if depth == 0 {
+                    opened2 = Some(self.grow_tmp_area2(island)?);
+                }
             }
+            let opened2 = match opened2 {
+                Some(a) => a,
+                None if cfg.perimeters > 0 => 0,
+                None => {
+                    // No perimeters: the centre lines of an external perimeter all the same.
+                    self.offset_island(island, w / 2)?;
+                    self.tmp.clear();
+                    self.eng.union_into(&mut self.tmp, island, 0, min_width)?;
+                    self.grow_tmp_area2(island)?
+                }
+            };
+            let region2: i64 =
+                self.contour.rings().iter().filter(|r| r.island == island).map(|r| r.area2).sum();
+            layer.thin_area_um2 += ((region2 - opened2).max(0) / 2) as u64;
             self.offset_island(island, cfg.infill_inset_um())?;
             self.eng.union_into(&mut self.fill, island, 0, min_width)?;
         }
@@ -896,7 +940,15 @@ impl<
             height_um: cfg.layer_height_of(l),
             first_layer: l == FIRST_LAYER,
         };
-        order::emit_layer(&mut self.em, &ctx, &mut self.paths, &mut self.island_stage, sink);
+        order::emit_layer(
+            &mut self.em,
+            &ctx,
+            &mut self.paths,
+            &mut self.island_stage,
+            &mut self.cend,
+            &mut self.order,
+            sink,
+        );
         // A layer without extrusion still moves to its height.
         if self.em.pending_z.is_some() {
             let p = self.em.pos;
@@ -913,6 +965,11 @@ impl<
         st.travel_um += ls.travel_um;
         st.filament_um += ls.filament_um;
         st.thin_islands += u64::from(ls.thin_islands);
+        st.thin_area_um2 += ls.thin_area_um2;
+        if ls.thin_area_um2 > st.max_thin_area_um2 {
+            st.max_thin_area_um2 = ls.thin_area_um2;
+            st.max_thin_area_layer = l;
+        }
         // Drop what no later layer needs.
         self.ring.pop();
         let bottom = u32::from(cfg.bottom_layers);
@@ -925,6 +982,26 @@ impl<
         }
         self.next_out = l + 1;
         Ok(())
+    }
+
+    /// Grows the loops in `tmp` (the island's contours offset inwards by half a line) back
+    /// outwards by half a line with miter joins and returns the doubled area of the result,
+    /// the island's morphological opening by half a line width: the island minus its parts
+    /// thinner than a line (with square corners: a rectangle comes back whole). Clears `tmp`.
+    fn grow_tmp_area2(&mut self, island: u16) -> Result<i64, Buffer> {
+        let half = self.cfg.line_width_um / 2;
+        if self.tmp.rings().is_empty() {
+            return Ok(0);
+        }
+        self.eng.begin();
+        for r in self.tmp.rings() {
+            self.eng.add_loop(self.tmp.ring_points(r), -half, Join::Miter)?;
+        }
+        self.tmp.clear();
+        self.eng.union_into(&mut self.tmp, island, 0, 1)?;
+        let area2 = self.tmp.rings().iter().map(|r| r.area2).sum();
+        self.tmp.clear();
+        Ok(area2)
     }
 
     /// Loads the raw offset curves of `island` (distance `d`) into the engine.

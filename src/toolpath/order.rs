@@ -3,7 +3,12 @@
 //! Islands are visited nearest first. Within an island the perimeters go inner to outer (the
 //! external perimeter last, by default) and then the infill runs, each stage nearest first
 //! from where the nozzle is; loops start at their seam (the rear-most vertex, or the nearest
-//! one), open runs at whichever end is closer. A travel that crosses no contour of the layer
+//! one), open runs at whichever end is closer. The nearest path is looked up in a
+//! [`NearGrid`] of every path's entry points (rear seams are rotated to the front of their
+//! loop first), so a layer of `n` paths costs about `n` grid lookups instead of `n^2`
+//! distance checks; loops whose entry depends on the nozzle (nearest-vertex seams) are
+//! scanned beside it, and a layer whose paths do not fit the grid's buffers is scanned
+//! whole. The choice is the scan's in every case (lowest index among equally near paths). A travel that crosses no contour of the layer
 //! stays inside the part (combing) and needs no retraction; one that crosses a contour and is
 //! at least `min_retract_travel_um` long retracts first and primes again before the next
 //! extrusion.
@@ -15,6 +20,7 @@
 use crate::geom::Point2;
 use crate::machine::Rate;
 
+use super::near::NearGrid;
 use super::paths;
 use super::paths::{PathBuf, PathKind, PathRec};
 use super::poly::{dist, dist2, isqrt, orient, segments_touch, Ring};
@@ -499,12 +505,138 @@ fn print_path<const N: usize, const R: usize>(
     }
 }
 
-/// Emits every path of the layer in order. `island_stage` is scratch (one entry per island).
+/// Where path `i` starts when it is entered at `end` (0: its first point, or a closed
+/// loop's seam; 1: an open path's last point), if that point does not depend on where the
+/// nozzle is (every path but the closed loops whose start is their nearest vertex).
+fn fixed_entry<const N: usize, const R: usize>(
+    paths: &PathBuf<N, R>,
+    seam: Seam,
+    i: usize,
+    end: u32,
+) -> Option<Point2> {
+    let r = paths.recs().get(i)?;
+    let pts = paths.points(r);
+    if r.closed {
+        // Rear seams are rotated to the front of the loop before ordering.
+        let rear_seam = seam == Seam::Rear && matches!(r.kind, PathKind::Perimeter(_));
+        return if rear_seam && end == 0 { pts.first().copied() } else { None };
+    }
+    match end {
+        0 => pts.first().copied(),
+        _ if r.reversible => pts.last().copied(),
+        _ => None,
+    }
+}
+
+/// Path search of one layer: a [`NearGrid`] over the fixed entry points (item `2 i + end`
+/// for path `i`), plus a scan of the loops whose entry depends on the nozzle; a scan of all
+/// paths when the grid does not fit its buffers. Every query returns what the plain scan
+/// over all paths returns (the nearest entry, the lowest path index among equals, the first
+/// end of a path among equals).
+struct Finder<'g> {
+    grid: Option<NearGrid<'g>>,
+    /// Some path's entry depends on the nozzle position (nearest-vertex loops).
+    loose: bool,
+}
+
+impl<'g> Finder<'g> {
+    fn new<const N: usize, const R: usize>(
+        paths: &PathBuf<N, R>,
+        seam: Seam,
+        head: &'g mut [u32],
+        next: &'g mut [u32],
+    ) -> Self {
+        let n = paths.recs().len();
+        let pos = |id: u32| {
+            let i = (id / 2) as usize;
+            if paths.recs()[i].done {
+                return None;
+            }
+            fixed_entry(paths, seam, i, id % 2)
+        };
+        let loose = (0..n).any(|i| {
+            let r = &paths.recs()[i];
+            !r.done && r.closed && fixed_entry(paths, seam, i, 0).is_none()
+        });
+        let grid = NearGrid::build(2 * n, pos, head, next).ok();
+        Self { grid, loose }
+    }
+
+    /// The nearest path from `from` among those `accept` takes (never a done one):
+    /// (squared distance, index, start point, reversed).
+    fn find<const N: usize, const R: usize>(
+        &self,
+        paths: &PathBuf<N, R>,
+        seam: Seam,
+        from: Point2,
+        accept: &dyn Fn(&PathRec) -> bool,
+    ) -> Option<(i64, usize, usize, bool)> {
+        let recs = paths.recs();
+        let Some(grid) = &self.grid else {
+            let mut pick: Option<(i64, usize, usize, bool)> = None;
+            for (i, r) in recs.iter().enumerate() {
+                if r.done || !accept(r) {
+                    continue;
+                }
+                let (start, rev, d) = entry(paths, r, seam, from);
+                if pick.map_or(true, |p| d < p.0) {
+                    pick = Some((d, i, start, rev));
+                }
+            }
+            return pick;
+        };
+        let pos = |id: u32| fixed_entry(paths, seam, (id / 2) as usize, id % 2);
+        let hit = grid.nearest(from, pos, |id| {
+            let r = &recs[(id / 2) as usize];
+            !r.done && accept(r)
+        });
+        let mut pick = hit.map(|(d, id)| {
+            let i = (id / 2) as usize;
+            let rev = id % 2 == 1;
+            let start = if rev { recs[i].len as usize - 1 } else { 0 };
+            (d, i, start, rev)
+        });
+        if self.loose {
+            for (i, r) in recs.iter().enumerate() {
+                if r.done || !r.closed || fixed_entry(paths, seam, i, 0).is_some() || !accept(r) {
+                    continue;
+                }
+                let (start, rev, d) = entry(paths, r, seam, from);
+                if pick.map_or(true, |p| (d, i) < (p.0, p.1)) {
+                    pick = Some((d, i, start, rev));
+                }
+            }
+        }
+        pick
+    }
+
+    /// Path `i` was printed.
+    fn done<const N: usize, const R: usize>(
+        &mut self,
+        paths: &PathBuf<N, R>,
+        seam: Seam,
+        i: usize,
+    ) {
+        if let Some(g) = &mut self.grid {
+            for end in 0..2 {
+                if let Some(p) = fixed_entry(paths, seam, i, end) {
+                    g.remove(2 * i as u32 + end, p);
+                }
+            }
+        }
+    }
+}
+
+/// Emits every path of the layer in order. `island_stage` is scratch (one entry per island);
+/// `grid_head` and `grid_next` are scratch for the nearest-path grid (cells and two entries
+/// per path; when `grid_next` holds fewer, paths are found by scanning them all).
 pub fn emit_layer<const N: usize, const R: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
     paths: &mut PathBuf<N, R>,
     island_stage: &mut [u8],
+    grid_head: &mut [u32],
+    grid_next: &mut [u32],
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     let cfg = ctx.cfg;
@@ -526,49 +658,50 @@ pub fn emit_layer<const N: usize, const R: usize>(
             paths.set_done(i);
         }
     }
+    // Rear seams: every perimeter loop starts at its rear-most vertex.
+    if cfg.seam == Seam::Rear {
+        for i in 0..n {
+            let r = paths.recs()[i];
+            if r.closed && !r.done && matches!(r.kind, PathKind::Perimeter(_)) {
+                let k = rear(paths.points(&r));
+                paths.rotate_loop(i, k);
+            }
+        }
+    }
+    let mut finder = Finder::new(paths, cfg.seam, grid_head, grid_next);
     let infill_stage = stage(&PathRec { kind: PathKind::Infill, ..paths::EMPTY_REC }, cfg);
     loop {
         // Next island: the nearest path among each island's first stage.
-        let mut best: Option<(i64, usize)> = None;
-        for i in 0..n {
-            let r = paths.recs()[i];
-            if r.done || island_stage.get(r.island as usize).copied() != Some(stage(&r, cfg)) {
-                continue;
-            }
-            let (_, _, d) = entry(paths, &r, cfg.seam, em.pos);
-            if best.map_or(true, |b| d < b.0) {
-                best = Some((d, i));
-            }
-        }
-        let Some((_, first)) = best else { break };
+        let first = {
+            let stages = &*island_stage;
+            let first_stage =
+                |r: &PathRec| stages.get(r.island as usize).copied() == Some(stage(r, cfg));
+            finder.find(paths, cfg.seam, em.pos, &first_stage)
+        };
+        let Some((_, first, _, _)) = first else { break };
         let island = paths.recs()[first].island;
         // Stages of this island in order, nearest first within each; after a perimeter
         // loop, the nearest loop of the next perimeter stage if any (the loops around one
         // hole go together).
         let mut chain: Option<u8> = None;
         while let Some(&min_stage) = island_stage.get(island as usize) {
-            let remaining = |st: u8| {
-                paths.recs().iter().any(|r| !r.done && r.island == island && stage(r, cfg) == st)
-            };
-            let st = match chain {
-                Some(c) if remaining(c) => c,
-                _ => min_stage,
-            };
-            let mut pick: Option<(i64, usize, usize, bool)> = None;
-            for i in 0..n {
-                let r = paths.recs()[i];
-                if r.done || r.island != island || stage(&r, cfg) != st {
-                    continue;
+            let in_stage = |st: u8| move |r: &PathRec| r.island == island && stage(r, cfg) == st;
+            let mut st = min_stage;
+            let mut pick = None;
+            if let Some(c) = chain {
+                pick = finder.find(paths, cfg.seam, em.pos, &in_stage(c));
+                if pick.is_some() {
+                    st = c;
                 }
-                let (start, rev, d) = entry(paths, &r, cfg.seam, em.pos);
-                if pick.map_or(true, |p| d < p.0) {
-                    pick = Some((d, i, start, rev));
-                }
+            }
+            if pick.is_none() {
+                pick = finder.find(paths, cfg.seam, em.pos, &in_stage(min_stage));
             }
             match pick {
                 Some((_, i, start, rev)) => {
                     let r = paths.recs()[i];
                     print_path(em, ctx, paths, &r, start, rev, sink);
+                    finder.done(paths, cfg.seam, i);
                     paths.set_done(i);
                     chain = (st + 1 < infill_stage).then_some(st + 1);
                 }

@@ -185,6 +185,19 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
         }
     }
 
+    /// Makes point `k` of closed path `i` its first (same loop, same direction).
+    pub fn rotate_loop(&mut self, i: usize, k: usize) {
+        let Some(r) = self.recs.get(i) else { return };
+        let range = r.start as usize..(r.start + r.len) as usize;
+        if !r.closed || k == 0 || k >= r.len as usize {
+            return;
+        }
+        if let (Some(p), Some(f)) = (self.pts.get_mut(range.clone()), self.feat.get_mut(range)) {
+            p.rotate_left(k);
+            f.rotate_left(k);
+        }
+    }
+
     /// Points of `r`.
     pub fn points(&self, r: &PathRec) -> &[Point2] {
         self.pts.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
