@@ -9,10 +9,13 @@
 //! `LayerDone` hashes back. [`Printer::poll`] does a bounded amount of work: moves into the
 //! planner (up to its queue), blocks into the step generator, steps into the queue.
 //!
-//! Flow control reaches back to the host: a triangle batch is taken only when the moves of the
-//! previous ones are all in the planner (a batch can complete at most a few layers, whose moves
-//! wait in the `MOVES` buffer); until then it stays in the endpoint's receive slot, so the
-//! device announces fewer credits and the host stops sending.
+//! Flow control reaches back to the host: a triangle batch is taken only while the `MOVES`
+//! buffer (toolpath moves waiting for the planner) is at most half full, so the slicer works
+//! about a layer ahead of the motion and the next layer's triangles stream in while the
+//! current one prints; a batch that would have to wait stays in the endpoint's receive slot,
+//! so the device announces fewer credits and the host stops sending. A layer (or, at the end
+//! of the model, the last `top_layers + 1` layers) must fit the other half: overflowing it is
+//! a typed error ([`ErrorCode::Moves`]), never a silent drop.
 //!
 //! Planner blocks are released only when the planner queue is full or the model has ended
 //! (`pop_forced`), never earlier because data happened to be late: the blocks, and the step
@@ -323,7 +326,7 @@ impl<
             (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                if !self.moves.is_empty() {
+                if self.moves.len() > MOVES / 2 {
                     return Accept::Busy;
                 }
                 for t in batch.iter() {
@@ -333,7 +336,7 @@ impl<
             (Message::EndOfModel, DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                if !self.moves.is_empty() {
+                if self.moves.len() > MOVES / 2 {
                     return Accept::Busy;
                 }
                 self.model_ended = true;

@@ -5,6 +5,7 @@
 
 pub mod admission;
 pub mod model;
+pub mod preview;
 pub mod serial;
 pub mod session;
 pub mod simjob;

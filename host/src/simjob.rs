@@ -18,6 +18,7 @@ use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepQueue, Wake};
 use strata::toolpath::ToolpathNeeds;
 
+use crate::preview::PathRecorder;
 use crate::session::{HostEndpoint, HostJob, Phase};
 
 /// The simulated device: slicer at the Creality board's capacities (1024 active triangles,
@@ -93,6 +94,8 @@ pub struct SimOptions {
     pub max_ms: u64,
     /// Check that every payload the device receives equals one the host sent, in order.
     pub check_delivery: bool,
+    /// Record the nozzle path for a preview ([`SimReport::path`]).
+    pub preview: bool,
 }
 
 impl Default for SimOptions {
@@ -103,12 +106,13 @@ impl Default for SimOptions {
             capacities: CREALITY_CAPACITIES,
             max_ms: 48 * 3600 * 1000,
             check_delivery: false,
+            preview: false,
         }
     }
 }
 
 /// What a simulated job produced.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Default)]
 pub struct SimReport {
     /// Layers of the job.
     pub layers: u32,
@@ -134,6 +138,9 @@ pub struct SimReport {
     pub wire_bytes_per_triangle: f64,
     /// Per-layer hashes reported by the device.
     pub layer_hashes: Vec<u64>,
+    /// Time from the start of the link to the first step, s (the first layer needs every
+    /// triangle below its top layers).
+    pub first_step_s: f64,
     /// Time the triangle frames alone take on the wire at the baud rate, s.
     pub wire_time_s: f64,
     /// Time until the last triangle was acknowledged, s.
@@ -156,6 +163,8 @@ pub struct SimReport {
     pub delivery_mismatches: u64,
     /// Virtual time at the end, ms.
     pub end_ms: u64,
+    /// The nozzle path per layer (with [`SimOptions::preview`]).
+    pub path: Option<PathRecorder>,
 }
 
 struct Rng(u64);
@@ -283,7 +292,11 @@ fn run(
     let timer_hz = step_cfg.timer_hz as u64;
     let ticks_per_ms = timer_hz / 1000;
     let start_tick = 1_000u64;
-    let board = SimBoard::new(SimTiming::from_config(&step_cfg), start_tick, ());
+    let board = SimBoard::new(
+        SimTiming::from_config(&step_cfg),
+        start_tick,
+        PathRecorder::new(opts.preview),
+    );
     let mut pins = board.pins();
     let mut queue: StepQueue<STEP_QUEUE> = StepQueue::new();
     let (mut prod, cons) = queue.split();
@@ -394,6 +407,7 @@ fn run(
     rep.layers = printer.layer_count();
     rep.end_ms = now_ms;
     rep.steps = board.axes().map(|a| a.steps);
+    rep.first_step_s = first_step.map_or(0.0, |f| (f - start_tick) as f64 / timer_hz as f64);
     rep.print_time_s = match (first_step, last_step_tick(&board)) {
         (Some(f), Some(l)) => (l - f) as f64 / timer_hz as f64,
         _ => 0.0,
@@ -420,6 +434,9 @@ fn run(
     rep.board_hash = board.step_hash();
     rep.host_link = *host_ep.stats();
     rep.device_link = *dev_ep.stats();
+    if opts.preview {
+        rep.path = Some(board.into_observer());
+    }
     match outcome {
         Ok(()) => Ok(rep),
         Err(e) => Err((e, Box::new(rep))),
@@ -433,7 +450,7 @@ fn wake(w: Result<Wake, core::convert::Infallible>) -> Option<u32> {
     }
 }
 
-fn last_step_tick(board: &SimBoard) -> Option<u64> {
+fn last_step_tick<O: strata::sim::EdgeObserver>(board: &SimBoard<O>) -> Option<u64> {
     board.axes().iter().filter_map(|a| a.last_rise).max()
 }
 

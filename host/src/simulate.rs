@@ -11,6 +11,7 @@ use strata::slice::SliceConfig;
 use strata::toolpath::Seam;
 use strata_host::admission::{self, Admission};
 use strata_host::model;
+use strata_host::preview;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
 
 use crate::slice_cmd::{machine_of, settings_of, toolpath_config_of, PrintArgs};
@@ -108,6 +109,7 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
     let opts = SimOptions {
         baud: args.baud,
         faults: Faults::uniform(args.loss, args.seed),
+        preview: args.preview.is_some(),
         ..SimOptions::default()
     };
     let slice_cfg =
@@ -144,6 +146,13 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
     let job = JobSpec { triangles: tris.len() as u32, ..job };
     let rep = simulate(&tris, &machine, job, &opts)
         .map_err(|(e, _)| format!("{}: {e}", args.model.display()))?;
+    if let (Some(dir), Some(path)) = (&args.preview, &rep.path) {
+        let title = format!("strata simulate {}", args.model.display());
+        let n = preview::write(dir, path, &title)?;
+        if !args.json {
+            println!("preview: {n} layer pictures and {}", dir.join("index.html").display());
+        }
+    }
     report(args, &rep, simplified)
 }
 

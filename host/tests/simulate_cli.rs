@@ -60,14 +60,27 @@ fn simulate_json_has_the_contract_keys() {
     let w: Value = serde_json::from_slice(&again.stdout).unwrap();
     assert_eq!(w["layer_hashes"], v["layer_hashes"]);
 
+    let preview = dir.path().join("preview");
     let human = Command::cargo_bin("strata")
         .unwrap()
         .args(["simulate", model.to_str().unwrap(), "--skirt-loops", "0", "--loss", "0.03"])
+        .arg("--preview")
+        .arg(&preview)
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&human.stdout);
     assert!(human.status.success());
     assert!(text.contains("6 layers") && text.contains("bytes per triangle"), "{text}");
+    assert!(text.contains("preview: 6 layer pictures"), "{text}");
+    let html = std::fs::read_to_string(preview.join("index.html")).unwrap();
+    assert!(html.contains("layer_0005.svg"));
+    for i in 0..6 {
+        let svg = std::fs::read_to_string(preview.join(format!("layer_{i:04}.svg"))).unwrap();
+        // Extrusion drawn in blue, inside the 10 mm block around (110, 110).
+        let ext = svg.lines().find(|l| l.contains("#1f5fbf")).unwrap();
+        assert!(ext.len() > 200, "layer {i}: {ext}");
+        assert!(ext.contains("M10") || ext.contains("M11"), "layer {i}");
+    }
 }
 
 #[test]
