@@ -1,0 +1,211 @@
+//! The device-side job runner without a link: misplaced or undecodable messages are never
+//! executed, identical jobs give identical layer hashes, pause/resume, abort and emergency
+//! stop; and through `service` with a real endpoint pair: hello/capabilities and status.
+
+use strata::geom::{Point3, Triangle};
+use strata::machine::{MachineConfig, PrintSettings, AXES};
+use strata::printer::{Accept, Printer};
+use strata::protocol::{
+    BatchBuilder, DeviceState, Endpoint, ErrorCode, JobOptions, JobSpec, LinkConfig, Message,
+    MAX_PAYLOAD, MAX_WIRE,
+};
+use strata::step::StepQueue;
+
+type Small = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 2048, 16>;
+
+fn new_printer() -> Box<Small> {
+    Box::new(Small::new(&MachineConfig::default()))
+}
+
+/// A closed 6 x 6 x 0.8 mm box at (100, 100) mm, zmin-sorted.
+fn block() -> Vec<Triangle> {
+    let (o, w, h) = (100_000, 6_000, 800);
+    let c = |i: usize| {
+        Point3::new(o + w * (i & 1) as i32, o + w * (i >> 1 & 1) as i32, h * (i >> 2 & 1) as i32)
+    };
+    let quads =
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let mut t: Vec<Triangle> = quads
+        .iter()
+        .flat_map(|q| {
+            [
+                Triangle { v: [c(q[0]), c(q[1]), c(q[2])] },
+                Triangle { v: [c(q[0]), c(q[2]), c(q[3])] },
+            ]
+        })
+        .collect();
+    t.sort_by_key(Triangle::z_min);
+    t
+}
+
+fn job(tris: &[Triangle]) -> JobSpec {
+    let mut settings = PrintSettings::default();
+    settings.top_layers = 1;
+    settings.bottom_layers = 1;
+    JobSpec {
+        settings,
+        options: JobOptions { skirt_loops: 0, ..JobOptions::default() },
+        model_height_um: 800,
+        triangles: tris.len() as u32,
+    }
+}
+
+fn batch(tris: &[Triangle]) -> Vec<u8> {
+    let mut b = BatchBuilder::new();
+    for t in tris {
+        b.push(t).unwrap();
+    }
+    b.payload().to_vec()
+}
+
+/// Feeds the whole job and runs it, draining the step queue; returns layer hashes and the
+/// steps per axis. `between` is called every poll with the poll count.
+fn run(p: &mut Small, mut between: impl FnMut(&mut Small, u32)) -> (Vec<(u32, u64)>, [u64; AXES]) {
+    let tris = block();
+    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
+    assert_eq!(p.state(), DeviceState::Printing);
+    let bytes = batch(&tris);
+    let m = Message::decode(&bytes).unwrap();
+    assert_eq!(p.handle(&m), Accept::Taken);
+    assert_eq!(p.handle(&Message::EndOfModel), Accept::Taken);
+    let mut q: StepQueue<32> = StepQueue::new();
+    let (mut prod, mut cons) = q.split();
+    let mut hashes = Vec::new();
+    let mut steps = [0u64; AXES];
+    for i in 0..1_000_000 {
+        between(p, i);
+        p.poll(&mut prod);
+        for (axis, s) in steps.iter_mut().enumerate() {
+            while let Some(cmd) = cons.dequeue(axis) {
+                if let strata::step::StepCmd::Steps { count, .. } = cmd {
+                    *s += count as u64;
+                }
+            }
+        }
+        while let Some(h) = p.take_layer_done() {
+            hashes.push(h);
+        }
+        if !p.is_active() {
+            break;
+        }
+    }
+    (hashes, steps)
+}
+
+#[test]
+fn identical_jobs_give_identical_hashes() {
+    let mut a = new_printer();
+    let (ha, sa) = run(&mut a, |_, _| {});
+    assert_eq!(a.state(), DeviceState::Done, "{:?}", a.error());
+    assert_eq!(ha.len(), 4);
+    assert_eq!(ha.iter().map(|h| h.0).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
+    let mut b = new_printer();
+    let (hb, sb) = run(&mut b, |_, _| {});
+    assert_eq!(ha, hb);
+    assert_eq!(sa, sb);
+    assert!(sa[0] > 0 && sa[3] > 0);
+    // The runner can run a second job after the first.
+    let (hc, _) = run(&mut a, |_, _| {});
+    assert_eq!(hc, ha);
+}
+
+#[test]
+fn pause_holds_motion_and_resume_finishes_the_same_job() {
+    let mut clean = new_printer();
+    let (h0, s0) = run(&mut clean, |_, _| {});
+    let mut p = new_printer();
+    let mut paused_polls = 0;
+    let (h1, s1) = run(&mut p, |p, i| {
+        if i == 20 {
+            assert_eq!(p.handle(&Message::Pause), Accept::Taken);
+        }
+        if p.state() == DeviceState::Paused {
+            paused_polls += 1;
+            if paused_polls == 500 {
+                assert_eq!(p.handle(&Message::Resume), Accept::Taken);
+            }
+        }
+    });
+    assert_eq!(paused_polls, 500);
+    assert_eq!(p.state(), DeviceState::Done);
+    assert_eq!((h1, s1), (h0, s0));
+}
+
+#[test]
+fn abort_and_emergency_stop_end_the_job() {
+    let mut p = new_printer();
+    run(&mut p, |p, i| {
+        if i == 10 {
+            p.handle(&Message::Abort);
+        }
+    });
+    assert_eq!(p.state(), DeviceState::Aborted);
+    let mut p = new_printer();
+    run(&mut p, |p, i| {
+        if i == 10 {
+            p.handle(&Message::EmergencyStop);
+        }
+        if i == 11 {
+            // Nothing restarts a stopped printer but a new job.
+            p.handle(&Message::Resume);
+        }
+    });
+    assert_eq!(p.state(), DeviceState::Stopped);
+}
+
+#[test]
+fn misplaced_messages_are_never_executed() {
+    let tris = block();
+    let bytes = batch(&tris);
+    let m = Message::decode(&bytes).unwrap();
+    let mut p = new_printer();
+    p.handle(&m);
+    assert_eq!(p.state(), DeviceState::Failed);
+    assert_eq!(p.error(), (ErrorCode::Unexpected, 0x11));
+    assert_eq!(p.slicer().stats().triangles, 0, "triangles before a job were sliced");
+    // A job with invalid settings is refused.
+    let mut p = new_printer();
+    let mut bad = job(&tris);
+    bad.settings.layer_height_um = 0;
+    p.handle(&Message::JobStart(bad));
+    assert_eq!(p.state(), DeviceState::Failed);
+    assert_eq!(p.error().0, ErrorCode::BadJob);
+}
+
+#[test]
+fn service_answers_hello_and_refuses_undecodable_payloads() {
+    let mut p = new_printer();
+    let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut frame = [0u8; MAX_WIRE];
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = Message::Hello { version: 1 }.encode(&mut buf).unwrap();
+    host.send(&buf[..n]).unwrap();
+    host.send(&[0x7f, 1, 2, 3]).unwrap();
+    let mut got = Vec::new();
+    for now in 1..200u32 {
+        loop {
+            let n = host.poll_transmit(now, &mut frame);
+            if n == 0 {
+                break;
+            }
+            dev.receive(&frame[..n], now);
+        }
+        p.service(&mut dev, now, 0, 50);
+        loop {
+            let n = dev.poll_transmit(now, &mut frame);
+            if n == 0 {
+                break;
+            }
+            host.receive(&frame[..n], now);
+        }
+        while let Some(m) = host.peek() {
+            got.push(format!("{:?}", Message::decode(m).unwrap()));
+            host.pop();
+        }
+    }
+    assert!(got[0].starts_with("Capabilities { version: 1"), "{got:?}");
+    assert!(got[0].contains("active_triangles: 256"), "{got:?}");
+    assert!(got.iter().any(|m| m.contains("state: Failed") && m.contains("BadMessage")), "{got:?}");
+    assert_eq!(p.error(), (ErrorCode::BadMessage, 0x7f));
+}
