@@ -143,7 +143,7 @@ fn main() {
                 let max_retr = r.layers.iter().map(|l| l.retractions).max().unwrap_or(0);
                 let max_stops = r.layers.iter().map(|l| l.stops).max().unwrap_or(0);
                 let ram = s.needs.bytes();
-                total_ram_device.push((name.clone(), ram, s.needs));
+                total_ram_device.push((name.clone(), ram, s.needs, s.thin_pts));
                 println!(
                     "| {name} | {} | {} | {:.2} / {max_retr} | {:.0} | {:.1} | {} | {:.1} / {max_stops} \
                      | {} | {:.2} ({:.3} @ {}) | {:.1} | {:.1} ({:.1}) |",
@@ -166,16 +166,18 @@ fn main() {
             }
             println!();
             println!("Peak needs (capacities) per model:");
-            for (name, ram, n) in &total_ram_device {
+            for (name, ram, n, thin_pts) in &total_ram_device {
                 println!(
-                    "  {name}: PTS {} LOOPS {} CROSS {} PATH {} RING {} SPANS {} -> {} bytes",
+                    "  {name}: PTS {} LOOPS {} CROSS {} PATH {} RING {} SPANS {} -> {} bytes \
+                     (thin-area measurement: PTS {})",
                     n.layer_points.max(n.offset_edges),
                     n.layer_loops,
                     n.crossings.max(n.paths),
                     n.path_points,
                     n.ring_points,
                     n.spans,
-                    ram
+                    ram,
+                    thin_pts
                 );
             }
         })

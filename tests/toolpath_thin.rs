@@ -8,13 +8,14 @@
 //! clean-up pass removes only points within 2 um of a straight edge), so every edge of the
 //! opening moves by at most ~1 um and its area by at most `perimeter x 1 um` (per layer).
 
+mod common;
 mod slice_support;
 mod toolpath_support;
 
-use slice_support::{cuboid, loft, to_um, TriMm};
-use strata::machine::PrintSettings;
-use strata::toolpath::Feature;
-use toolpath_support::{extrusions, layer_starts, run, TpRun};
+use slice_support::{cuboid, load_placed, loft, to_um, TriMm};
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::toolpath::{Feature, ToolpathConfig};
+use toolpath_support::{extrusions, layer_starts, run, run_cfg, run_sized, TpRun};
 
 /// Prism (mm) over a simple counter-clockwise polygon between `z0` and `z1`.
 fn prism(poly: &[[f64; 2]], z0: f64, z1: f64) -> Vec<TriMm> {
@@ -123,4 +124,38 @@ fn an_isolated_thin_wall_is_counted_as_an_island_and_by_area() {
     }
     eprintln!("wall island: total {} um^2", r.stats.thin_area_um2);
     assert_eq!(r.stats.thin_islands, 5);
+}
+
+#[test]
+fn a_stage_sized_to_the_printing_needs_prints_the_same_and_flags_unmeasured_islands() {
+    // embodier_LM8UU_8p2pi: thin spiral fins. Printing needs PTS 690; growing the fins'
+    // slivers back for the measurement needs 1,740. A stage with PTS 700 (the other
+    // capacities well above the model's needs) prints exactly the same moves and counts
+    // the islands it could not measure instead of failing.
+    let Some(dir) = common::shared_models() else { return };
+    let machine = MachineConfig::default();
+    let tris = load_placed(&dir.join("embodier_LM8UU_8p2pi.stl"), &machine);
+    let settings = PrintSettings::default();
+    let cfg = ToolpathConfig::new(&machine, &settings);
+    let big = run_cfg(&tris, &settings, cfg).expect("host-sized run");
+    assert_eq!(big.stats.thin_unmeasured, 0);
+    assert!(big.stats.thin_pts > 1_000, "{}", big.stats.thin_pts);
+    assert!(big.stats.needs.layer_points.max(big.stats.needs.offset_edges) <= 700);
+    let small = run_sized::<700, 64, 1024, 4096, 8192, 8192>(&tris, &settings, cfg)
+        .expect("a stage sized to the printing needs prints the model");
+    assert_eq!(small.layers.len(), big.layers.len());
+    for (a, b) in small.layers.iter().zip(&big.layers) {
+        assert_eq!(a.moves, b.moves, "layer {}", a.index);
+        if a.stats.thin_unmeasured == 0 {
+            assert_eq!(a.stats.thin_area_um2, b.stats.thin_area_um2, "layer {}", a.index);
+        } else {
+            assert!(a.stats.thin_area_um2 <= b.stats.thin_area_um2, "layer {}", a.index);
+        }
+    }
+    assert!(small.stats.thin_unmeasured > 0);
+    assert_eq!(small.stats.needs, big.stats.needs);
+    eprintln!(
+        "LM8UU: thin area {} um^2 (host), {} um^2 with {} islands unmeasured (PTS 700)",
+        big.stats.thin_area_um2, small.stats.thin_area_um2, small.stats.thin_unmeasured
+    );
 }

@@ -559,6 +559,7 @@ struct GcodeSummaryOut {
     thin_wall_area_mm2: f64,
     max_thin_wall_area_mm2: f64,
     max_thin_wall_layer: u32,
+    thin_wall_unmeasured_islands: u64,
     triangles: u32,
     gcode_lines: u64,
     gcode_bytes: usize,
@@ -604,6 +605,7 @@ pub fn run(args: &SliceArgs) -> Result<(), String> {
             thin_wall_area_mm2: mm2(st.thin_area_um2),
             max_thin_wall_area_mm2: mm2(st.max_thin_area_um2),
             max_thin_wall_layer: st.max_thin_area_layer,
+            thin_wall_unmeasured_islands: st.thin_unmeasured,
             triangles: run.slice.triangles,
             gcode_lines: run.gcode_stats.lines,
             gcode_bytes: run.gcode.len(),
@@ -656,6 +658,13 @@ pub fn run(args: &SliceArgs) -> Result<(), String> {
                 mm2(st.max_thin_area_um2),
                 st.max_thin_area_layer,
                 mm(cfg.line_width_um.into()),
+            );
+        }
+        if st.thin_unmeasured > 0 {
+            println!(
+                "note: the thin area of {} island cross-sections was not measured (offset \
+                 buffers too small for the measurement; their toolpaths are complete)",
+                st.thin_unmeasured
             );
         }
         if let Some(path) = &args.output {

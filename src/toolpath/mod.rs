@@ -23,9 +23,11 @@
 //!    corners sharper than 60 degrees), [`LayerStats::thin_area_um2`], summed in
 //!    [`ToolpathStats::thin_area_um2`] (0 for a rectangle: square corners come back whole;
 //!    each pass rounds to the um grid, so the error is at most ~1 um x the outline length).
-//!    It costs one more offset per island and layer and no memory beyond the offset engine's
-//!    (`PTS`), which a model with thin parts may need more of (the grown curves of thin
-//!    slivers overlap);
+//!    It costs one more offset per island and layer and no memory of its own: it runs in the
+//!    offset engine and the offset result buffer (`PTS`), outside the printing needs; where
+//!    it does not fit (the grown curves of thin slivers can overlap a lot), the island is
+//!    counted in [`LayerStats::thin_unmeasured`] and its toolpaths are unaffected
+//!    ([`ToolpathStats::thin_pts`]: the `PTS` the measurement used);
 //! 3. the infill domain is filled along scanlines ([`scan`], [`infill`]) at 45 degrees on even
 //!    layers and 135 on odd ones: solid where a top or bottom surface is within
 //!    `top_layers`/`bottom_layers` (found exactly along each line from the skin window, then
@@ -426,6 +428,9 @@ pub struct LayerStats {
     /// Area of the layer's cross-section that no line covers because it is thinner than a
     /// line width (thin walls, fins and whole thin islands; see the [module docs](self)), um^2.
     pub thin_area_um2: u64,
+    /// Islands whose thin area was not measured: the measurement did not fit the offset
+    /// buffers (`PTS`, see [`ToolpathStats::thin_pts`]); their toolpaths are complete.
+    pub thin_unmeasured: u32,
     /// Extrusion paths (loops and runs) before ordering.
     pub paths: u32,
     /// Extruding moves.
@@ -450,6 +455,7 @@ impl LayerStats {
         islands: 0,
         thin_islands: 0,
         thin_area_um2: 0,
+        thin_unmeasured: 0,
         paths: 0,
         extrusion_moves: 0,
         travel_moves: 0,
@@ -560,6 +566,12 @@ pub struct ToolpathStats {
     pub max_thin_area_um2: u64,
     /// The layer with that area.
     pub max_thin_area_layer: u32,
+    /// Islands whose thin area was not measured (offset buffers too small for it).
+    pub thin_unmeasured: u64,
+    /// `PTS` needed to print and to measure every island's thin area (at least the `PTS` of
+    /// [`needs`](Self::needs), which leave the measurement out: a stage sized to the needs
+    /// prints the same, but may leave some islands unmeasured).
+    pub thin_pts: u32,
     /// Offset boundary chains that could not be closed (should be 0).
     pub open_chains: u32,
     /// Buffer use.
@@ -711,6 +723,7 @@ impl<
         n.paths = self.paths.peak_paths as u32;
         n.ring_points = self.ring.peak as u32;
         n.spans = self.spans.peak as u32;
+        s.thin_pts = s.thin_pts.max(n.layer_points).max(n.offset_edges);
         s
     }
 
@@ -875,8 +888,9 @@ impl<
         // Perimeters and the infill domain, island by island.
         let min_width = i64::from(w / 8);
         for island in 0..islands {
-            // Doubled area of the island's opening by half a line (what lines can cover).
-            let mut opened2 = None;
+            // Doubled area of the island's opening by half a line (what lines can cover):
+            // `Some(None)` when the measurement did not fit the offset buffers.
+            let mut opened2: Option<Option<i64>> = None;
             for depth in 0..cfg.perimeters {
                 let d = i32::from(depth) * w + w / 2;
                 self.offset_island(island, d)?;
@@ -885,6 +899,7 @@ impl<
                 if self.tmp.rings().is_empty() {
                     if depth == 0 {
                         layer.thin_islands += 1;
+                        opened2 = Some(Some(0));
                     }
                     break;
                 }
@@ -895,23 +910,32 @@ impl<
                     self.paths.add_loop(pts, feature, island, PathKind::Perimeter(depth))?;
                 }
                 if depth == 0 {
-                    opened2 = Some(self.grow_tmp_area2(island)?);
+                    opened2 = Some(self.measure(|t| t.grow_tmp_area2(island)));
                 }
             }
             let opened2 = match opened2 {
                 Some(a) => a,
-                None if cfg.perimeters > 0 => 0,
-                None => {
-                    // No perimeters: the centre lines of an external perimeter all the same.
-                    self.offset_island(island, w / 2)?;
-                    self.tmp.clear();
-                    self.eng.union_into(&mut self.tmp, island, 0, min_width)?;
-                    self.grow_tmp_area2(island)?
-                }
+                // No perimeters: the centre lines of an external perimeter all the same.
+                None => self.measure(|t| {
+                    t.offset_island(island, w / 2)?;
+                    t.tmp.clear();
+                    t.eng.union_into(&mut t.tmp, island, 0, min_width)?;
+                    t.grow_tmp_area2(island)
+                }),
             };
-            let region2: i64 =
-                self.contour.rings().iter().filter(|r| r.island == island).map(|r| r.area2).sum();
-            layer.thin_area_um2 += ((region2 - opened2).max(0) / 2) as u64;
+            match opened2 {
+                Some(opened2) => {
+                    let region2: i64 = self
+                        .contour
+                        .rings()
+                        .iter()
+                        .filter(|r| r.island == island)
+                        .map(|r| r.area2)
+                        .sum();
+                    layer.thin_area_um2 += ((region2 - opened2).max(0) / 2) as u64;
+                }
+                None => layer.thin_unmeasured += 1,
+            }
             self.offset_island(island, cfg.infill_inset_um())?;
             self.eng.union_into(&mut self.fill, island, 0, min_width)?;
         }
@@ -966,6 +990,7 @@ impl<
         st.filament_um += ls.filament_um;
         st.thin_islands += u64::from(ls.thin_islands);
         st.thin_area_um2 += ls.thin_area_um2;
+        st.thin_unmeasured += u64::from(ls.thin_unmeasured);
         if ls.thin_area_um2 > st.max_thin_area_um2 {
             st.max_thin_area_um2 = ls.thin_area_um2;
             st.max_thin_area_layer = l;
@@ -982,6 +1007,20 @@ impl<
         }
         self.next_out = l + 1;
         Ok(())
+    }
+
+    /// Runs a thin-area measurement: its use of the offset engine and of `tmp` is kept out
+    /// of the printing needs (recorded in [`ToolpathStats::thin_pts`]), and a buffer it
+    /// overflows gives `None` instead of an error (the toolpaths do not depend on it).
+    fn measure(&mut self, f: impl FnOnce(&mut Self) -> Result<i64, Buffer>) -> Option<i64> {
+        let (peaks, points, rings) = (self.eng.peaks, self.tmp.peak_points, self.tmp.peak_rings);
+        let r = f(self);
+        let p = self.eng.peaks;
+        let used = p.edges.max(p.splits).max(p.pieces).max(self.tmp.peak_points);
+        self.stats.thin_pts = self.stats.thin_pts.max(used as u32);
+        (self.eng.peaks, self.tmp.peak_points, self.tmp.peak_rings) = (peaks, points, rings);
+        self.tmp.clear();
+        r.ok()
     }
 
     /// Grows the loops in `tmp` (the island's contours offset inwards by half a line) back

@@ -41,6 +41,23 @@ pub fn run_cfg(
     settings: &PrintSettings,
     cfg: ToolpathConfig,
 ) -> Result<TpRun, String> {
+    run_sized::<16384, 1024, 32768, 65536, 65536, 65536>(tris, settings, cfg)
+}
+
+/// [`run_cfg`] with a toolpath stage of the given capacities (PTS, LOOPS, CROSS, PATH,
+/// RING, SPANS).
+pub fn run_sized<
+    const PTS: usize,
+    const LOOPS: usize,
+    const CROSS: usize,
+    const PATH: usize,
+    const RING: usize,
+    const SPANS: usize,
+>(
+    tris: &[Triangle],
+    settings: &PrintSettings,
+    cfg: ToolpathConfig,
+) -> Result<TpRun, String> {
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let slice_cfg = SliceConfig::new(settings, top).map_err(|e| e.to_string())?;
     std::thread::scope(|scope| {
@@ -48,7 +65,10 @@ pub fn run_cfg(
             .stack_size(512 << 20)
             .spawn_scoped(scope, move || -> Result<TpRun, String> {
                 let mut slicer = Box::new(TestSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
-                let mut tp = Box::new(TestToolpath::new(cfg).map_err(|e| e.to_string())?);
+                let mut tp = Box::new(
+                    Toolpath::<PTS, LOOPS, CROSS, PATH, RING, SPANS>::new(cfg)
+                        .map_err(|e| e.to_string())?,
+                );
                 let mut layers: Vec<TpLayer> = Vec::new();
                 let mut contours: Vec<Vec<(Vec<Point2>, bool)>> = Vec::new();
                 let mut stray = 0usize;
