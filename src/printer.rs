@@ -479,7 +479,8 @@ impl<
             state: self.state,
             layer: self.layers_planned,
             layers: self.layers,
-            planned_ms: (self.planned_s() * 1000.0) as u32,
+            planned_ms: ((self.planner.released_ticks_q16() >> 16) * 1000
+                / self.plan_cfg.timer_hz.max(1) as u64) as u32,
             done_ms,
             triangles: self.triangles,
             queue_fill_pct: (self.moves.len() * 100 / MOVES.max(1)) as u8,
