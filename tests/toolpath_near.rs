@@ -1,7 +1,8 @@
 //! The nearest-path grid ([`strata::toolpath::near`]) returns exactly what a brute-force
 //! scan returns (same item, same squared distance, lowest id among equals) on random point
 //! sets, with items absent, filtered out and removed, queries inside and far outside the
-//! grid, heavy duplicates and every cell budget; and refuses item buffers that are too short.
+//! grid, heavy duplicates and every cell budget, over the whole grid and within a box; and
+//! refuses item buffers that are too short.
 
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
@@ -59,6 +60,19 @@ fn grid_nearest_equals_brute_force() {
                 let got = grid.nearest(q, pos, accept);
                 let want = nearest_brute(n, q, live, accept);
                 prop_assert_eq!(got, want, "query {:?}", q);
+                // Restricted to a box around the next query point: the same as the scan of
+                // the items inside it.
+                let (bx, by) = queries[(k + 1) % queries.len()];
+                let half = 1_000 + ((salt >> 8) % 60_000) as i32;
+                let (lo, hi) =
+                    (Point2::new(bx - half, by - half), Point2::new(bx + half, by + half));
+                let inside = |id: u32| {
+                    pos(id)
+                        .is_some_and(|p| lo.x <= p.x && p.x <= hi.x && lo.y <= p.y && p.y <= hi.y)
+                };
+                let got = grid.nearest_in(q, lo, hi, pos, |id| inside(id) && accept(id));
+                let want = nearest_brute(n, q, live, |id| inside(id) && accept(id));
+                prop_assert_eq!(got, want, "query {:?} in {:?}..{:?}", q, lo, hi);
             }
             Ok(())
         })
@@ -87,6 +101,15 @@ fn one_cell_and_empty_grids_work() {
     assert_eq!(g.nearest(Point2::new(10, 10), pos, |_| true), Some((0, 0)));
     assert_eq!(g.nearest(Point2::new(10, 10), pos, |i| i != 0), Some((0, 2)));
     assert_eq!(g.nearest(Point2::new(10, 10), pos, |_| false), None);
+    // Boxes: one holding only id 1, an empty one (lo above hi).
+    assert_eq!(
+        g.nearest_in(Point2::new(10, 10), Point2::new(-5, 0), Point2::new(0, 8), pos, |i| i == 1),
+        Some((205, 1))
+    );
+    assert_eq!(
+        g.nearest_in(Point2::new(10, 10), Point2::new(5, 5), Point2::new(1, 1), pos, |_| true),
+        None
+    );
     let (mut head, mut next) = ([0u32; 8], [0u32; 0]);
     let g = NearGrid::build(0, |_| None, &mut head, &mut next).unwrap();
     assert_eq!(g.nearest(Point2::new(1, 1), |_| None, |_| true), None);

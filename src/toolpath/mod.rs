@@ -41,7 +41,8 @@
 //!    runs, nearest first from either end; loops start at the rear-most vertex; the nearest
 //!    path is found in a uniform grid of the paths' entry points ([`near`]) built in the
 //!    infill scratch buffers (cells in one `CROSS` array, two entries per path in another;
-//!    when the layer has more than `CROSS / 2` paths, by scanning them all: same order);
+//!    when the layer has more than `CROSS / 2` paths, by scanning them: same order), searched
+//!    within the island's box once an island is chosen (its paths are grouped first);
 //!    a travel that
 //!    would cross a contour is combed along the island's external perimeter, and retracts
 //!    only when no such route exists (another island) and it is at least 1.5 mm long.

@@ -136,9 +136,42 @@ impl<'a> NearGrid<'a> {
         &self,
         p: Point2,
         pos: impl Fn(u32) -> Option<Point2>,
+        accept: impl FnMut(u32) -> bool,
+    ) -> Option<(i64, u32)> {
+        self.search(p, (0, 0, self.nx - 1, self.ny - 1), pos, accept)
+    }
+
+    /// [`nearest`](Self::nearest) among the items inside the box `lo`..=`hi` (`None` for an
+    /// empty box; only the cells
+    /// it overlaps are searched, so an accepted item outside it may be missed: the caller
+    /// makes sure there is none). A search that finds nothing costs the box's cells, not
+    /// the whole grid's.
+    pub fn nearest_in(
+        &self,
+        p: Point2,
+        lo: Point2,
+        hi: Point2,
+        pos: impl Fn(u32) -> Option<Point2>,
+        accept: impl FnMut(u32) -> bool,
+    ) -> Option<(i64, u32)> {
+        if lo.x > hi.x || lo.y > hi.y {
+            return None;
+        }
+        let (x0, y0) = self.clamp_xy(lo);
+        let (x1, y1) = self.clamp_xy(hi);
+        self.search(p, (x0, y0, x1, y1), pos, accept)
+    }
+
+    /// Ring search from `p`'s cell within the cell window `(x0, y0, x1, y1)` (inclusive).
+    fn search(
+        &self,
+        p: Point2,
+        (wx0, wy0, wx1, wy1): (i64, i64, i64, i64),
+        pos: impl Fn(u32) -> Option<Point2>,
         mut accept: impl FnMut(u32) -> bool,
     ) -> Option<(i64, u32)> {
         let (cx, cy) = self.clamp_xy(p);
+        let (cx, cy) = (cx.clamp(wx0, wx1), cy.clamp(wy0, wy1));
         let mut best: Option<(i64, u32)> = None;
         let mut visit = |c: usize, best: &mut Option<(i64, u32)>| {
             let mut id = self.head[c];
@@ -152,38 +185,38 @@ impl<'a> NearGrid<'a> {
                 id = self.next[id as usize];
             }
         };
-        let rmax = self.nx.max(self.ny);
+        let (ox, oy) = (i64::from(self.origin.x), i64::from(self.origin.y));
+        let (px, py) = (i64::from(p.x), i64::from(p.y));
+        let rmax = (wx1 - wx0).max(wy1 - wy0);
         for r in 0..=rmax {
             let (x0, x1, y0, y1) = (cx - r, cx + r, cy - r, cy + r);
-            for y in y0.max(0)..=y1.min(self.ny - 1) {
+            for y in y0.max(wy0)..=y1.min(wy1) {
                 let row = y * self.nx;
                 if y == y0 || y == y1 {
-                    for x in x0.max(0)..=x1.min(self.nx - 1) {
+                    for x in x0.max(wx0)..=x1.min(wx1) {
                         visit((row + x) as usize, &mut best);
                     }
                 } else {
                     for x in [x0, x1] {
-                        if (0..self.nx).contains(&x) {
+                        if (wx0..=wx1).contains(&x) {
                             visit((row + x) as usize, &mut best);
                         }
                     }
                 }
             }
             // Anything not visited yet lies beyond a side of the searched square that is
-            // inside the grid, at least that side's distance from `p`.
-            let (ox, oy) = (i64::from(self.origin.x), i64::from(self.origin.y));
-            let (px, py) = (i64::from(p.x), i64::from(p.y));
+            // inside the window, at least that side's distance from `p`.
             let mut bound = i64::MAX;
-            if x0 > 0 {
+            if x0 > wx0 {
                 bound = bound.min((px - (ox + x0 * self.cell)).max(0));
             }
-            if x1 < self.nx - 1 {
+            if x1 < wx1 {
                 bound = bound.min((ox + (x1 + 1) * self.cell - px).max(0));
             }
-            if y0 > 0 {
+            if y0 > wy0 {
                 bound = bound.min((py - (oy + y0 * self.cell)).max(0));
             }
-            if y1 < self.ny - 1 {
+            if y1 < wy1 {
                 bound = bound.min((oy + (y1 + 1) * self.cell - py).max(0));
             }
             if bound == i64::MAX {

@@ -5,8 +5,10 @@
 //! from where the nozzle is; loops start at their seam (the rear-most vertex, or the nearest
 //! one), open runs at whichever end is closer. The nearest path is looked up in a
 //! [`NearGrid`] of every path's entry points (rear seams are rotated to the front of their
-//! loop first), so a layer of `n` paths costs about `n` grid lookups instead of `n^2`
-//! distance checks; loops whose entry depends on the nozzle (nearest-vertex seams) are
+//! loop first) and, once an island is chosen, only within the box of its paths' entries (the
+//! path records are grouped by island first, keeping their order), so a layer of `n` paths
+//! costs about `n` grid lookups instead of `n^2` distance checks (islands of at most
+//! 16 paths are simply scanned); loops whose entry depends on the nozzle (nearest-vertex seams) are
 //! scanned beside it, and a layer whose paths do not fit the grid's buffers is scanned
 //! whole. The choice is the scan's in every case (lowest index among equally near paths). A travel that crosses no contour of the layer
 //! stays inside the part (combing) and needs no retraction; one that crosses a contour and is
@@ -16,6 +18,8 @@
 //! Extrusion: `E = width x height x length / filament area`, accumulated as an exact volume
 //! (um^3 x 16) and converted to a rounded absolute filament position, so per-move rounding
 //! never drifts. The filament area uses pi = 355/113 (relative error 8.5e-8).
+
+use core::ops::Range;
 
 use crate::geom::Point2;
 use crate::machine::Rate;
@@ -528,15 +532,25 @@ fn fixed_entry<const N: usize, const R: usize>(
     }
 }
 
+/// Islands with at most this many paths are searched by scanning them.
+const SCAN_MAX: usize = 16;
+
 /// Path search of one layer: a [`NearGrid`] over the fixed entry points (item `2 i + end`
-/// for path `i`), plus a scan of the loops whose entry depends on the nozzle; a scan of all
-/// paths when the grid does not fit its buffers. Every query returns what the plain scan
-/// over all paths returns (the nearest entry, the lowest path index among equals, the first
-/// end of a path among equals).
+/// for path `i`), plus a scan of the loops whose entry depends on the nozzle; a scan when the
+/// grid does not fit its buffers or the paths searched are few. Every query returns what
+/// the plain scan over the same paths returns (the nearest entry, the lowest path index
+/// among equals, the first end of a path among equals).
 struct Finder<'g> {
     grid: Option<NearGrid<'g>>,
     /// Some path's entry depends on the nozzle position (nearest-vertex loops).
     loose: bool,
+}
+
+/// The paths one search looks at: indices `range`, entries inside `window` if given.
+#[derive(Clone)]
+struct Scope {
+    range: Range<usize>,
+    window: Option<(Point2, Point2)>,
 }
 
 impl<'g> Finder<'g> {
@@ -562,34 +576,63 @@ impl<'g> Finder<'g> {
         Self { grid, loose }
     }
 
-    /// The nearest path from `from` among those `accept` takes (never a done one):
-    /// (squared distance, index, start point, reversed).
+    /// The scope of paths `range`: with the bounding box of their fixed entries.
+    fn scope<const N: usize, const R: usize>(
+        paths: &PathBuf<N, R>,
+        seam: Seam,
+        range: Range<usize>,
+    ) -> Scope {
+        let mut window: Option<(Point2, Point2)> = None;
+        for i in range.clone() {
+            for end in 0..2 {
+                if let Some(p) = fixed_entry(paths, seam, i, end) {
+                    let (lo, hi) = window.get_or_insert((p, p));
+                    *lo = Point2::new(lo.x.min(p.x), lo.y.min(p.y));
+                    *hi = Point2::new(hi.x.max(p.x), hi.y.max(p.y));
+                }
+            }
+        }
+        Scope { range, window }
+    }
+
+    /// The nearest path from `from` among those of `scope` that `accept` takes (never a
+    /// done one): (squared distance, index, start point, reversed).
     fn find<const N: usize, const R: usize>(
         &self,
         paths: &PathBuf<N, R>,
         seam: Seam,
         from: Point2,
+        scope: &Scope,
         accept: &dyn Fn(&PathRec) -> bool,
     ) -> Option<(i64, usize, usize, bool)> {
         let recs = paths.recs();
-        let Some(grid) = &self.grid else {
-            let mut pick: Option<(i64, usize, usize, bool)> = None;
-            for (i, r) in recs.iter().enumerate() {
-                if r.done || !accept(r) {
-                    continue;
+        let range = scope.range.clone();
+        let grid = match &self.grid {
+            Some(g) if range.len() > SCAN_MAX => g,
+            _ => {
+                let mut pick: Option<(i64, usize, usize, bool)> = None;
+                for i in range {
+                    let r = &recs[i];
+                    if r.done || !accept(r) {
+                        continue;
+                    }
+                    let (start, rev, d) = entry(paths, r, seam, from);
+                    if pick.map_or(true, |p| d < p.0) {
+                        pick = Some((d, i, start, rev));
+                    }
                 }
-                let (start, rev, d) = entry(paths, r, seam, from);
-                if pick.map_or(true, |p| d < p.0) {
-                    pick = Some((d, i, start, rev));
-                }
+                return pick;
             }
-            return pick;
         };
         let pos = |id: u32| fixed_entry(paths, seam, (id / 2) as usize, id % 2);
-        let hit = grid.nearest(from, pos, |id| {
-            let r = &recs[(id / 2) as usize];
-            !r.done && accept(r)
-        });
+        let take = |id: u32| {
+            let i = (id / 2) as usize;
+            range.contains(&i) && !recs[i].done && accept(&recs[i])
+        };
+        let hit = match scope.window {
+            Some((lo, hi)) => grid.nearest_in(from, lo, hi, pos, take),
+            None => grid.nearest(from, pos, take),
+        };
         let mut pick = hit.map(|(d, id)| {
             let i = (id / 2) as usize;
             let rev = id % 2 == 1;
@@ -597,7 +640,8 @@ impl<'g> Finder<'g> {
             (d, i, start, rev)
         });
         if self.loose {
-            for (i, r) in recs.iter().enumerate() {
+            for i in range.clone() {
+                let r = &recs[i];
                 if r.done || !r.closed || fixed_entry(paths, seam, i, 0).is_some() || !accept(r) {
                     continue;
                 }
@@ -629,7 +673,8 @@ impl<'g> Finder<'g> {
 
 /// Emits every path of the layer in order. `island_stage` is scratch (one entry per island);
 /// `grid_head` and `grid_next` are scratch for the nearest-path grid (cells and two entries
-/// per path; when `grid_next` holds fewer, paths are found by scanning them all).
+/// per path; when `grid_next` holds fewer, paths are found by scanning them). The path
+/// records are sorted by island (stable) first, so each island's paths are a range.
 pub fn emit_layer<const N: usize, const R: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
@@ -640,6 +685,7 @@ pub fn emit_layer<const N: usize, const R: usize>(
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     let cfg = ctx.cfg;
+    let seam = cfg.seam;
     for s in island_stage.iter_mut() {
         *s = u8::MAX;
     }
@@ -653,13 +699,13 @@ pub fn emit_layer<const N: usize, const R: usize>(
     for i in 0..n {
         let r = paths.recs()[i];
         if r.kind == PathKind::Skirt {
-            let (start, rev, _) = entry(paths, &r, cfg.seam, em.pos);
+            let (start, rev, _) = entry(paths, &r, seam, em.pos);
             print_path(em, ctx, paths, &r, start, rev, sink);
             paths.set_done(i);
         }
     }
     // Rear seams: every perimeter loop starts at its rear-most vertex.
-    if cfg.seam == Seam::Rear {
+    if seam == Seam::Rear {
         for i in 0..n {
             let r = paths.recs()[i];
             if r.closed && !r.done && matches!(r.kind, PathKind::Perimeter(_)) {
@@ -668,7 +714,9 @@ pub fn emit_layer<const N: usize, const R: usize>(
             }
         }
     }
-    let mut finder = Finder::new(paths, cfg.seam, grid_head, grid_next);
+    paths.sort_by_island();
+    let mut finder = Finder::new(paths, seam, grid_head, grid_next);
+    let everything = Scope { range: 0..n, window: None };
     let infill_stage = stage(&PathRec { kind: PathKind::Infill, ..paths::EMPTY_REC }, cfg);
     loop {
         // Next island: the nearest path among each island's first stage.
@@ -676,42 +724,49 @@ pub fn emit_layer<const N: usize, const R: usize>(
             let stages = &*island_stage;
             let first_stage =
                 |r: &PathRec| stages.get(r.island as usize).copied() == Some(stage(r, cfg));
-            finder.find(paths, cfg.seam, em.pos, &first_stage)
+            finder.find(paths, seam, em.pos, &everything, &first_stage)
         };
         let Some((_, first, _, _)) = first else { break };
         let island = paths.recs()[first].island;
+        let recs = paths.recs();
+        let range = recs.partition_point(|r| r.island < island)
+            ..recs.partition_point(|r| r.island <= island);
+        let scope = if range.len() > SCAN_MAX {
+            Finder::scope(paths, seam, range.clone())
+        } else {
+            Scope { range: range.clone(), window: None }
+        };
         // Stages of this island in order, nearest first within each; after a perimeter
         // loop, the nearest loop of the next perimeter stage if any (the loops around one
         // hole go together).
         let mut chain: Option<u8> = None;
         while let Some(&min_stage) = island_stage.get(island as usize) {
-            let in_stage = |st: u8| move |r: &PathRec| r.island == island && stage(r, cfg) == st;
+            let in_stage = |st: u8| move |r: &PathRec| stage(r, cfg) == st;
             let mut st = min_stage;
             let mut pick = None;
             if let Some(c) = chain {
-                pick = finder.find(paths, cfg.seam, em.pos, &in_stage(c));
+                pick = finder.find(paths, seam, em.pos, &scope, &in_stage(c));
                 if pick.is_some() {
                     st = c;
                 }
             }
             if pick.is_none() {
-                pick = finder.find(paths, cfg.seam, em.pos, &in_stage(min_stage));
+                pick = finder.find(paths, seam, em.pos, &scope, &in_stage(min_stage));
             }
             match pick {
                 Some((_, i, start, rev)) => {
                     let r = paths.recs()[i];
                     print_path(em, ctx, paths, &r, start, rev, sink);
-                    finder.done(paths, cfg.seam, i);
+                    finder.done(paths, seam, i);
                     paths.set_done(i);
                     chain = (st + 1 < infill_stage).then_some(st + 1);
                 }
                 None => {
                     chain = None;
                     // Stage done: the next one present in this island.
-                    let next = paths
-                        .recs()
+                    let next = paths.recs()[range.clone()]
                         .iter()
-                        .filter(|r| !r.done && r.island == island)
+                        .filter(|r| !r.done)
                         .map(|r| stage(r, cfg))
                         .min();
                     match (next, island_stage.get_mut(island as usize)) {

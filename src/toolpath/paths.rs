@@ -185,6 +185,13 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
         }
     }
 
+    /// Sorts the path records by island, keeping their order within an island.
+    pub fn sort_by_island(&mut self) {
+        // `start` grows with the order the paths were added in: a stable sort without
+        // allocation.
+        self.recs[..self.nr].sort_unstable_by_key(|r| (r.island, r.start));
+    }
+
     /// Makes point `k` of closed path `i` its first (same loop, same direction).
     pub fn rotate_loop(&mut self, i: usize, k: usize) {
         let Some(r) = self.recs.get(i) else { return };
