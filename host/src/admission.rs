@@ -311,7 +311,8 @@ const BARY: [[f64; 3]; 13] = [
 ];
 
 /// Two-sided Hausdorff estimate between two surfaces, mm: every vertex of `a` against `b`,
-/// and the [`BARY`] points of every triangle of `b` against `a`.
+/// and 13 sample points of every triangle of `b` (corners, edge midpoints, centroid, 6
+/// interior) against `a`.
 pub fn hausdorff_mm(a: &[Triangle], b: &[Triangle]) -> f64 {
     let mesh = Indexed::weld(a);
     deviation(&mesh, a, b, f64::INFINITY).0
