@@ -412,7 +412,7 @@ impl<
 
     fn close_layer(&mut self) {
         if let Some((l, h)) = self.hash_layer.take() {
-            // 8 pending reports at most: the host hears them within a few polls.
+            // Callers check for room first (motion waits while 8 reports are pending).
             let _ = self.done.push_back((l, h));
             self.layers_planned = l + 1;
         }
@@ -446,6 +446,11 @@ impl<
         let input_done = self.toolpath_done && self.moves.is_empty();
         if self.state == DeviceState::Printing {
             while self.gen.wants_block() && (input_done || self.planner.is_full()) {
+                // A new layer closes the previous one's hash: wait while the reports are full.
+                let next_layer = self.tags.front().copied().unwrap_or(0);
+                if self.done.is_full() && self.hash_layer.is_some_and(|(l, _)| l != next_layer) {
+                    break;
+                }
                 let Some(b) = self.planner.pop_forced() else { break };
                 let layer = self.tags.pop_front().unwrap_or(0);
                 match self.hash_layer {
@@ -465,7 +470,7 @@ impl<
             }
         }
         let _ = self.gen.run(out);
-        if input_done && self.planner.is_empty() && self.gen.is_idle() {
+        if input_done && self.planner.is_empty() && self.gen.is_idle() && !self.done.is_full() {
             self.close_layer();
             self.state = DeviceState::Done;
             worked = true;
@@ -531,7 +536,8 @@ impl<
             }
         }
         let due = now_ms.wrapping_sub(self.status_due_ms) < 1 << 31;
-        if (due || self.state != before) && ep.tx_free() > 0 {
+        // Every layer report goes out before a status (the host ends on `Done`).
+        if (due || self.state != before) && ep.tx_free() > 0 && self.done.is_empty() {
             if let Ok(n) = Message::Status(self.status(done_ms)).encode(&mut buf) {
                 if ep.send(&buf[..n]).is_ok() {
                     self.status_due_ms = now_ms.wrapping_add(status_every_ms);
