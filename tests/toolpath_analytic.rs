@@ -11,7 +11,9 @@ use slice_support::{cuboid, holed_prism, ngon, to_um, TriMm};
 use strata::geom::Point2;
 use strata::machine::{InfillPattern, MachineConfig, PrintSettings};
 use strata::toolpath::{Feature, ToolpathConfig};
-use toolpath_support::{extrusions, layer_starts, run, run_cfg, TpLayer, TpRun};
+use toolpath_support::{
+    extrusions, inside, layer_starts, point_seg_dist, pt, run, run_cfg, TpLayer, TpRun,
+};
 
 const W: f64 = 450.0; // line width, um
 const H: f64 = 200.0; // layer height, um
@@ -19,35 +21,6 @@ const H: f64 = 200.0; // layer height, um
 /// Filament cross-section in um^2 (1.75 mm).
 fn filament_area() -> f64 {
     PI * 875.0 * 875.0
-}
-
-fn pt(p: Point2) -> (f64, f64) {
-    (f64::from(p.x), f64::from(p.y))
-}
-
-/// Non-zero winding of `p` in the loops (f64).
-fn inside(loops: &[(Vec<Point2>, bool)], p: (f64, f64)) -> bool {
-    let mut w = 0;
-    for (l, _) in loops {
-        for k in 0..l.len() {
-            let (a, b) = (pt(l[k]), pt(l[(k + 1) % l.len()]));
-            if (a.1 <= p.1) != (b.1 <= p.1) {
-                let x = a.0 + (p.1 - a.1) / (b.1 - a.1) * (b.0 - a.0);
-                if x > p.0 {
-                    w += if b.1 > a.1 { 1 } else { -1 };
-                }
-            }
-        }
-    }
-    w != 0
-}
-
-fn point_seg_dist(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
-    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-    let l2 = dx * dx + dy * dy;
-    let t =
-        if l2 == 0.0 { 0.0 } else { (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / l2).clamp(0.0, 1.0) };
-    ((p.0 - a.0 - t * dx).powi(2) + (p.1 - a.1 - t * dy).powi(2)).sqrt()
 }
 
 fn cross(o: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {

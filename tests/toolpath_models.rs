@@ -146,43 +146,13 @@ fn xyz_cube_top_is_covered_and_every_extrusion_inside() {
 
 /// Raster coverage and containment in f64 (same models as tests/toolpath_analytic.rs).
 mod coverage {
-    use super::toolpath_support::{extrusions, layer_starts, TpRun};
-    use strata::geom::Point2;
+    use super::toolpath_support::{
+        extrusions, inside, layer_starts, point_seg_dist as seg_dist, pt, TpRun,
+    };
     use strata::toolpath::Feature;
 
     const W: f64 = 450.0;
     const CELL: f64 = 50.0;
-
-    fn pt(p: Point2) -> (f64, f64) {
-        (f64::from(p.x), f64::from(p.y))
-    }
-
-    fn inside(loops: &[(Vec<Point2>, bool)], p: (f64, f64)) -> bool {
-        let mut w = 0;
-        for (l, _) in loops {
-            for k in 0..l.len() {
-                let (a, b) = (pt(l[k]), pt(l[(k + 1) % l.len()]));
-                if (a.1 <= p.1) != (b.1 <= p.1) {
-                    let x = a.0 + (p.1 - a.1) / (b.1 - a.1) * (b.0 - a.0);
-                    if x > p.0 {
-                        w += if b.1 > a.1 { 1 } else { -1 };
-                    }
-                }
-            }
-        }
-        w != 0
-    }
-
-    fn seg_dist(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
-        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-        let l2 = dx * dx + dy * dy;
-        let t = if l2 == 0.0 {
-            0.0
-        } else {
-            (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / l2).clamp(0.0, 1.0)
-        };
-        ((p.0 - a.0 - t * dx).powi(2) + (p.1 - a.1 - t * dy).powi(2)).sqrt()
-    }
 
     /// Covered fraction and area (mm^2) of layer `l`'s top surface.
     pub fn top(run: &TpRun, l: usize) -> (f64, f64) {
