@@ -21,7 +21,7 @@
 use crate::geom::Point2;
 
 use super::paths::{PathBuf, PathKind};
-use super::poly::{dist, segments_touch, Ring};
+use super::poly::{dist, segment_touches_rings, Ring};
 use super::scan::{crossings, intervals, sort_by_line, Angle, Crossing, Interval};
 use super::{Buffer, Feature};
 
@@ -523,32 +523,6 @@ fn emit_seg<const N: usize, const R: usize>(
     Ok(())
 }
 
-/// Does the segment a-b touch the boundary of the domain?
-fn crosses_domain(points: &[Point2], rings: &[Ring], a: Point2, b: Point2) -> bool {
-    let (lo, hi) =
-        (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
-    for r in rings {
-        if r.max.x < lo.x || r.min.x > hi.x || r.max.y < lo.y || r.min.y > hi.y {
-            continue;
-        }
-        let pts = points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]);
-        let Some(&last) = pts.last() else { continue };
-        let mut p = last;
-        for &q in pts {
-            if !(p.x.max(q.x) < lo.x
-                || p.x.min(q.x) > hi.x
-                || p.y.max(q.y) < lo.y
-                || p.y.min(q.y) > hi.y)
-                && segments_touch(a, b, p, q)
-            {
-                return true;
-            }
-            p = q;
-        }
-    }
-    false
-}
-
 /// Where a run stands: at segment `seg`'s `u1` end (`at_u1`) or its `u0` end.
 #[derive(Clone, Copy)]
 struct End {
@@ -679,7 +653,7 @@ fn interior_link(
         }
     }
     let (_, e) = best?;
-    (!crosses_domain(points, rings, here, e.point(p, segs))).then_some(e)
+    (!segment_touches_rings(points, rings, here, e.point(p, segs))).then_some(e)
 }
 
 /// Links segments into runs and emits them as paths.

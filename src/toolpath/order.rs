@@ -27,7 +27,7 @@ use crate::machine::Rate;
 use super::near::NearGrid;
 use super::paths;
 use super::paths::{PathBuf, PathKind, PathRec};
-use super::poly::{dist, dist2, isqrt, orient, segments_touch, Ring};
+use super::poly::{dist, dist2, isqrt, orient, segment_touches_rings, segments_touch, Ring};
 use super::{Feature, LayerStats, Seam, ToolEvent, ToolMove, ToolpathConfig};
 
 /// A comb router: waypoints from the first point to the second, `false` if none.
@@ -120,28 +120,7 @@ impl Ctx<'_> {
 
     /// Does the segment touch any contour edge of the layer?
     fn crosses_contour(&self, a: Point2, b: Point2) -> bool {
-        let (lo, hi) =
-            (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
-        for r in self.rings {
-            if r.max.x < lo.x || r.min.x > hi.x || r.max.y < lo.y || r.min.y > hi.y {
-                continue;
-            }
-            let pts = self.points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]);
-            let Some(&last) = pts.last() else { continue };
-            let mut p = last;
-            for &q in pts {
-                if !(p.x.max(q.x) < lo.x
-                    || p.x.min(q.x) > hi.x
-                    || p.y.max(q.y) < lo.y
-                    || p.y.min(q.y) > hi.y)
-                    && segments_touch(a, b, p, q)
-                {
-                    return true;
-                }
-                p = q;
-            }
-        }
-        false
+        segment_touches_rings(self.points, self.rings, a, b)
     }
 }
 

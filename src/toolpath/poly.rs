@@ -254,6 +254,33 @@ pub fn segments_touch(a: Point2, b: Point2, c: Point2, d: Point2) -> bool {
     !(((d1 > 0 && d2 > 0) || (d1 < 0 && d2 < 0)) || ((d3 > 0 && d4 > 0) || (d3 < 0 && d4 < 0)))
 }
 
+/// Does the segment a-b touch an edge of any ring (`points` holds the rings' corners)?
+/// Rings and edges outside the segment's bounding box are skipped.
+pub fn segment_touches_rings(points: &[Point2], rings: &[Ring], a: Point2, b: Point2) -> bool {
+    let (lo, hi) =
+        (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
+    for r in rings {
+        if r.max.x < lo.x || r.min.x > hi.x || r.max.y < lo.y || r.min.y > hi.y {
+            continue;
+        }
+        let pts = points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]);
+        let Some(&last) = pts.last() else { continue };
+        let mut p = last;
+        for &q in pts {
+            if !(p.x.max(q.x) < lo.x
+                || p.x.min(q.x) > hi.x
+                || p.y.max(q.y) < lo.y
+                || p.y.min(q.y) > hi.y)
+                && segments_touch(a, b, p, q)
+            {
+                return true;
+            }
+            p = q;
+        }
+    }
+    false
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
