@@ -94,6 +94,28 @@ pub struct LinePiece {
     kind: Kind,
 }
 
+impl LinePiece {
+    /// An empty piece (buffer filler).
+    pub const EMPTY: Self = Self { u1: 0, kind: Kind::None };
+}
+
+impl LineSeg {
+    /// An empty segment (buffer filler).
+    pub const EMPTY: Self = Self {
+        line: 0,
+        u0: 0,
+        u1: 0,
+        c0: 0,
+        c1: 0,
+        piece0: 0,
+        npieces: 0,
+        island: 0,
+        used: false,
+        solid: false,
+        linkable: false,
+    };
+}
+
 /// The skin window as seen from one layer at one angle.
 #[derive(Debug, Clone, Copy)]
 pub struct SkinView<'a> {

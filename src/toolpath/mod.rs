@@ -358,7 +358,8 @@ pub enum ToolpathError {
         /// The index received.
         got: u32,
     },
-    /// `push_layer` or `finish` after `finish` (call `reset`).
+    /// `push_layer` or `finish` after `finish`, or on a [`Toolpath::empty`] stage never
+    /// [`reset`](Toolpath::reset) (call `reset`).
     Finished,
 }
 
@@ -579,6 +580,69 @@ pub struct ToolpathStats {
     pub needs: ToolpathNeeds,
 }
 
+impl ToolpathNeeds {
+    /// All zero.
+    pub const EMPTY: Self = Self {
+        layer_points: 0,
+        layer_loops: 0,
+        offset_edges: 0,
+        crossings: 0,
+        path_points: 0,
+        paths: 0,
+        ring_points: 0,
+        spans: 0,
+    };
+}
+
+impl ToolpathStats {
+    /// All zero.
+    pub const EMPTY: Self = Self {
+        layers: 0,
+        extrusion_moves: 0,
+        travel_moves: 0,
+        retractions: 0,
+        stops: 0,
+        travel_um: 0,
+        filament_um: 0,
+        thin_islands: 0,
+        thin_area_um2: 0,
+        max_thin_area_um2: 0,
+        max_thin_area_layer: 0,
+        thin_unmeasured: 0,
+        thin_pts: 0,
+        open_chains: 0,
+        needs: ToolpathNeeds::EMPTY,
+    };
+}
+
+/// The configuration of a [`Toolpath::empty`] stage until its [`reset`](Toolpath::reset):
+/// never used to build a layer.
+const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
+    line_width_um: 450,
+    first_layer_height_um: 200,
+    layer_height_um: 200,
+    perimeters: 0,
+    infill_percent: 0,
+    infill_pattern: InfillPattern::Lines,
+    top_layers: 0,
+    bottom_layers: 0,
+    perimeter_speed_mm_s: Rate::ONE,
+    infill_speed_mm_s: Rate::ONE,
+    travel_speed_mm_s: Rate::ONE,
+    first_layer_speed_mm_s: Rate::ONE,
+    retract_length_um: 0,
+    retract_speed_mm_s: Rate::ONE,
+    filament_diameter_um: 1_750,
+    outer_perimeter_last: true,
+    infill_overlap_um: 0,
+    skirt_distance_um: 0,
+    skirt_loops: 0,
+    seam: Seam::Rear,
+    simplify_tolerance_um: 0,
+    min_retract_travel_um: 0,
+    comb: false,
+};
+
 /// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
 const FIRST_LAYER: u32 = 0;
 
@@ -625,10 +689,20 @@ impl<
     > Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>
 {
     /// A stage ready for layer 0. The value is large: build it where the stack allows, or in
-    /// a static/boxed slot and call [`reset`](Self::reset).
+    /// a static slot with [`empty`](Self::empty) and call [`reset`](Self::reset).
     pub fn new(cfg: ToolpathConfig) -> Result<Self, ToolpathError> {
-        let mut t = Self {
-            cfg,
+        let mut t = Self::empty();
+        t.reset(cfg)?;
+        Ok(t)
+    }
+
+    /// An idle stage for a `static` (no stack temporary): every buffer empty and a
+    /// placeholder configuration. [`reset`](Self::reset) configures it; until then
+    /// [`push_layer`](Self::push_layer) and [`finish`](Self::finish) return
+    /// [`ToolpathError::Finished`] and [`config`](Self::config) is the placeholder.
+    pub const fn empty() -> Self {
+        Self {
+            cfg: IDLE_CONFIG,
             step: 1,
             ring: Fifo::new(Point2::new(0, 0), Buffer::RingPoints),
             spans: Fifo::new(Span { line: 0, u0: 0, u1: 0 }, Buffer::WindowSpans),
@@ -648,8 +722,8 @@ impl<
             }; CROSS],
             order: [0; CROSS],
             cend: [0; CROSS],
-            segs: [LineSeg::default(); CROSS],
-            pieces: [LinePiece::default(); CROSS],
+            segs: [LineSeg::EMPTY; CROSS],
+            pieces: [LinePiece::EMPTY; CROSS],
             paths: PathBuf::new(),
             island_map: [0; LOOPS],
             island_stage: [0; LOOPS],
@@ -657,11 +731,9 @@ impl<
             next_in: 0,
             next_out: 0,
             fill_use: FillUse { crossings: 0, segments: 0, pieces: 0 },
-            stats: ToolpathStats::default(),
-            stopped: None,
-        };
-        t.reset(cfg)?;
-        Ok(t)
+            stats: ToolpathStats::EMPTY,
+            stopped: Some(ToolpathError::Finished),
+        }
     }
 
     /// Starts over with `cfg` (buffers kept). The nozzle is assumed at the bed origin.
@@ -674,7 +746,7 @@ impl<
         self.em = Emitter::new();
         self.next_in = 0;
         self.next_out = 0;
-        self.stats = ToolpathStats::default();
+        self.stats = ToolpathStats::EMPTY;
         self.stopped = None;
         for b in [&mut self.contour, &mut self.tmp, &mut self.fill] {
             b.clear();
@@ -1222,6 +1294,21 @@ fn decode<const P: usize, const L: usize>(
 mod tests {
     use super::*;
     use core::mem::size_of;
+
+    /// Built at compile time (what a firmware `static` needs); idle until `reset`.
+    static IDLE: Toolpath<16, 4, 16, 16, 16, 16> = Toolpath::empty();
+
+    #[test]
+    fn empty_stage_waits_for_reset() {
+        let mut t = Toolpath::<16, 4, 16, 16, 16, 16>::empty();
+        assert_eq!(IDLE.stats(), ToolpathStats::EMPTY);
+        let mut sink = |_: &ToolEvent<'_>| {};
+        assert_eq!(t.finish(&mut sink), Err(ToolpathError::Finished));
+        let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+        t.reset(cfg).unwrap();
+        assert_eq!(t.config(), &cfg);
+        assert_eq!(t.finish(&mut sink).map(|s| s.layers), Ok(0));
+    }
 
     #[test]
     fn memory_per_capacity_unit_is_as_documented() {
