@@ -47,22 +47,27 @@ pub struct MachineConfig {
 }
 
 impl Default for MachineConfig {
-    /// The stock Ender-3: 16 microsteps, 220 x 220 x 250 mm, Marlin's limits.
+    /// [`MachineConfig::ENDER3`].
     fn default() -> Self {
-        Self {
-            steps_per_mm: [rate(80), rate(80), rate(400), rate(93)],
-            build_volume_um: [220_000, 220_000, 250_000],
-            max_feed_mm_s: [rate(500), rate(500), rate(5), rate(25)],
-            max_accel_mm_s2: [rate(500), rate(500), rate(100), rate(1000)],
-            print_accel_mm_s2: rate(500),
-            travel_accel_mm_s2: rate(1000),
-            square_corner_velocity_mm_s: rate(5),
-            nozzle_diameter_um: 400,
-            filament_diameter_um: 1750,
-            max_hotend_temp_c: 260,
-            max_bed_temp_c: 100,
-        }
+        Self::ENDER3
     }
+}
+
+impl MachineConfig {
+    /// The stock Ender-3: 16 microsteps, 220 x 220 x 250 mm, Marlin's limits.
+    pub const ENDER3: Self = Self {
+        steps_per_mm: [rate(80), rate(80), rate(400), rate(93)],
+        build_volume_um: [220_000, 220_000, 250_000],
+        max_feed_mm_s: [rate(500), rate(500), rate(5), rate(25)],
+        max_accel_mm_s2: [rate(500), rate(500), rate(100), rate(1000)],
+        print_accel_mm_s2: rate(500),
+        travel_accel_mm_s2: rate(1000),
+        square_corner_velocity_mm_s: rate(5),
+        nozzle_diameter_um: 400,
+        filament_diameter_um: 1750,
+        max_hotend_temp_c: 260,
+        max_bed_temp_c: 100,
+    };
 }
 
 /// Infill pattern.

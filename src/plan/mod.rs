@@ -130,7 +130,7 @@ pub struct PlanConfig {
 
 impl PlanConfig {
     /// The planner limits of `machine`, a 72 MHz timer and a 1 mm/s extruder corner velocity.
-    pub fn from_machine(machine: &MachineConfig) -> Self {
+    pub const fn from_machine(machine: &MachineConfig) -> Self {
         Self {
             timer_hz: 72_000_000,
             max_feed_mm_s: machine.max_feed_mm_s,
@@ -211,6 +211,17 @@ pub(crate) struct Limits {
 }
 
 impl Limits {
+    /// No motion allowed (an unconfigured planner).
+    const ZERO: Self = Self {
+        vmax2_q16: [0; AXES],
+        amax_q16: [0; AXES],
+        print_accel_q16: 0,
+        travel_accel_q16: 0,
+        scv2_jd_q16: 0,
+        ecv_q16: 0,
+        timer_hz: 0,
+    };
+
     fn new(c: &PlanConfig) -> Self {
         let scv = rate_to_q16(c.square_corner_velocity_mm_s, MAX_SPEED_Q16);
         Self {
@@ -509,6 +520,23 @@ impl<const N: usize> Planner<N> {
             head: 0,
             len: 0,
             position_um,
+            last: None,
+            exit_v2: 0,
+            released_q16: 0,
+            released: 0,
+        }
+    }
+
+    /// An unconfigured, empty planner (to be replaced by [`Planner::new`] before use; every
+    /// move it plans has zero speed limits). Lets a large owner be built in a `static`.
+    pub const fn empty() -> Self {
+        let () = Self::CAPACITY_OK;
+        Self {
+            lim: Limits::ZERO,
+            ring: [Entry::EMPTY; N],
+            head: 0,
+            len: 0,
+            position_um: [0; AXES],
             last: None,
             exit_v2: 0,
             released_q16: 0,

@@ -238,6 +238,14 @@ pub struct LayerRepairs {
 }
 
 impl LayerRepairs {
+    const ZERO: Self = Self {
+        exact_joins: 0,
+        tolerance_joins: 0,
+        gaps_closed: 0,
+        dropped_chains: 0,
+        dropped_segments: 0,
+    };
+
     /// Joins plus bridges plus dropped chains.
     pub fn total(&self) -> u32 {
         [self.tolerance_joins, self.gaps_closed, self.dropped_chains]
@@ -309,6 +317,21 @@ pub struct SliceStats {
     pub repairs: LayerRepairs,
 }
 
+impl SliceStats {
+    const ZERO: Self = Self {
+        layers: 0,
+        triangles: 0,
+        dropped_triangles: 0,
+        peak_active: 0,
+        peak_segments: 0,
+        peak_points: 0,
+        peak_loops: 0,
+        loops: 0,
+        dropped_small_loops: 0,
+        repairs: LayerRepairs::ZERO,
+    };
+}
+
 /// The streaming slicer. Capacities: `ACTIVE` triangles in the active set, `SEGMENTS` cut
 /// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer.
 ///
@@ -349,6 +372,31 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         };
         s.reset(config)?;
         Ok(s)
+    }
+
+    /// An empty slicer with no layers (a model of height 0), to be configured by
+    /// [`Slicer::reset`]. Lets a large owner be built in a `static` without a stack temporary.
+    pub const fn empty() -> Self {
+        const UNSET: SliceConfig = SliceConfig {
+            first_layer_height_um: 200,
+            layer_height_um: 200,
+            model_height_um: 0,
+            min_loop_area_um2: 0,
+            join_tolerance_um: DEFAULT_JOIN_TOLERANCE_UM,
+            max_gap_um: DEFAULT_MAX_GAP_UM,
+        };
+        Self {
+            config: UNSET,
+            layers: 0,
+            next_layer: 0,
+            next_plane: 0,
+            active: [PackedTriangle::ZERO; ACTIVE],
+            active_len: 0,
+            contours: Contours::EMPTY,
+            last_z_min: i32::MIN,
+            stats: SliceStats::ZERO,
+            stopped: None,
+        }
     }
 
     /// Starts over with `config`, keeping the buffers (no large value is moved).

@@ -103,6 +103,28 @@ impl<const B: usize> StepGenerator<B> {
         }
     }
 
+    /// An unconfigured generator at the origin (to be replaced by [`StepGenerator::new`]
+    /// before use). Lets a large owner be built in a `static`.
+    pub const fn empty() -> Self {
+        let () = Self::CAPACITY_OK;
+        const STILL: AxisRun =
+            AxisRun { remaining: 0, dir: false, s_q48: 0, ds_q48: 0, next_tick: 0 };
+        Self {
+            tune: Tune { tol: 0, min_step: 0, min_rev: 0 },
+            pending_ticks: 0,
+            steps_per_mm: [Rate::ZERO; AXES],
+            comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
+            axes: [STILL; AXES],
+            block: None,
+            next: None,
+            block_start_q16: 0,
+            motor: [0; AXES],
+            at_rest: true,
+            blocks: 0,
+            steps: [0; AXES],
+        }
+    }
+
     /// There is room for one more block.
     pub fn wants_block(&self) -> bool {
         self.next.is_none()

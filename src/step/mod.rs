@@ -104,7 +104,7 @@ pub struct StepConfig {
 
 impl StepConfig {
     /// The steps/mm of `machine`, a 72 MHz timer, A4988 timing, 0.5 us compression error.
-    pub fn from_machine(machine: &MachineConfig) -> Self {
+    pub const fn from_machine(machine: &MachineConfig) -> Self {
         Self {
             timer_hz: 72_000_000,
             steps_per_mm: machine.steps_per_mm,
