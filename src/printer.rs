@@ -27,7 +27,7 @@
 use heapless::Deque;
 
 use crate::geom::{Point2, Triangle};
-use crate::machine::{MachineConfig, PrintSettings, AXES};
+use crate::machine::{MachineConfig, AXES};
 use crate::plan::{Block, Move, MoveKind, PlanConfig, PlanError, Planner};
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
@@ -153,30 +153,34 @@ impl<
     > Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>
 {
     /// A runner for `machine`, idle. (Large: on the host, build it in a `Box` on a thread
-    /// with a big stack, or in a `static`.)
+    /// with a big stack; on a board use [`Printer::empty`] in a `static` and
+    /// [`Printer::configure`].)
     pub fn new(machine: &MachineConfig) -> Self {
-        let settings = PrintSettings::default();
-        let slice_cfg = SliceConfig::new(&settings, settings.layer_height_um)
-            .expect("the default settings are valid");
-        let tp_cfg = ToolpathConfig::new(machine, &settings);
-        let plan_cfg = PlanConfig::from_machine(machine);
-        let step_cfg = StepConfig::from_machine(machine);
-        let ram = core::mem::size_of::<Self>() as u32;
+        let mut p = Self::empty();
+        p.configure(machine);
+        p
+    }
+
+    /// An idle runner for the stock Ender-3 with empty buffers, built at compile time: a
+    /// board keeps it in a `static` (no stack temporary of the whole pipeline) and calls
+    /// [`Printer::configure`] once at start-up.
+    pub const fn empty() -> Self {
+        let machine = MachineConfig::ENDER3;
         Self {
-            machine: *machine,
-            plan_cfg,
-            step_cfg,
-            slicer: Slicer::new(slice_cfg).expect("the default settings are valid"),
-            tp: Toolpath::new(tp_cfg).expect("the default settings are valid"),
+            machine,
+            plan_cfg: PlanConfig::from_machine(&machine),
+            step_cfg: StepConfig::from_machine(&machine),
+            slicer: Slicer::empty(),
+            tp: Toolpath::empty(),
             moves: Deque::new(),
-            planner: Planner::new(&plan_cfg, [0; AXES]),
+            planner: Planner::empty(),
             tags: Deque::new(),
-            gen: StepGenerator::new(&step_cfg, [0; AXES]),
+            gen: StepGenerator::empty(),
             state: DeviceState::Idle,
             error: ErrorCode::None,
             detail: 0,
             job: None,
-            feed: Feed::default(),
+            feed: Feed { layer: 0, e_um: 0, xyz: [0; 3] },
             triangles: 0,
             layers: 0,
             model_ended: false,
@@ -190,10 +194,22 @@ impl<
                 contour_points: S as u32,
                 contour_loops: L as u32,
                 layer_moves: MOVES as u32,
-                layer_window: RING.min(u16::MAX as usize) as u16,
-                ram_bytes: ram,
+                layer_window: if RING > u16::MAX as usize { u16::MAX } else { RING as u16 },
+                ram_bytes: core::mem::size_of::<Self>() as u32,
             },
         }
+    }
+
+    /// Sets the machine (limits, steps/mm) and goes idle at the origin; buffers stay where
+    /// they are (no large value is moved).
+    pub fn configure(&mut self, machine: &MachineConfig) {
+        self.machine = *machine;
+        self.plan_cfg = PlanConfig::from_machine(machine);
+        self.step_cfg = StepConfig::from_machine(machine);
+        self.planner = Planner::new(&self.plan_cfg, [0; AXES]);
+        self.gen = StepGenerator::new(&self.step_cfg, [0; AXES]);
+        self.state = DeviceState::Idle;
+        self.job = None;
     }
 
     /// What this runner holds (announced to the host).
