@@ -2,8 +2,8 @@
 //!
 //! For a layer `L` and its angle, the infill domain (the island shrunk past its perimeters)
 //! is cut by lines one line width apart. Along each line, the 1D region is split exactly by
-//! the skin window (the raw regions of the layers above and below, as spans on the same
-//! lines):
+//! the skin window (the raw regions of the layers above and below, cut by the same line when
+//! it is reached: [`line_spans`]):
 //!
 //! - *top solid* where layer `L + 1` has no material (or `L` is the last layer);
 //! - *solid* where some layer within `top` above or `bottom` below has no material (a top or
@@ -22,7 +22,8 @@ use crate::geom::Point2;
 
 use super::paths::{PathBuf, PathKind};
 use super::poly::{dist, segment_touches_rings, Ring};
-use super::scan::{crossings, intervals, sort_by_line, Angle, Crossing, Interval};
+use super::scan::{crossings, intervals, line_spans, sort_by_line, Angle, Crossing, Interval};
+use super::window::StoredRings;
 use super::{Buffer, Feature};
 
 /// No crossing / no segment.
@@ -34,16 +35,7 @@ const MAX_CONNECTOR_VERTICES: usize = 64;
 /// Most stretches of one interval that skin growth handles at once.
 const MAX_STRETCHES: usize = 48;
 
-/// An interval of a layer's raw region along a scanline (skin window storage).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Span {
-    /// Line index.
-    pub line: i32,
-    /// Start along the line.
-    pub u0: i32,
-    /// End along the line.
-    pub u1: i32,
-}
+pub use super::scan::Span;
 
 /// What a stretch of a line gets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default)]
@@ -116,22 +108,23 @@ impl LineSeg {
     };
 }
 
-/// The skin window as seen from one layer at one angle.
+/// The skin window as seen from one layer: the stored contours ([`StoredRings`]) of the
+/// layers around it.
 #[derive(Debug, Clone, Copy)]
 pub struct SkinView<'a> {
-    /// Spans of layers `L + 1 ..= L + top` (those that exist).
-    pub above: [&'a [Span]; 16],
+    /// Layers `L + 1 ..= L + top` (those that exist).
+    pub above: [&'a [Point2]; 16],
     /// Number of entries in `above`.
     pub n_above: usize,
     /// All `top` layers above exist (otherwise nothing is covered from above).
     pub above_complete: bool,
-    /// Spans of layers `L - 1 ..= L - bottom` (those that exist).
-    pub below: [&'a [Span]; 16],
+    /// Layers `L - 1 ..= L - bottom` (those that exist).
+    pub below: [&'a [Point2]; 16],
     /// Number of entries in `below`.
     pub n_below: usize,
     /// All `bottom` layers below exist.
     pub below_complete: bool,
-    /// Whether layer `L + 1` exists (its spans are `above[0]`).
+    /// Whether layer `L + 1` exists (it is `above[0]`).
     pub has_next: bool,
 }
 
@@ -176,6 +169,8 @@ pub struct FillWork<'a> {
     pub segs: &'a mut [LineSeg],
     /// Their pieces.
     pub pieces: &'a mut [LinePiece],
+    /// The window's spans on the current line, all its layers (`SPANS`).
+    pub spans: &'a mut [Span],
 }
 
 /// What one pass used (largest counts).
@@ -187,44 +182,30 @@ pub struct FillUse {
     pub segments: usize,
     /// Pieces.
     pub pieces: usize,
+    /// Window crossings on one line.
+    pub spans: usize,
 }
 
-/// Per-list cursor over spans sorted by (line, u0); every span counts as grown by `grow`
-/// at both ends.
-struct Cursor<'a> {
-    spans: &'a [Span],
+/// Cursor over one window layer's spans on the current line, `spans[idx..end]` left; every
+/// span counts as grown by `grow` at both ends.
+#[derive(Clone, Copy, Default)]
+struct Cursor {
+    start: usize,
     idx: usize,
-    grow: i32,
+    end: usize,
 }
 
-impl<'a> Cursor<'a> {
-    fn set_line(&mut self, line: i32) {
-        while self.idx > 0 && self.spans[self.idx - 1].line >= line {
-            self.idx -= 1;
-        }
-        while self.idx < self.spans.len() && self.spans[self.idx].line < line {
-            self.idx += 1;
-        }
-    }
-
-    /// Whether `pos` (on `line`) is covered, and the next boundary after `pos` (if any).
-    fn probe(&mut self, line: i32, pos: i32) -> (bool, Option<i32>) {
-        let g = self.grow;
-        while self.idx < self.spans.len()
-            && self.spans[self.idx].line == line
-            && self.spans[self.idx].u1 + g <= pos
-        {
-            self.idx += 1;
-        }
-        match self.spans.get(self.idx) {
-            Some(s) if s.line == line => {
-                if s.u0 - g <= pos {
-                    (true, Some(s.u1 + g))
-                } else {
-                    (false, Some(s.u0 - g))
-                }
-            }
-            _ => (false, None),
+impl Cursor {
+    /// Whether `pos` is covered, and the next boundary after `pos` (if any); `pos` never
+    /// decreases between [`Skin::set_line`]s.
+    fn probe(&mut self, spans: &[Span], grow: i32, pos: i32) -> (bool, Option<i32>) {
+        let left = spans.get(self.idx..self.end).unwrap_or(&[]);
+        let skip = left.iter().take_while(|s| s.u1 + grow <= pos).count();
+        self.idx += skip;
+        match left.get(skip) {
+            Some(s) if s.u0 - grow <= pos => (true, Some(s.u1 + grow)),
+            Some(s) => (false, Some(s.u0 - grow)),
+            None => (false, None),
         }
     }
 }
@@ -295,7 +276,7 @@ impl Builder<'_> {
     }
 
     fn interval(&mut self, iv: Interval, skin: &mut Skin<'_>) -> Result<(), Buffer> {
-        skin.set_line(iv.line);
+        skin.set_line(iv.line)?;
         let p = self.params;
         let sparse_line = p.sparse_every > 0 && iv.line.rem_euclid(p.sparse_every) == 0;
         // Stretches of this interval, then the solid ones grown by `margin_u` into their
@@ -305,7 +286,7 @@ impl Builder<'_> {
         let mut ns = 0;
         let mut pos = iv.u0;
         while pos < iv.u1 {
-            let (covered, in_next, next) = skin.probe(iv.line, pos, iv.u1);
+            let (covered, in_next, next) = skin.probe(pos, iv.u1);
             let kind = if !covered {
                 if !p.solid {
                     Kind::None
@@ -363,37 +344,80 @@ impl Builder<'_> {
 
 /// Cursors over the skin window for one pass.
 struct Skin<'a> {
-    above: [Cursor<'a>; 16],
-    below: [Cursor<'a>; 16],
+    above: [Cursor; 16],
+    below: [Cursor; 16],
     view: SkinView<'a>,
     top: usize,
     bottom: usize,
+    /// Spans of every window layer on `line` (the layers' runs one after the other).
+    spans: &'a mut [Span],
+    line: Option<i32>,
+    angle: Angle,
+    step: i64,
+    grow: i32,
+    /// Most entries of `spans` used.
+    peak: usize,
 }
 
 impl<'a> Skin<'a> {
-    fn new(view: SkinView<'a>, top: usize, bottom: usize, grow: i32) -> Self {
-        let cur = |s: &'a [Span]| Cursor { spans: s, idx: 0, grow };
-        Self { above: view.above.map(cur), below: view.below.map(cur), view, top, bottom }
+    fn new(
+        view: SkinView<'a>,
+        top: usize,
+        bottom: usize,
+        p: &FillParams,
+        spans: &'a mut [Span],
+    ) -> Self {
+        let c = Cursor::default();
+        Self {
+            above: [c; 16],
+            below: [c; 16],
+            view,
+            top,
+            bottom,
+            spans,
+            line: None,
+            angle: p.angle,
+            step: p.step,
+            grow: p.erode_u,
+            peak: 0,
+        }
     }
 
-    fn set_line(&mut self, line: i32) {
-        for c in self.above.iter_mut().take(self.view.n_above) {
-            c.set_line(line);
+    /// Moves to `line`: cuts every window layer with it (once per line) and rewinds.
+    fn set_line(&mut self, line: i32) -> Result<(), Buffer> {
+        let v = &self.view;
+        let layers = (self.above.iter_mut().zip(&v.above).take(v.n_above))
+            .chain(self.below.iter_mut().zip(&v.below).take(v.n_below));
+        if self.line == Some(line) {
+            for (c, _) in layers {
+                c.idx = c.start;
+            }
+            return Ok(());
         }
-        for c in self.below.iter_mut().take(self.view.n_below) {
-            c.set_line(line);
+        self.line = None;
+        let mut at = 0;
+        for (c, data) in layers {
+            let out = self.spans.get_mut(at..).unwrap_or(&mut []);
+            let rings = StoredRings::new(data).map(|(_, pts)| pts);
+            let (n, used) = line_spans(rings, self.angle, line, self.step, out)?;
+            self.peak = self.peak.max(at + used);
+            *c = Cursor { start: at, idx: at, end: at + n };
+            at += n;
         }
+        self.line = Some(line);
+        Ok(())
     }
 
     /// At `pos`: covered by every layer of the window (no surface near), covered by layer
     /// L + 1, and where that next changes (at most `end`).
-    fn probe(&mut self, line: i32, pos: i32, end: i32) -> (bool, bool, i32) {
+    fn probe(&mut self, pos: i32, end: i32) -> (bool, bool, i32) {
         let mut next = end;
         let mut all_above = self.top == 0 || self.view.above_complete;
         let mut all_below = self.bottom == 0 || self.view.below_complete;
         let mut in_next = false;
+        let (spans, g) = (&*self.spans, self.grow);
         for (k, c) in self.above.iter_mut().take(self.view.n_above).enumerate() {
-            let (cov, b) = c.probe(line, pos);
+            let (cov, b) = c.probe(spans, g, pos);
             if let Some(b) = b {
                 next = next.min(b);
             }
@@ -405,7 +429,7 @@ impl<'a> Skin<'a> {
             }
         }
         for (k, c) in self.below.iter_mut().take(self.view.n_below).enumerate() {
-            let (cov, b) = c.probe(line, pos);
+            let (cov, b) = c.probe(spans, g, pos);
             if let Some(b) = b {
                 next = next.min(b);
             }
@@ -491,7 +515,7 @@ pub fn fill<const N: usize, const R: usize>(
     for c in work.cend[..n].iter_mut() {
         *c = NONE;
     }
-    let mut skin = Skin::new(view, top, bottom, params.erode_u);
+    let mut skin = Skin::new(view, top, bottom, &params, &mut *work.spans);
     let (nseg, npieces) = {
         let (cross, order) = (&work.cross[..n], &work.order[..n]);
         let mut b = Builder {
@@ -502,7 +526,9 @@ pub fn fill<const N: usize, const R: usize>(
             open: None,
             params,
         };
-        intervals(cross, order, |iv| b.interval(iv, &mut skin))?;
+        let r = intervals(cross, order, |iv| b.interval(iv, &mut skin));
+        usage.spans = usage.spans.max(skin.peak);
+        r?;
         (b.nseg, b.npieces)
     };
     usage.segments = usage.segments.max(nseg);

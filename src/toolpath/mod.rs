@@ -30,8 +30,8 @@
 //!    ([`ToolpathStats::thin_pts`]: the `PTS` the measurement used);
 //! 3. the infill domain is filled along scanlines ([`scan`], [`infill`]) at 45 degrees on even
 //!    layers and 135 on odd ones: solid where a top or bottom surface is within
-//!    `top_layers`/`bottom_layers` (found exactly along each line from the skin window, then
-//!    opened: slivers under a line wide go, skins reach a line into the sparse zone), top
+//!    `top_layers`/`bottom_layers` (found exactly along each line by cutting the window's
+//!    stored contours with it, then opened: slivers under a line wide go, skins reach a line into the sparse zone), top
 //!    solid under no material, sparse every `100 / density`-th line elsewhere; segments are
 //!    linked into long runs along the domain boundary (zigzag) and straight between the
 //!    inner ends of skin segments;
@@ -47,9 +47,10 @@
 //!    would cross a contour is combed along the island's external perimeter, and retracts
 //!    only when no such route exists (another island) and it is at least 1.5 mm long.
 //!
-//! The skin window costs the contours of the `top_layers` layers that wait for the layers
-//! above them and the scanline spans of `bottom + top + 1` layers ([`ToolpathNeeds::window_bytes`]:
-//! 67 KB for 3DBenchy, 13 KB for a 20 mm cube).
+//! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
+//! layers that wait for the layers above them and the `bottom` ones below the layer being
+//! built) and the crossings of all of them with one scanline
+//! ([`ToolpathNeeds::window_bytes`]: 17 KB for 3DBenchy, 3 KB for a 20 mm cube).
 //!
 //! # Memory
 //!
@@ -59,9 +60,9 @@
 //!   `PTS`, 123 bytes per `LOOPS`;
 //! - the infill scratch and the layer's paths: 96 bytes per `CROSS` (crossing 28, order 4,
 //!   segment end 4, segment 36, piece 8, path record 16), 9 bytes per `PATH` point;
-//! - the window: 8 bytes per `RING` point (contours of the `top_layers` layers waiting for
-//!   the layers above them) and 12 bytes per `SPANS` (scanline intervals of up to
-//!   `top + bottom + 1` layers, both angles).
+//! - the window: 8 bytes per `RING` point (contours of up to `bottom + top + 2` layers) and
+//!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
+//!   filled).
 //!
 //! [`ToolpathStats::needs`] reports the largest use of each, so a model's needs are known
 //! after one host run, and [`ToolpathNeeds::bytes`] what a stage sized to them takes.
@@ -78,7 +79,7 @@ use order::{Ctx, Emitter};
 use paths::{PathBuf, PathKind};
 use poly::{LoopBuf, Ring};
 use scan::{Angle, Crossing};
-use window::Fifo;
+use window::{Fifo, StoredRings};
 
 pub mod infill;
 pub mod near;
@@ -116,7 +117,7 @@ pub enum Buffer {
     Paths,
     /// Contour points of the layers waiting for the layers above them (`RING`).
     RingPoints,
-    /// Scanline spans of the skin window (`SPANS`).
+    /// Crossings of the skin window's layers with one scanline (`SPANS`).
     WindowSpans,
     /// Layers in the window (top + bottom + 2).
     WindowLayers,
@@ -136,7 +137,7 @@ impl fmt::Display for Buffer {
             Self::PathPoints => "path points per layer",
             Self::Paths => "paths per layer",
             Self::RingPoints => "contour points waiting for the layers above",
-            Self::WindowSpans => "scanline spans in the skin window",
+            Self::WindowSpans => "skin window crossings on one scanline",
             Self::WindowLayers => "layers in the skin window",
         })
     }
@@ -486,7 +487,7 @@ pub struct ToolpathNeeds {
     pub paths: u32,
     /// Contour points waiting in the window: `RING`.
     pub ring_points: u32,
-    /// Scanline spans in the window: `SPANS`.
+    /// Crossings of the window's layers with one scanline (their spans): `SPANS`.
     pub spans: u32,
 }
 
@@ -507,7 +508,7 @@ impl ToolpathNeeds {
     pub const PATH_BYTES: usize = core::mem::size_of::<Point2>() + core::mem::size_of::<Feature>();
     /// Bytes per `RING` point.
     pub const RING_BYTES: usize = core::mem::size_of::<Point2>();
-    /// Bytes per `SPANS` entry.
+    /// Bytes per `SPANS` entry (a crossing, then a span, of one scanline).
     pub const SPAN_BYTES: usize = core::mem::size_of::<Span>();
 
     /// RAM of a [`Toolpath`] whose capacities equal these needs, on this target: what the
@@ -525,7 +526,7 @@ impl ToolpathNeeds {
             + self.spans as usize * Self::SPAN_BYTES
     }
 
-    /// RAM of the skin window alone (waiting contours and spans), bytes.
+    /// RAM of the skin window alone (stored contours and one scanline's spans), bytes.
     pub fn window_bytes(&self) -> usize {
         self.ring_points as usize * Self::RING_BYTES + self.spans as usize * Self::SPAN_BYTES
     }
@@ -539,7 +540,7 @@ const _: () = assert!(
         && ToolpathNeeds::CROSS_BYTES == 96
         && ToolpathNeeds::PATH_BYTES == 9
         && ToolpathNeeds::RING_BYTES == 8
-        && ToolpathNeeds::SPAN_BYTES == 12
+        && ToolpathNeeds::SPAN_BYTES == 8
 );
 
 /// Totals of a run.
@@ -658,7 +659,6 @@ pub struct Toolpath<
     cfg: ToolpathConfig,
     step: i64,
     ring: Fifo<Point2, RING>,
-    spans: Fifo<Span, SPANS>,
     contour: LoopBuf<PTS, LOOPS>,
     tmp: LoopBuf<PTS, LOOPS>,
     fill: LoopBuf<PTS, LOOPS>,
@@ -668,6 +668,7 @@ pub struct Toolpath<
     cend: [u32; CROSS],
     segs: [LineSeg; CROSS],
     pieces: [LinePiece; CROSS],
+    spans: [Span; SPANS],
     paths: PathBuf<PATH, CROSS>,
     island_map: [u16; LOOPS],
     island_stage: [u8; LOOPS],
@@ -705,7 +706,6 @@ impl<
             cfg: IDLE_CONFIG,
             step: 1,
             ring: Fifo::new(Point2::new(0, 0), Buffer::RingPoints),
-            spans: Fifo::new(Span { line: 0, u0: 0, u1: 0 }, Buffer::WindowSpans),
             contour: LoopBuf::new(),
             tmp: LoopBuf::new(),
             fill: LoopBuf::new(),
@@ -724,13 +724,14 @@ impl<
             cend: [0; CROSS],
             segs: [LineSeg::EMPTY; CROSS],
             pieces: [LinePiece::EMPTY; CROSS],
+            spans: [Span { u0: 0, u1: 0 }; SPANS],
             paths: PathBuf::new(),
             island_map: [0; LOOPS],
             island_stage: [0; LOOPS],
             em: Emitter::new(),
             next_in: 0,
             next_out: 0,
-            fill_use: FillUse { crossings: 0, segments: 0, pieces: 0 },
+            fill_use: FillUse { crossings: 0, segments: 0, pieces: 0, spans: 0 },
             stats: ToolpathStats::EMPTY,
             stopped: Some(ToolpathError::Finished),
         }
@@ -742,7 +743,6 @@ impl<
         self.cfg = cfg;
         self.step = scan::line_step(cfg.line_width_um);
         self.ring.clear();
-        self.spans.clear();
         self.em = Emitter::new();
         self.next_in = 0;
         self.next_out = 0;
@@ -759,7 +759,6 @@ impl<
         self.paths.peak_points = 0;
         self.paths.peak_paths = 0;
         self.ring.peak = 0;
-        self.spans.peak = 0;
         self.fill_use = FillUse::default();
         Ok(())
     }
@@ -795,7 +794,7 @@ impl<
         n.path_points = self.paths.peak_points as u32;
         n.paths = self.paths.peak_paths as u32;
         n.ring_points = self.ring.peak as u32;
-        n.spans = self.spans.peak as u32;
+        n.spans = f.spans as u32;
         s.thin_pts = s.thin_pts.max(n.layer_points).max(n.offset_edges);
         s
     }
@@ -870,7 +869,7 @@ impl<
         Ok(())
     }
 
-    /// Simplifies and stores the layer's contours, and its skin spans at both angles.
+    /// Simplifies and stores the layer's contours (in the [`StoredRings`] layout).
     fn store(&mut self, layer: &Layer<'_>) -> Result<(), Buffer> {
         let index = layer.index;
         let total = 1 + layer.loops.len() + layer.points.len();
@@ -919,27 +918,7 @@ impl<
             rings += 1;
         }
         block[0] = Point2::new(rings, i32::from(islands));
-        self.ring.commit(index, w, 0);
-        // Spans of this layer at both angles (one block each), from its simplified contours.
-        let blk = self.ring.find(index).ok_or(Buffer::RingPoints)?;
-        decode(self.ring.data(&blk), &mut self.tmp)?;
-        for (tag, angle) in [(0, Angle::D45), (1, Angle::D135)] {
-            let mut n = 0;
-            let (pts, rs) = (self.tmp.points(), self.tmp.rings());
-            scan::crossings(pts, rs, angle, self.step, &mut self.cross, &mut n)?;
-            self.fill_use.crossings = self.fill_use.crossings.max(n);
-            scan::sort_by_line(&self.cross[..n], &mut self.order[..n]);
-            let out = self.spans.reserve(n / 2 + 1)?;
-            let mut k = 0;
-            scan::intervals(&self.cross[..n], &self.order[..n], |iv| {
-                if let Some(s) = out.get_mut(k) {
-                    *s = Span { line: iv.line, u0: iv.u0, u1: iv.u1 };
-                    k += 1;
-                }
-                Ok(())
-            })?;
-            self.spans.commit(index, k, tag);
-        }
+        self.ring.commit(index, w);
         Ok(())
     }
 
@@ -1068,15 +1047,10 @@ impl<
             st.max_thin_area_um2 = ls.thin_area_um2;
             st.max_thin_area_layer = l;
         }
-        // Drop what no later layer needs.
-        self.ring.pop();
+        // Drop what no later layer needs (the next one looks `bottom` layers down).
         let bottom = u32::from(cfg.bottom_layers);
-        while let Some(b) = self.spans.block(0) {
-            if b.layer + bottom <= l {
-                self.spans.pop();
-            } else {
-                break;
-            }
+        while self.ring.block(0).is_some_and(|b| b.layer + bottom <= l) {
+            self.ring.pop();
         }
         self.next_out = l + 1;
         Ok(())
@@ -1186,7 +1160,7 @@ impl<
     fn infill_pass(&mut self, l: u32, angle: Angle, solid: bool) -> Result<(), Buffer> {
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
-        let empty: &[Span] = &[];
+        let empty: &[Point2] = &[];
         let mut view = SkinView {
             above: [empty; 16],
             n_above: 0,
@@ -1196,13 +1170,12 @@ impl<
             below_complete: true,
             has_next: false,
         };
-        let spans = &self.spans;
-        let tag = u32::from(angle == Angle::D135);
-        let part = |b: window::Block| spans.data(&b);
+        let ring = &self.ring;
+        let stored = |layer: u32| ring.find(layer).map(|b| ring.data(&b));
         for k in 1..=top as u32 {
-            match spans.find_tagged(l + k, tag) {
-                Some(b) => {
-                    view.above[view.n_above] = part(b);
+            match stored(l + k) {
+                Some(d) => {
+                    view.above[view.n_above] = d;
                     view.n_above += 1;
                     if k == 1 {
                         view.has_next = true;
@@ -1216,16 +1189,16 @@ impl<
         }
         if top == 0 {
             // No top skins, but the layer above still tells top surfaces apart.
-            if let Some(b) = spans.find_tagged(l + 1, tag) {
-                view.above[0] = part(b);
+            if let Some(d) = stored(l + 1) {
+                view.above[0] = d;
                 view.n_above = 1;
                 view.has_next = true;
             }
         }
         for k in 1..=bottom as u32 {
-            match l.checked_sub(k).and_then(|x| spans.find_tagged(x, tag)) {
-                Some(b) => {
-                    view.below[view.n_below] = part(b);
+            match l.checked_sub(k).and_then(stored) {
+                Some(d) => {
+                    view.below[view.n_below] = d;
                     view.n_below += 1;
                 }
                 None => {
@@ -1254,6 +1227,7 @@ impl<
             cend: &mut self.cend,
             segs: &mut self.segs,
             pieces: &mut self.pieces,
+            spans: &mut self.spans,
         };
         infill::fill(
             self.fill.points(),
@@ -1269,23 +1243,17 @@ impl<
     }
 }
 
-/// Decodes a stored layer (see `store`) into `out`.
+/// Decodes a stored layer ([`StoredRings`]) into `out`.
 fn decode<const P: usize, const L: usize>(
     data: &[Point2],
     out: &mut LoopBuf<P, L>,
 ) -> Result<(), Buffer> {
     out.clear();
-    let Some(head) = data.first() else { return Ok(()) };
-    let mut at = 1;
-    for _ in 0..head.x.max(0) {
-        let Some(h) = data.get(at) else { break };
-        let n = h.x.max(0) as usize;
-        let island = h.y as u16;
-        for &p in data.get(at + 1..at + 1 + n).unwrap_or(&[]) {
+    for (island, pts) in StoredRings::new(data) {
+        for &p in pts {
             out.push(p)?;
         }
         out.close(island, 0, Ring::NO_PARENT)?;
-        at += 1 + n;
     }
     Ok(())
 }
@@ -1316,7 +1284,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 96);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
-        assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (8, 12));
+        assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (8, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
         assert!(fixed < 3072, "{fixed}");
         let needs = ToolpathNeeds {

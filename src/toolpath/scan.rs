@@ -108,6 +108,12 @@ impl Crossing {
     }
 }
 
+/// Position along line `t` where the edge from key `(tp, up)` to `(tq, uq)` crosses it
+/// (`tp != tq`), rounded.
+fn cross_u((tp, up): (i64, i64), (tq, uq): (i64, i64), t: i64) -> i64 {
+    up + div_round((uq - up) * (t - tp), tq - tp)
+}
+
 fn ceil_div(a: i64, b: i64) -> i64 {
     let q = a.div_euclid(b);
     if q * b == a {
@@ -148,8 +154,7 @@ pub fn crossings(
             let dir: i8 = if tq > tp { 1 } else { -1 };
             for s in 0..count {
                 let j = if dir > 0 { j0 + s as i64 } else { j1 - s as i64 };
-                let t = j * step;
-                let u = up + div_round((uq - up) * (t - tp), tq - tp);
+                let u = cross_u((tp, up), (tq, uq), j * step);
                 out[*n] = Crossing {
                     line: j as i32,
                     u: u as i32,
@@ -227,6 +232,61 @@ pub fn intervals(
         }
     }
     Ok(())
+}
+
+/// An interval `u0..u1` inside a layer's loops along one line (the skin window, see
+/// [`line_spans`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Span {
+    /// Start along the line.
+    pub u0: i32,
+    /// End along the line.
+    pub u1: i32,
+}
+
+/// Writes to `out` the intervals of non-zero winding of `loops` along line `line` (`t = line
+/// x step`) in increasing `u`, empty ones skipped, and returns their number and the number
+/// of crossings: the same intervals as [`crossings`], [`sort_by_line`] and [`intervals`]
+/// give on that line. `out` must hold every crossing of the line (it is their scratch
+/// first): more is [`Buffer::WindowSpans`].
+pub fn line_spans<'a>(
+    loops: impl Iterator<Item = &'a [Point2]>,
+    angle: Angle,
+    line: i32,
+    step: i64,
+    out: &mut [Span],
+) -> Result<(usize, usize), Buffer> {
+    // Crossings as (u, dir) first.
+    let t = i64::from(line) * step;
+    let mut n = 0;
+    for pts in loops {
+        for (k, &p) in pts.iter().enumerate() {
+            let q = pts[(k + 1) % pts.len()];
+            let (a, b) = (angle.key(p), angle.key(q));
+            if a.0.min(b.0) <= t && t < a.0.max(b.0) {
+                let slot = out.get_mut(n).ok_or(Buffer::WindowSpans)?;
+                let dir = if b.0 > a.0 { 1 } else { -1 };
+                *slot = Span { u0: cross_u(a, b, t) as i32, u1: dir };
+                n += 1;
+            }
+        }
+    }
+    let out = &mut out[..n];
+    out.sort_unstable_by_key(|c| (c.u0, c.u1));
+    // Winding along the line; span k is written over crossing k, already read.
+    let (mut w, mut start, mut k) = (0, 0, 0);
+    for i in 0..n {
+        let Span { u0: u, u1: dir } = out[i];
+        let before = w;
+        w += dir;
+        if before == 0 && w != 0 {
+            start = u;
+        } else if before != 0 && w == 0 && u > start {
+            out[k] = Span { u0: start, u1: u };
+            k += 1;
+        }
+    }
+    Ok((k, n))
 }
 
 #[cfg(test)]

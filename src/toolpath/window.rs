@@ -2,20 +2,24 @@
 //!
 //! Skins need to know, for layer `L`, the regions of the `bottom` layers below and the `top`
 //! layers above. The slicer emits layers in order, so the toolpath of layer `L` is built when
-//! layer `L + top` arrives; until then `L`'s contours wait here (a [`Fifo`] of points), and
-//! every layer's region stays, as scanline spans at both angles, for `bottom` more layers (a
-//! [`Fifo`] of [`Span`](super::infill::Span)s). Spans are far smaller than contours: one
-//! 12-byte record per line crossing the part, whatever the mesh's tessellation.
+//! layer `L + top` arrives; until then `L`'s simplified contours wait here (a [`Fifo`] of
+//! points, one block per layer in the [`StoredRings`] layout), and they stay for `bottom`
+//! more layers: the skin detection cuts them with each scanline when it needs them
+//! ([`scan::line_spans`](super::scan::line_spans)), so no per-line data of the window is
+//! stored.
 //!
 //! A [`Fifo`] keeps blocks contiguous (a block that does not fit before the end of the array
 //! starts again at 0 when the oldest blocks have left room there), so each layer's data is a
 //! plain slice.
 
+use crate::geom::Point2;
+
 use super::Buffer;
 
-/// Blocks a window can hold: `top + 1` pending layers, or two blocks (one per angle) for each
-/// of `bottom + top + 1` layers; top and bottom layers are limited to 16 each.
-pub const MAX_BLOCKS: usize = 68;
+/// Blocks a window can hold: one per layer, `bottom + top + 2` layers at most (the layers
+/// below, the one being built, those above and the one being stored); top and bottom layers
+/// are limited to 16 each.
+pub const MAX_BLOCKS: usize = 34;
 
 /// One block: `start..start + len` of the storage, and the layer it belongs to.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -26,8 +30,6 @@ pub struct Block {
     pub start: u32,
     /// Elements.
     pub len: u32,
-    /// A tag (the spans' angle).
-    pub split: u32,
 }
 
 /// FIFO of contiguous blocks in `N` elements of `T`.
@@ -49,7 +51,7 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
     pub const fn new(fill: T, what: Buffer) -> Self {
         Self {
             data: [fill; N],
-            blocks: [Block { layer: 0, start: 0, len: 0, split: 0 }; MAX_BLOCKS],
+            blocks: [Block { layer: 0, start: 0, len: 0 }; MAX_BLOCKS],
             head: 0,
             count: 0,
             open: None,
@@ -85,13 +87,6 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
         (0..self.count)
             .map(|k| self.blocks[(self.head + k) % MAX_BLOCKS])
             .find(|b| b.layer == layer)
-    }
-
-    /// The block of `layer` with tag `tag`, if held.
-    pub fn find_tagged(&self, layer: u32, tag: u32) -> Option<Block> {
-        (0..self.count)
-            .map(|k| self.blocks[(self.head + k) % MAX_BLOCKS])
-            .find(|b| b.layer == layer && b.split == tag)
     }
 
     /// The elements of a block.
@@ -145,14 +140,48 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
         Ok(&mut self.data[start..start + max])
     }
 
-    /// Adds the reserved block with its first `len` elements, tagged `tag`.
-    pub fn commit(&mut self, layer: u32, len: usize, tag: u32) {
+    /// Adds the reserved block with its first `len` elements.
+    pub fn commit(&mut self, layer: u32, len: usize) {
         let Some((start, max)) = self.open.take() else { return };
         let len = len.min(max);
         self.blocks[(self.head + self.count) % MAX_BLOCKS] =
-            Block { layer, start: start as u32, len: len as u32, split: tag };
+            Block { layer, start: start as u32, len: len as u32 };
         self.count += 1;
         self.peak = self.peak.max(self.in_use());
+    }
+}
+
+/// The loops of one stored layer: `data[0]` is `(loops, islands)`, then every loop is a
+/// header `(points, island)` followed by its points (the closing edge implied). Yields
+/// `(island, points)` for the loops of at least three points.
+pub struct StoredRings<'a> {
+    data: &'a [Point2],
+    at: usize,
+    left: i32,
+}
+
+impl<'a> StoredRings<'a> {
+    /// The loops of `data` (a block written in this layout).
+    pub fn new(data: &'a [Point2]) -> Self {
+        Self { data, at: 1, left: data.first().map_or(0, |h| h.x.max(0)) }
+    }
+}
+
+impl<'a> Iterator for StoredRings<'a> {
+    type Item = (u16, &'a [Point2]);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        while self.left > 0 {
+            self.left -= 1;
+            let h = self.data.get(self.at)?;
+            let n = h.x.max(0) as usize;
+            let pts = self.data.get(self.at + 1..self.at + 1 + n).unwrap_or(&[]);
+            self.at += 1 + n;
+            if pts.len() >= 3 {
+                return Some((h.y as u16, pts));
+            }
+        }
+        None
     }
 }
 
@@ -166,16 +195,16 @@ mod tests {
         for (layer, n) in [(0u32, 4usize), (1, 4)] {
             let s = f.reserve(n).unwrap();
             s.fill(layer as u8 + 1);
-            f.commit(layer, n, 0);
+            f.commit(layer, n);
         }
         assert_eq!(f.reserve(3), Err(Buffer::RingPoints));
         f.pop();
         // 2 free at the end, 4 at the start: a block of 3 wraps to 0.
         let s = f.reserve(3).unwrap();
         s.fill(9);
-        f.commit(2, 3, 1);
+        f.commit(2, 3);
         let b = f.find(2).unwrap();
-        assert_eq!((b.start, b.len, b.split), (0, 3, 1));
+        assert_eq!((b.start, b.len), (0, 3));
         assert_eq!(f.data(&f.find(1).unwrap()), &[2, 2, 2, 2]);
         assert_eq!(f.data(&b), &[9, 9, 9]);
         assert_eq!(f.len(), 2);
