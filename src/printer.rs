@@ -18,17 +18,17 @@
 //! a typed error ([`ErrorCode::Moves`]), never a silent drop.
 //!
 //! Planner blocks are released only when the planner queue is full or the model has ended
-//! (`pop_forced`), never earlier because data happened to be late: the blocks, and the step
-//! sequences they fix, depend only on the job, not on the link's timing. Each layer's blocks
-//! are hashed (FNV-1a over their geometry, kind and timing) and reported with
-//! [`Message::LayerDone`]: identical jobs give identical hashes on the host simulation and on
-//! the firmware.
+//! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
+//! the job, not on the link's timing, and the step generator's commands depend only on the
+//! blocks. The step commands generated for each layer's blocks are hashed (FNV-1a over axis
+//! and command, see [`StepProducer::take_hash`]) and reported with [`Message::LayerDone`]:
+//! identical jobs give identical hashes on the host simulation and on the firmware.
 
 use heapless::Deque;
 
 use crate::geom::{Point2, Triangle};
 use crate::machine::{MachineConfig, AXES};
-use crate::plan::{Block, Move, MoveKind, PlanConfig, PlanError, Planner};
+use crate::plan::{Move, MoveKind, PlanConfig, PlanError, Planner};
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
 };
@@ -56,37 +56,6 @@ pub enum Accept {
     Taken,
     /// Not now (the previous triangles' moves are not planned yet): offer it again later.
     Busy,
-}
-
-const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
-const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
-
-fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(FNV_PRIME);
-    }
-    h
-}
-
-/// FNV-1a step of one planned block into `h`: start, end, kind, length, acceleration, speeds
-/// and duration (everything the step generator reads).
-pub fn hash_block(mut h: u64, b: &Block) -> u64 {
-    for v in b.start_um().into_iter().chain(b.end_um()) {
-        h = fnv(h, &v.to_le_bytes());
-    }
-    h = fnv(h, &[b.kind() as u8]);
-    for v in [
-        b.length_um_q32(),
-        b.accel_mm_s2().to_bits(),
-        b.start_speed_mm_s().to_bits(),
-        b.cruise_speed_mm_s().to_bits(),
-        b.end_speed_mm_s().to_bits(),
-        b.duration_ticks_q16(),
-    ] {
-        h = fnv(h, &v.to_le_bytes());
-    }
-    h
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -130,8 +99,7 @@ pub struct Printer<
     layers: u32,
     model_ended: bool,
     toolpath_done: bool,
-    /// Layer whose blocks are being hashed, and the hash so far.
-    hash_layer: Option<(u32, u64)>,
+    /// Step-command hashes of completed layers, waiting to be reported.
     done: Deque<(u32, u64), 8>,
     layers_planned: u32,
     status_due_ms: u32,
@@ -185,7 +153,6 @@ impl<
             layers: 0,
             model_ended: false,
             toolpath_done: false,
-            hash_layer: None,
             done: Deque::new(),
             layers_planned: 0,
             status_due_ms: 0,
@@ -306,7 +273,6 @@ impl<
         self.triangles = 0;
         self.model_ended = false;
         self.toolpath_done = false;
-        self.hash_layer = None;
         self.done.clear();
         self.layers_planned = 0;
         self.job = Some(*job);
@@ -426,14 +392,6 @@ impl<
         self.done.pop_front()
     }
 
-    fn close_layer(&mut self) {
-        if let Some((l, h)) = self.hash_layer.take() {
-            // Callers check for room first (motion waits while 8 reports are pending).
-            let _ = self.done.push_back((l, h));
-            self.layers_planned = l + 1;
-        }
-    }
-
     /// Bounded work: moves into the planner, blocks into the generator, steps into `out`.
     /// Returns true when something happened.
     pub fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
@@ -462,32 +420,27 @@ impl<
         let input_done = self.toolpath_done && self.moves.is_empty();
         if self.state == DeviceState::Printing {
             while self.gen.wants_block() && (input_done || self.planner.is_full()) {
-                // A new layer closes the previous one's hash: wait while the reports are full.
-                let next_layer = self.tags.front().copied().unwrap_or(0);
-                if self.done.is_full() && self.hash_layer.is_some_and(|(l, _)| l != next_layer) {
-                    break;
-                }
                 let Some(b) = self.planner.pop_forced() else { break };
                 let layer = self.tags.pop_front().unwrap_or(0);
-                match self.hash_layer {
-                    Some((l, _)) if l != layer => {
-                        self.close_layer();
-                        self.hash_layer = Some((layer, FNV_OFFSET));
-                    }
-                    None => self.hash_layer = Some((layer, FNV_OFFSET)),
-                    _ => {}
-                }
-                if let Some((_, h)) = &mut self.hash_layer {
-                    *h = hash_block(*h, &b);
-                }
                 // `wants_block` was true: the generator takes it.
-                let _ = self.gen.load(b);
+                let _ = self.gen.load_tagged(b, layer);
                 worked = true;
             }
         }
         let _ = self.gen.run(out);
+        // Completed layers' hashes; while the reports are full the generator holds at the
+        // next layer (its marks fill up), so no hash is ever dropped.
+        while !self.done.is_full() {
+            let Some((layer, hash)) = self.gen.take_mark() else { break };
+            let _ = self.done.push_back((layer, hash));
+            self.layers_planned = layer + 1;
+            worked = true;
+        }
         if input_done && self.planner.is_empty() && self.gen.is_idle() && !self.done.is_full() {
-            self.close_layer();
+            if let Some(layer) = self.gen.tag() {
+                let _ = self.done.push_back((layer, out.take_hash()));
+                self.layers_planned = layer + 1;
+            }
             self.state = DeviceState::Done;
             worked = true;
         }

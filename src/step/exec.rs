@@ -198,6 +198,7 @@ impl<'q, const N: usize> Executor<'q, N> {
                 if at_rest || is_before(stall, h_gen) {
                     self.shift(now.wrapping_add(self.lead), stall);
                     self.state = State::Running;
+                    self.q.set_stalled_at(super::NOT_STALLED);
                 }
             }
         }
@@ -227,6 +228,7 @@ impl<'q, const N: usize> Executor<'q, N> {
                 }
             } else {
                 self.state = State::Stalled(h_gen);
+                self.q.set_stalled_at(word);
                 self.stats.underruns += 1;
                 self.stats.first_underrun_tick.get_or_insert(now);
                 let poll = now.wrapping_add(self.poll);

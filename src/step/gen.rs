@@ -6,6 +6,7 @@ use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
 use crate::machine::{Rate, AXES};
 use crate::plan::Block;
+use heapless::Deque;
 
 /// What [`StepGenerator::run`] stopped for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,7 +63,18 @@ pub struct StepGenerator<const B: usize = 64> {
     comp: [Compressor<B>; AXES],
     axes: [AxisRun; AXES],
     block: Option<Block>,
-    next: Option<Block>,
+    /// The waiting block and its tag.
+    next: Option<(Block, u32)>,
+    /// Tag of the blocks being generated.
+    tag: Option<u32>,
+    /// Closed tags and the hash of their commands.
+    marks: Deque<(u32, u64), 4>,
+    /// Tick of the last step generated.
+    last_tick: u64,
+    /// Axes still to check for an overdue sequence after the last step (bit per axis).
+    overdue: u8,
+    /// A block ended at rest: every pending step goes out before the next block.
+    flush_all: bool,
     /// Generator time at the start of the current block (or the end of the last), ticks q16.
     block_start_q16: u64,
     /// Motor position per axis after every step generated or being generated.
@@ -93,6 +105,11 @@ impl<const B: usize> StepGenerator<B> {
             axes: [AxisRun::default(); AXES],
             block: None,
             next: None,
+            tag: None,
+            marks: Deque::new(),
+            last_tick: 0,
+            overdue: 0,
+            flush_all: false,
             block_start_q16: 0,
             motor: core::array::from_fn(|i| {
                 nearest_step(step_position_q32(position_um[i], spm[i]))
@@ -117,6 +134,11 @@ impl<const B: usize> StepGenerator<B> {
             axes: [STILL; AXES],
             block: None,
             next: None,
+            tag: None,
+            marks: Deque::new(),
+            last_tick: 0,
+            overdue: 0,
+            flush_all: false,
             block_start_q16: 0,
             motor: [0; AXES],
             at_rest: true,
@@ -134,10 +156,17 @@ impl<const B: usize> StepGenerator<B> {
     // Giving the item back is the heapless convention; no_std has no Box to shrink it.
     #[allow(clippy::result_large_err)]
     pub fn load(&mut self, block: Block) -> Result<(), Block> {
+        self.load_tagged(block, 0)
+    }
+
+    /// [`StepGenerator::load`] with a tag (the layer): commands are hashed per tag (see
+    /// [`StepGenerator::take_mark`]).
+    #[allow(clippy::result_large_err)]
+    pub fn load_tagged(&mut self, block: Block, tag: u32) -> Result<(), Block> {
         if self.next.is_some() {
             return Err(block);
         }
-        self.next = Some(block);
+        self.next = Some((block, tag));
         Ok(())
     }
 
@@ -177,24 +206,30 @@ impl<const B: usize> StepGenerator<B> {
 
     fn run_inner<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> GenStatus {
         loop {
+            // Work owed by the last step or block end comes first, and is retried as it was
+            // when a queue is full: the commands depend on the blocks only, never on how
+            // fast the executor drains the queues.
+            if self.settle(out).is_err() {
+                return GenStatus::QueueFull;
+            }
             let Some(block) = self.block else {
-                if let Some(b) = self.next.take() {
+                if let Some((b, tag)) = self.next {
+                    if self.tag != Some(tag) {
+                        if self.marks.is_full() {
+                            return GenStatus::QueueFull;
+                        }
+                        // The commands so far belong to the previous tag.
+                        let h = out.take_hash();
+                        if let Some(prev) = self.tag {
+                            let _ = self.marks.push_back((prev, h));
+                        }
+                        self.tag = Some(tag);
+                    }
+                    self.next = None;
                     self.start_block(b);
                     continue;
                 }
-                if !self.at_rest {
-                    return GenStatus::NeedBlock;
-                }
-                // A stop with nothing after it: send everything.
-                for axis in 0..AXES {
-                    while !self.comp[axis].is_empty() {
-                        if self.comp[axis].emit(axis, out, &self.tune).is_err() {
-                            return GenStatus::QueueFull;
-                        }
-                        self.publish(out);
-                    }
-                }
-                return GenStatus::Idle;
+                return if self.at_rest { GenStatus::Idle } else { GenStatus::NeedBlock };
             };
             // The axis with the earliest next step.
             let mut pick: Option<usize> = None;
@@ -208,34 +243,65 @@ impl<const B: usize> StepGenerator<B> {
                 self.block_start_q16 =
                     self.block_start_q16.saturating_add(block.duration_ticks_q16());
                 self.at_rest = block.ends_at_rest();
+                // A stop sends everything before it, whether or not more blocks follow.
+                self.flush_all = self.at_rest;
                 self.block = None;
                 self.blocks += 1;
                 continue;
             };
             let (tick, dir) = (self.axes[axis].next_tick, self.axes[axis].dir);
-            let before = self.sequences();
             if self.comp[axis].push_step(axis, tick, dir, out, &self.tune).is_err() {
-                self.unblock(axis, out);
+                // Only a deadlock (the executor waits at the horizon and this queue is still
+                // full) sends other axes' steps early; a merely full queue waits.
+                if out.executor_waiting() {
+                    self.unblock(axis, out);
+                }
                 return GenStatus::QueueFull;
             }
             self.steps[axis] += 1;
             self.advance(axis, &block);
-            // Steps that waited too long for a longer sequence go out now.
-            for c in 0..AXES {
-                if let Some(f) = self.comp[c].first_pending() {
-                    if f + self.pending_ticks < tick {
-                        let _ = self.comp[c].emit(c, out, &self.tune);
-                    }
-                }
-            }
-            if self.sequences() != before {
-                self.publish(out);
-            }
+            self.last_tick = tick;
+            self.overdue = (1 << AXES) - 1;
         }
     }
 
-    fn sequences(&self) -> u64 {
-        self.comp.iter().map(|c| c.sequences).sum()
+    /// Sends what is owed: per axis at most one sequence whose first step waited longer than
+    /// `pending_ticks` behind the last step generated, then (at a stop) everything.
+    fn settle<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> Result<(), Full> {
+        for c in 0..AXES {
+            if self.overdue & (1 << c) == 0 {
+                continue;
+            }
+            if let Some(f) = self.comp[c].first_pending() {
+                if f + self.pending_ticks < self.last_tick {
+                    self.comp[c].emit(c, out, &self.tune)?;
+                    self.publish(out);
+                }
+            }
+            self.overdue &= !(1 << c);
+        }
+        if self.flush_all {
+            for c in 0..AXES {
+                while !self.comp[c].is_empty() {
+                    self.comp[c].emit(c, out, &self.tune)?;
+                    self.publish(out);
+                }
+            }
+            self.flush_all = false;
+        }
+        Ok(())
+    }
+
+    /// Layer marks completed since the last call: (tag, hash of the step commands queued
+    /// while the generator worked on blocks of that tag). The last tag's commands are
+    /// closed with [`StepProducer::take_hash`] by the owner once the generator is idle.
+    pub fn take_mark(&mut self) -> Option<(u32, u64)> {
+        self.marks.pop_front()
+    }
+
+    /// The tag of the blocks being generated (the last one started).
+    pub fn tag(&self) -> Option<u32> {
+        self.tag
     }
 
     /// `axis` cannot queue more: send the other axes' steps that are older than its last
@@ -252,7 +318,7 @@ impl<const B: usize> StepGenerator<B> {
     }
 
     /// Publishes how far the queued commands reach and whether the motion rests there.
-    fn publish<const N: usize>(&self, out: &StepProducer<'_, N>) {
+    fn publish<const N: usize>(&self, out: &mut StepProducer<'_, N>) {
         let end = match &self.block {
             Some(b) => self.block_start_q16.saturating_add(b.duration_ticks_q16()),
             None => self.block_start_q16,

@@ -180,7 +180,12 @@ pub(crate) fn pack_horizon(ticks: u64, at_rest: bool) -> u32 {
 pub struct StepQueue<const N: usize> {
     axes: [Queue<StepCmd, N>; AXES],
     horizon: AtomicU32,
+    /// The horizon word the executor is stalled at ([`NOT_STALLED`] while it runs).
+    stalled_at: AtomicU32,
 }
+
+/// `stalled_at` while the executor runs (horizon words of a stall are even).
+const NOT_STALLED: u32 = 1;
 
 impl<const N: usize> StepQueue<N> {
     /// Empty queues, horizon at time 0, at rest.
@@ -188,6 +193,7 @@ impl<const N: usize> StepQueue<N> {
         Self {
             axes: [Queue::new(), Queue::new(), Queue::new(), Queue::new()],
             horizon: AtomicU32::new(1),
+            stalled_at: AtomicU32::new(NOT_STALLED),
         }
     }
 
@@ -198,10 +204,16 @@ impl<const N: usize> StepQueue<N> {
         let (py, cy) = y.split();
         let (pz, cz) = z.split();
         let (pe, ce) = e.split();
-        let h = &self.horizon;
+        let (h, st) = (&self.horizon, &self.stalled_at);
         (
-            StepProducer { q: [px, py, pz, pe], horizon: h },
-            StepConsumer { q: [cx, cy, cz, ce], horizon: h },
+            StepProducer {
+                q: [px, py, pz, pe],
+                horizon: h,
+                stalled_at: st,
+                published: 1,
+                hash: FNV_OFFSET,
+            },
+            StepConsumer { q: [cx, cy, cz, ce], horizon: h, stalled_at: st },
         )
     }
 }
@@ -216,12 +228,64 @@ impl<const N: usize> Default for StepQueue<N> {
 pub struct StepProducer<'q, const N: usize> {
     q: [Producer<'q, StepCmd, N>; AXES],
     horizon: &'q AtomicU32,
+    stalled_at: &'q AtomicU32,
+    /// The last horizon word published.
+    published: u32,
+    /// FNV-1a of every command queued since the last [`StepProducer::take_hash`].
+    hash: u64,
+}
+
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
+
+/// FNV-1a step of `bytes` into `h`.
+pub(crate) fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(FNV_PRIME);
+    }
+    h
+}
+
+/// FNV-1a step of one queued command of `axis` into `h`: axis, kind and fields, little endian.
+fn hash_cmd(h: u64, axis: usize, cmd: &StepCmd) -> u64 {
+    let mut b = [0u8; 12];
+    b[0] = axis as u8;
+    match *cmd {
+        StepCmd::Dir(positive) => b[1..3].copy_from_slice(&[1, positive as u8]),
+        StepCmd::Wait(ticks) => {
+            b[1] = 2;
+            b[2..6].copy_from_slice(&ticks.to_le_bytes());
+        }
+        StepCmd::Steps { interval, count, add } => {
+            b[1] = 3;
+            b[2..6].copy_from_slice(&interval.to_le_bytes());
+            b[6..8].copy_from_slice(&count.to_le_bytes());
+            b[8..12].copy_from_slice(&add.to_le_bytes());
+        }
+    }
+    fnv(h, &b)
 }
 
 impl<const N: usize> StepProducer<'_, N> {
     /// Queues `cmd` for `axis`; gives it back when that queue is full.
     pub fn enqueue(&mut self, axis: usize, cmd: StepCmd) -> Result<(), StepCmd> {
-        self.q[axis].enqueue(cmd)
+        self.q[axis].enqueue(cmd)?;
+        self.hash = hash_cmd(self.hash, axis, &cmd);
+        Ok(())
+    }
+
+    /// The hash of the commands queued since the last call (FNV-1a over axis and command,
+    /// in queue order), and starts a new one. Identical block streams give identical
+    /// command streams, however the executor's timing fills and drains the queues.
+    pub fn take_hash(&mut self) -> u64 {
+        core::mem::replace(&mut self.hash, FNV_OFFSET)
+    }
+
+    /// The executor holds at the horizon last published: it has run everything it can and
+    /// needs more commands before it moves on.
+    pub fn executor_waiting(&self) -> bool {
+        self.stalled_at.load(Ordering::Acquire) == self.published
     }
 
     /// Free slots in `axis`' queue.
@@ -239,7 +303,8 @@ impl<const N: usize> StepProducer<'_, N> {
         self.q.iter().all(|q| q.len() == 0)
     }
 
-    pub(crate) fn publish(&self, word: u32) {
+    pub(crate) fn publish(&mut self, word: u32) {
+        self.published = word;
         self.horizon.store(word, Ordering::Release);
     }
 }
@@ -248,6 +313,7 @@ impl<const N: usize> StepProducer<'_, N> {
 pub struct StepConsumer<'q, const N: usize> {
     q: [Consumer<'q, StepCmd, N>; AXES],
     horizon: &'q AtomicU32,
+    stalled_at: &'q AtomicU32,
 }
 
 impl<const N: usize> StepConsumer<'_, N> {
@@ -265,6 +331,12 @@ impl<const N: usize> StepConsumer<'_, N> {
     #[inline]
     pub(crate) fn horizon(&self) -> u32 {
         self.horizon.load(Ordering::Acquire)
+    }
+
+    /// Says the executor stalled at horizon `word` (or runs again: [`NOT_STALLED`]).
+    #[inline]
+    pub(crate) fn set_stalled_at(&self, word: u32) {
+        self.stalled_at.store(word, Ordering::Release);
     }
 }
 
