@@ -4,6 +4,8 @@
 //! to the command line; the tests drive them directly.
 
 pub mod admission;
+#[cfg(unix)]
+pub mod hil;
 pub mod model;
 pub mod preview;
 pub mod serial;

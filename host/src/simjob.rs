@@ -138,6 +138,8 @@ pub struct SimReport {
     pub wire_bytes_per_triangle: f64,
     /// Per-layer hashes reported by the device.
     pub layer_hashes: Vec<u64>,
+    /// The device's last status as the host saw it (state, planned and executed print time).
+    pub status: Option<strata::protocol::Status>,
     /// Time from the start of the link to the first step, s (the first layer needs every
     /// triangle below its top layers).
     pub first_step_s: f64,
@@ -190,8 +192,9 @@ impl Rng {
 }
 
 /// One direction of the link: frames wait in a transmit queue, leave at the baud rate,
-/// suffer the faults and arrive after their delay.
-struct Wire {
+/// suffer the faults and arrive after their delay. Also used by the fault-injecting relay of
+/// the hardware-in-the-loop test (`hil::Relay`) on a wall-clock millisecond.
+pub struct Wire {
     faults: Faults,
     rng: Rng,
     bytes_per_ms: f64,
@@ -203,7 +206,8 @@ struct Wire {
 }
 
 impl Wire {
-    fn new(faults: Faults, salt: u64, baud: u32) -> Self {
+    /// A wire at `baud` (10 bits per byte) with `faults`; `salt` tells the directions apart.
+    pub fn new(faults: Faults, salt: u64, baud: u32) -> Self {
         Self {
             faults,
             rng: Rng(faults.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ salt | 1),
@@ -214,7 +218,8 @@ impl Wire {
         }
     }
 
-    fn send_frame(&mut self, now_ms: u64, frame: &[u8]) {
+    /// Queues one encoded frame (delimiter included), applying the faults.
+    pub fn send_frame(&mut self, now_ms: u64, frame: &[u8]) {
         let f = self.faults;
         if self.rng.chance(f.drop_frame) {
             return;
@@ -239,8 +244,13 @@ impl Wire {
         }
     }
 
-    /// Moves one millisecond's worth of bytes.
-    fn tick(&mut self, now_ms: u64) {
+    /// Bytes that arrived in the last [`Wire::tick`].
+    pub fn arrived(&self) -> &[u8] {
+        &self.arrived
+    }
+
+    /// Moves one millisecond's worth of bytes (call once per millisecond, in order).
+    pub fn tick(&mut self, now_ms: u64) {
         self.arrived.clear();
         self.budget = (self.budget + self.bytes_per_ms).min(self.bytes_per_ms * 2.0);
         let cut = self.faults.cut_at_ms.is_some_and(|c| now_ms >= c as u64);
@@ -427,6 +437,7 @@ fn run(
     };
     rep.wire_time_s = host.progress.triangle_wire_bytes as f64 * 10.0 / opts.baud as f64;
     rep.layer_hashes = host.progress.layer_hashes.clone();
+    rep.status = host.progress.status;
     rep.stream_time_s = host.progress.stream_done_ms.map_or(0.0, |m| m as f64 / 1000.0);
     rep.underruns = exec.stats().underruns;
     rep.starts = exec.stats().starts;

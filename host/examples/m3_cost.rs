@@ -1,0 +1,177 @@
+//! Cortex-M3 cost of whole print jobs on the firmware's QEMU build: each model is streamed
+//! to the emulated board by the real host code (as in `tests/hil_qemu.rs`), and the
+//! firmware's `COST`/`MEM` lines (instructions counted by QEMU's `-icount shift=0`) are
+//! summarised per model against the targets:
+//!
+//! - real-time factor of the worst layer (its print time over its toolpath and planning time
+//!   at 72 MHz and 1.5 cycles per instruction) at least 20;
+//! - step interrupt at most 150 instructions per step on average;
+//! - worst interrupt under 900 cycles (X and Y both stepping at 40 kHz: 72e6 / 80e3).
+//!
+//! `cargo run --release -p strata-host --example m3_cost -- [--echo] MODEL.stl...` (model
+//! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
+//! builds the firmware first and runs the four sample models. Exits non-zero when a job
+//! fails; a missed target is reported, not an error.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use strata::geom::Triangle;
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::protocol::{DeviceState, JobOptions, JobSpec};
+use strata_host::hil::{self, CostSummary, Costs, Qemu, CPU_HZ, CYCLES_PER_INSN};
+use strata_host::model;
+
+const RTF_TARGET: f64 = 20.0;
+const ISR_MEAN_TARGET: f64 = 150.0;
+/// Cycles between two interrupts when X and Y each step at 40 kHz.
+const ISR_WORST_CYCLES: f64 = 72e6 / 80e3;
+
+fn resolve(arg: &str) -> PathBuf {
+    let p = Path::new(arg);
+    if p.components().count() > 1 || p.is_file() {
+        return p.to_path_buf();
+    }
+    hil::repo_root().join("../shared/models").join(arg)
+}
+
+struct Row {
+    name: String,
+    layers: u32,
+    note: Option<String>,
+    s: CostSummary,
+    print_s: f64,
+    wall_s: f64,
+}
+
+fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool) -> Result<Row, String> {
+    let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
+    let machine = MachineConfig::default();
+    let tris = model::load(path)?.placed_sorted(&machine)?;
+    let job = JobSpec {
+        settings: PrintSettings::default(),
+        options: JobOptions::default(),
+        model_height_um: tris.iter().map(Triangle::z_max).max().unwrap_or(0),
+        triangles: tris.len() as u32,
+    };
+    let t0 = std::time::Instant::now();
+    let (mut q, mut port) = Qemu::start(qemu, elf, echo, Duration::from_secs(20))?;
+    port.set_read_timeout(Some(Duration::from_millis(1))).map_err(|e| e.to_string())?;
+    port.set_write_timeout(Some(Duration::from_secs(10))).map_err(|e| e.to_string())?;
+    let mut conn = hil::connect(&mut port)?;
+    let (tris, job, note) = hil::admitted(&tris, job, &conn.caps)?;
+    let progress = hil::print_job(&mut port, &mut conn, &tris, job, Duration::from_secs(1800))
+        .map_err(|e| {
+            format!("{name}: {e}; qemu: {} {:?}", q.stderr(), q.lines().iter().rev().take(8))
+        })?;
+    let st = progress.status.unwrap_or_default();
+    if st.state != DeviceState::Done {
+        return Err(format!("{name}: ended in {:?}", st.state));
+    }
+    q.wait_for(Duration::from_secs(60), |l| {
+        l.iter().any(|l| l.contains("isr_calls=")) && l.iter().any(|l| l.starts_with("MEM"))
+    });
+    let costs = Costs::parse(&q.lines());
+    let timer_hz = strata::step::StepConfig::from_machine(&machine).timer_hz as f64;
+    Ok(Row {
+        name,
+        layers: st.layers,
+        note,
+        s: CostSummary::of(&costs, timer_hz),
+        print_s: st.done_ms as f64 / 1000.0,
+        wall_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+fn main() {
+    let mut echo = false;
+    let mut models = Vec::new();
+    for a in std::env::args().skip(1) {
+        match a.as_str() {
+            "--echo" => echo = true,
+            _ => models.push(resolve(&a)),
+        }
+    }
+    if models.is_empty() {
+        eprintln!("usage: m3_cost [--echo] MODEL.stl...");
+        std::process::exit(2);
+    }
+    let (qemu, elf) = hil::locate().unwrap_or_else(|e| {
+        eprintln!("m3_cost: {e}");
+        std::process::exit(2);
+    });
+    println!(
+        "Cortex-M3 cost per job (QEMU lm3s6965evb -icount shift=0; {} MHz at {CYCLES_PER_INSN} \
+         cycles per instruction; {})",
+        CPU_HZ / 1e6,
+        elf.display()
+    );
+    let mut failed = false;
+    let mut rows = Vec::new();
+    for m in &models {
+        match run(&qemu, &elf, m, echo) {
+            Ok(r) => rows.push(r),
+            Err(e) => {
+                eprintln!("{}: FAILED: {e}", m.display());
+                failed = true;
+            }
+        }
+    }
+    println!(
+        "\n{:<26} {:>6} {:>6} {:>9} {:>11} {:>11} {:>9} {:>9} {:>12} {:>8} {:>8}",
+        "model",
+        "tris",
+        "layers",
+        "ins/tri",
+        "layer mean",
+        "layer max",
+        "isr/step",
+        "isr max",
+        "worst rtf",
+        "data+bss",
+        "stack"
+    );
+    for r in &rows {
+        let s = &r.s;
+        println!(
+            "{:<26} {:>6} {:>6} {:>9.0} {:>11.0} {:>11} {:>9.1} {:>9} {:>7.1} L{:<4} {:>8} {:>8}",
+            r.name,
+            s.triangles,
+            r.layers,
+            s.insns_per_triangle,
+            s.layer_insns_mean,
+            s.layer_insns_max,
+            s.isr_insns_per_step,
+            s.isr_insns_max,
+            s.worst_rtf,
+            s.worst_rtf_layer,
+            s.data_bss.map_or("-".into(), |v| v.to_string()),
+            s.stack_hwm.map_or("-".into(), |v| v.to_string()),
+        );
+    }
+    println!();
+    for r in &rows {
+        let s = &r.s;
+        let worst_cycles = s.isr_insns_max as f64 * CYCLES_PER_INSN;
+        let verdict = |ok: bool| if ok { "ok" } else { "MISSED" };
+        println!(
+            "{}: {} steps, printed {:.0} s (device clock), {:.0} s wall{}; worst layer {:.1}x \
+             (target >= {RTF_TARGET}x: {}); ISR {:.1} insns/step (target <= {ISR_MEAN_TARGET}: \
+             {}); worst ISR {:.0} cycles (40 kHz on X and Y needs < {ISR_WORST_CYCLES:.0}: {})",
+            r.name,
+            s.steps,
+            r.print_s,
+            r.wall_s,
+            r.note.as_ref().map(|n| format!(", {n}")).unwrap_or_default(),
+            s.worst_rtf,
+            verdict(s.worst_rtf >= RTF_TARGET),
+            s.isr_insns_per_step,
+            verdict(s.isr_insns_per_step <= ISR_MEAN_TARGET),
+            worst_cycles,
+            verdict(worst_cycles < ISR_WORST_CYCLES),
+        );
+    }
+    if failed {
+        std::process::exit(1);
+    }
+}

@@ -1,0 +1,335 @@
+//! Hardware in the loop: the firmware's QEMU build (Cortex-M3 `lm3s6965evb`, 64 KB RAM,
+//! UART0 on a unix socket) prints the sample models streamed by the real host code
+//! (`strata_host::serial::print` after the handshake and admission control), and its
+//! per-layer hashes, final state, planned print time and step count equal the host
+//! simulation of the same job (`strata_host::simjob::simulate`, what `strata simulate --json`
+//! reports) bit for bit; then again through a seeded fault-injecting relay (frame drop, byte
+//! corruption and loss, duplication, delay at a few percent per frame on both directions).
+//!
+//! How to run:
+//!
+//! ```text
+//! apt-get install qemu-system-arm             # once
+//! scripts/build_firmware.sh qemu               # target/firmware/qemu/strata-firmware.elf (release)
+//! cargo test -p strata-host --test hil_qemu -- --nocapture
+//! ```
+//!
+//! `STRATA_QEMU` and `STRATA_FIRMWARE_ELF` override where QEMU and the image are looked for;
+//! `STRATA_HIL_ECHO=1` copies QEMU's output (the firmware's `COST`/`MEM` lines) to stderr as
+//! it comes. Without QEMU or the image the QEMU tests fail when `CI` is set and are skipped
+//! with the reason printed otherwise. The harness itself (relay, timeouts, comparison) also
+//! runs against the in-process simulated printer (`serve_device`), which needs neither.
+//!
+//! Nothing can hang: QEMU's UART must accept within 20 s, the link counts as dead after 20 s
+//! of silence, every job is aborted past its wall-clock budget, and QEMU is killed on drop.
+//! The reference simulation runs on a second thread while QEMU prints.
+
+#![cfg(unix)]
+
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use strata::geom::{Point3, Triangle};
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::printer::CREALITY_CAPACITIES;
+use strata::protocol::{DeviceState, JobOptions, JobSpec};
+use strata_host::hil::{self, Costs, Qemu, Relay, SimDevice};
+use strata_host::model;
+use strata_host::session::Progress;
+use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
+
+/// Faults of the lossy runs: 3 % of frames each dropped, corrupted, shortened by a byte,
+/// duplicated and delayed (up to 50 ms), on both directions, at 250000 baud.
+const LOSS: f64 = 0.03;
+const BAUD: u32 = 250_000;
+/// Wall-clock budget of one QEMU job (debug host build, 2 shared cores).
+const QEMU_JOB: Duration = Duration::from_secs(240);
+
+fn models_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models")
+}
+
+/// QEMU and the image, or `None` (skip) with the reason printed; under CI a missing piece
+/// fails the test.
+fn qemu_or_skip(test: &str) -> Option<(PathBuf, PathBuf)> {
+    match hil::locate() {
+        Ok(x) => Some(x),
+        Err(e) if std::env::var_os("CI").is_some() => panic!("{test}: {e}"),
+        Err(e) => {
+            eprintln!("{test}: SKIPPED: {e}");
+            None
+        }
+    }
+}
+
+/// The job `strata simulate`/`strata print` build with default settings.
+fn job_for(tris: &[Triangle]) -> JobSpec {
+    JobSpec {
+        settings: PrintSettings::default(),
+        options: JobOptions::default(),
+        model_height_um: tris.iter().map(Triangle::z_max).max().unwrap_or(0),
+        triangles: tris.len() as u32,
+    }
+}
+
+fn load(name: &str) -> (Vec<Triangle>, JobSpec) {
+    let path = models_dir().join(name);
+    let m = model::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let tris = m.placed_sorted(&MachineConfig::default()).unwrap();
+    let job = job_for(&tris);
+    (tris, job)
+}
+
+/// What one job over a port gave.
+struct Run {
+    /// The admitted triangles and their job (the reference simulates exactly these).
+    tris: Vec<Triangle>,
+    job: JobSpec,
+    note: Option<String>,
+    result: Result<Progress, String>,
+    link: strata::protocol::LinkStats,
+    elapsed: Duration,
+}
+
+/// Handshake, admission, then the print; `reference` (if given) is simulated on a second
+/// thread meanwhile from the admitted triangles.
+fn run_job(
+    port: &mut UnixStream,
+    tris: &[Triangle],
+    job: JobSpec,
+    timeout: Duration,
+    want_reference: bool,
+) -> (Run, Option<Result<SimReport, String>>) {
+    let t0 = Instant::now();
+    port.set_read_timeout(Some(Duration::from_millis(1))).unwrap();
+    port.set_write_timeout(Some(Duration::from_secs(10))).unwrap();
+    let mut conn = match hil::connect(port) {
+        Ok(c) => c,
+        Err(e) => {
+            let run = Run {
+                tris: tris.to_vec(),
+                job,
+                note: None,
+                result: Err(format!("handshake: {e}")),
+                link: Default::default(),
+                elapsed: t0.elapsed(),
+            };
+            return (run, None);
+        }
+    };
+    let (tris, job, note) = hil::admitted(tris, job, &conn.caps).unwrap();
+    std::thread::scope(|s| {
+        let reference = want_reference.then(|| {
+            s.spawn(|| {
+                simulate(&tris, &MachineConfig::default(), job, &SimOptions::default())
+                    .map_err(|(e, _)| e)
+            })
+        });
+        let result = hil::print_job(port, &mut conn, &tris, job, timeout);
+        let run = Run {
+            tris: tris.clone(),
+            job,
+            note: note.clone(),
+            result,
+            link: *conn.ep.stats(),
+            elapsed: t0.elapsed(),
+        };
+        (run, reference.map(|r| r.join().unwrap()))
+    })
+}
+
+/// The device's results equal the reference: state, every layer hash, layer and triangle
+/// counts, planned print time; `steps` (the firmware's step count, when it reports one) the
+/// sum of the reference's steps per axis.
+fn assert_same(what: &str, reference: &SimReport, p: &Progress, steps: Option<u64>) {
+    let st = p.status.expect("a final status");
+    let rs = reference.status.expect("the reference's final status");
+    assert_eq!(st.state, DeviceState::Done, "{what}: final state");
+    assert_eq!(st.layers, reference.layers, "{what}: layers");
+    assert_eq!(p.layer_hashes.len(), reference.layers as usize, "{what}: layer reports");
+    if let Some(l) = (0..p.layer_hashes.len().min(reference.layer_hashes.len()))
+        .find(|&l| p.layer_hashes[l] != reference.layer_hashes[l])
+    {
+        panic!(
+            "{what}: layer {l} hash {:016x}, the simulation's {:016x} ({} of {} layers differ)",
+            p.layer_hashes[l],
+            reference.layer_hashes[l],
+            p.layer_hashes.iter().zip(&reference.layer_hashes).filter(|(a, b)| a != b).count(),
+            reference.layers
+        );
+    }
+    assert_eq!(p.layer_hashes, reference.layer_hashes, "{what}: layer hashes");
+    assert_eq!(st.triangles, rs.triangles, "{what}: triangles taken");
+    assert_eq!(st.planned_ms, rs.planned_ms, "{what}: planned print time, ms");
+    if let Some(steps) = steps {
+        assert_eq!(steps, reference.steps.iter().sum::<u64>(), "{what}: steps (X+Y+Z+E)");
+    }
+}
+
+/// One model on QEMU: clean, then through the lossy relay; both equal the simulation.
+fn qemu_model(name: &str) {
+    let test = format!("hil_qemu {name}");
+    let Some((qemu, elf)) = qemu_or_skip(&test) else { return };
+    let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
+    let (tris, job) = load(name);
+    let mut reference = None;
+    for faults in [None, Some(Faults::uniform(LOSS, 7))] {
+        let label = format!("{name} {}", if faults.is_some() { "lossy" } else { "clean" });
+        let (mut q, uart) = Qemu::start(&qemu, &elf, echo, Duration::from_secs(20))
+            .unwrap_or_else(|e| panic!("{label}: {e}"));
+        let (relay, mut port) = match faults {
+            Some(f) => {
+                let (r, p) = Relay::spawn(uart, f, BAUD).unwrap();
+                (Some(r), p)
+            }
+            None => (None, uart),
+        };
+        let (run, r) = run_job(&mut port, &tris, job, QEMU_JOB, reference.is_none());
+        if let Some(r) = r {
+            reference = Some(r.unwrap_or_else(|e| panic!("{label}: reference simulation: {e}")));
+        }
+        let progress = run.result.unwrap_or_else(|e| {
+            panic!(
+                "{label}: {e}\n  qemu stderr: {}\n  qemu output (last lines): {:?}",
+                q.stderr(),
+                q.lines().iter().rev().take(12).rev().collect::<Vec<_>>()
+            )
+        });
+        // The job's closing cost lines follow its last report.
+        q.wait_for(Duration::from_secs(30), |l| {
+            l.iter().any(|l| l.contains("isr_calls=") || l.starts_with("MEM"))
+        });
+        let costs = Costs::parse(&q.lines());
+        drop(port);
+        let relay_stats = relay.map(|r| r.finish());
+        let rf = reference.as_ref().unwrap();
+        eprintln!(
+            "{label}: {} triangles{}, {} layers, planned {:.1} s, executed {:.1} s (simulation \
+             {:.1} s), steps {:?} (simulation {:?}), {:.1} s wall, host link {:?}, relay {:?}",
+            run.tris.len(),
+            run.note.map(|n| format!(" ({n})")).unwrap_or_default(),
+            rf.layers,
+            progress.status.map_or(0, |s| s.planned_ms) as f64 / 1000.0,
+            progress.status.map_or(0, |s| s.done_ms) as f64 / 1000.0,
+            rf.print_time_s,
+            costs.get(&["steps"]),
+            rf.steps,
+            run.elapsed.as_secs_f64(),
+            run.link,
+            relay_stats
+        );
+        assert_eq!(run.job.triangles as usize, run.tris.len());
+        assert_same(&label, rf, &progress, costs.get(&["steps"]));
+        if faults.is_some() {
+            assert!(
+                run.link.retransmits > 0 && run.link.bad_frames > 0,
+                "{label}: the relay injected nothing: {:?}",
+                run.link
+            );
+        }
+    }
+}
+
+#[test]
+fn qemu_embodier_asc() {
+    qemu_model("embodier_asc.stl");
+}
+
+#[test]
+fn qemu_xyz_20mm_cube() {
+    qemu_model("xyz_20mm_cube.stl");
+}
+
+#[test]
+fn qemu_embodier_hotend_v2() {
+    qemu_model("embodier_hotend_v2.stl");
+}
+
+#[test]
+fn qemu_embodier_lm8uu() {
+    qemu_model("embodier_LM8UU_8p2pi.stl");
+}
+
+/// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm),
+/// zmin-sorted.
+fn cylinder(r: f64, h: i32, n: usize) -> Vec<Triangle> {
+    let o = 100_000;
+    let p = |k: usize, z: i32| {
+        let a = std::f64::consts::TAU * (k % n) as f64 / n as f64;
+        Point3::new(o + (r * a.cos()).round() as i32, o + (r * a.sin()).round() as i32, z)
+    };
+    let (c0, c1) = (Point3::new(o, o, 0), Point3::new(o, o, h));
+    let mut t = Vec::new();
+    for k in 0..n {
+        t.push(Triangle { v: [p(k, 0), p(k + 1, 0), p(k + 1, h)] });
+        t.push(Triangle { v: [p(k, 0), p(k + 1, h), p(k, h)] });
+        t.push(Triangle { v: [c0, p(k + 1, 0), p(k, 0)] });
+        t.push(Triangle { v: [c1, p(k, h), p(k + 1, h)] });
+    }
+    t.sort_by_key(Triangle::z_min);
+    t
+}
+
+/// The harness without QEMU: the in-process simulated printer behind a unix socket, clean
+/// and through the lossy relay, gives the simulation's hashes.
+#[test]
+fn harness_against_the_in_process_printer() {
+    let tris = cylinder(6_000.0, 1_000, 96);
+    let job = job_for(&tris);
+    let mut reference = None;
+    for faults in [None, Some(Faults::uniform(LOSS, 3))] {
+        let label = if faults.is_some() { "in-process lossy" } else { "in-process clean" };
+        let (dev, uart) = SimDevice::start(CREALITY_CAPACITIES, 200).unwrap();
+        let (relay, mut port) = match faults {
+            Some(f) => {
+                let (r, p) = Relay::spawn(uart, f, BAUD).unwrap();
+                (Some(r), p)
+            }
+            None => (None, uart),
+        };
+        let (run, r) =
+            run_job(&mut port, &tris, job, Duration::from_secs(120), reference.is_none());
+        if let Some(r) = r {
+            reference = Some(r.unwrap());
+        }
+        let progress = run.result.unwrap_or_else(|e| panic!("{label}: {e}"));
+        drop(port);
+        let relay_stats = relay.map(|r| r.finish().unwrap());
+        let state = dev.finish().unwrap();
+        eprintln!(
+            "{label}: {} layers in {:.1} s, host link {:?}, relay {:?}",
+            progress.layer_hashes.len(),
+            run.elapsed.as_secs_f64(),
+            run.link,
+            relay_stats
+        );
+        assert_eq!(state, DeviceState::Done);
+        assert!(run.note.is_none());
+        assert_same(label, reference.as_ref().unwrap(), &progress, None);
+        if faults.is_some() {
+            assert!(run.link.retransmits > 0 && run.link.bad_frames > 0, "{:?}", run.link);
+        }
+    }
+}
+
+/// A QEMU that cannot run the image is an error within seconds, never a hang (QEMU accepts
+/// the UART connection before it loads the image, then exits).
+#[test]
+fn a_missing_image_is_an_error_not_a_hang() {
+    let Some(qemu) = hil::find_qemu() else { return };
+    let missing = std::env::temp_dir().join("strata-hil-no-such-image.elf");
+    let t0 = Instant::now();
+    let e = match Qemu::start(&qemu, &missing, false, Duration::from_secs(20)) {
+        Err(e) => e,
+        Ok((mut q, mut port)) => {
+            port.set_read_timeout(Some(Duration::from_millis(1))).unwrap();
+            let e = hil::connect(&mut port).err().expect("no handshake without an image");
+            assert!(q.wait_for(Duration::from_secs(10), |_| false) || q.exit_status().is_some());
+            format!("{e}; qemu: {}", q.stderr())
+        }
+    };
+    eprintln!("{e} ({:.1} s)", t0.elapsed().as_secs_f64());
+    assert!(t0.elapsed() < Duration::from_secs(20), "{e}");
+    assert!(e.contains("strata-hil-no-such-image"), "{e}");
+}
