@@ -507,36 +507,41 @@ pub fn print_job<P: Read + Write>(
 /// One `TAG key=value ...` line of the firmware's standard output.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Record {
-    /// The first word (`COST`, `MEM`).
+    /// The first word (`COST`, `MEM`, `STEPS`, `JOB`).
     pub tag: String,
-    /// The `key=value` pairs with integer values.
+    /// The `key=value` pairs with decimal integer values.
     pub fields: BTreeMap<String, u64>,
+    /// Every `key=value` pair as written.
+    pub text: BTreeMap<String, String>,
 }
 
-/// Parses `TAG k=v k=v` (values that are not integers are left out); `None` for other lines.
+/// Parses `TAG k=v k=v` (a tag in capitals, then only `key=value` words); `None` for other
+/// lines.
 pub fn parse_record(line: &str) -> Option<Record> {
     let mut words = line.split_whitespace();
     let tag = words.next()?;
-    if tag.is_empty() || !tag.chars().all(|c| c.is_ascii_uppercase() || c == '_') {
+    if !tag.chars().all(|c| c.is_ascii_uppercase() || c == '_') {
         return None;
     }
     let mut fields = BTreeMap::new();
+    let mut text = BTreeMap::new();
     for w in words {
         let (k, v) = w.split_once('=')?;
-        if let Ok(v) = v.parse::<u64>() {
-            fields.insert(k.to_string(), v);
+        if let Ok(n) = v.parse::<u64>() {
+            fields.insert(k.to_string(), n);
         }
+        text.insert(k.to_string(), v.to_string());
     }
-    (!fields.is_empty()).then(|| Record { tag: tag.to_string(), fields })
+    (!text.is_empty()).then(|| Record { tag: tag.to_string(), fields, text })
 }
 
-/// The firmware's cost and memory lines of one job.
+/// The firmware's cost, step and memory lines of one job.
 #[derive(Debug, Clone, Default)]
 pub struct Costs {
     /// Per layer (`COST layer=K ...`): layer, instructions for toolpath and planning, print
     /// time in timer ticks.
     pub layers: Vec<LayerCost>,
-    /// Every other record (job, interrupt and memory lines).
+    /// Every other record (job, interrupt, steps and memory lines).
     pub records: Vec<Record>,
 }
 
@@ -568,10 +573,52 @@ impl Costs {
         c
     }
 
-    /// The last value of the first of `keys` any record has.
-    pub fn get(&self, keys: &[&str]) -> Option<u64> {
-        keys.iter().find_map(|k| self.records.iter().rev().find_map(|r| r.fields.get(*k).copied()))
+    /// The last value of the first of `keys` a record tagged `tag` has.
+    pub fn get(&self, tag: &str, keys: &[&str]) -> Option<u64> {
+        self.record(tag, keys).and_then(|(r, k)| r.fields.get(k).copied())
     }
+
+    /// The same as written (e.g. a hexadecimal hash).
+    pub fn text(&self, tag: &str, keys: &[&str]) -> Option<&str> {
+        self.record(tag, keys).and_then(|(r, k)| r.text.get(k).map(String::as_str))
+    }
+
+    fn record<'k>(&self, tag: &str, keys: &[&'k str]) -> Option<(&Record, &'k str)> {
+        keys.iter().find_map(|&k| {
+            self.records
+                .iter()
+                .rev()
+                .find(|r| r.tag == tag && r.text.contains_key(k))
+                .map(|r| (r, k))
+        })
+    }
+
+    /// The firmware's `STEPS` line: steps per axis and final positions (X, Y, Z, E), the
+    /// executed print time in timer ticks.
+    pub fn steps(&self) -> Option<StepsLine> {
+        let axes = ["x", "y", "z", "e"];
+        let mut s = StepsLine::default();
+        for (a, k) in axes.iter().enumerate() {
+            s.steps[a] = self.get("STEPS", &[k])?;
+            s.positions[a] = self.text("STEPS", &[&format!("pos_{k}")])?.parse().ok()?;
+        }
+        s.print_ticks = self.get("STEPS", &["print_ticks"]);
+        s.hash = self.text("STEPS", &["hash"]).and_then(|h| u64::from_str_radix(h, 16).ok());
+        Some(s)
+    }
+}
+
+/// What the firmware's `STEPS` line says.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StepsLine {
+    /// Steps per axis.
+    pub steps: [u64; 4],
+    /// Final positions, steps.
+    pub positions: [i64; 4],
+    /// Executed print time, timer ticks.
+    pub print_ticks: Option<u64>,
+    /// Hash of every step (axis, direction, tick).
+    pub hash: Option<u64>,
 }
 
 fn first(r: &Record, keys: &[&str]) -> Option<u64> {
@@ -616,10 +663,10 @@ pub struct CostSummary {
 impl CostSummary {
     /// The figures of `c`, with print ticks at `timer_hz`.
     pub fn of(c: &Costs, timer_hz: f64) -> Self {
-        let triangles = c.get(&["triangles"]).unwrap_or(0);
-        let slice = c.get(&["slice_insns"]).unwrap_or(0);
-        let steps = c.get(&["steps"]).unwrap_or(0);
-        let isr_total = c.get(&["isr_insns_total", "isr_insns"]).unwrap_or(0);
+        let triangles = c.get("COST", &["triangles"]).unwrap_or(0);
+        let slice = c.get("COST", &["slice_insns"]).unwrap_or(0);
+        let steps = c.get("COST", &["steps"]).unwrap_or(0);
+        let isr_total = c.get("COST", &["isr_insns_total", "isr_insns"]).unwrap_or(0);
         let n = c.layers.len();
         let total: u64 = c.layers.iter().map(|l| l.compute_insns).sum();
         let mut worst = (f64::INFINITY, 0);
@@ -637,12 +684,12 @@ impl CostSummary {
             layer_insns_mean: total as f64 / n.max(1) as f64,
             layer_insns_max: c.layers.iter().map(|l| l.compute_insns).max().unwrap_or(0),
             isr_insns_per_step: isr_total as f64 / steps.max(1) as f64,
-            isr_insns_max: c.get(&["isr_insns_max", "isr_max"]).unwrap_or(0),
+            isr_insns_max: c.get("COST", &["isr_insns_max", "isr_max"]).unwrap_or(0),
             steps,
             worst_rtf: worst.0,
             worst_rtf_layer: worst.1,
-            data_bss: c.get(&["data_bss"]),
-            stack_hwm: c.get(&["stack_hwm"]),
+            data_bss: c.get("MEM", &["data_bss"]),
+            stack_hwm: c.get("MEM", &["stack_hwm"]),
         }
     }
 }
@@ -659,6 +706,7 @@ mod tests {
             "COST layer=1 compute_insns=4000 print_ticks=7200000",
             "COST triangles=12 slice_insns=1200",
             "COST isr_calls=10 isr_insns_total=1000 isr_insns_max=300 steps=8",
+            "STEPS x=5 y=3 z=0 e=0 pos_x=-1 pos_y=3 pos_z=0 pos_e=0 hash=00ff print_ticks=9",
             "MEM data_bss=60000 stack_hwm=2000 stack_size=4096",
         ]
         .iter()
@@ -676,6 +724,11 @@ mod tests {
         assert_eq!(s.worst_rtf_layer, 1);
         assert!((s.worst_rtf - 1200.0).abs() < 1e-6, "{}", s.worst_rtf);
         assert_eq!(s.data_bss, Some(60000));
+        let st = c.steps().unwrap();
+        assert_eq!(st.steps, [5, 3, 0, 0]);
+        assert_eq!(st.positions, [-1, 3, 0, 0]);
+        assert_eq!((st.print_ticks, st.hash), (Some(9), Some(255)));
         assert!(parse_record("hello world").is_none());
+        assert!(parse_record("SOFT LIMIT axis=1").is_none());
     }
 }

@@ -124,6 +124,10 @@ pub struct SimReport {
     pub filament_mm: f64,
     /// Steps per axis X, Y, Z, E.
     pub steps: [u64; AXES],
+    /// Final motor positions X, Y, Z, E, steps (from the start of the job).
+    pub positions: [i64; AXES],
+    /// From the first step to the last, timer ticks (`print_time_s` exactly).
+    pub print_ticks: u64,
     /// Bound every step was checked against, us.
     pub max_step_error_us: f64,
     /// Steps outside the bound.
@@ -417,11 +421,13 @@ fn run(
     rep.layers = printer.layer_count();
     rep.end_ms = now_ms;
     rep.steps = board.axes().map(|a| a.steps);
+    rep.positions = board.positions();
     rep.first_step_s = first_step.map_or(0.0, |f| (f - start_tick) as f64 / timer_hz as f64);
-    rep.print_time_s = match (first_step, last_step_tick(&board)) {
-        (Some(f), Some(l)) => (l - f) as f64 / timer_hz as f64,
-        _ => 0.0,
+    rep.print_ticks = match (first_step, last_step_tick(&board)) {
+        (Some(f), Some(l)) => l - f,
+        _ => 0,
     };
+    rep.print_time_s = rep.print_ticks as f64 / timer_hz as f64;
     rep.planned_s = printer.planned_s();
     rep.filament_mm = tp.filament_um as f64 / 1000.0;
     rep.max_step_error_us = step_cfg.max_error_ticks as f64 * 1e6 / timer_hz as f64;

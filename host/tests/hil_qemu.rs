@@ -118,7 +118,9 @@ fn run_job(
             return (run, None);
         }
     };
-    let (tris, job, note) = hil::admitted(tris, job, &conn.caps).unwrap();
+    let (tris, job, note) = hil::admitted(tris, job, &conn.caps).unwrap_or_else(|e| {
+        panic!("refused by admission control against the device's capacities {:?}: {e}", conn.caps)
+    });
     std::thread::scope(|s| {
         let reference = want_reference.then(|| {
             s.spawn(|| {
@@ -140,9 +142,9 @@ fn run_job(
 }
 
 /// The device's results equal the reference: state, every layer hash, layer and triangle
-/// counts, planned print time; `steps` (the firmware's step count, when it reports one) the
-/// sum of the reference's steps per axis.
-fn assert_same(what: &str, reference: &SimReport, p: &Progress, steps: Option<u64>) {
+/// counts, planned print time (protocol messages); with the firmware's `STEPS` and `COST`
+/// lines also the steps per axis, the final positions and the executed print time.
+fn assert_same(what: &str, reference: &SimReport, p: &Progress, fw: Option<&Costs>) {
     let st = p.status.expect("a final status");
     let rs = reference.status.expect("the reference's final status");
     assert_eq!(st.state, DeviceState::Done, "{what}: final state");
@@ -162,9 +164,14 @@ fn assert_same(what: &str, reference: &SimReport, p: &Progress, steps: Option<u6
     assert_eq!(p.layer_hashes, reference.layer_hashes, "{what}: layer hashes");
     assert_eq!(st.triangles, rs.triangles, "{what}: triangles taken");
     assert_eq!(st.planned_ms, rs.planned_ms, "{what}: planned print time, ms");
-    if let Some(steps) = steps {
-        assert_eq!(steps, reference.steps.iter().sum::<u64>(), "{what}: steps (X+Y+Z+E)");
+    let Some(fw) = fw else { return };
+    let steps = fw.steps().unwrap_or_else(|| panic!("{what}: the firmware printed no STEPS line"));
+    assert_eq!(steps.steps, reference.steps, "{what}: steps per axis X, Y, Z, E");
+    assert_eq!(steps.positions, reference.positions, "{what}: final positions X, Y, Z, E");
+    if let Some(total) = fw.get("COST", &["steps"]) {
+        assert_eq!(total, reference.steps.iter().sum::<u64>(), "{what}: COST steps");
     }
+    assert_eq!(steps.print_ticks, Some(reference.print_ticks), "{what}: print time, ticks");
 }
 
 /// One model on QEMU: clean, then through the lossy relay; both equal the simulation.
@@ -196,31 +203,33 @@ fn qemu_model(name: &str) {
                 q.lines().iter().rev().take(12).rev().collect::<Vec<_>>()
             )
         });
-        // The job's closing cost lines follow its last report.
-        q.wait_for(Duration::from_secs(30), |l| {
-            l.iter().any(|l| l.contains("isr_calls=") || l.starts_with("MEM"))
-        });
+        // The job's closing lines (COST, STEPS, MEM last) follow its last report.
+        q.wait_for(Duration::from_secs(30), |l| l.iter().any(|l| l.starts_with("MEM ")));
         let costs = Costs::parse(&q.lines());
         drop(port);
         let relay_stats = relay.map(|r| r.finish());
         let rf = reference.as_ref().unwrap();
         eprintln!(
             "{label}: {} triangles{}, {} layers, planned {:.1} s, executed {:.1} s (simulation \
-             {:.1} s), steps {:?} (simulation {:?}), {:.1} s wall, host link {:?}, relay {:?}",
+             {:.1} s), firmware {:?} (simulation steps {:?} positions {:?} print ticks {} \
+             board hash {:016x}), {:.1} s wall, host link {:?}, relay {:?}",
             run.tris.len(),
             run.note.map(|n| format!(" ({n})")).unwrap_or_default(),
             rf.layers,
             progress.status.map_or(0, |s| s.planned_ms) as f64 / 1000.0,
             progress.status.map_or(0, |s| s.done_ms) as f64 / 1000.0,
             rf.print_time_s,
-            costs.get(&["steps"]),
+            costs.steps(),
             rf.steps,
+            rf.positions,
+            rf.print_ticks,
+            rf.board_hash,
             run.elapsed.as_secs_f64(),
             run.link,
             relay_stats
         );
         assert_eq!(run.job.triangles as usize, run.tris.len());
-        assert_same(&label, rf, &progress, costs.get(&["steps"]));
+        assert_same(&label, rf, &progress, Some(&costs));
         if faults.is_some() {
             assert!(
                 run.link.retransmits > 0 && run.link.bad_frames > 0,
