@@ -140,6 +140,15 @@ impl<'q, const N: usize> Executor<'q, N> {
         self.state == State::Idle
     }
 
+    /// The published horizon in executor ticks, and whether the motion rests there: a caller
+    /// driving the executor on a virtual clock (the QEMU firmware's accelerated time) keeps
+    /// the clock before an unrested horizon, or the executor stalls. Only meaningful while
+    /// running (a start from idle shifts it).
+    pub fn horizon(&self) -> (u32, bool) {
+        let word = self.q.horizon();
+        ((word & !1).wrapping_add(self.offset), word & 1 != 0)
+    }
+
     /// Stalled by an underrun.
     pub fn is_stalled(&self) -> bool {
         matches!(self.state, State::Stalled(_))
