@@ -22,12 +22,21 @@ use crate::geom::Point2;
 
 use super::paths::{PathBuf, PathKind};
 use super::poly::{dist, segment_touches_rings, Ring};
-use super::scan::{crossings, intervals, line_spans, sort_by_line, Angle, Crossing, Interval};
+use super::scan::{
+    crossings, intervals, line_spans, loop_range, next_in, prev_in, sort_by_line, Angle, Crossing,
+    Interval,
+};
 use super::window::StoredRings;
 use super::{Buffer, Feature};
 
-/// No crossing / no segment.
-pub const NONE: u32 = u32::MAX;
+/// No crossing / no segment end (a `u16` index).
+pub const NONE: u16 = u16::MAX;
+/// Words of [`FillWork::pool`] per `CROSS`: a crossing's share of segments and pieces.
+pub const POOL_WORDS: usize = 4;
+/// Words per segment in the pool (see [`Segs`]).
+const SEG_WORDS: usize = 6;
+/// Most segments of one pass: `2 x seg + end` fits a `u16` below [`NONE`].
+const MAX_SEGS: usize = (NONE as usize - 1) / 2;
 /// Most crossings walked along the boundary looking for a link.
 const MAX_WALK: usize = 64;
 /// Most boundary vertices in one connector.
@@ -68,8 +77,8 @@ pub struct LineSeg {
     line: i32,
     u0: i32,
     u1: i32,
-    c0: u32,
-    c1: u32,
+    c0: u16,
+    c1: u16,
     piece0: u32,
     npieces: u32,
     island: u16,
@@ -87,18 +96,18 @@ pub struct LinePiece {
 }
 
 impl LinePiece {
-    /// An empty piece (buffer filler).
+    /// An empty piece.
     pub const EMPTY: Self = Self { u1: 0, kind: Kind::None };
 }
 
 impl LineSeg {
-    /// An empty segment (buffer filler).
+    /// An empty segment.
     pub const EMPTY: Self = Self {
         line: 0,
         u0: 0,
         u1: 0,
-        c0: 0,
-        c1: 0,
+        c0: NONE,
+        c1: NONE,
         piece0: 0,
         npieces: 0,
         island: 0,
@@ -106,6 +115,114 @@ impl LineSeg {
         solid: false,
         linkable: false,
     };
+}
+
+/// The segments and pieces of one pass in one word pool: segment `s` in the 6 words from
+/// `6 s` (`line x 8 + flags`, `u0`, `u1`, `c0 + c1 x 2^16`, `piece0`,
+/// `npieces + island x 2^16`), piece `k` in the word `len - 1 - k` from the back
+/// (`u1 x 4 + kind`). A line beyond `2^28`, a `u1` beyond `2^29` or a segment of more than
+/// 65535 pieces is [`Buffer::LineSegments`], like a full pool.
+pub struct Segs<'a> {
+    w: &'a mut [u32],
+    /// Segments.
+    pub nseg: usize,
+    /// Pieces.
+    pub npieces: usize,
+}
+
+impl<'a> Segs<'a> {
+    /// Empty, in `w`.
+    pub fn new(w: &'a mut [u32]) -> Self {
+        Self { w, nseg: 0, npieces: 0 }
+    }
+
+    /// Words in use.
+    pub fn used_words(&self) -> usize {
+        SEG_WORDS * self.nseg + self.npieces
+    }
+
+    fn free_words(&self) -> usize {
+        self.w.len().saturating_sub(self.used_words())
+    }
+
+    fn push_seg(&mut self, s: &LineSeg) -> Result<(), Buffer> {
+        let fits = self.free_words() >= SEG_WORDS
+            && (-(1 << 28)..1 << 28).contains(&s.line)
+            && s.npieces <= u32::from(u16::MAX);
+        let at = SEG_WORDS * self.nseg;
+        let slot = self.w.get_mut(at..at + SEG_WORDS).filter(|_| fits);
+        let slot = slot.ok_or(Buffer::LineSegments)?;
+        let flags = u32::from(s.used) | u32::from(s.solid) << 1 | u32::from(s.linkable) << 2;
+        slot.copy_from_slice(&[
+            (s.line as u32) << 3 | flags,
+            s.u0 as u32,
+            s.u1 as u32,
+            u32::from(s.c0) | u32::from(s.c1) << 16,
+            s.piece0,
+            s.npieces | u32::from(s.island) << 16,
+        ]);
+        self.nseg += 1;
+        Ok(())
+    }
+
+    /// Segment `s` (an empty one past the end).
+    pub fn get(&self, s: usize) -> LineSeg {
+        let Some(w) = self.w.get(SEG_WORDS * s..SEG_WORDS * s + SEG_WORDS) else {
+            return LineSeg::EMPTY;
+        };
+        LineSeg {
+            line: (w[0] as i32) >> 3,
+            used: w[0] & 1 != 0,
+            solid: w[0] & 2 != 0,
+            linkable: w[0] & 4 != 0,
+            u0: w[1] as i32,
+            u1: w[2] as i32,
+            c0: w[3] as u16,
+            c1: (w[3] >> 16) as u16,
+            piece0: w[4],
+            npieces: w[5] & 0xFFFF,
+            island: (w[5] >> 16) as u16,
+        }
+    }
+
+    fn set_used(&mut self, s: usize) {
+        if let Some(w) = self.w.get_mut(SEG_WORDS * s) {
+            *w |= 1;
+        }
+    }
+
+    fn piece_slot(&self, k: usize) -> Option<usize> {
+        (k < self.npieces).then(|| self.w.len() - 1 - k)
+    }
+
+    /// Piece `k` (an empty one past the end).
+    pub fn piece(&self, k: usize) -> LinePiece {
+        let Some(&w) = self.piece_slot(k).and_then(|i| self.w.get(i)) else {
+            return LinePiece::EMPTY;
+        };
+        let kind = match w & 3 {
+            0 => Kind::None,
+            1 => Kind::Sparse,
+            2 => Kind::Solid,
+            _ => Kind::Top,
+        };
+        LinePiece { u1: (w as i32) >> 2, kind }
+    }
+
+    fn set_piece(&mut self, k: usize, p: LinePiece) -> Result<(), Buffer> {
+        let i = self.piece_slot(k).filter(|_| (-(1 << 29)..1 << 29).contains(&p.u1));
+        let slot = i.and_then(|i| self.w.get_mut(i)).ok_or(Buffer::LineSegments)?;
+        *slot = (p.u1 as u32) << 2 | p.kind as u32;
+        Ok(())
+    }
+
+    fn push_piece(&mut self, p: LinePiece) -> Result<(), Buffer> {
+        if self.free_words() == 0 {
+            return Err(Buffer::LineSegments);
+        }
+        self.npieces += 1;
+        self.set_piece(self.npieces - 1, p).inspect_err(|_| self.npieces -= 1)
+    }
 }
 
 /// The skin window as seen from one layer: the stored contours ([`StoredRings`]) of the
@@ -157,18 +274,15 @@ pub struct FillParams {
     pub end_ext_u: i32,
 }
 
-/// The scratch buffers of the infill stage (`CROSS` entries each).
+/// The scratch buffers of the infill stage.
 pub struct FillWork<'a> {
-    /// Crossings.
+    /// Crossings (`CROSS`).
     pub cross: &'a mut [Crossing],
-    /// Crossing order by line.
-    pub order: &'a mut [u32],
-    /// Segment end at each crossing (`2 x seg + end`), or [`NONE`].
-    pub cend: &'a mut [u32],
-    /// Segments.
-    pub segs: &'a mut [LineSeg],
-    /// Their pieces.
-    pub pieces: &'a mut [LinePiece],
+    /// The crossings' order by line, then (once the segments are built) the segment end at
+    /// each crossing (`2 x seg + end`, or [`NONE`]) (`CROSS`).
+    pub idx: &'a mut [u16],
+    /// Segments and their pieces ([`Segs`], [`POOL_WORDS`] x `CROSS` words).
+    pub pool: &'a mut [u32],
     /// The window's spans on the current line, all its layers (`SPANS`).
     pub spans: &'a mut [Span],
 }
@@ -178,10 +292,8 @@ pub struct FillWork<'a> {
 pub struct FillUse {
     /// Crossings.
     pub crossings: usize,
-    /// Segments.
+    /// Pool words of segments and pieces, in [`POOL_WORDS`] units.
     pub segments: usize,
-    /// Pieces.
-    pub pieces: usize,
     /// Window crossings on one line.
     pub spans: usize,
 }
@@ -211,68 +323,66 @@ impl Cursor {
 }
 
 struct Builder<'a> {
-    segs: &'a mut [LineSeg],
-    pieces: &'a mut [LinePiece],
-    nseg: usize,
-    npieces: usize,
+    segs: Segs<'a>,
+    cross: &'a [Crossing],
+    rings: &'a [Ring],
     /// The segment being built: (start u, start crossing, first piece).
-    open: Option<(i32, u32, usize)>,
+    open: Option<(i32, u16, usize)>,
     params: FillParams,
 }
 
 impl Builder<'_> {
+    fn last_kind(&self) -> Kind {
+        self.segs.piece(self.segs.npieces.wrapping_sub(1)).kind
+    }
+
     fn add_stretch(&mut self, iv: &Interval, u0: i32, u1: i32, kind: Kind) -> Result<(), Buffer> {
         if kind == Kind::None {
             return self.close(iv, u0, NONE);
         }
         // Solid and sparse never share a segment: each class is linked on its own.
         if let Some((_, _, first)) = self.open {
-            if self.npieces > first
-                && (self.pieces[self.npieces - 1].kind >= Kind::Solid) != (kind >= Kind::Solid)
+            if self.segs.npieces > first
+                && (self.last_kind() >= Kind::Solid) != (kind >= Kind::Solid)
             {
                 self.close(iv, u0, NONE)?;
             }
         }
         if self.open.is_none() {
             let c0 = if u0 == iv.u0 { iv.c0 } else { NONE };
-            self.open = Some((u0, c0, self.npieces));
+            self.open = Some((u0, c0, self.segs.npieces));
         }
         let first = self.open.map_or(0, |o| o.2);
-        if self.npieces > first && self.pieces[self.npieces - 1].kind == kind {
-            self.pieces[self.npieces - 1].u1 = u1;
-            return Ok(());
+        if self.segs.npieces > first && self.last_kind() == kind {
+            return self.segs.set_piece(self.segs.npieces - 1, LinePiece { u1, kind });
         }
-        let slot = self.pieces.get_mut(self.npieces).ok_or(Buffer::LineSegments)?;
-        *slot = LinePiece { u1, kind };
-        self.npieces += 1;
-        Ok(())
+        self.segs.push_piece(LinePiece { u1, kind })
     }
 
     /// Ends the open segment at `u1` (crossing `c1`).
-    fn close(&mut self, iv: &Interval, u1: i32, c1: u32) -> Result<(), Buffer> {
+    fn close(&mut self, iv: &Interval, u1: i32, c1: u16) -> Result<(), Buffer> {
         let Some((u0, c0, piece0)) = self.open.take() else { return Ok(()) };
         if u1 - u0 < self.params.min_len_u {
-            self.npieces = piece0;
+            self.segs.npieces = piece0;
             return Ok(());
         }
-        let pieces = &self.pieces[piece0..self.npieces];
-        let solid = pieces.iter().any(|p| p.kind >= Kind::Solid);
-        let slot = self.segs.get_mut(self.nseg).ok_or(Buffer::LineSegments)?;
-        *slot = LineSeg {
+        let solid = (piece0..self.segs.npieces).any(|k| self.segs.piece(k).kind >= Kind::Solid);
+        // The island of the interval's starting crossing.
+        let ring = self.cross.get(usize::from(iv.c0)).map(Crossing::ring);
+        let island = ring.and_then(|r| self.rings.get(r)).map_or(0, |r| r.island);
+        self.segs.push_seg(&LineSeg {
             line: iv.line,
             u0,
             u1,
             c0,
             c1,
             piece0: piece0 as u32,
-            npieces: (self.npieces - piece0) as u32,
-            island: iv.island,
+            npieces: (self.segs.npieces - piece0) as u32,
+            island,
             used: false,
             solid,
             linkable: solid || self.params.link_sparse,
-        };
-        self.nseg += 1;
-        Ok(())
+        })
     }
 
     fn interval(&mut self, iv: Interval, skin: &mut Skin<'_>) -> Result<(), Buffer> {
@@ -461,12 +571,12 @@ fn for_each_vertex(
     mut f: impl FnMut(Point2),
 ) -> bool {
     let (ci, ck) = (&cross[i], &cross[k]);
-    let Some(r) = rings.get(ci.ring as usize) else { return false };
+    let Some(r) = rings.get(ci.ring()) else { return false };
     let (start, len) = (r.start as usize, r.len as usize);
     if len == 0 {
         return false;
     }
-    let (e1, e2) = (ci.edge as usize - start, ck.edge as usize - start);
+    let (e1, e2) = (usize::from(ci.edge) - start, usize::from(ck.edge) - start);
     let wrapped = if fwd { k <= i } else { k >= i };
     let count = if fwd {
         if e1 == e2 && !wrapped {
@@ -507,65 +617,61 @@ pub fn fill<const N: usize, const R: usize>(
 ) -> Result<(), Buffer> {
     let mut n = 0;
     crossings(points, rings, params.angle, params.step, work.cross, &mut n)?;
-    if n > work.order.len() || n > work.cend.len() {
+    if n > work.idx.len() {
         return Err(Buffer::Crossings);
     }
-    sort_by_line(&work.cross[..n], &mut work.order[..n]);
+    let cross = &work.cross[..n];
+    sort_by_line(cross, &mut work.idx[..n]);
     usage.crossings = usage.crossings.max(n);
-    for c in work.cend[..n].iter_mut() {
-        *c = NONE;
-    }
     let mut skin = Skin::new(view, top, bottom, &params, &mut *work.spans);
-    let (nseg, npieces) = {
-        let (cross, order) = (&work.cross[..n], &work.order[..n]);
-        let mut b = Builder {
-            segs: &mut *work.segs,
-            pieces: &mut *work.pieces,
-            nseg: 0,
-            npieces: 0,
-            open: None,
-            params,
-        };
-        let r = intervals(cross, order, |iv| b.interval(iv, &mut skin));
-        usage.spans = usage.spans.max(skin.peak);
-        r?;
-        (b.nseg, b.npieces)
-    };
-    usage.segments = usage.segments.max(nseg);
-    usage.pieces = usage.pieces.max(npieces);
-    for s in 0..nseg {
-        let sg = work.segs[s];
-        if sg.c0 != NONE {
-            work.cend[sg.c0 as usize] = 2 * s as u32;
-        }
-        if sg.c1 != NONE {
-            work.cend[sg.c1 as usize] = 2 * s as u32 + 1;
+    let mut b = Builder { segs: Segs::new(&mut *work.pool), cross, rings, open: None, params };
+    let r = intervals(cross, &work.idx[..n], |iv| b.interval(iv, &mut skin));
+    usage.spans = usage.spans.max(skin.peak);
+    r?;
+    let mut segs = b.segs;
+    usage.segments = usage.segments.max(segs.used_words().div_ceil(POOL_WORDS));
+    if segs.nseg > MAX_SEGS {
+        return Err(Buffer::LineSegments);
+    }
+    // The order is done with: segment ends at crossings instead.
+    let cend = &mut work.idx[..n];
+    cend.fill(NONE);
+    for s in 0..segs.nseg {
+        let sg = segs.get(s);
+        for (c, end) in [(sg.c0, 0), (sg.c1, 1)] {
+            if c != NONE {
+                if let Some(slot) = cend.get_mut(usize::from(c)) {
+                    *slot = (2 * s + end) as u16;
+                }
+            }
         }
     }
-    link(points, rings, &params, work, n, nseg, paths)
+    link(points, rings, &params, cross, cend, &mut segs, paths)
 }
 
 /// Emits segment `s` (forward: from `u0`) into the open path.
 fn emit_seg<const N: usize, const R: usize>(
     p: &FillParams,
-    work: &FillWork<'_>,
+    segs: &Segs<'_>,
     s: usize,
     forward: bool,
     paths: &mut PathBuf<N, R>,
 ) -> Result<(), Buffer> {
-    let sg = work.segs[s];
-    let pieces = &work.pieces[sg.piece0 as usize..(sg.piece0 + sg.npieces) as usize];
-    let first_kind = if forward { pieces[0].kind } else { pieces[pieces.len() - 1].kind };
+    let sg = segs.get(s);
+    let pieces = sg.piece0 as usize..(sg.piece0 + sg.npieces) as usize;
+    let last = pieces.end.saturating_sub(1);
+    let first_kind = segs.piece(if forward { pieces.start } else { last }).kind;
     if forward {
         paths.push(seg_point(p, sg.line, sg.u0), first_kind.feature())?;
-        for pc in pieces {
+        for k in pieces {
+            let pc = segs.piece(k);
             paths.push(seg_point(p, sg.line, pc.u1), pc.kind.feature())?;
         }
     } else {
         paths.push(seg_point(p, sg.line, sg.u1), first_kind.feature())?;
-        for (i, pc) in pieces.iter().enumerate().rev() {
-            let u = if i == 0 { sg.u0 } else { pieces[i - 1].u1 };
-            paths.push(seg_point(p, sg.line, u), pc.kind.feature())?;
+        for k in pieces.clone().rev() {
+            let u = if k == pieces.start { sg.u0 } else { segs.piece(k - 1).u1 };
+            paths.push(seg_point(p, sg.line, u), segs.piece(k).kind.feature())?;
         }
     }
     Ok(())
@@ -579,8 +685,8 @@ struct End {
 }
 
 impl End {
-    fn crossing(self, segs: &[LineSeg]) -> u32 {
-        let s = &segs[self.seg];
+    fn crossing(self, segs: &Segs<'_>) -> u16 {
+        let s = segs.get(self.seg);
         if self.at_u1 {
             s.c1
         } else {
@@ -588,8 +694,8 @@ impl End {
         }
     }
 
-    fn u(self, segs: &[LineSeg]) -> i32 {
-        let s = &segs[self.seg];
+    fn u(self, segs: &Segs<'_>) -> i32 {
+        let s = segs.get(self.seg);
         if self.at_u1 {
             s.u1
         } else {
@@ -597,14 +703,19 @@ impl End {
         }
     }
 
-    fn point(self, p: &FillParams, segs: &[LineSeg]) -> Point2 {
-        seg_point(p, segs[self.seg].line, self.u(segs))
+    fn point(self, p: &FillParams, segs: &Segs<'_>) -> Point2 {
+        seg_point(p, segs.get(self.seg).line, self.u(segs))
     }
 
     /// The end pushed `ext` further out along the line.
-    fn extended(self, p: &FillParams, segs: &[LineSeg], ext: i32) -> Point2 {
+    fn extended(self, p: &FillParams, segs: &Segs<'_>, ext: i32) -> Point2 {
         let u = if self.at_u1 { self.u(segs) + ext } else { self.u(segs) - ext };
-        seg_point(p, segs[self.seg].line, u)
+        seg_point(p, segs.get(self.seg).line, u)
+    }
+
+    /// The segment end recorded at a crossing (`2 x seg + end`).
+    fn from_cend(e: u16) -> Self {
+        Self { seg: usize::from(e / 2), at_u1: e % 2 == 1 }
     }
 }
 
@@ -615,30 +726,31 @@ fn boundary_link(
     points: &[Point2],
     rings: &[Ring],
     p: &FillParams,
-    work: &FillWork<'_>,
+    segs: &Segs<'_>,
+    cend: &[u16],
     cross: &[Crossing],
     from: usize,
     at: End,
     pref: i32,
 ) -> Option<(usize, bool)> {
-    let here = &work.segs[at.seg];
+    let here = segs.get(at.seg);
+    let range = loop_range(cross, from);
     let mut best: Option<((i32, bool, i64), usize, bool)> = None;
     for fwd in [true, false] {
         let mut k = from;
         let mut found = None;
         for _ in 0..MAX_WALK {
-            let c = &cross[k];
-            k = if fwd { c.next(k) } else { c.prev(k) };
+            k = if fwd { next_in(&range, k) } else { prev_in(&range, k) };
             if k == from {
                 break;
             }
-            if work.cend[k] != NONE {
+            if cend.get(k).is_some_and(|&e| e != NONE) {
                 found = Some(k);
                 break;
             }
         }
         let Some(k) = found else { continue };
-        let sg = &work.segs[(work.cend[k] / 2) as usize];
+        let sg = segs.get(End::from_cend(cend[k]).seg);
         if sg.used || !sg.linkable || sg.solid != here.solid {
             continue;
         }
@@ -669,26 +781,39 @@ fn interior_link(
     points: &[Point2],
     rings: &[Ring],
     p: &FillParams,
-    segs: &[LineSeg],
+    segs: &Segs<'_>,
     at: End,
     pref: i32,
 ) -> Option<End> {
     let here = at.point(p, segs);
-    let cur = &segs[at.seg];
+    let cur = segs.get(at.seg);
     let k = p.sparse_every.max(1);
     let steps: &[i32] = if cur.solid { &[1, -1, 2, -2] } else { &[1, -1] };
     let mut best: Option<((i32, bool, i64), End)> = None;
     for &dl in steps {
         let dl = if cur.solid { dl } else { dl * k };
         let target = cur.line + dl;
-        let lo = segs.partition_point(|s| s.line < target);
+        // Segments come line by line: the first on `target`.
+        let (mut lo, mut hi) = (0, segs.nseg);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if segs.get(mid).line < target {
+                lo = mid + 1;
+            } else {
+                hi = mid;
+            }
+        }
         let allowed = 3 * i64::from(dl.abs()) * i64::from(p.spacing_um);
-        for (i, s) in segs[lo..].iter().enumerate().take_while(|(_, s)| s.line == target) {
+        for i in lo..segs.nseg {
+            let s = segs.get(i);
+            if s.line != target {
+                break;
+            }
             if s.used || !s.linkable || s.solid != cur.solid {
                 continue;
             }
             for at_u1 in [false, true] {
-                let e = End { seg: lo + i, at_u1 };
+                let e = End { seg: i, at_u1 };
                 if e.crossing(segs) != NONE {
                     continue;
                 }
@@ -705,54 +830,46 @@ fn interior_link(
 }
 
 /// Links segments into runs and emits them as paths.
+#[allow(clippy::too_many_arguments)]
 fn link<const N: usize, const R: usize>(
     points: &[Point2],
     rings: &[Ring],
     p: &FillParams,
-    work: &mut FillWork<'_>,
-    n: usize,
-    nseg: usize,
+    cross: &[Crossing],
+    cend: &[u16],
+    segs: &mut Segs<'_>,
     paths: &mut PathBuf<N, R>,
 ) -> Result<(), Buffer> {
-    let cross = &work.cross[..n];
-    for s0 in 0..nseg {
-        if work.segs[s0].used {
+    for s0 in 0..segs.nseg {
+        let seg0 = segs.get(s0);
+        if seg0.used {
             continue;
         }
-        work.segs[s0].used = true;
-        let island = work.segs[s0].island;
-        let reversible = work.segs[s0].linkable;
-        emit_seg(p, work, s0, true, paths)?;
+        segs.set_used(s0);
+        emit_seg(p, segs, s0, true, paths)?;
         // Unlinked ends on the boundary reach a little into the perimeter.
         let start = End { seg: s0, at_u1: false };
-        if start.crossing(work.segs) != NONE && p.end_ext_u > 0 {
-            paths.set_open_point(0, true, start.extended(p, work.segs, p.end_ext_u));
+        if start.crossing(segs) != NONE && p.end_ext_u > 0 {
+            paths.set_open_point(0, true, start.extended(p, segs, p.end_ext_u));
         }
         let mut at = End { seg: s0, at_u1: true };
         let mut pref = 0;
-        while work.segs[s0].linkable {
-            let end_c = at.crossing(work.segs);
-            let line = work.segs[at.seg].line;
+        while segs.get(s0).linkable {
+            let end_c = at.crossing(segs);
+            let line = segs.get(at.seg).line;
             let next = if end_c != NONE {
-                boundary_link(points, rings, p, work, cross, end_c as usize, at, pref).map(
-                    |(k, fwd)| {
-                        let e =
-                            End { seg: (work.cend[k] / 2) as usize, at_u1: work.cend[k] % 2 == 1 };
-                        (e, Some((end_c as usize, k, fwd)))
-                    },
-                )
+                let from = usize::from(end_c);
+                boundary_link(points, rings, p, segs, cend, cross, from, at, pref)
+                    .map(|(k, fwd)| (End::from_cend(cend[k]), Some((from, k, fwd))))
             } else {
-                interior_link(points, rings, p, &work.segs[..nseg], at, pref).map(|e| (e, None))
+                interior_link(points, rings, p, segs, at, pref).map(|e| (e, None))
             };
             let Some((e, walk)) = next else { break };
             let feat = {
-                let sg = work.segs[e.seg];
-                let pieces = &work.pieces[sg.piece0 as usize..(sg.piece0 + sg.npieces) as usize];
-                if e.at_u1 {
-                    pieces[pieces.len() - 1].kind.feature()
-                } else {
-                    pieces[0].kind.feature()
-                }
+                let sg = segs.get(e.seg);
+                let k =
+                    if e.at_u1 { (sg.piece0 + sg.npieces).saturating_sub(1) } else { sg.piece0 };
+                segs.piece(k as usize).kind.feature()
             };
             if let Some((from, k, fwd)) = walk {
                 let mut err = Ok(());
@@ -763,16 +880,16 @@ fn link<const N: usize, const R: usize>(
                 });
                 err?;
             }
-            work.segs[e.seg].used = true;
-            emit_seg(p, work, e.seg, !e.at_u1, paths)?;
+            segs.set_used(e.seg);
+            emit_seg(p, segs, e.seg, !e.at_u1, paths)?;
             // Entered at one end: now at the other.
-            pref = (work.segs[e.seg].line - line).signum();
+            pref = (segs.get(e.seg).line - line).signum();
             at = End { seg: e.seg, at_u1: !e.at_u1 };
         }
-        if at.crossing(work.segs) != NONE && p.end_ext_u > 0 {
-            paths.set_open_point(0, false, at.extended(p, work.segs, p.end_ext_u));
+        if at.crossing(segs) != NONE && p.end_ext_u > 0 {
+            paths.set_open_point(0, false, at.extended(p, segs, p.end_ext_u));
         }
-        paths.end(island, PathKind::Infill, false, reversible)?;
+        paths.end(seg0.island, PathKind::Infill, false, seg0.linkable)?;
     }
     Ok(())
 }

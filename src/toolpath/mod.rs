@@ -40,11 +40,9 @@
 //!    inner perimeters before the external one (each hole's loops together), then the infill
 //!    runs, nearest first from either end; loops start at the rear-most vertex; the nearest
 //!    path is found in a uniform grid of the paths' entry points ([`near`]) built in the
-//!    infill scratch buffers (cells in one `CROSS` array, two entries per path in another;
-//!    when the layer has more than `CROSS / 2` paths, by scanning them: same order), searched
-//!    within the island's box once an island is chosen (its paths are grouped first);
-//!    a travel that
-//!    would cross a contour is combed along the island's external perimeter, and retracts
+//!    infill's segment pool (free by then: `2 x CROSS` cells and `2 x CROSS` entries, two
+//!    per path), searched within the island's box once an island is chosen (its paths are
+//!    grouped first); a travel that would cross a contour is combed along the island's external perimeter, and retracts
 //!    only when no such route exists (another island) and it is at least 1.5 mm long.
 //!
 //! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
@@ -58,8 +56,10 @@
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
 //!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 84 bytes per
 //!   `PTS`, 123 bytes per `LOOPS`;
-//! - the infill scratch and the layer's paths: 96 bytes per `CROSS` (crossing 28, order 4,
-//!   segment end 4, segment 36, piece 8, path record 16), 9 bytes per `PATH` point;
+//! - the infill scratch and the layer's paths: 46 bytes per `CROSS` (crossing 12, its order
+//!   then segment-end index 2, 16 bytes of the pool of segments (24 bytes each) and pieces
+//!   (4 bytes each), path record 16), 9 bytes per `PATH` point; `CROSS` is the largest of
+//!   the crossings of one pass, the pool's use in 16-byte units and the paths of a layer;
 //! - the window: 8 bytes per `RING` point (contours of up to `bottom + top + 2` layers) and
 //!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
 //!   filled).
@@ -73,7 +73,7 @@ use crate::geom::Point2;
 use crate::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
 use crate::slice::Layer;
 
-use infill::{FillParams, FillUse, FillWork, LinePiece, LineSeg, SkinView, Span};
+use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
 use offset::{Join, Offsetter};
 use order::{Ctx, Emitter};
 use paths::{PathBuf, PathKind};
@@ -107,7 +107,7 @@ pub enum Buffer {
     OffsetPieces,
     /// Scanline crossings of one layer (`CROSS`).
     Crossings,
-    /// Infill line segments and their feature pieces of one layer (`CROSS`).
+    /// Infill line segments and their feature pieces of one layer (`CROSS` x 16 bytes).
     LineSegments,
     /// Infill intervals on one scanline (64).
     LineIntervals,
@@ -479,7 +479,8 @@ pub struct ToolpathNeeds {
     pub layer_loops: u32,
     /// Offset edges, splits or pieces of one island: `PTS`.
     pub offset_edges: u32,
-    /// Scanline crossings, segments or pieces of one layer: `CROSS`.
+    /// Scanline crossings of one infill pass, or its segments and pieces in 16-byte units
+    /// (24 bytes a segment, 4 a piece): `CROSS`.
     pub crossings: u32,
     /// Path points of one layer: `PATH`.
     pub path_points: u32,
@@ -496,13 +497,11 @@ impl ToolpathNeeds {
     pub const PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>() + offset::BYTES_PER_EDGE;
     /// Bytes per `LOOPS`: three loop buffers' loop records, island map and stage scratch.
     pub const LOOPS_BYTES: usize = 3 * core::mem::size_of::<Ring>() + 2 + 1;
-    /// Bytes per `CROSS`: crossing, its order and segment-end entries, a line segment, a
-    /// segment piece and a path record.
+    /// Bytes per `CROSS`: a crossing, its order (then segment-end) entry, its share of the
+    /// segment and piece pool and a path record.
     pub const CROSS_BYTES: usize = core::mem::size_of::<Crossing>()
-        + 4
-        + 4
-        + core::mem::size_of::<LineSeg>()
-        + core::mem::size_of::<LinePiece>()
+        + core::mem::size_of::<u16>()
+        + POOL_WORDS * 4
         + core::mem::size_of::<paths::PathRec>();
     /// Bytes per `PATH`: a point and its feature.
     pub const PATH_BYTES: usize = core::mem::size_of::<Point2>() + core::mem::size_of::<Feature>();
@@ -537,7 +536,7 @@ impl ToolpathNeeds {
 const _: () = assert!(
     ToolpathNeeds::PTS_BYTES == 84
         && ToolpathNeeds::LOOPS_BYTES == 123
-        && ToolpathNeeds::CROSS_BYTES == 96
+        && ToolpathNeeds::CROSS_BYTES == 46
         && ToolpathNeeds::PATH_BYTES == 9
         && ToolpathNeeds::RING_BYTES == 8
         && ToolpathNeeds::SPAN_BYTES == 8
@@ -664,10 +663,8 @@ pub struct Toolpath<
     fill: LoopBuf<PTS, LOOPS>,
     eng: Offsetter<PTS>,
     cross: [Crossing; CROSS],
-    order: [u32; CROSS],
-    cend: [u32; CROSS],
-    segs: [LineSeg; CROSS],
-    pieces: [LinePiece; CROSS],
+    idx: [u16; CROSS],
+    pool: [[u32; POOL_WORDS]; CROSS],
     spans: [Span; SPANS],
     paths: PathBuf<PATH, CROSS>,
     island_map: [u16; LOOPS],
@@ -710,20 +707,9 @@ impl<
             tmp: LoopBuf::new(),
             fill: LoopBuf::new(),
             eng: Offsetter::new(),
-            cross: [Crossing {
-                line: 0,
-                u: 0,
-                edge: 0,
-                rstart: 0,
-                rend: 0,
-                island: 0,
-                ring: 0,
-                dir: 0,
-            }; CROSS],
-            order: [0; CROSS],
-            cend: [0; CROSS],
-            segs: [LineSeg::EMPTY; CROSS],
-            pieces: [LinePiece::EMPTY; CROSS],
+            cross: [Crossing::EMPTY; CROSS],
+            idx: [0; CROSS],
+            pool: [[0; POOL_WORDS]; CROSS],
             spans: [Span { u0: 0, u1: 0 }; SPANS],
             paths: PathBuf::new(),
             island_map: [0; LOOPS],
@@ -731,7 +717,7 @@ impl<
             em: Emitter::new(),
             next_in: 0,
             next_out: 0,
-            fill_use: FillUse { crossings: 0, segments: 0, pieces: 0, spans: 0 },
+            fill_use: FillUse { crossings: 0, segments: 0, spans: 0 },
             stats: ToolpathStats::EMPTY,
             stopped: Some(ToolpathError::Finished),
         }
@@ -790,7 +776,7 @@ impl<
         let p = self.eng.peaks;
         n.offset_edges = p.edges.max(p.splits).max(p.pieces) as u32;
         let f = self.fill_use;
-        n.crossings = f.crossings.max(f.segments).max(f.pieces) as u32;
+        n.crossings = f.crossings.max(f.segments) as u32;
         n.path_points = self.paths.peak_points as u32;
         n.paths = self.paths.peak_paths as u32;
         n.ring_points = self.ring.peak as u32;
@@ -1016,13 +1002,16 @@ impl<
             height_um: cfg.layer_height_of(l),
             first_layer: l == FIRST_LAYER,
         };
+        // The infill pool is free again: the nearest-path grid's cells and entries.
+        let (grid_head, grid_next) =
+            self.pool.as_flattened_mut().split_at_mut(POOL_WORDS * CROSS / 2);
         order::emit_layer(
             &mut self.em,
             &ctx,
             &mut self.paths,
             &mut self.island_stage,
-            &mut self.cend,
-            &mut self.order,
+            grid_head,
+            grid_next,
             sink,
         );
         // A layer without extrusion still moves to its height.
@@ -1223,10 +1212,8 @@ impl<
         };
         let mut work = FillWork {
             cross: &mut self.cross,
-            order: &mut self.order,
-            cend: &mut self.cend,
-            segs: &mut self.segs,
-            pieces: &mut self.pieces,
+            idx: &mut self.idx,
+            pool: self.pool.as_flattened_mut(),
             spans: &mut self.spans,
         };
         infill::fill(
@@ -1282,7 +1269,7 @@ mod tests {
     fn memory_per_capacity_unit_is_as_documented() {
         assert_eq!(ToolpathNeeds::PTS_BYTES, 84);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
-        assert_eq!(ToolpathNeeds::CROSS_BYTES, 96);
+        assert_eq!(ToolpathNeeds::CROSS_BYTES, 46);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (8, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();

@@ -67,7 +67,7 @@ pub fn line_step(spacing_um: i32) -> i64 {
     }
 }
 
-/// One crossing of a loop edge with a line.
+/// One crossing of a loop edge with a line (12 bytes).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Crossing {
     /// Line index (`t = line x step`).
@@ -75,36 +75,57 @@ pub struct Crossing {
     /// Position along the line.
     pub u: i32,
     /// Index (in the loop buffer) of the crossed edge's first point.
-    pub edge: u32,
-    /// First crossing of the same loop.
-    pub rstart: u32,
-    /// One past the last crossing of the same loop.
-    pub rend: u32,
-    /// Island of the loop.
-    pub island: u16,
-    /// Index of the loop in its buffer.
-    pub ring: u16,
-    /// +1 when the edge runs towards larger `t`, -1 otherwise.
-    pub dir: i8,
+    pub edge: u16,
+    /// Index of the loop in its buffer times 2, plus 1 when the edge runs towards larger `t`.
+    ring_dir: u16,
 }
 
+/// Most crossings of one call to [`crossings`]: their indices fit a `u16` below
+/// [`NO_CROSSING`].
+pub const MAX_CROSSINGS: usize = u16::MAX as usize;
+/// No crossing (as a `u16` index).
+pub const NO_CROSSING: u16 = u16::MAX;
+
 impl Crossing {
-    /// The next crossing along the boundary (wrapping within its loop).
-    pub fn next(&self, i: usize) -> usize {
-        if i + 1 < self.rend as usize {
-            i + 1
-        } else {
-            self.rstart as usize
-        }
+    /// A filler.
+    pub const EMPTY: Self = Self { line: 0, u: 0, edge: 0, ring_dir: 0 };
+
+    /// Index of the loop in its buffer.
+    pub fn ring(&self) -> usize {
+        usize::from(self.ring_dir >> 1)
     }
 
-    /// The previous crossing along the boundary.
-    pub fn prev(&self, i: usize) -> usize {
-        if i > self.rstart as usize {
-            i - 1
+    /// +1 when the edge runs towards larger `t`, -1 otherwise.
+    pub fn dir(&self) -> i8 {
+        if self.ring_dir & 1 == 1 {
+            1
         } else {
-            self.rend as usize - 1
+            -1
         }
+    }
+}
+
+/// The crossings of the loop of crossing `i` (crossings come loop after loop): their range.
+pub fn loop_range(cross: &[Crossing], i: usize) -> core::ops::Range<usize> {
+    let ring = cross.get(i).map_or(0, Crossing::ring);
+    cross.partition_point(|c| c.ring() < ring)..cross.partition_point(|c| c.ring() <= ring)
+}
+
+/// The next crossing along the boundary after `i` in `range` (its loop's), wrapping.
+pub fn next_in(range: &core::ops::Range<usize>, i: usize) -> usize {
+    if i + 1 < range.end {
+        i + 1
+    } else {
+        range.start
+    }
+}
+
+/// The previous crossing along the boundary before `i` in `range` (its loop's), wrapping.
+pub fn prev_in(range: &core::ops::Range<usize>, i: usize) -> usize {
+    if i > range.start {
+        i - 1
+    } else {
+        range.end.saturating_sub(1)
     }
 }
 
@@ -124,7 +145,9 @@ fn ceil_div(a: i64, b: i64) -> i64 {
 }
 
 /// Appends the crossings of `rings` (points in `points`) with the lines of `angle` spaced
-/// `step` in `t`, to `out[*n..]`, in boundary order.
+/// `step` in `t`, to `out[*n..]`, in boundary order. More than `out` or [`MAX_CROSSINGS`]
+/// crossings, a point index above `u16::MAX` or more than 32768 loops are
+/// [`Buffer::Crossings`].
 pub fn crossings(
     points: &[Point2],
     rings: &[Ring],
@@ -133,9 +156,10 @@ pub fn crossings(
     out: &mut [Crossing],
     n: &mut usize,
 ) -> Result<(), Buffer> {
+    let room = out.len().min(MAX_CROSSINGS);
     for (ri, r) in rings.iter().enumerate() {
         let pts = points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]);
-        let first = *n;
+        let ring2 = u16::try_from(2 * ri).map_err(|_| Buffer::Crossings)?;
         for (k, &p) in pts.iter().enumerate() {
             let q = pts[(k + 1) % pts.len()];
             let ((tp, up), (tq, uq)) = (angle.key(p), angle.key(q));
@@ -148,42 +172,36 @@ pub fn crossings(
                 continue;
             }
             let count = (j1 - j0 + 1) as usize;
-            if *n + count > out.len() {
+            if *n + count > room {
                 return Err(Buffer::Crossings);
             }
-            let dir: i8 = if tq > tp { 1 } else { -1 };
+            let edge = u16::try_from(r.start as usize + k).map_err(|_| Buffer::Crossings)?;
+            let up_t = tq > tp;
             for s in 0..count {
-                let j = if dir > 0 { j0 + s as i64 } else { j1 - s as i64 };
+                let j = if up_t { j0 + s as i64 } else { j1 - s as i64 };
                 let u = cross_u((tp, up), (tq, uq), j * step);
                 out[*n] = Crossing {
                     line: j as i32,
                     u: u as i32,
-                    edge: r.start + k as u32,
-                    rstart: first as u32,
-                    rend: 0,
-                    island: r.island,
-                    ring: ri as u16,
-                    dir,
+                    edge,
+                    ring_dir: ring2 | u16::from(up_t),
                 };
                 *n += 1;
             }
-        }
-        let end = *n as u32;
-        for c in &mut out[first..*n] {
-            c.rend = end;
         }
     }
     Ok(())
 }
 
-/// Sorts `order` (indices into `cross`) by line, then position.
-pub fn sort_by_line(cross: &[Crossing], order: &mut [u32]) {
+/// Sorts `order` (indices into `cross`, at most [`MAX_CROSSINGS`]) by line, then position,
+/// then direction (then index).
+pub fn sort_by_line(cross: &[Crossing], order: &mut [u16]) {
     for (i, o) in order.iter_mut().enumerate() {
-        *o = i as u32;
+        *o = i as u16;
     }
     order.sort_unstable_by_key(|&i| {
-        let c = &cross[i as usize];
-        (c.line, c.u, c.dir)
+        let c = &cross[usize::from(i)];
+        (c.line, c.u, c.dir(), i)
     });
 }
 
@@ -197,37 +215,35 @@ pub struct Interval {
     /// End position.
     pub u1: i32,
     /// Crossing at the start.
-    pub c0: u32,
+    pub c0: u16,
     /// Crossing at the end.
-    pub c1: u32,
-    /// Island of the starting crossing.
-    pub island: u16,
+    pub c1: u16,
 }
 
 /// Calls `f` for every interval of non-zero winding, line by line, in increasing `u`;
 /// empty intervals are skipped.
 pub fn intervals(
     cross: &[Crossing],
-    order: &[u32],
+    order: &[u16],
     mut f: impl FnMut(Interval) -> Result<(), Buffer>,
 ) -> Result<(), Buffer> {
     let mut w = 0i32;
     let mut line = i32::MIN;
-    let mut start = 0u32;
+    let mut start = 0u16;
     for &i in order {
-        let c = &cross[i as usize];
+        let c = &cross[usize::from(i)];
         if c.line != line {
             line = c.line;
             w = 0;
         }
         let before = w;
-        w += i32::from(c.dir);
+        w += i32::from(c.dir());
         if before == 0 && w != 0 {
             start = i;
         } else if before != 0 && w == 0 {
-            let s = &cross[start as usize];
+            let s = &cross[usize::from(start)];
             if c.u > s.u {
-                f(Interval { line, u0: s.u, u1: c.u, c0: start, c1: i, island: s.island })?;
+                f(Interval { line, u0: s.u, u1: c.u, c0: start, c1: i })?;
             }
         }
     }
@@ -320,7 +336,7 @@ mod tests {
         let mut n = 0;
         let step = line_step(450);
         crossings(b.points(), b.rings(), Angle::D45, step, &mut cross, &mut n).unwrap();
-        let mut order = [0u32; 256];
+        let mut order = [0u16; 256];
         sort_by_line(&cross[..n], &mut order[..n]);
         let mut lines = std::collections::BTreeMap::<i32, Vec<(i32, i32)>>::new();
         intervals(&cross[..n], &order[..n], |iv| {
@@ -336,9 +352,10 @@ mod tests {
         assert_eq!(lines[&4].len(), 1);
         // Boundary order links: every crossing's next is on the same loop.
         for (i, c) in cross[..n].iter().enumerate() {
-            let nx = &cross[c.next(i)];
-            assert_eq!(nx.rstart, c.rstart);
-            assert_eq!(c.prev(c.next(i)), i);
+            let range = loop_range(&cross[..n], i);
+            assert!(range.contains(&i));
+            assert_eq!(cross[next_in(&range, i)].ring(), c.ring());
+            assert_eq!(prev_in(&range, next_in(&range, i)), i);
         }
     }
 }
