@@ -858,8 +858,10 @@ impl<
     /// Simplifies and stores the layer's contours (in the [`StoredRings`] layout).
     fn store(&mut self, layer: &Layer<'_>) -> Result<(), Buffer> {
         let index = layer.index;
-        let total = 1 + layer.loops.len() + layer.points.len();
         let tol = i64::from(self.cfg.simplify_tolerance_um);
+        // Room for the simplified loops (a header and the points each) and the layer header.
+        let bound = |info| simplify::simplify_bound(layer.loop_points(info), tol);
+        let total = 1 + layer.loops.iter().map(|info| 1 + bound(info)).sum::<usize>();
         let block = self.ring.reserve(total)?;
         let mut w = 1;
         let mut rings = 0;
@@ -879,11 +881,10 @@ impl<
                 islands += 1;
                 islands - 1
             };
-            let pts = layer.loop_points(info);
             let head = w;
-            let body = &mut block[head + 1..head + 1 + pts.len()];
-            body.copy_from_slice(pts);
-            let n = simplify::simplify_closed(body, tol);
+            let body = block.get_mut(head + 1..).unwrap_or(&mut []);
+            let n = simplify::simplify_closed_into(layer.loop_points(info), tol, body);
+            let n = n.ok_or(Buffer::RingPoints)?;
             let keep = n >= 3;
             if let Some(slot) = self.island_map.get_mut(li) {
                 *slot = if keep || info.hole { island } else { u16::MAX };
@@ -899,11 +900,13 @@ impl<
                 }
                 continue;
             }
-            block[head] = Point2::new(n as i32, i32::from(island));
+            let slot = block.get_mut(head).ok_or(Buffer::RingPoints)?;
+            *slot = Point2::new(n as i32, i32::from(island));
             w = head + 1 + n;
             rings += 1;
         }
-        block[0] = Point2::new(rings, i32::from(islands));
+        let slot = block.first_mut().ok_or(Buffer::RingPoints)?;
+        *slot = Point2::new(rings, i32::from(islands));
         self.ring.commit(index, w);
         Ok(())
     }

@@ -40,6 +40,35 @@ fn chord_ok(pts: &[Point2], a: usize, c: usize, tol: i64) -> bool {
     true
 }
 
+/// The next point kept after anchor `a` (`pts.len()` when the chord reaches the end).
+fn next_kept(pts: &[Point2], a: usize, tol: i64) -> usize {
+    let mut e = a + 1;
+    let limit = (a + MAX_RUN).min(pts.len());
+    let mut c = a + 2;
+    while c <= limit && chord_ok(pts, a, c, tol) {
+        e = c;
+        c += 1;
+    }
+    e
+}
+
+/// The closing fix-ups of the `out` points kept at the front of `pts`: a last point
+/// repeating the first goes, and the first goes too if the chord around it is close.
+fn close_up(pts: &mut [Point2], mut out: usize, tol: i64) -> usize {
+    while out > 1 && pts[out - 1] == pts[0] {
+        out -= 1;
+    }
+    if out >= 4 {
+        let (prev, next) = (pts[out - 1], pts[1]);
+        let probe = [prev, pts[0], next];
+        if chord_ok(&probe, 0, 2, tol) {
+            pts.copy_within(1..out, 0);
+            out -= 1;
+        }
+    }
+    out
+}
+
 /// Simplifies the closed loop `pts` in place with tolerance `tol` (um); returns the number
 /// of points kept (the prefix of `pts`). Duplicate consecutive points always go.
 pub fn simplify_closed(pts: &mut [Point2], tol: i64) -> usize {
@@ -50,13 +79,7 @@ pub fn simplify_closed(pts: &mut [Point2], tol: i64) -> usize {
     let mut out = 1;
     let mut a = 0;
     while a < n {
-        let mut e = a + 1;
-        let limit = (a + MAX_RUN).min(n);
-        let mut c = a + 2;
-        while c <= limit && chord_ok(pts, a, c, tol) {
-            e = c;
-            c += 1;
-        }
+        let e = next_kept(pts, a, tol);
         if e < n {
             let p = pts[e];
             if p != pts[out - 1] {
@@ -66,18 +89,46 @@ pub fn simplify_closed(pts: &mut [Point2], tol: i64) -> usize {
         }
         a = e;
     }
-    // The closing point may repeat the first.
-    while out > 1 && pts[out - 1] == pts[0] {
-        out -= 1;
+    close_up(pts, out, tol)
+}
+
+/// [`simplify_closed`] of `src` (left as it is) written to the front of `dst`: returns the
+/// number of points, or `None` when `dst` is shorter than [`simplify_bound`] of `src`.
+pub fn simplify_closed_into(src: &[Point2], tol: i64, dst: &mut [Point2]) -> Option<usize> {
+    let n = src.len();
+    if n < 3 {
+        dst.get_mut(..n)?.copy_from_slice(src);
+        return Some(n);
     }
-    // The first point was kept unconditionally: drop it too if the chord around it is close.
-    if out >= 4 {
-        let (prev, next) = (pts[out - 1], pts[1]);
-        let probe = [prev, pts[0], next];
-        if chord_ok(&probe, 0, 2, tol) {
-            pts.copy_within(1..out, 0);
-            out -= 1;
+    *dst.first_mut()? = src[0];
+    let mut out = 1;
+    let mut a = 0;
+    while a < n {
+        let e = next_kept(src, a, tol);
+        if e < n && src[e] != dst[out - 1] {
+            *dst.get_mut(out)? = src[e];
+            out += 1;
         }
+        a = e;
+    }
+    Some(close_up(dst, out, tol))
+}
+
+/// How many points [`simplify_closed_into`] writes to `dst` for `src` before its closing
+/// fix-ups (the room it needs): one walk, nothing written.
+pub fn simplify_bound(src: &[Point2], tol: i64) -> usize {
+    let n = src.len();
+    if n < 3 {
+        return n;
+    }
+    let (mut out, mut last, mut a) = (1, src[0], 0);
+    while a < n {
+        let e = next_kept(src, a, tol);
+        if e < n && src[e] != last {
+            last = src[e];
+            out += 1;
+        }
+        a = e;
     }
     out
 }
@@ -116,6 +167,21 @@ mod tests {
                 Point2::new(0, 1000)
             ]
         );
+    }
+
+    #[test]
+    fn out_of_place_matches_in_place() {
+        for (n, tol) in [(256, 12), (97, 40), (5, 1), (3, 1000), (2, 1)] {
+            let src = circle(n, 10_000.0);
+            let mut inplace = src;
+            let k = simplify_closed(&mut inplace[..n], tol);
+            let mut dst = [Point2::default(); 256];
+            let bound = simplify_bound(&src[..n], tol);
+            assert!(bound >= k);
+            assert_eq!(simplify_closed_into(&src[..n], tol, &mut dst[..bound]), Some(k));
+            assert_eq!(&dst[..k], &inplace[..k]);
+            assert_eq!(simplify_closed_into(&src[..n], tol, &mut dst[..k.saturating_sub(3)]), None);
+        }
     }
 
     #[test]

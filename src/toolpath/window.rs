@@ -41,7 +41,7 @@ pub struct Fifo<T: Copy, const N: usize> {
     count: usize,
     /// Where the block being written starts and its reserved length.
     open: Option<(usize, usize)>,
-    /// Most elements in use at once.
+    /// Most elements in use at once, a reserved block counted whole.
     pub peak: usize,
     what: Buffer,
 }
@@ -137,6 +137,7 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
             return Err(self.what);
         }
         self.open = Some((start, max));
+        self.peak = self.peak.max(self.in_use() + max);
         Ok(&mut self.data[start..start + max])
     }
 
@@ -212,5 +213,11 @@ mod tests {
         // 1 free before the oldest block (3..4) and 2 at the end are not contiguous for 3.
         assert_eq!(f.reserve(3), Err(Buffer::RingPoints));
         assert!(f.reserve(1).is_ok());
+        // A reservation counts whole, even when committed shorter.
+        f.commit(3, 0);
+        f.pop();
+        assert!(f.reserve(6).is_ok());
+        f.commit(4, 1);
+        assert_eq!(f.peak, 3 + 6);
     }
 }
