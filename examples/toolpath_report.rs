@@ -172,7 +172,7 @@ fn main() {
                      (thin-area measurement: PTS {})",
                     n.layer_points.max(n.offset_edges),
                     n.layer_loops,
-                    n.crossings.max(n.paths),
+                    n.crossings,
                     n.path_points,
                     n.ring_points,
                     n.spans,

@@ -604,7 +604,7 @@ fn for_each_vertex(
 
 /// Builds the infill of one layer at one angle into `paths`.
 #[allow(clippy::too_many_arguments)]
-pub fn fill<const N: usize, const R: usize>(
+pub fn fill<const N: usize>(
     points: &[Point2],
     rings: &[Ring],
     params: FillParams,
@@ -612,7 +612,7 @@ pub fn fill<const N: usize, const R: usize>(
     top: usize,
     bottom: usize,
     work: &mut FillWork<'_>,
-    paths: &mut PathBuf<N, R>,
+    paths: &mut PathBuf<N>,
     usage: &mut FillUse,
 ) -> Result<(), Buffer> {
     let mut n = 0;
@@ -650,12 +650,12 @@ pub fn fill<const N: usize, const R: usize>(
 }
 
 /// Emits segment `s` (forward: from `u0`) into the open path.
-fn emit_seg<const N: usize, const R: usize>(
+fn emit_seg<const N: usize>(
     p: &FillParams,
     segs: &Segs<'_>,
     s: usize,
     forward: bool,
-    paths: &mut PathBuf<N, R>,
+    paths: &mut PathBuf<N>,
 ) -> Result<(), Buffer> {
     let sg = segs.get(s);
     let pieces = sg.piece0 as usize..(sg.piece0 + sg.npieces) as usize;
@@ -831,14 +831,14 @@ fn interior_link(
 
 /// Links segments into runs and emits them as paths.
 #[allow(clippy::too_many_arguments)]
-fn link<const N: usize, const R: usize>(
+fn link<const N: usize>(
     points: &[Point2],
     rings: &[Ring],
     p: &FillParams,
     cross: &[Crossing],
     cend: &[u16],
     segs: &mut Segs<'_>,
-    paths: &mut PathBuf<N, R>,
+    paths: &mut PathBuf<N>,
 ) -> Result<(), Buffer> {
     for s0 in 0..segs.nseg {
         let seg0 = segs.get(s0);

@@ -56,10 +56,11 @@
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
 //!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 84 bytes per
 //!   `PTS`, 123 bytes per `LOOPS`;
-//! - the infill scratch and the layer's paths: 46 bytes per `CROSS` (crossing 12, its order
-//!   then segment-end index 2, 16 bytes of the pool of segments (24 bytes each) and pieces
-//!   (4 bytes each), path record 16), 9 bytes per `PATH` point; `CROSS` is the largest of
-//!   the crossings of one pass, the pool's use in 16-byte units and the paths of a layer;
+//! - the infill scratch: 30 bytes per `CROSS` (crossing 12, its order then segment-end
+//!   index 2, 16 bytes of the pool of segments (24 bytes each) and pieces (4 bytes each));
+//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 16-byte units;
+//! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
+//!   two);
 //! - the window: 8 bytes per `RING` point (contours of up to `bottom + top + 2` layers) and
 //!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
 //!   filled).
@@ -113,7 +114,7 @@ pub enum Buffer {
     LineIntervals,
     /// Points of one layer's paths (`PATH`).
     PathPoints,
-    /// Paths of one layer (`CROSS`).
+    /// Paths of one layer (2 `PATH` entries each).
     Paths,
     /// Contour points of the layers waiting for the layers above them (`RING`).
     RingPoints,
@@ -482,9 +483,9 @@ pub struct ToolpathNeeds {
     /// Scanline crossings of one infill pass, or its segments and pieces in 16-byte units
     /// (24 bytes a segment, 4 a piece): `CROSS`.
     pub crossings: u32,
-    /// Path points of one layer: `PATH`.
+    /// Path points of one layer, two per path for its record: `PATH`.
     pub path_points: u32,
-    /// Paths of one layer: `CROSS`.
+    /// Paths of one layer (their records are in `path_points`).
     pub paths: u32,
     /// Contour points waiting in the window: `RING`.
     pub ring_points: u32,
@@ -497,13 +498,11 @@ impl ToolpathNeeds {
     pub const PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>() + offset::BYTES_PER_EDGE;
     /// Bytes per `LOOPS`: three loop buffers' loop records, island map and stage scratch.
     pub const LOOPS_BYTES: usize = 3 * core::mem::size_of::<Ring>() + 2 + 1;
-    /// Bytes per `CROSS`: a crossing, its order (then segment-end) entry, its share of the
-    /// segment and piece pool and a path record.
-    pub const CROSS_BYTES: usize = core::mem::size_of::<Crossing>()
-        + core::mem::size_of::<u16>()
-        + POOL_WORDS * 4
-        + core::mem::size_of::<paths::PathRec>();
-    /// Bytes per `PATH`: a point and its feature.
+    /// Bytes per `CROSS`: a crossing, its order (then segment-end) entry and its share of
+    /// the segment and piece pool.
+    pub const CROSS_BYTES: usize =
+        core::mem::size_of::<Crossing>() + core::mem::size_of::<u16>() + POOL_WORDS * 4;
+    /// Bytes per `PATH`: a point and its feature (a path record takes two).
     pub const PATH_BYTES: usize = core::mem::size_of::<Point2>() + core::mem::size_of::<Feature>();
     /// Bytes per `RING` point.
     pub const RING_BYTES: usize = core::mem::size_of::<Point2>();
@@ -515,7 +514,7 @@ impl ToolpathNeeds {
     pub fn bytes(&self) -> usize {
         let fixed = core::mem::size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
         let pts = (self.layer_points.max(self.offset_edges)) as usize;
-        let cross = (self.crossings.max(self.paths)) as usize;
+        let cross = self.crossings as usize;
         fixed
             + pts * Self::PTS_BYTES
             + self.layer_loops as usize * Self::LOOPS_BYTES
@@ -536,7 +535,7 @@ impl ToolpathNeeds {
 const _: () = assert!(
     ToolpathNeeds::PTS_BYTES == 84
         && ToolpathNeeds::LOOPS_BYTES == 123
-        && ToolpathNeeds::CROSS_BYTES == 46
+        && ToolpathNeeds::CROSS_BYTES == 30
         && ToolpathNeeds::PATH_BYTES == 9
         && ToolpathNeeds::RING_BYTES == 8
         && ToolpathNeeds::SPAN_BYTES == 8
@@ -666,7 +665,7 @@ pub struct Toolpath<
     idx: [u16; CROSS],
     pool: [[u32; POOL_WORDS]; CROSS],
     spans: [Span; SPANS],
-    paths: PathBuf<PATH, CROSS>,
+    paths: PathBuf<PATH>,
     island_map: [u16; LOOPS],
     island_stage: [u8; LOOPS],
     em: Emitter,
@@ -792,9 +791,9 @@ impl<
             | Buffer::OffsetSplits
             | Buffer::OffsetPieces => PTS,
             Buffer::LayerLoops => LOOPS,
-            Buffer::Crossings | Buffer::LineSegments | Buffer::Paths => CROSS,
+            Buffer::Crossings | Buffer::LineSegments => CROSS,
             Buffer::LineIntervals => 64,
-            Buffer::PathPoints => PATH,
+            Buffer::PathPoints | Buffer::Paths => PATH,
             Buffer::RingPoints => RING,
             Buffer::WindowSpans => SPANS,
             Buffer::WindowLayers => window::MAX_BLOCKS,
@@ -989,7 +988,7 @@ impl<
                 self.infill_pass(l, angle.other(), false)?;
             }
         }
-        layer.paths = self.paths.recs().len() as u32;
+        layer.paths = self.paths.len() as u32;
         // Emit.
         self.em.layer = layer;
         self.em.pending_z = Some(layer.z_um);
@@ -1272,7 +1271,7 @@ mod tests {
     fn memory_per_capacity_unit_is_as_documented() {
         assert_eq!(ToolpathNeeds::PTS_BYTES, 84);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
-        assert_eq!(ToolpathNeeds::CROSS_BYTES, 46);
+        assert_eq!(ToolpathNeeds::CROSS_BYTES, 30);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (8, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();

@@ -283,8 +283,8 @@ fn nearest(pts: &[Point2], from: Point2) -> usize {
 }
 
 /// Where path `r` would start from `from`: (point index, reversed, squared distance).
-fn entry<const N: usize, const R: usize>(
-    paths: &PathBuf<N, R>,
+fn entry<const N: usize>(
+    paths: &PathBuf<N>,
     r: &PathRec,
     seam: Seam,
     from: Point2,
@@ -362,8 +362,8 @@ fn cut(a: Point2, b: Point2, p: Point2, q: Point2) -> ((i128, i128), Point2) {
 /// straight travel crosses: for each (outermost first along the travel) the shorter way
 /// along the loop between where the travel meets it first and last. Calls `visit` for every
 /// waypoint after `a`, ending with `b`. False if the travel meets too many loops.
-fn comb_route<const N: usize, const R: usize>(
-    paths: &PathBuf<N, R>,
+fn comb_route<const N: usize>(
+    paths: &PathBuf<N>,
     island: u16,
     a: Point2,
     b: Point2,
@@ -375,7 +375,8 @@ fn comb_route<const N: usize, const R: usize>(
     let mut nh = 0;
     let (lo, hi) =
         (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
-    for (ri, r) in paths.recs().iter().enumerate() {
+    for ri in 0..paths.len() {
+        let r = &paths.rec(ri);
         if r.island != island || r.kind != PathKind::Perimeter(0) {
             continue;
         }
@@ -426,7 +427,7 @@ fn comb_route<const N: usize, const R: usize>(
         if frac_lt(h.t_in, done_to) {
             continue;
         }
-        let r = paths.recs()[h.rec];
+        let r = paths.rec(h.rec);
         let pts = paths.points(&r);
         let n = pts.len();
         // Forward: vertices e_in+1 ..= e_out; backward: e_in, e_in-1, ..., e_out+1.
@@ -455,10 +456,10 @@ fn comb_route<const N: usize, const R: usize>(
     true
 }
 
-fn print_path<const N: usize, const R: usize>(
+fn print_path<const N: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
-    paths: &PathBuf<N, R>,
+    paths: &PathBuf<N>,
     r: &PathRec,
     start: usize,
     reversed: bool,
@@ -491,13 +492,13 @@ fn print_path<const N: usize, const R: usize>(
 /// Where path `i` starts when it is entered at `end` (0: its first point, or a closed
 /// loop's seam; 1: an open path's last point), if that point does not depend on where the
 /// nozzle is (every path but the closed loops whose start is their nearest vertex).
-fn fixed_entry<const N: usize, const R: usize>(
-    paths: &PathBuf<N, R>,
+fn fixed_entry<const N: usize>(
+    paths: &PathBuf<N>,
     seam: Seam,
     i: usize,
     end: u32,
 ) -> Option<Point2> {
-    let r = paths.recs().get(i)?;
+    let r = &paths.get(i)?;
     let pts = paths.points(r);
     if r.closed {
         // Rear seams are rotated to the front of the loop before ordering.
@@ -533,22 +534,22 @@ struct Scope {
 }
 
 impl<'g> Finder<'g> {
-    fn new<const N: usize, const R: usize>(
-        paths: &PathBuf<N, R>,
+    fn new<const N: usize>(
+        paths: &PathBuf<N>,
         seam: Seam,
         head: &'g mut [u32],
         next: &'g mut [u32],
     ) -> Self {
-        let n = paths.recs().len();
+        let n = paths.len();
         let pos = |id: u32| {
             let i = (id / 2) as usize;
-            if paths.recs()[i].done {
+            if paths.rec(i).done {
                 return None;
             }
             fixed_entry(paths, seam, i, id % 2)
         };
         let loose = (0..n).any(|i| {
-            let r = &paths.recs()[i];
+            let r = &paths.rec(i);
             !r.done && r.closed && fixed_entry(paths, seam, i, 0).is_none()
         });
         let grid = NearGrid::build(2 * n, pos, head, next).ok();
@@ -556,11 +557,7 @@ impl<'g> Finder<'g> {
     }
 
     /// The scope of paths `range`: with the bounding box of their fixed entries.
-    fn scope<const N: usize, const R: usize>(
-        paths: &PathBuf<N, R>,
-        seam: Seam,
-        range: Range<usize>,
-    ) -> Scope {
+    fn scope<const N: usize>(paths: &PathBuf<N>, seam: Seam, range: Range<usize>) -> Scope {
         let mut window: Option<(Point2, Point2)> = None;
         for i in range.clone() {
             for end in 0..2 {
@@ -576,22 +573,21 @@ impl<'g> Finder<'g> {
 
     /// The nearest path from `from` among those of `scope` that `accept` takes (never a
     /// done one): (squared distance, index, start point, reversed).
-    fn find<const N: usize, const R: usize>(
+    fn find<const N: usize>(
         &self,
-        paths: &PathBuf<N, R>,
+        paths: &PathBuf<N>,
         seam: Seam,
         from: Point2,
         scope: &Scope,
         accept: &dyn Fn(&PathRec) -> bool,
     ) -> Option<(i64, usize, usize, bool)> {
-        let recs = paths.recs();
         let range = scope.range.clone();
         let grid = match &self.grid {
             Some(g) if range.len() > SCAN_MAX => g,
             _ => {
                 let mut pick: Option<(i64, usize, usize, bool)> = None;
                 for i in range {
-                    let r = &recs[i];
+                    let r = &paths.rec(i);
                     if r.done || !accept(r) {
                         continue;
                     }
@@ -606,7 +602,10 @@ impl<'g> Finder<'g> {
         let pos = |id: u32| fixed_entry(paths, seam, (id / 2) as usize, id % 2);
         let take = |id: u32| {
             let i = (id / 2) as usize;
-            range.contains(&i) && !recs[i].done && accept(&recs[i])
+            range.contains(&i) && {
+                let r = paths.rec(i);
+                !r.done && accept(&r)
+            }
         };
         let hit = match scope.window {
             Some((lo, hi)) => grid.nearest_in(from, lo, hi, pos, take),
@@ -615,12 +614,12 @@ impl<'g> Finder<'g> {
         let mut pick = hit.map(|(d, id)| {
             let i = (id / 2) as usize;
             let rev = id % 2 == 1;
-            let start = if rev { recs[i].len as usize - 1 } else { 0 };
+            let start = if rev { (paths.rec(i).len as usize).saturating_sub(1) } else { 0 };
             (d, i, start, rev)
         });
         if self.loose {
             for i in range.clone() {
-                let r = &recs[i];
+                let r = &paths.rec(i);
                 if r.done || !r.closed || fixed_entry(paths, seam, i, 0).is_some() || !accept(r) {
                     continue;
                 }
@@ -634,12 +633,7 @@ impl<'g> Finder<'g> {
     }
 
     /// Path `i` was printed.
-    fn done<const N: usize, const R: usize>(
-        &mut self,
-        paths: &PathBuf<N, R>,
-        seam: Seam,
-        i: usize,
-    ) {
+    fn done<const N: usize>(&mut self, paths: &PathBuf<N>, seam: Seam, i: usize) {
         if let Some(g) = &mut self.grid {
             for end in 0..2 {
                 if let Some(p) = fixed_entry(paths, seam, i, end) {
@@ -654,10 +648,10 @@ impl<'g> Finder<'g> {
 /// `grid_head` and `grid_next` are scratch for the nearest-path grid (cells and two entries
 /// per path; when `grid_next` holds fewer, paths are found by scanning them). The path
 /// records are sorted by island (stable) first, so each island's paths are a range.
-pub fn emit_layer<const N: usize, const R: usize>(
+pub fn emit_layer<const N: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
-    paths: &mut PathBuf<N, R>,
+    paths: &mut PathBuf<N>,
     island_stage: &mut [u8],
     grid_head: &mut [u32],
     grid_next: &mut [u32],
@@ -668,15 +662,16 @@ pub fn emit_layer<const N: usize, const R: usize>(
     for s in island_stage.iter_mut() {
         *s = u8::MAX;
     }
-    for r in paths.recs() {
+    for i in 0..paths.len() {
+        let r = paths.rec(i);
         if let Some(s) = island_stage.get_mut(r.island as usize) {
-            *s = (*s).min(stage(r, cfg));
+            *s = (*s).min(stage(&r, cfg));
         }
     }
     // The skirt first.
-    let n = paths.recs().len();
+    let n = paths.len();
     for i in 0..n {
-        let r = paths.recs()[i];
+        let r = paths.rec(i);
         if r.kind == PathKind::Skirt {
             let (start, rev, _) = entry(paths, &r, seam, em.pos);
             print_path(em, ctx, paths, &r, start, rev, sink);
@@ -686,7 +681,7 @@ pub fn emit_layer<const N: usize, const R: usize>(
     // Rear seams: every perimeter loop starts at its rear-most vertex.
     if seam == Seam::Rear {
         for i in 0..n {
-            let r = paths.recs()[i];
+            let r = paths.rec(i);
             if r.closed && !r.done && matches!(r.kind, PathKind::Perimeter(_)) {
                 let k = rear(paths.points(&r));
                 paths.rotate_loop(i, k);
@@ -706,10 +701,9 @@ pub fn emit_layer<const N: usize, const R: usize>(
             finder.find(paths, seam, em.pos, &everything, &first_stage)
         };
         let Some((_, first, _, _)) = first else { break };
-        let island = paths.recs()[first].island;
-        let recs = paths.recs();
-        let range = recs.partition_point(|r| r.island < island)
-            ..recs.partition_point(|r| r.island <= island);
+        let island = paths.rec(first).island;
+        let range = paths.partition_point(|r| r.island < island)
+            ..paths.partition_point(|r| r.island <= island);
         let scope = if range.len() > SCAN_MAX {
             Finder::scope(paths, seam, range.clone())
         } else {
@@ -734,7 +728,7 @@ pub fn emit_layer<const N: usize, const R: usize>(
             }
             match pick {
                 Some((_, i, start, rev)) => {
-                    let r = paths.recs()[i];
+                    let r = paths.rec(i);
                     print_path(em, ctx, paths, &r, start, rev, sink);
                     finder.done(paths, seam, i);
                     paths.set_done(i);
@@ -743,10 +737,11 @@ pub fn emit_layer<const N: usize, const R: usize>(
                 None => {
                     chain = None;
                     // Stage done: the next one present in this island.
-                    let next = paths.recs()[range.clone()]
-                        .iter()
+                    let next = range
+                        .clone()
+                        .map(|i| paths.rec(i))
                         .filter(|r| !r.done)
-                        .map(|r| stage(r, cfg))
+                        .map(|r| stage(&r, cfg))
                         .min();
                     match (next, island_stage.get_mut(island as usize)) {
                         (Some(s), Some(slot)) => *slot = s,

@@ -1,5 +1,9 @@
 //! One layer's extrusion paths before ordering: points with the feature of the move that
 //! reaches each point, grouped into closed loops (perimeters, skirt) and open runs (infill).
+//!
+//! Points fill the point array from the front and the path records its end, two points'
+//! room each (`(start, len)`, `(island, kind + flags x 2^16)`), so a layer of many short
+//! runs and one of a few long loops share one capacity.
 
 use crate::geom::Point2;
 
@@ -51,39 +55,124 @@ impl PathRec {
     };
 }
 
-/// Bounded path storage: `N` points, `R` paths.
-pub struct PathBuf<const N: usize, const R: usize> {
+/// Bounded path storage: `N` points, path records included (2 each).
+pub struct PathBuf<const N: usize> {
     pts: [Point2; N],
     feat: [Feature; N],
     n: usize,
-    recs: [PathRec; R],
     nr: usize,
     open: usize,
-    /// Largest point and path counts seen.
+    /// Largest use of the points (records included).
     pub peak_points: usize,
     /// Largest path count seen.
     pub peak_paths: usize,
 }
 
-impl<const N: usize, const R: usize> Default for PathBuf<N, R> {
+impl<const N: usize> Default for PathBuf<N> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<const N: usize, const R: usize> PathBuf<N, R> {
+/// Record flags (above the kind code).
+const CLOSED: i32 = 1 << 16;
+const REVERSIBLE: i32 = 2 << 16;
+const DONE: i32 = 4 << 16;
+
+impl PathKind {
+    /// 0 skirt, 1 infill, `2 + depth` perimeter.
+    fn code(self) -> i32 {
+        match self {
+            Self::Skirt => 0,
+            Self::Infill => 1,
+            Self::Perimeter(d) => 2 + i32::from(d),
+        }
+    }
+
+    fn from_code(c: i32) -> Self {
+        match c {
+            0 => Self::Skirt,
+            1 => Self::Infill,
+            _ => Self::Perimeter((c - 2).clamp(0, 255) as u8),
+        }
+    }
+}
+
+impl<const N: usize> PathBuf<N> {
     /// Empty.
     pub const fn new() -> Self {
         Self {
             pts: [Point2::new(0, 0); N],
             feat: [Feature::Travel; N],
             n: 0,
-            recs: [PathRec::EMPTY; R],
             nr: 0,
             open: 0,
             peak_points: 0,
             peak_paths: 0,
         }
+    }
+
+    /// Index of the first of record `i`'s two slots.
+    fn slot(&self, i: usize) -> Option<usize> {
+        (i < self.nr).then(|| N - 2 * (i + 1))
+    }
+
+    /// Points free between the paths and the records.
+    fn room(&self) -> usize {
+        N - 2 * self.nr - self.n
+    }
+
+    fn write_rec(&mut self, i: usize, r: &PathRec) {
+        let Some(k) = self.slot(i) else { return };
+        let flags = if r.closed { CLOSED } else { 0 }
+            | if r.reversible { REVERSIBLE } else { 0 }
+            | if r.done { DONE } else { 0 };
+        self.pts[k] = Point2::new(r.start as i32, r.len as i32);
+        self.pts[k + 1] = Point2::new(i32::from(r.island), r.kind.code() | flags);
+    }
+
+    /// Path `i`.
+    pub fn get(&self, i: usize) -> Option<PathRec> {
+        let k = self.slot(i)?;
+        let (a, b) = (self.pts[k], self.pts[k + 1]);
+        Some(PathRec {
+            start: a.x as u32,
+            len: a.y as u32,
+            island: b.x as u16,
+            kind: PathKind::from_code(b.y & 0xFFFF),
+            closed: b.y & CLOSED != 0,
+            reversible: b.y & REVERSIBLE != 0,
+            done: b.y & DONE != 0,
+        })
+    }
+
+    /// Path `i` (an empty record past the end).
+    pub fn rec(&self, i: usize) -> PathRec {
+        self.get(i).unwrap_or(EMPTY_REC)
+    }
+
+    /// Number of paths.
+    pub fn len(&self) -> usize {
+        self.nr
+    }
+
+    /// True without paths.
+    pub fn is_empty(&self) -> bool {
+        self.nr == 0
+    }
+
+    /// The first path index for which `pred` is false (`pred` true on a prefix).
+    pub fn partition_point(&self, pred: impl Fn(&PathRec) -> bool) -> usize {
+        let (mut lo, mut hi) = (0, self.nr);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if pred(&self.rec(mid)) {
+                lo = mid + 1;
+            } else {
+                hi = mid;
+            }
+        }
+        lo
     }
 
     /// Removes every path.
@@ -99,13 +188,13 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
         if self.n > self.open && self.pts[self.n - 1] == p {
             return Ok(());
         }
-        if self.n >= N {
+        if self.room() == 0 {
             return Err(Buffer::PathPoints);
         }
         self.pts[self.n] = p;
         self.feat[self.n] = feature;
         self.n += 1;
-        self.peak_points = self.peak_points.max(self.n);
+        self.peak_points = self.peak_points.max(self.n + 2 * self.nr);
         Ok(())
     }
 
@@ -141,10 +230,11 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
             self.n = self.open;
             return Ok(());
         }
-        if self.nr >= R {
+        if self.room() < 2 {
             return Err(Buffer::Paths);
         }
-        self.recs[self.nr] = PathRec {
+        self.nr += 1;
+        let r = PathRec {
             start: self.open as u32,
             len: len as u32,
             island,
@@ -153,8 +243,9 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
             reversible,
             done: false,
         };
-        self.nr += 1;
+        self.write_rec(self.nr - 1, &r);
         self.peak_paths = self.peak_paths.max(self.nr);
+        self.peak_points = self.peak_points.max(self.n + 2 * self.nr);
         self.open = self.n;
         Ok(())
     }
@@ -173,28 +264,34 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
         self.end(island, kind, true, true)
     }
 
-    /// The paths.
-    pub fn recs(&self) -> &[PathRec] {
-        &self.recs[..self.nr]
-    }
-
     /// Marks path `i` printed.
     pub fn set_done(&mut self, i: usize) {
-        if let Some(r) = self.recs.get_mut(i) {
-            r.done = true;
+        if let Some(k) = self.slot(i) {
+            self.pts[k + 1].y |= DONE;
         }
     }
 
-    /// Sorts the path records by island, keeping their order within an island.
+    /// Sorts the path records by island, keeping their order within an island (insertion
+    /// sort in place: records of one island mostly come together).
     pub fn sort_by_island(&mut self) {
-        // `start` grows with the order the paths were added in: a stable sort without
-        // allocation.
-        self.recs[..self.nr].sort_unstable_by_key(|r| (r.island, r.start));
+        let key = |r: &PathRec| (r.island, r.start);
+        for i in 1..self.nr {
+            let r = self.rec(i);
+            let mut j = i;
+            while j > 0 && key(&self.rec(j - 1)) > key(&r) {
+                let prev = self.rec(j - 1);
+                self.write_rec(j, &prev);
+                j -= 1;
+            }
+            if j != i {
+                self.write_rec(j, &r);
+            }
+        }
     }
 
     /// Makes point `k` of closed path `i` its first (same loop, same direction).
     pub fn rotate_loop(&mut self, i: usize, k: usize) {
-        let Some(r) = self.recs.get(i) else { return };
+        let Some(r) = self.get(i) else { return };
         let range = r.start as usize..(r.start + r.len) as usize;
         if !r.closed || k == 0 || k >= r.len as usize {
             return;
@@ -213,5 +310,40 @@ impl<const N: usize, const R: usize> PathBuf<N, R> {
     /// Features of `r`'s points.
     pub fn features(&self, r: &PathRec) -> &[Feature] {
         self.feat.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_share_the_points_and_sort_by_island() {
+        let mut b = PathBuf::<16>::new();
+        let pts = [Point2::new(0, 0), Point2::new(10, 0), Point2::new(0, 10)];
+        b.add_loop(&pts, Feature::Perimeter, 2, PathKind::Perimeter(1)).unwrap();
+        b.push(Point2::new(5, 5), Feature::SolidInfill).unwrap();
+        b.push(Point2::new(6, 6), Feature::SolidInfill).unwrap();
+        b.end(1, PathKind::Infill, false, true).unwrap();
+        // 5 points and 2 records of 2: 7 left of 16.
+        assert_eq!((b.len(), b.peak_points), (2, 9));
+        b.set_done(1);
+        b.sort_by_island();
+        let (r0, r1) = (b.rec(0), b.rec(1));
+        assert_eq!((r0.island, r0.start, r0.len, r0.kind), (1, 3, 2, PathKind::Infill));
+        assert!(r0.done && r0.reversible && !r0.closed);
+        assert_eq!(
+            (r1.island, r1.kind, r1.closed, r1.done),
+            (2, PathKind::Perimeter(1), true, false)
+        );
+        assert_eq!(b.points(&r1), &pts);
+        assert_eq!(b.partition_point(|r| r.island < 2), 1);
+        // Full: a path needs its points and two more for its record.
+        for k in 0..6 {
+            b.push(Point2::new(k, 100), Feature::InternalInfill).unwrap();
+        }
+        assert_eq!(b.end(0, PathKind::Infill, false, false), Err(Buffer::Paths));
+        assert_eq!(b.push(Point2::new(9, 9), Feature::InternalInfill), Ok(()));
+        assert_eq!(b.push(Point2::new(9, 8), Feature::InternalInfill), Err(Buffer::PathPoints));
     }
 }
