@@ -230,13 +230,13 @@ impl<'a> Segs<'a> {
 #[derive(Debug, Clone, Copy)]
 pub struct SkinView<'a> {
     /// Layers `L + 1 ..= L + top` (those that exist).
-    pub above: [&'a [Point2]; 16],
+    pub above: [&'a [u32]; 16],
     /// Number of entries in `above`.
     pub n_above: usize,
     /// All `top` layers above exist (otherwise nothing is covered from above).
     pub above_complete: bool,
     /// Layers `L - 1 ..= L - bottom` (those that exist).
-    pub below: [&'a [Point2]; 16],
+    pub below: [&'a [u32]; 16],
     /// Number of entries in `below`.
     pub n_below: usize,
     /// All `bottom` layers below exist.

@@ -61,7 +61,8 @@
 //!   `CROSS` is the larger of the crossings of one pass and the pool's use in 16-byte units;
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
 //!   two);
-//! - the window: 8 bytes per `RING` point (contours of up to `bottom + top + 2` layers) and
+//! - the window: 4 bytes per `RING` word (the simplified contours of up to
+//!   `bottom + top + 2` layers, about a word a point: [`window::StoredRings`]) and
 //!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
 //!   filled).
 //!
@@ -80,7 +81,7 @@ use order::{Ctx, Emitter};
 use paths::{PathBuf, PathKind};
 use poly::{LoopBuf, Ring};
 use scan::{Angle, Crossing};
-use window::{Fifo, StoredRings};
+use window::{Encoder, Fifo, LoopWords, StoredRings};
 
 pub mod infill;
 pub mod near;
@@ -116,7 +117,7 @@ pub enum Buffer {
     PathPoints,
     /// Paths of one layer (2 `PATH` entries each).
     Paths,
-    /// Contour points of the layers waiting for the layers above them (`RING`).
+    /// Stored contours of the skin window's layers, in words (`RING`).
     RingPoints,
     /// Crossings of the skin window's layers with one scanline (`SPANS`).
     WindowSpans,
@@ -137,7 +138,7 @@ impl fmt::Display for Buffer {
             Self::LineIntervals => "infill intervals per scanline",
             Self::PathPoints => "path points per layer",
             Self::Paths => "paths per layer",
-            Self::RingPoints => "contour points waiting for the layers above",
+            Self::RingPoints => "stored contour words of the skin window",
             Self::WindowSpans => "skin window crossings on one scanline",
             Self::WindowLayers => "layers in the skin window",
         })
@@ -487,7 +488,7 @@ pub struct ToolpathNeeds {
     pub path_points: u32,
     /// Paths of one layer (their records are in `path_points`).
     pub paths: u32,
-    /// Contour points waiting in the window: `RING`.
+    /// Words of the contours stored in the window (about one a point): `RING`.
     pub ring_points: u32,
     /// Crossings of the window's layers with one scanline (their spans): `SPANS`.
     pub spans: u32,
@@ -504,8 +505,8 @@ impl ToolpathNeeds {
         core::mem::size_of::<Crossing>() + core::mem::size_of::<u16>() + POOL_WORDS * 4;
     /// Bytes per `PATH`: a point and its feature (a path record takes two).
     pub const PATH_BYTES: usize = core::mem::size_of::<Point2>() + core::mem::size_of::<Feature>();
-    /// Bytes per `RING` point.
-    pub const RING_BYTES: usize = core::mem::size_of::<Point2>();
+    /// Bytes per `RING` word (a stored point takes one, see [`window::StoredRings`]).
+    pub const RING_BYTES: usize = core::mem::size_of::<u32>();
     /// Bytes per `SPANS` entry (a crossing, then a span, of one scanline).
     pub const SPAN_BYTES: usize = core::mem::size_of::<Span>();
 
@@ -537,7 +538,7 @@ const _: () = assert!(
         && ToolpathNeeds::LOOPS_BYTES == 123
         && ToolpathNeeds::CROSS_BYTES == 30
         && ToolpathNeeds::PATH_BYTES == 9
-        && ToolpathNeeds::RING_BYTES == 8
+        && ToolpathNeeds::RING_BYTES == 4
         && ToolpathNeeds::SPAN_BYTES == 8
 );
 
@@ -656,7 +657,7 @@ pub struct Toolpath<
 > {
     cfg: ToolpathConfig,
     step: i64,
-    ring: Fifo<Point2, RING>,
+    ring: Fifo<u32, RING>,
     contour: LoopBuf<PTS, LOOPS>,
     tmp: LoopBuf<PTS, LOOPS>,
     fill: LoopBuf<PTS, LOOPS>,
@@ -701,7 +702,7 @@ impl<
         Self {
             cfg: IDLE_CONFIG,
             step: 1,
-            ring: Fifo::new(Point2::new(0, 0), Buffer::RingPoints),
+            ring: Fifo::new(0, Buffer::RingPoints),
             contour: LoopBuf::new(),
             tmp: LoopBuf::new(),
             fill: LoopBuf::new(),
@@ -858,11 +859,14 @@ impl<
     fn store(&mut self, layer: &Layer<'_>) -> Result<(), Buffer> {
         let index = layer.index;
         let tol = i64::from(self.cfg.simplify_tolerance_um);
-        // Room for the simplified loops (a header and the points each) and the layer header.
-        let bound = |info| simplify::simplify_bound(layer.loop_points(info), tol);
-        let total = 1 + layer.loops.iter().map(|info| 1 + bound(info)).sum::<usize>();
-        let block = self.ring.reserve(total)?;
-        let mut w = 1;
+        // Room for every loop simplified (a first pass counts its words) and the header.
+        let words = |info| {
+            let mut w = LoopWords::default();
+            simplify::simplify_closed_each(layer.loop_points(info), tol, |p| w.add(p));
+            w.words
+        };
+        let total = 2 + layer.loops.iter().map(words).sum::<usize>();
+        let mut out = Encoder::new(self.ring.reserve(total)?);
         let mut rings = 0;
         let mut islands = 0u16;
         for (li, info) in layer.loops.iter().enumerate() {
@@ -880,11 +884,14 @@ impl<
                 islands += 1;
                 islands - 1
             };
-            let head = w;
-            let body = block.get_mut(head + 1..).unwrap_or(&mut []);
-            let n = simplify::simplify_closed_into(layer.loop_points(info), tol, body);
-            let n = n.ok_or(Buffer::RingPoints)?;
+            out.begin(island)?;
+            let mut written = Ok(());
+            let n = simplify::simplify_closed_each(layer.loop_points(info), tol, |p| {
+                written = written.and_then(|()| out.push(p));
+            });
+            written?;
             let keep = n >= 3;
+            out.end(keep);
             if let Some(slot) = self.island_map.get_mut(li) {
                 *slot = if keep || info.hole { island } else { u16::MAX };
             } else if !info.hole {
@@ -899,13 +906,9 @@ impl<
                 }
                 continue;
             }
-            let slot = block.get_mut(head).ok_or(Buffer::RingPoints)?;
-            *slot = Point2::new(n as i32, i32::from(island));
-            w = head + 1 + n;
             rings += 1;
         }
-        let slot = block.first_mut().ok_or(Buffer::RingPoints)?;
-        *slot = Point2::new(rings, i32::from(islands));
+        let w = out.finish(rings, islands);
         self.ring.commit(index, w);
         Ok(())
     }
@@ -918,7 +921,7 @@ impl<
         self.paths.clear();
         self.fill.clear();
         let mut layer = LayerStats { index: l, z_um: cfg.layer_z_um(l), ..LayerStats::EMPTY };
-        let islands = self.ring.data(&blk).first().map_or(0, |h| h.y.max(0) as u16);
+        let islands = StoredRings::islands(self.ring.data(&blk));
         layer.islands = u32::from(islands);
         let w = cfg.line_width_um;
         // Skirt around the first layer.
@@ -1151,7 +1154,7 @@ impl<
     fn infill_pass(&mut self, l: u32, angle: Angle, solid: bool) -> Result<(), Buffer> {
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
-        let empty: &[Point2] = &[];
+        let empty: &[u32] = &[];
         let mut view = SkinView {
             above: [empty; 16],
             n_above: 0,
@@ -1234,12 +1237,12 @@ impl<
 
 /// Decodes a stored layer ([`StoredRings`]) into `out`.
 fn decode<const P: usize, const L: usize>(
-    data: &[Point2],
+    data: &[u32],
     out: &mut LoopBuf<P, L>,
 ) -> Result<(), Buffer> {
     out.clear();
     for (island, pts) in StoredRings::new(data) {
-        for &p in pts {
+        for p in pts {
             out.push(p)?;
         }
         out.close(island, 0, Ring::NO_PARENT)?;
@@ -1273,7 +1276,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 30);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
-        assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (8, 8));
+        assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
         assert!(fixed < 3072, "{fixed}");
         let needs = ToolpathNeeds {

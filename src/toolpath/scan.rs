@@ -265,8 +265,8 @@ pub struct Span {
 /// of crossings: the same intervals as [`crossings`], [`sort_by_line`] and [`intervals`]
 /// give on that line. `out` must hold every crossing of the line (it is their scratch
 /// first): more is [`Buffer::WindowSpans`].
-pub fn line_spans<'a>(
-    loops: impl Iterator<Item = &'a [Point2]>,
+pub fn line_spans<P: Iterator<Item = Point2>>(
+    loops: impl Iterator<Item = P>,
     angle: Angle,
     line: i32,
     step: i64,
@@ -275,10 +275,13 @@ pub fn line_spans<'a>(
     // Crossings as (u, dir) first.
     let t = i64::from(line) * step;
     let mut n = 0;
-    for pts in loops {
-        for (k, &p) in pts.iter().enumerate() {
-            let q = pts[(k + 1) % pts.len()];
+    for mut pts in loops {
+        let Some(first) = pts.next() else { continue };
+        let mut p = first;
+        // Every edge, the closing one last.
+        for q in pts.chain(core::iter::once(first)) {
             let (a, b) = (angle.key(p), angle.key(q));
+            p = q;
             if a.0.min(b.0) <= t && t < a.0.max(b.0) {
                 let slot = out.get_mut(n).ok_or(Buffer::WindowSpans)?;
                 let dir = if b.0 > a.0 { 1 } else { -1 };

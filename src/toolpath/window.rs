@@ -3,7 +3,8 @@
 //! Skins need to know, for layer `L`, the regions of the `bottom` layers below and the `top`
 //! layers above. The slicer emits layers in order, so the toolpath of layer `L` is built when
 //! layer `L + top` arrives; until then `L`'s simplified contours wait here (a [`Fifo`] of
-//! points, one block per layer in the [`StoredRings`] layout), and they stay for `bottom`
+//! words, one block per layer in the [`StoredRings`] layout: about one word a point), and
+//! they stay for `bottom`
 //! more layers: the skin detection cuts them with each scanline when it needs them
 //! ([`scan::line_spans`](super::scan::line_spans)), so no per-line data of the window is
 //! stored.
@@ -152,43 +153,232 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
     }
 }
 
-/// The loops of one stored layer: `data[0]` is `(loops, islands)`, then every loop is a
-/// header `(points, island)` followed by its points (the closing edge implied). Yields
-/// `(island, points)` for the loops of at least three points.
-pub struct StoredRings<'a> {
-    data: &'a [Point2],
+/// Escape word of [`StoredRings`]: an absolute point follows in two words.
+const FAR: u32 = 0x8000_8000;
+
+/// Words a point takes after `prev` in a stored loop: 1 for an offset of `i16`s (not
+/// `i16::MIN`), 3 otherwise.
+fn point_words(prev: Point2, p: Point2) -> usize {
+    if delta(prev, p).is_some() {
+        1
+    } else {
+        3
+    }
+}
+
+/// `p - prev` packed in one word, if both components fit.
+fn delta(prev: Point2, p: Point2) -> Option<u32> {
+    let d =
+        |a: i32, b: i32| i16::try_from(i64::from(b) - i64::from(a)).ok().filter(|&v| v != i16::MIN);
+    Some(u32::from(d(prev.x, p.x)? as u16) | u32::from(d(prev.y, p.y)? as u16) << 16)
+}
+
+/// Writes one stored layer in the [`StoredRings`] layout into a word slice.
+pub struct Encoder<'a> {
+    out: &'a mut [u32],
     at: usize,
-    left: i32,
+    /// Start of the loop being written, its points and the last one.
+    ring: usize,
+    n: u32,
+    last: Point2,
+}
+
+impl<'a> Encoder<'a> {
+    /// A layer in `out` (its header first).
+    pub fn new(out: &'a mut [u32]) -> Self {
+        Self { out, at: 2, ring: 2, n: 0, last: Point2::new(0, 0) }
+    }
+
+    fn word(&mut self, w: u32) -> Result<(), Buffer> {
+        *self.out.get_mut(self.at).ok_or(Buffer::RingPoints)? = w;
+        self.at += 1;
+        Ok(())
+    }
+
+    /// Starts a loop of `island`.
+    pub fn begin(&mut self, island: u16) -> Result<(), Buffer> {
+        (self.ring, self.n) = (self.at, 0);
+        self.word(0)?;
+        self.word(u32::from(island))
+    }
+
+    /// Appends a point to the loop.
+    pub fn push(&mut self, p: Point2) -> Result<(), Buffer> {
+        match delta(self.last, p).filter(|_| self.n > 0) {
+            Some(w) => self.word(w)?,
+            None => {
+                if self.n > 0 {
+                    self.word(FAR)?;
+                }
+                self.word(p.x as u32)?;
+                self.word(p.y as u32)?;
+            }
+        }
+        self.last = p;
+        self.n += 1;
+        Ok(())
+    }
+
+    /// Ends the loop: kept with its points if `keep`, else removed.
+    pub fn end(&mut self, keep: bool) {
+        if keep {
+            if let Some(h) = self.out.get_mut(self.ring) {
+                *h = self.n;
+            }
+        } else {
+            self.at = self.ring;
+        }
+    }
+
+    /// Writes the layer header (`loops` kept, `islands`) and returns the words used.
+    pub fn finish(self, loops: u32, islands: u16) -> usize {
+        if let Some(h) = self.out.get_mut(..2) {
+            h.copy_from_slice(&[loops, u32::from(islands)]);
+        }
+        self.at
+    }
+}
+
+/// Counts the words a loop takes in the [`StoredRings`] layout, point by point: its header,
+/// its first point in two and every later one by [`point_words`].
+pub struct LoopWords {
+    prev: Option<Point2>,
+    /// Words so far.
+    pub words: usize,
+}
+
+impl Default for LoopWords {
+    /// A loop without points: its header.
+    fn default() -> Self {
+        Self { prev: None, words: 2 }
+    }
+}
+
+impl LoopWords {
+    /// Adds the loop's next point.
+    pub fn add(&mut self, p: Point2) {
+        self.words += self.prev.map_or(2, |q| point_words(q, p));
+        self.prev = Some(p);
+    }
+}
+
+/// The loops of one stored layer, in words: `(loops, islands)`, then every loop is a
+/// header `(points, island)`, its first point (x, y) and every later point as its offset
+/// from the previous one (`dx + dy x 2^16`, both `i16`) or, when an offset does not fit,
+/// the escape word `0x8000_8000` and the point (x, y): one word a point on a typical loop
+/// (simplified points are under 33 mm apart). Yields `(island, points)` for the loops of
+/// at least three points.
+pub struct StoredRings<'a> {
+    data: &'a [u32],
+    at: usize,
+    left: u32,
 }
 
 impl<'a> StoredRings<'a> {
-    /// The loops of `data` (a block written in this layout).
-    pub fn new(data: &'a [Point2]) -> Self {
-        Self { data, at: 1, left: data.first().map_or(0, |h| h.x.max(0)) }
+    /// The loops of `data` (a block written by an [`Encoder`]).
+    pub fn new(data: &'a [u32]) -> Self {
+        Self { data, at: 2, left: data.first().copied().unwrap_or(0) }
+    }
+
+    /// The layer's islands.
+    pub fn islands(data: &[u32]) -> u16 {
+        data.get(1).map_or(0, |&w| w as u16)
     }
 }
 
 impl<'a> Iterator for StoredRings<'a> {
-    type Item = (u16, &'a [Point2]);
+    type Item = (u16, LoopPoints<'a>);
 
     fn next(&mut self) -> Option<Self::Item> {
         while self.left > 0 {
             self.left -= 1;
-            let h = self.data.get(self.at)?;
-            let n = h.x.max(0) as usize;
-            let pts = self.data.get(self.at + 1..self.at + 1 + n).unwrap_or(&[]);
-            self.at += 1 + n;
-            if pts.len() >= 3 {
-                return Some((h.y as u16, pts));
+            let (&n, &island) = (self.data.get(self.at)?, self.data.get(self.at + 1)?);
+            let pts = LoopPoints { data: self.data, at: self.at + 2, left: n, last: None };
+            // Skip the points: one word each, three after an escape, two for the first.
+            let mut at = self.at + 2;
+            for k in 0..n {
+                at += match (k, self.data.get(at)) {
+                    (0, _) => 2,
+                    (_, Some(&FAR)) => 3,
+                    _ => 1,
+                };
+            }
+            self.at = at;
+            if n >= 3 {
+                return Some((island as u16, pts));
             }
         }
         None
     }
 }
 
+/// The points of one stored loop.
+#[derive(Clone)]
+pub struct LoopPoints<'a> {
+    data: &'a [u32],
+    at: usize,
+    left: u32,
+    last: Option<Point2>,
+}
+
+impl Iterator for LoopPoints<'_> {
+    type Item = Point2;
+
+    fn next(&mut self) -> Option<Point2> {
+        if self.left == 0 {
+            return None;
+        }
+        self.left -= 1;
+        let w = *self.data.get(self.at)?;
+        let p = match self.last {
+            Some(q) if w != FAR => {
+                self.at += 1;
+                let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
+                Point2::new(q.x.wrapping_add(dx), q.y.wrapping_add(dy))
+            }
+            _ => {
+                let skip = usize::from(self.last.is_some());
+                let xy = self.data.get(self.at + skip..self.at + skip + 2)?;
+                self.at += skip + 2;
+                Point2::new(xy[0] as i32, xy[1] as i32)
+            }
+        };
+        self.last = Some(p);
+        Some(p)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stored_loops_round_trip() {
+        let a = [Point2::new(100_000, 5), Point2::new(100_010, -7), Point2::new(40_000, 9)];
+        let b = [Point2::new(-3, 4), Point2::new(i32::MAX, i32::MIN), Point2::new(0, 0)];
+        let mut out = [0u32; 64];
+        let mut e = Encoder::new(&mut out);
+        for (island, pts, keep) in [(0, &a[..], true), (5, &a[..2], false), (1, &b[..], true)] {
+            e.begin(island).unwrap();
+            pts.iter().for_each(|&p| e.push(p).unwrap());
+            e.end(keep);
+        }
+        let words = e.finish(2, 2);
+        let count = |pts: &[Point2]| {
+            let mut w = LoopWords::default();
+            pts.iter().for_each(|&p| w.add(p));
+            w.words
+        };
+        assert_eq!(words, 2 + count(&a) + count(&b));
+        // a: 2 + 2 + 3 (60 mm jump) + 1; b: 2 + 2 + 3 + 3.
+        assert_eq!(words, 2 + 8 + 10);
+        let data = &out[..words];
+        assert_eq!(StoredRings::islands(data), 2);
+        let got: std::vec::Vec<(u16, std::vec::Vec<Point2>)> =
+            StoredRings::new(data).map(|(i, p)| (i, p.collect())).collect();
+        assert_eq!(got, [(0, a.to_vec()), (1, b.to_vec())]);
+        assert_eq!(Encoder::new(&mut out[..3]).begin(0), Err(Buffer::RingPoints));
+    }
 
     #[test]
     fn blocks_wrap_and_stay_contiguous() {
