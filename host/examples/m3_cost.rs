@@ -8,7 +8,8 @@
 //! - step interrupt at most 150 instructions per step on average;
 //! - worst interrupt under 900 cycles (X and Y both stepping at 40 kHz: 72e6 / 80e3).
 //!
-//! `cargo run --release -p strata-host --example m3_cost -- [--echo] MODEL.stl...` (model
+//! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S] MODEL.stl...`
+//! (job budget S seconds of wall time, default 1800; model
 //! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
 //! builds the firmware first and runs the four sample models. Exits non-zero when a job
 //! fails; a missed target is reported, not an error.
@@ -44,7 +45,7 @@ struct Row {
     wall_s: f64,
 }
 
-fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool) -> Result<Row, String> {
+fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool, timeout: Duration) -> Result<Row, String> {
     let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
     let machine = MachineConfig::default();
     let tris = model::load(path)?.placed_sorted(&machine)?;
@@ -60,10 +61,16 @@ fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool) -> Result<Row, String> 
     port.set_write_timeout(Some(Duration::from_secs(10))).map_err(|e| e.to_string())?;
     let mut conn = hil::connect(&mut port)?;
     let (tris, job, note) = hil::admitted(&tris, job, &conn.caps)?;
-    let progress = hil::print_job(&mut port, &mut conn, &tris, job, Duration::from_secs(1800))
-        .map_err(|e| {
-            format!("{name}: {e}; qemu: {} {:?}", q.stderr(), q.lines().iter().rev().take(8))
-        })?;
+    let mut next = 10.0;
+    let progress = hil::print_job(&mut port, &mut conn, &tris, job, timeout, |p| {
+        if echo && t0.elapsed().as_secs_f64() > next {
+            next += 10.0;
+            eprintln!("{name}: {} triangles sent, status {:?}", p.triangles_sent, p.status);
+        }
+    })
+    .map_err(|e| {
+        format!("{name}: {e}; qemu: {} {:?}", q.stderr(), q.lines().iter().rev().take(8))
+    })?;
     let st = progress.status.unwrap_or_default();
     if st.state != DeviceState::Done {
         return Err(format!("{name}: ended in {:?}", st.state));
@@ -85,15 +92,21 @@ fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool) -> Result<Row, String> 
 
 fn main() {
     let mut echo = false;
+    let mut timeout = Duration::from_secs(1800);
     let mut models = Vec::new();
-    for a in std::env::args().skip(1) {
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
         match a.as_str() {
             "--echo" => echo = true,
+            "--timeout" => match args.next().and_then(|s| s.parse().ok()) {
+                Some(s) => timeout = Duration::from_secs(s),
+                None => models.clear(),
+            },
             _ => models.push(resolve(&a)),
         }
     }
     if models.is_empty() {
-        eprintln!("usage: m3_cost [--echo] MODEL.stl...");
+        eprintln!("usage: m3_cost [--echo] [--timeout SECONDS] MODEL.stl...");
         std::process::exit(2);
     }
     let (qemu, elf) = hil::locate().unwrap_or_else(|e| {
@@ -109,7 +122,7 @@ fn main() {
     let mut failed = false;
     let mut rows = Vec::new();
     for m in &models {
-        match run(&qemu, &elf, m, echo) {
+        match run(&qemu, &elf, m, echo, timeout) {
             Ok(r) => rows.push(r),
             Err(e) => {
                 eprintln!("{}: FAILED: {e}", m.display());

@@ -116,6 +116,8 @@ impl Qemu {
             readers.push(std::thread::spawn(move || {
                 for line in BufReader::new(stdout).lines() {
                     let Ok(line) = line else { break };
+                    // The monitor's prompt (QEMU's monitor shares standard output).
+                    let line = line.trim_start_matches("(qemu) ").to_string();
                     if echo {
                         eprintln!("qemu| {line}");
                     }
@@ -470,14 +472,18 @@ pub fn admitted(
 }
 
 /// Streams the job with [`crate::serial::print`] and waits for the device to report it
-/// done; past `timeout` the host aborts it (and the result is an error saying so).
+/// done; past `timeout` the host aborts it (and the result is an error saying so). An error
+/// ends with what the host saw last (triangles sent, layer reports, status). `on_progress`
+/// is called about every 100 ms.
 pub fn print_job<P: Read + Write>(
     port: &mut P,
     conn: &mut Connected,
     tris: &[Triangle],
     job: JobSpec,
     timeout: Duration,
+    mut on_progress: impl FnMut(&Progress),
 ) -> Result<Progress, String> {
+    let mut last = Progress::default();
     let abort = AtomicBool::new(false);
     let finished = AtomicBool::new(false);
     let timed_out = AtomicBool::new(false);
@@ -494,14 +500,31 @@ pub fn print_job<P: Read + Write>(
             }
         });
         let r =
-            crate::serial::print(port, &mut conn.ep, conn.t0, conn.caps, tris, job, &abort, |_| {});
+            crate::serial::print(port, &mut conn.ep, conn.t0, conn.caps, tris, job, &abort, |p| {
+                last = p.clone();
+                on_progress(p);
+            });
         finished.store(true, Ordering::Relaxed);
         r
     });
+    let seen = || {
+        format!(
+            "; last seen: {} of {} triangles sent, {} layer reports, status {:?}, host link {:?}",
+            last.triangles_sent,
+            tris.len(),
+            last.layer_hashes.len(),
+            last.status,
+            conn.ep.stats()
+        )
+    };
     if timed_out.load(Ordering::Relaxed) {
-        return Err(format!("the job did not end within {:.0} s (aborted)", timeout.as_secs_f64()));
+        return Err(format!(
+            "the job did not end within {:.0} s (aborted){}",
+            timeout.as_secs_f64(),
+            seen()
+        ));
     }
-    r
+    r.map_err(|e| e + &seen())
 }
 
 /// One `TAG key=value ...` line of the firmware's standard output.

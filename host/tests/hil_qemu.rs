@@ -128,7 +128,20 @@ fn run_job(
                     .map_err(|(e, _)| e)
             })
         });
-        let result = hil::print_job(port, &mut conn, &tris, job, timeout);
+        let mut next_report = Duration::from_secs(30);
+        let result = hil::print_job(port, &mut conn, &tris, job, timeout, |p| {
+            // A line every 30 s of a long job: where it stands.
+            if t0.elapsed() > next_report {
+                next_report += Duration::from_secs(30);
+                eprintln!(
+                    "  ... {:.0} s: {} triangles sent, {} layer reports, status {:?}",
+                    t0.elapsed().as_secs_f64(),
+                    p.triangles_sent,
+                    p.layer_hashes.len(),
+                    p.status
+                );
+            }
+        });
         let run = Run {
             tris: tris.clone(),
             job,
