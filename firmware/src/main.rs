@@ -1,20 +1,50 @@
-//! Strata firmware (skeleton): links the core for the Creality board's memory map.
+//! Strata firmware: the core's `Printer` (slicer, toolpaths, planner, step generator) behind
+//! the protocol on the UART, the step executor in a timer interrupt.
 //!
-//! The board support, main loop and step ISR arrive with the firmware issue; for now this
-//! proves that the core links into a Cortex-M3 image at 0x0800_7000 with 64 KB of RAM.
+//! One board per build: `--features creality-v422`, `creality-v427` or `qemu` (see
+//! README.md). Everything above `board/` is shared.
 #![no_std]
 #![no_main]
 
-use cortex_m_rt::entry;
+#[cfg(not(any(feature = "creality-v422", feature = "creality-v427", feature = "qemu")))]
+compile_error!("select a board: --features creality-v422, creality-v427 or qemu");
+#[cfg(any(
+    all(feature = "creality-v422", feature = "creality-v427"),
+    all(feature = "creality", feature = "qemu")
+))]
+compile_error!("select exactly one board feature");
+
+#[cfg(feature = "creality")]
+use defmt_rtt as _;
 use panic_halt as _;
-use strata::machine::{MachineConfig, PrintSettings};
+
+mod app;
+mod board;
+mod capacities;
+#[cfg(feature = "qemu")]
+mod cost;
+mod log;
+mod motion;
+mod stack;
+
+use cortex_m_rt::entry;
+use static_cell::{ConstStaticCell, StaticCell};
+
+use capacities::{FwEndpoint, FwPrinter};
+use strata::protocol::{Endpoint, LinkConfig};
+
+/// The whole pipeline, built at compile time in place (no stack temporary).
+static PRINTER: ConstStaticCell<FwPrinter> = ConstStaticCell::new(FwPrinter::empty());
+/// The protocol endpoint (3.3 KB; `LinkConfig::default()` is not const, so it is built at
+/// start-up, in place where the optimiser manages).
+static ENDPOINT: StaticCell<FwEndpoint> = StaticCell::new();
 
 #[entry]
 fn main() -> ! {
-    let machine = MachineConfig::default();
-    let settings = PrintSettings::default();
-    let _valid = settings.validate(&machine).is_ok();
-    loop {
-        cortex_m::asm::wfi();
-    }
+    stack::paint();
+    let printer = PRINTER.take();
+    let ep = ENDPOINT.init_with(|| Endpoint::new(LinkConfig::default()));
+    // `Printer::empty` is the stock Ender-3 already; `app::run` configures it again.
+    let board = board::init(printer.step_config());
+    app::run(board, printer, ep)
 }

@@ -1,0 +1,174 @@
+//! The main loop shared by every board (the firmware twin of the host's `serve_device`):
+//! UART bytes into the protocol endpoint, `Printer::service`, bounded `Printer::poll` into the
+//! step queue, frames back out; the executor runs in the board's timer interrupt.
+
+use strata::machine::{MachineConfig, AXES};
+use strata::protocol::{DeviceState, Message, MAX_WIRE};
+use strata::step::StepConfig;
+
+use crate::board::{self, Board};
+use crate::capacities::{FwEndpoint, FwPrinter, POLLS_PER_LOOP, STATUS_EVERY_MS};
+use crate::motion::{fresh_queue, Producer};
+use crate::{log, stack};
+
+/// The stock Ender-3 (DESIGN §3).
+pub const MACHINE: MachineConfig = MachineConfig::ENDER3;
+
+/// Soft limits: the generator's motor positions (which lead the executor by the whole step
+/// queue) must stay inside the build volume plus this margin, mm.
+const SOFT_LIMIT_MARGIN_MM: i64 = 1;
+
+/// A fresh step queue: the interrupt's executor and this loop's producer are replaced
+/// together (the old ones are dropped first); the motion halts, drivers off.
+fn reset_motion(prod: &mut Option<Producer>, cfg: &StepConfig) {
+    board::with_motion(|m| {
+        drop(m.halt());
+        drop(prod.take());
+        // SAFETY: the previous executor (`old`) and producer (`*prod`) are dropped above,
+        // inside this critical section, so nothing borrows the queue any more.
+        let (p, e) = unsafe { fresh_queue(cfg) };
+        m.install(e);
+        *prod = Some(p);
+    });
+}
+
+/// The axis (and its position in steps) outside the soft limits, if any.
+fn soft_limit(machine: &MachineConfig, motor: [i64; AXES]) -> Option<(usize, i64)> {
+    (0..3).find_map(|a| {
+        let spm = machine.steps_per_mm[a].to_num::<i64>();
+        let lo = -SOFT_LIMIT_MARGIN_MM * spm;
+        let hi = (machine.build_volume_um[a] as i64 / 1000 + SOFT_LIMIT_MARGIN_MM) * spm;
+        (motor[a] < lo || motor[a] > hi).then_some((a, motor[a]))
+    })
+}
+
+/// Runs the printer forever.
+pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut FwEndpoint) -> ! {
+    printer.configure(&MACHINE);
+    let cfg = board::executor_config(printer.step_config());
+    let mut prod: Option<Producer> = None;
+    reset_motion(&mut prod, &cfg);
+    log!(
+        "strata firmware: printer {} B, endpoint {} B, step queue {} cmds/axis",
+        core::mem::size_of::<FwPrinter>() as u32,
+        core::mem::size_of::<FwEndpoint>() as u32,
+        crate::capacities::STEP_QUEUE as u32
+    );
+    let mut state = printer.state();
+    let mut job_open = false;
+    let mut rx = [0u8; 64];
+    let mut frame = [0u8; MAX_WIRE];
+    #[cfg(feature = "qemu")]
+    let mut cost = crate::cost::Cost::new();
+    #[cfg(feature = "qemu")]
+    let mut hb_ms = 0u32;
+    loop {
+        let now = board.now_ms();
+        #[cfg(feature = "qemu")]
+        if now.wrapping_sub(hb_ms) >= 1000 && job_open {
+            hb_ms = now;
+            if let Some(p) = prod.as_ref() {
+                board::heartbeat(p);
+                log!(
+                    "HB state={} layer={} triangles={}",
+                    printer.state() as u32,
+                    printer.status(0).layer,
+                    printer.status(0).triangles
+                );
+            }
+        }
+        let n = board.read(&mut rx);
+        ep.receive(&rx[..n], now);
+        let done_ms = board::print_done_ms();
+        #[cfg(feature = "qemu")]
+        let t0 = cost.begin(ep.peek().is_some(), printer);
+        printer.service(ep, now, done_ms, STATUS_EVERY_MS);
+        #[cfg(feature = "qemu")]
+        cost.end_service(t0, printer);
+
+        let new = printer.state();
+        if new != state {
+            let was_active = matches!(state, DeviceState::Printing | DeviceState::Paused);
+            match new {
+                DeviceState::Printing if !was_active => {
+                    // A new job: clean queue, home X/Y/Z before the first step.
+                    reset_motion(&mut prod, &cfg);
+                    board::with_motion(|m| m.start_homing(&MACHINE));
+                    board::job_started();
+                    #[cfg(feature = "qemu")]
+                    cost.job_started();
+                    job_open = true;
+                    log!("JOB start layers={}", printer.layer_count());
+                }
+                DeviceState::Stopped | DeviceState::Aborted | DeviceState::Failed => {
+                    // Emergency stop (and abort, failure): no further step, queue cleared,
+                    // drivers off at once.
+                    reset_motion(&mut prod, &cfg);
+                }
+                _ => {}
+            }
+            state = new;
+        }
+
+        if let Some(p) = prod.as_mut() {
+            if printer.is_active() && !board::with_motion(|m| m.homing()) {
+                for _ in 0..POLLS_PER_LOOP {
+                    #[cfg(feature = "qemu")]
+                    let t = cost.thread_now();
+                    let worked = printer.poll(p);
+                    #[cfg(feature = "qemu")]
+                    if worked {
+                        cost.end_poll(t, printer);
+                    }
+                    if !worked {
+                        break;
+                    }
+                }
+                board::kick();
+                if let Some((axis, pos)) = soft_limit(&MACHINE, printer.generator().motor_steps()) {
+                    log!("SOFT LIMIT axis={} steps={}: job aborted", axis as u32, pos);
+                    reset_motion(&mut prod, &cfg);
+                    printer.handle(&Message::Abort);
+                }
+            }
+        }
+        if let Some(p) = prod.as_ref() {
+            let finished = printer.motion_finished() || !printer.is_active();
+            board::after_poll(p, finished, printer.state() == DeviceState::Paused);
+        }
+
+        loop {
+            let n = ep.poll_transmit(now, &mut frame);
+            if n == 0 {
+                break;
+            }
+            board.write(&frame[..n]);
+        }
+
+        if job_open {
+            let finished = match printer.state() {
+                DeviceState::Done => !board::with_motion(|m| m.busy()),
+                DeviceState::Failed | DeviceState::Aborted | DeviceState::Stopped => true,
+                _ => false,
+            };
+            if finished {
+                job_open = false;
+                board::with_motion(|m| m.disable_if_idle());
+                let (err, detail) = printer.error();
+                log!(
+                    "JOB end state={} error={} detail={} triangles={} layers={}",
+                    printer.state() as u32,
+                    err as u32,
+                    detail,
+                    printer.status(0).triangles,
+                    printer.layer_count()
+                );
+                #[cfg(feature = "qemu")]
+                cost.job_ended(printer);
+                board::job_ended();
+                let (used, size) = stack::high_water();
+                log!("MEM data_bss={} stack_hwm={} stack_size={}", stack::data_bss(), used, size);
+            }
+        }
+    }
+}

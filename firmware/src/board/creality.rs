@@ -1,0 +1,277 @@
+//! Creality 4.2.2 / 4.2.7 (STM32F103RET6, 72 MHz from the 8 MHz HSE): pin maps of
+//! DESIGN §3, USART1 (PA9/PA10) at 250000 baud, endstops PA5/PA6/PA7 (pull-up, high = hit),
+//! shared driver enable PC3 (active low), defmt logs over RTT.
+//!
+//! # Step timing
+//! The executor's clock is the DWT cycle counter (32 bits at 72 MHz = `StepConfig::timer_hz`,
+//! wrapping as the executor expects). TIM2 (16 bits, 72 MHz, free running) raises its
+//! compare-1 interrupt at the executor's next wake: the interrupt reads the cycle counter,
+//! runs every due event (at most [`EVENTS_PER_IRQ`]) and sets the compare to the next wake,
+//! or 60000 ticks ahead when the wake is further away (the handler then just re-arms).
+
+use core::cell::RefCell;
+use core::convert::Infallible;
+
+use cortex_m::interrupt::{self, Mutex};
+use cortex_m::peripheral::{DWT, NVIC};
+use embedded_hal::digital::InputPin;
+use stm32f1xx_hal::gpio::{ErasedPin, Input, Output, PinState, PullUp, PushPull, PA5, PA6, PA7};
+use stm32f1xx_hal::pac::{self, interrupt, Interrupt, TIM2, USART1};
+use stm32f1xx_hal::prelude::*;
+use stm32f1xx_hal::rcc;
+use stm32f1xx_hal::serial::{Config, Rx, Serial, Tx};
+use strata::step::{is_before, Pins, StepConfig};
+
+use crate::log;
+use crate::motion::{Endstops, Motion, Next};
+
+/// Link speed (the CH340 bridge; the host's default).
+pub const BAUD: u32 = 250_000;
+/// Events handled per interrupt at most (then the interrupt comes back at once).
+const EVENTS_PER_IRQ: u32 = 8;
+/// Longest compare step of the 16-bit timer, ticks.
+const MAX_ARM: u32 = 60_000;
+/// Shortest compare step (the handler's own latency), ticks.
+const MIN_ARM: u32 = 100;
+
+/// An output pin of this board.
+pub type Pin = ErasedPin<Output<PushPull>>;
+
+/// X, Y, Z endstops (pull-up inputs; the switch pulls high when hit).
+pub struct Ends {
+    x: PA5<Input<PullUp>>,
+    y: PA6<Input<PullUp>>,
+    z: PA7<Input<PullUp>>,
+}
+
+impl Endstops for Ends {
+    fn hit(&mut self, axis: usize, _travelled: u32) -> bool {
+        let high: Result<bool, Infallible> = match axis {
+            0 => self.x.is_high(),
+            1 => self.y.is_high(),
+            _ => self.z.is_high(),
+        };
+        high.unwrap_or(false)
+    }
+}
+
+/// The motion type of this board.
+pub type BoardMotion = Motion<Pin, Ends>;
+
+struct Isr {
+    motion: BoardMotion,
+    tim: TIM2,
+    next: Next,
+}
+
+static ISR: Mutex<RefCell<Option<Isr>>> = Mutex::new(RefCell::new(None));
+
+impl Isr {
+    /// Runs what is due and arms the compare for the next event.
+    fn run(&mut self) {
+        let mut n = 0;
+        let wake = loop {
+            let now = DWT::cycle_count();
+            match self.next {
+                Next::At(t) if is_before(now, t) => break Some(t),
+                _ => {}
+            }
+            if n == EVENTS_PER_IRQ {
+                break Some(now.wrapping_add(MIN_ARM));
+            }
+            n += 1;
+            self.next = self.motion.event(now);
+            match self.next {
+                Next::At(_) => {}
+                // Poll: new commands or the horizon moving on (thread mode also pends the
+                // interrupt after queuing steps).
+                Next::Stalled(t) => break Some(t),
+                Next::Idle => break None,
+            }
+        };
+        let now = DWT::cycle_count();
+        let delta = wake.map_or(MAX_ARM, |w| w.wrapping_sub(now).clamp(MIN_ARM, MAX_ARM));
+        let cnt = self.tim.cnt().read().bits();
+        self.tim.ccr1().write(|w| unsafe { w.bits((cnt + delta) & 0xFFFF) });
+    }
+}
+
+#[interrupt]
+fn TIM2() {
+    interrupt::free(|cs| {
+        if let Some(isr) = ISR.borrow(cs).borrow_mut().as_mut() {
+            isr.tim.sr().modify(|_, w| w.cc1if().clear_bit());
+            isr.run();
+        }
+    });
+}
+
+/// USART1 and the millisecond clock.
+pub struct Board {
+    tx: Tx<USART1>,
+    rx: Rx<USART1>,
+    last: u32,
+    cycles: u64,
+}
+
+impl Board {
+    /// Milliseconds since start-up (the cycle counter, extended to 64 bits here).
+    pub fn now_ms(&mut self) -> u32 {
+        let c = DWT::cycle_count();
+        self.cycles += c.wrapping_sub(self.last) as u64;
+        self.last = c;
+        (self.cycles / 72_000) as u32
+    }
+
+    /// Bytes received, up to `buf.len()` (overruns are lost bytes: the protocol resends).
+    pub fn read(&mut self, buf: &mut [u8]) -> usize {
+        let mut n = 0;
+        while n < buf.len() {
+            match self.rx.read() {
+                Ok(b) => {
+                    buf[n] = b;
+                    n += 1;
+                }
+                Err(nb::Error::WouldBlock) => break,
+                Err(nb::Error::Other(_)) => {}
+            }
+        }
+        n
+    }
+
+    /// Sends `bytes` (blocking).
+    pub fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            while self.tx.write_u8(b).is_err() {}
+        }
+    }
+}
+
+/// The executor's configuration: the generator's as is.
+pub fn executor_config(cfg: &StepConfig) -> StepConfig {
+    *cfg
+}
+
+/// Nothing to tell the interrupt: real time never runs ahead of the pipeline artificially.
+pub fn after_poll(_prod: &crate::motion::Producer, _finished: bool, _paused: bool) {}
+
+/// Clocks, pins, USART1, TIM2 and the cycle counter.
+pub fn init(cfg: &StepConfig) -> Board {
+    let mut cp = cortex_m::Peripherals::take().expect("taken once");
+    let dp = pac::Peripherals::take().expect("taken once");
+    let mut flash = dp.FLASH.constrain();
+    let mut rcc = dp.RCC.freeze(
+        rcc::Config::hse(8.MHz()).sysclk(72.MHz()).hclk(72.MHz()).pclk1(36.MHz()).pclk2(72.MHz()),
+        &mut flash.acr,
+    );
+    let mut afio = dp.AFIO.constrain(&mut rcc);
+    let mut gpioa = dp.GPIOA.split(&mut rcc);
+    let mut gpiob = dp.GPIOB.split(&mut rcc);
+    let mut gpioc = dp.GPIOC.split(&mut rcc);
+    // PB3/PB4 are JTAG after reset: JTAG off, SWD stays.
+    let (_pa15, pb3, pb4) = afio.mapr.disable_jtag(gpioa.pa15, gpiob.pb3, gpiob.pb4);
+
+    let low = PinState::Low;
+    let pc2 = gpioc.pc2.into_push_pull_output_with_state(&mut gpioc.crl, low).erase();
+    let pb9 = gpiob.pb9.into_push_pull_output_with_state(&mut gpiob.crh, low).erase();
+    let pb8 = gpiob.pb8.into_push_pull_output_with_state(&mut gpiob.crh, low).erase();
+    let pb7 = gpiob.pb7.into_push_pull_output_with_state(&mut gpiob.crl, low).erase();
+    let pb6 = gpiob.pb6.into_push_pull_output_with_state(&mut gpiob.crl, low).erase();
+    let pb5 = gpiob.pb5.into_push_pull_output_with_state(&mut gpiob.crl, low).erase();
+    let pb4 = pb4.into_push_pull_output_with_state(&mut gpiob.crl, low).erase();
+    let pb3 = pb3.into_push_pull_output_with_state(&mut gpiob.crl, low).erase();
+    // Drivers off (PC3 active low) until something moves.
+    let enable = gpioc.pc3.into_push_pull_output_with_state(&mut gpioc.crl, PinState::High).erase();
+    // DESIGN §3: 4.2.2 X step PC2 dir PB9, Y PB8/PB7, Z PB6/PB5, E PB4/PB3; the 4.2.7
+    // swaps step and dir on every axis.
+    #[cfg(feature = "creality-v422")]
+    let (step, dir) = ([pc2, pb8, pb6, pb4], [pb9, pb7, pb5, pb3]);
+    #[cfg(feature = "creality-v427")]
+    let (step, dir) = ([pb9, pb7, pb5, pb3], [pc2, pb8, pb6, pb4]);
+    let pins = Pins { step, dir, enable };
+    let ends = Ends {
+        x: gpioa.pa5.into_pull_up_input(&mut gpioa.crl),
+        y: gpioa.pa6.into_pull_up_input(&mut gpioa.crl),
+        z: gpioa.pa7.into_pull_up_input(&mut gpioa.crl),
+    };
+
+    let serial: Serial<USART1, PushPull, stm32f1xx_hal::gpio::Floating> = Serial::new(
+        dp.USART1,
+        (gpioa.pa9, gpioa.pa10),
+        Config::default().baudrate(BAUD.bps()),
+        &mut rcc,
+    );
+    let (tx, rx) = serial.split();
+
+    cp.DCB.enable_trace();
+    cp.DWT.enable_cycle_counter();
+
+    // TIM2: 72 MHz (APB1 36 MHz x 2), free running over 16 bits, compare 1 interrupt.
+    let rcc_regs = unsafe { &*pac::RCC::ptr() };
+    // SAFETY: read-modify-write of TIM2's clock enable bit only; nothing else touches it.
+    rcc_regs.apb1enr().modify(|_, w| w.tim2en().set_bit());
+    let tim = dp.TIM2;
+    tim.psc().write(|w| unsafe { w.bits(0) });
+    tim.arr().write(|w| unsafe { w.bits(0xFFFF) });
+    tim.ccr1().write(|w| unsafe { w.bits(MAX_ARM) });
+    tim.egr().write(|w| w.ug().set_bit());
+    tim.sr().write(|w| unsafe { w.bits(0) });
+    tim.dier().write(|w| w.cc1ie().set_bit());
+    tim.cr1().write(|w| w.cen().set_bit());
+
+    interrupt::free(|cs| {
+        ISR.borrow(cs).replace(Some(Isr {
+            motion: Motion::new(*cfg, pins, ends),
+            tim,
+            next: Next::Idle,
+        }));
+    });
+    // SAFETY: the handler only touches `ISR`, set up above.
+    unsafe { NVIC::unmask(Interrupt::TIM2) };
+    log!("board creality: 72 MHz, USART1 {} baud", BAUD);
+    Board { tx, rx, last: DWT::cycle_count(), cycles: 0 }
+}
+
+/// Runs `f` on the interrupt's motion state (inside a critical section).
+pub fn with_motion<R>(f: impl FnOnce(&mut BoardMotion) -> R) -> R {
+    interrupt::free(|cs| {
+        let mut isr = ISR.borrow(cs).borrow_mut();
+        f(&mut isr.as_mut().expect("board::init ran").motion)
+    })
+}
+
+/// Steps were queued: run the interrupt now (an idle executor starts).
+pub fn kick() {
+    NVIC::pend(Interrupt::TIM2);
+}
+
+static PRINT: Mutex<RefCell<(u32, u32)>> = Mutex::new(RefCell::new((0, 0)));
+
+/// Print time executed in this job, ms (cycle counter while the motion is busy).
+pub fn print_done_ms() -> u32 {
+    interrupt::free(|cs| {
+        let busy = ISR.borrow(cs).borrow().as_ref().is_some_and(|i| i.motion.busy());
+        let mut p = PRINT.borrow(cs).borrow_mut();
+        let now = DWT::cycle_count();
+        if busy {
+            let (ms, last) = *p;
+            let d = now.wrapping_sub(last);
+            let whole = d / 72_000;
+            *p = (ms + whole, last.wrapping_add(whole * 72_000));
+        } else {
+            p.1 = now;
+        }
+        p.0
+    })
+}
+
+/// A job begins.
+pub fn job_started() {
+    interrupt::free(|cs| *PRINT.borrow(cs).borrow_mut() = (0, DWT::cycle_count()));
+}
+
+/// A job ended.
+pub fn job_ended() {
+    let steps = with_motion(|m| m.exec().map(|e| e.stats().steps).unwrap_or_default());
+    log!("STEPS x={} y={} z={} e={}", steps[0], steps[1], steps[2], steps[3]);
+}

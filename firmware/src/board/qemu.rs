@@ -1,0 +1,545 @@
+//! QEMU `lm3s6965evb` (Cortex-M3, 64 KB RAM): UART0 (PL011) for the protocol, virtual
+//! step/dir pins, virtual endstops, an accelerated print clock, semihosting for logs.
+//!
+//! # Clocks
+//! Run QEMU with `-icount shift=0`: one instruction is one nanosecond of virtual time. The
+//! system clock is set to 200 MHz (SYSDIV = 1 in QEMU's model of the Stellaris RCC), so one
+//! SysTick count is 5 ns = 5 instructions. SysTick fires every [`RELOAD`] counts; counting
+//! its wraps gives a 64-bit instruction clock ([`insns_now`]), from which the protocol's
+//! millisecond clock (1 ms = 1,000,000 instructions) and the cost figures are derived.
+//!
+//! # Accelerated print time
+//! The print must not run in real time. Each SysTick interrupt moves a *virtual print clock*
+//! (72 MHz ticks, `StepConfig::timer_hz`) straight to the executor's next wake time and runs
+//! `Executor::on_timer` there, at most [`EVENTS_PER_TICK`] times per interrupt. When the
+//! executor reaches the queue's horizon before the pipeline has filled it (which accelerated
+//! time makes common: slicing a layer takes millions of instructions) it stalls; the virtual
+//! clock then stays where it is until the queue covers more, so it never runs beyond what the
+//! queue covers. Each such wait costs the executor's restart lead, which this board sets to
+//! the DIR setup time (15 ticks, 0.2 us) instead of 1 ms ([`executor_config`]).
+//!
+//! # Virtual pins
+//! STEP/DIR/EN are virtual: each rising STEP edge adds `(axis, direction, tick - origin)` to
+//! an FNV-1a hash (the host simulation's `SimBoard` hash) and counts the step per axis; the
+//! origin is the print clock when homing ends, so homing is not in the hash.
+
+use core::cell::RefCell;
+use core::convert::Infallible;
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use cortex_m::interrupt::{self, Mutex};
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::SYST;
+use cortex_m_rt::exception;
+use embedded_hal::digital::{ErrorType, OutputPin};
+use strata::machine::AXES;
+use strata::step::{is_before, Pins, StepConfig};
+
+use crate::log;
+use crate::motion::{Endstops, Motion, Next, Producer};
+
+/// SysTick counts per interrupt (x 5 instructions: an interrupt every 10000 instructions).
+pub const RELOAD: u32 = 2000;
+/// Executor events (`on_timer` calls) per interrupt at most.
+pub const EVENTS_PER_TICK: u32 = 6;
+/// The virtual endstops trigger after this much homing travel, mm (X, Y, Z).
+const HOME_TRAVEL_MM: [u32; 3] = [5, 5, 2];
+
+const UART0: usize = 0x4000_C000;
+const UART_DR: usize = UART0;
+const UART_FR: usize = UART0 + 0x018;
+const UART_LCRH: usize = UART0 + 0x02C;
+const UART_CR: usize = UART0 + 0x030;
+const FR_RXFE: u32 = 1 << 4;
+const FR_TXFF: u32 = 1 << 5;
+const SYSCTL_RCC: usize = 0x400F_E060;
+
+fn reg_read(addr: usize) -> u32 {
+    // SAFETY: `addr` is one of the memory-mapped registers above (PL011, SYSCTL), always
+    // readable on lm3s6965evb.
+    unsafe { core::ptr::read_volatile(addr as *const u32) }
+}
+
+fn reg_write(addr: usize, v: u32) {
+    // SAFETY: as in `reg_read`; these writes only configure the UART and the clock.
+    unsafe { core::ptr::write_volatile(addr as *mut u32, v) }
+}
+
+/// A virtual output pin.
+#[derive(Debug, Clone, Copy)]
+pub enum VPin {
+    /// STEP of an axis.
+    Step(u8),
+    /// DIR of an axis.
+    Dir(u8),
+    /// Shared enable.
+    Enable,
+}
+
+/// The state behind the virtual pins.
+struct VBoard {
+    now: u64,
+    origin: u64,
+    hash: u64,
+    steps: [u64; AXES],
+    position: [i64; AXES],
+    dir_high: [bool; AXES],
+    step_high: [bool; AXES],
+    invert: [bool; AXES],
+    enable_high: bool,
+    steps_disabled: u32,
+    /// Print clock of the last rising STEP edge.
+    last_rise: u64,
+}
+
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
+
+impl VBoard {
+    const fn new() -> Self {
+        Self {
+            now: 0,
+            origin: 0,
+            hash: FNV_OFFSET,
+            steps: [0; AXES],
+            position: [0; AXES],
+            dir_high: [false; AXES],
+            step_high: [false; AXES],
+            invert: [false, false, true, false],
+            enable_high: true,
+            steps_disabled: 0,
+            last_rise: 0,
+        }
+    }
+
+    fn edge(&mut self, pin: VPin, high: bool) {
+        match pin {
+            VPin::Step(a) => {
+                let a = a as usize;
+                let rise = high && !self.step_high[a];
+                self.step_high[a] = high;
+                if rise {
+                    if self.enable_high {
+                        self.steps_disabled += 1;
+                    }
+                    let positive = self.dir_high[a] != self.invert[a];
+                    self.steps[a] += 1;
+                    self.last_rise = self.now;
+                    self.position[a] += if positive { 1 } else { -1 };
+                    let rel = self.now.wrapping_sub(self.origin) as u32;
+                    let mut h = self.hash;
+                    for b in [a as u8, positive as u8].into_iter().chain(rel.to_le_bytes()) {
+                        h ^= b as u64;
+                        h = h.wrapping_mul(FNV_PRIME);
+                    }
+                    self.hash = h;
+                }
+            }
+            VPin::Dir(a) => self.dir_high[a as usize] = high,
+            VPin::Enable => self.enable_high = high,
+        }
+    }
+}
+
+static VB: Mutex<RefCell<VBoard>> = Mutex::new(RefCell::new(VBoard::new()));
+
+impl ErrorType for VPin {
+    type Error = Infallible;
+}
+
+impl OutputPin for VPin {
+    fn set_low(&mut self) -> Result<(), Infallible> {
+        interrupt::free(|cs| VB.borrow(cs).borrow_mut().edge(*self, false));
+        Ok(())
+    }
+
+    fn set_high(&mut self) -> Result<(), Infallible> {
+        interrupt::free(|cs| VB.borrow(cs).borrow_mut().edge(*self, true));
+        Ok(())
+    }
+}
+
+/// Virtual endstops: hit after a fixed travel.
+pub struct VEnds;
+
+impl Endstops for VEnds {
+    fn hit(&mut self, axis: usize, travelled: u32) -> bool {
+        let spm = [80, 80, 400];
+        travelled >= HOME_TRAVEL_MM[axis] * spm[axis]
+    }
+}
+
+/// The motion type of this board.
+pub type BoardMotion = Motion<VPin, VEnds>;
+
+/// What the SysTick interrupt owns.
+struct Isr {
+    motion: BoardMotion,
+    /// The virtual print clock, 72 MHz ticks.
+    clock: u64,
+    next: Next,
+    /// Print clock at the executor's first start in this job, and when it last went idle.
+    start: Option<u64>,
+    end: u64,
+    /// `on_timer` calls that did work (not idle polls), SysTick counts spent in them in
+    /// total and at most.
+    calls: u64,
+    call_counts: u64,
+    call_max: u32,
+    /// Non-zero while held at the horizon: the number of that wait.
+    blocked: u32,
+    epoch: u32,
+}
+
+/// The wait at the horizon the interrupt is in (0: none), for thread mode.
+static BLOCKED: AtomicU32 = AtomicU32::new(0);
+/// Thread mode lets the executor run into the horizon of this wait (a deadlock: a full
+/// queue behind it, which only a stall resolves; or a pause).
+static ALLOW: AtomicU32 = AtomicU32::new(0);
+/// No more blocks come in this job: the executor may come to rest.
+static FINAL: AtomicBool = AtomicBool::new(true);
+
+static ISR: Mutex<RefCell<Option<Isr>>> = Mutex::new(RefCell::new(None));
+/// SysTick wraps (instruction clock, high part).
+static WRAPS: AtomicU32 = AtomicU32::new(0);
+/// SysTick counts spent in the SysTick handler in total (thread time = total - this).
+static ISR_COUNTS_LO: AtomicU32 = AtomicU32::new(0);
+static ISR_COUNTS_HI: AtomicU32 = AtomicU32::new(0);
+/// Nanoseconds (= instructions under `-icount shift=0`) per SysTick count.
+static PERIOD_NS: AtomicU32 = AtomicU32::new(5);
+
+impl Isr {
+    /// May the executor be run at `t`? Not at or past an unrested horizon (that would be an
+    /// underrun only accelerated time makes: the pipeline has not caught up yet), nor into a
+    /// rest point while more blocks come (the host simulation's generator is always there
+    /// first), unless thread mode allowed it for this wait (a true deadlock, or a pause).
+    fn may_run(&mut self, t: u32) -> bool {
+        if self.motion.homing() {
+            return true;
+        }
+        let Some(e) = self.motion.exec() else { return true };
+        if e.is_idle() {
+            return true;
+        }
+        let (h, rest) = e.horizon();
+        if is_before(t, h) {
+            return true;
+        }
+        if (rest && FINAL.load(Ordering::Acquire))
+            || (self.blocked != 0 && ALLOW.load(Ordering::Acquire) == self.blocked)
+        {
+            return true;
+        }
+        if self.blocked == 0 {
+            self.epoch = self.epoch.wrapping_add(1).max(1);
+            self.blocked = self.epoch;
+            BLOCKED.store(self.epoch, Ordering::Release);
+        }
+        false
+    }
+
+    fn run(&mut self, cs: &interrupt::CriticalSection) {
+        for _ in 0..EVENTS_PER_TICK {
+            // Idle or stalled: poll at the same instant (the print clock waits).
+            let t = match self.next {
+                Next::At(t) => t,
+                Next::Idle | Next::Stalled(_) => self.clock as u32,
+            };
+            if !self.may_run(t) {
+                return;
+            }
+            if self.blocked != 0 {
+                self.blocked = 0;
+                BLOCKED.store(0, Ordering::Release);
+            }
+            // Straight to the next wake (wrap-aware, never backwards).
+            let d = t.wrapping_sub(self.clock as u32) as i32;
+            self.clock += d.max(0) as u64;
+            VB.borrow(cs).borrow_mut().now = self.clock;
+            let homing = self.motion.homing();
+            let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
+            let c0 = SYST::get_current();
+            self.next = self.motion.event(self.clock as u32);
+            let c1 = SYST::get_current();
+            if self.motion.take_homed().is_some() {
+                let mut vb = VB.borrow(cs).borrow_mut();
+                vb.origin = self.clock;
+                vb.hash = FNV_OFFSET;
+                vb.steps = [0; AXES];
+                vb.position = [0; AXES];
+                vb.last_rise = 0;
+            }
+            let idle_poll = was_idle && self.next == Next::Idle;
+            if !homing && !idle_poll {
+                let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
+                self.calls += 1;
+                self.call_counts += d as u64;
+                self.call_max = self.call_max.max(d);
+                if was_idle && self.start.is_none() {
+                    // The print clock of the job starts where the executor first leaves
+                    // idle (as the host simulation's `first_step`); steps hash from there.
+                    self.start = Some(self.clock);
+                    VB.borrow(cs).borrow_mut().origin = self.clock;
+                }
+                if self.next == Next::Idle {
+                    self.end = self.clock;
+                }
+            }
+            if matches!(self.next, Next::Idle | Next::Stalled(_)) {
+                break;
+            }
+        }
+    }
+}
+
+#[exception]
+fn SysTick() {
+    let c0 = SYST::get_current();
+    WRAPS.fetch_add(1, Ordering::Relaxed);
+    interrupt::free(|cs| {
+        if let Some(isr) = ISR.borrow(cs).borrow_mut().as_mut() {
+            isr.run(cs);
+        }
+    });
+    let c1 = SYST::get_current();
+    let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
+    // Only this handler writes these (thread mode reads them).
+    let lo = ISR_COUNTS_LO.load(Ordering::Relaxed);
+    let (sum, carry) = lo.overflowing_add(d);
+    if carry {
+        ISR_COUNTS_HI.fetch_add(1, Ordering::Relaxed);
+    }
+    ISR_COUNTS_LO.store(sum, Ordering::Relaxed);
+}
+
+/// Instructions executed since start-up (SysTick counts x 5 ns, `-icount shift=0`).
+pub fn insns_now() -> u64 {
+    loop {
+        let w = WRAPS.load(Ordering::Acquire);
+        let v = SYST::get_current();
+        if WRAPS.load(Ordering::Acquire) == w {
+            let counts = w as u64 * RELOAD as u64 + (RELOAD - 1 - v.min(RELOAD - 1)) as u64;
+            return counts * PERIOD_NS.load(Ordering::Relaxed) as u64;
+        }
+    }
+}
+
+/// Instructions spent in the SysTick handler so far.
+pub fn isr_insns_total() -> u64 {
+    loop {
+        let hi = ISR_COUNTS_HI.load(Ordering::Acquire);
+        let lo = ISR_COUNTS_LO.load(Ordering::Acquire);
+        if ISR_COUNTS_HI.load(Ordering::Acquire) == hi {
+            return ((hi as u64) << 32 | lo as u64) * PERIOD_NS.load(Ordering::Relaxed) as u64;
+        }
+    }
+}
+
+/// The PL011 UART and the clocks.
+pub struct Board {
+    _syst: SYST,
+}
+
+impl Board {
+    /// Milliseconds of virtual time (1,000,000 instructions each).
+    pub fn now_ms(&mut self) -> u32 {
+        (insns_now() / 1_000_000) as u32
+    }
+
+    /// Bytes waiting in the UART's receive FIFO, up to `buf.len()`.
+    pub fn read(&mut self, buf: &mut [u8]) -> usize {
+        let mut n = 0;
+        while n < buf.len() && reg_read(UART_FR) & FR_RXFE == 0 {
+            buf[n] = reg_read(UART_DR) as u8;
+            n += 1;
+        }
+        n
+    }
+
+    /// Sends `bytes` (waits while the transmit FIFO is full).
+    pub fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            while reg_read(UART_FR) & FR_TXFF != 0 {}
+            reg_write(UART_DR, b as u32);
+        }
+    }
+}
+
+/// The executor's configuration: the generator's as is (1 ms start lead, as the host
+/// simulation, so the print time and the step hash compare).
+pub fn executor_config(cfg: &StepConfig) -> StepConfig {
+    *cfg
+}
+
+/// After thread mode's polls: tells the interrupt whether the job's last block is queued
+/// (`finished`: the motion may come to rest), and lets it run into the horizon it waits at
+/// when that is a deadlock (a step queue is full behind the horizon, so the generator
+/// waits for the executor to stall) or the job is paused.
+pub fn after_poll(prod: &Producer, finished: bool, paused: bool) {
+    FINAL.store(finished, Ordering::Release);
+    let b = BLOCKED.load(Ordering::Acquire);
+    if b != 0 && (paused || (0..AXES).any(|a| prod.free(a) == 0)) {
+        ALLOW.store(b, Ordering::Release);
+    }
+}
+
+/// Brings up the UART, the clock and the SysTick-driven virtual motion.
+pub fn init(cfg: &StepConfig) -> Board {
+    let mut cp = cortex_m::Peripherals::take().expect("taken once");
+    // 200 MHz: SYSDIV = 0 (QEMU: period = 5 ns x (SYSDIV + 1)); USESYSDIV.
+    let rcc = reg_read(SYSCTL_RCC);
+    reg_write(SYSCTL_RCC, (rcc & !(0xF << 23)) | (1 << 22));
+    let sysdiv = (reg_read(SYSCTL_RCC) >> 23) & 0xF;
+    PERIOD_NS.store(5 * (sysdiv + 1), Ordering::Relaxed);
+    // UART0: 8N1 with FIFOs; the baud rate does not matter to QEMU.
+    reg_write(UART_CR, 0);
+    reg_write(UART_LCRH, (3 << 5) | (1 << 4));
+    reg_write(UART_CR, (1 << 9) | (1 << 8) | 1);
+
+    let pins = Pins {
+        step: core::array::from_fn(|a| VPin::Step(a as u8)),
+        dir: core::array::from_fn(|a| VPin::Dir(a as u8)),
+        enable: VPin::Enable,
+    };
+    interrupt::free(|cs| {
+        VB.borrow(cs).borrow_mut().invert = cfg.invert_dir;
+        ISR.borrow(cs).replace(Some(Isr {
+            motion: Motion::new(*cfg, pins, VEnds),
+            clock: 0,
+            next: Next::Idle,
+            start: None,
+            end: 0,
+            calls: 0,
+            call_counts: 0,
+            call_max: 0,
+            blocked: 0,
+            epoch: 0,
+        }));
+    });
+    cp.SYST.set_clock_source(SystClkSource::Core);
+    cp.SYST.set_reload(RELOAD - 1);
+    cp.SYST.clear_current();
+    cp.SYST.enable_interrupt();
+    cp.SYST.enable_counter();
+    log!(
+        "board qemu-lm3s6965evb: sysclk period {} ns, SysTick every {} counts",
+        PERIOD_NS.load(Ordering::Relaxed),
+        RELOAD
+    );
+    Board { _syst: cp.SYST }
+}
+
+/// Runs `f` on the interrupt's motion state (inside a critical section).
+pub fn with_motion<R>(f: impl FnOnce(&mut BoardMotion) -> R) -> R {
+    interrupt::free(|cs| {
+        let mut isr = ISR.borrow(cs).borrow_mut();
+        let isr = isr.as_mut().expect("board::init ran");
+        f(&mut isr.motion)
+    })
+}
+
+/// Nothing to do: SysTick polls the executor anyway.
+pub fn kick() {}
+
+/// Print time executed in this job, ms (virtual print clock).
+pub fn print_done_ms() -> u32 {
+    interrupt::free(|cs| {
+        let isr = ISR.borrow(cs).borrow();
+        let isr = isr.as_ref().expect("board::init ran");
+        let end = if isr.motion.busy() { isr.clock } else { isr.end };
+        isr.start.map_or(0, |s| (end.saturating_sub(s) / 72_000) as u32)
+    })
+}
+
+/// A job begins: print-time and ISR accounting restart.
+pub fn job_started() {
+    interrupt::free(|cs| {
+        if let Some(isr) = ISR.borrow(cs).borrow_mut().as_mut() {
+            isr.start = None;
+            isr.end = isr.clock;
+            isr.calls = 0;
+            isr.call_counts = 0;
+            isr.call_max = 0;
+        }
+        FINAL.store(false, Ordering::Release);
+    });
+}
+
+fn last_rise_tick(cs: &interrupt::CriticalSection) -> u64 {
+    VB.borrow(cs).borrow().last_rise
+}
+
+/// A job ended: the executor's cost and the virtual pins' record.
+pub fn job_ended() {
+    let (calls, counts, max, print_ticks, underruns) = interrupt::free(|cs| {
+        let isr = ISR.borrow(cs).borrow();
+        let isr = isr.as_ref().expect("board::init ran");
+        let underruns = isr.motion.exec().map_or(0, |e| e.stats().underruns);
+        // From the executor's first start to the last rising STEP edge (as the simulation).
+        let ticks = isr.start.map_or(0, |s| last_rise_tick(cs).saturating_sub(s));
+        (isr.calls, isr.call_counts, isr.call_max, ticks, underruns)
+    });
+    let (steps, pos, hash, bad) = interrupt::free(|cs| {
+        let vb = VB.borrow(cs).borrow();
+        (vb.steps, vb.position, vb.hash, vb.steps_disabled)
+    });
+    let ns = PERIOD_NS.load(Ordering::Relaxed) as u64;
+    log!(
+        "COST isr_calls={} isr_insns_total={} isr_insns_max={} steps={}",
+        calls,
+        counts * ns,
+        max as u64 * ns,
+        steps.iter().sum::<u64>()
+    );
+    log!(
+        "STEPS x={} y={} z={} e={} pos_x={} pos_y={} pos_z={} pos_e={} hash={:016x} print_ticks={} waits={} steps_disabled={}",
+        steps[0],
+        steps[1],
+        steps[2],
+        steps[3],
+        pos[0],
+        pos[1],
+        pos[2],
+        pos[3],
+        hash,
+        print_ticks,
+        underruns,
+        bad
+    );
+}
+
+/// A debug line about the motion (`HB ...`).
+pub fn heartbeat(prod: &Producer) {
+    let (clock, blocked, homing, idle, stalled, h, rest, calls) = interrupt::free(|cs| {
+        let isr = ISR.borrow(cs).borrow();
+        let isr = isr.as_ref().expect("board::init ran");
+        let e = isr.motion.exec();
+        let (h, rest) = e.map_or((0, false), |e| e.horizon());
+        (
+            isr.clock,
+            isr.blocked,
+            isr.motion.homing() as u32,
+            e.map_or(1, |e| e.is_idle() as u32),
+            e.map_or(0, |e| e.is_stalled() as u32),
+            h,
+            rest as u32,
+            isr.calls,
+        )
+    });
+    log!(
+        "HB clock={} blocked={} homing={} idle={} stalled={} horizon={} rest={} calls={} q={},{},{},{} final={}",
+        clock,
+        blocked,
+        homing,
+        idle,
+        stalled,
+        h,
+        rest,
+        calls,
+        prod.len(0) as u32,
+        prod.len(1) as u32,
+        prod.len(2) as u32,
+        prod.len(3) as u32,
+        FINAL.load(Ordering::Relaxed) as u32
+    );
+}

@@ -1,0 +1,52 @@
+//! Every capacity of the firmware build in one place (64 KB of RAM on every board: the
+//! Creality boards' STM32F103RET6 and QEMU's lm3s6965evb).
+//!
+//! RAM = the `Printer` (slicer + toolpath + move buffer + planner + generator) + the protocol
+//! endpoint + the step queue + the executor + the stack. `.data + .bss` and the stack's
+//! high-water mark are printed at the end of each job (`MEM ...`, see `stack.rs`), and
+//! `scripts/build_firmware.sh` prints `llvm-size`.
+//!
+//! The planner lookahead `P` must stay 32: the host simulation (`strata simulate`, the HIL
+//! test) plans with 32 moves of lookahead, and the per-layer hashes compare planned blocks.
+
+use strata::printer::Printer;
+use strata::protocol::Endpoint;
+
+/// Slicer: active triangles (24 B each).
+pub const A: usize = 64;
+/// Slicer: segments and contour points per layer (37 B each).
+pub const S: usize = 128;
+/// Slicer: loops per layer (72 B each).
+pub const L: usize = 8;
+/// Toolpath: loop points per layer and offset edges per island (84 B each).
+pub const PTS: usize = 80;
+/// Toolpath: loops per layer (123 B each).
+pub const LOOPS: usize = 4;
+/// Toolpath: scanline crossings, infill segments and paths per layer (96 B each).
+pub const CROSS: usize = 72;
+/// Toolpath: path points per layer (9 B each).
+pub const PATH: usize = 320;
+/// Toolpath: contour points of the layers waiting for the layers above (8 B each).
+pub const RING: usize = 128;
+/// Toolpath: scanline spans of the skin window (12 B each).
+pub const SPANS: usize = 600;
+/// Toolpath moves waiting for the planner (a layer must fit half of it).
+pub const MOVES: usize = 320;
+/// Planner lookahead, moves (must equal the host simulation's: 32).
+pub const P: usize = 32;
+
+/// The job runner of this build.
+pub type FwPrinter = Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>;
+
+/// Commands per axis in the step queue (a power of two; 12 B each, 4 axes).
+pub const STEP_QUEUE: usize = 64;
+
+/// The device's protocol endpoint: 2 frames in flight, 2 receive slots (the host simulation's
+/// device has 4 and 4; the link adapts through its credits).
+pub type FwEndpoint = Endpoint<2, 2>;
+
+/// `Printer::poll` calls per main-loop turn (each is bounded work).
+pub const POLLS_PER_LOOP: usize = 16;
+
+/// A status report at least this often, ms.
+pub const STATUS_EVERY_MS: u32 = 200;

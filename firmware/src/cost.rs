@@ -1,0 +1,112 @@
+//! Cost figures on QEMU (`-icount shift=0`: one instruction = 1 ns of virtual time), one
+//! semihosting line each:
+//! - per layer `COST layer=K compute_insns=N print_ticks=M`;
+//! - per job `COST triangles=N slice_insns=N` (and the board's `COST isr_calls=...`).
+//!
+//! Approximations:
+//! - `compute_insns` are the thread-mode instructions (SysTick handler time taken out) spent
+//!   in `Printer::service` calls that had a message to handle and in `Printer::poll` calls
+//!   that did work, attributed to the layer the *slicer* is on when the call starts (slicing
+//!   + toolpaths of layer K and, meanwhile, planning and step generation of the layers before
+//!   it, which in steady state is one layer of every stage);
+//! - `print_ticks` is the growth of the planner's released print time (72 MHz ticks) between
+//!   the reports of layer K-1 and layer K (a layer closes when the first block of the next
+//!   one is released, which is counted with the earlier layer);
+//! - `slice_insns` is the sum over the job of the `service` part (decoding, slicing,
+//!   toolpaths: the toolpath stage runs inside the slicer's layer sink).
+
+use crate::board;
+use crate::capacities::FwPrinter;
+use crate::log;
+
+/// Per-layer buckets kept (the slicer runs at most a few layers ahead of the planner).
+const RING: usize = 32;
+
+/// Cost accounting of one job.
+pub struct Cost {
+    ring: [u64; RING],
+    /// Next layer to report.
+    reported: u32,
+    /// Released print time at the last report, ticks.
+    planned_ticks: u64,
+    slice_insns: u64,
+    active: bool,
+}
+
+/// A measurement in progress: start time (thread instructions) and slicer layer.
+pub type Mark = Option<(u64, u32)>;
+
+impl Cost {
+    /// Nothing measured yet.
+    pub const fn new() -> Self {
+        Self { ring: [0; RING], reported: 0, planned_ticks: 0, slice_insns: 0, active: false }
+    }
+
+    /// Thread-mode instructions so far (all instructions minus the SysTick handler's).
+    pub fn thread_now(&self) -> u64 {
+        board::insns_now() - board::isr_insns_total()
+    }
+
+    /// Starts measuring a `service` call when it has a message to handle.
+    pub fn begin(&self, pending: bool, p: &FwPrinter) -> Mark {
+        (self.active && pending).then(|| (self.thread_now(), p.slicer().stats().layers))
+    }
+
+    fn add(&mut self, layer: u32, insns: u64) {
+        let l = layer.min(self.reported + RING as u32 - 1);
+        self.ring[l as usize % RING] += insns;
+    }
+
+    /// Ends a `service` measurement.
+    pub fn end_service(&mut self, m: Mark, p: &FwPrinter) {
+        if let Some((t, layer)) = m {
+            let d = self.thread_now() - t;
+            self.slice_insns += d;
+            self.add(layer, d);
+        }
+        self.report(p, false);
+    }
+
+    /// Ends a `poll` measurement (started at `t`).
+    pub fn end_poll(&mut self, t: u64, p: &FwPrinter) {
+        if self.active {
+            let d = self.thread_now() - t;
+            self.add(p.slicer().stats().layers, d);
+            self.report(p, false);
+        }
+    }
+
+    /// Prints the layers the planner has closed (all of them at the end of the job).
+    fn report(&mut self, p: &FwPrinter, all: bool) {
+        if !self.active {
+            return;
+        }
+        let closed = if all { p.layer_count() } else { p.status(0).layer };
+        while self.reported < closed {
+            let ticks = (p.planned_s() * 72e6) as u64;
+            let k = self.reported as usize % RING;
+            log!(
+                "COST layer={} compute_insns={} print_ticks={}",
+                self.reported,
+                self.ring[k],
+                ticks - self.planned_ticks.min(ticks)
+            );
+            self.planned_ticks = ticks;
+            self.ring[k] = 0;
+            self.reported += 1;
+        }
+    }
+
+    /// A job started.
+    pub fn job_started(&mut self) {
+        *self = Self::new();
+        self.active = true;
+    }
+
+    /// A job ended: the remaining layers and the job's totals.
+    pub fn job_ended(&mut self, p: &FwPrinter) {
+        self.report(p, true);
+        log!("COST triangles={} slice_insns={}", p.status(0).triangles, self.slice_insns);
+        self.active = false;
+    }
+}

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Builds the firmware for one board and writes target/firmware/<board>/:
+#   strata-firmware.elf   the image (QEMU: run it; Creality: debug symbols, RTT logs)
+#   firmware.bin          the raw binary for the Creality SD bootloader (app at 0x0800_7000)
+# and prints the section sizes (.data + .bss = static RAM; flash = .text + .rodata + .data).
+#
+#   scripts/build_firmware.sh creality-v422|creality-v427|qemu
+#
+# Release build with LTO and one codegen unit (the profile of the root Cargo.toml, tightened
+# through cargo's environment overrides so that only this build is affected).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+board="${1:-}"
+case "$board" in
+  creality-v422|creality-v427|qemu) ;;
+  *) echo "usage: $0 creality-v422|creality-v427|qemu" >&2; exit 2 ;;
+esac
+rustup target list --installed 2>/dev/null | grep -qx thumbv7m-none-eabi || rustup target add thumbv7m-none-eabi
+rustup component list --installed 2>/dev/null | grep -q '^llvm-tools' || rustup component add llvm-tools
+export CARGO_PROFILE_RELEASE_LTO=true
+export CARGO_PROFILE_RELEASE_CODEGEN_UNITS=1
+export CARGO_PROFILE_RELEASE_DEBUG=2
+export CARGO_PROFILE_RELEASE_OPT_LEVEL="${STRATA_FW_OPT_LEVEL:-s}"
+cargo build -p strata-firmware --target thumbv7m-none-eabi --release --features "$board"
+bin_dir="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
+objcopy="$(command -v rust-objcopy || echo "$bin_dir/llvm-objcopy")"
+size="$(command -v rust-size || echo "$bin_dir/llvm-size")"
+out="target/firmware/$board"
+mkdir -p "$out"
+cp target/thumbv7m-none-eabi/release/strata-firmware "$out/strata-firmware.elf"
+"$objcopy" -O binary "$out/strata-firmware.elf" "$out/firmware.bin"
+"$size" -A "$out/strata-firmware.elf" | awk '
+  $1 == ".text" || $1 == ".rodata" || $1 == ".vector_table" { flash += $2 }
+  $1 == ".data" { flash += $2; ram += $2 }
+  $1 == ".bss" || $1 == ".uninit" { ram += $2 }
+  END { printf "%s: flash %d bytes, static RAM (.data + .bss) %d bytes\n", "'"$board"'", flash, ram }'
+echo "wrote $out/strata-firmware.elf and $out/firmware.bin ($(stat -c %s "$out/firmware.bin") bytes)"
