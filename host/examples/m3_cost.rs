@@ -8,8 +8,10 @@
 //! - step interrupt at most 150 instructions per step on average;
 //! - worst interrupt under 900 cycles (X and Y both stepping at 40 kHz: 72e6 / 80e3).
 //!
-//! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S] MODEL.stl...`
-//! (job budget S seconds of wall time, default 1800; model
+//! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S] [--relay LOSS]
+//! MODEL.stl...` (job budget S seconds of wall time, default 1800; `--relay` streams through the
+//! fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
+//! every frame's header; model
 //! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
 //! builds the firmware first and runs the four sample models. Exits non-zero when a job
 //! fails; a missed target is reported, not an error.
@@ -22,6 +24,7 @@ use strata::machine::{MachineConfig, PrintSettings};
 use strata::protocol::{DeviceState, JobOptions, JobSpec};
 use strata_host::hil::{self, CostSummary, Costs, Qemu, CPU_HZ, CYCLES_PER_INSN};
 use strata_host::model;
+use strata_host::simjob::Faults;
 
 const RTF_TARGET: f64 = 20.0;
 const ISR_MEAN_TARGET: f64 = 150.0;
@@ -45,7 +48,15 @@ struct Row {
     wall_s: f64,
 }
 
-fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool, timeout: Duration) -> Result<Row, String> {
+struct Opts {
+    echo: bool,
+    timeout: Duration,
+    /// Through the fault-injecting relay at this loss rate.
+    relay: Option<f64>,
+}
+
+fn run(qemu: &Path, elf: &Path, path: &Path, o: &Opts) -> Result<Row, String> {
+    let echo = o.echo;
     let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
     let machine = MachineConfig::default();
     let tris = model::load(path)?.placed_sorted(&machine)?;
@@ -56,13 +67,20 @@ fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool, timeout: Duration) -> R
         triangles: tris.len() as u32,
     };
     let t0 = std::time::Instant::now();
-    let (mut q, mut port) = Qemu::start(qemu, elf, echo, Duration::from_secs(20))?;
+    let (mut q, uart) = Qemu::start(qemu, elf, echo, Duration::from_secs(20))?;
+    let (_relay, mut port) = match o.relay {
+        Some(loss) => {
+            let (r, p) = hil::Relay::spawn(uart, Faults::uniform(loss, 1), 250_000)?;
+            (Some(r), p)
+        }
+        None => (None, uart),
+    };
     port.set_read_timeout(Some(Duration::from_millis(1))).map_err(|e| e.to_string())?;
     port.set_write_timeout(Some(Duration::from_secs(10))).map_err(|e| e.to_string())?;
     let mut conn = hil::connect(&mut port)?;
     let (tris, job, note) = hil::admitted(&tris, job, &conn.caps)?;
     let mut next = 10.0;
-    let progress = hil::print_job(&mut port, &mut conn, &tris, job, timeout, |p| {
+    let progress = hil::print_job(&mut port, &mut conn, &tris, job, o.timeout, |p| {
         if echo && t0.elapsed().as_secs_f64() > next {
             next += 10.0;
             eprintln!("{name}: {} triangles sent, status {:?}", p.triangles_sent, p.status);
@@ -91,22 +109,25 @@ fn run(qemu: &Path, elf: &Path, path: &Path, echo: bool, timeout: Duration) -> R
 }
 
 fn main() {
-    let mut echo = false;
-    let mut timeout = Duration::from_secs(1800);
+    let mut o = Opts { echo: false, timeout: Duration::from_secs(1800), relay: None };
     let mut models = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
-            "--echo" => echo = true,
+            "--echo" => o.echo = true,
             "--timeout" => match args.next().and_then(|s| s.parse().ok()) {
-                Some(s) => timeout = Duration::from_secs(s),
+                Some(s) => o.timeout = Duration::from_secs(s),
+                None => models.clear(),
+            },
+            "--relay" => match args.next().and_then(|s| s.parse().ok()) {
+                Some(l) => o.relay = Some(l),
                 None => models.clear(),
             },
             _ => models.push(resolve(&a)),
         }
     }
     if models.is_empty() {
-        eprintln!("usage: m3_cost [--echo] [--timeout SECONDS] MODEL.stl...");
+        eprintln!("usage: m3_cost [--echo] [--timeout SECONDS] [--relay LOSS] MODEL.stl...");
         std::process::exit(2);
     }
     let (qemu, elf) = hil::locate().unwrap_or_else(|e| {
@@ -122,7 +143,7 @@ fn main() {
     let mut failed = false;
     let mut rows = Vec::new();
     for m in &models {
-        match run(&qemu, &elf, m, echo, timeout) {
+        match run(&qemu, &elf, m, &o) {
             Ok(r) => rows.push(r),
             Err(e) => {
                 eprintln!("{}: FAILED: {e}", m.display());

@@ -240,6 +240,8 @@ pub struct Relay {
 }
 
 struct Direction {
+    /// `STRATA_HIL_TRACE`: each frame's header on standard error, with this label.
+    trace: Option<&'static str>,
     wire: Wire,
     partial: Vec<u8>,
     out: Vec<u8>,
@@ -260,6 +262,9 @@ impl Direction {
                         // A frame ends at its delimiter; garbage without one is passed on in
                         // pieces (the decoder resynchronises).
                         if b == 0 || self.partial.len() >= 2 * MAX_WIRE {
+                            if let Some(label) = self.trace {
+                                trace_frame(label, now_ms, &self.partial);
+                            }
                             self.wire.send_frame(now_ms, &self.partial);
                             self.partial.clear();
                             self.frames += 1;
@@ -295,6 +300,23 @@ impl Direction {
     }
 }
 
+/// One frame's header and message type (as sent, before the faults).
+fn trace_frame(label: &str, now_ms: u64, wire: &[u8]) {
+    let mut raw = wire.to_vec();
+    raw.pop_if(|b| *b == 0);
+    let what = match strata::protocol::frame::cobs_decode_in_place(&mut raw).map(|n| {
+        strata::protocol::frame::parse(&raw[..n])
+            .map(|f| (f.kind, f.seq, f.ack, f.credits, f.payload.first().copied(), f.payload.len()))
+    }) {
+        Some(Ok((k, seq, ack, cr, ty, len))) => {
+            format!("{k:?} seq={seq} ack={ack} credits={cr} msg={ty:02x?} len={len}")
+        }
+        Some(Err(e)) => format!("bad frame {e:?}"),
+        None => "bad COBS".into(),
+    };
+    eprintln!("relay {now_ms:>7} ms {label}: {what}");
+}
+
 impl Relay {
     /// Relays `device` (e.g. QEMU's UART socket) to the returned host end.
     pub fn spawn(
@@ -310,14 +332,16 @@ impl Relay {
         let thread = std::thread::Builder::new()
             .name("hil-relay".into())
             .spawn(move || {
-                let dir = |salt| Direction {
+                let trace = std::env::var_os("STRATA_HIL_TRACE").is_some();
+                let dir = |salt, label| Direction {
+                    trace: trace.then_some(label),
                     wire: Wire::new(faults, salt, baud),
                     partial: Vec::new(),
                     out: Vec::new(),
                     frames: 0,
                     delivered: 0,
                 };
-                let (mut h2d, mut d2h) = (dir(11), dir(12));
+                let (mut h2d, mut d2h) = (dir(11, "host->dev"), dir(12, "dev->host"));
                 let t0 = Instant::now();
                 let mut last = 0u64;
                 let result = loop {
