@@ -303,7 +303,9 @@ impl Direction {
 /// One frame's header and message type (as sent, before the faults).
 fn trace_frame(label: &str, now_ms: u64, wire: &[u8]) {
     let mut raw = wire.to_vec();
-    raw.pop_if(|b| *b == 0);
+    if raw.last() == Some(&0) {
+        raw.pop();
+    }
     let what = match strata::protocol::frame::cobs_decode_in_place(&mut raw).map(|n| {
         strata::protocol::frame::parse(&raw[..n])
             .map(|f| (f.kind, f.seq, f.ack, f.credits, f.payload.first().copied(), f.payload.len()))
