@@ -32,7 +32,9 @@ use super::Buffer;
 pub const BYTES_PER_EDGE: usize = core::mem::size_of::<Seg>()
     + core::mem::size_of::<Split>()
     + core::mem::size_of::<Piece>()
-    + core::mem::size_of::<u32>();
+    + core::mem::size_of::<u16>();
+/// Most edges or pieces of one union: their indices fit the `u16` active list.
+const MAX_ITEMS: usize = 1 << 16;
 
 /// Sub-micrometre grid of the engine: coordinates are multiplied by this.
 pub const SCALE: i32 = 16;
@@ -71,8 +73,26 @@ struct Piece {
     w: i32,
     /// Winding on the +x side (non-horizontal) or above (horizontal).
     wr: i32,
-    /// Output direction: 0 not on the boundary, 1 a -> b, -1 b -> a.
-    keep: i8,
+}
+
+impl Piece {
+    /// Output direction once classified: 0 not on the boundary, 1 a -> b, -1 b -> a (the
+    /// region is on the side of positive winding: left `wr + w` of a non-horizontal piece,
+    /// below `wr - w` of a horizontal one).
+    fn keep(&self) -> i8 {
+        let (first, second) = if self.a.y == self.b.y {
+            (self.wr, self.wr - self.w)
+        } else {
+            (self.wr + self.w, self.wr)
+        };
+        if (first > 0) == (second > 0) {
+            0
+        } else if first > 0 {
+            1
+        } else {
+            -1
+        }
+    }
 }
 
 fn less_yx(p: Point2, q: Point2) -> bool {
@@ -98,7 +118,8 @@ pub struct Offsetter<const E: usize> {
     n_splits: usize,
     pieces: [Piece; E],
     n_pieces: usize,
-    act: [u32; E],
+    /// Active list of the sweeps (indices), then the darts' used flags.
+    act: [u16; E],
     /// A split point was rounded (or snapped) in the last intersection pass.
     rounded: bool,
     /// Usage high-water marks.
@@ -135,7 +156,7 @@ impl<const E: usize> Offsetter<E> {
             n_segs: 0,
             splits: [Split { edge: 0, p: Point2::new(0, 0) }; E],
             n_splits: 0,
-            pieces: [Piece { a: Point2::new(0, 0), b: Point2::new(0, 0), w: 0, wr: 0, keep: 0 }; E],
+            pieces: [Piece { a: Point2::new(0, 0), b: Point2::new(0, 0), w: 0, wr: 0 }; E],
             n_pieces: 0,
             act: [0; E],
             rounded: false,
@@ -155,7 +176,8 @@ impl<const E: usize> Offsetter<E> {
         if a == b {
             return Ok(());
         }
-        let slot = self.segs.get_mut(self.n_segs).ok_or(Buffer::OffsetEdges)?;
+        let slot = self.segs.get_mut(self.n_segs).filter(|_| self.n_segs < MAX_ITEMS);
+        let slot = slot.ok_or(Buffer::OffsetEdges)?;
         *slot = Seg { a, b };
         self.n_segs += 1;
         self.peaks.edges = self.peaks.edges.max(self.n_segs);
@@ -334,7 +356,7 @@ impl<const E: usize> Offsetter<E> {
                 overlap |= self.intersect(i, e, fi, f)?;
             }
             // `act` holds at most `n` entries.
-            self.act[n_act] = i as u32;
+            self.act[n_act] = i as u16;
             n_act += 1;
         }
         Ok(overlap)
@@ -426,8 +448,8 @@ impl<const E: usize> Offsetter<E> {
             return Ok(());
         }
         let (a, b, w) = if less_yx(a, b) { (a, b, 1) } else { (b, a, -1) };
-        let slot = self.pieces.get_mut(self.n_pieces).ok_or(Buffer::OffsetPieces)?;
-        *slot = Piece { a, b, w, wr: 0, keep: 0 };
+        let slot = self.pieces.get_mut(self.n_pieces).filter(|_| self.n_pieces < MAX_ITEMS);
+        *slot.ok_or(Buffer::OffsetPieces)? = Piece { a, b, w, wr: 0 };
         self.n_pieces += 1;
         self.peaks.pieces = self.peaks.pieces.max(self.n_pieces);
         Ok(())
@@ -552,19 +574,9 @@ impl<const E: usize> Offsetter<E> {
                     }
                 }
                 let wl = if pos > 0 { pieces[act[pos - 1] as usize].wr } else { 0 };
-                let wr = wl - e.w;
-                let keep = if (wl > 0) == (wr > 0) {
-                    0
-                } else if wl > 0 {
-                    1
-                } else {
-                    -1
-                };
-                let p = &mut pieces[e_idx];
-                p.wr = wr;
-                p.keep = keep;
+                pieces[e_idx].wr = wl - e.w;
                 act.copy_within(pos..n_act, pos + 1);
-                act[pos] = e_idx as u32;
+                act[pos] = e_idx as u16;
                 n_act += 1;
             }
             // Horizontal pieces: winding just above their midpoint.
@@ -584,17 +596,7 @@ impl<const E: usize> Offsetter<E> {
                     }
                     above = f.wr;
                 }
-                let below = above - h.w;
-                let keep = if (above > 0) == (below > 0) {
-                    0
-                } else if above > 0 {
-                    1
-                } else {
-                    -1
-                };
-                let p = &mut pieces[h_idx];
-                p.wr = above;
-                p.keep = keep;
+                pieces[h_idx].wr = above;
             }
             i = j;
         }
@@ -640,7 +642,7 @@ impl<const E: usize> Offsetter<E> {
         let mut nd = 0;
         for i in 0..self.n_pieces {
             let p = self.pieces[i];
-            let (a, b) = match p.keep {
+            let (a, b) = match p.keep() {
                 1 => (p.a, p.b),
                 -1 => (p.b, p.a),
                 _ => continue,
