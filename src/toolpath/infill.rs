@@ -32,9 +32,9 @@ use super::{Buffer, Feature};
 /// No crossing / no segment end (a `u16` index).
 pub const NONE: u16 = u16::MAX;
 /// Words of [`FillWork::pool`] per `CROSS`: a crossing's share of segments and pieces.
-pub const POOL_WORDS: usize = 4;
+pub const POOL_WORDS: usize = 3;
 /// Words per segment in the pool (see [`Segs`]).
-const SEG_WORDS: usize = 6;
+const SEG_WORDS: usize = 5;
 /// Most segments of one pass: `2 x seg + end` fits a `u16` below [`NONE`].
 const MAX_SEGS: usize = (NONE as usize - 1) / 2;
 /// Most crossings walked along the boundary looking for a link.
@@ -117,9 +117,9 @@ impl LineSeg {
     };
 }
 
-/// The segments and pieces of one pass in one word pool: segment `s` in the 6 words from
-/// `6 s` (`line x 8 + flags`, `u0`, `u1`, `c0 + c1 x 2^16`, `piece0`,
-/// `npieces + island x 2^16`), piece `k` in the word `len - 1 - k` from the back
+/// The segments and pieces of one pass in one word pool: segment `s` in the 5 words from
+/// `5 s` (`line x 8 + flags`, `u0`, `c0 + c1 x 2^16`, `piece0`, `npieces + island x 2^16`;
+/// its `u1` is its last piece's), piece `k` in the word `len - 1 - k` from the back
 /// (`u1 x 4 + kind`). A line beyond `2^28`, a `u1` beyond `2^29` or a segment of more than
 /// 65535 pieces is [`Buffer::LineSegments`], like a full pool.
 pub struct Segs<'a> {
@@ -148,7 +148,8 @@ impl<'a> Segs<'a> {
     fn push_seg(&mut self, s: &LineSeg) -> Result<(), Buffer> {
         let fits = self.free_words() >= SEG_WORDS
             && (-(1 << 28)..1 << 28).contains(&s.line)
-            && s.npieces <= u32::from(u16::MAX);
+            && (1..=u32::from(u16::MAX)).contains(&s.npieces);
+        debug_assert!(!fits || s.u1 == self.piece((s.piece0 + s.npieces) as usize - 1).u1);
         let at = SEG_WORDS * self.nseg;
         let slot = self.w.get_mut(at..at + SEG_WORDS).filter(|_| fits);
         let slot = slot.ok_or(Buffer::LineSegments)?;
@@ -156,7 +157,6 @@ impl<'a> Segs<'a> {
         slot.copy_from_slice(&[
             (s.line as u32) << 3 | flags,
             s.u0 as u32,
-            s.u1 as u32,
             u32::from(s.c0) | u32::from(s.c1) << 16,
             s.piece0,
             s.npieces | u32::from(s.island) << 16,
@@ -170,18 +170,21 @@ impl<'a> Segs<'a> {
         let Some(w) = self.w.get(SEG_WORDS * s..SEG_WORDS * s + SEG_WORDS) else {
             return LineSeg::EMPTY;
         };
+        let (piece0, npieces) = (w[3], w[4] & 0xFFFF);
         LineSeg {
             line: (w[0] as i32) >> 3,
             used: w[0] & 1 != 0,
             solid: w[0] & 2 != 0,
             linkable: w[0] & 4 != 0,
             u0: w[1] as i32,
-            u1: w[2] as i32,
-            c0: w[3] as u16,
-            c1: (w[3] >> 16) as u16,
-            piece0: w[4],
-            npieces: w[5] & 0xFFFF,
-            island: (w[5] >> 16) as u16,
+            u1: (piece0 + npieces)
+                .checked_sub(1)
+                .map_or(w[1] as i32, |k| self.piece(k as usize).u1),
+            c0: w[2] as u16,
+            c1: (w[2] >> 16) as u16,
+            piece0,
+            npieces,
+            island: (w[4] >> 16) as u16,
         }
     }
 

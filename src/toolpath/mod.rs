@@ -57,9 +57,9 @@
 //!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 78 bytes per
 //!   `PTS` (points 3 x 8, edge 16, split 12, piece 24, active entry 2), 123 bytes per
 //!   `LOOPS`;
-//! - the infill scratch: 30 bytes per `CROSS` (crossing 12, its order then segment-end
-//!   index 2, 16 bytes of the pool of segments (24 bytes each) and pieces (4 bytes each));
-//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 16-byte units;
+//! - the infill scratch: 26 bytes per `CROSS` (crossing 12, its order then segment-end
+//!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
+//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units;
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
 //!   two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
@@ -110,7 +110,7 @@ pub enum Buffer {
     OffsetPieces,
     /// Scanline crossings of one layer (`CROSS`).
     Crossings,
-    /// Infill line segments and their feature pieces of one layer (`CROSS` x 16 bytes).
+    /// Infill line segments and their feature pieces of one layer (`CROSS` x 12 bytes).
     LineSegments,
     /// Infill intervals on one scanline (64).
     LineIntervals,
@@ -482,8 +482,8 @@ pub struct ToolpathNeeds {
     pub layer_loops: u32,
     /// Offset edges, splits or pieces of one island: `PTS`.
     pub offset_edges: u32,
-    /// Scanline crossings of one infill pass, or its segments and pieces in 16-byte units
-    /// (24 bytes a segment, 4 a piece): `CROSS`.
+    /// Scanline crossings of one infill pass, or its segments and pieces in 12-byte units
+    /// (20 bytes a segment, 4 a piece): `CROSS`.
     pub crossings: u32,
     /// Path points of one layer, two per path for its record: `PATH`.
     pub path_points: u32,
@@ -537,7 +537,7 @@ impl ToolpathNeeds {
 const _: () = assert!(
     ToolpathNeeds::PTS_BYTES == 78
         && ToolpathNeeds::LOOPS_BYTES == 123
-        && ToolpathNeeds::CROSS_BYTES == 30
+        && ToolpathNeeds::CROSS_BYTES == 26
         && ToolpathNeeds::PATH_BYTES == 9
         && ToolpathNeeds::RING_BYTES == 4
         && ToolpathNeeds::SPAN_BYTES == 8
@@ -1275,7 +1275,7 @@ mod tests {
     fn memory_per_capacity_unit_is_as_documented() {
         assert_eq!(ToolpathNeeds::PTS_BYTES, 78);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
-        assert_eq!(ToolpathNeeds::CROSS_BYTES, 30);
+        assert_eq!(ToolpathNeeds::CROSS_BYTES, 26);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
