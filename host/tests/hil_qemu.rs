@@ -1,8 +1,9 @@
 //! Hardware in the loop: the firmware's QEMU build (Cortex-M3 `lm3s6965evb`, 64 KB RAM,
 //! UART0 on a unix socket) prints the sample models streamed by the real host code
 //! (`strata_host::serial::print` after the handshake and admission control), and its
-//! per-layer hashes, final state, planned print time and step count equal the host
-//! simulation of the same job (`strata_host::simjob::simulate`, what `strata simulate --json`
+//! per-layer hashes, final state and planned print time (protocol messages), and its steps
+//! per axis, final positions, executed print time and step hash (its `STEPS` line) equal the
+//! host simulation of the same job (`strata_host::simjob::simulate`, what `strata simulate --json`
 //! reports) bit for bit; then again through a seeded fault-injecting relay (frame drop, byte
 //! corruption and loss, duplication, delay at a few percent per frame on both directions).
 //!
@@ -185,14 +186,20 @@ fn assert_same(what: &str, reference: &SimReport, p: &Progress, fw: Option<&Cost
         assert_eq!(total, reference.steps.iter().sum::<u64>(), "{what}: COST steps");
     }
     assert_eq!(steps.print_ticks, Some(reference.print_ticks), "{what}: print time, ticks");
+    // Every step edge at the same tick relative to the first step.
+    assert_eq!(steps.hash, Some(reference.board_hash), "{what}: step hash (axis, direction, tick)");
 }
 
 /// One model on QEMU: clean, then through the lossy relay; both equal the simulation.
 fn qemu_model(name: &str) {
+    let (tris, job) = load(name);
+    qemu_job(name, &tris, job);
+}
+
+fn qemu_job(name: &str, tris: &[Triangle], job: JobSpec) {
     let test = format!("hil_qemu {name}");
     let Some((qemu, elf)) = qemu_or_skip(&test) else { return };
     let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
-    let (tris, job) = load(name);
     let mut reference = None;
     for faults in [None, Some(Faults::uniform(LOSS, 7))] {
         let label = format!("{name} {}", if faults.is_some() { "lossy" } else { "clean" });
@@ -205,7 +212,7 @@ fn qemu_model(name: &str) {
             }
             None => (None, uart),
         };
-        let (run, r) = run_job(&mut port, &tris, job, QEMU_JOB, reference.is_none());
+        let (run, r) = run_job(&mut port, tris, job, QEMU_JOB, reference.is_none());
         if let Some(r) = r {
             reference = Some(r.unwrap_or_else(|e| panic!("{label}: reference simulation: {e}")));
         }
@@ -244,13 +251,20 @@ fn qemu_model(name: &str) {
         assert_eq!(run.job.triangles as usize, run.tris.len());
         assert_same(&label, rf, &progress, Some(&costs));
         if faults.is_some() {
+            let l = run.link;
             assert!(
-                run.link.retransmits > 0 && run.link.bad_frames > 0,
-                "{label}: the relay injected nothing: {:?}",
-                run.link
+                l.retransmits + l.bad_frames + l.duplicates > 0,
+                "{label}: the relay injected nothing: {l:?}"
             );
         }
     }
+}
+
+/// A small model every firmware build holds (64 triangles, 3 layers, 20 s of print).
+#[test]
+fn qemu_small_cylinder() {
+    let tris = cylinder(4_000.0, 600, 16);
+    qemu_job("cylinder r4 h0.6 16 sides", &tris, job_for(&tris));
 }
 
 #[test]
