@@ -22,8 +22,12 @@ const SOFT_LIMIT_MARGIN_MM: i64 = 1;
 /// together (the old ones are dropped first); the motion halts, drivers off.
 fn reset_motion(prod: &mut Option<Producer>, cfg: &StepConfig) {
     board::with_motion(|m| {
-        drop(m.halt());
-        drop(prod.take());
+        // Both ends of the old queue go away here (neither has a destructor; what matters
+        // is that no borrow of the queue outlives this point).
+        {
+            let _old_exec = m.halt();
+            let _old_prod = prod.take();
+        }
         // SAFETY: the previous executor (`old`) and producer (`*prod`) are dropped above,
         // inside this critical section, so nothing borrows the queue any more.
         let (p, e) = unsafe { fresh_queue(cfg) };
@@ -131,6 +135,9 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
                     printer.handle(&Message::Abort);
                 }
             }
+        }
+        if let Some(missed) = board::with_motion(|m| m.take_homed()) {
+            log!("HOMED missed_endstops={}", (missed & 7) as u32);
         }
         if let Some(p) = prod.as_ref() {
             let finished = printer.motion_finished() || !printer.is_active();

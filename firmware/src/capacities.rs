@@ -29,7 +29,7 @@ pub const PATH: usize = 320;
 /// Toolpath: contour points of the layers waiting for the layers above (8 B each).
 pub const RING: usize = 128;
 /// Toolpath: scanline spans of the skin window (12 B each).
-pub const SPANS: usize = 600;
+pub const SPANS: usize = 448;
 /// Toolpath moves waiting for the planner (a layer must fit half of it).
 pub const MOVES: usize = 320;
 /// Planner lookahead, moves (must equal the host simulation's: 32).

@@ -5,10 +5,11 @@
 //!
 //! Approximations:
 //! - `compute_insns` are the thread-mode instructions (SysTick handler time taken out) spent
-//!   in `Printer::service` calls that had a message to handle and in `Printer::poll` calls
-//!   that did work, attributed to the layer the *slicer* is on when the call starts (slicing
-//!   + toolpaths of layer K and, meanwhile, planning and step generation of the layers before
-//!   it, which in steady state is one layer of every stage);
+//!   in `Printer::service` calls that had a message to handle, attributed to the layer the
+//!   *slicer* is on when the call starts (slicing and toolpaths: the toolpath stage runs in
+//!   the slicer's layer sink; a batch that completes several layers is counted to the first),
+//!   plus the `Printer::poll` calls that did work, attributed to the layer being *planned*
+//!   (planning and step generation);
 //! - `print_ticks` is the growth of the planner's released print time (72 MHz ticks) between
 //!   the reports of layer K-1 and layer K (a layer closes when the first block of the next
 //!   one is released, which is counted with the earlier layer);
@@ -53,7 +54,7 @@ impl Cost {
     }
 
     fn add(&mut self, layer: u32, insns: u64) {
-        let l = layer.min(self.reported + RING as u32 - 1);
+        let l = layer.clamp(self.reported, self.reported + RING as u32 - 1);
         self.ring[l as usize % RING] += insns;
     }
 
@@ -71,7 +72,7 @@ impl Cost {
     pub fn end_poll(&mut self, t: u64, p: &FwPrinter) {
         if self.active {
             let d = self.thread_now() - t;
-            self.add(p.slicer().stats().layers, d);
+            self.add(p.status(0).layer, d);
             self.report(p, false);
         }
     }

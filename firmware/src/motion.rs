@@ -185,33 +185,31 @@ fn home_step<P: OutputPin<Error = Infallible>, E: Endstops>(
     pins: &mut Pins<P>,
     ends: &mut E,
 ) -> Option<u32> {
-    loop {
+    if h.axis >= 3 {
+        return None;
+    }
+    let a = h.axis;
+    if h.high {
+        let _ = pins.step[a].set_low();
+        h.high = false;
+        return Some(now.wrapping_add(h.interval[a].saturating_sub(h.high_ticks).max(1)));
+    }
+    if h.travelled >= h.limit[a] || ends.hit(a, h.travelled) {
+        if h.travelled >= h.limit[a] {
+            h.missed |= 1 << a;
+        }
+        h.axis += 1;
+        h.travelled = 0;
         if h.axis >= 3 {
             return None;
         }
-        let a = h.axis;
-        if h.high {
-            let _ = pins.step[a].set_low();
-            h.high = false;
-            return Some(now.wrapping_add(h.interval[a].saturating_sub(h.high_ticks).max(1)));
-        }
-        if h.travelled >= h.limit[a] || ends.hit(a, h.travelled) {
-            if h.travelled >= h.limit[a] {
-                h.missed |= 1 << a;
-            }
-            h.axis += 1;
-            h.travelled = 0;
-            if h.axis >= 3 {
-                return None;
-            }
-            // The next axis' DIR was set at the start; give it the setup time anyway.
-            return Some(now.wrapping_add(h.setup_ticks));
-        }
-        let _ = pins.step[a].set_high();
-        h.high = true;
-        h.travelled += 1;
-        return Some(now.wrapping_add(h.high_ticks));
+        // The next axis' DIR was set at the start; give it the setup time anyway.
+        return Some(now.wrapping_add(h.setup_ticks));
     }
+    let _ = pins.step[a].set_high();
+    h.high = true;
+    h.travelled += 1;
+    Some(now.wrapping_add(h.high_ticks))
 }
 
 /// The step queue in a static, re-initialised on every motion reset (emergency stop, abort).

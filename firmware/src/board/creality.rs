@@ -10,11 +10,9 @@
 //! or 60000 ticks ahead when the wake is further away (the handler then just re-arms).
 
 use core::cell::RefCell;
-use core::convert::Infallible;
 
-use cortex_m::interrupt::{self, Mutex};
+use cortex_m::interrupt::{free, Mutex};
 use cortex_m::peripheral::{DWT, NVIC};
-use embedded_hal::digital::InputPin;
 use stm32f1xx_hal::gpio::{ErasedPin, Input, Output, PinState, PullUp, PushPull, PA5, PA6, PA7};
 use stm32f1xx_hal::pac::{self, interrupt, Interrupt, TIM2, USART1};
 use stm32f1xx_hal::prelude::*;
@@ -46,12 +44,11 @@ pub struct Ends {
 
 impl Endstops for Ends {
     fn hit(&mut self, axis: usize, _travelled: u32) -> bool {
-        let high: Result<bool, Infallible> = match axis {
+        match axis {
             0 => self.x.is_high(),
             1 => self.y.is_high(),
             _ => self.z.is_high(),
-        };
-        high.unwrap_or(false)
+        }
     }
 }
 
@@ -92,13 +89,14 @@ impl Isr {
         let now = DWT::cycle_count();
         let delta = wake.map_or(MAX_ARM, |w| w.wrapping_sub(now).clamp(MIN_ARM, MAX_ARM));
         let cnt = self.tim.cnt().read().bits();
+        // SAFETY: CCR1 takes any 16-bit value.
         self.tim.ccr1().write(|w| unsafe { w.bits((cnt + delta) & 0xFFFF) });
     }
 }
 
 #[interrupt]
 fn TIM2() {
-    interrupt::free(|cs| {
+    free(|cs| {
         if let Some(isr) = ISR.borrow(cs).borrow_mut().as_mut() {
             isr.tim.sr().modify(|_, w| w.cc1if().clear_bit());
             isr.run();
@@ -207,10 +205,13 @@ pub fn init(cfg: &StepConfig) -> Board {
     cp.DWT.enable_cycle_counter();
 
     // TIM2: 72 MHz (APB1 36 MHz x 2), free running over 16 bits, compare 1 interrupt.
+    // SAFETY: a read-modify-write of TIM2's clock enable bit only, before any interrupt
+    // runs; the HAL's `Rcc` does not touch APB1ENR concurrently (single thread here).
     let rcc_regs = unsafe { &*pac::RCC::ptr() };
-    // SAFETY: read-modify-write of TIM2's clock enable bit only; nothing else touches it.
     rcc_regs.apb1enr().modify(|_, w| w.tim2en().set_bit());
     let tim = dp.TIM2;
+    // SAFETY (the `bits` writes below): PSC, ARR and CCR1 take any 16-bit value; writing 0 to
+    // SR clears its flags.
     tim.psc().write(|w| unsafe { w.bits(0) });
     tim.arr().write(|w| unsafe { w.bits(0xFFFF) });
     tim.ccr1().write(|w| unsafe { w.bits(MAX_ARM) });
@@ -219,7 +220,7 @@ pub fn init(cfg: &StepConfig) -> Board {
     tim.dier().write(|w| w.cc1ie().set_bit());
     tim.cr1().write(|w| w.cen().set_bit());
 
-    interrupt::free(|cs| {
+    free(|cs| {
         ISR.borrow(cs).replace(Some(Isr {
             motion: Motion::new(*cfg, pins, ends),
             tim,
@@ -234,7 +235,7 @@ pub fn init(cfg: &StepConfig) -> Board {
 
 /// Runs `f` on the interrupt's motion state (inside a critical section).
 pub fn with_motion<R>(f: impl FnOnce(&mut BoardMotion) -> R) -> R {
-    interrupt::free(|cs| {
+    free(|cs| {
         let mut isr = ISR.borrow(cs).borrow_mut();
         f(&mut isr.as_mut().expect("board::init ran").motion)
     })
@@ -249,7 +250,7 @@ static PRINT: Mutex<RefCell<(u32, u32)>> = Mutex::new(RefCell::new((0, 0)));
 
 /// Print time executed in this job, ms (cycle counter while the motion is busy).
 pub fn print_done_ms() -> u32 {
-    interrupt::free(|cs| {
+    free(|cs| {
         let busy = ISR.borrow(cs).borrow().as_ref().is_some_and(|i| i.motion.busy());
         let mut p = PRINT.borrow(cs).borrow_mut();
         let now = DWT::cycle_count();
@@ -267,7 +268,7 @@ pub fn print_done_ms() -> u32 {
 
 /// A job begins.
 pub fn job_started() {
-    interrupt::free(|cs| *PRINT.borrow(cs).borrow_mut() = (0, DWT::cycle_count()));
+    free(|cs| *PRINT.borrow(cs).borrow_mut() = (0, DWT::cycle_count()));
 }
 
 /// A job ended.
