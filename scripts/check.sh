@@ -20,9 +20,11 @@ cargo clippy --all-targets -- -D warnings
 
 step "core for thumbv7m-none-eabi (no_std, no alloc)"
 cargo build -p strata --target thumbv7m-none-eabi --release
-step "firmware for thumbv7m-none-eabi"
-cargo build -p strata-firmware --target thumbv7m-none-eabi --release
-cargo clippy -p strata-firmware --target thumbv7m-none-eabi -- -D warnings
+step "firmware for thumbv7m-none-eabi (every board: build, clippy)"
+for board in creality-v422 creality-v427 qemu; do
+  scripts/build_firmware.sh "$board"
+  cargo clippy -p strata-firmware --target thumbv7m-none-eabi --release --features "$board" -- -D warnings
+done
 
 step "step ISR: no division, no floating point (thumbv7m disassembly)"
 scripts/check_isr_asm.sh
