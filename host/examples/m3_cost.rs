@@ -87,7 +87,9 @@ fn run(qemu: &Path, elf: &Path, path: &Path, o: &Opts) -> Result<Row, String> {
         }
     })
     .map_err(|e| {
-        format!("{name}: {e}; qemu: {} {:?}", q.stderr(), q.lines().iter().rev().take(8))
+        let lines = q.lines();
+        let tail = lines[lines.len().saturating_sub(6)..].join("\n  ");
+        format!("{name}: {e}\n  qemu's last lines:\n  {tail}")
     })?;
     let st = progress.status.unwrap_or_default();
     if st.state != DeviceState::Done {
