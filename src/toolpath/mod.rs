@@ -54,8 +54,8 @@
 //!
 //! [`Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>`](Toolpath) holds:
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
-//!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 78 bytes per
-//!   `PTS` (points 3 x 8, edge 16, split 12, piece 24, active entry 2), 123 bytes per
+//!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 74 bytes per
+//!   `PTS` (points 3 x 8, edge 16, split 12, piece 20, active entry 2), 123 bytes per
 //!   `LOOPS`;
 //! - the infill scratch: 26 bytes per `CROSS` (crossing 12, its order then segment-end
 //!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
@@ -535,7 +535,7 @@ impl ToolpathNeeds {
 // The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build
 // checks them for the device).
 const _: () = assert!(
-    ToolpathNeeds::PTS_BYTES == 78
+    ToolpathNeeds::PTS_BYTES == 74
         && ToolpathNeeds::LOOPS_BYTES == 123
         && ToolpathNeeds::CROSS_BYTES == 26
         && ToolpathNeeds::PATH_BYTES == 9
@@ -1273,7 +1273,7 @@ mod tests {
 
     #[test]
     fn memory_per_capacity_unit_is_as_documented() {
-        assert_eq!(ToolpathNeeds::PTS_BYTES, 78);
+        assert_eq!(ToolpathNeeds::PTS_BYTES, 74);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 26);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);

@@ -70,21 +70,18 @@ struct Piece {
     a: Point2,
     b: Point2,
     /// Sum of the orientations merged here: +1 per original edge running a -> b.
-    w: i32,
+    w: i16,
     /// Winding on the +x side (non-horizontal) or above (horizontal).
-    wr: i32,
+    wr: i16,
 }
 
 impl Piece {
-    /// Output direction once classified: 0 not on the boundary, 1 a -> b, -1 b -> a (the
-    /// region is on the side of positive winding: left `wr + w` of a non-horizontal piece,
-    /// below `wr - w` of a horizontal one).
+    /// Output direction once classified: 0 not on the boundary, 1 a -> b, -1 b -> a (from
+    /// the windings on either side: left `wr + w` and right `wr` of a non-horizontal piece,
+    /// above `wr` and below `wr - w` of a horizontal one).
     fn keep(&self) -> i8 {
-        let (first, second) = if self.a.y == self.b.y {
-            (self.wr, self.wr - self.w)
-        } else {
-            (self.wr + self.w, self.wr)
-        };
+        let (w, wr) = (i32::from(self.w), i32::from(self.wr));
+        let (first, second) = if self.a.y == self.b.y { (wr, wr - w) } else { (wr + w, wr) };
         if (first > 0) == (second > 0) {
             0
         } else if first > 0 {
@@ -481,8 +478,9 @@ impl<const E: usize> Offsetter<E> {
         Ok(())
     }
 
-    /// Merges identical pieces (collinear overlaps), dropping those that cancel.
-    fn merge_pieces(&mut self) {
+    /// Merges identical pieces (collinear overlaps), dropping those that cancel. More than
+    /// `i16::MAX` of them on one piece is [`Buffer::OffsetPieces`].
+    fn merge_pieces(&mut self) -> Result<(), Buffer> {
         let n = self.n_pieces;
         self.pieces[..n].sort_unstable_by_key(|p| (p.a.y, p.a.x, p.b.y, p.b.x));
         let mut out = 0;
@@ -491,7 +489,7 @@ impl<const E: usize> Offsetter<E> {
             let mut p = self.pieces[i];
             let mut j = i + 1;
             while j < n && self.pieces[j].a == p.a && self.pieces[j].b == p.b {
-                p.w += self.pieces[j].w;
+                p.w = p.w.checked_add(self.pieces[j].w).ok_or(Buffer::OffsetPieces)?;
                 j += 1;
             }
             if p.w != 0 {
@@ -501,10 +499,12 @@ impl<const E: usize> Offsetter<E> {
             i = j;
         }
         self.n_pieces = out;
+        Ok(())
     }
 
-    /// Winding sweep: every piece gets its side windings and whether it bounds the region.
-    fn classify(&mut self) {
+    /// Winding sweep: every piece gets its side windings and whether it bounds the region. A
+    /// winding number beyond `i16` is [`Buffer::OffsetPieces`].
+    fn classify(&mut self) -> Result<(), Buffer> {
         let n = self.n_pieces;
         let pieces = &mut self.pieces[..n];
         pieces.sort_unstable_by(|p, q| {
@@ -574,7 +574,7 @@ impl<const E: usize> Offsetter<E> {
                     }
                 }
                 let wl = if pos > 0 { pieces[act[pos - 1] as usize].wr } else { 0 };
-                pieces[e_idx].wr = wl - e.w;
+                pieces[e_idx].wr = wl.checked_sub(e.w).ok_or(Buffer::OffsetPieces)?;
                 act.copy_within(pos..n_act, pos + 1);
                 act[pos] = e_idx as u16;
                 n_act += 1;
@@ -600,6 +600,7 @@ impl<const E: usize> Offsetter<E> {
             }
             i = j;
         }
+        Ok(())
     }
 
     /// Runs the union of everything added since [`begin`](Self::begin) and appends the
@@ -635,9 +636,9 @@ impl<const E: usize> Offsetter<E> {
             self.build_pieces()?;
         }
         if overlap {
-            self.merge_pieces();
+            self.merge_pieces()?;
         }
-        self.classify();
+        self.classify()?;
         // Darts (directed boundary pieces) into `segs`, sorted by their start.
         let mut nd = 0;
         for i in 0..self.n_pieces {
