@@ -96,6 +96,7 @@ struct Run {
 /// Handshake, admission, then the print; `reference` (if given) is simulated on a second
 /// thread meanwhile from the admitted triangles.
 fn run_job(
+    label: &str,
     port: &mut UnixStream,
     tris: &[Triangle],
     job: JobSpec,
@@ -120,7 +121,10 @@ fn run_job(
         }
     };
     let (tris, job, note) = hil::admitted(tris, job, &conn.caps).unwrap_or_else(|e| {
-        panic!("refused by admission control against the device's capacities {:?}: {e}", conn.caps)
+        panic!(
+            "{label}: refused by admission control against the device's capacities {:?}: {e}",
+            conn.caps
+        )
     });
     std::thread::scope(|s| {
         let reference = want_reference.then(|| {
@@ -212,7 +216,7 @@ fn qemu_job(name: &str, tris: &[Triangle], job: JobSpec) {
             }
             None => (None, uart),
         };
-        let (run, r) = run_job(&mut port, tris, job, QEMU_JOB, reference.is_none());
+        let (run, r) = run_job(&label, &mut port, tris, job, QEMU_JOB, reference.is_none());
         if let Some(r) = r {
             reference = Some(r.unwrap_or_else(|e| panic!("{label}: reference simulation: {e}")));
         }
@@ -325,7 +329,7 @@ fn harness_against_the_in_process_printer() {
             None => (None, uart),
         };
         let (run, r) =
-            run_job(&mut port, &tris, job, Duration::from_secs(120), reference.is_none());
+            run_job(label, &mut port, &tris, job, Duration::from_secs(120), reference.is_none());
         if let Some(r) = r {
             reference = Some(r.unwrap());
         }
