@@ -64,7 +64,8 @@ pub fn locate() -> Result<(PathBuf, PathBuf), String> {
 }
 
 /// A running `qemu-system-arm` with the firmware; its UART0 is a unix socket the caller is
-/// connected to, its standard output (semihosting) is collected line by line. Killed on drop.
+/// connected to, its standard output (semihosting) is collected line by line. Killed on drop
+/// and, on Linux, when the thread that started it ends (keep it on that thread).
 pub struct Qemu {
     child: Child,
     dir: PathBuf,
@@ -84,6 +85,29 @@ fn scratch_dir() -> Result<PathBuf, String> {
     Ok(dir)
 }
 
+/// On Linux, QEMU gets SIGKILL when the thread that started it ends (`PR_SET_PDEATHSIG`):
+/// a test run that is killed (a CI timeout, Ctrl-C) leaves no emulator spinning behind.
+#[cfg(target_os = "linux")]
+fn die_with_parent(cmd: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    extern "C" {
+        fn prctl(option: i32, ...) -> i32;
+    }
+    const PR_SET_PDEATHSIG: i32 = 1;
+    const SIGKILL: u64 = 9;
+    // SAFETY: `prctl(PR_SET_PDEATHSIG, SIGKILL)` only sets a flag of the forked child; it is
+    // async-signal-safe and touches no memory of the parent.
+    unsafe {
+        cmd.pre_exec(|| {
+            prctl(PR_SET_PDEATHSIG, SIGKILL);
+            Ok(())
+        });
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn die_with_parent(_: &mut Command) {}
+
 impl Qemu {
     /// Starts `qemu` on `elf` (Cortex-M3, lm3s6965evb, `-icount shift=0`, semihosting, UART0
     /// on a unix socket QEMU waits on) and connects to the UART within `timeout`. With `echo`
@@ -96,7 +120,9 @@ impl Qemu {
     ) -> Result<(Self, UnixStream), String> {
         let dir = scratch_dir()?;
         let sock = dir.join("uart0.sock");
-        let mut child = Command::new(qemu)
+        let mut cmd = Command::new(qemu);
+        die_with_parent(&mut cmd);
+        let mut child = cmd
             .args(["-cpu", "cortex-m3", "-machine", "lm3s6965evb", "-nographic"])
             .args(["-icount", "shift=0", "-semihosting-config", "enable=on,target=native"])
             .arg("-serial")
