@@ -24,7 +24,7 @@ use super::paths::{PathBuf, PathKind};
 use super::poly::{dist, segment_touches_rings, Ring};
 use super::scan::{
     crossings, intervals, line_spans, loop_range, next_in, prev_in, sort_by_line, Angle, Crossing,
-    Interval,
+    Interval, Loops,
 };
 use super::window::StoredRings;
 use super::{Buffer, Feature};
@@ -558,8 +558,8 @@ fn seg_point(p: &FillParams, line: i32, u: i32) -> Point2 {
     p.angle.point(i64::from(line) * p.step, i64::from(u))
 }
 
-fn crossing_point(p: &FillParams, c: &Crossing) -> Point2 {
-    seg_point(p, c.line, c.u)
+fn crossing_point(p: &FillParams, loops: &Loops<'_>, c: &Crossing) -> Point2 {
+    seg_point(p, c.line, loops.u(c))
 }
 
 /// Boundary vertices passed walking from crossing `i` to crossing `k` (`fwd`: along the
@@ -624,11 +624,12 @@ pub fn fill<const N: usize>(
         return Err(Buffer::Crossings);
     }
     let cross = &work.cross[..n];
-    sort_by_line(cross, &mut work.idx[..n]);
+    let loops = Loops { points, rings, angle: params.angle, step: params.step };
+    sort_by_line(cross, &loops, &mut work.idx[..n]);
     usage.crossings = usage.crossings.max(n);
     let mut skin = Skin::new(view, top, bottom, &params, &mut *work.spans);
     let mut b = Builder { segs: Segs::new(&mut *work.pool), cross, rings, open: None, params };
-    let r = intervals(cross, &work.idx[..n], |iv| b.interval(iv, &mut skin));
+    let r = intervals(cross, &loops, &work.idx[..n], |iv| b.interval(iv, &mut skin));
     usage.spans = usage.spans.max(skin.peak);
     r?;
     let mut segs = b.segs;
@@ -759,7 +760,8 @@ fn boundary_link(
         }
         let step = sg.line - here.line;
         let mut length = 0i64;
-        let mut prev = crossing_point(p, &cross[from]);
+        let loops = Loops { points, rings, angle: p.angle, step: p.step };
+        let mut prev = crossing_point(p, &loops, &cross[from]);
         let ok = for_each_vertex(cross, rings, points, from, k, fwd, |v| {
             length += dist(prev, v);
             prev = v;
@@ -767,7 +769,7 @@ fn boundary_link(
         if !ok {
             continue;
         }
-        length += dist(prev, crossing_point(p, &cross[k]));
+        length += dist(prev, crossing_point(p, &loops, &cross[k]));
         let allowed = i64::from(step.abs()) * i64::from(p.spacing_um) * 4 + i64::from(p.width_um);
         let score = (step.abs(), step.signum() != pref && pref != 0, length);
         if length <= allowed && best.map_or(true, |b| score < b.0) {

@@ -57,7 +57,7 @@
 //!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 74 bytes per
 //!   `PTS` (points 3 x 8, edge 16, split 12, piece 20, active entry 2), 123 bytes per
 //!   `LOOPS`;
-//! - the infill scratch: 26 bytes per `CROSS` (crossing 12, its order then segment-end
+//! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
 //!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
 //!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units;
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
@@ -537,7 +537,7 @@ impl ToolpathNeeds {
 const _: () = assert!(
     ToolpathNeeds::PTS_BYTES == 74
         && ToolpathNeeds::LOOPS_BYTES == 123
-        && ToolpathNeeds::CROSS_BYTES == 26
+        && ToolpathNeeds::CROSS_BYTES == 22
         && ToolpathNeeds::PATH_BYTES == 9
         && ToolpathNeeds::RING_BYTES == 4
         && ToolpathNeeds::SPAN_BYTES == 8
@@ -1275,7 +1275,7 @@ mod tests {
     fn memory_per_capacity_unit_is_as_documented() {
         assert_eq!(ToolpathNeeds::PTS_BYTES, 74);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
-        assert_eq!(ToolpathNeeds::CROSS_BYTES, 26);
+        assert_eq!(ToolpathNeeds::CROSS_BYTES, 22);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();

@@ -67,13 +67,12 @@ pub fn line_step(spacing_um: i32) -> i64 {
     }
 }
 
-/// One crossing of a loop edge with a line (12 bytes).
+/// One crossing of a loop edge with a line (8 bytes; its position along the line is
+/// recomputed from the edge: [`Loops::u`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Crossing {
     /// Line index (`t = line x step`).
     pub line: i32,
-    /// Position along the line.
-    pub u: i32,
     /// Index (in the loop buffer) of the crossed edge's first point.
     pub edge: u16,
     /// Index of the loop in its buffer times 2, plus 1 when the edge runs towards larger `t`.
@@ -88,7 +87,7 @@ pub const NO_CROSSING: u16 = u16::MAX;
 
 impl Crossing {
     /// A filler.
-    pub const EMPTY: Self = Self { line: 0, u: 0, edge: 0, ring_dir: 0 };
+    pub const EMPTY: Self = Self { line: 0, edge: 0, ring_dir: 0 };
 
     /// Index of the loop in its buffer.
     pub fn ring(&self) -> usize {
@@ -102,6 +101,36 @@ impl Crossing {
         } else {
             -1
         }
+    }
+}
+
+/// The loops whose crossings with the lines of `angle` (spaced `step` in `t`) are listed.
+#[derive(Clone, Copy)]
+pub struct Loops<'a> {
+    /// Points of the loops.
+    pub points: &'a [Point2],
+    /// The loops.
+    pub rings: &'a [Ring],
+    /// Line direction.
+    pub angle: Angle,
+    /// Line step in `t`.
+    pub step: i64,
+}
+
+impl Loops<'_> {
+    /// Position along its line of crossing `c` (as [`crossings`] rounds it; 0 for a crossing
+    /// not of these loops).
+    pub fn u(&self, c: &Crossing) -> i32 {
+        let Some(r) = self.rings.get(c.ring()) else { return 0 };
+        let (k, len) = (usize::from(c.edge).wrapping_sub(r.start as usize), r.len as usize);
+        let p = self.points.get(usize::from(c.edge)).filter(|_| k < len);
+        let q = p.and_then(|_| self.points.get(r.start as usize + (k + 1) % len));
+        let (Some(&p), Some(&q)) = (p, q) else { return 0 };
+        let (a, b) = (self.angle.key(p), self.angle.key(q));
+        if a.0 == b.0 {
+            return 0;
+        }
+        cross_u(a, b, i64::from(c.line) * self.step) as i32
     }
 }
 
@@ -162,7 +191,7 @@ pub fn crossings(
         let ring2 = u16::try_from(2 * ri).map_err(|_| Buffer::Crossings)?;
         for (k, &p) in pts.iter().enumerate() {
             let q = pts[(k + 1) % pts.len()];
-            let ((tp, up), (tq, uq)) = (angle.key(p), angle.key(q));
+            let (tp, tq) = (angle.key(p).0, angle.key(q).0);
             if tp == tq {
                 continue;
             }
@@ -179,13 +208,7 @@ pub fn crossings(
             let up_t = tq > tp;
             for s in 0..count {
                 let j = if up_t { j0 + s as i64 } else { j1 - s as i64 };
-                let u = cross_u((tp, up), (tq, uq), j * step);
-                out[*n] = Crossing {
-                    line: j as i32,
-                    u: u as i32,
-                    edge,
-                    ring_dir: ring2 | u16::from(up_t),
-                };
+                out[*n] = Crossing { line: j as i32, edge, ring_dir: ring2 | u16::from(up_t) };
                 *n += 1;
             }
         }
@@ -193,15 +216,15 @@ pub fn crossings(
     Ok(())
 }
 
-/// Sorts `order` (indices into `cross`, at most [`MAX_CROSSINGS`]) by line, then position,
-/// then direction (then index).
-pub fn sort_by_line(cross: &[Crossing], order: &mut [u16]) {
+/// Sorts `order` (indices into `cross`, crossings of `loops`, at most [`MAX_CROSSINGS`]) by
+/// line, then position, then direction (then index).
+pub fn sort_by_line(cross: &[Crossing], loops: &Loops<'_>, order: &mut [u16]) {
     for (i, o) in order.iter_mut().enumerate() {
         *o = i as u16;
     }
     order.sort_unstable_by_key(|&i| {
         let c = &cross[usize::from(i)];
-        (c.line, c.u, c.dir(), i)
+        (c.line, loops.u(c), c.dir(), i)
     });
 }
 
@@ -224,12 +247,13 @@ pub struct Interval {
 /// empty intervals are skipped.
 pub fn intervals(
     cross: &[Crossing],
+    loops: &Loops<'_>,
     order: &[u16],
     mut f: impl FnMut(Interval) -> Result<(), Buffer>,
 ) -> Result<(), Buffer> {
     let mut w = 0i32;
     let mut line = i32::MIN;
-    let mut start = 0u16;
+    let (mut start, mut start_u) = (0u16, 0);
     for &i in order {
         let c = &cross[usize::from(i)];
         if c.line != line {
@@ -239,11 +263,11 @@ pub fn intervals(
         let before = w;
         w += i32::from(c.dir());
         if before == 0 && w != 0 {
-            start = i;
+            (start, start_u) = (i, loops.u(c));
         } else if before != 0 && w == 0 {
-            let s = &cross[usize::from(start)];
-            if c.u > s.u {
-                f(Interval { line, u0: s.u, u1: c.u, c0: start, c1: i })?;
+            let u = loops.u(c);
+            if u > start_u {
+                f(Interval { line, u0: start_u, u1: u, c0: start, c1: i })?;
             }
         }
     }
@@ -340,9 +364,10 @@ mod tests {
         let step = line_step(450);
         crossings(b.points(), b.rings(), Angle::D45, step, &mut cross, &mut n).unwrap();
         let mut order = [0u16; 256];
-        sort_by_line(&cross[..n], &mut order[..n]);
+        let loops = Loops { points: b.points(), rings: b.rings(), angle: Angle::D45, step };
+        sort_by_line(&cross[..n], &loops, &mut order[..n]);
         let mut lines = std::collections::BTreeMap::<i32, Vec<(i32, i32)>>::new();
-        intervals(&cross[..n], &order[..n], |iv| {
+        intervals(&cross[..n], &loops, &order[..n], |iv| {
             lines.entry(iv.line).or_default().push((iv.u0, iv.u1));
             Ok(())
         })
