@@ -48,7 +48,8 @@ fn soft_limit(machine: &MachineConfig, motor: [i64; AXES]) -> Option<(usize, i64
 
 /// Runs the printer forever.
 pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut FwEndpoint) -> ! {
-    printer.configure(&MACHINE);
+    // `Printer::empty()` is built for the stock Ender-3 already (`MACHINE`); `configure` would
+    // only rebuild the planner and generator through large stack temporaries.
     let cfg = board::executor_config(printer.step_config());
     let mut prod: Option<Producer> = None;
     reset_motion(&mut prod, &cfg);
@@ -58,6 +59,8 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
         core::mem::size_of::<FwEndpoint>() as u32,
         crate::capacities::STEP_QUEUE as u32
     );
+    let (used, size) = stack::high_water();
+    log!("BOOT stack_used={} stack_size={}", used, size);
     let mut state = printer.state();
     let mut job_open = false;
     let mut rx = [0u8; 64];

@@ -18,19 +18,21 @@ pub const A: usize = 64;
 pub const S: usize = 128;
 /// Slicer: loops per layer (72 B each).
 pub const L: usize = 8;
-/// Toolpath: loop points per layer and offset edges per island (84 B each).
+/// Toolpath: loop points per layer and offset edges per island (74 B each).
 pub const PTS: usize = 80;
-/// Toolpath: loops per layer (123 B each).
+/// Toolpath: loops per layer (124 B each).
 pub const LOOPS: usize = 4;
-/// Toolpath: scanline crossings, infill segments and paths per layer (96 B each).
-pub const CROSS: usize = 72;
+/// Toolpath: scanline crossings, infill segments and paths per layer (22 B each).
+pub const CROSS: usize = 128;
 /// Toolpath: path points per layer (9 B each).
 pub const PATH: usize = 320;
-/// Toolpath: contour points of the layers waiting for the layers above (8 B each).
-pub const RING: usize = 128;
-/// Toolpath: scanline spans of the skin window (12 B each).
-pub const SPANS: usize = 448;
-/// Toolpath moves waiting for the planner (a layer must fit half of it).
+/// Toolpath: contour points of the layers waiting for the layers above (4 B each).
+pub const RING: usize = 160;
+/// Toolpath: scanline spans of the skin window (8 B each).
+pub const SPANS: usize = 64;
+/// Toolpath moves waiting for the planner, 40 B each (a layer must fit half of it; today the
+/// slicer emits every layer a batch completes at once, so a model whose tall faces complete
+/// many layers in one batch needs them all here).
 pub const MOVES: usize = 320;
 /// Planner lookahead, moves (must equal the host simulation's: 32).
 pub const P: usize = 32;

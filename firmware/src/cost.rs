@@ -104,9 +104,9 @@ impl Cost {
         self.active = true;
     }
 
-    /// A job ended: the remaining layers and the job's totals.
+    /// A job ended: the remaining layers (all of them when it is done) and the job's totals.
     pub fn job_ended(&mut self, p: &FwPrinter) {
-        self.report(p, true);
+        self.report(p, p.state() == strata::protocol::DeviceState::Done);
         log!("COST triangles={} slice_insns={}", p.status(0).triangles, self.slice_insns);
         self.active = false;
     }
