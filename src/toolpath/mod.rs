@@ -31,8 +31,9 @@
 //! 3. the infill domain is filled along scanlines ([`scan`], [`infill`]) at 45 degrees on even
 //!    layers and 135 on odd ones: solid where a top or bottom surface is within
 //!    `top_layers`/`bottom_layers` (found exactly along each line by cutting the window's
-//!    stored contours with it, then opened: slivers under a line wide go, skins reach a line into the sparse zone), top
-//!    solid under no material, sparse every `100 / density`-th line elsewhere; segments are
+//!    stored contours with it, then opened: slivers under a line wide go, skins reach a line
+//!    into the sparse zone), top solid under no material, sparse every `100 / density`-th
+//!    line elsewhere; segments are
 //!    linked into long runs along the domain boundary (zigzag) and straight between the
 //!    inner ends of skin segments;
 //! 4. the first layer gets a skirt: the convex hull offset 3 mm + width/2 with round joins;
@@ -40,15 +41,16 @@
 //!    inner perimeters before the external one (each hole's loops together), then the infill
 //!    runs, nearest first from either end; loops start at the rear-most vertex; the nearest
 //!    path is found in a uniform grid of the paths' entry points ([`near`]) built in the
-//!    infill's segment pool (free by then: `2 x CROSS` cells and `2 x CROSS` entries, two
-//!    per path), searched within the island's box once an island is chosen (its paths are
-//!    grouped first); a travel that would cross a contour is combed along the island's external perimeter, and retracts
-//!    only when no such route exists (another island) and it is at least 1.5 mm long.
+//!    infill's segment pool (free by then: half of it for cells, half for entries, two per
+//!    path; a layer with more paths is scanned: same order), searched within the island's
+//!    box once an island is chosen (its paths are grouped first); a travel that would cross
+//!    a contour is combed along the island's external perimeter, and retracts only when no
+//!    such route exists (another island) and it is at least 1.5 mm long.
 //!
 //! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
 //! layers that wait for the layers above them and the `bottom` ones below the layer being
 //! built) and the crossings of all of them with one scanline
-//! ([`ToolpathNeeds::window_bytes`]: 17 KB for 3DBenchy, 3 KB for a 20 mm cube).
+//! ([`ToolpathNeeds::window_bytes`]: 9 KB for 3DBenchy, 1.7 KB for a 20 mm cube).
 //!
 //! # Memory
 //!
@@ -65,7 +67,8 @@
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
 //!   `bottom + top + 2` layers, about a word a point: [`window::StoredRings`]) and
 //!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
-//!   filled).
+//!   filled);
+//! - about 1 KB of fixed state (settings, counters, the window's block table).
 //!
 //! [`ToolpathStats::needs`] reports the largest use of each, so a model's needs are known
 //! after one host run, and [`ToolpathNeeds::bytes`] what a stage sized to them takes.
@@ -647,7 +650,11 @@ const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
 /// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
 const FIRST_LAYER: u32 = 0;
 
-/// The streaming toolpath stage. See the [module docs](self) for capacities and memory.
+/// The streaming toolpath stage. Capacities (see the [module docs](self) for their memory):
+/// `PTS` points of a layer or of one island's offset, `LOOPS` loops of a layer, `CROSS`
+/// scanline crossings of one infill pass (and its segments and pieces, in 12-byte units),
+/// `PATH` path points of a layer (2 a path record), `RING` words of the window's stored
+/// contours, `SPANS` crossings of the window's layers with one scanline.
 pub struct Toolpath<
     const PTS: usize,
     const LOOPS: usize,
@@ -1279,7 +1286,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
-        assert!(fixed < 3072, "{fixed}");
+        assert!(fixed < 1536, "{fixed}");
         let needs = ToolpathNeeds {
             layer_points: 64,
             layer_loops: 8,
