@@ -240,7 +240,7 @@ impl<'a> Encoder<'a> {
 }
 
 /// Counts the words a loop takes in the [`StoredRings`] layout, point by point: its header,
-/// its first point in two and every later one by [`point_words`].
+/// its first point in two and every later one in one (an offset) or three (escaped).
 pub struct LoopWords {
     prev: Option<Point2>,
     /// Words so far.
