@@ -23,7 +23,7 @@ pub const PTS: usize = 80;
 /// Toolpath: loops per layer (124 B each).
 pub const LOOPS: usize = 4;
 /// Toolpath: scanline crossings, infill segments and paths per layer (22 B each).
-pub const CROSS: usize = 128;
+pub const CROSS: usize = 112;
 /// Toolpath: path points per layer (9 B each).
 pub const PATH: usize = 320;
 /// Toolpath: contour points of the layers waiting for the layers above (4 B each).

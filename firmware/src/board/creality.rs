@@ -1,6 +1,7 @@
 //! Creality 4.2.2 / 4.2.7 (STM32F103RET6, 72 MHz from the 8 MHz HSE): pin maps of
 //! DESIGN §3, USART1 (PA9/PA10) at 250000 baud, endstops PA5/PA6/PA7 (pull-up, high = hit),
-//! shared driver enable PC3 (active low), defmt logs over RTT.
+//! shared driver enable PC3 (active low), defmt logs over RTT. Received bytes go through the
+//! USART1 interrupt into a 512-byte ring (thread mode may be slicing for milliseconds).
 //!
 //! # Step timing
 //! The executor's clock is the DWT cycle counter (32 bits at 72 MHz = `StepConfig::timer_hz`,
@@ -13,6 +14,8 @@ use core::cell::RefCell;
 
 use cortex_m::interrupt::{free, Mutex};
 use cortex_m::peripheral::{DWT, NVIC};
+use heapless::spsc::{Consumer as QConsumer, Producer as QProducer, Queue};
+use static_cell::ConstStaticCell;
 use stm32f1xx_hal::gpio::{ErasedPin, Input, Output, PinState, PullUp, PushPull, PA5, PA6, PA7};
 use stm32f1xx_hal::pac::{self, interrupt, Interrupt, TIM2, USART1};
 use stm32f1xx_hal::prelude::*;
@@ -22,6 +25,35 @@ use strata::step::{is_before, Pins, StepConfig};
 
 use crate::log;
 use crate::motion::{Endstops, Motion, Next};
+
+/// Bytes the USART1 receive interrupt buffers while thread mode slices or plans (about 20 ms
+/// of the link; a frame lost to a full ring is resent by the protocol).
+const RX_RING: usize = 512;
+
+/// The receive ring between the USART1 interrupt and thread mode.
+static RX_QUEUE: ConstStaticCell<Queue<u8, RX_RING>> = ConstStaticCell::new(Queue::new());
+/// What the USART1 interrupt owns: the receiver and the ring's producer end.
+type RxIsr = (Rx<USART1>, QProducer<'static, u8, RX_RING>);
+static RX: Mutex<RefCell<Option<RxIsr>>> = Mutex::new(RefCell::new(None));
+
+#[interrupt]
+fn USART1() {
+    free(|cs| {
+        if let Some((rx, q)) = RX.borrow(cs).borrow_mut().as_mut() {
+            loop {
+                match rx.read() {
+                    // A full ring drops the byte: the protocol resends the frame.
+                    Ok(b) => {
+                        let _ = q.enqueue(b);
+                    }
+                    Err(nb::Error::WouldBlock) => break,
+                    // Overrun, framing, noise: the flag is cleared; the frame's CRC fails.
+                    Err(nb::Error::Other(_)) => {}
+                }
+            }
+        }
+    });
+}
 
 /// Link speed (the CH340 bridge; the host's default).
 pub const BAUD: u32 = 250_000;
@@ -107,7 +139,7 @@ fn TIM2() {
 /// USART1 and the millisecond clock.
 pub struct Board {
     tx: Tx<USART1>,
-    rx: Rx<USART1>,
+    rx: QConsumer<'static, u8, RX_RING>,
     last: u32,
     cycles: u64,
 }
@@ -121,18 +153,13 @@ impl Board {
         (self.cycles / 72_000) as u32
     }
 
-    /// Bytes received, up to `buf.len()` (overruns are lost bytes: the protocol resends).
+    /// Bytes received (from the interrupt's ring), up to `buf.len()`.
     pub fn read(&mut self, buf: &mut [u8]) -> usize {
         let mut n = 0;
         while n < buf.len() {
-            match self.rx.read() {
-                Ok(b) => {
-                    buf[n] = b;
-                    n += 1;
-                }
-                Err(nb::Error::WouldBlock) => break,
-                Err(nb::Error::Other(_)) => {}
-            }
+            let Some(b) = self.rx.dequeue() else { break };
+            buf[n] = b;
+            n += 1;
         }
         n
     }
@@ -199,7 +226,10 @@ pub fn init(cfg: &StepConfig) -> Board {
         Config::default().baudrate(BAUD.bps()),
         &mut rcc,
     );
-    let (tx, rx) = serial.split();
+    let (tx, mut rx) = serial.split();
+    let (rx_prod, rx_cons) = RX_QUEUE.take().split();
+    rx.listen();
+    free(|cs| RX.borrow(cs).replace(Some((rx, rx_prod))));
 
     cp.DCB.enable_trace();
     cp.DWT.enable_cycle_counter();
@@ -227,10 +257,13 @@ pub fn init(cfg: &StepConfig) -> Board {
             next: Next::Idle,
         }));
     });
-    // SAFETY: the handler only touches `ISR`, set up above.
-    unsafe { NVIC::unmask(Interrupt::TIM2) };
+    // SAFETY: the handlers only touch `ISR` and `RX`, set up above.
+    unsafe {
+        NVIC::unmask(Interrupt::TIM2);
+        NVIC::unmask(Interrupt::USART1);
+    }
     log!("board creality: 72 MHz, USART1 {} baud", BAUD);
-    Board { tx, rx, last: DWT::cycle_count(), cycles: 0 }
+    Board { tx, rx: rx_cons, last: DWT::cycle_count(), cycles: 0 }
 }
 
 /// Runs `f` on the interrupt's motion state (inside a critical section).
