@@ -119,7 +119,10 @@ impl Isr {
             }
         };
         let now = DWT::cycle_count();
-        let delta = wake.map_or(MAX_ARM, |w| w.wrapping_sub(now).clamp(MIN_ARM, MAX_ARM));
+        // A wake that passed meanwhile (or is about to) comes back after the shortest arm.
+        let delta = wake.map_or(MAX_ARM, |w| {
+            (w.wrapping_sub(now) as i32).clamp(MIN_ARM as i32, MAX_ARM as i32) as u32
+        });
         let cnt = self.tim.cnt().read().bits();
         // SAFETY: CCR1 takes any 16-bit value.
         self.tim.ccr1().write(|w| unsafe { w.bits((cnt + delta) & 0xFFFF) });
