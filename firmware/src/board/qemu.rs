@@ -11,12 +11,16 @@
 //! # Accelerated print time
 //! The print must not run in real time. Each SysTick interrupt moves a *virtual print clock*
 //! (72 MHz ticks, `StepConfig::timer_hz`) straight to the executor's next wake time and runs
-//! `Executor::on_timer` there, at most [`EVENTS_PER_TICK`] times per interrupt. When the
-//! executor reaches the queue's horizon before the pipeline has filled it (which accelerated
-//! time makes common: slicing a layer takes millions of instructions) it stalls; the virtual
-//! clock then stays where it is until the queue covers more, so it never runs beyond what the
-//! queue covers. Each such wait costs the executor's restart lead, which this board sets to
-//! the DIR setup time (15 ticks, 0.2 us) instead of 1 ms ([`executor_config`]).
+//! `Executor::on_timer` there, at most [`EVENTS_PER_TICK`] times per interrupt, so QEMU
+//! prints as fast as thread mode keeps the step queue filled. The clock never moves to or
+//! past the queue's horizon (`Executor::horizon`) while the motion does not rest there:
+//! accelerated time would otherwise turn every slicing burst into an underrun and shift the
+//! step timing. The interrupt waits at the horizon instead, and lets the executor run into
+//! it only when thread mode says so ([`after_poll`]): at the end of the job (the final rest),
+//! when paused, and in a true deadlock (a step queue is full behind the horizon: the
+//! generator then waits for the executor to stall, exactly as on the host simulation). With
+//! the same executor configuration (1 ms start lead) the executed steps, their ticks (the
+//! step hash) and the print time equal the host simulation's.
 //!
 //! # Virtual pins
 //! STEP/DIR/EN are virtual: each rising STEP edge adds `(axis, direction, tick - origin)` to
