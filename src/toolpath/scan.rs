@@ -385,5 +385,15 @@ mod tests {
             assert_eq!(cross[next_in(&range, i)].ring(), c.ring());
             assert_eq!(prev_in(&range, next_in(&range, i)), i);
         }
+        // One line at a time from the loops alone: the same intervals.
+        for line in -20..20 {
+            let mut out = [Span::default(); 16];
+            let rings = b.rings().iter().map(|r| b.ring_points(r).iter().copied());
+            let (k, used) = line_spans(rings, Angle::D45, line, step, &mut out).unwrap();
+            let want = lines.get(&line).cloned().unwrap_or_default();
+            let got: Vec<(i32, i32)> = out[..k].iter().map(|s| (s.u0, s.u1)).collect();
+            assert_eq!(got, want, "line {line}");
+            assert_eq!(used, cross[..n].iter().filter(|c| c.line == line).count());
+        }
     }
 }
