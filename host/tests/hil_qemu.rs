@@ -46,6 +46,9 @@ const LOSS: f64 = 0.03;
 const BAUD: u32 = 250_000;
 /// Wall-clock budget of one QEMU job (debug host build, 2 shared cores).
 const QEMU_JOB: Duration = Duration::from_secs(240);
+/// The sample models of the end-to-end test.
+const MODELS: [&str; 4] =
+    ["embodier_asc.stl", "xyz_20mm_cube.stl", "embodier_hotend_v2.stl", "embodier_LM8UU_8p2pi.stl"];
 
 fn models_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models")
@@ -350,6 +353,25 @@ fn harness_against_the_in_process_printer() {
         if faults.is_some() {
             assert!(run.link.retransmits > 0 && run.link.bad_frames > 0, "{:?}", run.link);
         }
+    }
+}
+
+/// The four models through the harness into the in-process simulated printer (host-sized
+/// toolpath stage, the Creality board's slicer capacities), clean: the harness's checks at
+/// model scale without QEMU (about 6 minutes in a debug build).
+#[test]
+#[ignore = "slow (whole models in a debug build): the harness at model scale without QEMU"]
+fn harness_in_process_models() {
+    for name in MODELS {
+        let (tris, job) = load(name);
+        let (dev, mut port) = SimDevice::start(CREALITY_CAPACITIES, 1000).unwrap();
+        let (run, r) = run_job(name, &mut port, &tris, job, Duration::from_secs(600), true);
+        let progress = run.result.unwrap_or_else(|e| panic!("{name}: {e}"));
+        drop(port);
+        dev.finish().unwrap();
+        let reference = r.unwrap().unwrap();
+        eprintln!("{name}: {} layers in {:.1} s", reference.layers, run.elapsed.as_secs_f64());
+        assert_same(name, &reference, &progress, None);
     }
 }
 
