@@ -3,8 +3,8 @@
 //! (`strata_host::serial::print` after the handshake and admission control), and its
 //! per-layer hashes, final state and planned print time (protocol messages), and its steps
 //! per axis, final positions, executed print time and step hash (its `STEPS` line) equal the
-//! host simulation of the same job (`strata_host::simjob::simulate`, what `strata simulate --json`
-//! reports) bit for bit; then again through a seeded fault-injecting relay (frame drop, byte
+//! host simulation of the same job (`strata_host::simjob::simulate`, what
+//! `strata simulate --json` reports) bit for bit; then again through a seeded fault-injecting relay (frame drop, byte
 //! corruption and loss, duplication, delay at a few percent per frame on both directions).
 //!
 //! How to run:
@@ -13,7 +13,7 @@
 //! apt-get install qemu-system-arm             # once
 //! scripts/build_firmware.sh qemu               # target/firmware/qemu/strata-firmware.elf (release)
 //! cargo test -p strata-host --test hil_qemu -- --nocapture
-//! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored   # + models
+//! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored qemu_  # + models
 //! ```
 //!
 //! The sample models are `#[ignore]`d while they do not fit the firmware's 64 KB capacities
