@@ -154,7 +154,7 @@ fn main() {
         }
     }
     println!(
-        "\n{:<26} {:>6} {:>6} {:>9} {:>11} {:>11} {:>9} {:>9} {:>12} {:>8} {:>8}",
+        "\n{:<26} {:>6} {:>6} {:>9} {:>11} {:>11} {:>9} {:>9} {:>9} {:>12} {:>8} {:>8}",
         "model",
         "tris",
         "layers",
@@ -162,6 +162,7 @@ fn main() {
         "layer mean",
         "layer max",
         "isr/step",
+        "isr/call",
         "isr max",
         "worst rtf",
         "data+bss",
@@ -170,7 +171,7 @@ fn main() {
     for r in &rows {
         let s = &r.s;
         println!(
-            "{:<26} {:>6} {:>6} {:>9.0} {:>11.0} {:>11} {:>9.1} {:>9} {:>7.1} L{:<4} {:>8} {:>8}",
+            "{:<26} {:>6} {:>6} {:>9.0} {:>11.0} {:>11} {:>9.1} {:>9.1} {:>9} {:>7.1} L{:<4} {:>8} {:>8}",
             r.name,
             s.triangles,
             r.layers,
@@ -178,6 +179,7 @@ fn main() {
             s.layer_insns_mean,
             s.layer_insns_max,
             s.isr_insns_per_step,
+            s.isr_insns_per_call,
             s.isr_insns_max,
             s.worst_rtf,
             s.worst_rtf_layer,
@@ -191,11 +193,12 @@ fn main() {
         let worst_cycles = s.isr_insns_max as f64 * CYCLES_PER_INSN;
         let verdict = |ok: bool| if ok { "ok" } else { "MISSED" };
         println!(
-            "{}: {} steps, printed {:.0} s (device clock), {:.0} s wall{}; worst layer {:.1}x \
+            "{}: {} steps in {} interrupts, printed {:.0} s (device clock), {:.0} s wall{}; worst layer {:.1}x \
              (target >= {RTF_TARGET}x: {}); ISR {:.1} insns/step (target <= {ISR_MEAN_TARGET}: \
              {}); worst ISR {:.0} cycles (40 kHz on X and Y needs < {ISR_WORST_CYCLES:.0}: {})",
             r.name,
             s.steps,
+            s.isr_calls,
             r.print_s,
             r.wall_s,
             r.note.as_ref().map(|n| format!(", {n}")).unwrap_or_default(),

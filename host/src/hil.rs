@@ -720,6 +720,10 @@ pub struct CostSummary {
     pub layer_insns_max: u64,
     /// Interrupt instructions per step, mean.
     pub isr_insns_per_step: f64,
+    /// Interrupt invocations (with the QEMU board's virtual clock, also those without a step).
+    pub isr_calls: u64,
+    /// Interrupt instructions per invocation, mean.
+    pub isr_insns_per_call: f64,
     /// The most instructions of one interrupt.
     pub isr_insns_max: u64,
     /// Steps the interrupt made.
@@ -742,6 +746,7 @@ impl CostSummary {
         let slice = c.get("COST", &["slice_insns"]).unwrap_or(0);
         let steps = c.get("COST", &["steps"]).unwrap_or(0);
         let isr_total = c.get("COST", &["isr_insns_total", "isr_insns"]).unwrap_or(0);
+        let isr_calls = c.get("COST", &["isr_calls"]).unwrap_or(0);
         let n = c.layers.len();
         let total: u64 = c.layers.iter().map(|l| l.compute_insns).sum();
         let mut worst = (f64::INFINITY, 0);
@@ -759,6 +764,8 @@ impl CostSummary {
             layer_insns_mean: total as f64 / n.max(1) as f64,
             layer_insns_max: c.layers.iter().map(|l| l.compute_insns).max().unwrap_or(0),
             isr_insns_per_step: isr_total as f64 / steps.max(1) as f64,
+            isr_calls,
+            isr_insns_per_call: isr_total as f64 / isr_calls.max(1) as f64,
             isr_insns_max: c.get("COST", &["isr_insns_max", "isr_max"]).unwrap_or(0),
             steps,
             worst_rtf: worst.0,
@@ -794,6 +801,7 @@ mod tests {
         assert_eq!(s.insns_per_triangle, 100.0);
         assert_eq!(s.layer_insns_max, 4000);
         assert_eq!(s.isr_insns_per_step, 125.0);
+        assert_eq!(s.isr_insns_per_call, 100.0);
         assert_eq!(s.isr_insns_max, 300);
         // Layer 1: 0.1 s of print over 4000 * 1.5 / 72e6 s of compute.
         assert_eq!(s.worst_rtf_layer, 1);
