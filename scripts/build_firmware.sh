@@ -6,8 +6,10 @@
 #
 #   scripts/build_firmware.sh creality-v422|creality-v427|qemu
 #
-# Release build with LTO and one codegen unit (the profile of the root Cargo.toml, tightened
-# through cargo's environment overrides so that only this build is affected).
+# Release build with LTO, one codegen unit and opt-level "s" (the root Cargo.toml's release
+# profile, tightened through cargo's environment overrides so that only this build is
+# affected): at opt-level 2 or 3 the QEMU image (41 KB of it the Printer's initial .data)
+# does not fit lm3s6965evb's 256 KB of flash. STRATA_FW_OPT_LEVEL overrides it.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 board="${1:-}"
@@ -21,6 +23,8 @@ export CARGO_PROFILE_RELEASE_LTO=true
 export CARGO_PROFILE_RELEASE_CODEGEN_UNITS=1
 export CARGO_PROFILE_RELEASE_DEBUG=2
 export CARGO_PROFILE_RELEASE_OPT_LEVEL="${STRATA_FW_OPT_LEVEL:-s}"
+# defmt's RTT buffer (Creality boards): a few lines per job, 256 bytes leave RAM to the stack.
+export DEFMT_RTT_BUFFER_SIZE="${DEFMT_RTT_BUFFER_SIZE:-256}"
 cargo build -p strata-firmware --target thumbv7m-none-eabi --release --features "$board"
 bin_dir="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
 objcopy="$(command -v rust-objcopy || echo "$bin_dir/llvm-objcopy")"
