@@ -6,11 +6,16 @@
 //! high-water mark are printed at the end of each job (`MEM ...`, see `stack.rs`), and
 //! `scripts/build_firmware.sh` prints the static part.
 //!
-//! Measured with these values (QEMU, opt-level "s", small cylinder job): Printer 41 KB,
-//! `.data + .bss` 46.7 KB (Creality 48.1 KB: its 512-byte receive ring and HAL state), stack
-//! high-water 16.2 KB of 18.8 KB (Creality: 17.4 KB available). About 8 KB of that stack is
-//! `Printer::handle` (the job start builds the planner and the step generator as stack
-//! temporaries), so the stack must stay near 17 KB until that changes.
+//! Measured with these values (QEMU, opt-level "s", small cylinder job): Printer ~40 KB,
+//! `.data + .bss` ~46.5 KB (Creality ~47 KB: its 512-byte receive ring and RTT buffer), stack
+//! high-water 16.2 KB. About 8 KB of that stack is `Printer::handle` (the job start builds
+//! the planner and the step generator as stack temporaries), so the stack must keep ~17 KB
+//! until that changes.
+//!
+//! What the sample models need today (host `strata slice --json` needs): xyz_20mm_cube 72
+//! active triangles, CROSS 182, RING 120-369; embodier_asc CROSS 114, RING 81. Beyond the
+//! toolpath, every model whose tall faces complete many layers in one batch overflows
+//! `MOVES` (the slicer emits all those layers at once).
 //!
 //! The planner lookahead `P` must stay 32: the host simulation (`strata simulate`, the HIL
 //! test) plans with 32 moves of lookahead, and the per-layer hashes compare step commands.
@@ -21,9 +26,9 @@ use strata::printer::Printer;
 use strata::protocol::Endpoint;
 
 /// Slicer: active triangles (24 B each).
-pub const A: usize = 64;
+pub const A: usize = 96;
 /// Slicer: segments and contour points per layer (37 B each).
-pub const S: usize = 128;
+pub const S: usize = 160;
 /// Slicer: loops per layer (72 B each).
 pub const L: usize = 8;
 /// Toolpath: loop points per layer and offset edges per island (74 B each).
@@ -31,11 +36,11 @@ pub const PTS: usize = 80;
 /// Toolpath: loops per layer (124 B each).
 pub const LOOPS: usize = 4;
 /// Toolpath: scanline crossings, infill segments and paths per layer (22 B each).
-pub const CROSS: usize = 112;
+pub const CROSS: usize = 128;
 /// Toolpath: path points per layer (9 B each).
 pub const PATH: usize = 320;
 /// Toolpath: contour points of the layers waiting for the layers above (4 B each).
-pub const RING: usize = 160;
+pub const RING: usize = 192;
 /// Toolpath: scanline spans of the skin window (8 B each).
 pub const SPANS: usize = 64;
 /// Toolpath moves waiting for the planner, 40 B each (a layer must fit half of it; today the
