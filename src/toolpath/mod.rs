@@ -62,6 +62,8 @@
 //! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
 //!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
 //!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units;
+//!   the engine (50 of the 74 bytes per `PTS`) and this scratch take turns in one place (per
+//!   layer: offsets, then infill and ordering), so only the larger of the two counts;
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
 //!   two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
@@ -500,7 +502,12 @@ pub struct ToolpathNeeds {
 
 impl ToolpathNeeds {
     /// Bytes per `PTS`: three loop buffers' points and the offset engine.
-    pub const PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>() + offset::BYTES_PER_EDGE;
+    pub const PTS_BYTES: usize = Self::LOOP_PTS_BYTES + Self::ENGINE_BYTES;
+    /// Bytes per `PTS` of the three loop buffers.
+    pub const LOOP_PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>();
+    /// Bytes per `PTS` of the offset engine, which takes turns with the infill scratch
+    /// ([`CROSS_BYTES`](Self::CROSS_BYTES) per `CROSS`) in one place: the larger counts.
+    pub const ENGINE_BYTES: usize = offset::BYTES_PER_EDGE;
     /// Bytes per `LOOPS`: three loop buffers' loop records, island map and stage scratch.
     pub const LOOPS_BYTES: usize = 3 * core::mem::size_of::<Ring>() + 2 + 1;
     /// Bytes per `CROSS`: a crossing, its order (then segment-end) entry and its share of
@@ -520,10 +527,15 @@ impl ToolpathNeeds {
         let fixed = core::mem::size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
         let pts = (self.layer_points.max(self.offset_edges)) as usize;
         let cross = self.crossings as usize;
+        // The engine and the infill scratch share one place (the engine's fixed part, in
+        // `fixed`, included).
+        let engine = pts * Self::ENGINE_BYTES;
+        let scratch =
+            (cross * Self::CROSS_BYTES).saturating_sub(core::mem::size_of::<Offsetter<0>>());
         fixed
-            + pts * Self::PTS_BYTES
+            + pts * Self::LOOP_PTS_BYTES
+            + engine.max(scratch)
             + self.layer_loops as usize * Self::LOOPS_BYTES
-            + cross * Self::CROSS_BYTES
             + self.path_points as usize * Self::PATH_BYTES
             + self.ring_points as usize * Self::RING_BYTES
             + self.spans as usize * Self::SPAN_BYTES
@@ -650,6 +662,53 @@ const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
 /// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
 const FIRST_LAYER: u32 = 0;
 
+/// The infill scratch (`CROSS` entries each): crossings, their order then segment ends,
+/// and the pool of segments and pieces.
+struct FillScratch<const C: usize> {
+    cross: [Crossing; C],
+    idx: [u16; C],
+    pool: [[u32; POOL_WORDS]; C],
+}
+
+impl<const C: usize> FillScratch<C> {
+    const fn new() -> Self {
+        Self { cross: [Crossing::EMPTY; C], idx: [0; C], pool: [[0; POOL_WORDS]; C] }
+    }
+}
+
+/// The offset engine and the infill scratch never work at once (per layer: offsets, then
+/// infill and ordering): they take turns in one place, the larger of the two. A turn starts
+/// from a cleared value, written in place by the optimised build (a memset: no stack
+/// temporary, no constant in flash).
+enum Work<const P: usize, const C: usize> {
+    Offset(Offsetter<P>),
+    Fill(FillScratch<C>),
+}
+
+impl<const P: usize, const C: usize> Work<P, C> {
+    /// The engine (a new one if the scratch had the place).
+    fn engine(&mut self) -> &mut Offsetter<P> {
+        match self {
+            Self::Offset(e) => e,
+            Self::Fill(_) => {
+                *self = Self::Offset(Offsetter::new());
+                self.engine()
+            }
+        }
+    }
+
+    /// The infill scratch (cleared if the engine had the place).
+    fn scratch(&mut self) -> &mut FillScratch<C> {
+        match self {
+            Self::Fill(f) => f,
+            Self::Offset(_) => {
+                *self = Self::Fill(FillScratch::new());
+                self.scratch()
+            }
+        }
+    }
+}
+
 /// The streaming toolpath stage. Capacities (see the [module docs](self) for their memory):
 /// `PTS` points of a layer or of one island's offset, `LOOPS` loops of a layer, `CROSS`
 /// scanline crossings of one infill pass (and its segments and pieces, in 12-byte units),
@@ -669,10 +728,11 @@ pub struct Toolpath<
     contour: LoopBuf<PTS, LOOPS>,
     tmp: LoopBuf<PTS, LOOPS>,
     fill: LoopBuf<PTS, LOOPS>,
-    eng: Offsetter<PTS>,
-    cross: [Crossing; CROSS],
-    idx: [u16; CROSS],
-    pool: [[u32; POOL_WORDS]; CROSS],
+    /// The offset engine, or the infill scratch.
+    work: Work<PTS, CROSS>,
+    /// Engine peaks and open chains of the engines dropped so far.
+    offset_peaks: offset::OffsetPeaks,
+    open_chains: u32,
     spans: [Span; SPANS],
     paths: PathBuf<PATH>,
     island_map: [u16; LOOPS],
@@ -714,10 +774,9 @@ impl<
             contour: LoopBuf::new(),
             tmp: LoopBuf::new(),
             fill: LoopBuf::new(),
-            eng: Offsetter::new(),
-            cross: [Crossing::EMPTY; CROSS],
-            idx: [0; CROSS],
-            pool: [[0; POOL_WORDS]; CROSS],
+            work: Work::Offset(Offsetter::new()),
+            offset_peaks: offset::OffsetPeaks { edges: 0, splits: 0, pieces: 0 },
+            open_chains: 0,
             spans: [Span { u0: 0, u1: 0 }; SPANS],
             paths: PathBuf::new(),
             island_map: [0; LOOPS],
@@ -747,8 +806,10 @@ impl<
             b.peak_points = 0;
             b.peak_rings = 0;
         }
-        self.eng.peaks = offset::OffsetPeaks::default();
-        self.eng.open_chains = 0;
+        (self.offset_peaks, self.open_chains) = (offset::OffsetPeaks::default(), 0);
+        if let Work::Offset(e) = &mut self.work {
+            (e.peaks, e.open_chains) = (offset::OffsetPeaks::default(), 0);
+        }
         self.paths.clear();
         self.paths.peak_points = 0;
         self.paths.peak_paths = 0;
@@ -771,7 +832,8 @@ impl<
     /// Totals so far.
     pub fn stats(&self) -> ToolpathStats {
         let mut s = self.stats;
-        s.open_chains = self.eng.open_chains;
+        let (p, open_chains) = self.offset_totals();
+        s.open_chains = open_chains;
         let n = &mut s.needs;
         n.layer_points = [self.contour.peak_points, self.tmp.peak_points, self.fill.peak_points]
             .into_iter()
@@ -781,7 +843,6 @@ impl<
             .into_iter()
             .max()
             .unwrap_or(0) as u32;
-        let p = self.eng.peaks;
         n.offset_edges = p.edges.max(p.splits).max(p.pieces) as u32;
         let f = self.fill_use;
         n.crossings = f.crossings.max(f.segments) as u32;
@@ -791,6 +852,27 @@ impl<
         n.spans = f.spans as u32;
         s.thin_pts = s.thin_pts.max(n.layer_points).max(n.offset_edges);
         s
+    }
+
+    /// Offset engine peaks and open chains so far, the live engine's included.
+    fn offset_totals(&self) -> (offset::OffsetPeaks, u32) {
+        let (mut p, mut chains) = (self.offset_peaks, self.open_chains);
+        if let Work::Offset(e) = &self.work {
+            p.edges = p.edges.max(e.peaks.edges);
+            p.splits = p.splits.max(e.peaks.splits);
+            p.pieces = p.pieces.max(e.peaks.pieces);
+            chains += e.open_chains;
+        }
+        (p, chains)
+    }
+
+    /// Gives the engine's place to the infill scratch (the engine's counters are kept).
+    fn park_engine(&mut self) {
+        (self.offset_peaks, self.open_chains) = self.offset_totals();
+        if let Work::Offset(e) = &mut self.work {
+            (e.peaks, e.open_chains) = (offset::OffsetPeaks::default(), 0);
+        }
+        self.work.scratch();
     }
 
     fn capacity(&self, what: Buffer, layer: u32) -> ToolpathError {
@@ -946,7 +1028,7 @@ impl<
                 let d = i32::from(depth) * w + w / 2;
                 self.offset_island(island, d)?;
                 self.tmp.clear();
-                self.eng.union_into(&mut self.tmp, island, depth, min_width)?;
+                self.work.engine().union_into(&mut self.tmp, island, depth, min_width)?;
                 if self.tmp.rings().is_empty() {
                     if depth == 0 {
                         layer.thin_islands += 1;
@@ -970,7 +1052,7 @@ impl<
                 None => self.measure(|t| {
                     t.offset_island(island, w / 2)?;
                     t.tmp.clear();
-                    t.eng.union_into(&mut t.tmp, island, 0, min_width)?;
+                    t.work.engine().union_into(&mut t.tmp, island, 0, min_width)?;
                     t.grow_tmp_area2(island)
                 }),
             };
@@ -988,7 +1070,7 @@ impl<
                 None => layer.thin_unmeasured += 1,
             }
             self.offset_island(island, cfg.infill_inset_um())?;
-            self.eng.union_into(&mut self.fill, island, 0, min_width)?;
+            self.work.engine().union_into(&mut self.fill, island, 0, min_width)?;
         }
         // Infill.
         if !self.fill.rings().is_empty() {
@@ -1008,6 +1090,7 @@ impl<
             z_um: layer.z_um,
             height_um: cfg.layer_height_of(l),
         });
+        self.park_engine();
         let ctx = Ctx {
             cfg: &self.cfg,
             points: self.contour.points(),
@@ -1016,8 +1099,8 @@ impl<
             first_layer: l == FIRST_LAYER,
         };
         // The infill pool is free again: the nearest-path grid's cells and entries.
-        let (grid_head, grid_next) =
-            self.pool.as_flattened_mut().split_at_mut(POOL_WORDS * CROSS / 2);
+        let pool = self.work.scratch().pool.as_flattened_mut();
+        let (grid_head, grid_next) = pool.split_at_mut(POOL_WORDS * CROSS / 2);
         order::emit_layer(
             &mut self.em,
             &ctx,
@@ -1062,12 +1145,14 @@ impl<
     /// of the printing needs (recorded in [`ToolpathStats::thin_pts`]), and a buffer it
     /// overflows gives `None` instead of an error (the toolpaths do not depend on it).
     fn measure(&mut self, f: impl FnOnce(&mut Self) -> Result<i64, Buffer>) -> Option<i64> {
-        let (peaks, points, rings) = (self.eng.peaks, self.tmp.peak_points, self.tmp.peak_rings);
+        let (peaks, points, rings) =
+            (self.work.engine().peaks, self.tmp.peak_points, self.tmp.peak_rings);
         let r = f(self);
-        let p = self.eng.peaks;
+        let p = self.work.engine().peaks;
         let used = p.edges.max(p.splits).max(p.pieces).max(self.tmp.peak_points);
         self.stats.thin_pts = self.stats.thin_pts.max(used as u32);
-        (self.eng.peaks, self.tmp.peak_points, self.tmp.peak_rings) = (peaks, points, rings);
+        (self.work.engine().peaks, self.tmp.peak_points, self.tmp.peak_rings) =
+            (peaks, points, rings);
         self.tmp.clear();
         r.ok()
     }
@@ -1081,12 +1166,12 @@ impl<
         if self.tmp.rings().is_empty() {
             return Ok(0);
         }
-        self.eng.begin();
+        self.work.engine().begin();
         for r in self.tmp.rings() {
-            self.eng.add_loop(self.tmp.ring_points(r), -half, Join::Miter)?;
+            self.work.engine().add_loop(self.tmp.ring_points(r), -half, Join::Miter)?;
         }
         self.tmp.clear();
-        self.eng.union_into(&mut self.tmp, island, 0, 1)?;
+        self.work.engine().union_into(&mut self.tmp, island, 0, 1)?;
         let area2 = self.tmp.rings().iter().map(|r| r.area2).sum();
         self.tmp.clear();
         Ok(area2)
@@ -1094,10 +1179,10 @@ impl<
 
     /// Loads the raw offset curves of `island` (distance `d`) into the engine.
     fn offset_island(&mut self, island: u16, d: i32) -> Result<(), Buffer> {
-        self.eng.begin();
+        self.work.engine().begin();
         for r in self.contour.rings() {
             if r.island == island {
-                self.eng.add_loop(self.contour.ring_points(r), d, Join::Miter)?;
+                self.work.engine().add_loop(self.contour.ring_points(r), d, Join::Miter)?;
             }
         }
         Ok(())
@@ -1143,10 +1228,10 @@ impl<
         let Some(&hull_ring) = self.fill.rings().first() else { return Ok(()) };
         for k in 0..i32::from(cfg.skirt_loops) {
             let d = cfg.skirt_distance_um + cfg.line_width_um / 2 + k * cfg.line_width_um;
-            self.eng.begin();
-            self.eng.add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
+            self.work.engine().begin();
+            self.work.engine().add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
             self.tmp.clear();
-            self.eng.union_into(&mut self.tmp, u16::MAX, 0, 1)?;
+            self.work.engine().union_into(&mut self.tmp, u16::MAX, 0, 1)?;
             for r in self.tmp.rings() {
                 if !r.is_hole() {
                     let pts = self.tmp.ring_points(r);
@@ -1160,6 +1245,7 @@ impl<
 
     /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only).
     fn infill_pass(&mut self, l: u32, angle: Angle, solid: bool) -> Result<(), Buffer> {
+        self.park_engine();
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
         let empty: &[u32] = &[];
@@ -1223,10 +1309,11 @@ impl<
             margin_u: (3 * self.step / 2) as i32,
             end_ext_u: if cfg.perimeters > 0 { (self.step / 2) as i32 } else { 0 },
         };
+        let scratch = self.work.scratch();
         let mut work = FillWork {
-            cross: &mut self.cross,
-            idx: &mut self.idx,
-            pool: self.pool.as_flattened_mut(),
+            cross: &mut scratch.cross,
+            idx: &mut scratch.idx,
+            pool: scratch.pool.as_flattened_mut(),
             spans: &mut self.spans,
         };
         infill::fill(
@@ -1299,6 +1386,14 @@ mod tests {
         };
         let exact = size_of::<Toolpath<64, 8, 128, 256, 200, 96>>();
         // Alignment padding between arrays only.
+        assert!(
+            exact >= needs.bytes() && exact <= needs.bytes() + 64,
+            "{exact} vs {}",
+            needs.bytes()
+        );
+        // The infill scratch larger than the engine it takes turns with.
+        let needs = ToolpathNeeds { layer_points: 16, offset_edges: 16, crossings: 512, ..needs };
+        let exact = size_of::<Toolpath<16, 8, 512, 256, 200, 96>>();
         assert!(
             exact >= needs.bytes() && exact <= needs.bytes() + 64,
             "{exact} vs {}",
