@@ -111,6 +111,14 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
                     // Emergency stop (and abort, failure): no further step, queue cleared,
                     // drivers off at once.
                     reset_motion(&mut prod, &cfg);
+                    if !was_active && !job_open {
+                        // A job refused or failed within the call that started it: it still
+                        // gets its closing lines.
+                        board::job_started();
+                        #[cfg(feature = "qemu")]
+                        cost.job_started();
+                        job_open = true;
+                    }
                 }
                 _ => {}
             }
