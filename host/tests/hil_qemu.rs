@@ -13,7 +13,7 @@
 //! apt-get install qemu-system-arm             # once
 //! scripts/build_firmware.sh qemu               # target/firmware/qemu/strata-firmware.elf (release)
 //! cargo test -p strata-host --test hil_qemu -- --nocapture
-//! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored qemu_  # + models
+//! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored qemu_   # + models
 //! ```
 //!
 //! The sample models are `#[ignore]`d while they do not fit the firmware's 64 KB capacities
@@ -279,33 +279,34 @@ fn qemu_small_cylinder() {
 }
 
 // The four sample models do not fit the firmware's 64 KB capacities yet (firmware/src/
-// capacities.rs at 11:25 UTC: slicer A=64 active triangles, S=128 contour points; toolpath
-// PTS=80, LOOPS=4, CROSS=112, PATH=320, RING=160, SPANS=64): the cube, the hotend and LM8UU are
-// refused by admission control even simplified to 0.02 mm (72, 373 and 283 active triangles
-// needed), and embodier_asc (12 triangles) streams but fails with a toolpath capacity error
-// when the model ends (`ErrorCode::Toolpath`). Run them with `-- --ignored`; remove an
-// `ignore` as soon as its model fits (the toolpath stage is being slimmed).
+// capacities.rs at 11:36 UTC: slicer A=96 active triangles, S=160 contour points; toolpath
+// PTS=80, LOOPS=4, CROSS=128, PATH=320, RING=192, SPANS=64; MOVES=320): the hotend and LM8UU
+// are refused by admission control even simplified to 0.02 mm (373 and 283 active triangles
+// needed); embodier_asc (12 triangles) streams and fails with `ErrorCode::Moves` at layer 1
+// (its tall faces complete many layers in one batch); the cube is admitted and fails with
+// `ErrorCode::Toolpath` at layer 30. Run them with `-- --ignored qemu_`; remove an `ignore`
+// as soon as its model fits (the toolpath stage and the move buffer are being slimmed).
 
 #[test]
-#[ignore = "capacity: toolpath generation fails at the end of the model on the 64 KB firmware"]
+#[ignore = "capacity: the 64 KB firmware's move buffer overflows at layer 1 (ErrorCode::Moves)"]
 fn qemu_embodier_asc() {
     qemu_model("embodier_asc.stl");
 }
 
 #[test]
-#[ignore = "capacity: needs 72 active triangles, the 64 KB firmware holds 64 (admission refuses)"]
+#[ignore = "capacity: the 64 KB firmware fails with ErrorCode::Toolpath at layer 30"]
 fn qemu_xyz_20mm_cube() {
     qemu_model("xyz_20mm_cube.stl");
 }
 
 #[test]
-#[ignore = "capacity: needs 373 active triangles, the 64 KB firmware holds 64 (admission refuses)"]
+#[ignore = "capacity: needs 373 active triangles, the 64 KB firmware holds 96 (admission refuses)"]
 fn qemu_embodier_hotend_v2() {
     qemu_model("embodier_hotend_v2.stl");
 }
 
 #[test]
-#[ignore = "capacity: needs 283 active triangles, the 64 KB firmware holds 64 (admission refuses)"]
+#[ignore = "capacity: needs 283 active triangles, the 64 KB firmware holds 96 (admission refuses)"]
 fn qemu_embodier_lm8uu() {
     qemu_model("embodier_LM8UU_8p2pi.stl");
 }
