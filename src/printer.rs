@@ -47,6 +47,15 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
     layer_moves: 4096,
     layer_window: 4,
     ram_bytes: 64 * 1024,
+    // The toolpath stage of the host simulation (`strata_host::simjob::SimPrinter`), which
+    // announces these capacities: the 64 KB firmware's are far smaller
+    // (firmware/src/capacities.rs, announced by `Printer::empty`).
+    toolpath_points: 1 << 15,
+    toolpath_loops: 1 << 11,
+    scan_crossings: 1 << 15,
+    path_points: 1 << 17,
+    window_ring_words: 1 << 17,
+    window_spans: 1 << 16,
 };
 
 /// Result of [`Printer::handle`].
@@ -161,8 +170,14 @@ impl<
                 contour_points: S as u32,
                 contour_loops: L as u32,
                 layer_moves: MOVES as u32,
-                layer_window: if RING > u16::MAX as usize { u16::MAX } else { RING as u16 },
+                layer_window: crate::toolpath::window::MAX_BLOCKS as u16,
                 ram_bytes: core::mem::size_of::<Self>() as u32,
+                toolpath_points: PTS as u32,
+                toolpath_loops: LOOPS as u32,
+                scan_crossings: CROSS as u32,
+                path_points: PATH as u32,
+                window_ring_words: RING as u32,
+                window_spans: SPANS as u32,
             },
         }
     }

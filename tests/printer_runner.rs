@@ -7,7 +7,7 @@ use strata::machine::{MachineConfig, PrintSettings, AXES};
 use strata::printer::{Accept, Printer};
 use strata::protocol::{
     BatchBuilder, DeviceState, Endpoint, ErrorCode, JobOptions, JobSpec, LinkConfig, Message,
-    MAX_PAYLOAD, MAX_WIRE,
+    MAX_PAYLOAD, MAX_WIRE, VERSION,
 };
 use strata::step::{StepCmd, StepQueue};
 
@@ -267,7 +267,7 @@ fn service_answers_hello_and_refuses_undecodable_payloads() {
             host.pop();
         }
     }
-    assert!(got[0].starts_with("Capabilities { version: 1"), "{got:?}");
+    assert!(got[0].starts_with(&format!("Capabilities {{ version: {VERSION}")), "{got:?}");
     assert!(got[0].contains("active_triangles: 256"), "{got:?}");
     assert!(got.iter().any(|m| m.contains("state: Failed") && m.contains("BadMessage")), "{got:?}");
     assert_eq!(p.error(), (ErrorCode::BadMessage, 0x7f));

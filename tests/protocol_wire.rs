@@ -8,7 +8,7 @@ use strata::protocol::frame::{self, FrameType, MAX_WIRE};
 use strata::protocol::msg::{decode_triangle, encode_triangle};
 use strata::protocol::{
     BatchBuilder, Capacities, Decoder, DeviceState, ErrorCode, FrameError, JobOptions, JobSpec,
-    Message, Status, MAX_PAYLOAD,
+    Message, Status, MAX_PAYLOAD, VERSION,
 };
 
 fn wire(kind: FrameType, seq: u8, ack: u8, credits: u8, payload: &[u8]) -> Vec<u8> {
@@ -33,29 +33,66 @@ fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
 
 #[test]
 fn golden_ack_frame() {
-    // [0x11 (v1, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    // [0x21 (v2, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    assert_eq!(VERSION, 2);
     let w = wire(FrameType::Ack, 0, 3, 4, &[]);
-    let crc = crc32(&[0x11, 0x00, 0x03, 0x04]);
-    let mut raw = vec![0x11, 0x00, 0x03, 0x04];
+    let crc = crc32(&[0x21, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x21, 0x00, 0x03, 0x04];
     raw.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(w, cobs(&raw));
     assert_eq!(w, GOLDEN_ACK.to_vec());
 }
 
-const GOLDEN_ACK: [u8; 10] = [2, 17, 7, 3, 4, 60, 120, 161, 229, 0];
+// Derived with Python's zlib.crc32 (CRC-32/ISO-HDLC) and a hand COBS.
+const GOLDEN_ACK: [u8; 10] = [2, 33, 7, 3, 4, 157, 128, 138, 21, 0];
 
 #[test]
 fn golden_hello_frame() {
     let mut buf = [0u8; 8];
-    let n = Message::Hello { version: 1 }.encode(&mut buf).unwrap();
-    assert_eq!(&buf[..n], &[0x01, 0x01]);
+    let n = Message::Hello { version: VERSION }.encode(&mut buf).unwrap();
+    assert_eq!(&buf[..n], &[0x01, 0x02]);
     let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
     assert_eq!(w, GOLDEN_HELLO.to_vec());
 }
 
-// [0x10 (v1, data), seq 7, ack 0, credits 8, 0x01 Hello, version 1, CRC] COBS: the zero ack
+// [0x20 (v2, data), seq 7, ack 0, credits 8, 0x01 Hello, version 2, CRC] COBS: the zero ack
 // byte becomes a code byte.
-const GOLDEN_HELLO: [u8; 12] = [3, 16, 7, 8, 8, 1, 1, 71, 47, 59, 96, 0];
+const GOLDEN_HELLO: [u8; 12] = [3, 32, 7, 8, 8, 1, 2, 80, 121, 72, 253, 0];
+
+#[test]
+fn golden_capabilities() {
+    let caps = Capacities {
+        active_triangles: 1024,
+        contour_points: 768,
+        contour_loops: 48,
+        layer_moves: 4096,
+        layer_window: 4,
+        ram_bytes: 65536,
+        toolpath_points: 80,
+        toolpath_loops: 4,
+        scan_crossings: 128,
+        path_points: 320,
+        window_ring_words: 192,
+        window_spans: 64,
+    };
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
+    assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
+    let back = Message::decode(&GOLDEN_CAPABILITIES).unwrap();
+    assert_eq!(back, Message::Capabilities { version: 2, capacities: caps });
+}
+
+// Type 0x02, version 2, then little-endian: active triangles 1024, contour points 768, loops 48,
+// layer moves 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
+// PTS 80, LOOPS 4, CROSS 128, PATH 320, RING 192, SPANS 64 (u32 each): 48 bytes.
+#[rustfmt::skip]
+const GOLDEN_CAPABILITIES: [u8; 48] = [
+    0x02, 2,
+    0x00, 0x04, 0, 0,  0x00, 0x03, 0, 0,  48, 0, 0, 0,  0x00, 0x10, 0, 0,
+    4, 0,
+    0x00, 0x00, 0x01, 0,
+    80, 0, 0, 0,  4, 0, 0, 0,  128, 0, 0, 0,  0x40, 0x01, 0, 0,  192, 0, 0, 0,  64, 0, 0, 0,
+];
 
 /// Bitwise CRC-32/ISO-HDLC, independent of the `crc` crate.
 fn crc32(data: &[u8]) -> u32 {
@@ -131,6 +168,12 @@ fn all_messages() -> Vec<Vec<u8>> {
         layer_moves: 4096,
         layer_window: 4,
         ram_bytes: 65536,
+        toolpath_points: 80,
+        toolpath_loops: 4,
+        scan_crossings: 128,
+        path_points: 320,
+        window_ring_words: 192,
+        window_spans: 64,
     };
     let status = Status {
         state: DeviceState::Failed,

@@ -52,6 +52,23 @@ pub struct Capacities {
     pub layer_window: u16,
     /// RAM the pipeline's buffers take on the device, bytes.
     pub ram_bytes: u32,
+    /// Toolpath: simplified loop points of one layer, and offset edges (splits, pieces) of
+    /// one island (`Toolpath` `PTS`; needs `max(layer_points, offset_edges)`).
+    pub toolpath_points: u32,
+    /// Toolpath: loops of one layer (`Toolpath` `LOOPS`; needs `layer_loops`).
+    pub toolpath_loops: u32,
+    /// Toolpath: scanline crossings of one infill pass, and its segments and pieces in
+    /// 12-byte units (`Toolpath` `CROSS`; needs `crossings`).
+    pub scan_crossings: u32,
+    /// Toolpath: path points of one layer, two per path record (`Toolpath` `PATH`; needs
+    /// `path_points`).
+    pub path_points: u32,
+    /// Toolpath: words of the contours stored in the skin window (`Toolpath` `RING`; needs
+    /// `ring_points`).
+    pub window_ring_words: u32,
+    /// Toolpath: crossings (then spans) of the skin window's layers with one scanline
+    /// (`Toolpath` `SPANS`; needs `spans`).
+    pub window_spans: u32,
 }
 
 /// Toolpath choices that are not part of [`PrintSettings`].
@@ -394,6 +411,12 @@ impl<'a> Message<'a> {
                 w.u32(c.layer_moves)?;
                 w.u16(c.layer_window)?;
                 w.u32(c.ram_bytes)?;
+                w.u32(c.toolpath_points)?;
+                w.u32(c.toolpath_loops)?;
+                w.u32(c.scan_crossings)?;
+                w.u32(c.path_points)?;
+                w.u32(c.window_ring_words)?;
+                w.u32(c.window_spans)?;
             }
             Self::JobStart(j) => {
                 let s = &j.settings;
@@ -473,6 +496,12 @@ impl<'a> Message<'a> {
                     layer_moves: r.u32()?,
                     layer_window: r.u16()?,
                     ram_bytes: r.u32()?,
+                    toolpath_points: r.u32()?,
+                    toolpath_loops: r.u32()?,
+                    scan_crossings: r.u32()?,
+                    path_points: r.u32()?,
+                    window_ring_words: r.u32()?,
+                    window_spans: r.u32()?,
                 },
             },
             ty::JOB_START => {
