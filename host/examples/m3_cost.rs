@@ -11,7 +11,7 @@
 //! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S] [--relay LOSS]
 //! MODEL.stl...` (job budget S seconds of wall time, default 1800; `--relay` streams through the
 //! fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
-//! every frame's header; model
+//! every frame's header; `cylinder:R:H:SIDES:BAND` (mm) is a generated banded cylinder; model
 //! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
 //! builds the firmware first and runs the four sample models. Exits non-zero when a job
 //! fails; a missed target is reported, not an error.
@@ -55,11 +55,26 @@ struct Opts {
     relay: Option<f64>,
 }
 
-fn run(qemu: &Path, elf: &Path, path: &Path, o: &Opts) -> Result<Row, String> {
-    let echo = o.echo;
+/// `cylinder:R:H:SIDES:BAND` (mm) is [`hil::banded_cylinder`]; anything else an STL file.
+fn load(arg: &str, machine: &MachineConfig) -> Result<(String, Vec<Triangle>), String> {
+    if let Some(spec) = arg.strip_prefix("cylinder:") {
+        let v: Vec<f64> = spec.split(':').filter_map(|x| x.parse().ok()).collect();
+        let [r, h, n, band] = v[..] else {
+            return Err(format!("{arg}: expected cylinder:R:H:SIDES:BAND (mm)"));
+        };
+        let um = |mm: f64| (mm * 1000.0).round() as i32;
+        let tris = hil::banded_cylinder(r * 1000.0, um(h), n as usize, um(band));
+        return Ok((arg.to_string(), tris));
+    }
+    let path = resolve(arg);
     let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
+    Ok((name, model::load(&path)?.placed_sorted(machine)?))
+}
+
+fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
+    let echo = o.echo;
     let machine = MachineConfig::default();
-    let tris = model::load(path)?.placed_sorted(&machine)?;
+    let (name, tris) = load(arg, &machine)?;
     let job = JobSpec {
         settings: PrintSettings::default(),
         options: JobOptions::default(),
@@ -125,7 +140,7 @@ fn main() {
                 Some(l) => o.relay = Some(l),
                 None => models.clear(),
             },
-            _ => models.push(resolve(&a)),
+            _ => models.push(a),
         }
     }
     if models.is_empty() {
@@ -148,7 +163,7 @@ fn main() {
         match run(&qemu, &elf, m, &o) {
             Ok(r) => rows.push(r),
             Err(e) => {
-                eprintln!("{}: FAILED: {e}", m.display());
+                eprintln!("{m}: FAILED: {e}");
                 failed = true;
             }
         }

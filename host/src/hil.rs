@@ -16,7 +16,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use strata::geom::Triangle;
+use strata::geom::{Point3, Triangle};
 use strata::protocol::frame::MAX_WIRE;
 use strata::protocol::{Capacities, DeviceState, JobSpec, LinkConfig};
 use strata::slice::SliceConfig;
@@ -470,6 +470,31 @@ impl Drop for SimDevice {
             let _ = t.join();
         }
     }
+}
+
+/// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm), its
+/// side cut into bands `band` um high (no face spans many layers, so no triangle batch
+/// completes many layers at once), zmin-sorted: a test model of any size.
+pub fn banded_cylinder(r: f64, h: i32, n: usize, band: i32) -> Vec<Triangle> {
+    let o = 100_000;
+    let p = |k: usize, z: i32| {
+        let a = std::f64::consts::TAU * (k % n) as f64 / n as f64;
+        Point3::new(o + (r * a.cos()).round() as i32, o + (r * a.sin()).round() as i32, z)
+    };
+    let (c0, c1) = (Point3::new(o, o, 0), Point3::new(o, o, h));
+    let mut t = Vec::new();
+    let zs: Vec<i32> = (0..h).step_by(band as usize).chain([h]).collect();
+    for k in 0..n {
+        for w in zs.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            t.push(Triangle { v: [p(k, a), p(k + 1, a), p(k + 1, b)] });
+            t.push(Triangle { v: [p(k, a), p(k + 1, b), p(k, b)] });
+        }
+        t.push(Triangle { v: [c0, p(k + 1, 0), p(k, 0)] });
+        t.push(Triangle { v: [c1, p(k, h), p(k + 1, h)] });
+    }
+    t.sort_by_key(Triangle::z_min);
+    t
 }
 
 /// The link timing of the harness: the protocol's retransmission and keepalive, and 20 s

@@ -35,11 +35,11 @@ use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use strata::geom::{Point3, Triangle};
+use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::{DeviceState, JobOptions, JobSpec};
-use strata_host::hil::{self, Costs, Qemu, Relay, SimDevice};
+use strata_host::hil::{self, banded_cylinder, Costs, Qemu, Relay, SimDevice};
 use strata_host::model;
 use strata_host::session::Progress;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
@@ -336,30 +336,6 @@ fn qemu_embodier_lm8uu() {
 /// zmin-sorted.
 fn cylinder(r: f64, h: i32, n: usize) -> Vec<Triangle> {
     banded_cylinder(r, h, n, h)
-}
-
-/// The same with its side cut into bands `band` um high (no face spans many layers, so no
-/// batch completes many layers at once).
-fn banded_cylinder(r: f64, h: i32, n: usize, band: i32) -> Vec<Triangle> {
-    let o = 100_000;
-    let p = |k: usize, z: i32| {
-        let a = std::f64::consts::TAU * (k % n) as f64 / n as f64;
-        Point3::new(o + (r * a.cos()).round() as i32, o + (r * a.sin()).round() as i32, z)
-    };
-    let (c0, c1) = (Point3::new(o, o, 0), Point3::new(o, o, h));
-    let mut t = Vec::new();
-    let zs: Vec<i32> = (0..h).step_by(band as usize).chain([h]).collect();
-    for k in 0..n {
-        for w in zs.windows(2) {
-            let (a, b) = (w[0], w[1]);
-            t.push(Triangle { v: [p(k, a), p(k + 1, a), p(k + 1, b)] });
-            t.push(Triangle { v: [p(k, a), p(k + 1, b), p(k, b)] });
-        }
-        t.push(Triangle { v: [c0, p(k + 1, 0), p(k, 0)] });
-        t.push(Triangle { v: [c1, p(k, h), p(k + 1, h)] });
-    }
-    t.sort_by_key(Triangle::z_min);
-    t
 }
 
 /// The harness without QEMU: the in-process simulated printer behind a unix socket, clean
