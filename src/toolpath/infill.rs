@@ -26,7 +26,7 @@ use super::scan::{
     crossings, intervals, line_spans, loop_range, next_in, prev_in, sort_by_line, Angle, Crossing,
     Interval, Loops,
 };
-use super::window::StoredRings;
+use super::window::{Parts, StoredRings};
 use super::{Buffer, Feature};
 
 /// No crossing / no segment end (a `u16` index).
@@ -233,13 +233,13 @@ impl<'a> Segs<'a> {
 #[derive(Debug, Clone, Copy)]
 pub struct SkinView<'a> {
     /// Layers `L + 1 ..= L + top` (those that exist).
-    pub above: [&'a [u32]; 16],
+    pub above: [Parts<'a, u32>; 16],
     /// Number of entries in `above`.
     pub n_above: usize,
     /// All `top` layers above exist (otherwise nothing is covered from above).
     pub above_complete: bool,
     /// Layers `L - 1 ..= L - bottom` (those that exist).
-    pub below: [&'a [u32]; 16],
+    pub below: [Parts<'a, u32>; 16],
     /// Number of entries in `below`.
     pub n_below: usize,
     /// All `bottom` layers below exist.
@@ -511,7 +511,7 @@ impl<'a> Skin<'a> {
         let mut at = 0;
         for (c, data) in layers {
             let out = self.spans.get_mut(at..).unwrap_or(&mut []);
-            let rings = StoredRings::new(data).map(|(_, pts)| pts);
+            let rings = StoredRings::new(*data).map(|(_, pts)| pts);
             let (n, used) = line_spans(rings, self.angle, line, self.step, out)?;
             self.peak = self.peak.max(at + used);
             *c = Cursor { start: at, idx: at, end: at + n };

@@ -813,6 +813,9 @@ impl<
         self.paths.clear();
         self.paths.peak_points = 0;
         self.paths.peak_paths = 0;
+        // Stale entries are read for holes listed before their parent (a fresh stage reads
+        // zeros): start every run from the fresh state.
+        self.island_map.fill(0);
         self.ring.peak = 0;
         self.fill_use = FillUse::default();
         Ok(())
@@ -1248,7 +1251,7 @@ impl<
         self.park_engine();
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
-        let empty: &[u32] = &[];
+        let empty = window::Parts::EMPTY;
         let mut view = SkinView {
             above: [empty; 16],
             n_above: 0,
@@ -1332,7 +1335,7 @@ impl<
 
 /// Decodes a stored layer ([`StoredRings`]) into `out`.
 fn decode<const P: usize, const L: usize>(
-    data: &[u32],
+    data: window::Parts<'_, u32>,
     out: &mut LoopBuf<P, L>,
 ) -> Result<(), Buffer> {
     out.clear();

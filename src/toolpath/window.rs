@@ -9,9 +9,9 @@
 //! ([`scan::line_spans`](super::scan::line_spans)), so no per-line data of the window is
 //! stored.
 //!
-//! A [`Fifo`] keeps blocks contiguous (a block that does not fit before the end of the array
-//! starts again at 0 when the oldest blocks have left room there), so each layer's data is a
-//! plain slice.
+//! A [`Fifo`] is circular: a block that reaches the end of the array goes on at 0, so it
+//! holds whatever fits in its free room (no fragmentation: the largest use is the capacity
+//! needed) and a block is read as two slices ([`Parts`]).
 
 use crate::geom::Point2;
 
@@ -33,7 +33,45 @@ pub struct Block {
     pub len: u32,
 }
 
-/// FIFO of contiguous blocks in `N` elements of `T`.
+/// A block's elements: `a`, then `b` when it wraps past the end of the storage.
+#[derive(Debug, Clone, Copy)]
+pub struct Parts<'a, T> {
+    /// The elements up to the end of the storage.
+    pub a: &'a [T],
+    /// The rest, from the start of the storage.
+    pub b: &'a [T],
+}
+
+impl<'a, T> Parts<'a, T> {
+    /// No elements.
+    pub const EMPTY: Self = Self { a: &[], b: &[] };
+
+    /// Element `i`.
+    pub fn get(&self, i: usize) -> Option<&'a T> {
+        match i.checked_sub(self.a.len()) {
+            None => self.a.get(i),
+            Some(j) => self.b.get(j),
+        }
+    }
+}
+
+/// A reserved block being written: `a`, then `b` (see [`Parts`]).
+pub struct PartsMut<'a, T> {
+    a: &'a mut [T],
+    b: &'a mut [T],
+}
+
+impl<T> PartsMut<'_, T> {
+    /// Element `i`.
+    pub fn get_mut(&mut self, i: usize) -> Option<&mut T> {
+        match i.checked_sub(self.a.len()) {
+            None => self.a.get_mut(i),
+            Some(j) => self.b.get_mut(j),
+        }
+    }
+}
+
+/// Circular FIFO of blocks in `N` elements of `T`.
 pub struct Fifo<T: Copy, const N: usize> {
     data: [T; N],
     blocks: [Block; MAX_BLOCKS],
@@ -42,7 +80,7 @@ pub struct Fifo<T: Copy, const N: usize> {
     count: usize,
     /// Where the block being written starts and its reserved length.
     open: Option<(usize, usize)>,
-    /// Most elements in use at once, a reserved block counted whole.
+    /// Most elements in use at once, a reserved block counted whole: the capacity needed.
     pub peak: usize,
     what: Buffer,
 }
@@ -90,9 +128,17 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
             .find(|b| b.layer == layer)
     }
 
+    /// `len` elements from `start`, wrapping: (up to the end, from 0).
+    fn span(start: usize, len: usize) -> (core::ops::Range<usize>, core::ops::Range<usize>) {
+        let start = start.min(N);
+        let first = len.min(N - start);
+        (start..start + first, 0..(len - first).min(start))
+    }
+
     /// The elements of a block.
-    pub fn data(&self, b: &Block) -> &[T] {
-        self.data.get(b.start as usize..(b.start + b.len) as usize).unwrap_or(&[])
+    pub fn data(&self, b: &Block) -> Parts<'_, T> {
+        let (a, w) = Self::span(b.start as usize, b.len as usize);
+        Parts { a: &self.data[a], b: &self.data[w] }
     }
 
     /// Drops the oldest block.
@@ -107,39 +153,26 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
         (0..self.count).map(|k| self.blocks[(self.head + k) % MAX_BLOCKS].len as usize).sum()
     }
 
-    /// Reserves room for a block of up to `max` elements and returns it to be written; the
-    /// block is added by [`commit`](Self::commit).
-    pub fn reserve(&mut self, max: usize) -> Result<&mut [T], Buffer> {
+    /// Reserves room for a block of up to `max` elements (right after the newest block,
+    /// wrapping) and returns it to be written; the block is added by
+    /// [`commit`](Self::commit).
+    pub fn reserve(&mut self, max: usize) -> Result<PartsMut<'_, T>, Buffer> {
         if self.count >= MAX_BLOCKS {
             return Err(Buffer::WindowLayers);
         }
-        let start = if self.count == 0 {
-            0
-        } else {
-            let first = self.blocks[self.head].start as usize;
-            let last = self.blocks[(self.head + self.count - 1) % MAX_BLOCKS];
-            let end = (last.start + last.len) as usize;
-            if end >= first {
-                // Not wrapped: after the newest block, or from 0 up to the oldest.
-                if end + max <= N {
-                    end
-                } else if max <= first {
-                    0
-                } else {
-                    return Err(self.what);
-                }
-            } else if end + max <= first {
-                end
-            } else {
-                return Err(self.what);
-            }
-        };
-        if start + max > N {
+        let used = self.in_use();
+        if used + max > N {
             return Err(self.what);
         }
+        let start = match self.block(self.count.wrapping_sub(1)) {
+            Some(last) => (last.start as usize + last.len as usize).checked_rem(N).unwrap_or(0),
+            None => 0,
+        };
         self.open = Some((start, max));
-        self.peak = self.peak.max(self.in_use() + max);
-        Ok(&mut self.data[start..start + max])
+        self.peak = self.peak.max(used + max);
+        let (a, w) = Self::span(start, max);
+        let (lo, hi) = self.data.split_at_mut(start.min(N));
+        Ok(PartsMut { a: &mut hi[..a.len()], b: &mut lo[w] })
     }
 
     /// Adds the reserved block with its first `len` elements.
@@ -149,7 +182,6 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
         self.blocks[(self.head + self.count) % MAX_BLOCKS] =
             Block { layer, start: start as u32, len: len as u32 };
         self.count += 1;
-        self.peak = self.peak.max(self.in_use());
     }
 }
 
@@ -173,9 +205,9 @@ fn delta(prev: Point2, p: Point2) -> Option<u32> {
     Some(u32::from(d(prev.x, p.x)? as u16) | u32::from(d(prev.y, p.y)? as u16) << 16)
 }
 
-/// Writes one stored layer in the [`StoredRings`] layout into a word slice.
+/// Writes one stored layer in the [`StoredRings`] layout into a reserved block.
 pub struct Encoder<'a> {
-    out: &'a mut [u32],
+    out: PartsMut<'a, u32>,
     at: usize,
     /// Start of the loop being written, its points and the last one.
     ring: usize,
@@ -185,7 +217,7 @@ pub struct Encoder<'a> {
 
 impl<'a> Encoder<'a> {
     /// A layer in `out` (its header first).
-    pub fn new(out: &'a mut [u32]) -> Self {
+    pub fn new(out: PartsMut<'a, u32>) -> Self {
         Self { out, at: 2, ring: 2, n: 0, last: Point2::new(0, 0) }
     }
 
@@ -231,9 +263,11 @@ impl<'a> Encoder<'a> {
     }
 
     /// Writes the layer header (`loops` kept, `islands`) and returns the words used.
-    pub fn finish(self, loops: u32, islands: u16) -> usize {
-        if let Some(h) = self.out.get_mut(..2) {
-            h.copy_from_slice(&[loops, u32::from(islands)]);
+    pub fn finish(mut self, loops: u32, islands: u16) -> usize {
+        for (i, w) in [loops, u32::from(islands)].into_iter().enumerate() {
+            if let Some(h) = self.out.get_mut(i) {
+                *h = w;
+            }
         }
         self.at
     }
@@ -269,19 +303,19 @@ impl LoopWords {
 /// (simplified points are under 33 mm apart). Yields `(island, points)` for the loops of
 /// at least three points.
 pub struct StoredRings<'a> {
-    data: &'a [u32],
+    data: Parts<'a, u32>,
     at: usize,
     left: u32,
 }
 
 impl<'a> StoredRings<'a> {
     /// The loops of `data` (a block written by an [`Encoder`]).
-    pub fn new(data: &'a [u32]) -> Self {
-        Self { data, at: 2, left: data.first().copied().unwrap_or(0) }
+    pub fn new(data: Parts<'a, u32>) -> Self {
+        Self { data, at: 2, left: data.get(0).copied().unwrap_or(0) }
     }
 
     /// The layer's islands.
-    pub fn islands(data: &[u32]) -> u16 {
+    pub fn islands(data: Parts<'_, u32>) -> u16 {
         data.get(1).map_or(0, |&w| w as u16)
     }
 }
@@ -315,7 +349,7 @@ impl<'a> Iterator for StoredRings<'a> {
 /// The points of one stored loop.
 #[derive(Clone)]
 pub struct LoopPoints<'a> {
-    data: &'a [u32],
+    data: Parts<'a, u32>,
     at: usize,
     left: u32,
     last: Option<Point2>,
@@ -338,9 +372,9 @@ impl Iterator for LoopPoints<'_> {
             }
             _ => {
                 let skip = usize::from(self.last.is_some());
-                let xy = self.data.get(self.at + skip..self.at + skip + 2)?;
+                let (x, y) = (self.data.get(self.at + skip)?, self.data.get(self.at + skip + 1)?);
                 self.at += skip + 2;
-                Point2::new(xy[0] as i32, xy[1] as i32)
+                Point2::new(*x as i32, *y as i32)
             }
         };
         self.last = Some(p);
@@ -356,8 +390,12 @@ mod tests {
     fn stored_loops_round_trip() {
         let a = [Point2::new(100_000, 5), Point2::new(100_010, -7), Point2::new(40_000, 9)];
         let b = [Point2::new(-3, 4), Point2::new(i32::MAX, i32::MIN), Point2::new(0, 0)];
-        let mut out = [0u32; 64];
-        let mut e = Encoder::new(&mut out);
+        // A block wrapping past the end of the storage.
+        let mut f = Fifo::<u32, 30>::new(0, Buffer::RingPoints);
+        f.reserve(10).unwrap();
+        f.commit(0, 10);
+        f.pop();
+        let mut e = Encoder::new(f.reserve(20).unwrap());
         for (island, pts, keep) in [(0, &a[..], true), (5, &a[..2], false), (1, &b[..], true)] {
             e.begin(island).unwrap();
             pts.iter().for_each(|&p| e.push(p).unwrap());
@@ -372,42 +410,46 @@ mod tests {
         assert_eq!(words, 2 + count(&a) + count(&b));
         // a: 2 + 2 + 3 (60 mm jump) + 1; b: 2 + 2 + 3 + 3.
         assert_eq!(words, 2 + 8 + 10);
-        let data = &out[..words];
+        f.commit(1, words);
+        let data = f.data(&f.find(1).unwrap());
+        assert_eq!((data.a.len(), data.b.len()), (20, 0));
         assert_eq!(StoredRings::islands(data), 2);
         let got: std::vec::Vec<(u16, std::vec::Vec<Point2>)> =
             StoredRings::new(data).map(|(i, p)| (i, p.collect())).collect();
         assert_eq!(got, [(0, a.to_vec()), (1, b.to_vec())]);
-        assert_eq!(Encoder::new(&mut out[..3]).begin(0), Err(Buffer::RingPoints));
+        let mut small = Fifo::<u32, 3>::new(0, Buffer::RingPoints);
+        assert_eq!(Encoder::new(small.reserve(3).unwrap()).begin(0), Err(Buffer::RingPoints));
     }
 
     #[test]
-    fn blocks_wrap_and_stay_contiguous() {
+    fn blocks_wrap_around_the_end() {
         let mut f = Fifo::<u8, 10>::new(0, Buffer::RingPoints);
-        for (layer, n) in [(0u32, 4usize), (1, 4)] {
-            let s = f.reserve(n).unwrap();
-            s.fill(layer as u8 + 1);
+        let fill = |f: &mut Fifo<u8, 10>, layer: u32, n: usize| {
+            let mut w = f.reserve(n).unwrap();
+            for i in 0..n {
+                *w.get_mut(i).unwrap() = layer as u8 + 1;
+            }
+            assert!(w.get_mut(n).is_none());
             f.commit(layer, n);
-        }
-        assert_eq!(f.reserve(3), Err(Buffer::RingPoints));
+        };
+        fill(&mut f, 0, 4);
+        fill(&mut f, 1, 4);
+        assert!(f.reserve(3).is_err());
         f.pop();
-        // 2 free at the end, 4 at the start: a block of 3 wraps to 0.
-        let s = f.reserve(3).unwrap();
-        s.fill(9);
-        f.commit(2, 3);
+        // 2 free at the end and 4 at the start: a block of 5 goes on at 0.
+        fill(&mut f, 2, 5);
         let b = f.find(2).unwrap();
-        assert_eq!((b.start, b.len), (0, 3));
-        assert_eq!(f.data(&f.find(1).unwrap()), &[2, 2, 2, 2]);
-        assert_eq!(f.data(&b), &[9, 9, 9]);
-        assert_eq!(f.len(), 2);
-        assert_eq!(f.peak, 8);
-        // 1 free before the oldest block (3..4) and 2 at the end are not contiguous for 3.
-        assert_eq!(f.reserve(3), Err(Buffer::RingPoints));
+        let d = f.data(&b);
+        assert_eq!((b.start, b.len, d.a, d.b), (8, 5, &[3, 3][..], &[3, 3, 3][..]));
+        assert_eq!(f.data(&f.find(1).unwrap()).a, &[2, 2, 2, 2]);
+        assert_eq!((f.len(), f.peak), (2, 9));
+        // 1 free: a reservation counts whole, even when committed shorter.
+        assert_eq!(f.reserve(2).err(), Some(Buffer::RingPoints));
         assert!(f.reserve(1).is_ok());
-        // A reservation counts whole, even when committed shorter.
         f.commit(3, 0);
         f.pop();
-        assert!(f.reserve(6).is_ok());
+        assert!(f.reserve(5).is_ok());
         f.commit(4, 1);
-        assert_eq!(f.peak, 3 + 6);
+        assert_eq!(f.peak, 10);
     }
 }
