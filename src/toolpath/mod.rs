@@ -1368,6 +1368,66 @@ mod tests {
         assert_eq!(t.finish(&mut sink).map(|s| s.layers), Ok(0));
     }
 
+    /// Moves of a one-layer job: `squares` (x0, y0, size, hole) in this order, holes
+    /// pointing at `parent`.
+    fn job(
+        t: &mut Toolpath<256, 8, 256, 1024, 1024, 64>,
+        squares: &[(i32, i32, i32, bool)],
+        parent: u32,
+    ) -> Vec<ToolMove> {
+        let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+        t.reset(cfg).unwrap();
+        let mut points = Vec::new();
+        let mut loops = Vec::new();
+        for &(x, y, d, hole) in squares {
+            let mut sq = [(x, y), (x + d, y), (x + d, y + d), (x, y + d)];
+            if hole {
+                sq.reverse();
+            }
+            let start = points.len() as u32;
+            points.extend(sq.iter().map(|&(x, y)| Point2::new(x, y)));
+            let parent = hole.then_some(parent);
+            loops.push(crate::slice::LoopInfo {
+                start,
+                len: 4,
+                hole,
+                parent,
+                ..Default::default()
+            });
+        }
+        let layer = Layer {
+            index: 0,
+            z_um: 200,
+            points: &points,
+            loops: &loops,
+            repairs: Default::default(),
+            dropped_small_loops: 0,
+            active_triangles: 0,
+            segments: 0,
+        };
+        let mut moves = Vec::new();
+        let mut sink = |e: &ToolEvent<'_>| {
+            if let ToolEvent::Move(m) = e {
+                moves.push(*m);
+            }
+        };
+        t.push_layer(&layer, &mut sink).unwrap();
+        t.finish(&mut sink).unwrap();
+        moves
+    }
+
+    #[test]
+    fn a_reused_stage_prints_like_a_fresh_one() {
+        // A hole listed before its parent: its island comes from the island map.
+        let holed = [(104_000, 104_000, 2_000, true), (100_000, 100_000, 10_000, false)];
+        let mut fresh = Box::new(Toolpath::empty());
+        let want = job(&mut fresh, &holed, 1);
+        let mut reused = Box::new(Toolpath::empty());
+        // Two islands first: the map's second entry is island 1.
+        job(&mut reused, &[(0, 0, 5_000, false), (20_000, 0, 5_000, false)], 0);
+        assert_eq!(job(&mut reused, &holed, 1), want);
+    }
+
     #[test]
     fn memory_per_capacity_unit_is_as_documented() {
         assert_eq!(ToolpathNeeds::PTS_BYTES, 74);
