@@ -4,18 +4,34 @@
 //! The model's peak needs come from `strata::slice::peak_needs` (the largest active set and
 //! the most contour points of any layer) and are compared with the capacities the device
 //! announced. A model that does not fit is simplified with `meshopt` (edge collapses onto
-//! existing vertices, with an absolute error bound in mm), asking for fewer and fewer
-//! triangles until it fits or the error bound stops it. The deviation actually introduced is
-//! then measured, not assumed: a two-sided Hausdorff estimate between the original and the
-//! simplified surface (original vertices to the simplified mesh, and points sampled on the
-//! simplified triangles to the original), which must stay within the bound.
+//! existing vertices). meshopt's error parameter is a quadric estimate that can be several
+//! times below the real distance, so the deviation is measured, not assumed: a two-sided
+//! Hausdorff estimate between the original and the simplified surface (original vertices to
+//! the simplified mesh, and points sampled on the simplified triangles to the original, exact
+//! point-triangle distances through an R-tree). The simplification keeping the most
+//! triangles that fits is searched (bisection on meshopt's target count); it is taken only if
+//! its measured deviation is within the stated bound, else the model is refused with that
+//! deviation in the message (so the user can allow it knowingly).
+//!
+//! [`admit_job`] checks the whole pipeline: after the slicer, the model (as it will be
+//! streamed) runs through a host-sized toolpath stage with the job's settings, exactly as the
+//! device will run it ([`toolpath_peaks`]), and every toolpath need is compared with the
+//! device's toolpath capacities (`PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`) and the
+//! moves one batch of triangles makes the device buffer with half its move buffer. Simplifying
+//! the mesh only reduces the slicer's needs, so a toolpath need that does not fit refuses the
+//! model, naming the resource, the layer where it peaks, the need and the capacity.
 
 use std::collections::HashMap;
 
+use std::cell::Cell;
+
 use meshopt::{simplify_decoder, SimplifyOptions};
-use strata::geom::{Point3, Triangle};
-use strata::protocol::Capacities;
-use strata::slice::{peak_needs, PeakNeeds, SliceConfig};
+use rstar::{PointDistance, RTree, RTreeObject, AABB};
+use strata::geom::{Point2, Point3, Triangle};
+use strata::machine::MachineConfig;
+use strata::protocol::{BatchBuilder, Capacities, JobSpec};
+use strata::slice::{peak_needs, Layer, PeakNeeds, SliceConfig, Slicer};
+use strata::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathNeeds};
 
 /// What a model needs against what the device has.
 #[derive(Debug, Clone, Copy)]
@@ -41,16 +57,13 @@ pub struct Simplified {
     pub triangles: Vec<Triangle>,
     /// Triangles before.
     pub triangles_in: usize,
-    /// The simplifier's error bound (meshopt's quadric error, absolute), mm.
+    /// The allowed deviation, mm.
     pub error_bound_mm: f64,
     /// Measured deviation (two-sided Hausdorff estimate), mm.
     pub max_deviation_mm: f64,
     /// Needs of the simplified model.
     pub needs: PeakNeeds,
 }
-
-/// Largest measured deviation a simplification may have: the nozzle radius, mm.
-pub const MAX_MEASURED_DEVIATION_MM: f64 = 0.2;
 
 /// The admission decision.
 #[derive(Debug, Clone)]
@@ -61,8 +74,43 @@ pub enum Admission {
     Simplified(Simplified),
 }
 
+/// Admits `tris` (placed, sorted by lowest z) for `job` on a device with `caps` and `machine`:
+/// the slicer's needs as [`admit`] (simplified within `max_deviation_mm` if need be), then the
+/// toolpath stage's needs of the model as it will be streamed ([`toolpath_peaks`] against
+/// [`toolpath_shortfalls`]): refused with a message naming every resource that does not fit.
+pub fn admit_job(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+    caps: &Capacities,
+    max_deviation_mm: f64,
+) -> Result<Admission, String> {
+    let config = SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
+    let admission = admit(tris, &config, caps, max_deviation_mm)?;
+    let streamed = match &admission {
+        Admission::Unchanged(_) => tris,
+        Admission::Simplified(s) => &s.triangles,
+    };
+    let peaks = toolpath_peaks(streamed, machine, job)?;
+    let short = toolpath_shortfalls(&peaks, caps);
+    if !short.is_empty() {
+        let simplified = match &admission {
+            Admission::Unchanged(_) => String::new(),
+            Admission::Simplified(s) => {
+                format!(" (simplified to {} triangles for the slicer)", s.triangles.len())
+            }
+        };
+        return Err(format!(
+            "the model does not fit the printer's toolpath memory{simplified}: {}",
+            short.join("; ")
+        ));
+    }
+    Ok(admission)
+}
+
 /// Admits `tris` (placed, sorted by lowest z) on a device with `caps`: unchanged, simplified
-/// within `max_deviation_mm`, or refused with a message saying what does not fit.
+/// with a *measured* deviation of at most `max_deviation_mm`, or refused with a message
+/// saying what does not fit and what deviation a fitting simplification would have.
 pub fn admit(
     tris: &[Triangle],
     config: &SliceConfig,
@@ -74,89 +122,361 @@ pub fn admit(
         return Ok(Admission::Unchanged(fit.needs));
     }
     let mesh = Indexed::weld(tris);
-    let mut target = tris.len() / 2;
-    let mut last_len = tris.len();
-    loop {
-        let idx = simplify_decoder(
-            &mesh.indices,
-            &mesh.positions,
-            target * 3,
-            max_deviation_mm as f32,
-            SimplifyOptions::ErrorAbsolute,
-            None,
-        );
-        let mut out = mesh.triangles(&idx);
+    let Some((out, needs)) = largest_fit(&mesh, tris, config, caps)? else {
+        return Err(format!(
+            "the model does not fit the printer even simplified to a few triangles: it needs \
+             {} active triangles and {} contour points per layer, the printer holds {} and {}",
+            fit.needs.active_triangles,
+            fit.needs.contour_points,
+            caps.active_triangles,
+            caps.contour_points
+        ));
+    };
+    let dev = deviation(&mesh, tris, &out);
+    if dev > max_deviation_mm {
+        return Err(format!(
+            "the model does not fit the printer: it needs {} active triangles and {} contour \
+             points per layer, the printer holds {} and {}; simplified until it fits ({} of {} \
+             triangles) its surface moves by {dev:.3} mm, more than the allowed \
+             {max_deviation_mm} mm (allow it with --max-deviation {:.3})",
+            fit.needs.active_triangles,
+            fit.needs.contour_points,
+            caps.active_triangles,
+            caps.contour_points,
+            out.len(),
+            tris.len(),
+            (dev * 1000.0).ceil() / 1000.0
+        ));
+    }
+    Ok(Admission::Simplified(Simplified {
+        triangles_in: tris.len(),
+        error_bound_mm: max_deviation_mm,
+        max_deviation_mm: dev,
+        needs,
+        triangles: out,
+    }))
+}
+
+/// Bisection steps between a fitting and a non-fitting triangle count.
+const SEARCH_STEPS: usize = 7;
+
+/// The simplification with the most triangles that fits `caps` (meshopt towards a triangle
+/// count, no error limit: halving from the original until one fits, then bisecting between
+/// the last fitting and the first non-fitting count), with its needs; `None` when nothing
+/// down to 4 triangles fits.
+fn largest_fit(
+    mesh: &Indexed,
+    tris: &[Triangle],
+    config: &SliceConfig,
+    caps: &Capacities,
+) -> Result<Option<(Vec<Triangle>, PeakNeeds)>, String> {
+    let try_count = |target: usize| -> Result<(Vec<Triangle>, Fit), String> {
+        let mut out = mesh.simplify(target);
         out.sort_by_key(Triangle::z_min);
         let fit = check(&out, config, caps)?;
+        Ok((out, fit))
+    };
+    let (mut hi, mut target) = (tris.len(), tris.len() / 2);
+    let mut best = loop {
+        if target < 4 {
+            return Ok(None);
+        }
+        let (out, fit) = try_count(target)?;
         if fit.fits {
-            let (dev, _) = deviation(&mesh, tris, &out, f64::INFINITY);
-            if dev > MAX_MEASURED_DEVIATION_MM {
-                return Err(format!(
-                    "simplifying the model to fit the printer ({} triangles) moves its surface \
-                     by {dev:.3} mm, more than the nozzle radius ({MAX_MEASURED_DEVIATION_MM} \
-                     mm): refused",
-                    out.len()
-                ));
+            break (out, fit.needs);
+        }
+        hi = target;
+        target /= 2;
+    };
+    let mut lo = target;
+    for _ in 0..SEARCH_STEPS {
+        let mid = lo + (hi - lo) / 2;
+        if mid <= lo {
+            break;
+        }
+        let (out, fit) = try_count(mid)?;
+        if fit.fits {
+            lo = mid;
+            if out.len() > best.0.len() {
+                best = (out, fit.needs);
             }
-            return Ok(Admission::Simplified(Simplified {
-                triangles: out,
-                triangles_in: tris.len(),
-                error_bound_mm: max_deviation_mm,
-                max_deviation_mm: dev,
-                needs: fit.needs,
-            }));
+        } else {
+            hi = mid;
         }
-        if out.len() >= last_len || target < 4 {
-            return Err(format!(
-                "the model does not fit the printer even simplified to a {max_deviation_mm} mm \
-                 error: it needs {} active triangles and {} contour points per layer ({} \
-                 triangles left), the printer holds {} and {}",
-                fit.needs.active_triangles,
-                fit.needs.contour_points,
-                out.len(),
-                caps.active_triangles,
-                caps.contour_points
-            ));
+    }
+    Ok(Some(best))
+}
+
+/// A need of the toolpath stage and the layer where it peaks (the first layer with that
+/// value).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Peak {
+    /// The largest use.
+    pub value: u32,
+    /// Layer index.
+    pub layer: u32,
+    /// Layer height (top of the layer), um.
+    pub z_um: i32,
+}
+
+impl Peak {
+    fn raise(&mut self, value: u32, layer: (u32, i32)) {
+        if value > self.value {
+            *self = Self { value, layer: layer.0, z_um: layer.1 };
         }
-        last_len = out.len();
-        target = out.len() * 2 / 3;
     }
 }
 
-/// The deviation between the original `a` (indexed as `mesh`) and the simplification `b`
-/// (two-sided estimate, mm) and the original vertices to lock: those farther than `bound`
-/// from `b`, and the corners of every triangle of `b` with a sample farther than `bound`
-/// from `a`.
-fn deviation(mesh: &Indexed, a: &[Triangle], b: &[Triangle], bound: f64) -> (f64, Vec<u32>) {
-    let (ga, gb) = (Grid::new(a, 1.0), Grid::new(b, 1.0));
-    let mut worst: f64 = 0.0;
-    let mut offenders = Vec::new();
-    for (i, p) in mesh.points.iter().enumerate() {
-        let d = gb.distance(mm(*p));
-        worst = worst.max(d);
-        if d > bound {
-            offenders.push(i as u32);
+/// Moves the device must buffer at once: those the toolpath stage emits while the device
+/// takes one batch of triangles (or the end of the model).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct MoveBurst {
+    /// Moves.
+    pub moves: u32,
+    /// First and last layer (index, z in um) that emitted moves in the burst.
+    pub first: (u32, i32),
+    /// Last layer.
+    pub last: (u32, i32),
+}
+
+/// What the toolpath stage needs for a model, with the layers where the needs peak.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ToolpathPeaks {
+    /// The stage's needs (`ToolpathStats::needs` of the whole run).
+    pub needs: ToolpathNeeds,
+    /// `PTS`: loop points of a layer, or offset edges of an island (the larger).
+    pub points: Peak,
+    /// `LOOPS`: loops of a layer.
+    pub loops: Peak,
+    /// `CROSS`: scanline crossings (segments and pieces in 12-byte units) of a pass.
+    pub crossings: Peak,
+    /// `PATH`: path points of a layer.
+    pub path_points: Peak,
+    /// `RING`: words of the skin window's stored contours.
+    pub ring_words: Peak,
+    /// `SPANS`: the skin window's crossings with one scanline.
+    pub spans: Peak,
+    /// Most moves of one layer.
+    pub layer_moves: Peak,
+    /// Most moves emitted while the device takes one triangle batch (as the host batches
+    /// them) or the end of the model: all of them must fit the free half of the move buffer.
+    pub move_burst: MoveBurst,
+    /// Layers.
+    pub layers: u32,
+}
+
+/// The slicer of the needs run: room for any model the host can stream.
+type NeedsSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
+/// The toolpath stage of the needs run (as `strata slice`'s).
+type NeedsToolpath =
+    Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
+
+/// The toolpath settings the device derives from `job` (`strata::printer` does the same).
+pub fn device_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathConfig {
+    let mut cfg = ToolpathConfig::new(machine, &job.settings);
+    cfg.outer_perimeter_last = job.options.outer_perimeter_last;
+    cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
+    cfg.skirt_loops = job.options.skirt_loops;
+    cfg.skirt_distance_um = job.options.skirt_distance_um;
+    cfg
+}
+
+/// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
+/// slicer and toolpath stage with the settings the device derives from `job`, and reports
+/// the stage's needs, the layers where they peak and the moves the device must buffer at
+/// once. A need found growing while the stage takes a layer is attributed to that layer
+/// (loop points, loops, window words) or to the layer it emits meanwhile (offsets, infill,
+/// paths, spans). Runs on a thread with a large stack (the stages are large values).
+pub fn toolpath_peaks(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+) -> Result<ToolpathPeaks, String> {
+    let slice_cfg =
+        SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
+    let cfg = device_toolpath_config(machine, job);
+    std::thread::scope(|scope| {
+        std::thread::Builder::new()
+            .name("admission".into())
+            .stack_size(256 << 20)
+            .spawn_scoped(scope, || measure(tris, slice_cfg, cfg))
+            .map_err(|e| format!("cannot start the admission thread: {e}"))?
+            .join()
+            .map_err(|_| "the admission thread panicked".to_string())?
+    })
+}
+
+fn measure(
+    tris: &[Triangle],
+    slice_cfg: SliceConfig,
+    cfg: ToolpathConfig,
+) -> Result<ToolpathPeaks, String> {
+    let mut slicer = Box::new(NeedsSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
+    let mut tp = Box::new(NeedsToolpath::new(cfg).map_err(|e| e.to_string())?);
+    tp.set_position(Point2::new(0, 0), 0);
+    let peaks = Cell::new(ToolpathPeaks::default());
+    // The layer being emitted, its moves, and the current burst.
+    let emitting = Cell::new((0u32, 0i32));
+    let layer_moves = Cell::new(0u32);
+    let burst = Cell::new(MoveBurst::default());
+    let events = &mut |e: &ToolEvent<'_>| match e {
+        ToolEvent::LayerStart { index, z_um, .. } => {
+            emitting.set((*index, *z_um));
+            layer_moves.set(0);
+            let mut b = burst.get();
+            if b.moves == 0 {
+                b.first = (*index, *z_um);
+            }
+            b.last = (*index, *z_um);
+            burst.set(b);
         }
-    }
-    for t in b {
-        let v = t.v.map(mm);
-        let d = BARY
-            .iter()
-            .map(|w| {
-                ga.distance([0, 1, 2].map(|k| w[0] * v[0][k] + w[1] * v[1][k] + w[2] * v[2][k]))
-            })
-            .fold(0.0, f64::max);
-        worst = worst.max(d);
-        if d > bound {
-            offenders.extend(t.v.iter().filter_map(|p| mesh.index.get(p).copied()));
+        ToolEvent::Move(_) => {
+            layer_moves.set(layer_moves.get() + 1);
+            let mut b = burst.get();
+            b.moves += 1;
+            burst.set(b);
         }
+        ToolEvent::LayerEnd(_) => {
+            let mut p = peaks.get();
+            p.layer_moves.raise(layer_moves.get(), emitting.get());
+            p.layers += 1;
+            peaks.set(p);
+        }
+    };
+    let end_burst = |b: &Cell<MoveBurst>| {
+        let mut p = peaks.get();
+        if b.get().moves > p.move_burst.moves {
+            p.move_burst = b.get();
+        }
+        peaks.set(p);
+        b.set(MoveBurst::default());
+    };
+    let mut failed = None;
+    let mut sink = |l: &Layer<'_>| {
+        if failed.is_some() {
+            return;
+        }
+        let before = tp.stats().needs;
+        let pushed = (l.index, l.z_um);
+        emitting.set(pushed);
+        if let Err(e) = tp.push_layer(l, events) {
+            failed = Some(e);
+            return;
+        }
+        let n = tp.stats().needs;
+        let emitted = emitting.get();
+        let mut p = peaks.get();
+        if n != before {
+            p.points.raise(n.layer_points.max(n.offset_edges), pushed);
+            p.loops.raise(n.layer_loops, pushed);
+            p.ring_words.raise(n.ring_points, pushed);
+            p.crossings.raise(n.crossings, emitted);
+            p.path_points.raise(n.path_points, emitted);
+            p.spans.raise(n.spans, emitted);
+        }
+        peaks.set(p);
+    };
+    let mut batch = BatchBuilder::new();
+    for t in tris {
+        if batch.push(t).is_err() {
+            // The host sends the batch and starts the next with this triangle.
+            end_burst(&burst);
+            batch.clear();
+            let _ = batch.push(t);
+        }
+        slicer.push(t, &mut sink).map_err(|e| e.to_string())?;
     }
-    (worst, offenders)
+    end_burst(&burst);
+    slicer.finish(&mut sink).map_err(|e| e.to_string())?;
+    if let Some(e) = failed {
+        return Err(format!("the toolpath stage cannot measure this model: {e}"));
+    }
+    let stats = tp.finish(events).map_err(|e| e.to_string())?;
+    end_burst(&burst);
+    let mut p = peaks.get();
+    p.needs = stats.needs;
+    // Needs that grew in the end-of-model flush belong to its last layer.
+    let last = (stats.layers.saturating_sub(1), emitting.get().1);
+    let n = stats.needs;
+    p.points.raise(n.layer_points.max(n.offset_edges), last);
+    p.loops.raise(n.layer_loops, last);
+    p.ring_words.raise(n.ring_points, last);
+    p.crossings.raise(n.crossings, last);
+    p.path_points.raise(n.path_points, last);
+    p.spans.raise(n.spans, last);
+    Ok(p)
+}
+
+/// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user
+/// (empty when everything fits). `PTS >= max(layer_points, offset_edges)`,
+/// `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >= path_points`, `RING >= ring_points`,
+/// `SPANS >= spans` (the `ToolpathNeeds` docs), and every move burst within the free half of
+/// the move buffer (the device takes a batch only while the buffer is at most half full).
+/// Paths are not compared with `CROSS`: a layer with more paths than the nearest-path grid
+/// holds is ordered by a scan instead (same order, no error).
+pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<String> {
+    const AREA: &str = "the part's cross-section is too large for this printer's memory";
+    const WINDOW: &str = "the layers the top and bottom skins wait for are too large for this \
+                          printer's memory (fewer --top-layers/--bottom-layers need less)";
+    let mm = |z: i32| z as f64 / 1000.0;
+    let mut out = Vec::new();
+    let mut need = |p: &Peak, what: &str, cap: u32, why: &str| {
+        if p.value > cap {
+            out.push(format!(
+                "layer at {:.2} mm needs {} {what}; the printer holds {cap}: {why}",
+                mm(p.z_um),
+                p.value
+            ));
+        }
+    };
+    need(&peaks.points, "toolpath loop points and offset edges", caps.toolpath_points, AREA);
+    need(&peaks.loops, "toolpath loops", caps.toolpath_loops, AREA);
+    need(&peaks.crossings, "scanline crossings", caps.scan_crossings, AREA);
+    need(&peaks.path_points, "toolpath path points", caps.path_points, AREA);
+    need(&peaks.ring_words, "skin window contour words", caps.window_ring_words, WINDOW);
+    need(&peaks.spans, "skin window scanline spans", caps.window_spans, WINDOW);
+    let room = caps.layer_moves - caps.layer_moves / 2;
+    let b = &peaks.move_burst;
+    if b.moves > room {
+        let layers = if b.first.0 == b.last.0 {
+            format!("layer at {:.2} mm needs", mm(b.first.1))
+        } else {
+            format!(
+                "one batch of triangles completes the layers at {:.2} to {:.2} mm at once \
+                 ({} layers): they need",
+                mm(b.first.1),
+                mm(b.last.1),
+                b.last.0 - b.first.0 + 1
+            )
+        };
+        out.push(format!(
+            "{layers} {} buffered toolpath moves; the printer holds {room} (half its move \
+             buffer of {}): too many moves at once for this printer's memory",
+            b.moves, caps.layer_moves
+        ));
+    }
+    out
+}
+
+/// The deviation between the original `a` (indexed as `mesh`) and the simplification `b`,
+/// mm: a two-sided estimate (every original vertex against `b`, 13 samples of every
+/// triangle of `b` against `a`).
+fn deviation(mesh: &Indexed, a: &[Triangle], b: &[Triangle]) -> f64 {
+    let (sa, sb) = (Surface::new(a), Surface::new(b));
+    let there = mesh.points.iter().map(|p| sb.distance(mm(*p))).fold(0.0, f64::max);
+    let back = b
+        .iter()
+        .flat_map(|t| {
+            let v = t.v.map(mm);
+            BARY.map(|w| [0, 1, 2].map(|k| w[0] * v[0][k] + w[1] * v[1][k] + w[2] * v[2][k]))
+        })
+        .map(|p| sa.distance(p))
+        .fold(0.0, f64::max);
+    there.max(back)
 }
 
 /// An indexed mesh with welded (bit-identical) vertices, positions in mm.
 struct Indexed {
-    index: HashMap<Point3, u32>,
     points: Vec<Point3>,
     positions: Vec<[f32; 3]>,
     indices: Vec<u32>,
@@ -178,7 +498,21 @@ impl Indexed {
         }
         let positions =
             points.iter().map(|p| [p.x as f32 / 1e3, p.y as f32 / 1e3, p.z as f32 / 1e3]).collect();
-        Self { index: map, points, positions, indices }
+        Self { points, positions, indices }
+    }
+
+    /// meshopt towards `target` triangles, no error limit; the triangles keep original
+    /// vertices (exact um).
+    fn simplify(&self, target: usize) -> Vec<Triangle> {
+        let idx = simplify_decoder(
+            &self.indices,
+            &self.positions,
+            target * 3,
+            f32::MAX,
+            SimplifyOptions::ErrorAbsolute,
+            None,
+        );
+        self.triangles(&idx)
     }
 
     /// Triangles of an index list (original vertices, exact um).
@@ -245,51 +579,38 @@ fn dist2_point_triangle(p: V, a: V, b: V, c: V) -> f64 {
     ])
 }
 
-/// A uniform grid of triangle bounding boxes for nearest-surface queries.
-struct Grid<'a> {
-    tris: &'a [Triangle],
-    cell: f64,
-    cells: HashMap<[i32; 3], Vec<u32>>,
+/// A triangle in mm for the R-tree.
+struct TriMm([V; 3]);
+
+impl RTreeObject for TriMm {
+    type Envelope = AABB<V>;
+
+    fn envelope(&self) -> AABB<V> {
+        let [a, b, c] = self.0;
+        AABB::from_corners(
+            [0, 1, 2].map(|k| a[k].min(b[k]).min(c[k])),
+            [0, 1, 2].map(|k| a[k].max(b[k]).max(c[k])),
+        )
+    }
 }
 
-impl<'a> Grid<'a> {
-    fn new(tris: &'a [Triangle], cell: f64) -> Self {
-        let mut cells: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
-        for (i, t) in tris.iter().enumerate() {
-            let v = t.v.map(mm);
-            let lo = [0, 1, 2]
-                .map(|k| (v.iter().map(|p| p[k]).fold(f64::MAX, f64::min) / cell).floor() as i32);
-            let hi = [0, 1, 2]
-                .map(|k| (v.iter().map(|p| p[k]).fold(f64::MIN, f64::max) / cell).floor() as i32);
-            for x in lo[0]..=hi[0] {
-                for y in lo[1]..=hi[1] {
-                    for z in lo[2]..=hi[2] {
-                        cells.entry([x, y, z]).or_default().push(i as u32);
-                    }
-                }
-            }
-        }
-        Self { tris, cell, cells }
+impl PointDistance for TriMm {
+    fn distance_2(&self, p: &V) -> f64 {
+        dist2_point_triangle(*p, self.0[0], self.0[1], self.0[2])
+    }
+}
+
+/// A surface for exact nearest-distance queries (an R-tree of its triangles).
+struct Surface(RTree<TriMm>);
+
+impl Surface {
+    fn new(tris: &[Triangle]) -> Self {
+        Self(RTree::bulk_load(tris.iter().map(|t| TriMm(t.v.map(mm))).collect()))
     }
 
-    /// Distance from `p` to the surface, capped at one cell (enough for sub-mm deviations).
+    /// Distance from `p` to the surface, mm (infinite for an empty surface).
     fn distance(&self, p: V) -> f64 {
-        let c = [0, 1, 2].map(|k| (p[k] / self.cell).floor() as i32);
-        let mut best = self.cell * self.cell;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(list) = self.cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                        continue;
-                    };
-                    for &i in list {
-                        let v = self.tris[i as usize].v.map(mm);
-                        best = best.min(dist2_point_triangle(p, v[0], v[1], v[2]));
-                    }
-                }
-            }
-        }
-        best.sqrt()
+        self.0.nearest_neighbor(&p).map_or(f64::INFINITY, |t| t.distance_2(&p).sqrt())
     }
 }
 
@@ -315,7 +636,7 @@ const BARY: [[f64; 3]; 13] = [
 /// interior) against `a`.
 pub fn hausdorff_mm(a: &[Triangle], b: &[Triangle]) -> f64 {
     let mesh = Indexed::weld(a);
-    deviation(&mesh, a, b, f64::INFINITY).0
+    deviation(&mesh, a, b)
 }
 
 #[cfg(test)]

@@ -8,8 +8,7 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use strata::protocol::DeviceState;
-use strata::slice::SliceConfig;
-use strata_host::admission::{admit, Admission};
+use strata_host::admission::{admit_job, Admission};
 use strata_host::model;
 use strata_host::serial;
 use strata_host::session::HostEndpoint;
@@ -55,15 +54,21 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     let mut ep = HostEndpoint::new(strata::protocol::LinkConfig::default());
     let caps = serial::connect(&mut port, &mut ep, t0)?;
     eprintln!(
-        "printer: {} active triangles, {} contour points per layer, {} KB RAM",
+        "printer: {} active triangles, {} contour points per layer, toolpath PTS {} LOOPS {} \
+         CROSS {} PATH {} RING {} SPANS {}, {} buffered moves, {} KB RAM",
         caps.active_triangles,
         caps.contour_points,
+        caps.toolpath_points,
+        caps.toolpath_loops,
+        caps.scan_crossings,
+        caps.path_points,
+        caps.window_ring_words,
+        caps.window_spans,
+        caps.layer_moves,
         caps.ram_bytes / 1024
     );
     let job = job_of(&args.print, &tris)?;
-    let slice_cfg =
-        SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
-    let tris = match admit(&tris, &slice_cfg, &caps, args.max_deviation)
+    let tris = match admit_job(&tris, &machine, &job, &caps, args.max_deviation)
         .map_err(|e| format!("{}: {e}", args.model.display()))?
     {
         Admission::Unchanged(_) => tris,

@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use serde::Serialize;
 use strata::geom::Triangle;
 use strata::protocol::{JobOptions, JobSpec};
-use strata::slice::SliceConfig;
 use strata::toolpath::Seam;
 use strata_host::admission::{self, Admission};
 use strata_host::model;
@@ -112,10 +111,8 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
         preview: args.preview.is_some(),
         ..SimOptions::default()
     };
-    let slice_cfg =
-        SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
     let (tris, simplified) =
-        match admission::admit(&tris, &slice_cfg, &opts.capacities, args.max_deviation)
+        match admission::admit_job(&tris, &machine, &job, &opts.capacities, args.max_deviation)
             .map_err(|e| format!("{}: {e}", args.model.display()))?
         {
             Admission::Unchanged(_) => (tris, None),

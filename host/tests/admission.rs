@@ -1,0 +1,230 @@
+//! Admission control against the device's capacities (`strata_host::admission::admit_job`):
+//! the slicer's needs (simplification held to a measured deviation, checked here against an
+//! analytic sphere), the toolpath stage's needs and the move buffer, and a model that fits
+//! streamed unchanged through the simulated printer. Small models: fast in debug builds.
+
+use std::collections::HashSet;
+
+use strata::geom::{Point3, Triangle};
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::printer::CREALITY_CAPACITIES;
+use strata::protocol::{Capacities, JobOptions, JobSpec};
+use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
+use strata_host::simjob::{simulate, SimOptions};
+
+/// Sphere centre (um) and radius (mm): resting on the bed at the bed's centre.
+const C: [f64; 3] = [110_000.0, 110_000.0, 5_000.0];
+const R_MM: f64 = 5.0;
+
+/// A UV sphere of `lon` x `lat` quads (triangles at the poles), vertices on the sphere rounded
+/// to the um grid and shared between triangles, outward winding, sorted by lowest z.
+fn sphere(lon: usize, lat: usize) -> Vec<Triangle> {
+    let r = R_MM * 1000.0;
+    let v = |i: usize, j: usize| -> Point3 {
+        // i: 0 (south pole) ..= lat (north pole), j: longitude.
+        let th = std::f64::consts::PI * i as f64 / lat as f64;
+        let ph = 2.0 * std::f64::consts::PI * (j % lon) as f64 / lon as f64;
+        let (x, y, z) = if i == 0 || i == lat {
+            (0.0, 0.0, if i == 0 { -r } else { r })
+        } else {
+            (r * th.sin() * ph.cos(), r * th.sin() * ph.sin(), -r * th.cos())
+        };
+        Point3::new((C[0] + x).round() as i32, (C[1] + y).round() as i32, (C[2] + z).round() as i32)
+    };
+    let mut t = Vec::new();
+    for i in 0..lat {
+        for j in 0..lon {
+            let (a, b, c, d) = (v(i, j), v(i, j + 1), v(i + 1, j + 1), v(i + 1, j));
+            if i > 0 {
+                t.push(Triangle { v: [a, b, d] });
+            }
+            if i + 1 < lat {
+                t.push(Triangle { v: [b, c, d] });
+            }
+        }
+    }
+    t.sort_by_key(Triangle::z_min);
+    t
+}
+
+/// How far a triangle's flat face lies inside the sphere, mm: its corners are on the sphere,
+/// so the face's point nearest the centre is the farthest from the sphere, at
+/// `R - distance(centre, triangle)`. That distance is the plane's, `distance(centre, plane)`,
+/// when the foot of the perpendicular lies inside the triangle (an acute triangle: its
+/// circumcentre), else the nearest edge's (an obtuse sliver, whose plane passes far inside the
+/// sphere though the face stays near it).
+fn sphere_deviation_mm(t: &Triangle) -> f64 {
+    type V = [f64; 3];
+    let sub = |a: V, b: V| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let dot = |a: V, b: V| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let cross = |a: V, b: V| {
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    };
+    let p = t.v.map(|p| [p.x as f64 / 1e3, p.y as f64 / 1e3, p.z as f64 / 1e3]);
+    let c = C.map(|x| x / 1e3);
+    let n = cross(sub(p[1], p[0]), sub(p[2], p[0]));
+    let nn = dot(n, n);
+    let h = dot(sub(c, p[0]), n) / nn;
+    let foot = [c[0] - h * n[0], c[1] - h * n[1], c[2] - h * n[2]];
+    // Inside when the foot is on the inner side of every edge.
+    let inside = (0..3).all(|k| {
+        let (a, b) = (p[k], p[(k + 1) % 3]);
+        dot(cross(sub(b, a), sub(foot, a)), n) >= 0.0
+    });
+    let d = if inside {
+        h.abs() * nn.sqrt()
+    } else {
+        (0..3)
+            .map(|k| {
+                let (a, b) = (p[k], p[(k + 1) % 3]);
+                let ab = sub(b, a);
+                let s = (dot(sub(c, a), ab) / dot(ab, ab)).clamp(0.0, 1.0);
+                let q = sub(c, [a[0] + s * ab[0], a[1] + s * ab[1], a[2] + s * ab[2]]);
+                dot(q, q).sqrt()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    R_MM - d
+}
+
+fn job(tris: &[Triangle]) -> JobSpec {
+    JobSpec {
+        settings: PrintSettings::default(),
+        options: JobOptions { skirt_loops: 0, ..JobOptions::default() },
+        model_height_um: tris.iter().map(Triangle::z_max).max().unwrap(),
+        triangles: tris.len() as u32,
+    }
+}
+
+/// A closed box [x0, x1] x [y0, y1] x [0, h], um, sorted by lowest z.
+fn cuboid(x0: i32, x1: i32, y0: i32, y1: i32, h: i32) -> Vec<Triangle> {
+    let p = |x, y, z| Point3::new(x, y, z);
+    let c = [p(x0, y0, 0), p(x1, y0, 0), p(x1, y1, 0), p(x0, y1, 0)];
+    let top = c.map(|q| p(q.x, q.y, h));
+    let mut t = Vec::new();
+    for j in 0..4 {
+        let k = (j + 1) % 4;
+        t.push(Triangle { v: [c[j], c[k], top[k]] });
+        t.push(Triangle { v: [c[j], top[k], top[j]] });
+    }
+    t.push(Triangle { v: [c[0], c[2], c[1]] });
+    t.push(Triangle { v: [c[0], c[3], c[2]] });
+    t.push(Triangle { v: [top[0], top[1], top[2]] });
+    t.push(Triangle { v: [top[0], top[2], top[3]] });
+    t.sort_by_key(Triangle::z_min);
+    t
+}
+
+#[test]
+fn a_fine_sphere_is_simplified_to_fit_within_the_measured_deviation() {
+    let tris = sphere(96, 48);
+    let original: HashSet<Point3> = tris.iter().flat_map(|t| t.v).collect();
+    let orig_sag = tris.iter().map(sphere_deviation_mm).fold(0.0, f64::max);
+    assert!(orig_sag < 0.01, "{orig_sag}");
+    let caps = Capacities { active_triangles: 150, contour_points: 150, ..CREALITY_CAPACITIES };
+    let machine = MachineConfig::default();
+    let job = job(&tris);
+    let bound = 0.1;
+    let Admission::Simplified(s) = admit_job(&tris, &machine, &job, &caps, bound).unwrap() else {
+        panic!("the sphere should need simplification");
+    };
+    assert!(s.triangles.len() < tris.len() / 2, "{} triangles", s.triangles.len());
+    // The result fits (the slicer's peaks and the toolpath's needs, remeasured here).
+    assert!(s.needs.active_triangles <= 150 && s.needs.contour_points <= 150, "{:?}", s.needs);
+    let peaks = toolpath_peaks(&s.triangles, &machine, &job).unwrap();
+    assert!(peaks.needs.crossings <= caps.scan_crossings, "{:?}", peaks.needs);
+    // The measured deviation is within the bound and agrees with an independent estimate.
+    assert!(s.max_deviation_mm <= bound, "{}", s.max_deviation_mm);
+    assert!((hausdorff_mm(&tris, &s.triangles) - s.max_deviation_mm).abs() < 1e-9);
+    // Oracle: every corner is an original vertex (on the sphere), so a flat face deviates
+    // from the sphere by at most R - distance(centre, face) (the plane's distance when the
+    // perpendicular's foot lies inside the face); that is within the measured deviation (from
+    // the original mesh, sampled: 10 % slack) plus the original's own sag.
+    let mut worst: f64 = 0.0;
+    for t in &s.triangles {
+        for p in t.v {
+            assert!(original.contains(&p), "{p:?} is not an original vertex");
+        }
+        worst = worst.max(sphere_deviation_mm(t));
+    }
+    assert!(
+        worst <= 1.1 * s.max_deviation_mm + orig_sag,
+        "face {worst:.4} mm inside the sphere, measured {:.4} mm",
+        s.max_deviation_mm
+    );
+    assert!(worst > 0.0);
+}
+
+#[test]
+fn a_model_that_cannot_fit_is_refused_naming_what() {
+    let tris = sphere(48, 24);
+    let caps = Capacities { active_triangles: 4, contour_points: 4, ..CREALITY_CAPACITIES };
+    let e = admit_job(&tris, &MachineConfig::default(), &job(&tris), &caps, 0.1).unwrap_err();
+    assert!(e.contains("does not fit the printer"), "{e}");
+    assert!(e.contains("active triangles") && e.contains("contour points"), "{e}");
+    assert!(e.contains("the printer holds 4 and 4"), "{e}");
+}
+
+#[test]
+fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
+    let tris = cuboid(100_000, 120_000, 100_000, 110_000, 1_000);
+    let machine = MachineConfig::default();
+    let job = job(&tris);
+    let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
+    assert!(peaks.needs.crossings > 8, "{:?}", peaks.needs);
+    // The slicer fits; the scanline crossings do not.
+    let caps = Capacities { scan_crossings: 8, ..CREALITY_CAPACITIES };
+    let e = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap_err();
+    assert!(e.contains("toolpath memory"), "{e}");
+    let want = format!(
+        "layer at {:.2} mm needs {} scanline crossings; the printer holds 8: the part's \
+         cross-section is too large",
+        peaks.crossings.z_um as f64 / 1000.0,
+        peaks.needs.crossings
+    );
+    assert!(e.contains(&want), "{e}\nwant {want}");
+    assert!(!e.contains("path points"), "{e}");
+    // Every toolpath resource is named when it does not fit.
+    let tiny = Capacities {
+        toolpath_points: 2,
+        toolpath_loops: 0,
+        scan_crossings: 2,
+        path_points: 2,
+        window_ring_words: 2,
+        window_spans: 0,
+        layer_moves: 8,
+        ..CREALITY_CAPACITIES
+    };
+    let e = admit_job(&tris, &machine, &job, &tiny, 0.02).unwrap_err();
+    for what in [
+        "toolpath loop points and offset edges; the printer holds 2",
+        "toolpath loops; the printer holds 0",
+        "scanline crossings; the printer holds 2",
+        "toolpath path points; the printer holds 2",
+        "skin window contour words; the printer holds 2",
+        "skin window scanline spans; the printer holds 0",
+        "buffered toolpath moves; the printer holds 4 (half its move buffer of 8)",
+    ] {
+        assert!(e.contains(what), "{what}: {e}");
+    }
+}
+
+#[test]
+fn a_small_model_that_fits_is_streamed_unchanged() {
+    let tris = cuboid(100_000, 106_000, 100_000, 104_000, 600);
+    let machine = MachineConfig::default();
+    let job = job(&tris);
+    let caps = CREALITY_CAPACITIES;
+    let Admission::Unchanged(needs) = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap() else {
+        panic!("a 12-triangle box fits");
+    };
+    assert!(needs.active_triangles <= 12);
+    let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
+    assert_eq!(peaks.layers, 3);
+    assert!(peaks.layer_moves.value > 0 && peaks.move_burst.moves >= peaks.layer_moves.value);
+    let opts = SimOptions { capacities: caps, ..SimOptions::default() };
+    let rep = simulate(&tris, &machine, job, &opts).unwrap_or_else(|(e, _)| panic!("{e}"));
+    assert_eq!(rep.triangles, tris.len());
+    assert_eq!(rep.layers, 3);
+    assert_eq!(rep.layer_hashes.len(), 3);
+}
