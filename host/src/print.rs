@@ -131,19 +131,59 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
 /// Runs `strata ports`.
 pub fn ports() -> Result<(), String> {
     let ports = serialport::available_ports().map_err(|e| e.to_string())?;
-    if ports.is_empty() {
-        println!("no serial ports found");
-    }
-    for p in ports {
-        let kind = match p.port_type {
-            serialport::SerialPortType::UsbPort(u) => {
-                format!("USB {:04x}:{:04x} {}", u.vid, u.pid, u.product.unwrap_or_default())
-            }
-            serialport::SerialPortType::PciPort => "PCI".into(),
-            serialport::SerialPortType::BluetoothPort => "Bluetooth".into(),
-            serialport::SerialPortType::Unknown => "unknown".into(),
-        };
-        println!("{}\t{kind}", p.port_name);
+    for line in port_lines(ports) {
+        println!("{line}");
     }
     Ok(())
+}
+
+/// One line per port (`NAME<TAB>KIND`), or one line saying there is none.
+fn port_lines(ports: Vec<serialport::SerialPortInfo>) -> Vec<String> {
+    if ports.is_empty() {
+        return vec!["no serial ports found".into()];
+    }
+    ports
+        .into_iter()
+        .map(|p| {
+            let kind = match p.port_type {
+                serialport::SerialPortType::UsbPort(u) => {
+                    format!("USB {:04x}:{:04x} {}", u.vid, u.pid, u.product.unwrap_or_default())
+                }
+                serialport::SerialPortType::PciPort => "PCI".into(),
+                serialport::SerialPortType::BluetoothPort => "Bluetooth".into(),
+                serialport::SerialPortType::Unknown => "unknown".into(),
+            };
+            format!("{}\t{kind}", p.port_name)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serialport::{SerialPortInfo, SerialPortType, UsbPortInfo};
+
+    #[test]
+    fn no_ports_is_one_clear_line() {
+        assert_eq!(port_lines(Vec::new()), ["no serial ports found"]);
+    }
+
+    #[test]
+    fn ports_are_listed_with_their_kind() {
+        let usb = UsbPortInfo {
+            vid: 0x1a86,
+            pid: 0x7523,
+            serial_number: None,
+            manufacturer: None,
+            product: Some("USB Serial".into()),
+        };
+        let lines = port_lines(vec![
+            SerialPortInfo {
+                port_name: "/dev/ttyUSB0".into(),
+                port_type: SerialPortType::UsbPort(usb),
+            },
+            SerialPortInfo { port_name: "/dev/ttyS0".into(), port_type: SerialPortType::Unknown },
+        ]);
+        assert_eq!(lines, ["/dev/ttyUSB0\tUSB 1a86:7523 USB Serial", "/dev/ttyS0\tunknown"]);
+    }
 }
