@@ -1,17 +1,18 @@
 //! `strata print` and `strata ports`: stream a model to a printer over a serial port (or a
 //! pseudo-terminal), with admission control, a progress bar, device status and Ctrl-C abort.
 
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use strata::protocol::DeviceState;
+use strata::protocol::{DeviceState, Status};
 use strata_host::admission::{admit_job, Admission};
 use strata_host::model;
 use strata_host::serial;
-use strata_host::session::HostEndpoint;
+use strata_host::session::{HostEndpoint, Progress};
 
 use crate::simulate::job_of;
 use crate::slice_cmd::{machine_of, PrintArgs};
@@ -86,6 +87,9 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         }
     };
     let job = strata::protocol::JobSpec { triangles: tris.len() as u32, ..job };
+    // A bar on a terminal; plain lines otherwise (logs, CI), at every tenth of the stream
+    // and every layer the printer completes.
+    let terminal = std::io::stderr().is_terminal();
     let bar = ProgressBar::new(tris.len() as u64);
     bar.set_style(
         ProgressStyle::with_template(
@@ -93,25 +97,34 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         )
         .map_err(|e| e.to_string())?,
     );
+    let total = tris.len();
+    let mut last_line: Option<(usize, u32)> = None;
     let result = serial::print(&mut port, &mut ep, t0, caps, &tris, job, &abort, |p| {
-        bar.set_position(p.triangles_sent as u64);
-        if let Some(s) = p.status {
-            let eta = if s.planned_ms > s.done_ms && s.done_ms > 0 {
-                format!(", ETA {} s", (s.planned_ms - s.done_ms) / 1000)
-            } else {
-                String::new()
-            };
-            bar.set_message(format!(
-                "{} B | layer {}/{} | {:?} | printed {} s{eta}",
-                p.triangle_wire_bytes,
-                s.layer,
-                s.layers,
-                s.state,
-                s.done_ms / 1000
-            ));
+        let text = progress_text(p, total);
+        if terminal {
+            bar.set_position(p.triangles_sent as u64);
+            bar.set_message(text);
+        } else {
+            let key = (p.triangles_sent * 10 / total.max(1), p.status.map_or(0, |s| s.layer));
+            if last_line != Some(key) {
+                last_line = Some(key);
+                eprintln!("progress: {text}");
+            }
         }
     });
     bar.finish_and_clear();
+    let result = result.map_err(|e| {
+        if abort.load(Ordering::Relaxed) {
+            match e.as_str() {
+                "aborted by the user" => "aborted by the user (Ctrl-C): the printer was told to \
+                                          abort"
+                    .to_string(),
+                _ => format!("aborted (Ctrl-C): {e}"),
+            }
+        } else {
+            e
+        }
+    });
     let progress = result.map_err(|e| format!("{}: {e}", args.model.display()))?;
     let s = progress.status.unwrap_or_default();
     println!(
@@ -126,6 +139,44 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         return Err(format!("the printer ended in state {:?}", s.state));
     }
     Ok(())
+}
+
+/// One progress report: triangles and bytes streamed, the printer's layer, state, print time
+/// and the time left (estimated from the print time of the layers planned so far).
+fn progress_text(p: &Progress, total: usize) -> String {
+    let mut text = format!(
+        "{}/{} triangles ({}%), {} B sent",
+        p.triangles_sent,
+        total,
+        p.triangles_sent * 100 / total.max(1),
+        p.triangle_wire_bytes
+    );
+    if let Some(s) = p.status {
+        let eta = match eta_s(&s) {
+            Some(t) => format!("{}:{:02}", t / 60, t % 60),
+            None => "--".into(),
+        };
+        text += &format!(
+            " | layer {}/{} | {:?} | printed {} s | ETA {eta}",
+            s.layer,
+            s.layers,
+            s.state,
+            s.done_ms / 1000
+        );
+    } else {
+        text += " | layer -/- | ETA --";
+    }
+    text
+}
+
+/// Seconds left: the print time of the planned layers, scaled to every layer, minus the time
+/// printed (`None` until a layer is planned and motion has started).
+fn eta_s(s: &Status) -> Option<u64> {
+    if s.layer == 0 || s.done_ms == 0 {
+        return None;
+    }
+    let total_ms = s.planned_ms as u64 * s.layers.max(s.layer) as u64 / s.layer as u64;
+    Some(total_ms.saturating_sub(s.done_ms as u64) / 1000)
 }
 
 /// Runs `strata ports`.

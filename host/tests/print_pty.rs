@@ -94,3 +94,98 @@ fn print_fails_cleanly_when_nobody_answers() {
     assert!(!out.status.success());
     assert!(stderr.contains("no answer from the printer"), "{stderr}");
 }
+
+/// Ctrl-C mid-print: the real binary, a simulated printer printing in near real time (the
+/// holed block takes about 10 s at 5x), SIGINT once the plain progress lines (stderr is a
+/// pipe, not a terminal) show a layer and an ETA. The CLI sends Abort, waits for the printer's
+/// confirmation and exits non-zero saying so; the device ends Aborted; nothing hangs.
+#[test]
+fn ctrl_c_aborts_the_print_and_the_printer() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command as Std, Stdio};
+    use std::sync::atomic::Ordering;
+    use std::time::Instant;
+
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("holed.stl");
+    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    let (mut master, slave) = TTYPort::pair().expect("pseudo-terminal pair");
+    master.set_timeout(Duration::from_millis(1)).unwrap();
+    let name = slave.name().expect("slave name");
+    drop(slave);
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|s| {
+        let device = std::thread::Builder::new()
+            .stack_size(512 << 20)
+            .spawn_scoped(s, || {
+                serve_device(&mut master, &MachineConfig::default(), CREALITY_CAPACITIES, 5, &stop)
+            })
+            .unwrap();
+        let mut child = Std::new(env!("CARGO_BIN_EXE_strata"))
+            .args(["print", model.to_str().unwrap(), "--port", &name, "--skirt-loops", "0"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let pid = child.id();
+        let stderr = child.stderr.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel::<String>();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let t0 = Instant::now();
+        let mut lines = Vec::new();
+        let mut sent_at = None;
+        let status = loop {
+            while let Ok(l) = rx.try_recv() {
+                lines.push(l);
+            }
+            if sent_at.is_none() && lines.iter().any(|l| eta_known_line(l)) {
+                let ok = Std::new("kill").args(["-INT", &pid.to_string()]).status().unwrap();
+                assert!(ok.success());
+                sent_at = Some(Instant::now());
+            }
+            if let Some(st) = child.try_wait().unwrap() {
+                break st;
+            }
+            if t0.elapsed() > Duration::from_secs(60) {
+                let _ = child.kill();
+                stop.store(true, Ordering::Relaxed);
+                panic!("strata print hung (SIGINT sent: {}): {lines:#?}", sent_at.is_some());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        // The rest of stderr.
+        std::thread::sleep(Duration::from_millis(100));
+        while let Ok(l) = rx.try_recv() {
+            lines.push(l);
+        }
+        let mut stdout = String::new();
+        std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stdout).unwrap();
+        let sent_at = sent_at.unwrap_or_else(|| panic!("no progress line with an ETA: {lines:#?}"));
+        // Abort, confirmation and exit well within the CLI's 5 s abort timeout.
+        assert!(sent_at.elapsed() < Duration::from_secs(5), "{lines:#?}");
+        stop.store(true, Ordering::Relaxed);
+        let state = device.join().unwrap().unwrap();
+        let all = lines.join("\n");
+        eprintln!("{all}");
+        assert!(!status.success(), "{all}\n{stdout}");
+        assert!(all.contains("aborted by the user (Ctrl-C)"), "{all}");
+        assert!(!stdout.contains("printed"), "{stdout}");
+        assert_eq!(state, DeviceState::Aborted, "{all}");
+        // The plain progress lines: triangles, bytes, layer, state and ETA.
+        let p = lines.iter().find(|l| eta_known_line(l)).unwrap();
+        for what in ["32/32 triangles (100%)", " B sent", "| layer ", "/6 |", "Printing", "ETA "] {
+            assert!(p.contains(what), "{what}: {p}");
+        }
+    });
+}
+
+fn eta_known_line(l: &str) -> bool {
+    l.starts_with("progress: ")
+        && l.split("ETA ").nth(1).is_some_and(|t| t.starts_with(|c: char| c.is_ascii_digit()))
+}
