@@ -85,6 +85,17 @@ pub fn admit_job(
     caps: &Capacities,
     max_deviation_mm: f64,
 ) -> Result<Admission, String> {
+    admit_job_peaks(tris, machine, job, caps, max_deviation_mm).map(|(a, _)| a)
+}
+
+/// [`admit_job`], and the toolpath needs of the admitted model.
+pub fn admit_job_peaks(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+    caps: &Capacities,
+    max_deviation_mm: f64,
+) -> Result<(Admission, ToolpathPeaks), String> {
     let config = SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
     let admission = admit(tris, &config, caps, max_deviation_mm)?;
     let streamed = match &admission {
@@ -105,7 +116,7 @@ pub fn admit_job(
             short.join("; ")
         ));
     }
-    Ok(admission)
+    Ok((admission, peaks))
 }
 
 /// Admits `tris` (placed, sorted by lowest z) on a device with `caps`: unchanged, simplified

@@ -61,6 +61,25 @@ struct Simplified {
     error_bound_mm: f64,
 }
 
+/// The capacities this job needs, named as `strata::protocol::Capacities` (what admission
+/// compares with the device's).
+#[derive(Serialize)]
+struct DeviceNeeds {
+    active_triangles: u32,
+    contour_points: u32,
+    /// Move buffer: twice the most moves emitted at once (the device takes a batch only while
+    /// its buffer is at most half full).
+    layer_moves: u32,
+    toolpath_points: u32,
+    toolpath_loops: u32,
+    scan_crossings: u32,
+    path_points: u32,
+    window_ring_words: u32,
+    window_spans: u32,
+    /// RAM of a toolpath stage with exactly these capacities (`ToolpathNeeds::bytes`).
+    toolpath_ram_bytes: u64,
+}
+
 #[derive(Serialize)]
 struct Summary {
     layers: u32,
@@ -70,7 +89,11 @@ struct Summary {
     max_step_error_us: f64,
     peak_active_triangles: u32,
     peak_contour_points: u32,
+    /// RAM of a device pipeline sized exactly to this job (`simjob::device_ram`: the slicer at
+    /// its peaks, the toolpath stage at `device_needs`, motion).
     device_ram_bytes: u64,
+    /// The capacities a device needs for this job, named as the announced `Capacities`.
+    device_needs: DeviceNeeds,
     wire_bytes_per_triangle: f64,
     simplified: Option<Simplified>,
     layer_hashes: Vec<String>,
@@ -111,35 +134,48 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
         preview: args.preview.is_some(),
         ..SimOptions::default()
     };
-    let (tris, simplified) =
-        match admission::admit_job(&tris, &machine, &job, &opts.capacities, args.max_deviation)
-            .map_err(|e| format!("{}: {e}", args.model.display()))?
-        {
-            Admission::Unchanged(_) => (tris, None),
-            Admission::Simplified(s) => {
-                if !args.json {
-                    println!(
-                        "{}: simplified from {} to {} triangles to fit the printer \
-                         (error bound {} mm, measured deviation {:.3} mm, peak active triangles \
-                         {}, contour points {})",
-                        args.model.display(),
-                        s.triangles_in,
-                        s.triangles.len(),
-                        s.error_bound_mm,
-                        s.max_deviation_mm,
-                        s.needs.active_triangles,
-                        s.needs.contour_points
-                    );
-                }
-                let info = Simplified {
-                    triangles_in: s.triangles_in,
-                    triangles_out: s.triangles.len(),
-                    max_deviation_mm: s.max_deviation_mm,
-                    error_bound_mm: s.error_bound_mm,
-                };
-                (s.triangles, Some(info))
+    let (admitted, peaks) =
+        admission::admit_job_peaks(&tris, &machine, &job, &opts.capacities, args.max_deviation)
+            .map_err(|e| format!("{}: {e}", args.model.display()))?;
+    let (tris, simplified, slicer) = match admitted {
+        Admission::Unchanged(needs) => (tris, None, needs),
+        Admission::Simplified(s) => {
+            if !args.json {
+                println!(
+                    "{}: simplified from {} to {} triangles to fit the printer \
+                     (error bound {} mm, measured deviation {:.3} mm, peak active triangles \
+                     {}, contour points {})",
+                    args.model.display(),
+                    s.triangles_in,
+                    s.triangles.len(),
+                    s.error_bound_mm,
+                    s.max_deviation_mm,
+                    s.needs.active_triangles,
+                    s.needs.contour_points
+                );
             }
-        };
+            let info = Simplified {
+                triangles_in: s.triangles_in,
+                triangles_out: s.triangles.len(),
+                max_deviation_mm: s.max_deviation_mm,
+                error_bound_mm: s.error_bound_mm,
+            };
+            (s.triangles, Some(info), s.needs)
+        }
+    };
+    let n = peaks.needs;
+    let needs = DeviceNeeds {
+        active_triangles: slicer.active_triangles,
+        contour_points: slicer.contour_points,
+        layer_moves: 2 * peaks.move_burst.moves,
+        toolpath_points: n.layer_points.max(n.offset_edges),
+        toolpath_loops: n.layer_loops,
+        scan_crossings: n.crossings,
+        path_points: n.path_points,
+        window_ring_words: n.ring_points,
+        window_spans: n.spans,
+        toolpath_ram_bytes: n.bytes() as u64,
+    };
     let job = JobSpec { triangles: tris.len() as u32, ..job };
     let rep = simulate(&tris, &machine, job, &opts)
         .map_err(|(e, _)| format!("{}: {e}", args.model.display()))?;
@@ -150,13 +186,14 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
             println!("preview: {n} layer pictures and {}", dir.join("index.html").display());
         }
     }
-    report(args, &rep, simplified)
+    report(args, &rep, simplified, needs)
 }
 
 fn report(
     args: &SimulateArgs,
     rep: &SimReport,
     simplified: Option<Simplified>,
+    needs: DeviceNeeds,
 ) -> Result<(), String> {
     if args.json {
         let s = Summary {
@@ -168,6 +205,7 @@ fn report(
             peak_active_triangles: rep.peak_active_triangles,
             peak_contour_points: rep.peak_contour_points,
             device_ram_bytes: rep.device_ram_bytes,
+            device_needs: needs,
             wire_bytes_per_triangle: rep.wire_bytes_per_triangle,
             simplified,
             layer_hashes: rep.layer_hashes.iter().map(|h| format!("{h:016x}")).collect(),

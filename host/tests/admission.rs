@@ -9,8 +9,13 @@ use strata::geom::{Point3, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::{Capacities, JobOptions, JobSpec};
+use strata::slice::{SliceConfig, Slicer};
 use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
-use strata_host::simjob::{simulate, SimOptions};
+use strata_host::model;
+use strata_host::simjob::{device_ram, simulate, SimOptions};
+
+mod common;
+use common::{holed_block, write_stl};
 
 /// Sphere centre (um) and radius (mm): resting on the bed at the bed's centre.
 const C: [f64; 3] = [110_000.0, 110_000.0, 5_000.0];
@@ -227,4 +232,82 @@ fn a_small_model_that_fits_is_streamed_unchanged() {
     assert_eq!(rep.triangles, tris.len());
     assert_eq!(rep.layers, 3);
     assert_eq!(rep.layer_hashes.len(), 3);
+}
+
+/// `strata simulate --json`: `device_ram_bytes` is the RAM of a device sized exactly to the
+/// needs admission checks (the slicer's peaks, the toolpath needs of `toolpath_peaks`), and
+/// `device_needs` are those needs as announced capacities: a printer announcing exactly them
+/// admits the model unchanged, one unit less of any is refused naming it.
+#[test]
+fn simulate_reports_the_ram_and_capacities_admission_checks() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("holed.stl");
+    write_stl(&path, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_strata"))
+        .args(["simulate", path.to_str().unwrap(), "--json", "--skirt-loops", "0"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let machine = MachineConfig::default();
+    let tris = model::load(&path).unwrap().placed_sorted(&machine).unwrap();
+    let job = job(&tris);
+    let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
+    // The slicer's peaks, from the core slicer directly.
+    let cfg = SliceConfig::new(&job.settings, job.model_height_um).unwrap();
+    let stats = std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(move || {
+            let mut slicer = Box::new(Slicer::<4096, 4096, 256>::new(cfg).unwrap());
+            for t in &tris {
+                slicer.push(t, &mut |_| {}).unwrap();
+            }
+            slicer.finish(&mut |_| {}).unwrap()
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+    assert_eq!(doc["device_ram_bytes"], device_ram(&stats, &peaks.needs));
+    let n = &doc["device_needs"];
+    assert_eq!(n["toolpath_ram_bytes"], peaks.needs.bytes() as u64);
+    let field = |k: &str| n[k].as_u64().unwrap_or_else(|| panic!("{k}: {n}")) as u32;
+    let exact = Capacities {
+        active_triangles: field("active_triangles"),
+        contour_points: field("contour_points"),
+        layer_moves: field("layer_moves"),
+        toolpath_points: field("toolpath_points"),
+        toolpath_loops: field("toolpath_loops"),
+        scan_crossings: field("scan_crossings"),
+        path_points: field("path_points"),
+        window_ring_words: field("window_ring_words"),
+        window_spans: field("window_spans"),
+        ..CREALITY_CAPACITIES
+    };
+    assert_eq!(exact.active_triangles, stats.peak_active);
+    assert_eq!(exact.scan_crossings, peaks.needs.crossings);
+    let tris = model::load(&path).unwrap().placed_sorted(&machine).unwrap();
+    let admitted = admit_job(&tris, &machine, &job, &exact, 0.02).unwrap();
+    assert!(matches!(admitted, Admission::Unchanged(_)));
+    let less = [
+        (
+            "toolpath loop points",
+            Capacities { toolpath_points: exact.toolpath_points - 1, ..exact },
+        ),
+        ("toolpath loops", Capacities { toolpath_loops: exact.toolpath_loops - 1, ..exact }),
+        ("scanline crossings", Capacities { scan_crossings: exact.scan_crossings - 1, ..exact }),
+        ("toolpath path points", Capacities { path_points: exact.path_points - 1, ..exact }),
+        (
+            "skin window contour words",
+            Capacities { window_ring_words: exact.window_ring_words - 1, ..exact },
+        ),
+        (
+            "skin window scanline spans",
+            Capacities { window_spans: exact.window_spans - 1, ..exact },
+        ),
+        ("buffered toolpath moves", Capacities { layer_moves: exact.layer_moves - 2, ..exact }),
+    ];
+    for (what, caps) in less {
+        let e = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap_err();
+        assert!(e.contains(what), "{what}: {e}");
+    }
 }
