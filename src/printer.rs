@@ -9,13 +9,14 @@
 //! `LayerDone` hashes back. [`Printer::poll`] does a bounded amount of work: moves into the
 //! planner (up to its queue), blocks into the step generator, steps into the queue.
 //!
-//! Flow control reaches back to the host: a triangle batch is taken only while the `MOVES`
-//! buffer (toolpath moves waiting for the planner) is at most half full, so the slicer works
-//! about a layer ahead of the motion and the next layer's triangles stream in while the
-//! current one prints; a batch that would have to wait stays in the endpoint's receive slot,
-//! so the device announces fewer credits and the host stops sending. A layer (or, at the end
-//! of the model, the last `top_layers + 1` layers) must fit the other half: overflowing it is
-//! a typed error ([`ErrorCode::Moves`]), never a silent drop.
+//! Flow control reaches back to the host: the slicer cuts one layer at a time, and only
+//! while the `MOVES` buffer (toolpath moves waiting for the planner) is at most a quarter
+//! full; the toolpath stage turns each cut into at most one layer's moves. A batch whose next
+//! triangle would need a cut that has to wait stays in the endpoint's receive slot (and is
+//! resumed where it stopped), so the device announces fewer credits and the host stops
+//! sending. The slicer thus works about a layer ahead of the motion while the next layer's
+//! triangles stream in. A layer's moves must fit the other three quarters: overflowing them
+//! is a typed error ([`ErrorCode::Moves`]), never a silent drop.
 //!
 //! Planner blocks are released only when the planner queue is full or the model has ended
 //! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
@@ -27,7 +28,7 @@
 use heapless::Deque;
 
 use crate::geom::{Point2, Triangle};
-use crate::machine::{MachineConfig, AXES};
+use crate::machine::{MachineConfig, Rate, AXES};
 use crate::plan::{Move, MoveKind, PlanConfig, PlanError, Planner};
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
@@ -67,10 +68,41 @@ pub enum Accept {
     Busy,
 }
 
+/// A toolpath move waiting for the planner, packed (24 bytes instead of a [`Move`]'s 32 plus
+/// its layer): the feed keeps 16 fractional bits (the toolpath's feeds are whole or simple
+/// fractions of mm/s; the same packing runs on the host simulation and the board).
 #[derive(Debug, Clone, Copy)]
 struct Tagged {
-    layer: u32,
-    mv: Move,
+    target_um: [i32; AXES],
+    /// Feed, mm/s as U16F16 bits.
+    feed: u32,
+    layer: u16,
+    kind: u8,
+}
+
+impl Tagged {
+    fn pack(layer: u32, mv: &Move) -> Self {
+        let bits = (mv.feed_mm_s.to_bits() >> 16).min(u32::MAX as u64) as u32;
+        let kind = match mv.kind {
+            MoveKind::Print => 0,
+            MoveKind::Travel => 1,
+            MoveKind::Retract => 2,
+        };
+        Self { target_um: mv.target_um, feed: bits, layer: layer.min(u16::MAX as u32) as u16, kind }
+    }
+
+    fn layer(&self) -> u32 {
+        u32::from(self.layer)
+    }
+
+    fn unpack(&self) -> Move {
+        let kind = match self.kind {
+            0 => MoveKind::Print,
+            1 => MoveKind::Travel,
+            _ => MoveKind::Retract,
+        };
+        Move::new(self.target_um, Rate::from_bits(u64::from(self.feed) << 16), kind)
+    }
 }
 
 /// The job runner. Capacities: slicer `A` active triangles, `S` segments, `L` loops;
@@ -105,6 +137,8 @@ pub struct Printer<
     job: Option<JobSpec>,
     feed: Feed,
     triangles: u32,
+    /// Triangles of the batch being taken that are already in (it waits for room).
+    batch_pos: u32,
     layers: u32,
     model_ended: bool,
     toolpath_done: bool,
@@ -159,6 +193,7 @@ impl<
             job: None,
             feed: Feed { layer: 0, e_um: 0, xyz: [0; 3] },
             triangles: 0,
+            batch_pos: 0,
             layers: 0,
             model_ended: false,
             toolpath_done: false,
@@ -286,6 +321,7 @@ impl<
         self.layers = self.slicer.layer_count();
         self.feed = Feed::default();
         self.triangles = 0;
+        self.batch_pos = 0;
         self.model_ended = false;
         self.toolpath_done = false;
         self.done.clear();
@@ -323,18 +359,35 @@ impl<
             (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                if self.moves.len() > MOVES / 2 {
-                    return Accept::Busy;
-                }
-                for t in batch.iter() {
+                // Layers are cut one at a time, each only while the move buffer can take
+                // its moves; a batch that has to wait is offered again and resumes here.
+                for (i, t) in batch.iter().enumerate().skip(self.batch_pos as usize) {
+                    while self.slicer.would_cut(t.z_min()) {
+                        if !self.room_for_a_layer() {
+                            self.batch_pos = i as u32;
+                            return Accept::Busy;
+                        }
+                        if !self.cut_one() {
+                            break;
+                        }
+                    }
+                    if !self.is_active() {
+                        break;
+                    }
                     self.push_triangle(&t);
                 }
+                self.batch_pos = 0;
             }
             (Message::EndOfModel, DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                if self.moves.len() > MOVES / 2 {
-                    return Accept::Busy;
+                while self.is_active() {
+                    if !self.room_for_a_layer() {
+                        return Accept::Busy;
+                    }
+                    if !self.cut_one() && !self.flush_one() {
+                        break;
+                    }
                 }
                 self.model_ended = true;
                 self.finish_model();
@@ -373,6 +426,40 @@ impl<
         self.check(r.is_err(), tp_err.is_some(), failed);
     }
 
+    /// The move buffer can take another layer: at most a quarter of it is in use.
+    fn room_for_a_layer(&self) -> bool {
+        self.moves.len() <= MOVES / 4
+    }
+
+    /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
+    /// emits at most one layer's moves); false when no plane was left or on an error.
+    fn cut_one(&mut self) -> bool {
+        let Self { slicer, tp, moves, feed, .. } = self;
+        let mut failed = None;
+        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
+        let mut tp_err = None;
+        let mut sink = |l: &Layer<'_>| {
+            if tp_err.is_none() {
+                tp_err = tp.push_layer(l, &mut events).err();
+            }
+        };
+        let r = slicer.cut_one(&mut sink);
+        self.check(r.is_err(), tp_err.is_some(), failed);
+        matches!(r, Ok(true)) && self.is_active()
+    }
+
+    /// After the last plane: the toolpath stage's next waiting layer into moves; false when
+    /// none was left or on an error.
+    fn flush_one(&mut self) -> bool {
+        let Self { tp, moves, feed, .. } = self;
+        let mut failed = None;
+        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
+        let r = tp.flush_one(&mut events);
+        self.check(false, r.is_err(), failed);
+        matches!(r, Ok(true)) && self.is_active()
+    }
+
+    /// Ends the model: every plane is cut and every layer flushed (or the job failed).
     fn finish_model(&mut self) {
         let Self { slicer, tp, moves, feed, .. } = self;
         let mut failed = None;
@@ -416,18 +503,19 @@ impl<
         let mut worked = false;
         while let Some(t) = self.moves.front().copied() {
             let before = self.planner.position_um();
-            match self.planner.push(t.mv) {
+            let mv = t.unpack();
+            match self.planner.push(mv) {
                 Ok(()) => {
                     self.moves.pop_front();
                     worked = true;
                     // A move that goes nowhere makes no block and has no tag.
-                    if t.mv.target_um != before {
-                        let _ = self.tags.push_back(t.layer);
+                    if mv.target_um != before {
+                        let _ = self.tags.push_back(t.layer());
                     }
                 }
                 Err(PlanError::QueueFull) => break,
                 Err(_) => {
-                    self.fail(ErrorCode::Plan, t.layer);
+                    self.fail(ErrorCode::Plan, t.layer());
                     return true;
                 }
             }
@@ -584,7 +672,7 @@ fn on_event<const M: usize>(
             };
             feed.xyz = xyz;
             let mv = Move::new([xyz[0], xyz[1], xyz[2], feed.e_um], m.feed_mm_s, kind);
-            if moves.push_back(Tagged { layer: feed.layer, mv }).is_err() {
+            if moves.push_back(Tagged::pack(feed.layer, &mv)).is_err() {
                 failed.get_or_insert(feed.layer);
             }
         }

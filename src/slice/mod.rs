@@ -446,6 +446,32 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         result
     }
 
+    /// A triangle with lowest point `z_min` would first complete the next plane: pushing it
+    /// cuts at least one layer. A paced owner calls [`Slicer::cut_one`] until this is false
+    /// (one layer at a time, as its downstream buffers allow), then pushes.
+    pub fn would_cut(&self, z_min: i32) -> bool {
+        self.stopped.is_none() && self.next_layer < self.layers && z_min >= self.next_plane
+    }
+
+    /// Cuts the next plane, if any is left, and hands its layer to `sink`: true when a layer
+    /// was cut. The triangles still to come must lie at or above that plane (the stream is
+    /// sorted; use [`Slicer::would_cut`] for the next triangle, or call this at the end).
+    pub fn cut_one(&mut self, sink: &mut impl FnMut(&Layer<'_>)) -> Result<bool, SliceError> {
+        if let Some(e) = self.stopped {
+            return Err(e);
+        }
+        if self.next_layer >= self.layers {
+            return Ok(false);
+        }
+        match self.cut_next(sink) {
+            Ok(()) => Ok(true),
+            Err(e) => {
+                self.stopped = Some(e);
+                Err(e)
+            }
+        }
+    }
+
     /// Ends the stream: cuts the remaining planes and returns the totals.
     pub fn finish(&mut self, sink: &mut impl FnMut(&Layer<'_>)) -> Result<SliceStats, SliceError> {
         if let Some(e) = self.stopped {

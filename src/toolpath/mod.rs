@@ -912,6 +912,30 @@ impl<
         result
     }
 
+    /// After the model's last layer was pushed: processes the next layer still waiting in
+    /// the window; true when one was processed, false when none is left (then
+    /// [`Toolpath::finish`] only returns the totals). Lets an owner release the last layers
+    /// one at a time, as its move buffer allows.
+    pub fn flush_one(
+        &mut self,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<bool, ToolpathError> {
+        if let Some(e) = self.stopped {
+            return Err(e);
+        }
+        if self.next_out >= self.next_in {
+            return Ok(false);
+        }
+        let l = self.next_out;
+        match self.process(l, sink).map_err(|w| self.capacity(w, l)) {
+            Ok(()) => Ok(true),
+            Err(e) => {
+                self.stopped = Some(e);
+                Err(e)
+            }
+        }
+    }
+
     /// Ends the stream: emits the remaining layers (the top ones) and returns the totals.
     pub fn finish(
         &mut self,
