@@ -223,8 +223,8 @@ impl<
         self.machine = *machine;
         self.plan_cfg = PlanConfig::from_machine(machine);
         self.step_cfg = StepConfig::from_machine(machine);
-        self.planner = Planner::new(&self.plan_cfg, [0; AXES]);
-        self.gen = StepGenerator::new(&self.step_cfg, [0; AXES]);
+        self.planner.reset(&self.plan_cfg, [0; AXES]);
+        self.gen.reset(&self.step_cfg, [0; AXES]);
         self.state = DeviceState::Idle;
         self.job = None;
     }
@@ -315,9 +315,9 @@ impl<
         self.tp.reset(tp_cfg).map_err(|_| ErrorCode::BadJob)?;
         self.tp.set_position(Point2::new(0, 0), 0);
         self.moves.clear();
-        self.planner = Planner::new(&self.plan_cfg, [0; AXES]);
+        self.planner.reset(&self.plan_cfg, [0; AXES]);
         self.tags.clear();
-        self.gen = StepGenerator::new(&self.step_cfg, [0; AXES]);
+        self.gen.reset(&self.step_cfg, [0; AXES]);
         self.layers = self.slicer.layer_count();
         self.feed = Feed::default();
         self.triangles = 0;

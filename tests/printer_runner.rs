@@ -155,6 +155,68 @@ fn step_commands_and_hashes_do_not_depend_on_how_fast_the_queue_drains() {
     assert!(h_fast.windows(2).all(|w| w[0].1 != w[1].1));
 }
 
+/// A small move buffer: one layer of a 20 mm cube fits, a whole model does not.
+type Tight = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 512, 16>;
+
+#[test]
+fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
+    // A 20 x 20 x 10 mm box of 12 triangles in one batch: its last triangles complete every
+    // layer at once, 50 layers of moves (thousands) against a 512-move buffer.
+    let (o, w, h) = (90_000, 20_000, 10_000);
+    let c = |i: usize| {
+        Point3::new(o + w * (i & 1) as i32, o + w * (i >> 1 & 1) as i32, h * (i >> 2 & 1) as i32)
+    };
+    let quads =
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let mut tris: Vec<Triangle> = quads
+        .iter()
+        .flat_map(|q| {
+            [
+                Triangle { v: [c(q[0]), c(q[1]), c(q[2])] },
+                Triangle { v: [c(q[0]), c(q[2]), c(q[3])] },
+            ]
+        })
+        .collect();
+    tris.sort_by_key(Triangle::z_min);
+    let mut p: Box<Tight> = Box::new(Tight::new(&MachineConfig::default()));
+    let mut spec = job(&tris);
+    spec.model_height_um = h;
+    assert_eq!(p.handle(&Message::JobStart(spec)), Accept::Taken);
+    let bytes = batch(&tris);
+    let (mut busy, mut hashes) = (0, Vec::new());
+    let mut q: StepQueue<32> = StepQueue::new();
+    let (mut prod, mut cons) = q.split();
+    let mut batch_done = false;
+    let mut end_done = false;
+    for _ in 0..50_000_000u64 {
+        if !batch_done {
+            match p.handle(&Message::decode(&bytes).unwrap()) {
+                Accept::Taken => batch_done = true,
+                Accept::Busy => busy += 1,
+            }
+        } else if !end_done {
+            match p.handle(&Message::EndOfModel) {
+                Accept::Taken => end_done = true,
+                Accept::Busy => busy += 1,
+            }
+        }
+        p.poll(&mut prod);
+        for axis in 0..AXES {
+            while cons.dequeue(axis).is_some() {}
+        }
+        while let Some(h) = p.take_layer_done() {
+            hashes.push(h.0);
+        }
+        if !p.is_active() {
+            break;
+        }
+    }
+    assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
+    assert_eq!(hashes, (0..50).collect::<Vec<u32>>());
+    // The batch and the end of the model both had to wait for room, more than once.
+    assert!(busy > 10, "{busy}");
+}
+
 #[test]
 fn identical_jobs_give_identical_hashes() {
     let mut a = new_printer();

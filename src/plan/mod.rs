@@ -513,18 +513,22 @@ impl<const N: usize> Planner<N> {
 
     /// An empty planner at `position_um` (X, Y, Z, E), at rest.
     pub fn new(config: &PlanConfig, position_um: [i32; AXES]) -> Self {
-        let () = Self::CAPACITY_OK;
-        Self {
-            lim: Limits::new(config),
-            ring: [Entry::EMPTY; N],
-            head: 0,
-            len: 0,
-            position_um,
-            last: None,
-            exit_v2: 0,
-            released_q16: 0,
-            released: 0,
-        }
+        let mut p = Self::empty();
+        p.reset(config, position_um);
+        p
+    }
+
+    /// Starts over in place as [`Planner::new`] would (the queue's slots are not cleared:
+    /// it is empty).
+    pub fn reset(&mut self, config: &PlanConfig, position_um: [i32; AXES]) {
+        self.lim = Limits::new(config);
+        self.head = 0;
+        self.len = 0;
+        self.position_um = position_um;
+        self.last = None;
+        self.exit_v2 = 0;
+        self.released_q16 = 0;
+        self.released = 0;
     }
 
     /// An unconfigured, empty planner (to be replaced by [`Planner::new`] before use; every

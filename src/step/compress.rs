@@ -98,6 +98,11 @@ impl<const B: usize> Compressor<B> {
         }
     }
 
+    /// Back to [`Compressor::new`] in place (the step buffer is not cleared: `len` is 0).
+    pub(crate) fn reset(&mut self) {
+        *self = Self { buf: self.buf, ..Self::new() };
+    }
+
     pub(crate) fn is_empty(&self) -> bool {
         self.len == 0
     }

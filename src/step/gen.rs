@@ -91,33 +91,38 @@ impl<const B: usize> StepGenerator<B> {
 
     /// A generator whose axes stand at `position_um` (X, Y, Z, E), at time 0.
     pub fn new(config: &StepConfig, position_um: [i32; AXES]) -> Self {
-        let () = Self::CAPACITY_OK;
+        let mut g = Self::empty();
+        g.reset(config, position_um);
+        g
+    }
+
+    /// Starts over in place as [`StepGenerator::new`] would (no temporary of the whole
+    /// generator on the stack).
+    pub fn reset(&mut self, config: &StepConfig, position_um: [i32; AXES]) {
         let spm = config.steps_per_mm;
-        Self {
-            tune: Tune {
-                tol: config.max_error_ticks as i64,
-                min_step: config.min_step_ticks() as i64,
-                min_rev: config.min_reversal_ticks() as i64,
-            },
-            pending_ticks: config.max_pending_ticks as u64,
-            steps_per_mm: spm,
-            comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
-            axes: [AxisRun::default(); AXES],
-            block: None,
-            next: None,
-            tag: None,
-            marks: Deque::new(),
-            last_tick: 0,
-            overdue: 0,
-            flush_all: false,
-            block_start_q16: 0,
-            motor: core::array::from_fn(|i| {
-                nearest_step(step_position_q32(position_um[i], spm[i]))
-            }),
-            at_rest: true,
-            blocks: 0,
-            steps: [0; AXES],
+        self.tune = Tune {
+            tol: config.max_error_ticks as i64,
+            min_step: config.min_step_ticks() as i64,
+            min_rev: config.min_reversal_ticks() as i64,
+        };
+        self.pending_ticks = config.max_pending_ticks as u64;
+        self.steps_per_mm = spm;
+        self.comp.iter_mut().for_each(Compressor::reset);
+        self.axes = [AxisRun::default(); AXES];
+        self.block = None;
+        self.next = None;
+        self.tag = None;
+        self.marks.clear();
+        self.last_tick = 0;
+        self.overdue = 0;
+        self.flush_all = false;
+        self.block_start_q16 = 0;
+        for (m, (&p, &r)) in self.motor.iter_mut().zip(position_um.iter().zip(spm.iter())) {
+            *m = nearest_step(step_position_q32(p, r));
         }
+        self.at_rest = true;
+        self.blocks = 0;
+        self.steps = [0; AXES];
     }
 
     /// An unconfigured generator at the origin (to be replaced by [`StepGenerator::new`]
