@@ -1,14 +1,14 @@
 //! `strata print` and `strata ports`: stream a model to a printer over a serial port (or a
 //! pseudo-terminal), with admission control, a progress bar, device status and Ctrl-C abort.
 
-use std::io::IsTerminal;
+use std::io::{ErrorKind, IsTerminal, Read, Write};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use strata::protocol::{DeviceState, Status};
+use strata::protocol::{DeviceState, Status, MAX_WIRE};
 use strata_host::admission::{admit_job, Admission};
 use strata_host::model;
 use strata_host::serial;
@@ -69,9 +69,14 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         caps.ram_bytes / 1024
     );
     let job = job_of(&args.print, &tris)?;
-    let tris = match admit_job(&tris, &machine, &job, &caps, args.max_deviation)
-        .map_err(|e| format!("{}: {e}", args.model.display()))?
-    {
+    // Admission can take longer than the link's dead time (3 s): keep the link alive.
+    let admitted = keeping_link_alive(&mut port, &mut ep, t0, || {
+        admit_job(&tris, &machine, &job, &caps, args.max_deviation)
+    })?;
+    if abort.load(Ordering::Relaxed) {
+        return Err("aborted by the user (Ctrl-C) before the job started".into());
+    }
+    let tris = match admitted.map_err(|e| format!("{}: {e}", args.model.display()))? {
         Admission::Unchanged(_) => tris,
         Admission::Simplified(s) => {
             eprintln!(
@@ -139,6 +144,46 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         return Err(format!("the printer ended in state {:?}", s.state));
     }
     Ok(())
+}
+
+/// Runs `work` on another thread while this one keeps the link alive: frames in (acked, kept
+/// for the job), acks and keepalives out, so neither end declares the link dead.
+fn keeping_link_alive<T: Send>(
+    port: &mut Box<dyn serialport::SerialPort>,
+    ep: &mut HostEndpoint,
+    t0: Instant,
+    work: impl FnOnce() -> T + Send,
+) -> Result<T, String> {
+    std::thread::scope(|s| {
+        let worker = s.spawn(work);
+        let mut buf = [0u8; 4096];
+        let mut frame = [0u8; MAX_WIRE];
+        while !worker.is_finished() {
+            let now = t0.elapsed().as_millis() as u32;
+            // The port's read timeout (2 ms) paces the loop.
+            let n = match port.read(&mut buf) {
+                Ok(n) => n,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        ErrorKind::TimedOut | ErrorKind::WouldBlock | ErrorKind::Interrupted
+                    ) =>
+                {
+                    0
+                }
+                Err(e) => return Err(format!("serial port: {e}")),
+            };
+            ep.receive(&buf[..n], now);
+            loop {
+                let n = ep.poll_transmit(now, &mut frame);
+                if n == 0 {
+                    break;
+                }
+                port.write_all(&frame[..n]).map_err(|e| format!("serial port: {e}"))?;
+            }
+        }
+        worker.join().map_err(|_| "admission control panicked".to_string())
+    })
 }
 
 /// One progress report: triangles and bytes streamed, the printer's layer, state, print time

@@ -189,3 +189,48 @@ fn eta_known_line(l: &str) -> bool {
     l.starts_with("progress: ")
         && l.split("ETA ").nth(1).is_some_and(|t| t.starts_with(|c: char| c.is_ascii_digit()))
 }
+
+/// A UV sphere (radius `r` mm, `lon` x `lat`, resting on z = 0) as STL triangles.
+fn sphere_stl(r: f32, lon: usize, lat: usize) -> Vec<common::Tri> {
+    let v = |i: usize, j: usize| -> [f32; 3] {
+        let th = std::f32::consts::PI * i as f32 / lat as f32;
+        let ph = 2.0 * std::f32::consts::PI * (j % lon) as f32 / lon as f32;
+        if i == 0 || i == lat {
+            return [0.0, 0.0, if i == 0 { 0.0 } else { 2.0 * r }];
+        }
+        [r * th.sin() * ph.cos(), r * th.sin() * ph.sin(), r - r * th.cos()]
+    };
+    let mut t = Vec::new();
+    for i in 0..lat {
+        for j in 0..lon {
+            let (a, b, c, d) = (v(i, j), v(i, j + 1), v(i + 1, j + 1), v(i + 1, j));
+            if i > 0 {
+                t.push([a, b, d]);
+            }
+            if i + 1 < lat {
+                t.push([b, c, d]);
+            }
+        }
+    }
+    t
+}
+
+/// Admission that takes longer than the link's dead time (a fine sphere simplified for a
+/// small printer: seconds in a debug build) happens after the handshake: the link must stay
+/// alive meanwhile, or the printer fails the job for a dead link.
+#[test]
+fn a_slow_admission_keeps_the_link_alive() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("sphere.stl");
+    write_stl(&model, &sphere_stl(5.0, 96, 48));
+    let small = Capacities { active_triangles: 150, contour_points: 150, ..CREALITY_CAPACITIES };
+    let (out, state) = print_over_pty(
+        &[model.to_str().unwrap(), "--skirt-loops", "0", "--max-deviation", "0.1"],
+        small,
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "stdout {stdout}\nstderr {stderr}");
+    assert!(stderr.contains("simplified from 9024 to"), "{stderr}");
+    assert_eq!(state, DeviceState::Done);
+}
