@@ -64,22 +64,55 @@ pub struct ExecStats {
 
 #[derive(Debug, Clone, Copy, Default)]
 struct AxisExec {
-    /// STEP is high; falls at `fall_at`.
+    /// `high || active`: the axis has an event; it needs service from `due_at` on and wants
+    /// a call by `wake_at`. Otherwise it waits for commands.
+    armed: bool,
+    /// STEP is high; it may fall from `due_at` (the driver's high time) on and falls by
+    /// `wake_at` at the latest.
     high: bool,
-    fall_at: u32,
-    /// A sequence is running; its next step is at `next_at`.
+    /// A sequence is running; its next step is due at `next_at` and is raised at `fire_at`
+    /// (later than `next_at` only when DIR changed less than the setup time before it).
     active: bool,
-    next_at: u32,
-    interval: u32,
-    add: i32,
-    remaining: u16,
-    /// Time of the last step (or the end of the last wait): sequences count from here.
-    reference: u32,
     /// DIR changed at `dir_at` and no step has followed yet.
     dir_fresh: bool,
-    dir_at: u32,
     /// Current direction is positive.
     positive: bool,
+    due_at: u32,
+    wake_at: u32,
+    next_at: u32,
+    fire_at: u32,
+    interval: u32,
+    add: u32,
+    /// Steps of the running sequence not raised yet, of `count`.
+    remaining: u16,
+    count: u16,
+    /// Time of the last step (or the end of the last wait): sequences count from here. Kept
+    /// up to date when a sequence ends (the only time it is read).
+    reference: u32,
+    dir_at: u32,
+}
+
+impl AxisExec {
+    /// When the step due at `next_at` may rise: at `next_at`, or the DIR setup time after a
+    /// direction change if that is later.
+    #[inline]
+    fn fire_time(&self, setup: u32) -> u32 {
+        let ready = self.dir_at.wrapping_add(setup);
+        if self.dir_fresh && is_before(self.next_at, ready) {
+            ready
+        } else {
+            self.next_at
+        }
+    }
+}
+
+/// The earlier of `t` and the wake-up so far.
+#[inline(always)]
+fn earliest(wake: &mut Option<u32>, t: u32) {
+    match *wake {
+        Some(w) if !is_before(t, w) => {}
+        _ => *wake = Some(t),
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,6 +124,15 @@ enum State {
 }
 
 /// Drives the pins from a [`StepConsumer`].
+///
+/// # Cost
+/// The hot path is one pass over the four axes with adds and compares on `u32`s. A pulse's
+/// falling edge is not always an interrupt of its own: STEP may fall at any call from the
+/// driver's high time on, and must fall by the middle of the slack before the next rising
+/// edge (`fall_by`: the high and the low time both keep at least half of the spare time on
+/// top of the driver's minimum), so it usually rides along with another axis' step. The
+/// last step of a sequence falls exactly after the high time, as DIR may change then.
+/// Rising edges are exactly where they would be with a fall of its own.
 #[derive(Debug)]
 pub struct Executor<'q, const N: usize> {
     q: StepConsumer<'q, N>,
@@ -101,12 +143,16 @@ pub struct Executor<'q, const N: usize> {
     /// Generator time at which the motion last came to rest.
     rest_gen: u32,
     high_ticks: u32,
+    low_ticks: u32,
     setup_ticks: u32,
     lead: u32,
     poll: u32,
     invert: [bool; AXES],
     enable_low: bool,
-    position: [i64; AXES],
+    /// Steps and signed position of the sequences completed, per axis (the running one is
+    /// added when read: no 64-bit arithmetic per step).
+    done_steps: [u64; AXES],
+    done_position: [i64; AXES],
     stats: ExecStats,
 }
 
@@ -120,12 +166,14 @@ impl<'q, const N: usize> Executor<'q, N> {
             state: State::Idle,
             rest_gen: 0,
             high_ticks: config.step_high_ticks(),
+            low_ticks: config.ns_to_ticks(config.driver.step_low_ns).max(1),
             setup_ticks: config.ns_to_ticks(config.driver.dir_setup_ns),
             lead: config.start_lead_ticks.max(config.ns_to_ticks(config.driver.dir_setup_ns)),
             poll: config.stall_poll_ticks.max(1),
             invert: config.invert_dir,
             enable_low: config.enable_active_low,
-            position: [0; AXES],
+            done_steps: [0; AXES],
+            done_position: [0; AXES],
             stats: ExecStats::default(),
         }
     }
@@ -154,14 +202,29 @@ impl<'q, const N: usize> Executor<'q, N> {
         matches!(self.state, State::Stalled(_))
     }
 
+    /// Steps of the running sequence of `axis` raised so far.
+    fn running_steps(&self, axis: usize) -> u16 {
+        let a = &self.axes[axis];
+        if a.active {
+            a.count - a.remaining
+        } else {
+            0
+        }
+    }
+
     /// Steps executed per axis, signed by direction, since creation.
     pub fn position_steps(&self) -> [i64; AXES] {
-        self.position
+        core::array::from_fn(|axis| {
+            let n = self.running_steps(axis) as i64;
+            self.done_position[axis] + if self.axes[axis].positive { n } else { -n }
+        })
     }
 
     /// Counters.
     pub fn stats(&self) -> ExecStats {
-        self.stats
+        let mut s = self.stats;
+        s.steps = core::array::from_fn(|a| self.done_steps[a] + self.running_steps(a) as u64);
+        s
     }
 
     /// Turns the drivers off; only while idle (returns `Ok(false)` otherwise).
@@ -177,26 +240,34 @@ impl<'q, const N: usize> Executor<'q, N> {
     fn shift(&mut self, at: u32, gen: u32) {
         let offset = at.wrapping_sub(gen);
         let delta = offset.wrapping_sub(self.offset);
+        let setup = self.setup_ticks;
         for a in &mut self.axes {
             a.reference = a.reference.wrapping_add(delta);
             a.next_at = a.next_at.wrapping_add(delta);
+            a.fire_at = a.fire_time(setup);
+            if a.active && !a.high {
+                a.due_at = a.fire_at;
+                a.wake_at = a.fire_at;
+            }
         }
         self.offset = offset;
     }
 
-    /// Services every due event at `now` and says when to come back.
-    pub fn on_timer<P: OutputPin>(
+    /// Leaves idle (new commands) or a stall (the horizon moved on) when it can; `Some` is
+    /// the answer while it stays idle.
+    #[inline(never)]
+    fn wake_up<P: OutputPin>(
         &mut self,
         now: u32,
+        word: u32,
         pins: &mut Pins<P>,
-    ) -> Result<Wake, P::Error> {
-        let word = self.q.horizon();
+    ) -> Result<Option<Wake>, P::Error> {
         let (h_gen, at_rest) = (word & !1, word & 1 != 0);
         match self.state {
             State::Running => {}
             State::Idle => {
                 if !self.q.has_data() {
-                    return Ok(Wake::Idle);
+                    return Ok(Some(Wake::Idle));
                 }
                 self.shift(now.wrapping_add(self.lead), self.rest_gen);
                 pins.enable.set_state(PinState::from(!self.enable_low))?;
@@ -211,127 +282,200 @@ impl<'q, const N: usize> Executor<'q, N> {
                 }
             }
         }
-        let h_exec = h_gen.wrapping_add(self.offset);
-        let mut wake: Option<u32> = None;
-        let mut busy = false;
-        for axis in 0..AXES {
-            if let Some(t) = self.service(axis, now, h_exec, at_rest, pins)? {
-                wake = Some(match wake {
-                    Some(w) if is_before(w, t) => w,
-                    _ => t,
-                });
-            }
-            busy |= self.axes[axis].high || self.axes[axis].active;
-        }
-        let at_horizon = !is_before(now, h_exec);
-        if let State::Stalled(_) = self.state {
-            let poll = now.wrapping_add(self.poll);
-            return Ok(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
-        }
-        if at_horizon {
-            if at_rest {
-                if !busy && !self.q.has_data() {
-                    self.state = State::Idle;
-                    self.rest_gen = h_gen;
-                    return Ok(Wake::Idle);
-                }
-            } else {
-                self.state = State::Stalled(h_gen);
-                self.q.set_stalled_at(word);
-                self.stats.underruns += 1;
-                self.stats.first_underrun_tick.get_or_insert(now);
-                let poll = now.wrapping_add(self.poll);
-                return Ok(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
-            }
-        }
-        let horizon_wake = if at_horizon { None } else { Some(h_exec) };
-        Ok(Wake::At(match (wake, horizon_wake) {
-            (Some(w), Some(h)) => {
-                if is_before(h, w) {
-                    h
-                } else {
-                    w
-                }
-            }
-            (Some(w), None) => w,
-            (None, Some(h)) => h,
-            (None, None) => now.wrapping_add(self.poll),
-        }))
+        Ok(None)
     }
 
-    /// One axis: falling edge, next commands, rising edge; returns its next event time.
-    #[inline]
-    fn service<P: OutputPin>(
+    /// Services every due event at `now` and says when to come back.
+    pub fn on_timer<P: OutputPin>(
         &mut self,
-        axis: usize,
+        now: u32,
+        pins: &mut Pins<P>,
+    ) -> Result<Wake, P::Error> {
+        let word = self.q.horizon();
+        if self.state != State::Running {
+            if let Some(w) = self.wake_up(now, word, pins)? {
+                return Ok(w);
+            }
+        }
+        let at_rest = word & 1 != 0;
+        let h_exec = (word & !1).wrapping_add(self.offset);
+        let at_horizon = !is_before(now, h_exec);
+        // The horizon is a wake-up while ahead; events beyond it lose against it, so they
+        // need no filtering here (at the horizon `at_horizon` recomputes the wake-up).
+        let mut wake = if at_horizon { None } else { Some(h_exec) };
+        self.axis::<0, P>(now, h_exec, at_rest, pins, &mut wake)?;
+        self.axis::<1, P>(now, h_exec, at_rest, pins, &mut wake)?;
+        self.axis::<2, P>(now, h_exec, at_rest, pins, &mut wake)?;
+        self.axis::<3, P>(now, h_exec, at_rest, pins, &mut wake)?;
+        if at_horizon || self.state != State::Running {
+            if let Some(w) = self.at_horizon(now, word, h_exec) {
+                return Ok(w);
+            }
+        }
+        Ok(Wake::At(wake.unwrap_or(now.wrapping_add(self.poll))))
+    }
+
+    /// Stalled, or at the horizon: rest (idle), stall (underrun) or poll; `None` to go on.
+    #[inline(never)]
+    fn at_horizon(&mut self, now: u32, word: u32, h_exec: u32) -> Option<Wake> {
+        let (h_gen, at_rest) = (word & !1, word & 1 != 0);
+        let poll = now.wrapping_add(self.poll);
+        // The events' wake-up without those beyond the horizon (unless it is a rest point).
+        let mut wake = None;
+        for a in &self.axes {
+            if a.high {
+                earliest(&mut wake, a.wake_at);
+            } else if a.active && (at_rest || !is_before(h_exec, a.next_at)) {
+                earliest(&mut wake, a.fire_at);
+            }
+        }
+        let polled = Some(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
+        if let State::Stalled(_) = self.state {
+            return polled;
+        }
+        if at_rest {
+            if !self.axes.iter().any(|a| a.armed) && !self.q.has_data() {
+                self.state = State::Idle;
+                self.rest_gen = h_gen;
+                return Some(Wake::Idle);
+            }
+            None
+        } else {
+            self.state = State::Stalled(h_gen);
+            self.q.set_stalled_at(word);
+            self.stats.underruns += 1;
+            self.stats.first_underrun_tick.get_or_insert(now);
+            polled
+        }
+    }
+
+    /// Axis `A`: falling edge, next commands, rising edge; adds its next event to `wake`.
+    #[inline(always)]
+    fn axis<const A: usize, P: OutputPin>(
+        &mut self,
         now: u32,
         h_exec: u32,
         at_rest: bool,
         pins: &mut Pins<P>,
-    ) -> Result<Option<u32>, P::Error> {
-        let a = &mut self.axes[axis];
-        if a.high {
-            if is_before(now, a.fall_at) {
-                return Ok(Some(a.fall_at));
+        wake: &mut Option<u32>,
+    ) -> Result<(), P::Error> {
+        let a = &mut self.axes[A];
+        if a.armed {
+            if is_before(now, a.due_at) {
+                earliest(wake, a.wake_at);
+                return Ok(());
             }
-            pins.step[axis].set_low()?;
-            a.high = false;
+            if a.high {
+                pins.step[A].set_low()?;
+                a.high = false;
+                a.armed = a.active;
+            }
         }
-        while !a.active {
-            match self.q.dequeue(axis) {
-                None => return Ok(None),
-                Some(StepCmd::Dir(positive)) => {
-                    pins.dir[axis].set_state(PinState::from(positive != self.invert[axis]))?;
-                    a.positive = positive;
-                    a.dir_fresh = true;
-                    a.dir_at = now;
-                }
-                Some(StepCmd::Wait(ticks)) => a.reference = a.reference.wrapping_add(ticks),
-                Some(StepCmd::Steps { interval, count, add }) => {
-                    if count > 0 {
-                        a.interval = interval;
-                        a.add = add;
-                        a.remaining = count;
-                        a.next_at = a.reference.wrapping_add(interval);
-                        a.active = true;
-                    }
-                }
-            }
+        // No sequence: the next commands (a direction change is set right away).
+        if !a.armed && (!self.q.q[A].ready() || !self.take_commands(A, now, pins)?) {
+            return Ok(());
+        }
+        let a = &mut self.axes[A];
+        if is_before(now, a.fire_at) || (!at_rest && is_before(h_exec, a.next_at)) {
+            // Not yet, or beyond the horizon (which then wakes first; at rest everything is
+            // queued already).
+            a.due_at = a.fire_at;
+            a.wake_at = a.fire_at;
+            earliest(wake, a.fire_at);
+            return Ok(());
         }
         let due = a.next_at;
-        if !at_rest && is_before(h_exec, due) {
-            // Beyond the horizon: the horizon wake-up covers it. (At rest everything is
-            // queued already.)
-            return Ok(None);
-        }
-        let mut fire_at = due;
         if a.dir_fresh {
-            let ready = a.dir_at.wrapping_add(self.setup_ticks);
-            if is_before(due, ready) {
-                fire_at = ready;
+            a.dir_fresh = false;
+            if a.fire_at != due {
+                self.stats.late_dir_steps += 1;
             }
         }
-        if is_before(now, fire_at) {
-            return Ok(Some(fire_at));
-        }
-        if fire_at != due {
-            self.stats.late_dir_steps += 1;
-        }
-        pins.step[axis].set_high()?;
+        pins.step[A].set_high()?;
+        let a = &mut self.axes[A];
         a.high = true;
-        a.dir_fresh = false;
-        a.fall_at = now.wrapping_add(self.high_ticks);
-        a.reference = due;
-        self.stats.steps[axis] += 1;
-        self.position[axis] += if a.positive { 1 } else { -1 };
+        let fall_at = now.wrapping_add(self.high_ticks);
+        a.due_at = fall_at;
         a.remaining -= 1;
-        if a.remaining > 0 {
-            a.interval = a.interval.wrapping_add(a.add as u32);
-            a.next_at = due.wrapping_add(a.interval);
+        if a.remaining != 0 {
+            a.interval = a.interval.wrapping_add(a.add);
+            let next = due.wrapping_add(a.interval);
+            a.next_at = next;
+            a.fire_at = next;
+            // Spare time between the shortest pulse and the shortest low time before the
+            // next step: STEP falls by the middle of it.
+            let slack = next.wrapping_sub(fall_at).wrapping_sub(self.low_ticks) as i32;
+            a.wake_at = fall_at.wrapping_add((slack.max(0) as u32) >> 1);
         } else {
-            a.active = false;
+            // The next commands (maybe a direction change) are taken when STEP falls.
+            a.wake_at = fall_at;
+            self.sequence_done(A, due);
         }
-        Ok(Some(a.fall_at))
+        earliest(wake, self.axes[A].wake_at);
+        Ok(())
+    }
+
+    /// The last step of `axis`' sequence (due at `due`) is out.
+    #[inline(never)]
+    fn sequence_done(&mut self, axis: usize, due: u32) {
+        let a = &mut self.axes[axis];
+        a.active = false;
+        a.reference = due;
+        let n = a.count as i64;
+        self.done_steps[axis] += n as u64;
+        self.done_position[axis] += if a.positive { n } else { -n };
+    }
+
+    /// Takes the commands of `axis` (no sequence running) at `now` up to the next sequence;
+    /// true when one starts.
+    #[inline(never)]
+    fn take_commands<P: OutputPin>(
+        &mut self,
+        axis: usize,
+        now: u32,
+        pins: &mut Pins<P>,
+    ) -> Result<bool, P::Error> {
+        while let Some(cmd) = self.q.dequeue(axis) {
+            if self.command(axis, cmd, now, pins)? {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// Takes one command of `axis` (no sequence running) at `now`; true when a sequence starts.
+    #[inline]
+    fn command<P: OutputPin>(
+        &mut self,
+        axis: usize,
+        cmd: StepCmd,
+        now: u32,
+        pins: &mut Pins<P>,
+    ) -> Result<bool, P::Error> {
+        let a = &mut self.axes[axis];
+        match cmd {
+            StepCmd::Dir(positive) => {
+                pins.dir[axis].set_state(PinState::from(positive != self.invert[axis]))?;
+                a.positive = positive;
+                a.dir_fresh = true;
+                a.dir_at = now;
+            }
+            StepCmd::Wait(ticks) => a.reference = a.reference.wrapping_add(ticks),
+            StepCmd::Steps { interval, count, add } => {
+                if count > 0 {
+                    a.interval = interval;
+                    a.add = add as u32;
+                    a.remaining = count;
+                    a.count = count;
+                    a.next_at = a.reference.wrapping_add(interval);
+                    a.fire_at = a.fire_time(self.setup_ticks);
+                    a.active = true;
+                    a.armed = true;
+                    return Ok(true);
+                }
+            }
+        }
+        Ok(false)
     }
 }
 

@@ -20,6 +20,10 @@ use strata::step::{Executor, Pins, StepConfig, StepGenerator, StepQueue, Wake};
 static WRAPS: AtomicU32 = AtomicU32::new(0);
 static BSRR: AtomicU32 = AtomicU32::new(0);
 const RELOAD: u32 = 0x00ff_ffff;
+/// Instructions per SysTick count: QEMU's lm3s6965evb clocks the core (and SysTick) with a
+/// 5 ns period once RCC selects SYSDIV = 0, and `-icount shift=0` runs one instruction per ns.
+const PERIOD_INSNS: f64 = 5.0;
+const SYSCTL_RCC: *mut u32 = 0x400F_E060 as *mut u32;
 
 #[exception]
 fn SysTick() {
@@ -120,11 +124,123 @@ fn unit(deg: i64) -> (i64, i64) {
     (c * 1_000_000 >> 30, s * 1_000_000 >> 30)
 }
 
+/// Interrupt figures of one execution run.
+struct Figures {
+    steps: u64,
+    calls: u64,
+    per_call: f64,
+    per_step: f64,
+    /// Longest single call, instructions.
+    max: f64,
+    /// Generation + execution per step (the whole loop, timed as one).
+    total_per_step: f64,
+}
+
+impl Figures {
+    fn report(&self, what: &str, gen_per_step: f64) {
+        print(format_args!(
+            "{what}: {} steps, {} interrupts ({:.2} per step): {:.1} instructions per interrupt, \
+             {:.1} per step, worst interrupt {:.0} instructions ({:.0} cycles at 1.5/insn); \
+             generate+execute {:.0} per step, so execute = {:.0} per step by difference\n",
+            self.steps,
+            self.calls,
+            self.calls as f64 / self.steps as f64,
+            self.per_call,
+            self.per_step,
+            self.max,
+            self.max * 1.5,
+            self.total_per_step,
+            self.total_per_step - gen_per_step,
+        ));
+    }
+}
+
+/// SysTick counts (5 instructions each) from `c0` to `c1` (it counts down).
+fn counts(c0: u32, c1: u32) -> u32 {
+    c0.wrapping_sub(c1) & RELOAD
+}
+
+/// Generates and executes `blocks`, timing every `on_timer` call on its own.
+fn execute(
+    blocks: &[Block],
+    scfg: &StepConfig,
+    start: [i32; AXES],
+    insns: &dyn Fn(u64) -> f64,
+) -> Figures {
+    // The bracket alone (two SysTick reads), averaged.
+    let mut empty = 0u64;
+    for _ in 0..1000 {
+        let c0 = SYST::get_current();
+        core::hint::black_box(());
+        let c1 = SYST::get_current();
+        empty += counts(c0, c1) as u64;
+    }
+    let bracket = empty as f64 / 1000.0;
+    let mut q: StepQueue<64> = StepQueue::new();
+    let (mut prod, cons) = q.split();
+    let mut gen: StepGenerator = StepGenerator::new(scfg, start);
+    let mut exec = Executor::new(scfg, cons);
+    let mut pins = Pins {
+        step: [RegPin(1), RegPin(2), RegPin(4), RegPin(8)],
+        dir: [RegPin(16), RegPin(32), RegPin(64), RegPin(128)],
+        enable: RegPin(256),
+    };
+    let mut next = blocks.iter();
+    let mut pending = next.next();
+    let mut now = 0u32;
+    let mut isr = 0u64;
+    let mut max = 0u32;
+    let mut calls = 0u64;
+    let t0 = ticks();
+    loop {
+        if gen.wants_block() {
+            if let Some(b) = pending {
+                gen.load(*b).unwrap();
+                pending = next.next();
+            }
+        }
+        gen.run(&mut prod);
+        for _ in 0..256 {
+            let c0 = SYST::get_current();
+            let w = exec.on_timer(now, &mut pins).unwrap();
+            let c1 = SYST::get_current();
+            let d = counts(c0, c1);
+            isr += d as u64;
+            max = max.max(d);
+            calls += 1;
+            match w {
+                Wake::At(t) => now = t,
+                Wake::Idle => break,
+            }
+        }
+        if pending.is_none() && gen.is_idle() && exec.is_idle() {
+            break;
+        }
+    }
+    let total = ticks() - t0;
+    let steps: u64 = exec.stats().steps.iter().sum();
+    let isr = (isr as f64 - bracket * calls as f64) * PERIOD_INSNS;
+    Figures {
+        steps,
+        calls,
+        per_call: isr / calls as f64,
+        per_step: isr / steps as f64,
+        max: (max as f64 - bracket) * PERIOD_INSNS,
+        total_per_step: (insns(total) - bracket * calls as f64 * PERIOD_INSNS) / steps as f64,
+    }
+}
+
 #[entry]
 fn main() -> ! {
     print(format_args!("m3_cost: start\n"));
     let mut cp = unsafe { cortex_m::Peripherals::steal() };
-    cp.SYST.set_clock_source(SystClkSource::External);
+    // 200 MHz system clock (SYSDIV = 0, USESYSDIV): one SysTick count per 5 instructions.
+    // SAFETY: the lm3s6965evb RCC register; only the clock divider changes.
+    unsafe {
+        let rcc = core::ptr::read_volatile(SYSCTL_RCC);
+        core::ptr::write_volatile(SYSCTL_RCC, (rcc & !(0xF << 23)) | (1 << 22));
+    }
+    cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(RELOAD);
     cp.SYST.clear_current();
     cp.SYST.enable_interrupt();
@@ -217,64 +333,37 @@ fn main() -> ! {
         ));
     }
     // Generation + execution.
-    {
-        let mut q: StepQueue<64> = StepQueue::new();
-        let (mut prod, cons) = q.split();
-        let mut gen: StepGenerator = StepGenerator::new(&scfg, start);
-        let mut exec = Executor::new(&scfg, cons);
-        let mut pins = Pins {
-            step: [RegPin(1), RegPin(2), RegPin(4), RegPin(8)],
-            dir: [RegPin(16), RegPin(32), RegPin(64), RegPin(128)],
-            enable: RegPin(256),
-        };
-        let mut next = blocks.iter();
-        let mut pending = next.next();
-        let mut now = 0u32;
-        let mut isr_t = 0u64;
-        let mut calls = 0u64;
-        let t0 = ticks();
-        loop {
-            if gen.wants_block() {
-                if let Some(b) = pending {
-                    gen.load(*b).unwrap();
-                    pending = next.next();
-                }
-            }
-            gen.run(&mut prod);
-            for _ in 0..256 {
-                let a = ticks();
-                let w = exec.on_timer(now, &mut pins).unwrap();
-                isr_t += ticks() - a;
-                calls += 1;
-                match w {
-                    Wake::At(t) => now = t,
-                    Wake::Idle => break,
-                }
-            }
-            if pending.is_none() && gen.is_idle() && exec.is_idle() {
-                break;
-            }
-        }
-        let total = ticks() - t0;
-        let executed: u64 = exec.stats().steps.iter().sum();
-        // Subtract the cost of reading the clock around each call.
-        let a = ticks();
-        let b = ticks();
-        let overhead = (b - a) * calls;
-        let isr = insns(isr_t.saturating_sub(overhead));
-        let without_clock = insns(total.saturating_sub(overhead * 2));
-        print(format_args!(
-            "execute: {executed} steps, {calls} interrupts ({:.2} per step): {:.0} instructions per \
-             interrupt, {:.0} per step (timed around each call); generate+execute {:.0} per step, \
-             so execute = {:.0} per step by difference\n",
-            calls as f64 / executed as f64,
-            isr / calls as f64,
-            isr / executed as f64,
-            without_clock / executed as f64,
-            (without_clock - insns(gen_t)) / executed as f64
-        ));
-        let _ = steps;
+    let f = execute(&blocks, &scfg, start, &insns);
+    f.report("execute (job)", insns(gen_t) / steps as f64);
+
+    // X and Y both at 40 kHz (800 steps/mm at 50 mm/s each: 70.7 mm/s diagonal), in phase:
+    // every interrupt with a step serves both axes.
+    let mut fast = strata::machine::MachineConfig::ENDER3;
+    fast.steps_per_mm[0] = Rate::from_num(800);
+    fast.steps_per_mm[1] = Rate::from_num(800);
+    let fcfg = StepConfig::from_machine(&fast);
+    let pcfg = PlanConfig::from_machine(&fast);
+    let mut p: Planner<4> = Planner::new(&pcfg, [0, 0, 200, 0]);
+    let mut xy: heapless::Vec<Block, 8> = heapless::Vec::new();
+    let feed = Rate::from_num(50) * Rate::from_num(1.414_213_6);
+    p.push(Move::new([60_000, 60_000, 200, 0], feed, MoveKind::Travel)).unwrap();
+    while let Some(b) = p.pop_forced() {
+        let _ = xy.push(b);
     }
+    let f = execute(&xy, &fcfg, [0, 0, 200, 0], &insns);
+    f.report("execute (X+Y 40 kHz)", f64::NAN);
+    let cruise_ticks = 72_000_000 / 40_000;
+    print(format_args!(
+        "X+Y 40 kHz: worst interrupt {:.0} instructions = {:.0} cycles at 1.5 cycles/instruction \
+         (+ ~24 cycles exception entry/exit) of the {} cycles between two steps of one axis; \
+         interrupt load {:.0} cycles per {} ticks ({:.0}%)\n",
+        f.max,
+        f.max * 1.5,
+        cruise_ticks,
+        f.per_step * 2.0 * 1.5,
+        cruise_ticks,
+        f.per_step * 2.0 * 1.5 / cruise_ticks as f64 * 100.0
+    ));
     print(format_args!("job print time {print_s:.2} s\n"));
     // SAFETY: semihosting SYS_EXIT with ADP_Stopped_ApplicationExit.
     unsafe { cortex_m::asm::semihosting_syscall(0x18, 0x20026) };
