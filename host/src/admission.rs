@@ -112,8 +112,8 @@ pub fn admit_job_peaks(
             }
         };
         return Err(format!(
-            "the model does not fit the printer's toolpath memory{simplified}: {}",
-            short.join("; ")
+            "the model does not fit the printer's toolpath memory{simplified}:\n  - {}",
+            short.join("\n  - ")
         ));
     }
     Ok((admission, peaks))
@@ -295,9 +295,11 @@ pub fn device_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> Toolpat
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
 /// the stage's needs, the layers where they peak and the moves the device must buffer at
-/// once. A need found growing while the stage takes a layer is attributed to that layer
-/// (loop points, loops, window words) or to the layer it emits meanwhile (offsets, infill,
-/// paths, spans). Runs on a thread with a large stack (the stages are large values).
+/// once. A need found growing while the stage takes a layer is attributed to that layer (the
+/// window's stored contours) or to the layer it builds meanwhile (the others: a layer is built
+/// once the layers its top skins wait for have arrived; the last of them when it builds
+/// several at once, as at the end of the model). Runs on a thread with a large stack (the
+/// stages are large values).
 pub fn toolpath_peaks(
     tris: &[Triangle],
     machine: &MachineConfig,
@@ -368,7 +370,8 @@ fn measure(
             return;
         }
         let before = tp.stats().needs;
-        let pushed = (l.index, l.z_um);
+        // Heights as the nozzle's (the top of the layer), as `LayerStart` gives them.
+        let pushed = (l.index, cfg.layer_z_um(l.index));
         emitting.set(pushed);
         if let Err(e) = tp.push_layer(l, events) {
             failed = Some(e);
@@ -378,8 +381,8 @@ fn measure(
         let emitted = emitting.get();
         let mut p = peaks.get();
         if n != before {
-            p.points.raise(n.layer_points.max(n.offset_edges), pushed);
-            p.loops.raise(n.layer_loops, pushed);
+            p.points.raise(n.layer_points.max(n.offset_edges), emitted);
+            p.loops.raise(n.layer_loops, emitted);
             p.ring_words.raise(n.ring_points, pushed);
             p.crossings.raise(n.crossings, emitted);
             p.path_points.raise(n.path_points, emitted);
@@ -433,8 +436,9 @@ pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<Stri
     let mut out = Vec::new();
     let mut need = |p: &Peak, what: &str, cap: u32, why: &str| {
         if p.value > cap {
+            let at = if why == WINDOW { "the skin window at" } else { "layer at" };
             out.push(format!(
-                "layer at {:.2} mm needs {} {what}; the printer holds {cap}: {why}",
+                "{at} {:.2} mm needs {} {what}; the printer holds {cap}: {why}",
                 mm(p.z_um),
                 p.value
             ));
@@ -444,8 +448,8 @@ pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<Stri
     need(&peaks.loops, "toolpath loops", caps.toolpath_loops, AREA);
     need(&peaks.crossings, "scanline crossings", caps.scan_crossings, AREA);
     need(&peaks.path_points, "toolpath path points", caps.path_points, AREA);
-    need(&peaks.ring_words, "skin window contour words", caps.window_ring_words, WINDOW);
-    need(&peaks.spans, "skin window scanline spans", caps.window_spans, WINDOW);
+    need(&peaks.ring_words, "contour words", caps.window_ring_words, WINDOW);
+    need(&peaks.spans, "scanline spans", caps.window_spans, WINDOW);
     let room = caps.layer_moves - caps.layer_moves / 2;
     let b = &peaks.move_burst;
     if b.moves > room {

@@ -177,6 +177,13 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
     let job = job(&tris);
     let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
     assert!(peaks.needs.crossings > 8, "{:?}", peaks.needs);
+    // Where the needs peak: every layer's outline is the same 4 corners, so the first layer
+    // built holds the points peak; the solid bottom layer has the most infill crossings; the
+    // window holds most once the top layer arrived.
+    assert_eq!((peaks.points.value, peaks.points.z_um), (4, 200), "{peaks:?}");
+    assert_eq!(peaks.crossings.z_um, 200, "{peaks:?}");
+    assert_eq!(peaks.ring_words.z_um, 1_000, "{peaks:?}");
+    assert_eq!(peaks.layers, 5);
     // The slicer fits; the scanline crossings do not.
     let caps = Capacities { scan_crossings: 8, ..CREALITY_CAPACITIES };
     let e = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap_err();
@@ -206,8 +213,9 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
         "toolpath loops; the printer holds 0",
         "scanline crossings; the printer holds 2",
         "toolpath path points; the printer holds 2",
-        "skin window contour words; the printer holds 2",
-        "skin window scanline spans; the printer holds 0",
+        "the skin window at 1.00 mm needs",
+        "contour words; the printer holds 2",
+        "scanline spans; the printer holds 0",
         "buffered toolpath moves; the printer holds 4 (half its move buffer of 8)",
     ] {
         assert!(e.contains(what), "{what}: {e}");
@@ -296,14 +304,8 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
         ("toolpath loops", Capacities { toolpath_loops: exact.toolpath_loops - 1, ..exact }),
         ("scanline crossings", Capacities { scan_crossings: exact.scan_crossings - 1, ..exact }),
         ("toolpath path points", Capacities { path_points: exact.path_points - 1, ..exact }),
-        (
-            "skin window contour words",
-            Capacities { window_ring_words: exact.window_ring_words - 1, ..exact },
-        ),
-        (
-            "skin window scanline spans",
-            Capacities { window_spans: exact.window_spans - 1, ..exact },
-        ),
+        ("contour words", Capacities { window_ring_words: exact.window_ring_words - 1, ..exact }),
+        ("scanline spans", Capacities { window_spans: exact.window_spans - 1, ..exact }),
         ("buffered toolpath moves", Capacities { layer_moves: exact.layer_moves - 2, ..exact }),
     ];
     for (what, caps) in less {
