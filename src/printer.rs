@@ -37,10 +37,52 @@ use crate::slice::{Layer, SliceConfig, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig};
 
-/// The slicer capacities of the Creality 4.2.x board build (64 KB RAM): 1024 active
-/// triangles (24 KB), 768 segments and contour points per layer (28 KB), 48 loops per layer
-/// (3.4 KB).
-/// The host checks a model against these before streaming (admission control).
+/// Every capacity of the firmware build (the Creality 4.2.x boards and QEMU's lm3s6965evb,
+/// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
+/// announces [`BOARD_CAPACITIES`].
+///
+/// RAM on the board = the `Printer` (slicer + toolpath + move buffer + planner + generator,
+/// about 45 KB with these values) + the protocol endpoint, the step queue, the executor and
+/// the UART buffers + the stack: `.data + .bss` 51.6 KB, 13.9 KB left for the stack (QEMU
+/// build; the firmware prints both after every job). Per-unit bytes: slicer 24 per active
+/// triangle, 37 per segment, 72 per loop; toolpath see `ToolpathNeeds`; 24 per queued move.
+pub mod board {
+    use super::Printer;
+
+    /// Slicer: active triangles.
+    pub const A: usize = 128;
+    /// Slicer: segments and contour points per layer.
+    pub const S: usize = 192;
+    /// Slicer: loops per layer.
+    pub const L: usize = 8;
+    /// Toolpath: loop points per layer and offset edges per island.
+    pub const PTS: usize = 128;
+    /// Toolpath: loops per layer.
+    pub const LOOPS: usize = 4;
+    /// Toolpath: scanline crossings, infill segments and paths per layer.
+    pub const CROSS: usize = 224;
+    /// Toolpath: path points per layer.
+    pub const PATH: usize = 384;
+    /// Toolpath: words of the skin window's stored contours.
+    pub const RING: usize = 512;
+    /// Toolpath: the skin window's crossings with one scanline.
+    pub const SPANS: usize = 48;
+    /// Toolpath moves waiting for the planner: the slicer cuts a layer while at most a quarter
+    /// is in use, so a layer's moves must fit the other three quarters.
+    pub const MOVES: usize = 448;
+    /// Planner lookahead, moves (the host simulation plans with the same).
+    pub const P: usize = 32;
+
+    /// The job runner of the firmware build.
+    pub type BoardPrinter = Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>;
+}
+
+/// The capacities the firmware build ([`board`]) announces.
+pub const BOARD_CAPACITIES: Capacities = board::BoardPrinter::CAPACITIES;
+
+/// What the host's simulated printer announces by default: the slicer capacities the protocol
+/// was specified with (1024 active triangles, 768 contour points, 48 loops) and host-sized
+/// toolpath capacities. The real 64 KB build holds far less: [`BOARD_CAPACITIES`].
 pub const CREALITY_CAPACITIES: Capacities = Capacities {
     active_triangles: 1024,
     contour_points: 768,
@@ -48,9 +90,6 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
     layer_moves: 4096,
     layer_window: 4,
     ram_bytes: 64 * 1024,
-    // The toolpath stage of the host simulation (`strata_host::simjob::SimPrinter`), which
-    // announces these capacities: the 64 KB firmware's are far smaller
-    // (firmware/src/capacities.rs, announced by `Printer::empty`).
     toolpath_points: 1 << 15,
     toolpath_loops: 1 << 11,
     scan_crossings: 1 << 15,
@@ -200,22 +239,25 @@ impl<
             done: Deque::new(),
             layers_planned: 0,
             status_due_ms: 0,
-            capacities: Capacities {
-                active_triangles: A as u32,
-                contour_points: S as u32,
-                contour_loops: L as u32,
-                layer_moves: MOVES as u32,
-                layer_window: crate::toolpath::window::MAX_BLOCKS as u16,
-                ram_bytes: core::mem::size_of::<Self>() as u32,
-                toolpath_points: PTS as u32,
-                toolpath_loops: LOOPS as u32,
-                scan_crossings: CROSS as u32,
-                path_points: PATH as u32,
-                window_ring_words: RING as u32,
-                window_spans: SPANS as u32,
-            },
+            capacities: Self::CAPACITIES,
         }
     }
+
+    /// What a runner of these capacities holds, announced to the host.
+    pub const CAPACITIES: Capacities = Capacities {
+        active_triangles: A as u32,
+        contour_points: S as u32,
+        contour_loops: L as u32,
+        layer_moves: MOVES as u32,
+        layer_window: crate::toolpath::window::MAX_BLOCKS as u16,
+        ram_bytes: core::mem::size_of::<Self>() as u32,
+        toolpath_points: PTS as u32,
+        toolpath_loops: LOOPS as u32,
+        scan_crossings: CROSS as u32,
+        path_points: PATH as u32,
+        window_ring_words: RING as u32,
+        window_spans: SPANS as u32,
+    };
 
     /// Sets the machine (limits, steps/mm) and goes idle at the origin; buffers stay where
     /// they are (no large value is moved).
