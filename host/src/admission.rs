@@ -17,7 +17,7 @@
 //! streamed) runs through a host-sized toolpath stage with the job's settings, exactly as the
 //! device will run it ([`toolpath_peaks`]), and every toolpath need is compared with the
 //! device's toolpath capacities (`PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`) and the
-//! moves one batch of triangles makes the device buffer with half its move buffer. Simplifying
+//! moves of every layer with the part of the move buffer a layer may fill. Simplifying
 //! the mesh only reduces the slicer's needs, so a toolpath need that does not fit refuses the
 //! model, naming the resource, the layer where it peaks, the need and the capacity.
 
@@ -29,7 +29,7 @@ use meshopt::{simplify_decoder, SimplifyOptions};
 use rstar::{PointDistance, RTree, RTreeObject, AABB};
 use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::MachineConfig;
-use strata::protocol::{BatchBuilder, Capacities, JobSpec};
+use strata::protocol::{Capacities, JobSpec};
 use strata::slice::{peak_needs, Layer, PeakNeeds, SliceConfig, Slicer};
 use strata::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathNeeds};
 
@@ -238,18 +238,6 @@ impl Peak {
     }
 }
 
-/// Moves the device must buffer at once: those the toolpath stage emits while the device
-/// takes one batch of triangles (or the end of the model).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct MoveBurst {
-    /// Moves.
-    pub moves: u32,
-    /// First and last layer (index, z in um) that emitted moves in the burst.
-    pub first: (u32, i32),
-    /// Last layer.
-    pub last: (u32, i32),
-}
-
 /// What the toolpath stage needs for a model, with the layers where the needs peak.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ToolpathPeaks {
@@ -267,11 +255,9 @@ pub struct ToolpathPeaks {
     pub ring_words: Peak,
     /// `SPANS`: the skin window's crossings with one scanline.
     pub spans: Peak,
-    /// Most moves of one layer.
+    /// Most moves of one layer (the device cuts one layer at a time, each while its move
+    /// buffer is at most a quarter full: a layer's moves must fit the other three quarters).
     pub layer_moves: Peak,
-    /// Most moves emitted while the device takes one triangle batch (as the host batches
-    /// them) or the end of the model: all of them must fit the free half of the move buffer.
-    pub move_burst: MoveBurst,
     /// Layers.
     pub layers: u32,
 }
@@ -294,8 +280,7 @@ pub fn device_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> Toolpat
 
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
-/// the stage's needs, the layers where they peak and the moves the device must buffer at
-/// once. A need found growing while the stage takes a layer is attributed to that layer (the
+/// the stage's needs, the layers where they peak and the most moves of a layer. A need found growing while the stage takes a layer is attributed to that layer (the
 /// window's stored contours) or to the layer it builds meanwhile (the others: a layer is built
 /// once the layers its top skins wait for have arrived; the last of them when it builds
 /// several at once, as at the end of the model). Runs on a thread with a large stack (the
@@ -328,41 +313,21 @@ fn measure(
     let mut tp = Box::new(NeedsToolpath::new(cfg).map_err(|e| e.to_string())?);
     tp.set_position(Point2::new(0, 0), 0);
     let peaks = Cell::new(ToolpathPeaks::default());
-    // The layer being emitted, its moves, and the current burst.
+    // The layer being emitted and its moves.
     let emitting = Cell::new((0u32, 0i32));
     let layer_moves = Cell::new(0u32);
-    let burst = Cell::new(MoveBurst::default());
     let events = &mut |e: &ToolEvent<'_>| match e {
         ToolEvent::LayerStart { index, z_um, .. } => {
             emitting.set((*index, *z_um));
             layer_moves.set(0);
-            let mut b = burst.get();
-            if b.moves == 0 {
-                b.first = (*index, *z_um);
-            }
-            b.last = (*index, *z_um);
-            burst.set(b);
         }
-        ToolEvent::Move(_) => {
-            layer_moves.set(layer_moves.get() + 1);
-            let mut b = burst.get();
-            b.moves += 1;
-            burst.set(b);
-        }
+        ToolEvent::Move(_) => layer_moves.set(layer_moves.get() + 1),
         ToolEvent::LayerEnd(_) => {
             let mut p = peaks.get();
             p.layer_moves.raise(layer_moves.get(), emitting.get());
             p.layers += 1;
             peaks.set(p);
         }
-    };
-    let end_burst = |b: &Cell<MoveBurst>| {
-        let mut p = peaks.get();
-        if b.get().moves > p.move_burst.moves {
-            p.move_burst = b.get();
-        }
-        peaks.set(p);
-        b.set(MoveBurst::default());
     };
     let mut failed = None;
     let mut sink = |l: &Layer<'_>| {
@@ -390,23 +355,14 @@ fn measure(
         }
         peaks.set(p);
     };
-    let mut batch = BatchBuilder::new();
     for t in tris {
-        if batch.push(t).is_err() {
-            // The host sends the batch and starts the next with this triangle.
-            end_burst(&burst);
-            batch.clear();
-            let _ = batch.push(t);
-        }
         slicer.push(t, &mut sink).map_err(|e| e.to_string())?;
     }
-    end_burst(&burst);
     slicer.finish(&mut sink).map_err(|e| e.to_string())?;
     if let Some(e) = failed {
         return Err(format!("the toolpath stage cannot measure this model: {e}"));
     }
     let stats = tp.finish(events).map_err(|e| e.to_string())?;
-    end_burst(&burst);
     let mut p = peaks.get();
     p.needs = stats.needs;
     // Needs that grew in the end-of-model flush belong to its last layer.
@@ -421,11 +377,22 @@ fn measure(
     Ok(p)
 }
 
+/// Moves of one layer a move buffer of `moves` holds: the device cuts a layer only while
+/// the buffer is at most a quarter full (`strata::printer`), so the other three quarters.
+pub fn layer_room(moves: u32) -> u32 {
+    moves - moves / 4
+}
+
+/// The smallest move buffer whose [`layer_room`] holds `layer_moves`.
+pub fn move_buffer_for(layer_moves: u32) -> u32 {
+    (layer_moves..).find(|&m| layer_room(m) >= layer_moves).unwrap_or(u32::MAX)
+}
+
 /// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user
 /// (empty when everything fits). `PTS >= max(layer_points, offset_edges)`,
 /// `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >= path_points`, `RING >= ring_points`,
-/// `SPANS >= spans` (the `ToolpathNeeds` docs), and every move burst within the free half of
-/// the move buffer (the device takes a batch only while the buffer is at most half full).
+/// `SPANS >= spans` (the `ToolpathNeeds` docs), and every layer's moves within
+/// [`layer_room`] of the move buffer.
 /// Paths are not compared with `CROSS`: a layer with more paths than the nearest-path grid
 /// holds is ordered by a scan instead (same order, no error).
 pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<String> {
@@ -450,24 +417,16 @@ pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<Stri
     need(&peaks.path_points, "toolpath path points", caps.path_points, AREA);
     need(&peaks.ring_words, "contour words", caps.window_ring_words, WINDOW);
     need(&peaks.spans, "scanline spans", caps.window_spans, WINDOW);
-    let room = caps.layer_moves - caps.layer_moves / 2;
-    let b = &peaks.move_burst;
-    if b.moves > room {
-        let layers = if b.first.0 == b.last.0 {
-            format!("layer at {:.2} mm needs", mm(b.first.1))
-        } else {
-            format!(
-                "one batch of triangles completes the layers at {:.2} to {:.2} mm at once \
-                 ({} layers): they need",
-                mm(b.first.1),
-                mm(b.last.1),
-                b.last.0 - b.first.0 + 1
-            )
-        };
+    let room = layer_room(caps.layer_moves);
+    let m = &peaks.layer_moves;
+    if m.value > room {
         out.push(format!(
-            "{layers} {} buffered toolpath moves; the printer holds {room} (half its move \
-             buffer of {}): too many moves at once for this printer's memory",
-            b.moves, caps.layer_moves
+            "layer at {:.2} mm needs {} buffered toolpath moves; the printer holds {room} (three \
+             quarters of its move buffer of {}): too many moves in one layer for this printer's \
+             memory",
+            mm(m.z_um),
+            m.value,
+            caps.layer_moves
         ));
     }
     out

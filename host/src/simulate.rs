@@ -67,8 +67,8 @@ struct Simplified {
 struct DeviceNeeds {
     active_triangles: u32,
     contour_points: u32,
-    /// Move buffer: twice the most moves emitted at once (the device takes a batch only while
-    /// its buffer is at most half full).
+    /// Move buffer: the smallest whose three quarters hold the largest layer's moves (the
+    /// device cuts a layer only while its buffer is at most a quarter full).
     layer_moves: u32,
     toolpath_points: u32,
     toolpath_loops: u32,
@@ -167,7 +167,7 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
     let needs = DeviceNeeds {
         active_triangles: slicer.active_triangles,
         contour_points: slicer.contour_points,
-        layer_moves: 2 * peaks.move_burst.moves,
+        layer_moves: admission::move_buffer_for(peaks.layer_moves.value),
         toolpath_points: n.layer_points.max(n.offset_edges),
         toolpath_loops: n.layer_loops,
         scan_crossings: n.crossings,
