@@ -21,7 +21,7 @@ use strata::protocol::frame::MAX_WIRE;
 use strata::protocol::{Capacities, DeviceState, JobSpec, LinkConfig};
 use strata::slice::SliceConfig;
 
-use crate::admission::{admit, Admission};
+use crate::admission::{admit, admit_job, Admission};
 use crate::session::{HostEndpoint, Progress};
 use crate::simjob::{Faults, Wire};
 
@@ -332,12 +332,24 @@ fn trace_frame(label: &str, now_ms: u64, wire: &[u8]) {
     if raw.last() == Some(&0) {
         raw.pop();
     }
-    let what = match strata::protocol::frame::cobs_decode_in_place(&mut raw).map(|n| {
-        strata::protocol::frame::parse(&raw[..n])
-            .map(|f| (f.kind, f.seq, f.ack, f.credits, f.payload.first().copied(), f.payload.len()))
-    }) {
-        Some(Ok((k, seq, ack, cr, ty, len))) => {
-            format!("{k:?} seq={seq} ack={ack} credits={cr} msg={ty:02x?} len={len}")
+    let what = match strata::protocol::frame::cobs_decode_in_place(&mut raw)
+        .map(|n| strata::protocol::frame::parse(&raw[..n]))
+    {
+        Some(Ok(f)) => {
+            // Control messages in full; triangle batches by size.
+            let msg = match strata::protocol::Message::decode(f.payload) {
+                Ok(strata::protocol::Message::Triangles(_)) => "Triangles".to_string(),
+                Ok(m) => format!("{m:?}"),
+                Err(_) => format!("{:02x?}", f.payload.first()),
+            };
+            format!(
+                "{:?} seq={} ack={} credits={} len={} {msg}",
+                f.kind,
+                f.seq,
+                f.ack,
+                f.credits,
+                f.payload.len()
+            )
         }
         Some(Err(e)) => format!("bad frame {e:?}"),
         None => "bad COBS".into(),
@@ -524,15 +536,18 @@ pub fn connect<P: Read + Write>(port: &mut P) -> Result<Connected, String> {
     Ok(Connected { ep, t0, caps })
 }
 
-/// The triangles `strata print` would stream for `tris` to a device with `caps` (admission
-/// control at 0.02 mm), the job for them, and a note when they were simplified.
+/// The triangles to stream for `tris` to a device with `caps`: the slicer's admission
+/// ([`admit`] at 0.02 mm: simplified within the measured deviation if need be), the job for
+/// them, and a note when they were simplified or when `strata print`'s whole-pipeline check
+/// ([`admit_job`]: toolpath stage and move bursts too, with conservative bounds) would refuse
+/// them: the hardware-in-the-loop test exercises what the device actually holds.
 pub fn admitted(
     tris: &[Triangle],
     job: JobSpec,
     caps: &Capacities,
 ) -> Result<(Vec<Triangle>, JobSpec, Option<String>), String> {
     let cfg = SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
-    let (t, note) = match admit(tris, &cfg, caps, 0.02)? {
+    let (t, mut note) = match admit(tris, &cfg, caps, 0.02)? {
         Admission::Unchanged(_) => (tris.to_vec(), None),
         Admission::Simplified(s) => {
             let note = format!(
@@ -544,6 +559,11 @@ pub fn admitted(
             (s.triangles, Some(note))
         }
     };
+    let machine = strata::machine::MachineConfig::default();
+    if let Err(e) = admit_job(&t, &machine, &job, caps, 0.02) {
+        let n = format!("strata print would refuse it: {e}");
+        note = Some(note.map_or(n.clone(), |s| format!("{s}; {n}")));
+    }
     let job = JobSpec { triangles: t.len() as u32, ..job };
     Ok((t, job, note))
 }

@@ -366,10 +366,13 @@ fn harness_against_the_in_process_printer() {
         if let Some(r) = r {
             reference = Some(r.unwrap());
         }
-        let progress = run.result.unwrap_or_else(|e| panic!("{label}: {e}"));
         drop(port);
-        let relay_stats = relay.map(|r| r.finish().unwrap());
-        let state = dev.finish().unwrap();
+        let relay_stats = relay.map(|r| r.finish());
+        let state = dev.finish();
+        let progress = run
+            .result
+            .unwrap_or_else(|e| panic!("{label}: {e}; device {state:?}; relay {relay_stats:?}"));
+        let state = state.unwrap();
         eprintln!(
             "{label}: {} layers in {:.1} s, host link {:?}, relay {:?}",
             progress.layer_hashes.len(),
