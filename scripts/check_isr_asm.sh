@@ -4,7 +4,8 @@
 # `Executor::on_timer` reaches. Builds scripts/isr_probe for thumbv7m-none-eabi (release),
 # disassembles it and walks the call graph from `strata_step_isr`. Exits 1 on a finding.
 # A self-test first checks that the walk flags two probe functions that do divide / use
-# floats. Needs `rustup component add llvm-tools` (or llvm-objdump on PATH) and python3.
+# floats. Also reports panic paths and where 64-bit arithmetic (adc/sbc, long multiplies)
+# is. Needs `rustup component add llvm-tools` (or llvm-objdump on PATH) and python3.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -87,6 +88,15 @@ for f in sorted(seen):
     print(f'  {f}')
 if panics:
     print('note: reachable panic paths (bounds/overflow checks):', ', '.join(sorted(panics)))
+else:
+    print('OK: no panic path (bounds or overflow check) on the ISR path')
+# 64-bit arithmetic shows as add/subtract with carry or long multiplies: say where it is
+# (the executor keeps it out of the per-step path: only where a sequence ends).
+WIDE = re.compile(r'\s(adcs?|sbcs?|umull|smull|umlal|smlal)(\.w)?\s')
+for f in sorted(seen):
+    n = sum(1 for l in funcs.get(f, []) if WIDE.search(l))
+    if n:
+        print(f'note: {n} 64-bit arithmetic instruction(s) (adc/sbc/long multiply) in {f}')
 if found:
     print('FAIL: division or floating point on the ISR path:')
     for x in found:

@@ -1,9 +1,10 @@
 //! The step executor: runs in the step timer interrupt, integer adds and compares only.
 //!
 //! Per axis it holds the running sequence (`next`, `interval`, `add`, `remaining`). At a due
-//! step it raises STEP, schedules the falling edge `step_high` later, and advances with
-//! `interval += add; next += interval`. After the falling edge of a sequence's last step it
-//! takes the next commands: a direction change sets DIR right then, which is at least the
+//! step it raises STEP and advances with `interval += add; next += interval`. STEP falls at
+//! the first call from `step_high` later on, and by the middle of the spare time before the
+//! next step at the latest (see [`Executor`]'s cost notes); after the last step of a
+//! sequence it falls exactly `step_high` later, and the executor takes the next commands: a direction change sets DIR right then, which is at least the
 //! driver's setup time before the next rising edge because the generator keeps that gap
 //! ([`StepConfig::min_reversal_ticks`]). Times are wrapping `u32` ticks compared with
 //! [`is_before`].

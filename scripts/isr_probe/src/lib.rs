@@ -4,13 +4,13 @@
 #![no_std]
 
 use core::convert::Infallible;
-use core::sync::atomic::{AtomicU32, Ordering};
 
 use embedded_hal::digital::{ErrorType, OutputPin};
 use strata::step::{Executor, Pins, Wake};
 
-/// Stand-in for a GPIO port's bit set/reset register.
-static BSRR: AtomicU32 = AtomicU32::new(0);
+/// Stand-in for a GPIO port's bit set/reset register (written with volatile stores, as a
+/// register is: the compiler may not merge them).
+static mut BSRR: u32 = 0;
 
 /// A GPIO pin: one register write per edge.
 pub struct RegPin {
@@ -24,12 +24,14 @@ impl ErrorType for RegPin {
 impl OutputPin for RegPin {
     #[inline]
     fn set_low(&mut self) -> Result<(), Infallible> {
-        BSRR.store(self.mask << 16, Ordering::Relaxed);
+        // SAFETY: a plain static written only here, standing in for the GPIO register.
+        unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(BSRR), self.mask << 16) };
         Ok(())
     }
     #[inline]
     fn set_high(&mut self) -> Result<(), Infallible> {
-        BSRR.store(self.mask, Ordering::Relaxed);
+        // SAFETY: as above.
+        unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(BSRR), self.mask) };
         Ok(())
     }
 }
