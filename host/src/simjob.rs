@@ -12,7 +12,7 @@ use std::collections::VecDeque;
 
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, AXES};
-use strata::printer::{Printer, CREALITY_CAPACITIES};
+use strata::printer::{Printer, BOARD_CAPACITIES};
 use strata::protocol::{Capacities, Endpoint, JobSpec, LinkConfig, MAX_WIRE};
 use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepQueue, Wake};
@@ -21,10 +21,10 @@ use strata::toolpath::ToolpathNeeds;
 use crate::preview::PathRecorder;
 use crate::session::{HostEndpoint, HostJob, Phase};
 
-/// The simulated device: slicer at the Creality board's capacities (1024 active triangles,
-/// 768 contour points, 48 loops), a host-sized toolpath stage (the skin window of large models
-/// does not fit 64 KB yet; its real need is reported), 2^17 buffered moves, 32 moves of
-/// lookahead.
+/// The simulated device: host-sized buffers (slicer 1024 active triangles, 768 contour
+/// points, 48 loops; a host-sized toolpath stage; 2^17 buffered moves) and the board's 32
+/// moves of lookahead. What it announces, and so what admission holds a model to, is
+/// [`SimOptions::capacities`]: by default the 64 KB firmware build's (`BOARD_CAPACITIES`).
 pub type SimPrinter = Printer<
     1024,
     768,
@@ -103,7 +103,7 @@ impl Default for SimOptions {
         Self {
             baud: 250_000,
             faults: Faults::default(),
-            capacities: CREALITY_CAPACITIES,
+            capacities: BOARD_CAPACITIES,
             max_ms: 48 * 3600 * 1000,
             check_delivery: false,
             preview: false,
