@@ -11,6 +11,10 @@ rustup target list --installed | grep -qx thumbv7m-none-eabi || rustup target ad
 rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
 rustup component list --installed | grep -q '^clippy' || rustup component add clippy
 rustup component list --installed | grep -q '^llvm-tools' || rustup component add llvm-tools
+# QEMU runs the firmware in the end-to-end test (which fails without it when CI is set).
+if ! command -v qemu-system-arm >/dev/null && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+  apt-get update && apt-get install -y qemu-system-arm
+fi
 
 step "cargo fmt --check"
 cargo fmt --all -- --check
