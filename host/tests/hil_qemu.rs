@@ -18,8 +18,8 @@
 //! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored qemu_   # + models
 //! ```
 //!
-//! The sample models are `#[ignore]`d while they do not fit the firmware's 64 KB capacities
-//! (see the note above `qemu_embodier_asc`); the small cylinder always runs.
+//! The hotend and LM8UU are `#[ignore]`d while they do not fit the firmware's 64 KB capacities
+//! (see the note above `qemu_embodier_hotend_v2`).
 //!
 //! `STRATA_QEMU` and `STRATA_FIRMWARE_ELF` override where QEMU and the image are looked for;
 //! `STRATA_HIL_ECHO=1` copies QEMU's output (the firmware's `COST`/`MEM` lines) to stderr as
@@ -291,41 +291,32 @@ fn qemu_banded_cylinder() {
     qemu_job("banded cylinder r4 h3 16 sides", &tris, job_for(&tris), true);
 }
 
-/// A wider one fails now and then: when the end of the model arrives, its last layers'
-/// moves must fit beside the moves still waiting for the planner, and how many wait depends
-/// on the link's timing.
+/// A wider one (672 triangles, 20 layers): its last layers once overflowed the move buffer
+/// depending on the link's timing (fixed by cutting one layer at a time).
 #[test]
-#[ignore = "flaky on the 64 KB firmware: ErrorCode::Moves at layer 19 (the end of the model) in \
-            about 1 run of 4: the last layers do not always fit MOVES = 320"]
 fn qemu_banded_cylinder_r5() {
     let tris = banded_cylinder(5_000.0, 4_000, 16, 200);
     assert_eq!(tris.len(), 672);
     qemu_job("banded cylinder r5 h4 16 sides", &tris, job_for(&tris), true);
 }
 
-// The four sample models do not fit the firmware's 64 KB capacities yet (firmware/src/
-// capacities.rs at 11:36 UTC: slicer A=96 active triangles, S=160 contour points; toolpath
-// PTS=80, LOOPS=4, CROSS=128, PATH=320, RING=192, SPANS=64; MOVES=320): the hotend and LM8UU
-// are refused by admission control even simplified to 0.02 mm (373 and 283 active triangles
-// needed); embodier_asc (12 triangles) streams and fails with `ErrorCode::Moves` at layer 1
-// (its tall faces complete many layers in one batch); the cube is admitted and fails with
-// `ErrorCode::Toolpath` at layer 30. Run them with `-- --ignored qemu_`; remove an `ignore`
-// as soon as its model fits (the toolpath stage and the move buffer are being slimmed).
+// embodier_hotend_v2 and embodier_LM8UU do not fit the firmware's 64 KB capacities yet
+// (strata::printer board capacities at 12:05 UTC: 128 active triangles, 192 contour points):
+// admission control refuses them even simplified to 0.02 mm (388 and 742 active triangles
+// needed). Run them with `-- --ignored qemu_`; remove an `ignore` as soon as its model fits.
 
 #[test]
-#[ignore = "capacity: the 64 KB firmware's move buffer overflows at layer 1 (ErrorCode::Moves)"]
 fn qemu_embodier_asc() {
     qemu_model("embodier_asc.stl", true);
 }
 
 #[test]
-#[ignore = "capacity: the 64 KB firmware fails with ErrorCode::Toolpath at layer 30"]
 fn qemu_xyz_20mm_cube() {
     qemu_model("xyz_20mm_cube.stl", true);
 }
 
 #[test]
-#[ignore = "capacity: needs 373 active triangles, the 64 KB firmware holds 96 (admission refuses)"]
+#[ignore = "capacity: needs 388 active triangles, the 64 KB firmware holds 128 (admission refuses)"]
 fn qemu_embodier_hotend_v2() {
     // The two long prints run clean only (about 2 and 1.5 minutes of QEMU each): the whole
     // test stays near 5 minutes on 2 cores. STRATA_HIL_LOSSY_ALL=1 adds their lossy runs.
@@ -333,7 +324,7 @@ fn qemu_embodier_hotend_v2() {
 }
 
 #[test]
-#[ignore = "capacity: needs 283 active triangles, the 64 KB firmware holds 96 (admission refuses)"]
+#[ignore = "capacity: needs 742 active triangles, the 64 KB firmware holds 128 (admission refuses)"]
 fn qemu_embodier_lm8uu() {
     qemu_model("embodier_LM8UU_8p2pi.stl", false);
 }
