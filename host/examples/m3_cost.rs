@@ -9,7 +9,8 @@
 //! - worst interrupt under 900 cycles (X and Y both stepping at 40 kHz: 72e6 / 80e3).
 //!
 //! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S] [--relay LOSS]
-//! MODEL.stl...` (job budget S seconds of wall time, default 1800; `--relay` streams through the
+//! [--max-deviation MM] MODEL.stl...` (job budget S seconds of wall time, default 1800;
+//! admission's error bound MM, default 0.02 as `strata print`; `--relay` streams through the
 //! fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
 //! every frame's header; `cylinder:R:H:SIDES:BAND` (mm) is a generated banded cylinder; model
 //! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
@@ -53,6 +54,8 @@ struct Opts {
     timeout: Duration,
     /// Through the fault-injecting relay at this loss rate.
     relay: Option<f64>,
+    /// Admission's error bound, mm.
+    max_deviation: f64,
 }
 
 /// `cylinder:R:H:SIDES:BAND` (mm) is [`hil::banded_cylinder`]; anything else an STL file.
@@ -93,7 +96,7 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
     port.set_read_timeout(Some(Duration::from_millis(1))).map_err(|e| e.to_string())?;
     port.set_write_timeout(Some(Duration::from_secs(10))).map_err(|e| e.to_string())?;
     let mut conn = hil::connect(&mut port)?;
-    let (tris, job, note) = hil::admitted(&tris, job, &conn.caps)?;
+    let (tris, job, note) = hil::admitted(&tris, job, &conn.caps, o.max_deviation)?;
     let mut next = 10.0;
     let progress = hil::print_job(&mut port, &mut conn, &tris, job, o.timeout, |p| {
         if echo && t0.elapsed().as_secs_f64() > next {
@@ -126,7 +129,8 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
 }
 
 fn main() {
-    let mut o = Opts { echo: false, timeout: Duration::from_secs(1800), relay: None };
+    let mut o =
+        Opts { echo: false, timeout: Duration::from_secs(1800), relay: None, max_deviation: 0.02 };
     let mut models = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -134,6 +138,10 @@ fn main() {
             "--echo" => o.echo = true,
             "--timeout" => match args.next().and_then(|s| s.parse().ok()) {
                 Some(s) => o.timeout = Duration::from_secs(s),
+                None => models.clear(),
+            },
+            "--max-deviation" => match args.next().and_then(|s| s.parse().ok()) {
+                Some(d) => o.max_deviation = d,
                 None => models.clear(),
             },
             "--relay" => match args.next().and_then(|s| s.parse().ok()) {
@@ -144,7 +152,10 @@ fn main() {
         }
     }
     if models.is_empty() {
-        eprintln!("usage: m3_cost [--echo] [--timeout SECONDS] [--relay LOSS] MODEL.stl...");
+        eprintln!(
+            "usage: m3_cost [--echo] [--timeout SECONDS] [--relay LOSS] [--max-deviation MM] \
+             MODEL.stl..."
+        );
         std::process::exit(2);
     }
     let (qemu, elf) = hil::locate().unwrap_or_else(|e| {

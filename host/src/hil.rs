@@ -537,7 +537,8 @@ pub fn connect<P: Read + Write>(port: &mut P) -> Result<Connected, String> {
 }
 
 /// The triangles to stream for `tris` to a device with `caps`: the slicer's admission
-/// ([`admit`] at 0.02 mm: simplified within the measured deviation if need be), the job for
+/// ([`admit`] within `max_deviation_mm`, 0.02 as `strata print`: simplified within the measured
+/// deviation if need be), the job for
 /// them, and a note when they were simplified or when `strata print`'s whole-pipeline check
 /// ([`admit_job`]: toolpath stage and move bursts too, with conservative bounds) would refuse
 /// them: the hardware-in-the-loop test exercises what the device actually holds.
@@ -545,9 +546,10 @@ pub fn admitted(
     tris: &[Triangle],
     job: JobSpec,
     caps: &Capacities,
+    max_deviation_mm: f64,
 ) -> Result<(Vec<Triangle>, JobSpec, Option<String>), String> {
     let cfg = SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
-    let (t, mut note) = match admit(tris, &cfg, caps, 0.02)? {
+    let (t, mut note) = match admit(tris, &cfg, caps, max_deviation_mm)? {
         Admission::Unchanged(_) => (tris.to_vec(), None),
         Admission::Simplified(s) => {
             let note = format!(
@@ -560,7 +562,7 @@ pub fn admitted(
         }
     };
     let machine = strata::machine::MachineConfig::default();
-    if let Err(e) = admit_job(&t, &machine, &job, caps, 0.02) {
+    if let Err(e) = admit_job(&t, &machine, &job, caps, max_deviation_mm) {
         let n = format!("strata print would refuse it: {e}");
         note = Some(note.map_or(n.clone(), |s| format!("{s}; {n}")));
     }

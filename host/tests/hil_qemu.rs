@@ -129,7 +129,7 @@ fn run_job(
             return (run, None);
         }
     };
-    let (tris, job, note) = hil::admitted(tris, job, &conn.caps).unwrap_or_else(|e| {
+    let (tris, job, note) = hil::admitted(tris, job, &conn.caps, 0.02).unwrap_or_else(|e| {
         panic!(
             "{label}: refused by admission control against the device's capacities {:?}: {e}",
             conn.caps
