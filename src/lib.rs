@@ -43,4 +43,5 @@ pub mod sim;
 pub mod slice;
 pub mod step;
 pub mod stl;
+pub mod thermal;
 pub mod toolpath;
