@@ -222,7 +222,7 @@ pub struct HeaterStatus {
 impl HeaterStatus {
     /// The reading in tenths of a degree, rounded.
     pub fn temp_decidegrees(&self) -> i16 {
-        (self.temp * 10).round().to_num::<i16>()
+        self.temp.saturating_mul_int(10).round().saturating_to_num::<i16>()
     }
 }
 
@@ -306,7 +306,7 @@ impl Channel {
         }
         self.protect.check(&cfg.protect, heater, now_ms, self.target_c, self.temp)?;
 
-        let off = (self.temp - Temp::from_num(self.target_c)).abs();
+        let off = self.temp.saturating_sub(Temp::from_num(self.target_c)).saturating_abs();
         if self.target_c > 0 && off <= Temp::from_num(cfg.window_c) {
             if !self.resident {
                 self.resident = true;
@@ -414,9 +414,9 @@ impl ThermalController {
 
     /// Heaters and fan off (end of job, abort, emergency stop). A latched fault stays.
     pub fn all_off(&mut self) {
-        let cfg = self.cfg;
-        self.hotend.set_target(&cfg.hotend, self.last_ms, 0);
-        self.bed.set_target(&cfg.bed, self.last_ms, 0);
+        let Self { cfg, hotend, bed, last_ms, .. } = self;
+        hotend.set_target(&cfg.hotend, *last_ms, 0);
+        bed.set_target(&cfg.bed, *last_ms, 0);
         self.hotend.pwm = 0;
         self.bed.pwm = 0;
         self.fan_pwm = 0;
@@ -450,11 +450,11 @@ impl ThermalController {
         let dt_ms = if self.started { now_ms.wrapping_sub(self.last_ms) } else { 0 };
         self.started = true;
         self.last_ms = now_ms;
-        let cfg = self.cfg;
+        let Self { cfg, hotend, bed, .. } = self;
         let result =
-            self.hotend.update(&cfg.hotend, Heater::Hotend, now_ms, dt_ms, adc_hotend).and_then(
-                |h| self.bed.update(&cfg.bed, Heater::Bed, now_ms, dt_ms, adc_bed).map(|b| (h, b)),
-            );
+            hotend.update(&cfg.hotend, Heater::Hotend, now_ms, dt_ms, adc_hotend).and_then(|h| {
+                bed.update(&cfg.bed, Heater::Bed, now_ms, dt_ms, adc_bed).map(|b| (h, b))
+            });
         match result {
             Ok((hotend_pwm, bed_pwm)) => {
                 Outputs { hotend_pwm, bed_pwm, fan_pwm: self.fan_pwm, fault: None }
@@ -545,6 +545,34 @@ mod tests {
         assert_eq!(ThermalFault::SensorOpen(Heater::Hotend).name(), "SENSOR OPEN");
         c.reset();
         assert_eq!(c.fault(), None);
+    }
+
+    #[test]
+    fn arbitrary_readings_and_times_never_panic() {
+        let mut c = ctl();
+        let mut x = 0x1234_5678_9abc_def0u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for round in 0..200 {
+            c.reset();
+            let _ = c.set_targets(0, (next() % 300) as i16, (next() % 120) as i16);
+            let mut now = (next() as u32).wrapping_sub(1000);
+            for _ in 0..200 {
+                now =
+                    now.wrapping_add((next() % if round % 2 == 0 { 300 } else { 100_000 }) as u32);
+                let (h, b) = (next() as u16, next() as u16);
+                let out = c.update(now, h, b);
+                if out.fault.is_some() {
+                    assert_eq!((out.hotend_pwm, out.bed_pwm, out.fan_pwm), (0, 0, 0));
+                }
+                let _ = c.at_target();
+                let _ = c.status().hotend.temp_decidegrees();
+            }
+        }
     }
 
     #[test]

@@ -104,7 +104,8 @@ impl Pid {
         let pinned_high = unclamped >= max && error > 0;
         let pinned_low = unclamped <= 0 && error < 0;
         if !pinned_high && !pinned_low && dt_ms > 0 {
-            let dt_s = Temp::from_num(dt_ms.min(60_000)) / 1000;
+            // At most 10 s (longer gaps are a stalled loop): fits I16F16.
+            let dt_s = Temp::from_num(dt_ms.min(10_000)) / 1000;
             let step = gains.ki.saturating_mul(error).saturating_mul(dt_s);
             self.integral = self.integral.saturating_add(step).clamp(Temp::ZERO, max);
         }
@@ -165,5 +166,26 @@ mod tests {
         b.update(&PidGains::HOTEND, t(200), t(195), 100);
         let rising = b.update(&PidGains::HOTEND, t(200), t(195) + Temp::lit("0.1"), 100);
         assert!(rising < steady);
+    }
+
+    #[test]
+    fn arbitrary_inputs_never_panic() {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let mut pid = Pid::new();
+        let gains = PidGains { kp: Temp::MAX, ki: Temp::MAX, kd: Temp::MAX };
+        for i in 0..100_000 {
+            let g = if i % 2 == 0 { &gains } else { &PidGains::BED };
+            let target = Temp::from_bits(next() as i32);
+            let temp = Temp::from_bits(next() as i32);
+            let near = target.saturating_add(Temp::from_bits((next() as i32) >> 12));
+            let dt = if i % 3 == 0 { next() as u32 } else { (next() % 1000) as u32 };
+            pid.update(g, target, if i % 5 == 0 { temp } else { near }, dt);
+        }
     }
 }

@@ -139,7 +139,7 @@ impl Protection {
 
     fn arm_watch(&mut self, p: &ProtectParams, now_ms: u32, target_c: i16, temp: Temp) {
         let band = i32::from(p.watch_increase_c) + i32::from(WATCH_HYSTERESIS_C) + 1;
-        let far = Temp::from_num(i32::from(target_c) - band);
+        let far = Temp::saturating_from_num(i32::from(target_c) - band);
         if target_c > 0 && temp < far {
             self.watching = true;
             self.watch_target = temp.saturating_add(Temp::from_num(p.watch_increase_c));
@@ -175,7 +175,7 @@ impl Protection {
             self.state = RunawayState::Stable;
         }
         if self.state == RunawayState::Stable {
-            if temp >= target - Temp::from_num(p.hysteresis_c) {
+            if temp >= target.saturating_sub(Temp::from_num(p.hysteresis_c)) {
                 self.runaway_deadline_ms = now_ms.wrapping_add(p.period_ms);
             } else if !before(now_ms, self.runaway_deadline_ms) {
                 return Err(ThermalFault::ThermalRunaway(heater));
@@ -242,5 +242,33 @@ mod tests {
             pr.check(&p, Heater::Hotend, start.wrapping_add(20_000), 200, t(26)),
             Err(ThermalFault::HeatingFailed(Heater::Hotend))
         );
+    }
+
+    #[test]
+    fn arbitrary_inputs_never_panic() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let mut pr = Protection::new();
+        for _ in 0..50_000 {
+            let p = ProtectParams {
+                period_ms: next() as u32,
+                hysteresis_c: next() as i16,
+                watch_period_ms: next() as u32,
+                watch_increase_c: next() as i16,
+                max_c: next() as i16,
+                min_c: next() as i16,
+            };
+            let (now, target, temp) =
+                (next() as u32, next() as i16, Temp::from_bits(next() as i32));
+            if next() % 4 == 0 {
+                pr.set_target(&p, now, target, temp);
+            }
+            let _ = pr.check(&p, Heater::Bed, now, target, temp);
+        }
     }
 }

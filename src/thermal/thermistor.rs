@@ -41,6 +41,8 @@ pub const TABLE_FIRST_C: i16 = -10;
 pub const TABLE_STEP_C: i16 = 5;
 /// Entries in [`TABLE`] (-10 °C to 350 °C).
 pub const TABLE_LEN: usize = 73;
+/// Temperature of [`TABLE`]'s last entry, °C.
+pub const TABLE_LAST_C: i16 = TABLE_FIRST_C + TABLE_STEP_C * (TABLE_LEN as i16 - 1);
 
 /// Expected oversampled ADC sum at `TABLE_FIRST_C + i * TABLE_STEP_C` °C for the EPCOS 100k
 /// (beta 4092) with a 4.7 kΩ pull-up; strictly decreasing. See the module docs for its origin.
@@ -80,24 +82,17 @@ pub const fn check_sum(sum: u16) -> Result<(), SensorError> {
 /// min/max-temperature cutoffs).
 pub fn sum_to_temp(sum: u16) -> Result<Temp, SensorError> {
     check_sum(sum)?;
-    if sum >= TABLE[0] {
-        return Ok(Temp::from_num(TABLE_FIRST_C));
-    }
-    if sum <= TABLE[TABLE_LEN - 1] {
-        return Ok(Temp::from_num(TABLE_FIRST_C + TABLE_STEP_C * (TABLE_LEN as i16 - 1)));
-    }
-    // Binary search for i with TABLE[i] > sum >= TABLE[i + 1].
-    let (mut lo, mut hi) = (0usize, TABLE_LEN - 1);
-    while hi - lo > 1 {
-        let mid = (lo + hi) / 2;
-        if TABLE[mid] > sum {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let span = i32::from(TABLE[lo]) - i32::from(TABLE[hi]);
-    let into = i32::from(TABLE[lo]) - i32::from(sum);
+    // The first entry at or below `sum`: TABLE[hi - 1] > sum >= TABLE[hi].
+    let hi = TABLE.partition_point(|&v| v > sum);
+    let (upper, lower) = match (hi.checked_sub(1).and_then(|lo| TABLE.get(lo)), TABLE.get(hi)) {
+        (Some(&upper), Some(&lower)) => (upper, lower),
+        // Colder than the first entry or hotter than the last: clamp.
+        (None, _) => return Ok(Temp::from_num(TABLE_FIRST_C)),
+        (_, None) => return Ok(Temp::from_num(TABLE_LAST_C)),
+    };
+    let lo = hi.saturating_sub(1);
+    let span = i32::from(upper) - i32::from(lower);
+    let into = i32::from(upper) - i32::from(sum);
     // Fraction of one step in 16.16 bits: into <= span < 2600, so (into * 5) << 16 fits.
     let frac_bits = ((into * i32::from(TABLE_STEP_C)) << 16) / span.max(1);
     let base = i32::from(TABLE_FIRST_C) + i32::from(TABLE_STEP_C) * lo as i32;
