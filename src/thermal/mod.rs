@@ -15,6 +15,18 @@
 //! it on, every output is zero and the fault is reported by name until [`ThermalController::reset`]
 //! (in practice a reboot). Stopping motion on a fault is the caller's job. `update` is integer
 //! only (`I16F16` and `u32`), time is always an argument.
+//!
+//! What the caller does around it (the firmware and the job runner):
+//! - sample PC5/PC4 and pass 16-conversion sums ([`thermistor::Oversampler`]) only once real
+//!   conversions exist (a zero sum is a shorted sensor);
+//! - drive PA1/PA2/PA0 with the duties, kick a [`Watchdog`] after each update and have the PWM
+//!   interrupt force the heater pins low (and stop feeding the IWDG) once it has expired;
+//! - before the first layer, [`ThermalController::apply_settings`] then wait for
+//!   [`ThermalController::at_target`] (1 °C for 10 s, like M190/M109; a job-level timeout is
+//!   advisable: like Marlin, a heater that stalls within 6 °C below its target is past the
+//!   heating watch and not yet under runaway protection); [`ThermalController::all_off`] at the
+//!   end, on abort and on emergency stop; on a fault, stop motion and report
+//!   [`ThermalFault::name`]; status reports carry [`ThermalController::status`].
 
 pub mod pid;
 pub mod protect;
