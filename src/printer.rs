@@ -178,6 +178,12 @@ pub struct Printer<
     triangles: u32,
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
+    /// The board reports heaters ([`Printer::set_thermal`] was called): jobs wait for them.
+    heaters: bool,
+    /// The heaters reached the job's targets once (motion waits until then).
+    heated: bool,
+    /// Measured temperatures, 0.1 degC.
+    temps_c_x10: (i16, i16),
     layers: u32,
     model_ended: bool,
     toolpath_done: bool,
@@ -233,6 +239,9 @@ impl<
             feed: Feed { layer: 0, e_um: 0, xyz: [0; 3] },
             triangles: 0,
             batch_pos: 0,
+            heaters: false,
+            heated: false,
+            temps_c_x10: (0, 0),
             layers: 0,
             model_ended: false,
             toolpath_done: false,
@@ -339,6 +348,35 @@ impl<
         }
     }
 
+    /// The heater targets the current job wants, degC (hotend, bed): the job's settings while
+    /// it prints or is paused, 0 otherwise (idle, done, failed, aborted, stopped), so a board
+    /// that applies them every update turns the heaters off when a job ends.
+    pub fn heater_targets(&self) -> (i16, i16) {
+        match (&self.job, self.is_active()) {
+            (Some(j), true) => (j.settings.hotend_temp_c, j.settings.bed_temp_c),
+            _ => (0, 0),
+        }
+    }
+
+    /// What the heaters measure (0.1 degC, for the status reports) and whether they are at
+    /// their targets: motion waits until they have been once for the job (like M190/M109
+    /// before the first layer; the slicer and the toolpath stage work meanwhile). A board that
+    /// never calls this has no heaters (the host simulation): its jobs do not wait.
+    pub fn set_thermal(&mut self, at_target: bool, hotend_c_x10: i16, bed_c_x10: i16) {
+        self.heaters = true;
+        self.temps_c_x10 = (hotend_c_x10, bed_c_x10);
+        if at_target && self.is_active() {
+            self.heated = true;
+        }
+    }
+
+    /// A heater fault: the job fails at once with [`ErrorCode::Thermal`] (detail `code`),
+    /// its moves are dropped; the board stops the steps and keeps the heaters off.
+    pub fn thermal_fault(&mut self, code: u8) {
+        self.fail(ErrorCode::Thermal, u32::from(code));
+        self.moves.clear();
+    }
+
     /// Ends the job on a dead link.
     pub fn link_lost(&mut self, silent_ms: u32) {
         self.fail(ErrorCode::LinkDead, silent_ms);
@@ -364,6 +402,7 @@ impl<
         self.feed = Feed::default();
         self.triangles = 0;
         self.batch_pos = 0;
+        self.heated = false;
         self.model_ended = false;
         self.toolpath_done = false;
         self.done.clear();
@@ -563,7 +602,7 @@ impl<
             }
         }
         let input_done = self.toolpath_done && self.moves.is_empty();
-        if self.state == DeviceState::Printing {
+        if self.state == DeviceState::Printing && (self.heated || !self.heaters) {
             while self.gen.wants_block() && (input_done || self.planner.is_full()) {
                 let Some(b) = self.planner.pop_forced() else { break };
                 let layer = self.tags.pop_front().unwrap_or(0);
@@ -605,6 +644,9 @@ impl<
             queue_fill_pct: (self.moves.len() * 100 / MOVES.max(1)) as u8,
             error: self.error,
             detail: self.detail,
+            hotend_c_x10: self.temps_c_x10.0,
+            bed_c_x10: self.temps_c_x10.1,
+            heating: self.is_active() && self.heaters && !self.heated,
         }
     }
 

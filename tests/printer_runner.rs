@@ -334,3 +334,45 @@ fn service_answers_hello_and_refuses_undecodable_payloads() {
     assert!(got.iter().any(|m| m.contains("state: Failed") && m.contains("BadMessage")), "{got:?}");
     assert_eq!(p.error(), (ErrorCode::BadMessage, 0x7f));
 }
+
+#[test]
+fn motion_waits_for_the_heaters_and_a_heater_fault_ends_the_job() {
+    let (h_ref, s_ref) = run(&mut new_printer(), |_, _| {});
+    // A board with heaters: nothing moves until they report being at target, then the job
+    // runs exactly as without heaters.
+    let mut p = new_printer();
+    p.set_thermal(false, 250, 250);
+    assert_eq!(p.heater_targets(), (0, 0), "no job, heaters off");
+    let mut waited = 0;
+    let (h, s) = run(&mut p, |p, i| {
+        assert_eq!(p.heater_targets(), (200, 60));
+        if i < 300 {
+            assert!(p.status(0).heating);
+            assert_eq!(p.generator().stats().blocks, 0, "moved before the heaters were ready");
+            p.set_thermal(false, 1500 + i as i16, 500);
+            waited += 1;
+        } else {
+            p.set_thermal(true, 2000, 600);
+            assert!(!p.status(0).heating);
+        }
+    });
+    assert_eq!(waited, 300);
+    assert_eq!(p.state(), DeviceState::Done);
+    assert_eq!((h, s), (h_ref, s_ref));
+    assert_eq!(p.heater_targets(), (0, 0), "a finished job turns the heaters off");
+    assert_eq!((p.status(0).hotend_c_x10, p.status(0).bed_c_x10), (2000, 600));
+    // A heater fault mid-job fails it at once, naming the fault.
+    let mut p = new_printer();
+    let fault = strata::thermal::ThermalFault::ThermalRunaway(strata::thermal::Heater::Hotend);
+    run(&mut p, |p, i| {
+        p.set_thermal(true, 2000, 600);
+        if i == 20 {
+            assert!(p.is_active());
+            p.thermal_fault(fault.code());
+        }
+    });
+    assert_eq!(p.state(), DeviceState::Failed);
+    assert_eq!(p.error(), (ErrorCode::Thermal, u32::from(fault.code())));
+    assert_eq!(strata::thermal::ThermalFault::from_code(fault.code()), Some(fault));
+    assert_eq!(p.heater_targets(), (0, 0));
+}

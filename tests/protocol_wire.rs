@@ -33,31 +33,31 @@ fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
 
 #[test]
 fn golden_ack_frame() {
-    // [0x21 (v2, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
-    assert_eq!(VERSION, 2);
+    // [0x31 (v3, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    assert_eq!(VERSION, 3);
     let w = wire(FrameType::Ack, 0, 3, 4, &[]);
-    let crc = crc32(&[0x21, 0x00, 0x03, 0x04]);
-    let mut raw = vec![0x21, 0x00, 0x03, 0x04];
+    let crc = crc32(&[0x31, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x31, 0x00, 0x03, 0x04];
     raw.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(w, cobs(&raw));
     assert_eq!(w, GOLDEN_ACK.to_vec());
 }
 
 // Derived with Python's zlib.crc32 (CRC-32/ISO-HDLC) and a hand COBS.
-const GOLDEN_ACK: [u8; 10] = [2, 33, 7, 3, 4, 157, 128, 138, 21, 0];
+const GOLDEN_ACK: [u8; 10] = [2, 49, 7, 3, 4, 2, 215, 147, 69, 0];
 
 #[test]
 fn golden_hello_frame() {
     let mut buf = [0u8; 8];
     let n = Message::Hello { version: VERSION }.encode(&mut buf).unwrap();
-    assert_eq!(&buf[..n], &[0x01, 0x02]);
+    assert_eq!(&buf[..n], &[0x01, 0x03]);
     let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
     assert_eq!(w, GOLDEN_HELLO.to_vec());
 }
 
-// [0x20 (v2, data), seq 7, ack 0, credits 8, 0x01 Hello, version 2, CRC] COBS: the zero ack
+// [0x30 (v3, data), seq 7, ack 0, credits 8, 0x01 Hello, version 3, CRC] COBS: the zero ack
 // byte becomes a code byte.
-const GOLDEN_HELLO: [u8; 12] = [3, 32, 7, 8, 8, 1, 2, 80, 121, 72, 253, 0];
+const GOLDEN_HELLO: [u8; 12] = [3, 48, 7, 8, 8, 1, 3, 93, 75, 153, 137, 0];
 
 #[test]
 fn golden_capabilities() {
@@ -79,15 +79,15 @@ fn golden_capabilities() {
     let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
     assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
     let back = Message::decode(&GOLDEN_CAPABILITIES).unwrap();
-    assert_eq!(back, Message::Capabilities { version: 2, capacities: caps });
+    assert_eq!(back, Message::Capabilities { version: 3, capacities: caps });
 }
 
-// Type 0x02, version 2, then little-endian: active triangles 1024, contour points 768, loops 48,
+// Type 0x02, version 3, then little-endian: active triangles 1024, contour points 768, loops 48,
 // layer moves 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
 // PTS 80, LOOPS 4, CROSS 128, PATH 320, RING 192, SPANS 64 (u32 each): 48 bytes.
 #[rustfmt::skip]
 const GOLDEN_CAPABILITIES: [u8; 48] = [
-    0x02, 2,
+    0x02, 3,
     0x00, 0x04, 0, 0,  0x00, 0x03, 0, 0,  48, 0, 0, 0,  0x00, 0x10, 0, 0,
     4, 0,
     0x00, 0x00, 0x01, 0,
@@ -185,6 +185,9 @@ fn all_messages() -> Vec<Vec<u8>> {
         queue_fill_pct: 37,
         error: ErrorCode::Toolpath,
         detail: 12,
+        hotend_c_x10: 2004,
+        bed_c_x10: -12,
+        heating: true,
     };
     let mut bb = BatchBuilder::new();
     bb.push(&Triangle { v: [Point3::new(5, 6, 7), Point3::new(8, 9, 10), Point3::new(5, 6, 900)] })
@@ -322,4 +325,39 @@ proptest! {
         let r = decode_all(&w);
         prop_assert_eq!(r, vec![Ok((FrameType::Data, seq, ack, credits, payload))]);
     }
+}
+
+#[test]
+fn golden_status_with_temperatures() {
+    let s = Status {
+        state: DeviceState::Failed,
+        layer: 3,
+        layers: 50,
+        planned_ms: 1000,
+        done_ms: 900,
+        triangles: 12,
+        queue_fill_pct: 25,
+        error: ErrorCode::Thermal,
+        detail: 10,
+        hotend_c_x10: 2004,
+        bed_c_x10: -12,
+        heating: false,
+    };
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = Message::Status(s).encode(&mut buf).unwrap();
+    // Type 0x30, state 4, then little-endian layer, layers, planned, done, triangles (u32),
+    // fill 25, error 9 (Thermal), detail 10 (u32), hotend 2004 and bed -12 (i16), heating 0.
+    #[rustfmt::skip]
+    let golden: [u8; 33] = [
+        0x30, 4,
+        3, 0, 0, 0,  50, 0, 0, 0,  0xe8, 0x03, 0, 0,  0x84, 0x03, 0, 0,  12, 0, 0, 0,
+        25, 9,  10, 0, 0, 0,
+        0xd4, 0x07,  0xf4, 0xff,  0,
+    ];
+    assert_eq!(&buf[..n], &golden);
+    assert_eq!(Message::decode(&golden).unwrap(), Message::Status(s));
+    // A heating flag other than 0 or 1 is refused.
+    let mut bad = golden;
+    bad[32] = 2;
+    assert!(Message::decode(&bad).is_err());
 }

@@ -208,6 +208,14 @@ fn progress_text(p: &Progress, total: usize) -> String {
             s.state,
             s.done_ms / 1000
         );
+        if s.heating || s.hotend_c_x10 != 0 || s.bed_c_x10 != 0 {
+            text += &format!(
+                " | hotend {:.1} C bed {:.1} C{}",
+                s.hotend_c_x10 as f64 / 10.0,
+                s.bed_c_x10 as f64 / 10.0,
+                if s.heating { " (heating)" } else { "" }
+            );
+        }
     } else {
         text += " | layer -/- | ETA --";
     }

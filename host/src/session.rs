@@ -8,6 +8,7 @@ use strata::protocol::{
     BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, LinkError, Message,
     Status, MAX_PAYLOAD, VERSION,
 };
+use strata::thermal::ThermalFault;
 
 /// Host endpoint: 8 frames in flight, 8 receive slots.
 pub type HostEndpoint = Endpoint<8, 8>;
@@ -230,6 +231,10 @@ pub fn describe_failure(s: &Status) -> String {
         ErrorCode::LinkDead => {
             format!("the printer lost the link after {} ms of silence", s.detail)
         }
+        ErrorCode::Thermal => match u8::try_from(s.detail).ok().and_then(ThermalFault::from_code) {
+            Some(f) => format!("heater fault {f}: heaters off, motion stopped"),
+            None => format!("heater fault (code {}): heaters off, motion stopped", s.detail),
+        },
     };
     format!("print failed: {what} (layer {} of {})", s.layer, s.layers)
 }

@@ -8,8 +8,8 @@
 use crc::{Crc, CRC_32_ISO_HDLC};
 
 /// Protocol version carried in every frame (high nibble of the first byte). 2: the
-/// capabilities carry the toolpath stage's capacities.
-pub const VERSION: u8 = 2;
+/// capabilities carry the toolpath stage's capacities. 3: status carries the temperatures.
+pub const VERSION: u8 = 3;
 /// Header bytes before the payload.
 pub const HEADER_LEN: usize = 4;
 /// CRC bytes after the payload.

@@ -148,6 +148,9 @@ pub enum ErrorCode {
     Moves = 7,
     /// The link went silent (detail: ms).
     LinkDead = 8,
+    /// A heater fault (detail: the fault's code, `strata::thermal::ThermalFault`): heaters
+    /// off, motion stopped.
+    Thermal = 9,
 }
 
 impl ErrorCode {
@@ -162,6 +165,7 @@ impl ErrorCode {
             6 => Self::BadMessage,
             7 => Self::Moves,
             8 => Self::LinkDead,
+            9 => Self::Thermal,
             _ => return None,
         })
     }
@@ -204,6 +208,12 @@ pub struct Status {
     pub error: ErrorCode,
     /// Error detail (see [`ErrorCode`]).
     pub detail: u32,
+    /// Hotend temperature, 0.1 degC.
+    pub hotend_c_x10: i16,
+    /// Bed temperature, 0.1 degC.
+    pub bed_c_x10: i16,
+    /// Motion waits for the heaters to reach their targets (before the first layer).
+    pub heating: bool,
 }
 
 /// A batch of encoded triangles (checked when decoded: iterate with [`TriangleBatch::iter`]).
@@ -470,6 +480,9 @@ impl<'a> Message<'a> {
                 w.u8(s.queue_fill_pct)?;
                 w.u8(s.error as u8)?;
                 w.u32(s.detail)?;
+                w.u16(s.hotend_c_x10 as u16)?;
+                w.u16(s.bed_c_x10 as u16)?;
+                w.u8(s.heating as u8)?;
             }
             Self::LayerDone { layer, hash } => {
                 w.u8(ty::LAYER_DONE)?;
@@ -574,6 +587,13 @@ impl<'a> Message<'a> {
                 queue_fill_pct: r.u8()?,
                 error: ErrorCode::from_u8(r.u8()?).ok_or(bad)?,
                 detail: r.u32()?,
+                hotend_c_x10: r.u16()? as i16,
+                bed_c_x10: r.u16()? as i16,
+                heating: match r.u8()? {
+                    0 => false,
+                    1 => true,
+                    _ => return Err(bad),
+                },
             }),
             ty::LAYER_DONE => Self::LayerDone { layer: r.u32()?, hash: r.u64()? },
             other => return Err(DecodeError::UnknownType(other)),

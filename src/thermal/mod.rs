@@ -98,6 +98,36 @@ impl ThermalFault {
         }
     }
 
+    /// The fault on the wire (the detail of `ErrorCode::Thermal`): kind * 2 + heater (hotend
+    /// 0, bed 1); the watchdog is 12.
+    pub const fn code(self) -> u8 {
+        let (kind, heater) = match self {
+            Self::SensorOpen(h) => (0, h),
+            Self::SensorShorted(h) => (1, h),
+            Self::MinTemp(h) => (2, h),
+            Self::MaxTemp(h) => (3, h),
+            Self::HeatingFailed(h) => (4, h),
+            Self::ThermalRunaway(h) => (5, h),
+            Self::Watchdog => return 12,
+        };
+        kind * 2 + matches!(heater, Heater::Bed) as u8
+    }
+
+    /// The fault of a [`ThermalFault::code`].
+    pub const fn from_code(code: u8) -> Option<Self> {
+        let h = if code % 2 == 0 { Heater::Hotend } else { Heater::Bed };
+        Some(match code / 2 {
+            _ if code == 12 => Self::Watchdog,
+            0 => Self::SensorOpen(h),
+            1 => Self::SensorShorted(h),
+            2 => Self::MinTemp(h),
+            3 => Self::MaxTemp(h),
+            4 => Self::HeatingFailed(h),
+            5 => Self::ThermalRunaway(h),
+            _ => return None,
+        })
+    }
+
     /// The heater concerned (none for the watchdog).
     pub const fn heater(self) -> Option<Heater> {
         match self {
