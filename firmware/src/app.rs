@@ -9,7 +9,7 @@ use strata::step::StepConfig;
 use crate::board::{self, Board};
 use crate::capacities::{FwEndpoint, FwPrinter, POLLS_PER_LOOP, STATUS_EVERY_MS};
 use crate::motion::{fresh_queue, Producer};
-use crate::{log, stack};
+use crate::{heat, log, stack};
 
 /// The stock Ender-3 (DESIGN §3).
 pub const MACHINE: MachineConfig = MachineConfig::ENDER3;
@@ -61,6 +61,7 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
     );
     let (used, size) = stack::high_water();
     log!("BOOT stack_used={} stack_size={}", used, size);
+    let mut heat = heat::Heat::new(board.now_ms());
     let mut state = printer.state();
     let mut job_open = false;
     let mut rx = [0u8; 64];
@@ -92,6 +93,12 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
         printer.service(ep, now, done_ms, STATUS_EVERY_MS);
         #[cfg(feature = "qemu")]
         cost.end_service(t0, printer);
+        // Heaters (10 Hz): a fault turns everything off in the controller at once; here the
+        // motion stops as for an emergency stop and the job fails.
+        if let Some(fault) = heat.service(&mut board, printer, now) {
+            reset_motion(&mut prod, &cfg);
+            printer.thermal_fault(fault.code());
+        }
 
         let new = printer.state();
         if new != state {
@@ -102,6 +109,7 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
                     reset_motion(&mut prod, &cfg);
                     board::with_motion(|m| m.start_homing(&MACHINE));
                     board::job_started();
+                    heat.job_started(now);
                     #[cfg(feature = "qemu")]
                     cost.job_started();
                     job_open = true;
@@ -184,6 +192,7 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
                 #[cfg(feature = "qemu")]
                 cost.job_ended(printer);
                 board::job_ended();
+                heat.job_ended();
                 let (used, size) = stack::high_water();
                 log!("MEM data_bss={} stack_hwm={} stack_size={}", stack::data_bss(), used, size);
             }

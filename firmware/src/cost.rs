@@ -15,6 +15,10 @@
 //!   one is released, which is counted with the earlier layer);
 //! - `slice_insns` is the sum over the job of the `service` part (decoding, slicing,
 //!   toolpaths: the toolpath stage runs inside the slicer's layer sink).
+//!
+//! While the job waits for its heaters (`Status::heating`), a `service` call that took no
+//! triangle is a batch retried for room (the motion holds, so the pipeline is full) and is
+//! left out of both figures: it is waiting, not work.
 
 use crate::board;
 use crate::capacities::FwPrinter;
@@ -34,8 +38,9 @@ pub struct Cost {
     active: bool,
 }
 
-/// A measurement in progress: start time (thread instructions) and slicer layer.
-pub type Mark = Option<(u64, u32)>;
+/// A measurement in progress: start time (thread instructions), slicer layer, triangles
+/// taken.
+pub type Mark = Option<(u64, u32, u32)>;
 
 impl Cost {
     /// Nothing measured yet.
@@ -50,7 +55,8 @@ impl Cost {
 
     /// Starts measuring a `service` call when it has a message to handle.
     pub fn begin(&self, pending: bool, p: &FwPrinter) -> Mark {
-        (self.active && pending).then(|| (self.thread_now(), p.slicer().stats().layers))
+        (self.active && pending)
+            .then(|| (self.thread_now(), p.slicer().stats().layers, p.status(0).triangles))
     }
 
     fn add(&mut self, layer: u32, insns: u64) {
@@ -60,8 +66,13 @@ impl Cost {
 
     /// Ends a `service` measurement.
     pub fn end_service(&mut self, m: Mark, p: &FwPrinter) {
-        if let Some((t, layer)) = m {
+        if let Some((t, layer, triangles)) = m {
             let d = self.thread_now() - t;
+            let st = p.status(0);
+            if st.heating && st.triangles == triangles {
+                self.report(p, false);
+                return;
+            }
             self.slice_insns += d;
             self.add(layer, d);
         }

@@ -23,6 +23,7 @@ mod board;
 mod capacities;
 #[cfg(feature = "qemu")]
 mod cost;
+mod heat;
 mod log;
 mod motion;
 mod stack;

@@ -7,7 +7,9 @@
 //! `strata simulate --json` reports) bit for bit; then again through a seeded fault-injecting
 //! relay (frame drop, byte corruption and loss, duplication, delay at 3 % per frame each, on
 //! both directions at 250000 baud): the cylinders, embodier_asc and the cube always, the two
-//! long prints (hotend, LM8UU) with `STRATA_HIL_LOSSY_ALL=1`.
+//! long prints (hotend, LM8UU) with `STRATA_HIL_LOSSY_ALL=1`. Every QEMU job also heats its
+//! simulated hotend and bed first: the firmware's `HEAT at_target` line must come before the
+//! first step, and no thermal fault may trip.
 //!
 //! How to run:
 //!
@@ -240,7 +242,20 @@ fn qemu_job(name: &str, tris: &[Triangle], job: JobSpec, lossy: bool) {
         });
         // The job's closing lines (COST, STEPS, MEM last) follow its last report.
         q.wait_for(Duration::from_secs(30), |l| l.iter().any(|l| l.starts_with("MEM ")));
-        let costs = Costs::parse(&q.lines());
+        let lines = q.lines();
+        let costs = Costs::parse(&lines);
+        // The heaters (QEMU's simulated plant) reached the job's targets before the first
+        // step, and nothing tripped.
+        let heat = lines.iter().find(|l| l.starts_with("HEAT at_target")).unwrap_or_else(|| {
+            panic!("{label}: no `HEAT at_target` line: the job never reached its heater targets")
+        });
+        assert!(
+            heat.contains("motion_started=0"),
+            "{label}: the motion started before the heaters were at target: {heat}"
+        );
+        if let Some(fault) = lines.iter().find(|l| l.starts_with("HEAT FAULT")) {
+            panic!("{label}: thermal fault during a normal job: {fault}");
+        }
         drop(port);
         let relay_stats = relay.map(|r| r.finish());
         let rf = reference.as_ref().unwrap();

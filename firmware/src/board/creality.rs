@@ -9,20 +9,47 @@
 //! compare-1 interrupt at the executor's next wake: the interrupt reads the cycle counter,
 //! runs every due event (at most [`EVENTS_PER_IRQ`]) and sets the compare to the next wake,
 //! or 60000 ticks ahead when the wake is further away (the handler then just re-arms).
+//!
+//! # Heaters
+//! - Thermistors: ADC1 (12 bits, 239.5-cycle sampling at 9 MHz, about 28 us a conversion),
+//!   hotend PC5 (IN15), bed PC4 (IN14); each reading sums 16 conversions
+//!   ([`Board::read_thermistors`], about 0.9 ms of thread mode every 100 ms).
+//! - PWM: TIM5 (free: TIM2 is the step timer, and TIM5's channels 1-3 sit on PA0-PA2 without
+//!   a remap on the high-density STM32F103RE; TIM2's own outputs on those pins stay
+//!   disabled), channel 1 fan PA0, channel 2 hotend PA1, channel 3 bed PA2, at 10 Hz with 255
+//!   steps (Marlin's slow soft PWM for heaters; the bed MOSFET switches slowly): duty `d`
+//!   is high for `d` of 255 counts, 255 is fully on. The compare values are written at once
+//!   (no preload). The pins stay inputs (the board's gate pull-downs hold the MOSFETs off)
+//!   until TIM5 runs with every duty at 0, then become its outputs: heaters are low from
+//!   reset on.
+//! - Watchdog: the IWDG (LSI, 500 ms) starts at boot; SysTick (every 10 ms) feeds it only
+//!   while the main loop's thermal updates keep kicking [`IsrWatch`] (2 s deadline). Once it
+//!   expires, SysTick forces every duty to 0 and stops feeding: the IWDG resets the board
+//!   within 500 ms, and every heater starts off again. The IWDG stops while a debugger halts
+//!   the core.
 
 use core::cell::RefCell;
 
 use cortex_m::interrupt::{free, Mutex};
+use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{DWT, NVIC};
+use cortex_m_rt::exception;
 use heapless::spsc::{Consumer as QConsumer, Producer as QProducer, Queue};
 use static_cell::ConstStaticCell;
-use stm32f1xx_hal::gpio::{ErasedPin, Input, Output, PinState, PullUp, PushPull, PA5, PA6, PA7};
-use stm32f1xx_hal::pac::{self, interrupt, Interrupt, TIM2, USART1};
+use stm32f1xx_hal::adc::{Adc, SampleTime};
+use stm32f1xx_hal::gpio::{
+    Analog, ErasedPin, Input, Output, PinState, PullUp, PushPull, PA5, PA6, PA7, PC4, PC5,
+};
+use stm32f1xx_hal::pac::{self, interrupt, Interrupt, ADC1, TIM2, TIM5, USART1};
 use stm32f1xx_hal::prelude::*;
 use stm32f1xx_hal::rcc;
 use stm32f1xx_hal::serial::{Config, Rx, Serial, Tx};
+use stm32f1xx_hal::watchdog::IndependentWatchdog;
 use strata::step::{is_before, Pins, StepConfig};
+use strata::thermal::thermistor::Oversampler;
+use strata::thermal::ThermalConfig;
 
+use crate::heat::IsrWatch;
 use crate::log;
 use crate::motion::{Endstops, Motion, Next};
 
@@ -50,6 +77,51 @@ fn USART1() {
                     // Overrun, framing, noise: the flag is cleared; the frame's CRC fails.
                     Err(nb::Error::Other(_)) => {}
                 }
+            }
+        }
+    });
+}
+
+/// The controller's configuration: the Ender-3's defaults (gains, protections, residency).
+pub const THERMAL_CONFIG: ThermalConfig = ThermalConfig::for_machine(&crate::app::MACHINE);
+
+/// SysTick period, ms (the watchdog's tick).
+const SYSTICK_MS: u32 = 10;
+/// The IWDG's timeout, ms.
+const IWDG_MS: u32 = 500;
+/// TIM5 prescaler: 72 MHz / 28125 = 2560 Hz counts, 255 counts a period (10 Hz PWM).
+const PWM_PSC: u32 = 28_125 - 1;
+
+/// What SysTick owns: the PWM timer, the IWDG and the main-loop watch.
+struct Heaters {
+    tim: TIM5,
+    iwdg: IndependentWatchdog,
+    watch: IsrWatch,
+}
+
+impl Heaters {
+    /// Duties (0..=255): fan CH1 (PA0), hotend CH2 (PA1), bed CH3 (PA2).
+    fn set(&mut self, hotend: u8, bed: u8, fan: u8) {
+        // SAFETY: CCRx take any 16-bit value; 0..=255 against ARR 254 is 0..=100 %.
+        unsafe {
+            self.tim.ccr1().write(|w| w.bits(fan as u32));
+            self.tim.ccr2().write(|w| w.bits(hotend as u32));
+            self.tim.ccr3().write(|w| w.bits(bed as u32));
+        }
+    }
+}
+
+static HEATERS: Mutex<RefCell<Option<Heaters>>> = Mutex::new(RefCell::new(None));
+
+#[exception]
+fn SysTick() {
+    free(|cs| {
+        if let Some(h) = HEATERS.borrow(cs).borrow_mut().as_mut() {
+            if h.watch.tick(SYSTICK_MS) {
+                h.iwdg.feed();
+            } else {
+                // The main loop stalled: heaters off, no more feeding (the IWDG resets).
+                h.set(0, 0, 0);
             }
         }
     });
@@ -139,12 +211,15 @@ fn TIM2() {
     });
 }
 
-/// USART1 and the millisecond clock.
+/// USART1, the millisecond clock and the thermistors.
 pub struct Board {
     tx: Tx<USART1>,
     rx: QConsumer<'static, u8, RX_RING>,
     last: u32,
     cycles: u64,
+    adc: Adc<ADC1>,
+    hotend_sensor: PC5<Analog>,
+    bed_sensor: PC4<Analog>,
 }
 
 impl Board {
@@ -165,6 +240,41 @@ impl Board {
             n += 1;
         }
         n
+    }
+
+    /// The hotend's (PC5) and the bed's (PC4) thermistors: 16 conversions summed each (a
+    /// failed conversion reads 0, a shorted sensor).
+    pub fn read_thermistors(&mut self, _now_ms: u32) -> (u16, u16) {
+        let mut sums = [0u16; 2];
+        for (i, sum) in sums.iter_mut().enumerate() {
+            let mut o = Oversampler::new();
+            loop {
+                let raw: u16 = if i == 0 {
+                    nb::block!(self.adc.read(&mut self.hotend_sensor)).unwrap_or(0)
+                } else {
+                    nb::block!(self.adc.read(&mut self.bed_sensor)).unwrap_or(0)
+                };
+                if let Some(s) = o.push(raw) {
+                    *sum = s;
+                    break;
+                }
+            }
+        }
+        (sums[0], sums[1])
+    }
+
+    /// Heater and fan duties (0..=255); all off once the main-loop watchdog expired.
+    pub fn set_heaters(&mut self, _now_ms: u32, hotend: u8, bed: u8, fan: u8) {
+        let off = crate::heat::expired();
+        free(|cs| {
+            if let Some(h) = HEATERS.borrow(cs).borrow_mut().as_mut() {
+                if off {
+                    h.set(0, 0, 0);
+                } else {
+                    h.set(hotend, bed, fan);
+                }
+            }
+        });
     }
 
     /// Sends `bytes` (blocking).
@@ -196,6 +306,11 @@ pub fn init(cfg: &StepConfig) -> Board {
     let mut gpioa = dp.GPIOA.split(&mut rcc);
     let mut gpiob = dp.GPIOB.split(&mut rcc);
     let mut gpioc = dp.GPIOC.split(&mut rcc);
+
+    // The IWDG first (500 ms): fed by SysTick from here on while the main loop runs.
+    let mut iwdg = IndependentWatchdog::new(dp.IWDG);
+    iwdg.stop_on_debug(&dp.DBGMCU, true);
+    iwdg.start(IWDG_MS.millis());
     // PB3/PB4 are JTAG after reset: JTAG off, SWD stays.
     let (_pa15, pb3, pb4) = afio.mapr.disable_jtag(gpioa.pa15, gpiob.pb3, gpiob.pb4);
 
@@ -237,10 +352,48 @@ pub fn init(cfg: &StepConfig) -> Board {
     cp.DCB.enable_trace();
     cp.DWT.enable_cycle_counter();
 
+    // Thermistors: ADC1, PC5 hotend, PC4 bed.
+    let mut adc = Adc::new(dp.ADC1, &mut rcc);
+    adc.set_sample_time(SampleTime::T_239);
+    let hotend_sensor = gpioc.pc5.into_analog(&mut gpioc.crl);
+    let bed_sensor = gpioc.pc4.into_analog(&mut gpioc.crl);
+
+    // Heater and fan PWM: TIM5 (72 MHz: APB1 36 MHz x 2), 10 Hz, every duty 0 before the
+    // pins become its outputs.
+    // SAFETY: as for TIM2 below (TIM5's clock enable bit only, single thread).
+    let rcc_regs = unsafe { &*pac::RCC::ptr() };
+    rcc_regs.apb1enr().modify(|_, w| w.tim5en().set_bit());
+    let tim5 = dp.TIM5;
+    // SAFETY (the `bits` writes): PSC, ARR and CCRx take any 16-bit value; CCMR1/2 = PWM
+    // mode 1 (OCxM = 110) without preload on channels 1-3; CCER enables their outputs,
+    // active high.
+    unsafe {
+        tim5.psc().write(|w| w.bits(PWM_PSC));
+        tim5.arr().write(|w| w.bits(254));
+        tim5.ccr1().write(|w| w.bits(0));
+        tim5.ccr2().write(|w| w.bits(0));
+        tim5.ccr3().write(|w| w.bits(0));
+        tim5.ccmr1_output().write(|w| w.bits((0b110 << 4) | (0b110 << 12)));
+        tim5.ccmr2_output().write(|w| w.bits(0b110 << 4));
+        tim5.ccer().write(|w| w.bits((1 << 0) | (1 << 4) | (1 << 8)));
+    }
+    tim5.egr().write(|w| w.ug().set_bit());
+    tim5.cr1().write(|w| w.cen().set_bit());
+    let _fan = gpioa.pa0.into_alternate_push_pull(&mut gpioa.crl);
+    let _hotend = gpioa.pa1.into_alternate_push_pull(&mut gpioa.crl);
+    let _bed = gpioa.pa2.into_alternate_push_pull(&mut gpioa.crl);
+    free(|cs| {
+        HEATERS.borrow(cs).replace(Some(Heaters { tim: tim5, iwdg, watch: IsrWatch::new() }));
+    });
+    cp.SYST.set_clock_source(SystClkSource::Core);
+    cp.SYST.set_reload(72_000 * SYSTICK_MS - 1);
+    cp.SYST.clear_current();
+    cp.SYST.enable_interrupt();
+    cp.SYST.enable_counter();
+
     // TIM2: 72 MHz (APB1 36 MHz x 2), free running over 16 bits, compare 1 interrupt.
     // SAFETY: a read-modify-write of TIM2's clock enable bit only, before any interrupt
     // runs; the HAL's `Rcc` does not touch APB1ENR concurrently (single thread here).
-    let rcc_regs = unsafe { &*pac::RCC::ptr() };
     rcc_regs.apb1enr().modify(|_, w| w.tim2en().set_bit());
     let tim = dp.TIM2;
     // SAFETY (the `bits` writes below): PSC, ARR and CCR1 take any 16-bit value; writing 0 to
@@ -266,7 +419,7 @@ pub fn init(cfg: &StepConfig) -> Board {
         NVIC::unmask(Interrupt::USART1);
     }
     log!("board creality: 72 MHz, USART1 {} baud", BAUD);
-    Board { tx, rx: rx_cons, last: DWT::cycle_count(), cycles: 0 }
+    Board { tx, rx: rx_cons, last: DWT::cycle_count(), cycles: 0, adc, hotend_sensor, bed_sensor }
 }
 
 /// Runs `f` on the interrupt's motion state (inside a critical section).
@@ -275,6 +428,11 @@ pub fn with_motion<R>(f: impl FnOnce(&mut BoardMotion) -> R) -> R {
         let mut isr = ISR.borrow(cs).borrow_mut();
         f(&mut isr.as_mut().expect("board::init ran").motion)
     })
+}
+
+/// Whether the executor has stepped in this job (homing aside).
+pub fn motion_started() -> bool {
+    with_motion(|m| m.exec().is_some_and(|e| e.stats().steps.iter().any(|&n| n > 0)))
 }
 
 /// Steps were queued: run the interrupt now (an idle executor starts).

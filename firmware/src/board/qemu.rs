@@ -22,6 +22,21 @@
 //! the same executor configuration (1 ms start lead) the executed steps, their ticks (the
 //! step hash) and the print time equal the host simulation's.
 //!
+//! # Simulated heaters
+//! [`Plant`] is a first-order thermal model of the hotend and the bed (ambient 25 °C) driven by
+//! the duties the controller writes, read back as 16-conversion ADC sums through the
+//! thermistor equation (EPCOS 100k, beta 4092, 4.7 kΩ pull-up, 12 bits, ±1 count of noise per
+//! conversion). The model is the stock Ender-3's (`tests/thermal_model`: hotend 40 W,
+//! 25 J/K, 0.12 W/K; bed 220 W, 550 J/K, 2 W/K) with the heat capacities divided by
+//! [`PLANT_SCALE`] (100): the time constants (hotend 208 s, bed 275 s) become 2.1 s and
+//! 2.75 s of the millisecond clock, so a job reaches 200/60 °C in about 2 s instead of
+//! minutes (QEMU counts one instruction per nanosecond: real heat-ups would take hours of
+//! wall time). The controller runs on the unscaled clock: every protection (max/min
+//! temperature, heating watch, runaway, watchdog) keeps its real periods. Two settings follow
+//! the plant ([`THERMAL_CONFIG`]): the PID gains are time-scaled by the same factor (Ki × 100,
+//! Kd / 100: the stock gains would see a plant 100 times faster than the one they were tuned
+//! on and stall short of the target), and the at-target residency is 0.5 s instead of 10 s.
+//!
 //! # Virtual pins
 //! STEP/DIR/EN are virtual: each rising STEP edge adds `(axis, direction, tick - origin)` to
 //! an FNV-1a hash (the host simulation's `SimBoard` hash) and counts the step per axis; the
@@ -41,8 +56,145 @@ use embedded_hal::digital::{ErrorType, OutputPin};
 use strata::machine::AXES;
 use strata::step::{is_before, Pins, StepConfig};
 
+use strata::thermal::{PidGains, Temp, ThermalConfig};
+
+use crate::heat::IsrWatch;
 use crate::log;
 use crate::motion::{Endstops, Motion, Next, Producer};
+
+/// Heat capacities of the simulated heaters are the stock Ender-3's divided by this.
+pub const PLANT_SCALE: f32 = 100.0;
+
+/// The controller's configuration on QEMU: the Ender-3's, with the PID gains time-scaled to
+/// the plant (hotend 30 / 1.5 x 100 / 80 / 100, bed 90 / 2.5 x 100 / 300 / 100) and a 0.5 s
+/// residency (see the module docs); protections unchanged.
+pub const THERMAL_CONFIG: ThermalConfig = {
+    let mut c = ThermalConfig::for_machine(&crate::app::MACHINE);
+    c.hotend.gains = PidGains {
+        kp: Temp::const_from_int(30),
+        ki: Temp::const_from_int(150),
+        kd: Temp::lit("0.8"),
+    };
+    c.bed.gains = PidGains {
+        kp: Temp::const_from_int(90),
+        ki: Temp::const_from_int(250),
+        kd: Temp::lit("3"),
+    };
+    c.hotend.residency_ms = 500;
+    c.bed.residency_ms = 500;
+    c
+};
+
+/// Ambient temperature of the simulated heaters, °C.
+const AMBIENT_C: f32 = 25.0;
+/// Integration step of the plant, ms.
+const PLANT_STEP_MS: u32 = 10;
+
+/// One simulated heater: `C dT/dt = P duty - (k + k_fan fan) (T - ambient)`.
+struct HeaterSim {
+    temp: f32,
+    capacity: f32,
+    power: f32,
+    loss: f32,
+    fan_loss: f32,
+}
+
+impl HeaterSim {
+    fn step(&mut self, duty: u8, fan: u8, dt_s: f32) {
+        let loss = self.loss + self.fan_loss * fan as f32 / 255.0;
+        let p = self.power * duty as f32 / 255.0 - loss * (self.temp - AMBIENT_C);
+        self.temp += p / self.capacity * dt_s;
+    }
+}
+
+/// `e^x` for the thermistor equation (no libm in `no_std`): `2^(x log2 e)`, the fraction by
+/// a degree-6 polynomial (relative error below 1e-6 here).
+fn exp_f32(x: f32) -> f32 {
+    let y = (x * core::f32::consts::LOG2_E).clamp(-126.0, 126.0);
+    let n = if y < 0.0 { y as i32 - 1 } else { y as i32 };
+    let f = (y - n as f32) * core::f32::consts::LN_2;
+    // e^f, 0 <= f < ln 2.
+    let p = 1.0
+        + f * (1.0
+            + f * (0.5 + f * (1.0 / 6.0 + f * (1.0 / 24.0 + f * (1.0 / 120.0 + f / 720.0)))));
+    p * f32::from_bits(((n + 127) as u32) << 23)
+}
+
+/// A 12-bit conversion of the EPCOS 100k (beta 4092) at `t` °C behind a 4.7 kΩ pull-up.
+fn adc_of_temp(t: f32) -> f32 {
+    let r = 100e3 * exp_f32(4092.0 * (1.0 / (t + 273.15) - 1.0 / 298.15));
+    4096.0 * r / (r + 4700.0)
+}
+
+/// The simulated hotend and bed, driven by the duties last written.
+struct Plant {
+    hotend: HeaterSim,
+    bed: HeaterSim,
+    duty: (u8, u8, u8),
+    last_ms: u32,
+    noise: u32,
+}
+
+impl Plant {
+    const fn new() -> Self {
+        Self {
+            hotend: HeaterSim {
+                temp: AMBIENT_C,
+                capacity: 25.0 / PLANT_SCALE,
+                power: 40.0,
+                loss: 0.12,
+                fan_loss: 0.03,
+            },
+            bed: HeaterSim {
+                temp: AMBIENT_C,
+                capacity: 550.0 / PLANT_SCALE,
+                power: 220.0,
+                loss: 2.0,
+                fan_loss: 0.0,
+            },
+            duty: (0, 0, 0),
+            last_ms: 0,
+            noise: 0x2545_f491,
+        }
+    }
+
+    /// Runs the model up to `now_ms` with the duties last written (at most a minute at once).
+    fn advance(&mut self, now_ms: u32) {
+        let gap = now_ms.wrapping_sub(self.last_ms).min(60_000);
+        let steps = gap / PLANT_STEP_MS;
+        self.last_ms = self.last_ms.wrapping_add(gap - gap % PLANT_STEP_MS);
+        if gap == 60_000 {
+            self.last_ms = now_ms;
+        }
+        let (h, b, f) = if WATCH_TRIPPED.load(Ordering::Relaxed) { (0, 0, 0) } else { self.duty };
+        let dt = PLANT_STEP_MS as f32 / 1000.0;
+        for _ in 0..steps {
+            self.hotend.step(h, f, dt);
+            self.bed.step(b, 0, dt);
+        }
+    }
+
+    /// 16 conversions of a sensor at `t` °C, each with -1, 0 or +1 count of noise.
+    fn sum(&mut self, t: f32) -> u16 {
+        let v = adc_of_temp(t);
+        let mut sum = 0u32;
+        for _ in 0..16 {
+            self.noise ^= self.noise << 13;
+            self.noise ^= self.noise >> 17;
+            self.noise ^= self.noise << 5;
+            let n = (self.noise >> 8) % 3;
+            let c = (v + n as f32 - 1.0 + 0.5).clamp(0.0, 4095.0) as u32;
+            sum += c;
+        }
+        sum as u16
+    }
+}
+
+/// The main-loop watchdog seen from SysTick (one tick a millisecond).
+static WATCH: Mutex<RefCell<IsrWatch>> = Mutex::new(RefCell::new(IsrWatch::new()));
+/// The main loop stalled: the simulated heaters are forced off (a real board's IWDG would
+/// reset it 0.5 s later).
+static WATCH_TRIPPED: AtomicBool = AtomicBool::new(false);
 
 /// SysTick counts per interrupt (x 5 instructions: an interrupt every 10000 instructions).
 pub const RELOAD: u32 = 2000;
@@ -314,10 +466,17 @@ impl Isr {
 #[exception]
 fn SysTick() {
     let c0 = SYST::get_current();
-    WRAPS.fetch_add(1, Ordering::Relaxed);
+    let wraps = WRAPS.fetch_add(1, Ordering::Relaxed).wrapping_add(1);
     interrupt::free(|cs| {
         if let Some(isr) = ISR.borrow(cs).borrow_mut().as_mut() {
             isr.run(cs);
+        }
+        // Every millisecond (100 wraps of 10 us): the main-loop watchdog.
+        if wraps % 100 == 0
+            && !WATCH.borrow(cs).borrow_mut().tick(1)
+            && !WATCH_TRIPPED.swap(true, Ordering::Relaxed)
+        {
+            log!("HEAT WATCHDOG main loop stalled: heaters forced off");
         }
     });
     let c1 = SYST::get_current();
@@ -354,9 +513,10 @@ pub fn isr_insns_total() -> u64 {
     }
 }
 
-/// The PL011 UART and the clocks.
+/// The PL011 UART, the clocks and the simulated heaters.
 pub struct Board {
     _syst: SYST,
+    plant: Plant,
 }
 
 impl Board {
@@ -373,6 +533,19 @@ impl Board {
             n += 1;
         }
         n
+    }
+
+    /// The hotend's and the bed's thermistors at `now_ms`: 16-conversion sums.
+    pub fn read_thermistors(&mut self, now_ms: u32) -> (u16, u16) {
+        self.plant.advance(now_ms);
+        let (h, b) = (self.plant.hotend.temp, self.plant.bed.temp);
+        (self.plant.sum(h), self.plant.sum(b))
+    }
+
+    /// Heater and fan duties (0..=255) from `now_ms` on (off once the watchdog tripped).
+    pub fn set_heaters(&mut self, now_ms: u32, hotend: u8, bed: u8, fan: u8) {
+        self.plant.advance(now_ms);
+        self.plant.duty = (hotend, bed, fan);
     }
 
     /// Sends `bytes` (waits while the transmit FIFO is full).
@@ -445,7 +618,7 @@ pub fn init(cfg: &StepConfig) -> Board {
         PERIOD_NS.load(Ordering::Relaxed),
         RELOAD
     );
-    Board { _syst: cp.SYST }
+    Board { _syst: cp.SYST, plant: Plant::new() }
 }
 
 /// Runs `f` on the interrupt's motion state (inside a critical section).
@@ -455,6 +628,11 @@ pub fn with_motion<R>(f: impl FnOnce(&mut BoardMotion) -> R) -> R {
         let isr = isr.as_mut().expect("board::init ran");
         f(&mut isr.motion)
     })
+}
+
+/// Whether the executor has started in this job (the first step is due or done).
+pub fn motion_started() -> bool {
+    interrupt::free(|cs| ISR.borrow(cs).borrow().as_ref().is_some_and(|i| i.start.is_some()))
 }
 
 /// Nothing to do: SysTick polls the executor anyway.
