@@ -85,6 +85,11 @@ pub const THERMAL_CONFIG: ThermalConfig = {
     c
 };
 
+/// Fault injection for a manual check of the fault path: an image built with
+/// `STRATA_QEMU_SENSOR_OPEN_MS=N` reads the hotend's thermistor as open (full scale) from N ms
+/// of the clock on.
+const SENSOR_OPEN_MS: Option<&str> = option_env!("STRATA_QEMU_SENSOR_OPEN_MS");
+
 /// Ambient temperature of the simulated heaters, °C.
 const AMBIENT_C: f32 = 25.0;
 /// Integration step of the plant, ms.
@@ -539,7 +544,11 @@ impl Board {
     pub fn read_thermistors(&mut self, now_ms: u32) -> (u16, u16) {
         self.plant.advance(now_ms);
         let (h, b) = (self.plant.hotend.temp, self.plant.bed.temp);
-        (self.plant.sum(h), self.plant.sum(b))
+        let (h, b) = (self.plant.sum(h), self.plant.sum(b));
+        match SENSOR_OPEN_MS.and_then(|s| s.parse::<u32>().ok()) {
+            Some(t) if now_ms >= t => (strata::thermal::thermistor::SUM_MAX, b),
+            _ => (h, b),
+        }
     }
 
     /// Heater and fan duties (0..=255) from `now_ms` on (off once the watchdog tripped).
