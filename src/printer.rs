@@ -33,9 +33,9 @@ use crate::plan::{Move, MoveKind, PlanConfig, PlanError, Planner};
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
 };
-use crate::slice::{Layer, SliceConfig, Slicer};
+use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
-use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig};
+use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 
 /// Every capacity of the firmware build (the Creality 4.2.x boards and QEMU's lm3s6965evb,
 /// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
@@ -493,18 +493,47 @@ impl<
     }
 
     fn push_triangle(&mut self, t: &Triangle) {
+        self.through_slicer(|slicer, sink| slicer.push(t, &mut |l: &Layer<'_>| sink(l)));
+        self.triangles += 1;
+    }
+
+    /// Runs `step` on the slicer with a sink that takes each layer through the toolpath stage
+    /// into the move buffer, then records a slicer, toolpath or move-buffer error (the job
+    /// fails); the step's result when it succeeded.
+    fn through_slicer<R>(
+        &mut self,
+        step: impl FnOnce(&mut Slicer<A, S, L>, &mut dyn FnMut(&Layer<'_>)) -> Result<R, SliceError>,
+    ) -> Option<R> {
         let Self { slicer, tp, moves, feed, .. } = self;
         let mut failed = None;
-        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
         let mut tp_err = None;
-        let mut sink = |l: &Layer<'_>| {
-            if tp_err.is_none() {
-                tp_err = tp.push_layer(l, &mut events).err();
-            }
+        let r = {
+            let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
+            let mut sink = |l: &Layer<'_>| {
+                if tp_err.is_none() {
+                    tp_err = tp.push_layer(l, &mut events).err();
+                }
+            };
+            step(slicer, &mut sink)
         };
-        let r = slicer.push(t, &mut sink);
-        self.triangles += 1;
         self.check(r.is_err(), tp_err.is_some(), failed);
+        r.ok()
+    }
+
+    /// The toolpath stage's step `step` (after the last plane) into the move buffer; records
+    /// a toolpath or move-buffer error; the step's result when it succeeded.
+    fn through_toolpath<R>(
+        &mut self,
+        step: impl FnOnce(
+            &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+            &mut dyn FnMut(&ToolEvent<'_>),
+        ) -> Result<R, ToolpathError>,
+    ) -> Option<R> {
+        let Self { tp, moves, feed, .. } = self;
+        let mut failed = None;
+        let r = step(tp, &mut |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed));
+        self.check(false, r.is_err(), failed);
+        r.ok()
     }
 
     /// The move buffer can take another layer: at most a quarter of it is in use.
@@ -515,48 +544,26 @@ impl<
     /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
     /// emits at most one layer's moves); false when no plane was left or on an error.
     fn cut_one(&mut self) -> bool {
-        let Self { slicer, tp, moves, feed, .. } = self;
-        let mut failed = None;
-        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
-        let mut tp_err = None;
-        let mut sink = |l: &Layer<'_>| {
-            if tp_err.is_none() {
-                tp_err = tp.push_layer(l, &mut events).err();
-            }
-        };
-        let r = slicer.cut_one(&mut sink);
-        self.check(r.is_err(), tp_err.is_some(), failed);
-        matches!(r, Ok(true)) && self.is_active()
+        let cut = self.through_slicer(|slicer, sink| slicer.cut_one(&mut |l: &Layer<'_>| sink(l)));
+        cut == Some(true) && self.is_active()
     }
 
     /// After the last plane: the toolpath stage's next waiting layer into moves; false when
     /// none was left or on an error.
     fn flush_one(&mut self) -> bool {
-        let Self { tp, moves, feed, .. } = self;
-        let mut failed = None;
-        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
-        let r = tp.flush_one(&mut events);
-        self.check(false, r.is_err(), failed);
-        matches!(r, Ok(true)) && self.is_active()
+        let flushed =
+            self.through_toolpath(|tp, events| tp.flush_one(&mut |e: &ToolEvent<'_>| events(e)));
+        flushed == Some(true) && self.is_active()
     }
 
     /// Ends the model: every plane is cut and every layer flushed (or the job failed).
     fn finish_model(&mut self) {
-        let Self { slicer, tp, moves, feed, .. } = self;
-        let mut failed = None;
-        let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
-        let mut tp_err = None;
-        let mut sink = |l: &Layer<'_>| {
-            if tp_err.is_none() {
-                tp_err = tp.push_layer(l, &mut events).err();
-            }
-        };
-        let r = slicer.finish(&mut sink);
-        if r.is_ok() && tp_err.is_none() {
-            tp_err = tp.finish(&mut events).err();
+        let sliced =
+            self.through_slicer(|slicer, sink| slicer.finish(&mut |l: &Layer<'_>| sink(l)));
+        if sliced.is_some() && self.is_active() {
+            self.through_toolpath(|tp, events| tp.finish(&mut |e: &ToolEvent<'_>| events(e)));
         }
         self.toolpath_done = true;
-        self.check(r.is_err(), tp_err.is_some(), failed);
     }
 
     fn check(&mut self, slice_err: bool, tp_err: bool, moves_full: Option<u32>) {
