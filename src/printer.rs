@@ -358,6 +358,17 @@ impl<
         }
     }
 
+    /// The part-cooling fan's duty (0..=255) the job wants: full from the second layer on
+    /// (the layer whose blocks are being turned into steps), off on the first layer (for bed
+    /// adhesion, like slicers' defaults) and without an active job.
+    pub fn fan_duty(&self) -> u8 {
+        if self.state == DeviceState::Printing && self.gen.tag().is_some_and(|layer| layer >= 1) {
+            255
+        } else {
+            0
+        }
+    }
+
     /// What the heaters measure (0.1 degC, for the status reports) and whether they are at
     /// their targets: motion waits until they have been once for the job (like M190/M109
     /// before the first layer; the slicer and the toolpath stage work meanwhile). A board that

@@ -344,8 +344,13 @@ fn motion_waits_for_the_heaters_and_a_heater_fault_ends_the_job() {
     p.set_thermal(false, 250, 250);
     assert_eq!(p.heater_targets(), (0, 0), "no job, heaters off");
     let mut waited = 0;
+    let mut fan_seen = false;
     let (h, s) = run(&mut p, |p, i| {
         assert_eq!(p.heater_targets(), (200, 60));
+        // The fan stays off on the first layer, comes on from the second.
+        let layer = p.generator().tag();
+        assert_eq!(p.fan_duty() == 255, layer.is_some_and(|l| l >= 1), "layer {layer:?}");
+        fan_seen |= p.fan_duty() == 255;
         if i < 300 {
             assert!(p.status(0).heating);
             assert_eq!(p.generator().stats().blocks, 0, "moved before the heaters were ready");
@@ -357,6 +362,8 @@ fn motion_waits_for_the_heaters_and_a_heater_fault_ends_the_job() {
         }
     });
     assert_eq!(waited, 300);
+    assert!(fan_seen);
+    assert_eq!(p.fan_duty(), 0, "the fan stops with the job");
     assert_eq!(p.state(), DeviceState::Done);
     assert_eq!((h, s), (h_ref, s_ref));
     assert_eq!(p.heater_targets(), (0, 0), "a finished job turns the heaters off");

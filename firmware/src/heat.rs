@@ -156,6 +156,8 @@ impl Heat {
             log!("HEAT target refused hotend={} bed={}", hotend_c, bed_c);
             let _ = self.ctl.set_targets(now_ms, 0, 0);
         }
+        // The part-cooling fan as the job wants it (off on the first layer and without a job).
+        self.ctl.set_fan(printer.fan_duty());
         let (hotend_sum, bed_sum) = board.read_thermistors(now_ms);
         let out = self.ctl.update(now_ms, hotend_sum, bed_sum);
         board.set_heaters(now_ms, out.hotend_pwm, out.bed_pwm, out.fan_pwm);
