@@ -261,14 +261,19 @@ fn abort_and_emergency_stop_end_the_job() {
     let mut p = new_printer();
     run(&mut p, |p, i| {
         if i == 10 {
+            assert_eq!(p.heater_targets(), (200, 60));
             p.handle(&Message::Abort);
         }
     });
     assert_eq!(p.state(), DeviceState::Aborted);
+    // Heaters and fan off with the job.
+    assert_eq!((p.heater_targets(), p.fan_duty()), ((0, 0), 0));
     let mut p = new_printer();
     run(&mut p, |p, i| {
         if i == 10 {
+            assert_eq!(p.heater_targets(), (200, 60));
             p.handle(&Message::EmergencyStop);
+            assert_eq!((p.heater_targets(), p.fan_duty()), ((0, 0), 0));
         }
         if i == 11 {
             // Nothing restarts a stopped printer but a new job.
