@@ -19,9 +19,8 @@ use std::time::{Duration, Instant};
 use strata::geom::{Point3, Triangle};
 use strata::protocol::frame::MAX_WIRE;
 use strata::protocol::{Capacities, DeviceState, JobSpec, LinkConfig};
-use strata::slice::SliceConfig;
 
-use crate::admission::{admit, admit_job, Admission};
+use crate::admission::{admit_job, Admission};
 use crate::session::{HostEndpoint, Progress};
 use crate::simjob::{Faults, Wire};
 
@@ -536,20 +535,19 @@ pub fn connect<P: Read + Write>(port: &mut P) -> Result<Connected, String> {
     Ok(Connected { ep, t0, caps })
 }
 
-/// The triangles to stream for `tris` to a device with `caps`: the slicer's admission
-/// ([`admit`] within `max_deviation_mm`, 0.02 as `strata print`: simplified within the measured
-/// deviation if need be), the job for
-/// them, and a note when they were simplified or when `strata print`'s whole-pipeline check
-/// ([`admit_job`]: toolpath stage and move bursts too, with conservative bounds) would refuse
-/// them: the hardware-in-the-loop test exercises what the device actually holds.
+/// The triangles to stream for `tris` to a device with `caps`, decided as `strata print`
+/// decides ([`admit_job`]: the slicer's needs, simplified within the measured deviation
+/// `max_deviation_mm` if need be, then the toolpath stage's needs and the moves per layer),
+/// the job for them, and a note when they were simplified. A refusal is an error: the
+/// hardware-in-the-loop test streams exactly what the real tool would.
 pub fn admitted(
     tris: &[Triangle],
     job: JobSpec,
     caps: &Capacities,
     max_deviation_mm: f64,
 ) -> Result<(Vec<Triangle>, JobSpec, Option<String>), String> {
-    let cfg = SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
-    let (t, mut note) = match admit(tris, &cfg, caps, max_deviation_mm)? {
+    let machine = strata::machine::MachineConfig::default();
+    let (t, note) = match admit_job(tris, &machine, &job, caps, max_deviation_mm)? {
         Admission::Unchanged(_) => (tris.to_vec(), None),
         Admission::Simplified(s) => {
             let note = format!(
@@ -561,11 +559,6 @@ pub fn admitted(
             (s.triangles, Some(note))
         }
     };
-    let machine = strata::machine::MachineConfig::default();
-    if let Err(e) = admit_job(&t, &machine, &job, caps, max_deviation_mm) {
-        let n = format!("strata print would refuse it: {e}");
-        note = Some(note.map_or(n.clone(), |s| format!("{s}; {n}")));
-    }
     let job = JobSpec { triangles: t.len() as u32, ..job };
     Ok((t, job, note))
 }
