@@ -31,7 +31,8 @@ use crate::geom::{Point2, Triangle};
 use crate::machine::{MachineConfig, Rate, AXES};
 use crate::plan::{Move, MoveKind, PlanConfig, PlanError, Planner};
 use crate::protocol::{
-    Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
+    Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
+    VERSION,
 };
 use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
@@ -178,6 +179,8 @@ pub struct Printer<
     triangles: u32,
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
+    /// The job report went out (once the job is done).
+    report_sent: bool,
     /// The board reports heaters ([`Printer::set_thermal`] was called): jobs wait for them.
     heaters: bool,
     /// The heaters reached the job's targets once (motion waits until then).
@@ -239,6 +242,7 @@ impl<
             feed: Feed { layer: 0, e_um: 0, xyz: [0; 3] },
             triangles: 0,
             batch_pos: 0,
+            report_sent: false,
             heaters: false,
             heated: false,
             temps_c_x10: (0, 0),
@@ -413,6 +417,7 @@ impl<
         self.feed = Feed::default();
         self.triangles = 0;
         self.batch_pos = 0;
+        self.report_sent = false;
         self.heated = false;
         self.model_ended = false;
         self.toolpath_done = false;
@@ -649,6 +654,16 @@ impl<
         worked
     }
 
+    /// What the job did so far (complete once it is done): steps per axis, final motor
+    /// positions and the planned motion's duration, from the step generator.
+    pub fn job_report(&self) -> JobReport {
+        JobReport {
+            steps: self.gen.stats().steps,
+            positions: self.gen.motor_steps(),
+            print_ticks: self.gen.time_q16() >> 16,
+        }
+    }
+
     /// The status report; `done_ms` is the print time executed so far (the executor's).
     pub fn status(&self, done_ms: u32) -> Status {
         Status {
@@ -709,9 +724,17 @@ impl<
                 let _ = ep.send(&buf[..n]);
             }
         }
+        let finished = self.state == DeviceState::Done;
+        if finished && !self.report_sent && self.done.is_empty() && ep.tx_free() > 1 {
+            if let Ok(n) = Message::JobReport(self.job_report()).encode(&mut buf) {
+                self.report_sent = ep.send(&buf[..n]).is_ok();
+            }
+        }
         let due = now_ms.wrapping_sub(self.status_due_ms) < 1 << 31;
-        // Every layer report goes out before a status (the host ends on `Done`).
-        if (due || self.state != before) && ep.tx_free() > 0 && self.done.is_empty() {
+        // Every layer report and the job report go out before a status (the host ends on
+        // `Done`).
+        let reported = self.done.is_empty() && (!finished || self.report_sent);
+        if (due || self.state != before) && ep.tx_free() > 0 && reported {
             if let Ok(n) = Message::Status(self.status(done_ms)).encode(&mut buf) {
                 if ep.send(&buf[..n]).is_ok() {
                     self.status_due_ms = now_ms.wrapping_add(status_every_ms);

@@ -361,3 +361,22 @@ fn golden_status_with_temperatures() {
     bad[32] = 2;
     assert!(Message::decode(&bad).is_err());
 }
+
+#[test]
+fn golden_job_report() {
+    let j = strata::protocol::JobReport {
+        steps: [1, 2, 3, 0x1_0000_0000],
+        positions: [5, -1, 0, 7],
+        print_ticks: 72_000_000,
+    };
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = Message::JobReport(j).encode(&mut buf).unwrap();
+    // Type 0x32, then nine little-endian u64: steps X Y Z E, positions (two's complement), ticks.
+    let mut golden = vec![0x32];
+    for v in [1u64, 2, 3, 1 << 32, 5, u64::MAX, 0, 7, 72_000_000] {
+        golden.extend_from_slice(&v.to_le_bytes());
+    }
+    assert_eq!(&buf[..n], &golden[..]);
+    assert_eq!(Message::decode(&golden).unwrap(), Message::JobReport(j));
+    assert!(Message::decode(&golden[..golden.len() - 1]).is_err());
+}

@@ -5,8 +5,8 @@
 use strata::geom::Triangle;
 use strata::protocol::frame::wire_len;
 use strata::protocol::{
-    BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, JobSpec, LinkError, Message,
-    Status, MAX_PAYLOAD, VERSION,
+    BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, LinkError,
+    Message, Status, MAX_PAYLOAD, VERSION,
 };
 use strata::thermal::ThermalFault;
 
@@ -39,6 +39,8 @@ pub struct Progress {
     pub status: Option<Status>,
     /// Layer hashes in layer order (index = layer).
     pub layer_hashes: Vec<u64>,
+    /// The device's totals, once it reported the job done.
+    pub job_report: Option<JobReport>,
     /// Time the end of model was acknowledged, ms.
     pub stream_done_ms: Option<u32>,
 }
@@ -143,6 +145,7 @@ impl<'a> HostJob<'a> {
                     }
                     self.progress.layer_hashes[l] = hash;
                 }
+                Message::JobReport(j) => self.progress.job_report = Some(j),
                 Message::Status(s) => {
                     self.progress.status = Some(s);
                     match s.state {

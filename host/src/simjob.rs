@@ -142,6 +142,8 @@ pub struct SimReport {
     pub wire_bytes_per_triangle: f64,
     /// Per-layer hashes reported by the device.
     pub layer_hashes: Vec<u64>,
+    /// The device's totals (`Message::JobReport`), as the host received them.
+    pub job_report: Option<strata::protocol::JobReport>,
     /// The device's last status as the host saw it (state, planned and executed print time).
     pub status: Option<strata::protocol::Status>,
     /// Time from the start of the link to the first step, s (the first layer needs every
@@ -443,6 +445,7 @@ fn run(
     };
     rep.wire_time_s = host.progress.triangle_wire_bytes as f64 * 10.0 / opts.baud as f64;
     rep.layer_hashes = host.progress.layer_hashes.clone();
+    rep.job_report = host.progress.job_report;
     rep.status = host.progress.status;
     rep.stream_time_s = host.progress.stream_done_ms.map_or(0.0, |m| m as f64 / 1000.0);
     rep.underruns = exec.stats().underruns;

@@ -193,6 +193,10 @@ fn assert_same(what: &str, reference: &SimReport, p: &Progress, fw: Option<&Cost
     assert_eq!(p.layer_hashes, reference.layer_hashes, "{what}: layer hashes");
     assert_eq!(st.triangles, rs.triangles, "{what}: triangles taken");
     assert_eq!(st.planned_ms, rs.planned_ms, "{what}: planned print time, ms");
+    // Over the wire, as a real board would report them: steps, positions, motion time.
+    let report = p.job_report.unwrap_or_else(|| panic!("{what}: no job report"));
+    assert_eq!(Some(report), reference.job_report, "{what}: job report");
+    assert_eq!(report.steps, reference.steps, "{what}: reported steps per axis");
     let Some(fw) = fw else { return };
     let steps = fw.steps().unwrap_or_else(|| panic!("{what}: the firmware printed no STEPS line"));
     assert_eq!(steps.steps, reference.steps, "{what}: steps per axis X, Y, Z, E");

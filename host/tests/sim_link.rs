@@ -57,6 +57,10 @@ fn lossy_links_give_the_clean_run_hashes() {
         clean.host_link
     );
     assert_eq!(clean.layer_hashes.len(), clean.layers as usize);
+    // The device's totals over the wire match what the simulated board counted.
+    let report = clean.job_report.expect("a job report");
+    assert_eq!(report.steps, clean.steps);
+    assert_eq!(report.positions, clean.positions);
     assert_eq!(clean.underruns, 0);
     assert_eq!(clean.violations, 0);
     assert_eq!(clean.delivery_mismatches, 0);
@@ -73,6 +77,7 @@ fn lossy_links_give_the_clean_run_hashes() {
         // The step commands depend on the blocks only: without an underrun every step edge
         // reaches the pins at the same tick (relative to the first step) as in the clean run.
         assert_eq!(r.board_hash, clean.board_hash);
+        assert_eq!(r.job_report, clean.job_report);
         assert_eq!(r.violations, 0);
         assert_eq!(r.starts, 1);
     }

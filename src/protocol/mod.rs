@@ -29,5 +29,5 @@ pub use frame::{Decoder, Frame, FrameError, FrameType, MAX_PAYLOAD, MAX_WIRE, VE
 pub use link::{Endpoint, LinkConfig, LinkError, LinkStats, SendError};
 pub use msg::{
     BatchBuilder, Capacities, DecodeError, DeviceState, EncodeError, ErrorCode, JobOptions,
-    JobSpec, Message, Status, TriangleBatch,
+    JobReport, JobSpec, Message, Status, TriangleBatch,
 };

@@ -34,6 +34,7 @@ mod ty {
     pub const EMERGENCY_STOP: u8 = 0x23;
     pub const STATUS: u8 = 0x30;
     pub const LAYER_DONE: u8 = 0x31;
+    pub const JOB_REPORT: u8 = 0x32;
 }
 
 /// What a device holds: announced in [`Message::Capabilities`], used for admission control.
@@ -278,9 +279,24 @@ pub enum Message<'a> {
     LayerDone {
         /// Layer index.
         layer: u32,
-        /// Hash of the layer's planned blocks (which fix its step sequences).
+        /// Hash of the layer's step commands (see `StepProducer::take_hash`).
         hash: u64,
     },
+    /// The job's totals, sent once when it is done (before the status saying so).
+    JobReport(JobReport),
+}
+
+/// What a finished job did: every step sent to the motors, where they ended and how long
+/// the motion lasted, comparable bit for bit with the host simulation of the same job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct JobReport {
+    /// Steps per axis X, Y, Z, E.
+    pub steps: [u64; 4],
+    /// Final motor positions X, Y, Z, E, steps from the job's origin.
+    pub positions: [i64; 4],
+    /// Duration of the planned motion, step timer ticks.
+    pub print_ticks: u64,
 }
 
 /// Why a message does not encode.
@@ -489,6 +505,16 @@ impl<'a> Message<'a> {
                 w.u32(*layer)?;
                 w.u64(*hash)?;
             }
+            Self::JobReport(j) => {
+                w.u8(ty::JOB_REPORT)?;
+                for v in j.steps {
+                    w.u64(v)?;
+                }
+                for v in j.positions {
+                    w.u64(v as u64)?;
+                }
+                w.u64(j.print_ticks)?;
+            }
         }
         Ok(w.len)
     }
@@ -596,6 +622,17 @@ impl<'a> Message<'a> {
                 },
             }),
             ty::LAYER_DONE => Self::LayerDone { layer: r.u32()?, hash: r.u64()? },
+            ty::JOB_REPORT => {
+                let mut j = JobReport::default();
+                for v in &mut j.steps {
+                    *v = r.u64()?;
+                }
+                for v in &mut j.positions {
+                    *v = r.u64()? as i64;
+                }
+                j.print_ticks = r.u64()?;
+                Self::JobReport(j)
+            }
             other => return Err(DecodeError::UnknownType(other)),
         };
         r.end()?;
