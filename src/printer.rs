@@ -36,6 +36,7 @@ use crate::protocol::{
 };
 use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
+use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 
 /// Every capacity of the firmware build (the Creality 4.2.x boards and QEMU's lm3s6965evb,
@@ -185,6 +186,8 @@ pub struct Printer<
     heaters: bool,
     /// The heaters reached the job's targets once (motion waits until then).
     heated: bool,
+    /// When the job began waiting for its heaters, ms (the clock of [`Printer::service`]).
+    heat_wait_since_ms: Option<u32>,
     /// Measured temperatures, 0.1 degC.
     temps_c_x10: (i16, i16),
     layers: u32,
@@ -245,6 +248,7 @@ impl<
             report_sent: false,
             heaters: false,
             heated: false,
+            heat_wait_since_ms: None,
             temps_c_x10: (0, 0),
             layers: 0,
             model_ended: false,
@@ -392,6 +396,21 @@ impl<
         self.moves.clear();
     }
 
+    /// A job that waits longer than [`HEAT_WAIT_LIMIT_MS`] (printing, not paused) for its
+    /// heaters fails with
+    /// [`ThermalFault::HeatingTimeout`] (a heater stalled just below its target trips no
+    /// protection, so the wait needs its own limit).
+    fn check_heat_wait(&mut self, now_ms: u32) {
+        if !(self.state == DeviceState::Printing && self.heaters && !self.heated) {
+            self.heat_wait_since_ms = None;
+            return;
+        }
+        let since = *self.heat_wait_since_ms.get_or_insert(now_ms);
+        if now_ms.wrapping_sub(since) > HEAT_WAIT_LIMIT_MS {
+            self.thermal_fault(ThermalFault::HeatingTimeout.code());
+        }
+    }
+
     /// Ends the job on a dead link.
     pub fn link_lost(&mut self, silent_ms: u32) {
         self.fail(ErrorCode::LinkDead, silent_ms);
@@ -419,6 +438,7 @@ impl<
         self.batch_pos = 0;
         self.report_sent = false;
         self.heated = false;
+        self.heat_wait_since_ms = None;
         self.model_ended = false;
         self.toolpath_done = false;
         self.done.clear();
@@ -697,6 +717,7 @@ impl<
         if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
             self.link_lost(silent_ms);
         }
+        self.check_heat_wait(now_ms);
         let before = self.state;
         let mut buf = [0u8; MAX_PAYLOAD];
         while ep.tx_free() > 1 {

@@ -388,3 +388,46 @@ fn motion_waits_for_the_heaters_and_a_heater_fault_ends_the_job() {
     assert_eq!(strata::thermal::ThermalFault::from_code(fault.code()), Some(fault));
     assert_eq!(p.heater_targets(), (0, 0));
 }
+
+#[test]
+fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
+    use strata::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
+    let mut p = new_printer();
+    let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut frame = [0u8; MAX_WIRE];
+    let tris = block();
+    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
+    // A heater stuck just below its target: never at target, no protection trips.
+    let mut failed_at = None;
+    for s in 0..700u32 {
+        let now = s * 1000;
+        p.set_thermal(false, 1960, 600);
+        // A live link both ways (the host acknowledges the status reports).
+        for t in now..now + 1000 {
+            while let n @ 1.. = host.poll_transmit(t, &mut frame) {
+                dev.receive(&frame[..n], t);
+            }
+            if t % 100 == 0 {
+                p.service(&mut dev, t, 0, 100);
+            }
+            while let n @ 1.. = dev.poll_transmit(t, &mut frame) {
+                host.receive(&frame[..n], t);
+            }
+            while host.peek().is_some() {
+                host.pop();
+            }
+        }
+        if p.state() == DeviceState::Failed && p.error().0 == ErrorCode::Thermal {
+            failed_at = Some(now);
+            break;
+        }
+        assert!(p.is_active(), "{:?} at {now} ms", p.error());
+    }
+    let at = failed_at.expect("the wait never ended");
+    // Failed within the second after the limit (the loop checks once a second; the job was
+    // still active at every earlier second).
+    assert_eq!(at, HEAT_WAIT_LIMIT_MS, "{at}");
+    assert_eq!(p.error().1, u32::from(ThermalFault::HeatingTimeout.code()));
+    assert_eq!(p.heater_targets(), (0, 0));
+}

@@ -82,7 +82,14 @@ pub enum ThermalFault {
     ThermalRunaway(Heater),
     /// The main loop stopped kicking the watchdog.
     Watchdog,
+    /// A job waited longer than [`HEAT_WAIT_LIMIT_MS`] for its heaters to reach their targets
+    /// (a heater stalled too close to its target for the heating check to trip).
+    HeatingTimeout,
 }
+
+/// The longest a job waits for its heaters before the first layer, ms (10 minutes: a stock
+/// Ender-3 heats its bed to 60 C and its hotend to 200 C in about 3).
+pub const HEAT_WAIT_LIMIT_MS: u32 = 600_000;
 
 impl ThermalFault {
     /// The fault's name in Marlin's words (`"MAXTEMP"`, `"THERMAL RUNAWAY"`, ...).
@@ -95,11 +102,12 @@ impl ThermalFault {
             Self::HeatingFailed(_) => "HEATING FAILED",
             Self::ThermalRunaway(_) => "THERMAL RUNAWAY",
             Self::Watchdog => "WATCHDOG",
+            Self::HeatingTimeout => "HEATING TIMEOUT",
         }
     }
 
     /// The fault on the wire (the detail of `ErrorCode::Thermal`): kind * 2 + heater (hotend
-    /// 0, bed 1); the watchdog is 12.
+    /// 0, bed 1); the watchdog is 12, the heating timeout 13.
     pub const fn code(self) -> u8 {
         let (kind, heater) = match self {
             Self::SensorOpen(h) => (0, h),
@@ -109,6 +117,7 @@ impl ThermalFault {
             Self::HeatingFailed(h) => (4, h),
             Self::ThermalRunaway(h) => (5, h),
             Self::Watchdog => return 12,
+            Self::HeatingTimeout => return 13,
         };
         kind * 2 + matches!(heater, Heater::Bed) as u8
     }
@@ -118,6 +127,7 @@ impl ThermalFault {
         let h = if code % 2 == 0 { Heater::Hotend } else { Heater::Bed };
         Some(match code / 2 {
             _ if code == 12 => Self::Watchdog,
+            _ if code == 13 => Self::HeatingTimeout,
             0 => Self::SensorOpen(h),
             1 => Self::SensorShorted(h),
             2 => Self::MinTemp(h),
@@ -137,7 +147,7 @@ impl ThermalFault {
             | Self::MaxTemp(h)
             | Self::HeatingFailed(h)
             | Self::ThermalRunaway(h) => Some(h),
-            Self::Watchdog => None,
+            Self::Watchdog | Self::HeatingTimeout => None,
         }
     }
 }
