@@ -12,7 +12,7 @@ use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepQueue, Wake};
 
 use crate::session::{handshake, HostEndpoint, HostJob, Phase, Progress};
-use crate::simjob::{DeviceEndpoint, SimPrinter};
+use crate::simjob::{device_turn, DeviceEndpoint, SimPrinter};
 
 /// Reads what is available (a timed-out read is no data).
 fn read_some(port: &mut impl Read, buf: &mut [u8]) -> Result<usize, String> {
@@ -133,7 +133,6 @@ pub fn serve_device<P: Read + Write>(
     let mut first_step: Option<u64> = None;
     let mut ended_at: Option<u32> = None;
     let mut buf = [0u8; 4096];
-    let mut frame = [0u8; MAX_WIRE];
     let t0 = Instant::now();
     while !stop.load(Ordering::Relaxed) {
         let now = t0.elapsed().as_millis() as u32;
@@ -145,19 +144,9 @@ pub fn serve_device<P: Read + Write>(
         });
         ep.receive(&buf[..n], now);
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
-        printer.service(&mut ep, now, done_ms, 200);
-        for _ in 0..64 {
-            if !printer.poll(&mut prod) {
-                break;
-            }
-        }
-        loop {
-            let n = ep.poll_transmit(now, &mut frame);
-            if n == 0 {
-                break;
-            }
-            let _ = port.write_all(&frame[..n]);
-        }
+        device_turn(&mut printer, &mut ep, &mut prod, now, done_ms, 200, |f| {
+            let _ = port.write_all(f);
+        });
         let _ = port.flush();
         let end_tick = start_tick + now as u64 * speedup * ticks_per_ms;
         if printer.state() != DeviceState::Stopped {

@@ -15,7 +15,7 @@ use strata::machine::{MachineConfig, AXES};
 use strata::printer::{Printer, BOARD_CAPACITIES};
 use strata::protocol::{Capacities, Endpoint, JobSpec, LinkConfig, MAX_WIRE};
 use strata::sim::{SimBoard, SimTiming};
-use strata::step::{is_before, Executor, StepQueue, Wake};
+use strata::step::{is_before, Executor, StepProducer, StepQueue, Wake};
 use strata::toolpath::ToolpathNeeds;
 
 use crate::preview::PathRecorder;
@@ -371,19 +371,9 @@ fn run(
         }
         // Device.
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
-        printer.service(&mut dev_ep, t, done_ms, 500);
-        for _ in 0..64 {
-            if !printer.poll(&mut prod) {
-                break;
-            }
-        }
-        loop {
-            let n = dev_ep.poll_transmit(t, &mut frame);
-            if n == 0 {
-                break;
-            }
-            d2h.send_frame(now_ms, &frame[..n]);
-        }
+        device_turn(&mut printer, &mut dev_ep, &mut prod, t, done_ms, 500, |f| {
+            d2h.send_frame(now_ms, f)
+        });
         // Motion up to the end of this millisecond.
         let end_tick = start_tick + now_ms * ticks_per_ms;
         let stopped = printer.state() == strata::protocol::DeviceState::Stopped;
@@ -477,6 +467,34 @@ fn last_step_tick<O: strata::sim::EdgeObserver>(board: &SimBoard<O>) -> Option<u
 /// RAM of a device pipeline sized exactly to this job's needs: slicer (24 bytes per active
 /// triangle, 37 per segment, 72 per loop), toolpath stage at its needs, planner and step
 /// generator and queues (12 KB, the motion test's bound).
+/// One turn of a device's main loop (as the firmware's): the link's messages into the job
+/// runner (status every `status_every_ms`), up to 64 bounded `poll`s into the step queue,
+/// then every frame due out through `send`.
+pub(crate) fn device_turn<const N: usize>(
+    printer: &mut SimPrinter,
+    ep: &mut DeviceEndpoint,
+    prod: &mut StepProducer<'_, N>,
+    now_ms: u32,
+    done_ms: u32,
+    status_every_ms: u32,
+    mut send: impl FnMut(&[u8]),
+) {
+    printer.service(ep, now_ms, done_ms, status_every_ms);
+    for _ in 0..64 {
+        if !printer.poll(prod) {
+            break;
+        }
+    }
+    let mut frame = [0u8; MAX_WIRE];
+    loop {
+        let n = ep.poll_transmit(now_ms, &mut frame);
+        if n == 0 {
+            break;
+        }
+        send(&frame[..n]);
+    }
+}
+
 pub fn device_ram(slice: &strata::slice::SliceStats, needs: &ToolpathNeeds) -> u64 {
     let slicer = 200
         + 24 * slice.peak_active as u64

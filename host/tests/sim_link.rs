@@ -3,33 +3,15 @@
 //! step counts, no underrun) up to 5 % loss, no corrupted or foreign payload reaches the device's job
 //! runner, and a dead link ends the job with a clear error within bounded virtual time.
 
-use strata::geom::{Point3, Triangle};
+use strata::geom::Triangle;
 use strata::machine::MachineConfig;
 use strata::protocol::{JobOptions, JobSpec};
+use strata_host::hil::banded_cylinder;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
 
-/// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm),
-/// zmin-sorted: 4 n triangles.
-pub fn cylinder(r: f64, h: i32, n: usize) -> Vec<Triangle> {
-    let o = 100_000;
-    let p = |k: usize, z: i32| {
-        let a = std::f64::consts::TAU * (k % n) as f64 / n as f64;
-        Point3::new(o + (r * a.cos()).round() as i32, o + (r * a.sin()).round() as i32, z)
-    };
-    let (c0, c1) = (Point3::new(o, o, 0), Point3::new(o, o, h));
-    let mut t = Vec::new();
-    for k in 0..n {
-        t.push(Triangle { v: [p(k, 0), p(k + 1, 0), p(k + 1, h)] });
-        t.push(Triangle { v: [p(k, 0), p(k + 1, h), p(k, h)] });
-        t.push(Triangle { v: [c0, p(k + 1, 0), p(k, 0)] });
-        t.push(Triangle { v: [c1, p(k, h), p(k + 1, h)] });
-    }
-    t.sort_by_key(Triangle::z_min);
-    t
-}
-
 fn small_job() -> (Vec<Triangle>, JobSpec) {
-    let tris = cylinder(5_000.0, 1_600, 256);
+    // A closed cylinder, one band (its sides span every layer).
+    let tris = banded_cylinder(5_000.0, 1_600, 256, 1_600);
     let job = JobSpec {
         settings: strata::machine::PrintSettings::default(),
         options: JobOptions::default(),
