@@ -59,22 +59,25 @@ fn golden_hello_frame() {
 // byte becomes a code byte.
 const GOLDEN_HELLO: [u8; 12] = [3, 48, 7, 8, 8, 1, 3, 93, 75, 153, 137, 0];
 
+/// Capacities used by the golden and round-trip tests.
+const SAMPLE_CAPS: Capacities = Capacities {
+    active_triangles: 1024,
+    contour_points: 768,
+    contour_loops: 48,
+    layer_moves: 4096,
+    layer_window: 4,
+    ram_bytes: 65536,
+    toolpath_points: 80,
+    toolpath_loops: 4,
+    scan_crossings: 128,
+    path_points: 320,
+    window_ring_words: 192,
+    window_spans: 64,
+};
+
 #[test]
 fn golden_capabilities() {
-    let caps = Capacities {
-        active_triangles: 1024,
-        contour_points: 768,
-        contour_loops: 48,
-        layer_moves: 4096,
-        layer_window: 4,
-        ram_bytes: 65536,
-        toolpath_points: 80,
-        toolpath_loops: 4,
-        scan_crossings: 128,
-        path_points: 320,
-        window_ring_words: 192,
-        window_spans: 64,
-    };
+    let caps = SAMPLE_CAPS;
     let mut buf = [0u8; MAX_PAYLOAD];
     let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
     assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
@@ -161,20 +164,7 @@ fn all_messages() -> Vec<Vec<u8>> {
         model_height_um: 48_000,
         triangles: 225_154,
     };
-    let caps = Capacities {
-        active_triangles: 1024,
-        contour_points: 768,
-        contour_loops: 48,
-        layer_moves: 4096,
-        layer_window: 4,
-        ram_bytes: 65536,
-        toolpath_points: 80,
-        toolpath_loops: 4,
-        scan_crossings: 128,
-        path_points: 320,
-        window_ring_words: 192,
-        window_spans: 64,
-    };
+    let caps = SAMPLE_CAPS;
     let status = Status {
         state: DeviceState::Failed,
         layer: 12,
