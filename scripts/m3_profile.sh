@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Where the firmware's instructions go on the emulated Cortex-M3: runs one print job as
+# scripts/m3_hil_cost.sh does (QEMU lm3s6965evb, the real host code streaming MODEL) with the
+# symprof TCG plugin counting executed instructions per address, then attributes them to source
+# functions through the ELF's debug info (innermost inlined frame; --depth N shows N frames).
+#
+#   scripts/m3_profile.sh MODEL.stl|cylinder:R:H:SIDES:BAND [--depth N] [--top K]
+#
+# Needs gcc, qemu-system-arm and llvm-addr2line (rustup component llvm-tools, or apt llvm).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+model="$1"; shift
+work="$(mktemp -d)"
+trap 'rm -rf "$work"' EXIT
+gcc -O2 -Wall -shared -fPIC -pthread -I../shared/tools/qemu-insncount \
+  -o "$work/libsymprof.so" scripts/m3_profile/symprof.c
+cat > "$work/qemu" <<EOS
+#!/bin/sh
+exec qemu-system-arm -plugin $work/libsymprof.so,out=$work/prof.txt "\$@"
+EOS
+chmod +x "$work/qemu"
+if [ -z "${STRATA_FIRMWARE_ELF:-}" ]; then
+  scripts/build_firmware.sh qemu >/dev/null
+  export STRATA_FIRMWARE_ELF="$PWD/target/firmware/qemu/strata-firmware.elf"
+fi
+STRATA_QEMU="$work/qemu" cargo run --quiet --release -p strata-host --example m3_cost -- "$model" | tail -1
+sleep 1.5 # the plugin rewrites its table every second
+python3 scripts/m3_profile/attribute.py "$STRATA_FIRMWARE_ELF" "$work/prof.txt.pcs" "$@"

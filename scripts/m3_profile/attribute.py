@@ -1,0 +1,30 @@
+#!/usr/bin/env python3
+"""Attributes symprof's per-address counts to source functions, innermost inlined frame
+first (addr2line -i): `attribute.py ELF COUNTS.pcs [--depth N] [--top K]`."""
+import subprocess, sys, collections, argparse
+ap = argparse.ArgumentParser()
+ap.add_argument("elf"); ap.add_argument("pcs")
+ap.add_argument("--depth", type=int, default=1, help="inline frames to show, innermost first")
+ap.add_argument("--top", type=int, default=40)
+a = ap.parse_args()
+rows = [l.split() for l in open(a.pcs)]
+addrs = [r[0] for r in rows]
+counts = [int(r[1]) for r in rows]
+out = subprocess.run(["llvm-addr2line", "-e", a.elf, "-f", "-i", "-C", "-a"] + addrs, capture_output=True, text=True).stdout.splitlines()
+# Output: address line, then (function, file:line) pairs per inline frame.
+frames, cur = [], None
+for line in out:
+    if line.startswith("0x"):
+        cur = []; frames.append(cur)
+    else:
+        cur.append(line)
+agg = collections.Counter()
+total = sum(counts)
+for f, c in zip(frames, counts):
+    fns = [f[i] for i in range(0, len(f), 2)]
+    fns = [x.split("::h")[0] if "::h" in x else x for x in fns]
+    key = " <- ".join(fns[:a.depth])
+    agg[key] += c
+print(f"total {total}")
+for k, c in agg.most_common(a.top):
+    print(f"{c:14d} {100*c/total:6.2f}% {k}")
