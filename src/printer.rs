@@ -180,6 +180,9 @@ pub struct Printer<
     triangles: u32,
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
+    /// The message at the head of the link waits for room in the move buffer (it is not
+    /// decoded again until there is room).
+    waiting_for_room: bool,
     /// The job report went out (once the job is done).
     report_sent: bool,
     /// The board reports heaters ([`Printer::set_thermal`] was called): jobs wait for them.
@@ -245,6 +248,7 @@ impl<
             feed: Feed { layer: 0, e_um: 0, xyz: [0; 3] },
             triangles: 0,
             batch_pos: 0,
+            waiting_for_room: false,
             report_sent: false,
             heaters: false,
             heated: false,
@@ -722,6 +726,10 @@ impl<
         let mut buf = [0u8; MAX_PAYLOAD];
         while ep.tx_free() > 1 {
             let Some(p) = ep.peek() else { break };
+            if self.waiting_for_room && self.is_active() && !self.room_for_a_layer() {
+                break;
+            }
+            self.waiting_for_room = false;
             match Message::decode(p) {
                 Ok(Message::Hello { .. }) => {
                     let caps = self.capacities;
@@ -732,6 +740,7 @@ impl<
                 }
                 Ok(m) => {
                     if self.handle(&m) == Accept::Busy {
+                        self.waiting_for_room = true;
                         break;
                     }
                 }

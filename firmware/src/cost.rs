@@ -16,9 +16,11 @@
 //! - `slice_insns` is the sum over the job of the `service` part (decoding, slicing,
 //!   toolpaths: the toolpath stage runs inside the slicer's layer sink).
 //!
-//! While the job waits for its heaters (`Status::heating`), a `service` call that took no
-//! triangle is a batch retried for room (the motion holds, so the pipeline is full) and is
-//! left out of both figures: it is waiting, not work.
+//! A `service` call that moved nothing through the pipeline (no triangle taken, no layer cut,
+//! no toolpath layer emitted) waited: for room in the move buffer, or for the heaters. The
+//! message stays at the head of the link and the printer looks at it again on the next turn,
+//! so such a call is left out of both figures: it is waiting, not work (a board could sleep
+//! there until the next interrupt).
 
 use crate::board;
 use crate::capacities::FwPrinter;
@@ -38,9 +40,15 @@ pub struct Cost {
     active: bool,
 }
 
-/// A measurement in progress: start time (thread instructions), slicer layer, triangles
-/// taken.
-pub type Mark = Option<(u64, u32, u32)>;
+/// A measurement in progress: start time (thread instructions), slicer layer, pipeline
+/// progress ([`progress`]).
+pub type Mark = Option<(u64, u32, (u32, u32, u32))>;
+
+/// Triangles the slicer took, layers it cut and layers the toolpath stage emitted.
+fn progress(p: &FwPrinter) -> (u32, u32, u32) {
+    let s = p.slicer().stats();
+    (s.triangles, s.layers, p.toolpath().stats().layers)
+}
 
 impl Cost {
     /// Nothing measured yet.
@@ -55,8 +63,10 @@ impl Cost {
 
     /// Starts measuring a `service` call when it has a message to handle.
     pub fn begin(&self, pending: bool, p: &FwPrinter) -> Mark {
-        (self.active && pending)
-            .then(|| (self.thread_now(), p.slicer().stats().layers, p.status(0).triangles))
+        (self.active && pending).then(|| {
+            let before = progress(p);
+            (self.thread_now(), p.slicer().stats().layers, before)
+        })
     }
 
     fn add(&mut self, layer: u32, insns: u64) {
@@ -66,10 +76,9 @@ impl Cost {
 
     /// Ends a `service` measurement.
     pub fn end_service(&mut self, m: Mark, p: &FwPrinter) {
-        if let Some((t, layer, triangles)) = m {
+        if let Some((t, layer, before)) = m {
             let d = self.thread_now() - t;
-            let st = p.status(0);
-            if st.heating && st.triangles == triangles {
+            if progress(p) == before {
                 self.report(p, false);
                 return;
             }

@@ -669,12 +669,21 @@ impl Bits<'_> {
     }
 }
 
+/// The `bits` (at most 25) bits of `buf` from bit `*bit` on, least significant first: one
+/// little-endian load of the four bytes that hold them (bytes past the end read as 0).
 fn get_bits(buf: &[u8], bit: &mut usize, bits: usize) -> u32 {
-    let mut v = 0u32;
-    for i in 0..bits {
-        let b = *bit + i;
-        v |= ((buf[b / 8] >> (b % 8) & 1) as u32) << i;
+    debug_assert!(bits <= 25);
+    let first = *bit / 8;
+    let mut word = [0u8; 4];
+    match buf.get(first..first + 4) {
+        Some(four) => word.copy_from_slice(four),
+        None => {
+            for (w, b) in word.iter_mut().zip(buf.iter().skip(first)) {
+                *w = *b;
+            }
+        }
     }
+    let v = (u32::from_le_bytes(word) >> (*bit % 8)) & ((1u32 << bits) - 1);
     *bit += bits;
     v
 }
