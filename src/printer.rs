@@ -623,7 +623,8 @@ impl<
     }
 
     /// Bounded work: moves into the planner, blocks into the generator, steps into `out`.
-    /// Returns true when something happened.
+    /// Returns true when something happened (a move planned, a block or a step generated, a
+    /// layer closed).
     pub fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
         if !self.is_active() {
             return false;
@@ -658,7 +659,9 @@ impl<
                 worked = true;
             }
         }
+        let steps_before = self.gen.stats().steps;
         let _ = self.gen.run(out);
+        worked |= self.gen.stats().steps != steps_before;
         // Completed layers' hashes; while the reports are full the generator holds at the
         // next layer (its marks fill up), so no hash is ever dropped.
         while !self.done.is_full() {
