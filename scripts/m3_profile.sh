@@ -4,11 +4,20 @@
 # symprof TCG plugin counting executed instructions per address, then attributes them to source
 # functions through the ELF's debug info (innermost inlined frame; --depth N shows N frames).
 #
-#   scripts/m3_profile.sh MODEL.stl|cylinder:R:H:SIDES:BAND [--depth N] [--top K]
+#   scripts/m3_profile.sh [--counted] MODEL.stl|cylinder:R:H:SIDES:BAND [--depth N] [--top K]
+#
+# --counted: only the instructions of the regions the real-time factor counts (the firmware's
+# `service` calls with a message and its `poll` calls; interrupts taken inside them included),
+# not the main loop's idle turns. Slower (a plugin callback per instruction).
 #
 # Needs gcc, qemu-system-arm and llvm-addr2line (rustup component llvm-tools, or apt llvm).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+plugin_args=""
+if [ "${1:-}" = "--counted" ]; then
+  plugin_args=",on=strata_counted_on,off=strata_counted_off"
+  shift
+fi
 model="$1"; shift
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
@@ -16,7 +25,7 @@ gcc -O2 -Wall -shared -fPIC -pthread -I../shared/tools/qemu-insncount \
   -o "$work/libsymprof.so" scripts/m3_profile/symprof.c
 cat > "$work/qemu" <<EOS
 #!/bin/sh
-exec qemu-system-arm -plugin $work/libsymprof.so,out=$work/prof.txt "\$@"
+exec qemu-system-arm -plugin $work/libsymprof.so,out=$work/prof.txt$plugin_args "\$@"
 EOS
 chmod +x "$work/qemu"
 if [ -z "${STRATA_FIRMWARE_ELF:-}" ]; then

@@ -659,9 +659,9 @@ impl<
                 worked = true;
             }
         }
-        let steps_before = self.gen.stats().steps;
+        let steps_before = self.gen.steps_generated();
         let _ = self.gen.run(out);
-        worked |= self.gen.stats().steps != steps_before;
+        worked |= self.gen.steps_generated() != steps_before;
         // Completed layers' hashes; while the reports are full the generator holds at the
         // next layer (its marks fill up), so no hash is ever dropped.
         while !self.done.is_full() {
@@ -726,7 +726,6 @@ impl<
         }
         self.check_heat_wait(now_ms);
         let before = self.state;
-        let mut buf = [0u8; MAX_PAYLOAD];
         while ep.tx_free() > 1 {
             let Some(p) = ep.peek() else { break };
             if self.waiting_for_room && self.is_active() && !self.room_for_a_layer() {
@@ -737,9 +736,7 @@ impl<
                 Ok(Message::Hello { .. }) => {
                     let caps = self.capacities;
                     let m = Message::Capabilities { version: VERSION, capacities: caps };
-                    if let Ok(n) = m.encode(&mut buf) {
-                        let _ = ep.send(&buf[..n]);
-                    }
+                    send(ep, &m);
                 }
                 Ok(m) => {
                     if self.handle(&m) == Accept::Busy {
@@ -753,27 +750,31 @@ impl<
         }
         while ep.tx_free() > 1 {
             let Some((layer, hash)) = self.take_layer_done() else { break };
-            if let Ok(n) = (Message::LayerDone { layer, hash }).encode(&mut buf) {
-                let _ = ep.send(&buf[..n]);
-            }
+            send(ep, &Message::LayerDone { layer, hash });
         }
         let finished = self.state == DeviceState::Done;
         if finished && !self.report_sent && self.done.is_empty() && ep.tx_free() > 1 {
-            if let Ok(n) = Message::JobReport(self.job_report()).encode(&mut buf) {
-                self.report_sent = ep.send(&buf[..n]).is_ok();
-            }
+            self.report_sent = send(ep, &Message::JobReport(self.job_report()));
         }
         let due = now_ms.wrapping_sub(self.status_due_ms) < 1 << 31;
         // Every layer report and the job report go out before a status (the host ends on
         // `Done`).
         let reported = self.done.is_empty() && (!finished || self.report_sent);
-        if (due || self.state != before) && ep.tx_free() > 0 && reported {
-            if let Ok(n) = Message::Status(self.status(done_ms)).encode(&mut buf) {
-                if ep.send(&buf[..n]).is_ok() {
-                    self.status_due_ms = now_ms.wrapping_add(status_every_ms);
-                }
-            }
+        let status_out = (due || self.state != before) && ep.tx_free() > 0 && reported;
+        if status_out && send(ep, &Message::Status(self.status(done_ms))) {
+            self.status_due_ms = now_ms.wrapping_add(status_every_ms);
         }
+    }
+}
+
+/// Encodes `msg` and hands it to the link; false when it did not go out. The payload buffer
+/// lives only while a message is sent (clearing it costs ~100 instructions on the
+/// Cortex-M3, too much for every main-loop turn).
+fn send<const TX: usize, const RX: usize>(ep: &mut Endpoint<TX, RX>, msg: &Message<'_>) -> bool {
+    let mut buf = [0u8; MAX_PAYLOAD];
+    match msg.encode(&mut buf) {
+        Ok(n) => ep.send(&buf[..n]).is_ok(),
+        Err(_) => false,
     }
 }
 

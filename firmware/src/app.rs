@@ -137,12 +137,10 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
             if printer.is_active() && !board::with_motion(|m| m.homing()) {
                 for _ in 0..POLLS_PER_LOOP {
                     #[cfg(feature = "qemu")]
-                    let t = cost.thread_now();
+                    let t = cost.begin_poll();
                     let worked = printer.poll(p);
                     #[cfg(feature = "qemu")]
-                    if worked {
-                        cost.end_poll(t, printer);
-                    }
+                    cost.end_poll(t, worked, printer);
                     if !worked {
                         break;
                     }

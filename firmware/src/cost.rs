@@ -26,6 +26,21 @@ use crate::board;
 use crate::capacities::FwPrinter;
 use crate::log;
 
+/// Marks the start of a measured region for `scripts/m3_profile.sh --counted` (its QEMU plugin
+/// counts only between this and [`strata_counted_off`]; no effect otherwise).
+#[no_mangle]
+#[inline(never)]
+pub extern "C" fn strata_counted_on() {
+    core::hint::black_box(1u32);
+}
+
+/// Marks the end of a measured region (see [`strata_counted_on`]).
+#[no_mangle]
+#[inline(never)]
+pub extern "C" fn strata_counted_off() {
+    core::hint::black_box(2u32);
+}
+
 /// Per-layer buckets kept (the slicer runs at most a few layers ahead of the planner).
 const RING: usize = 32;
 
@@ -65,7 +80,9 @@ impl Cost {
     pub fn begin(&self, pending: bool, p: &FwPrinter) -> Mark {
         (self.active && pending).then(|| {
             let before = progress(p);
-            (self.thread_now(), p.slicer().stats().layers, before)
+            let layer = p.slicer().stats().layers;
+            strata_counted_on();
+            (self.thread_now(), layer, before)
         })
     }
 
@@ -78,6 +95,7 @@ impl Cost {
     pub fn end_service(&mut self, m: Mark, p: &FwPrinter) {
         if let Some((t, layer, before)) = m {
             let d = self.thread_now() - t;
+            strata_counted_off();
             if progress(p) == before {
                 self.report(p, false);
                 return;
@@ -88,10 +106,22 @@ impl Cost {
         self.report(p, false);
     }
 
-    /// Ends a `poll` measurement (started at `t`).
-    pub fn end_poll(&mut self, t: u64, p: &FwPrinter) {
+    /// Starts measuring a `poll` call.
+    pub fn begin_poll(&self) -> u64 {
+        if self.active {
+            strata_counted_on();
+        }
+        self.thread_now()
+    }
+
+    /// Ends a `poll` measurement (started at `t`); counted when the poll `worked`.
+    pub fn end_poll(&mut self, t: u64, worked: bool, p: &FwPrinter) {
         if self.active {
             let d = self.thread_now() - t;
+            strata_counted_off();
+            if !worked {
+                return;
+            }
             self.add(p.status(0).layer, d);
             self.report(p, false);
         }

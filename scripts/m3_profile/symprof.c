@@ -3,7 +3,9 @@
  *
  * qemu-system-arm ... -plugin ./libsymprof.so -d plugin -D /tmp/prof.log
  * With -plugin ./libsymprof.so,out=FILE the table is rewritten to FILE every second (for a QEMU
- * that is killed rather than exiting).
+ * that is killed rather than exiting), and the per-address counts to FILE.pcs.
+ * With on=SYM,off=SYM the per-address counts cover only what runs between calls of the two
+ * functions (the firmware's measured regions: strata_counted_on/off).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -36,12 +38,36 @@ static uint64_t *counter(const char *name) {
 #define PCS (1u << 19)
 static uint64_t pcs[PCS];
 
+/* Counted mode (on=SYM,off=SYM): only instructions executed between a call of `on` and the
+ * next call of `off` are counted per address (a callback per instruction: slower). */
+static const char *on_name, *off_name;
+static uint64_t on_addr = ~0ull, off_addr = ~0ull;
+static int recording;
+
+static void set_on(unsigned int vcpu, void *u) { recording = 1; }
+static void set_off(unsigned int vcpu, void *u) { recording = 0; }
+static void count_if_on(unsigned int vcpu, void *u) {
+    if (recording) ++*(uint64_t *)u;
+}
+
 static void tb_trans(qemu_plugin_id_t id, struct qemu_plugin_tb *tb) {
     size_t n = qemu_plugin_tb_n_insns(tb);
     for (size_t i = 0; i < n; i++) {
         struct qemu_plugin_insn *insn = qemu_plugin_tb_get_insn(tb, i);
         uint64_t va = qemu_plugin_insn_vaddr(insn);
-        if (va / 2 < PCS) qemu_plugin_register_vcpu_insn_exec_inline(insn, QEMU_PLUGIN_INLINE_ADD_U64, &pcs[va / 2], 1);
+        const char *s = qemu_plugin_insn_symbol(insn);
+        if (on_name && i == 0 && s) {
+            if (on_addr == ~0ull && !strcmp(s, on_name)) on_addr = va;
+            if (off_addr == ~0ull && !strcmp(s, off_name)) off_addr = va;
+        }
+        if (va == on_addr) qemu_plugin_register_vcpu_insn_exec_cb(insn, set_on, QEMU_PLUGIN_CB_NO_REGS, NULL);
+        if (va == off_addr) qemu_plugin_register_vcpu_insn_exec_cb(insn, set_off, QEMU_PLUGIN_CB_NO_REGS, NULL);
+        if (va / 2 < PCS) {
+            if (on_name)
+                qemu_plugin_register_vcpu_insn_exec_cb(insn, count_if_on, QEMU_PLUGIN_CB_NO_REGS, &pcs[va / 2]);
+            else
+                qemu_plugin_register_vcpu_insn_exec_inline(insn, QEMU_PLUGIN_INLINE_ADD_U64, &pcs[va / 2], 1);
+        }
         const char *sym = qemu_plugin_insn_symbol(insn);
         qemu_plugin_register_vcpu_insn_exec_inline(insn, QEMU_PLUGIN_INLINE_ADD_U64, counter(sym ? sym : "?"), 1);
     }
@@ -105,6 +131,9 @@ static void at_exit(qemu_plugin_id_t id, void *p) {
 QEMU_PLUGIN_EXPORT int qemu_plugin_install(qemu_plugin_id_t id, const qemu_info_t *info, int argc, char **argv) {
     for (int i = 0; i < argc; i++)
         if (!strncmp(argv[i], "out=", 4)) out_path = argv[i] + 4;
+        else if (!strncmp(argv[i], "on=", 3)) on_name = argv[i] + 3;
+        else if (!strncmp(argv[i], "off=", 4)) off_name = argv[i] + 4;
+    if (!on_name != !off_name) return -1;
     if (out_path) { pthread_t t; pthread_create(&t, NULL, dumper, NULL); }
     qemu_plugin_register_vcpu_tb_trans_cb(id, tb_trans);
     qemu_plugin_register_atexit_cb(id, at_exit, NULL);

@@ -201,6 +201,11 @@ impl<const B: usize> StepGenerator<B> {
         }
     }
 
+    /// Steps generated so far, all axes (cheaper than [`stats`](Self::stats)).
+    pub fn steps_generated(&self) -> u64 {
+        self.steps.iter().sum()
+    }
+
     /// Generates and sends steps until the blocks run out or a queue is full, publishing the
     /// horizon as sequences go out.
     pub fn run<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> GenStatus {
