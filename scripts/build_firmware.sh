@@ -4,7 +4,10 @@
 #   firmware.bin          the raw binary for the Creality SD bootloader (app at 0x0800_7000)
 # and prints the section sizes (.data + .bss = static RAM; flash = .text + .rodata + .data).
 #
-#   scripts/build_firmware.sh creality-v422|creality-v427|qemu
+#   scripts/build_firmware.sh creality-v422|creality-v427|qemu|qemu-mps2
+#
+# qemu-mps2 is QEMU's mps2-an385 (Cortex-M3, 4 MB of RAM) with capacities for the models that
+# do not fit 64 KB: cost figures and HIL comparison only, not a board.
 #
 # Release build with LTO, one codegen unit and opt-level "s" (the root Cargo.toml's release
 # profile, tightened through cargo's environment overrides so that only this build is
@@ -14,8 +17,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 board="${1:-}"
 case "$board" in
-  creality-v422|creality-v427|qemu) ;;
-  *) echo "usage: $0 creality-v422|creality-v427|qemu" >&2; exit 2 ;;
+  creality-v422|creality-v427|qemu|qemu-mps2) ;;
+  *) echo "usage: $0 creality-v422|creality-v427|qemu|qemu-mps2" >&2; exit 2 ;;
 esac
 rustup target list --installed 2>/dev/null | grep -qx thumbv7m-none-eabi || rustup target add thumbv7m-none-eabi
 rustup component list --installed 2>/dev/null | grep -q '^llvm-tools' || rustup component add llvm-tools

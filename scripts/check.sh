@@ -25,7 +25,7 @@ cargo clippy --all-targets -- -D warnings
 step "core for thumbv7m-none-eabi (no_std, no alloc)"
 cargo build -p strata --target thumbv7m-none-eabi --release
 step "firmware for thumbv7m-none-eabi (every board: build, clippy)"
-for board in creality-v422 creality-v427 qemu; do
+for board in creality-v422 creality-v427 qemu-mps2 qemu; do
   scripts/build_firmware.sh "$board"
   cargo clippy -p strata-firmware --target thumbv7m-none-eabi --release --features "$board" -- -D warnings
 done

@@ -22,7 +22,16 @@ use strata::protocol::Endpoint;
 
 /// The pipeline's capacities live in the core (`strata::printer::board`), so that the host
 /// admits models against exactly what this build holds.
+#[cfg(not(feature = "qemu-mps2"))]
 pub use strata::printer::board::BoardPrinter as FwPrinter;
+
+/// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
+/// default 0.02 mm (embodier_LM8UU_8p2pi: 742 active triangles, 1,740 loop points;
+/// embodier_hotend_v2: ~1,100 moves in a layer), so that they run on the Cortex-M3
+/// instruction set for their cost figures and the bit-exact comparison with the host.
+#[cfg(feature = "qemu-mps2")]
+pub type FwPrinter =
+    strata::printer::Printer<1024, 1024, 48, 2048, 64, 1024, 2048, 4096, 256, 2048, 32>;
 
 /// Commands per axis in the step queue (a power of two; 12 B each, 4 axes; the host
 /// simulation's).

@@ -34,8 +34,29 @@ pub fn repo_root() -> PathBuf {
 pub fn firmware_elf() -> PathBuf {
     match std::env::var_os("STRATA_FIRMWARE_ELF") {
         Some(p) => PathBuf::from(p),
-        None => repo_root().join("target/firmware/qemu/strata-firmware.elf"),
+        None => build_output("qemu"),
     }
+}
+
+/// The image `scripts/build_firmware.sh BOARD` writes.
+pub fn build_output(board: &str) -> PathBuf {
+    repo_root().join("target/firmware").join(board).join("strata-firmware.elf")
+}
+
+/// The QEMU machine a firmware image is built for: the `strata-qemu-machine=NAME` tag the
+/// QEMU boards carry (`lm3s6965evb`, or `mps2-an385` for the `qemu-mps2` build);
+/// `lm3s6965evb` when the image has none.
+pub fn qemu_machine(elf: &[u8]) -> String {
+    const TAG: &[u8] = b"strata-qemu-machine=";
+    elf.windows(TAG.len())
+        .position(|w| w == TAG)
+        .map(|at| {
+            let name = &elf[at + TAG.len()..];
+            let n = name.iter().take_while(|c| c.is_ascii_alphanumeric() || **c == b'-').count();
+            String::from_utf8_lossy(&name[..n]).into_owned()
+        })
+        .filter(|m| !m.is_empty())
+        .unwrap_or_else(|| "lm3s6965evb".into())
 }
 
 /// `$STRATA_QEMU`, else `qemu-system-arm` on the `PATH`.
@@ -47,14 +68,19 @@ pub fn find_qemu() -> Option<PathBuf> {
     std::env::split_paths(&path).map(|d| d.join("qemu-system-arm")).find(|p| p.is_file())
 }
 
-/// QEMU and the firmware image, or why they cannot be used.
+/// QEMU and the firmware image ([`firmware_elf`]), or why they cannot be used.
 pub fn locate() -> Result<(PathBuf, PathBuf), String> {
+    locate_image(firmware_elf(), "qemu")
+}
+
+/// QEMU and `elf` (what `scripts/build_firmware.sh board` writes), or why they cannot be
+/// used.
+pub fn locate_image(elf: PathBuf, board: &str) -> Result<(PathBuf, PathBuf), String> {
     let qemu = find_qemu()
         .ok_or("qemu-system-arm not found (apt-get install qemu-system-arm, or set STRATA_QEMU)")?;
-    let elf = firmware_elf();
     if !elf.is_file() {
         return Err(format!(
-            "firmware image {} missing (build it with scripts/build_firmware.sh qemu, or set \
+            "firmware image {} missing (build it with scripts/build_firmware.sh {board}, or set \
              STRATA_FIRMWARE_ELF)",
             elf.display()
         ));
@@ -108,8 +134,9 @@ fn die_with_parent(cmd: &mut Command) {
 fn die_with_parent(_: &mut Command) {}
 
 impl Qemu {
-    /// Starts `qemu` on `elf` (Cortex-M3, lm3s6965evb, `-icount shift=0`, semihosting, UART0
-    /// on a unix socket QEMU waits on) and connects to the UART within `timeout`. With `echo`
+    /// Starts `qemu` on `elf` (Cortex-M3, the image's machine: [`qemu_machine`];
+    /// `-icount shift=0`, semihosting, UART0 on a unix socket QEMU waits on) and connects to
+    /// the UART within `timeout`. With `echo`
     /// every line QEMU prints is copied to standard error as it comes.
     pub fn start(
         qemu: &Path,
@@ -119,10 +146,12 @@ impl Qemu {
     ) -> Result<(Self, UnixStream), String> {
         let dir = scratch_dir()?;
         let sock = dir.join("uart0.sock");
+        // A missing image gets QEMU's own error below.
+        let machine = qemu_machine(&std::fs::read(elf).unwrap_or_default());
         let mut cmd = Command::new(qemu);
         die_with_parent(&mut cmd);
         let mut child = cmd
-            .args(["-cpu", "cortex-m3", "-machine", "lm3s6965evb", "-nographic"])
+            .args(["-cpu", "cortex-m3", "-machine", &machine, "-nographic"])
             .args(["-icount", "shift=0", "-semihosting-config", "enable=on,target=native"])
             .arg("-serial")
             .arg(format!("unix:{},server=on,wait=on", sock.display()))
@@ -853,5 +882,15 @@ mod tests {
         assert_eq!((st.print_ticks, st.hash), (Some(9), Some(255)));
         assert!(parse_record("hello world").is_none());
         assert!(parse_record("SOFT LIMIT axis=1").is_none());
+    }
+
+    #[test]
+    fn the_machine_comes_from_the_images_tag() {
+        let mut elf = vec![0u8; 64];
+        elf.extend_from_slice(b"strata-qemu-machine=mps2-an385\0more");
+        assert_eq!(qemu_machine(&elf), "mps2-an385");
+        assert_eq!(qemu_machine(b"\x7fELF no tag here"), "lm3s6965evb");
+        // A tag without a name is no tag.
+        assert_eq!(qemu_machine(b"strata-qemu-machine=\0"), "lm3s6965evb");
     }
 }

@@ -10,4 +10,6 @@ pub use creality::*;
 #[cfg(feature = "qemu")]
 mod qemu;
 #[cfg(feature = "qemu")]
+mod qemu_machine;
+#[cfg(feature = "qemu")]
 pub use qemu::*;

@@ -1,10 +1,12 @@
-//! QEMU `lm3s6965evb` (Cortex-M3, 64 KB RAM): UART0 (PL011) for the protocol, virtual
-//! step/dir pins, virtual endstops, an accelerated print clock, semihosting for logs.
+//! QEMU `lm3s6965evb` (Cortex-M3, 64 KB RAM; or `mps2-an385` with 4 MB, see
+//! [`qemu_machine`]): UART0 for the protocol, virtual step/dir pins, virtual endstops, an
+//! accelerated print clock, semihosting for logs.
 //!
 //! # Clocks
 //! Run QEMU with `-icount shift=0`: one instruction is one nanosecond of virtual time. The
 //! system clock is set to 200 MHz (SYSDIV = 1 in QEMU's model of the Stellaris RCC), so one
-//! SysTick count is 5 ns = 5 instructions. SysTick fires every [`RELOAD`] counts; counting
+//! SysTick count is 5 ns = 5 instructions (mps2-an385: 25 MHz, 40 instructions). SysTick
+//! fires every [`RELOAD`] counts (10,000 instructions on both); counting
 //! its wraps gives a 64-bit instruction clock ([`insns_now`]), from which the protocol's
 //! millisecond clock (1 ms = 1,000,000 instructions) and the cost figures are derived.
 //!
@@ -58,6 +60,7 @@ use strata::step::{is_before, Pins, StepConfig};
 
 use strata::thermal::{PidGains, Temp, ThermalConfig};
 
+use super::qemu_machine;
 use crate::heat::IsrWatch;
 use crate::log;
 use crate::motion::{Endstops, Motion, Next, Producer};
@@ -201,32 +204,11 @@ static WATCH: Mutex<RefCell<IsrWatch>> = Mutex::new(RefCell::new(IsrWatch::new()
 /// reset it 0.5 s later).
 static WATCH_TRIPPED: AtomicBool = AtomicBool::new(false);
 
-/// SysTick counts per interrupt (x 5 instructions: an interrupt every 10000 instructions).
-pub const RELOAD: u32 = 2000;
+pub use super::qemu_machine::RELOAD;
 /// Executor events (`on_timer` calls) per interrupt at most.
 pub const EVENTS_PER_TICK: u32 = 6;
 /// The virtual endstops trigger after this much homing travel, mm (X, Y, Z).
 const HOME_TRAVEL_MM: [u32; 3] = [5, 5, 2];
-
-const UART0: usize = 0x4000_C000;
-const UART_DR: usize = UART0;
-const UART_FR: usize = UART0 + 0x018;
-const UART_LCRH: usize = UART0 + 0x02C;
-const UART_CR: usize = UART0 + 0x030;
-const FR_RXFE: u32 = 1 << 4;
-const FR_TXFF: u32 = 1 << 5;
-const SYSCTL_RCC: usize = 0x400F_E060;
-
-fn reg_read(addr: usize) -> u32 {
-    // SAFETY: `addr` is one of the memory-mapped registers above (PL011, SYSCTL), always
-    // readable on lm3s6965evb.
-    unsafe { core::ptr::read_volatile(addr as *const u32) }
-}
-
-fn reg_write(addr: usize, v: u32) {
-    // SAFETY: as in `reg_read`; these writes only configure the UART and the clock.
-    unsafe { core::ptr::write_volatile(addr as *mut u32, v) }
-}
 
 /// A virtual output pin.
 #[derive(Debug, Clone, Copy)]
@@ -533,8 +515,9 @@ impl Board {
     /// Bytes waiting in the UART's receive FIFO, up to `buf.len()`.
     pub fn read(&mut self, buf: &mut [u8]) -> usize {
         let mut n = 0;
-        while n < buf.len() && reg_read(UART_FR) & FR_RXFE == 0 {
-            buf[n] = reg_read(UART_DR) as u8;
+        while n < buf.len() {
+            let Some(b) = qemu_machine::uart_read() else { break };
+            buf[n] = b;
             n += 1;
         }
         n
@@ -560,8 +543,7 @@ impl Board {
     /// Sends `bytes` (waits while the transmit FIFO is full).
     pub fn write(&mut self, bytes: &[u8]) {
         for &b in bytes {
-            while reg_read(UART_FR) & FR_TXFF != 0 {}
-            reg_write(UART_DR, b as u32);
+            qemu_machine::uart_write(b);
         }
     }
 }
@@ -587,15 +569,7 @@ pub fn after_poll(prod: &Producer, finished: bool, paused: bool) {
 /// Brings up the UART, the clock and the SysTick-driven virtual motion.
 pub fn init(cfg: &StepConfig) -> Board {
     let mut cp = cortex_m::Peripherals::take().expect("taken once");
-    // 200 MHz: SYSDIV = 0 (QEMU: period = 5 ns x (SYSDIV + 1)); USESYSDIV.
-    let rcc = reg_read(SYSCTL_RCC);
-    reg_write(SYSCTL_RCC, (rcc & !(0xF << 23)) | (1 << 22));
-    let sysdiv = (reg_read(SYSCTL_RCC) >> 23) & 0xF;
-    PERIOD_NS.store(5 * (sysdiv + 1), Ordering::Relaxed);
-    // UART0: 8N1 with FIFOs; the baud rate does not matter to QEMU.
-    reg_write(UART_CR, 0);
-    reg_write(UART_LCRH, (3 << 5) | (1 << 4));
-    reg_write(UART_CR, (1 << 9) | (1 << 8) | 1);
+    PERIOD_NS.store(qemu_machine::init(), Ordering::Relaxed);
 
     let pins = Pins {
         step: core::array::from_fn(|a| VPin::Step(a as u8)),
@@ -623,7 +597,8 @@ pub fn init(cfg: &StepConfig) -> Board {
     cp.SYST.enable_interrupt();
     cp.SYST.enable_counter();
     log!(
-        "board qemu-lm3s6965evb: sysclk period {} ns, SysTick every {} counts",
+        "board qemu-{}: sysclk period {} ns, SysTick every {} counts",
+        qemu_machine::NAME,
         PERIOD_NS.load(Ordering::Relaxed),
         RELOAD
     );
