@@ -39,7 +39,9 @@ fn main() {
     }
 }
 
-/// The newest `link.x` written by cortex-m-rt's build script in this target directory.
+/// The newest `link.x` written by cortex-m-rt's build script in this target directory for a
+/// build without a device crate (the QEMU builds: no `INCLUDE device.x`; the Creality
+/// builds' cortex-m-rt, with stm32f1xx-hal's `device` feature, writes its own beside it).
 fn cortex_m_rt_link_x(out: &std::path::Path) -> PathBuf {
     // OUT_DIR = <target>/<triple>/<profile>/build/strata-firmware-<hash>/out
     let build = out.parent().and_then(|p| p.parent()).expect("OUT_DIR inside build/");
@@ -50,6 +52,10 @@ fn cortex_m_rt_link_x(out: &std::path::Path) -> PathBuf {
             continue;
         }
         let p = e.path().join("out").join("link.x");
+        let for_a_device = fs::read_to_string(&p).is_ok_and(|t| t.contains("INCLUDE device.x"));
+        if for_a_device {
+            continue;
+        }
         if let Ok(m) = fs::metadata(&p).and_then(|m| m.modified()) {
             if best.as_ref().map_or(true, |(t, _)| m > *t) {
                 best = Some((m, p));

@@ -1,7 +1,9 @@
 //! Cost figures on QEMU (`-icount shift=0`: one instruction = 1 ns of virtual time), one
 //! semihosting line each:
 //! - per layer `COST layer=K compute_insns=N print_ticks=M`;
-//! - per job `COST triangles=N slice_insns=N` (and the board's `COST isr_calls=...`).
+//! - per job `COST triangles=N slice_insns=N service_max_insns=N` (the longest `service`
+//!   call: slicing and toolpaths hold the step generator that long), and the board's
+//!   `COST isr_calls=...`.
 //!
 //! Approximations:
 //! - `compute_insns` are the thread-mode instructions (SysTick handler time taken out) spent
@@ -52,6 +54,9 @@ pub struct Cost {
     /// Released print time at the last report, ticks.
     planned_ticks: u64,
     slice_insns: u64,
+    /// The longest `service` call (slicing and toolpaths; the generator does not run
+    /// meanwhile, so the step queue must cover it on a real board).
+    service_max: u64,
     active: bool,
 }
 
@@ -68,7 +73,14 @@ fn progress(p: &FwPrinter) -> (u32, u32, u32) {
 impl Cost {
     /// Nothing measured yet.
     pub const fn new() -> Self {
-        Self { ring: [0; RING], reported: 0, planned_ticks: 0, slice_insns: 0, active: false }
+        Self {
+            ring: [0; RING],
+            reported: 0,
+            planned_ticks: 0,
+            slice_insns: 0,
+            service_max: 0,
+            active: false,
+        }
     }
 
     /// Thread-mode instructions so far (all instructions minus the SysTick handler's).
@@ -101,6 +113,7 @@ impl Cost {
                 return;
             }
             self.slice_insns += d;
+            self.service_max = self.service_max.max(d);
             self.add(layer, d);
         }
         self.report(p, false);
@@ -157,7 +170,12 @@ impl Cost {
     /// A job ended: the remaining layers (all of them when it is done) and the job's totals.
     pub fn job_ended(&mut self, p: &FwPrinter) {
         self.report(p, p.state() == strata::protocol::DeviceState::Done);
-        log!("COST triangles={} slice_insns={}", p.status(0).triangles, self.slice_insns);
+        log!(
+            "COST triangles={} slice_insns={} service_max_insns={}",
+            p.status(0).triangles,
+            self.slice_insns,
+            self.service_max
+        );
         self.active = false;
     }
 }

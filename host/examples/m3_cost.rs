@@ -163,8 +163,9 @@ fn main() {
         std::process::exit(2);
     });
     println!(
-        "Cortex-M3 cost per job (QEMU lm3s6965evb -icount shift=0; {} MHz at {CYCLES_PER_INSN} \
-         cycles per instruction; {})",
+        "Cortex-M3 cost per job (QEMU {} -icount shift=0; {} MHz at {CYCLES_PER_INSN} cycles per \
+         instruction; {})",
+        hil::qemu_machine(&std::fs::read(&elf).unwrap_or_default()),
         CPU_HZ / 1e6,
         elf.display()
     );
@@ -221,7 +222,9 @@ fn main() {
         println!(
             "{}: {} steps in {} interrupts, printed {:.0} s (device clock), {:.0} s wall{}; worst layer {:.1}x \
              (target >= {RTF_TARGET}x: {}); ISR {:.1} insns/step (target <= {ISR_MEAN_TARGET}: \
-             {}); worst ISR {:.0} cycles (40 kHz on X and Y needs < {ISR_WORST_CYCLES:.0}: {})",
+             {}); worst ISR {:.0} cycles (40 kHz on X and Y needs < {ISR_WORST_CYCLES:.0}: {}); \
+             longest slicing/toolpath call {:.0} ms at {} MHz (no steps are generated meanwhile: \
+             the step queue must cover it)",
             r.name,
             s.steps,
             s.isr_calls,
@@ -234,6 +237,8 @@ fn main() {
             verdict(s.isr_insns_per_step <= ISR_MEAN_TARGET),
             worst_cycles,
             verdict(worst_cycles < ISR_WORST_CYCLES),
+            s.service_max_insns as f64 * CYCLES_PER_INSN / CPU_HZ * 1e3,
+            CPU_HZ / 1e6,
         );
     }
     if failed {
