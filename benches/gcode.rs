@@ -133,7 +133,7 @@ fn toolpaths(
         ToolEvent::LayerStart { index, z_um, height_um } => {
             moves.push(ToolEvent::LayerStart { index, z_um, height_um })
         }
-        ToolEvent::LayerEnd(_) => {}
+        ToolEvent::LayerEnd(_) | ToolEvent::Progress => {}
     };
     for l in layers {
         let layer = Layer {

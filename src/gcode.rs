@@ -346,7 +346,7 @@ impl<W: Write> GcodeWriter<W> {
                 Ok(())
             }
             ToolEvent::Move(m) => self.tool_move(&m),
-            ToolEvent::LayerEnd(_) => Ok(()),
+            ToolEvent::LayerEnd(_) | ToolEvent::Progress => Ok(()),
         }
     }
 

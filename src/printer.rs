@@ -100,6 +100,79 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
     window_spans: 1 << 16,
 };
 
+/// The motion half of the pipeline (move buffer, planner, step generator), lent by
+/// [`Printer::service`] to its caller at the progress points of a long layer computation
+/// ([`ToolEvent::Progress`]): the firmware generates steps there
+/// ([`MotionSlot::run`]), so the step queue keeps being refilled while a layer's toolpaths
+/// are computed in the same thread (on a Cortex-M3 a large layer takes about half a second,
+/// far longer than a step queue covers).
+///
+/// The commands stay those of [`Printer::poll`]: moves go to the planner in the same order,
+/// blocks leave it only when it is full (the model is not done while a layer is computed),
+/// and the step generator's commands depend only on the blocks.
+pub struct MotionSlot<'a, const MOVES: usize, const P: usize> {
+    moves: &'a mut Deque<Tagged, MOVES>,
+    planner: &'a mut Planner<P>,
+    tags: &'a mut Deque<u32, P>,
+    gen: &'a mut StepGenerator,
+    /// Blocks may go to the generator (printing and heated).
+    allowed: bool,
+}
+
+/// What [`Printer::service`]'s caller does with a lent [`MotionSlot`] (`None`: nothing).
+type MotionHook<'h, 'f, const MOVES: usize, const P: usize> =
+    Option<&'h mut (dyn FnMut(&mut MotionSlot<'_, MOVES, P>) + 'f)>;
+
+impl<const MOVES: usize, const P: usize> MotionSlot<'_, MOVES, P> {
+    /// Moves into the planner, blocks into the generator, steps into `out`, as
+    /// [`Printer::poll`] does; true when something happened. A planning error is left in
+    /// place for the next `poll` to report.
+    pub fn run<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
+        // Inside a layer's computation the toolpath stage is not done.
+        self.feed(false, out).unwrap_or(true)
+    }
+
+    /// [`run`](Self::run); `toolpath_done`: the model's last moves are in the buffer, so
+    /// the planner may release its blocks without being full. `Err(layer)`: the planner
+    /// refused a move of that layer (it stays at the front of the buffer).
+    fn feed<const Q: usize>(
+        &mut self,
+        toolpath_done: bool,
+        out: &mut StepProducer<'_, Q>,
+    ) -> Result<bool, u32> {
+        let mut worked = false;
+        while let Some(t) = self.moves.front().copied() {
+            let before = self.planner.position_um();
+            let mv = t.unpack();
+            match self.planner.push(mv) {
+                Ok(()) => {
+                    self.moves.pop_front();
+                    worked = true;
+                    // A move that goes nowhere makes no block and has no tag.
+                    if mv.target_um != before {
+                        let _ = self.tags.push_back(t.layer());
+                    }
+                }
+                Err(PlanError::QueueFull) => break,
+                Err(_) => return Err(t.layer()),
+            }
+        }
+        let input_done = toolpath_done && self.moves.is_empty();
+        if self.allowed {
+            while self.gen.wants_block() && (input_done || self.planner.is_full()) {
+                let Some(b) = self.planner.pop_forced() else { break };
+                let layer = self.tags.pop_front().unwrap_or(0);
+                // `wants_block` was true: the generator takes it.
+                let _ = self.gen.load_tagged(b, layer);
+                worked = true;
+            }
+        }
+        let steps_before = self.gen.steps_generated();
+        let _ = self.gen.run(out);
+        Ok(worked || self.gen.steps_generated() != steps_before)
+    }
+}
+
 /// Result of [`Printer::handle`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Accept {
@@ -453,6 +526,16 @@ impl<
 
     /// Takes a host message. Misplaced messages fail the job (never executed).
     pub fn handle(&mut self, msg: &Message<'_>) -> Accept {
+        self.handle_with(msg, None)
+    }
+
+    /// [`handle`](Self::handle); `motion` is lent the motion half at the progress points of
+    /// the layers this message makes the toolpath stage compute (see [`MotionSlot`]).
+    fn handle_with(
+        &mut self,
+        msg: &Message<'_>,
+        mut motion: MotionHook<'_, '_, MOVES, P>,
+    ) -> Accept {
         match (msg, self.state) {
             (Message::EmergencyStop, _) => {
                 self.state = DeviceState::Stopped;
@@ -488,14 +571,14 @@ impl<
                             self.batch_pos = i as u32;
                             return Accept::Busy;
                         }
-                        if !self.cut_one() {
+                        if !self.cut_one(motion.as_deref_mut()) {
                             break;
                         }
                     }
                     if !self.is_active() {
                         break;
                     }
-                    self.push_triangle(&t);
+                    self.push_triangle(&t, motion.as_deref_mut());
                 }
                 self.batch_pos = 0;
             }
@@ -506,12 +589,14 @@ impl<
                     if !self.room_for_a_layer() {
                         return Accept::Busy;
                     }
-                    if !self.cut_one() && !self.flush_one() {
+                    if !self.cut_one(motion.as_deref_mut())
+                        && !self.flush_one(motion.as_deref_mut())
+                    {
                         break;
                     }
                 }
                 self.model_ended = true;
-                self.finish_model();
+                self.finish_model(motion);
             }
             (Message::Hello { .. }, _) => {}
             (m, _) => {
@@ -532,23 +617,31 @@ impl<
         Accept::Taken
     }
 
-    fn push_triangle(&mut self, t: &Triangle) {
-        self.through_slicer(|slicer, sink| slicer.push(t, &mut |l: &Layer<'_>| sink(l)));
+    fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVES, P>) {
+        self.through_slicer(motion, |slicer, sink| slicer.push(t, &mut |l: &Layer<'_>| sink(l)));
         self.triangles += 1;
     }
 
     /// Runs `step` on the slicer with a sink that takes each layer through the toolpath stage
-    /// into the move buffer, then records a slicer, toolpath or move-buffer error (the job
-    /// fails); the step's result when it succeeded.
+    /// into the move buffer (lending `motion` the motion half at its progress points), then
+    /// records a slicer, toolpath or move-buffer error (the job fails); the step's result
+    /// when it succeeded.
     fn through_slicer<R>(
         &mut self,
+        mut motion: MotionHook<'_, '_, MOVES, P>,
         step: impl FnOnce(&mut Slicer<A, S, L>, &mut dyn FnMut(&Layer<'_>)) -> Result<R, SliceError>,
     ) -> Option<R> {
-        let Self { slicer, tp, moves, feed, .. } = self;
+        let allowed = self.motion_allowed();
+        let Self { slicer, tp, moves, feed, planner, tags, gen, .. } = self;
         let mut failed = None;
         let mut tp_err = None;
         let r = {
-            let mut events = |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed);
+            let mut events = |e: &ToolEvent<'_>| match (e, motion.as_deref_mut()) {
+                (ToolEvent::Progress, Some(lend)) => {
+                    lend(&mut MotionSlot { moves, planner, tags, gen, allowed })
+                }
+                _ => on_event(e, moves, feed, &mut failed),
+            };
             let mut sink = |l: &Layer<'_>| {
                 if tp_err.is_none() {
                     tp_err = tp.push_layer(l, &mut events).err();
@@ -564,16 +657,29 @@ impl<
     /// a toolpath or move-buffer error; the step's result when it succeeded.
     fn through_toolpath<R>(
         &mut self,
+        mut motion: MotionHook<'_, '_, MOVES, P>,
         step: impl FnOnce(
             &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
             &mut dyn FnMut(&ToolEvent<'_>),
         ) -> Result<R, ToolpathError>,
     ) -> Option<R> {
-        let Self { tp, moves, feed, .. } = self;
+        let allowed = self.motion_allowed();
+        let Self { tp, moves, feed, planner, tags, gen, .. } = self;
         let mut failed = None;
-        let r = step(tp, &mut |e: &ToolEvent<'_>| on_event(e, moves, feed, &mut failed));
+        let r = step(tp, &mut |e: &ToolEvent<'_>| match (e, motion.as_deref_mut()) {
+            (ToolEvent::Progress, Some(lend)) => {
+                lend(&mut MotionSlot { moves, planner, tags, gen, allowed })
+            }
+            _ => on_event(e, moves, feed, &mut failed),
+        });
         self.check(false, r.is_err(), failed);
         r.ok()
+    }
+
+    /// Blocks may go to the step generator: printing (not paused) and the heaters reached
+    /// the job's targets once (or the board has none).
+    fn motion_allowed(&self) -> bool {
+        self.state == DeviceState::Printing && (self.heated || !self.heaters)
     }
 
     /// The move buffer can take another layer: at most a quarter of it is in use.
@@ -583,25 +689,30 @@ impl<
 
     /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
     /// emits at most one layer's moves); false when no plane was left or on an error.
-    fn cut_one(&mut self) -> bool {
-        let cut = self.through_slicer(|slicer, sink| slicer.cut_one(&mut |l: &Layer<'_>| sink(l)));
+    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
+        let cut = self
+            .through_slicer(motion, |slicer, sink| slicer.cut_one(&mut |l: &Layer<'_>| sink(l)));
         cut == Some(true) && self.is_active()
     }
 
     /// After the last plane: the toolpath stage's next waiting layer into moves; false when
     /// none was left or on an error.
-    fn flush_one(&mut self) -> bool {
-        let flushed =
-            self.through_toolpath(|tp, events| tp.flush_one(&mut |e: &ToolEvent<'_>| events(e)));
+    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
+        let flushed = self.through_toolpath(motion, |tp, events| {
+            tp.flush_one(&mut |e: &ToolEvent<'_>| events(e))
+        });
         flushed == Some(true) && self.is_active()
     }
 
     /// Ends the model: every plane is cut and every layer flushed (or the job failed).
-    fn finish_model(&mut self) {
-        let sliced =
-            self.through_slicer(|slicer, sink| slicer.finish(&mut |l: &Layer<'_>| sink(l)));
+    fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVES, P>) {
+        let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, sink| {
+            slicer.finish(&mut |l: &Layer<'_>| sink(l))
+        });
         if sliced.is_some() && self.is_active() {
-            self.through_toolpath(|tp, events| tp.finish(&mut |e: &ToolEvent<'_>| events(e)));
+            self.through_toolpath(motion, |tp, events| {
+                tp.finish(&mut |e: &ToolEvent<'_>| events(e))
+            });
         }
         self.toolpath_done = true;
     }
@@ -629,39 +740,17 @@ impl<
         if !self.is_active() {
             return false;
         }
-        let mut worked = false;
-        while let Some(t) = self.moves.front().copied() {
-            let before = self.planner.position_um();
-            let mv = t.unpack();
-            match self.planner.push(mv) {
-                Ok(()) => {
-                    self.moves.pop_front();
-                    worked = true;
-                    // A move that goes nowhere makes no block and has no tag.
-                    if mv.target_um != before {
-                        let _ = self.tags.push_back(t.layer());
-                    }
-                }
-                Err(PlanError::QueueFull) => break,
-                Err(_) => {
-                    self.fail(ErrorCode::Plan, t.layer());
-                    return true;
-                }
+        let allowed = self.motion_allowed();
+        let Self { moves, planner, tags, gen, .. } = self;
+        let mut slot = MotionSlot { moves, planner, tags, gen, allowed };
+        let mut worked = match slot.feed(self.toolpath_done, out) {
+            Ok(w) => w,
+            Err(layer) => {
+                self.fail(ErrorCode::Plan, layer);
+                return true;
             }
-        }
+        };
         let input_done = self.toolpath_done && self.moves.is_empty();
-        if self.state == DeviceState::Printing && (self.heated || !self.heaters) {
-            while self.gen.wants_block() && (input_done || self.planner.is_full()) {
-                let Some(b) = self.planner.pop_forced() else { break };
-                let layer = self.tags.pop_front().unwrap_or(0);
-                // `wants_block` was true: the generator takes it.
-                let _ = self.gen.load_tagged(b, layer);
-                worked = true;
-            }
-        }
-        let steps_before = self.gen.steps_generated();
-        let _ = self.gen.run(out);
-        worked |= self.gen.steps_generated() != steps_before;
         // Completed layers' hashes; while the reports are full the generator holds at the
         // next layer (its marks fill up), so no hash is ever dropped.
         while !self.done.is_full() {
@@ -720,6 +809,7 @@ impl<
         now_ms: u32,
         done_ms: u32,
         status_every_ms: u32,
+        motion: &mut dyn FnMut(&mut MotionSlot<'_, MOVES, P>),
     ) {
         if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
             self.link_lost(silent_ms);
@@ -739,7 +829,7 @@ impl<
                     send(ep, &m);
                 }
                 Ok(m) => {
-                    if self.handle(&m) == Accept::Busy {
+                    if self.handle_with(&m, Some(&mut *motion)) == Accept::Busy {
                         self.waiting_for_room = true;
                         break;
                     }
@@ -835,6 +925,6 @@ fn on_event<const M: usize>(
                 failed.get_or_insert(feed.layer);
             }
         }
-        ToolEvent::LayerEnd(_) => {}
+        ToolEvent::LayerEnd(_) | ToolEvent::Progress => {}
     }
 }

@@ -321,7 +321,7 @@ fn service_answers_hello_and_refuses_undecodable_payloads() {
             }
             dev.receive(&frame[..n], now);
         }
-        p.service(&mut dev, now, 0, 50);
+        p.service(&mut dev, now, 0, 50, &mut |_| {});
         loop {
             let n = dev.poll_transmit(now, &mut frame);
             if n == 0 {
@@ -409,7 +409,7 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
                 dev.receive(&frame[..n], t);
             }
             if t % 100 == 0 {
-                p.service(&mut dev, t, 0, 100);
+                p.service(&mut dev, t, 0, 100, &mut |_| {});
             }
             while let n @ 1.. = dev.poll_transmit(t, &mut frame) {
                 host.receive(&frame[..n], t);
@@ -430,4 +430,124 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
     assert_eq!(at, HEAT_WAIT_LIMIT_MS, "{at}");
     assert_eq!(p.error().1, u32::from(ThermalFault::HeatingTimeout.code()));
     assert_eq!(p.heater_targets(), (0, 0));
+}
+
+/// A closed prism of `n` sides around a circle of radius `r` um, `h` um tall, centred at
+/// (110, 110) mm, zmin-sorted (short perimeter moves: the planner's lookahead matters).
+fn prism(r: f64, h: i32, n: usize) -> Vec<Triangle> {
+    let c = 110_000;
+    let ring = |z: i32| -> Vec<Point3> {
+        (0..n)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / n as f64;
+                Point3::new(c + (r * a.cos()).round() as i32, c + (r * a.sin()).round() as i32, z)
+            })
+            .collect()
+    };
+    let (lo, hi) = (ring(0), ring(h));
+    let (cl, ch) = (Point3::new(c, c, 0), Point3::new(c, c, h));
+    let mut t = Vec::new();
+    for k in 0..n {
+        let m = (k + 1) % n;
+        t.push(Triangle { v: [lo[k], lo[m], hi[m]] });
+        t.push(Triangle { v: [lo[k], hi[m], hi[k]] });
+        t.push(Triangle { v: [cl, lo[m], lo[k]] });
+        t.push(Triangle { v: [ch, hi[k], hi[m]] });
+    }
+    t.sort_by_key(Triangle::z_min);
+    t
+}
+
+/// What a job streamed through `service` gave: layer hashes, the command stream per axis,
+/// the times the motion half was lent, and how many of them generated steps.
+struct Streamed {
+    hashes: Vec<(u32, u64)>,
+    cmds: Vec<Vec<StepCmd>>,
+    lends: u32,
+    lends_with_steps: u32,
+}
+
+/// Streams a 48-sided prism of 10 mm radius, 1.2 mm tall (six layers, one triangle per
+/// batch) through the link into
+/// `service`; with `generate`, the lent motion half generates steps (and the executor drains
+/// them) at every progress point, as the firmware does.
+fn stream_through_service(generate: bool) -> Streamed {
+    let mut p = new_printer();
+    let tris = prism(10_000.0, 1_200, 48);
+    let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut frame = [0u8; MAX_WIRE];
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let mut spec = job(&tris);
+    spec.model_height_um = 1_200;
+    let mut outbox = vec![Message::JobStart(spec).encode(&mut buf).map(|n| buf[..n].to_vec())];
+    outbox.extend(tris.iter().map(|t| Ok(batch(std::slice::from_ref(t)))));
+    outbox.push(Message::EndOfModel.encode(&mut buf).map(|n| buf[..n].to_vec()));
+    let mut outbox = outbox.into_iter().map(Result::unwrap).collect::<Vec<_>>().into_iter();
+    let mut pending = outbox.next();
+    let mut q: StepQueue<32> = StepQueue::new();
+    let (mut prod, mut cons) = q.split();
+    let mut s = Streamed {
+        hashes: Vec::new(),
+        cmds: vec![Vec::new(); AXES],
+        lends: 0,
+        lends_with_steps: 0,
+    };
+    let drain = |cons: &mut strata::step::StepConsumer<'_, 32>, cmds: &mut Vec<Vec<StepCmd>>| {
+        for (axis, out) in cmds.iter_mut().enumerate() {
+            while let Some(c) = cons.dequeue(axis) {
+                out.push(c);
+            }
+        }
+    };
+    for now in 1..2_000_000u32 {
+        while let Some(m) = pending.as_ref() {
+            if host.send(m).is_err() {
+                break;
+            }
+            pending = outbox.next();
+        }
+        while let n @ 1.. = host.poll_transmit(now, &mut frame) {
+            dev.receive(&frame[..n], now);
+        }
+        p.service(&mut dev, now, 0, 1000, &mut |m| {
+            s.lends += 1;
+            if generate && m.run(&mut prod) {
+                s.lends_with_steps += 1;
+                drain(&mut cons, &mut s.cmds);
+            }
+        });
+        while p.poll(&mut prod) {}
+        drain(&mut cons, &mut s.cmds);
+        while let Some(h) = p.take_layer_done() {
+            s.hashes.push(h);
+        }
+        while let n @ 1.. = dev.poll_transmit(now, &mut frame) {
+            host.receive(&frame[..n], now);
+        }
+        while host.peek().is_some() {
+            host.pop();
+        }
+        if p.state() != DeviceState::Printing && p.state() != DeviceState::Idle {
+            break;
+        }
+    }
+    assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
+    s
+}
+
+#[test]
+fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same() {
+    let lent = stream_through_service(true);
+    let kept = stream_through_service(false);
+    assert_eq!(lent.hashes.len(), 6, "{:?}", lent.hashes);
+    // The toolpath stage offered the motion half inside its layers, and the generator made
+    // steps there (the earlier layers' moves were waiting).
+    assert!(lent.lends >= 6, "{} progress points", lent.lends);
+    assert!(lent.lends_with_steps > 0, "no steps generated inside a layer's computation");
+    assert_eq!(kept.lends, lent.lends, "the progress points depend on the job only");
+    assert_eq!(kept.lends_with_steps, 0);
+    // The same commands and hashes either way.
+    assert_eq!(lent.cmds, kept.cmds, "the command streams differ");
+    assert_eq!(lent.hashes, kept.hashes);
 }

@@ -90,7 +90,15 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
         let done_ms = board::print_done_ms();
         #[cfg(feature = "qemu")]
         let t0 = cost.begin(ep.peek().is_some(), printer);
-        printer.service(ep, now, done_ms, STATUS_EVERY_MS);
+        // Inside a layer's computation the printer lends its motion half: steps keep being
+        // generated while the toolpaths of a large layer take half a second.
+        printer.service(ep, now, done_ms, STATUS_EVERY_MS, &mut |motion| {
+            if let Some(p) = prod.as_mut() {
+                motion.run(p);
+                #[cfg(feature = "qemu")]
+                cost.generated();
+            }
+        });
         #[cfg(feature = "qemu")]
         cost.end_service(t0, printer);
         // Heaters (10 Hz): a fault turns everything off in the controller at once; here the

@@ -1,9 +1,9 @@
 //! Cost figures on QEMU (`-icount shift=0`: one instruction = 1 ns of virtual time), one
 //! semihosting line each:
 //! - per layer `COST layer=K compute_insns=N print_ticks=M`;
-//! - per job `COST triangles=N slice_insns=N service_max_insns=N` (the longest `service`
-//!   call: slicing and toolpaths hold the step generator that long), and the board's
-//!   `COST isr_calls=...`.
+//! - per job `COST triangles=N slice_insns=N gen_gap_max_insns=N` (the longest stretch of a
+//!   `service` call between two step generations: slicing and toolpaths hold the step
+//!   generator that long), and the board's `COST isr_calls=...`.
 //!
 //! Approximations:
 //! - `compute_insns` are the thread-mode instructions (SysTick handler time taken out) spent
@@ -54,9 +54,12 @@ pub struct Cost {
     /// Released print time at the last report, ticks.
     planned_ticks: u64,
     slice_insns: u64,
-    /// The longest `service` call (slicing and toolpaths; the generator does not run
-    /// meanwhile, so the step queue must cover it on a real board).
-    service_max: u64,
+    /// The longest stretch of a `service` call without step generation (slicing and
+    /// toolpaths between the progress points where the printer lends its motion half: the
+    /// step queue must cover it on a real board), and when steps were last generated in
+    /// the current call.
+    gap_max: u64,
+    generated_at: u64,
     active: bool,
 }
 
@@ -78,7 +81,8 @@ impl Cost {
             reported: 0,
             planned_ticks: 0,
             slice_insns: 0,
-            service_max: 0,
+            gap_max: 0,
+            generated_at: 0,
             active: false,
         }
     }
@@ -89,13 +93,24 @@ impl Cost {
     }
 
     /// Starts measuring a `service` call when it has a message to handle.
-    pub fn begin(&self, pending: bool, p: &FwPrinter) -> Mark {
+    pub fn begin(&mut self, pending: bool, p: &FwPrinter) -> Mark {
         (self.active && pending).then(|| {
             let before = progress(p);
             let layer = p.slicer().stats().layers;
             strata_counted_on();
-            (self.thread_now(), layer, before)
+            let t = self.thread_now();
+            self.generated_at = t;
+            (t, layer, before)
         })
+    }
+
+    /// The printer lent its motion half inside a `service` call and steps were generated.
+    pub fn generated(&mut self) {
+        if self.active {
+            let t = self.thread_now();
+            self.gap_max = self.gap_max.max(t - self.generated_at);
+            self.generated_at = t;
+        }
     }
 
     fn add(&mut self, layer: u32, insns: u64) {
@@ -106,14 +121,15 @@ impl Cost {
     /// Ends a `service` measurement.
     pub fn end_service(&mut self, m: Mark, p: &FwPrinter) {
         if let Some((t, layer, before)) = m {
-            let d = self.thread_now() - t;
+            let now = self.thread_now();
+            let d = now - t;
             strata_counted_off();
             if progress(p) == before {
                 self.report(p, false);
                 return;
             }
             self.slice_insns += d;
-            self.service_max = self.service_max.max(d);
+            self.gap_max = self.gap_max.max(now - self.generated_at.max(t));
             self.add(layer, d);
         }
         self.report(p, false);
@@ -171,10 +187,10 @@ impl Cost {
     pub fn job_ended(&mut self, p: &FwPrinter) {
         self.report(p, p.state() == strata::protocol::DeviceState::Done);
         log!(
-            "COST triangles={} slice_insns={} service_max_insns={}",
+            "COST triangles={} slice_insns={} gen_gap_max_insns={}",
             p.status(0).triangles,
             self.slice_insns,
-            self.service_max
+            self.gap_max
         );
         self.active = false;
     }

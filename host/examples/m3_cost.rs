@@ -223,8 +223,8 @@ fn main() {
             "{}: {} steps in {} interrupts, printed {:.0} s (device clock), {:.0} s wall{}; worst layer {:.1}x \
              (target >= {RTF_TARGET}x: {}); ISR {:.1} insns/step (target <= {ISR_MEAN_TARGET}: \
              {}); worst ISR {:.0} cycles (40 kHz on X and Y needs < {ISR_WORST_CYCLES:.0}: {}); \
-             longest slicing/toolpath call {:.0} ms at {} MHz (no steps are generated meanwhile: \
-             the step queue must cover it)",
+             longest slicing/toolpath stretch without step generation {:.1} ms at {} MHz (the \
+             step queue must cover it)",
             r.name,
             s.steps,
             s.isr_calls,
@@ -237,7 +237,7 @@ fn main() {
             verdict(s.isr_insns_per_step <= ISR_MEAN_TARGET),
             worst_cycles,
             verdict(worst_cycles < ISR_WORST_CYCLES),
-            s.service_max_insns as f64 * CYCLES_PER_INSN / CPU_HZ * 1e3,
+            s.gen_gap_max_insns as f64 * CYCLES_PER_INSN / CPU_HZ * 1e3,
             CPU_HZ / 1e6,
         );
     }

@@ -328,6 +328,7 @@ fn measure(
             p.layers += 1;
             peaks.set(p);
         }
+        ToolEvent::Progress => {}
     };
     let mut failed = None;
     let mut sink = |l: &Layer<'_>| {

@@ -802,9 +802,9 @@ pub struct CostSummary {
     pub worst_rtf: f64,
     /// Which layer.
     pub worst_rtf_layer: u64,
-    /// The longest `service` call (slicing and toolpaths, during which thread mode does not
-    /// generate steps), instructions.
-    pub service_max_insns: u64,
+    /// The longest stretch of slicing and toolpath work without step generation in thread
+    /// mode (the step queue must cover it), instructions.
+    pub gen_gap_max_insns: u64,
     /// RAM in `.data` and `.bss`, bytes.
     pub data_bss: Option<u64>,
     /// Deepest stack use seen, bytes.
@@ -842,7 +842,7 @@ impl CostSummary {
             steps,
             worst_rtf: worst.0,
             worst_rtf_layer: worst.1,
-            service_max_insns: c.get("COST", &["service_max_insns"]).unwrap_or(0),
+            gen_gap_max_insns: c.get("COST", &["gen_gap_max_insns"]).unwrap_or(0),
             data_bss: c.get("MEM", &["data_bss"]),
             stack_hwm: c.get("MEM", &["stack_hwm"]),
         }

@@ -464,12 +464,10 @@ fn last_step_tick<O: strata::sim::EdgeObserver>(board: &SimBoard<O>) -> Option<u
     board.axes().iter().filter_map(|a| a.last_rise).max()
 }
 
-/// RAM of a device pipeline sized exactly to this job's needs: slicer (24 bytes per active
-/// triangle, 37 per segment, 72 per loop), toolpath stage at its needs, planner and step
-/// generator and queues (12 KB, the motion test's bound).
 /// One turn of a device's main loop (as the firmware's): the link's messages into the job
-/// runner (status every `status_every_ms`), up to 64 bounded `poll`s into the step queue,
-/// then every frame due out through `send`.
+/// runner (status every `status_every_ms`; steps generated at the toolpath stage's progress
+/// points as the firmware does), up to 64 bounded `poll`s into the step queue, then every
+/// frame due out through `send`.
 pub(crate) fn device_turn<const N: usize>(
     printer: &mut SimPrinter,
     ep: &mut DeviceEndpoint,
@@ -479,7 +477,9 @@ pub(crate) fn device_turn<const N: usize>(
     status_every_ms: u32,
     mut send: impl FnMut(&[u8]),
 ) {
-    printer.service(ep, now_ms, done_ms, status_every_ms);
+    printer.service(ep, now_ms, done_ms, status_every_ms, &mut |m| {
+        m.run(prod);
+    });
     for _ in 0..64 {
         if !printer.poll(prod) {
             break;
@@ -495,6 +495,9 @@ pub(crate) fn device_turn<const N: usize>(
     }
 }
 
+/// RAM of a device pipeline sized exactly to this job's needs: slicer (24 bytes per active
+/// triangle, 37 per segment, 72 per loop), toolpath stage at its needs, planner and step
+/// generator and queues (12 KB, the motion test's bound).
 pub fn device_ram(slice: &strata::slice::SliceStats, needs: &ToolpathNeeds) -> u64 {
     let slicer = 200
         + 24 * slice.peak_active as u64

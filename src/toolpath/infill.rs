@@ -605,6 +605,10 @@ fn for_each_vertex(
     true
 }
 
+/// Intervals between two calls of `fill`'s progress hook (each costs a few thousand
+/// instructions on the Cortex-M3, most of it the skin window's crossings with its line).
+const PROGRESS_EVERY: u32 = 8;
+
 /// Builds the infill of one layer at one angle into `paths`.
 #[allow(clippy::too_many_arguments)]
 pub fn fill<const N: usize>(
@@ -617,6 +621,7 @@ pub fn fill<const N: usize>(
     work: &mut FillWork<'_>,
     paths: &mut PathBuf<N>,
     usage: &mut FillUse,
+    progress: &mut dyn FnMut(),
 ) -> Result<(), Buffer> {
     let mut n = 0;
     crossings(points, rings, params.angle, params.step, work.cross, &mut n)?;
@@ -629,7 +634,14 @@ pub fn fill<const N: usize>(
     usage.crossings = usage.crossings.max(n);
     let mut skin = Skin::new(view, top, bottom, &params, &mut *work.spans);
     let mut b = Builder { segs: Segs::new(&mut *work.pool), cross, rings, open: None, params };
-    let r = intervals(cross, &loops, &work.idx[..n], |iv| b.interval(iv, &mut skin));
+    let mut count = 0u32;
+    let r = intervals(cross, &loops, &work.idx[..n], |iv| {
+        count += 1;
+        if count % PROGRESS_EVERY == 0 {
+            progress();
+        }
+        b.interval(iv, &mut skin)
+    });
     usage.spans = usage.spans.max(skin.peak);
     r?;
     let mut segs = b.segs;

@@ -422,6 +422,10 @@ pub enum ToolEvent<'a> {
     Move(ToolMove),
     /// The layer is complete.
     LayerEnd(&'a LayerStats),
+    /// A point inside a layer's computation (between perimeters, every few infill
+    /// intervals): nothing to record; an owner that must keep other work going while a
+    /// layer is computed (the firmware generates steps) may do a bounded piece of it here.
+    Progress,
 }
 
 /// Counters of one layer.
@@ -1063,6 +1067,7 @@ impl<
                     }
                     break;
                 }
+                sink(&ToolEvent::Progress);
                 let feature =
                     if depth == 0 { Feature::ExternalPerimeter } else { Feature::Perimeter };
                 for r in self.tmp.rings() {
@@ -1098,14 +1103,16 @@ impl<
             }
             self.offset_island(island, cfg.infill_inset_um())?;
             self.work.engine().union_into(&mut self.fill, island, 0, min_width)?;
+            sink(&ToolEvent::Progress);
         }
         // Infill.
         if !self.fill.rings().is_empty() {
             let angle = if l % 2 == 0 { Angle::D45 } else { Angle::D135 };
             let grid = cfg.infill_pattern == InfillPattern::Grid;
-            self.infill_pass(l, angle, true)?;
+            let mut progress = || sink(&ToolEvent::Progress);
+            self.infill_pass(l, angle, true, &mut progress)?;
             if grid && cfg.sparse_every() > 0 {
-                self.infill_pass(l, angle.other(), false)?;
+                self.infill_pass(l, angle.other(), false, &mut progress)?;
             }
         }
         layer.paths = self.paths.len() as u32;
@@ -1271,7 +1278,13 @@ impl<
     }
 
     /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only).
-    fn infill_pass(&mut self, l: u32, angle: Angle, solid: bool) -> Result<(), Buffer> {
+    fn infill_pass(
+        &mut self,
+        l: u32,
+        angle: Angle,
+        solid: bool,
+        progress: &mut dyn FnMut(),
+    ) -> Result<(), Buffer> {
         self.park_engine();
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
@@ -1353,6 +1366,7 @@ impl<
             &mut work,
             &mut self.paths,
             &mut self.fill_use,
+            progress,
         )
     }
 }

@@ -92,6 +92,7 @@ pub fn run_sized<
                                 l.stats = **s;
                             }
                         }
+                        ToolEvent::Progress => {}
                     };
                     let mut sink = |l: &Layer<'_>| {
                         contours.push(
