@@ -217,7 +217,8 @@ impl<const B: usize> StepGenerator<B> {
             if self.settle(out).is_err() {
                 return GenStatus::QueueFull;
             }
-            let Some(block) = self.block else {
+            // Borrowed, never copied: a `Block` is a few hundred bytes.
+            let Some(block) = self.block.as_ref() else {
                 if let Some((b, tag)) = self.next {
                     if self.tag != Some(tag) {
                         if self.marks.is_full() {
@@ -245,9 +246,9 @@ impl<const B: usize> StepGenerator<B> {
                 }
             }
             let Some(axis) = pick else {
-                self.block_start_q16 =
-                    self.block_start_q16.saturating_add(block.duration_ticks_q16());
-                self.at_rest = block.ends_at_rest();
+                let (duration, at_rest) = (block.duration_ticks_q16(), block.ends_at_rest());
+                self.block_start_q16 = self.block_start_q16.saturating_add(duration);
+                self.at_rest = at_rest;
                 // A stop sends everything before it, whether or not more blocks follow.
                 self.flush_all = self.at_rest;
                 self.block = None;
@@ -264,7 +265,7 @@ impl<const B: usize> StepGenerator<B> {
                 return GenStatus::QueueFull;
             }
             self.steps[axis] += 1;
-            self.advance(axis, &block);
+            self.advance(axis);
             self.last_tick = tick;
             self.overdue = (1 << AXES) - 1;
         }
@@ -378,27 +379,28 @@ impl<const B: usize> StepGenerator<B> {
             run.s_q48 = ((delta0.max(0) as u128 * len) << 16) / dp;
             run.ds_q48 = (len << 48) / dp;
         }
-        self.block = Some(b);
-        for axis in 0..AXES {
-            if self.axes[axis].remaining > 0 {
-                self.axes[axis].next_tick = self.tick_at(&b, self.axes[axis].s_q48);
-            }
+        for run in self.axes.iter_mut().filter(|r| r.remaining > 0) {
+            run.next_tick = tick_at(self.block_start_q16, &b, run.s_q48);
         }
+        self.block = Some(b);
     }
 
-    fn advance(&mut self, axis: usize, b: &Block) {
+    fn advance(&mut self, axis: usize) {
+        let Some(b) = self.block.as_ref() else {
+            return;
+        };
         let run = &mut self.axes[axis];
         run.remaining -= 1;
         if run.remaining > 0 {
             run.s_q48 += run.ds_q48;
-            let s = run.s_q48;
-            self.axes[axis].next_tick = self.tick_at(b, s);
+            run.next_tick = tick_at(self.block_start_q16, b, run.s_q48);
         }
     }
+}
 
-    /// Exact time of path distance `s_q48` in `b`, generator ticks rounded to nearest.
-    fn tick_at(&self, b: &Block, s_q48: u128) -> u64 {
-        let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
-        self.block_start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
-    }
+/// Exact time of path distance `s_q48` in `b` (which starts at `start_q16`, ticks q16),
+/// generator ticks rounded to nearest.
+fn tick_at(start_q16: u64, b: &Block, s_q48: u128) -> u64 {
+    let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
+    start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
 }
