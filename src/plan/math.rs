@@ -1,50 +1,87 @@
 //! Exact integer square roots and the fixed-point conversions shared by [`plan`](super) and
 //! `step`.
 //!
-//! Both square roots are the digit-by-digit (binary restoring) method: shifts, adds and
-//! compares only, no division, so they cost the same on the Cortex-M3 as on the host and are
-//! exact (`floor(sqrt(n))`) for every input. `micromath`'s approximate `sqrt` (about 5 %) is
-//! never used for motion.
+//! Both square roots are exact (`floor(sqrt(n))`) for every input and use no floating point.
+//! They normalize the argument (shift left by an even count so that one of its two top bits
+//! is set), take the root of the upper half, and extend it to the full width with one
+//! division: Zimmermann's "Karatsuba square root" step, `s = s' b + q` with
+//! `(q, u) = divrem(r' b + a1, 2 s')`, `r = u b + a0 - q^2`, and one correction when `r < 0`.
+//! On the Cortex-M3 the 32-bit root is a few Newton steps on the hardware divider, so a
+//! 64-bit root costs about as much as five divisions instead of 32 shift-and-subtract rounds.
+//! `micromath`'s approximate `sqrt` (about 5 %) is never used for motion.
+
+/// `floor(sqrt(h))` for `h` in `[2^30, 2^32)` (so the root is in `[2^15, 2^16)`): integer
+/// Newton from `2^15 + h / 2^17`, which is `(c + h / c) / 2 >= sqrt(h)` for `c = 2^16`
+/// (arithmetic-geometric mean), decreasing until it stops (then it is the floor root).
+const fn isqrt_norm_u32(h: u32) -> u32 {
+    let mut x = (1 << 15) + (h >> 17);
+    loop {
+        let y = (x + h / x) >> 1;
+        if y >= x {
+            return x;
+        }
+        x = y;
+    }
+}
+
+/// `floor(sqrt(n))` for a `u32`, exact.
+pub const fn isqrt_u32(n: u32) -> u32 {
+    if n == 0 {
+        return 0;
+    }
+    // Even shift into [2^30, 2^32): floor(floor(sqrt(n 4^k)) / 2^k) = floor(sqrt(n)).
+    let z = n.leading_zeros() & !1;
+    isqrt_norm_u32(n << z) >> (z / 2)
+}
 
 /// `floor(sqrt(n))` for a `u64`, exact.
 pub const fn isqrt_u64(n: u64) -> u64 {
-    if n < 2 {
-        return n;
+    if n <= u32::MAX as u64 {
+        return isqrt_u32(n as u32) as u64;
     }
-    let mut rem = n;
-    let mut root = 0u64;
-    // The highest power of four not above n.
-    let mut bit = 1u64 << ((63 - n.leading_zeros()) & !1);
-    while bit != 0 {
-        if rem >= root + bit {
-            rem -= root + bit;
-            root = (root >> 1) + bit;
-        } else {
-            root >>= 1;
-        }
-        bit >>= 2;
+    let z = n.leading_zeros() & !1;
+    let m = n << z;
+    // m = a3 b^3 + a2 b^2 + a1 b + a0 with b = 2^16 and a3 >= b / 4.
+    let hi = (m >> 32) as u32;
+    let s1 = isqrt_norm_u32(hi);
+    let r1 = hi - s1 * s1; // <= 2 s1 < 2^17
+    let a1 = (m >> 16) as u32 & 0xffff;
+    let a0 = m as u32 & 0xffff;
+    // q = floor((r1 b + a1) / (2 s1)) = floor(floor((r1 b + a1) / 2) / s1); the halved
+    // numerator is below 2^32.
+    let half = ((r1 << 15) | (a1 >> 1)) as u32;
+    let q = half / s1; // <= 2^16
+    let u = ((r1 as u64) << 16 | a1 as u64) - 2 * s1 as u64 * q as u64; // < 2 s1
+    let mut s = ((s1 as u64) << 16) + q as u64;
+    // r = u b + a0 - q^2 < 0: one step too far.
+    if ((u << 16) | a0 as u64) < q as u64 * q as u64 {
+        s -= 1;
     }
-    root
+    s >> (z / 2)
 }
 
-/// `floor(sqrt(n))` for a `u128`, exact. Falls back to [`isqrt_u64`] when `n` fits.
+/// `floor(sqrt(n))` for a `u128`, exact. [`isqrt_u64`] when `n` fits, else the same
+/// extension step with `b = 2^32` (one 64-bit division).
 pub const fn isqrt_u128(n: u128) -> u128 {
     if n <= u64::MAX as u128 {
         return isqrt_u64(n as u64) as u128;
     }
-    let mut rem = n;
-    let mut root = 0u128;
-    let mut bit = 1u128 << ((127 - n.leading_zeros()) & !1);
-    while bit != 0 {
-        if rem >= root + bit {
-            rem -= root + bit;
-            root = (root >> 1) + bit;
-        } else {
-            root >>= 1;
-        }
-        bit >>= 2;
+    let z = n.leading_zeros() & !1;
+    let m = n << z;
+    let hi = (m >> 64) as u64;
+    let s1 = isqrt_u64(hi); // in [2^31, 2^32)
+    let r1 = hi - s1 * s1; // <= 2 s1 < 2^33
+    let a1 = (m >> 32) as u64 & 0xffff_ffff;
+    let a0 = m as u64 & 0xffff_ffff;
+    // (r1 b + a1) / 2 < 2^64.
+    let half = (r1 << 31) | (a1 >> 1);
+    let q = half / s1; // <= 2^32
+    let u = ((r1 as u128) << 32 | a1 as u128) - 2 * s1 as u128 * q as u128;
+    let mut s = ((s1 as u128) << 32) + q as u128;
+    if ((u << 32) | a0 as u128) < q as u128 * q as u128 {
+        s -= 1;
     }
-    root
+    s >> (z / 2)
 }
 
 /// Saturating `u128 -> u64`.
@@ -60,6 +97,61 @@ pub(crate) const fn sat_u64(v: u128) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The plain digit-by-digit root, as an independent oracle.
+    fn bitwise_isqrt(n: u128) -> u128 {
+        let (mut rem, mut root) = (n, 0u128);
+        let mut bit = 1u128 << 126;
+        while bit > n {
+            bit >>= 2;
+        }
+        while bit != 0 {
+            if rem >= root + bit {
+                rem -= root + bit;
+                root = (root >> 1) + bit;
+            } else {
+                root >>= 1;
+            }
+            bit >>= 2;
+        }
+        root
+    }
+
+    #[test]
+    fn roots_match_the_bitwise_oracle_near_squares_and_at_every_width() {
+        let mut x = 0x1234_5678_9abc_def0_u64;
+        for _ in 0..20_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            for shift in [0, 1, 2, 17, 31, 32, 33, 40, 62, 63] {
+                let n = x >> shift;
+                assert_eq!(isqrt_u64(n) as u128, bitwise_isqrt(n as u128), "n = {n}");
+                assert_eq!(isqrt_u32(n as u32) as u128, bitwise_isqrt(n as u32 as u128));
+                // Squares and their neighbours, where a root is most easily off by one.
+                let r = (n >> 32).max(1);
+                for d in [-1i64, 0, 1] {
+                    let sq = (r * r).wrapping_add(d as u64);
+                    assert_eq!(isqrt_u64(sq) as u128, bitwise_isqrt(sq as u128), "n = {sq}");
+                }
+                let wide = ((x as u128) << 64 | x.rotate_left(19) as u128) >> (2 * shift);
+                assert_eq!(isqrt_u128(wide), bitwise_isqrt(wide), "n = {wide}");
+                let r = wide >> 64 | 1;
+                for d in [-1i128, 0, 1] {
+                    let sq = (r * r).wrapping_add(d as u128);
+                    assert_eq!(isqrt_u128(sq), bitwise_isqrt(sq), "n = {sq}");
+                }
+            }
+        }
+        for n in [u64::MAX, u64::MAX - 1, 1 << 62, (1 << 62) - 1, 1 << 32, (1 << 32) - 1] {
+            assert_eq!(isqrt_u64(n) as u128, bitwise_isqrt(n as u128), "n = {n}");
+        }
+        for n in [u128::MAX, u128::MAX - 1, 1 << 126, (1 << 126) - 1, 1 << 64, (1 << 64) + 1] {
+            assert_eq!(isqrt_u128(n), bitwise_isqrt(n), "n = {n}");
+        }
+        let e = u32::MAX as u128;
+        assert_eq!(isqrt_u32(u32::MAX) as u128, bitwise_isqrt(e));
+    }
 
     #[test]
     fn isqrt_is_exact_floor() {
