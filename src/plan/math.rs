@@ -49,7 +49,7 @@ pub const fn isqrt_u64(n: u64) -> u64 {
     let a0 = m as u32 & 0xffff;
     // q = floor((r1 b + a1) / (2 s1)) = floor(floor((r1 b + a1) / 2) / s1); the halved
     // numerator is below 2^32.
-    let half = ((r1 << 15) | (a1 >> 1)) as u32;
+    let half = (r1 << 15) | (a1 >> 1);
     let q = half / s1; // <= 2^16
     let u = ((r1 as u64) << 16 | a1 as u64) - 2 * s1 as u64 * q as u64; // < 2 s1
     let mut s = ((s1 as u64) << 16) + q as u64;

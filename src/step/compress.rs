@@ -46,16 +46,6 @@ struct Fit {
     miss: Miss,
 }
 
-/// `floor(n / k)` for `k > 0`; 32-bit (a hardware divide on the Cortex-M3) when `n` fits.
-#[inline]
-fn floor_div(n: i64, k: i64) -> i64 {
-    if let (Ok(n32), Ok(k32)) = (i32::try_from(n), i32::try_from(k)) {
-        n32.div_euclid(k32) as i64
-    } else {
-        n.div_euclid(k)
-    }
-}
-
 /// One axis' pending steps and its committed reference time.
 #[derive(Debug, Clone)]
 pub(crate) struct Compressor<const B: usize> {
@@ -114,10 +104,6 @@ impl<const B: usize> Compressor<B> {
     /// Time of the last committed step.
     pub(crate) fn last(&self) -> u64 {
         self.last
-    }
-
-    fn pending(&self, i: usize) -> u64 {
-        self.buf[(self.head + i) % B]
     }
 
     /// Accepts the step at exact time `tick` in direction `dir`. On `Err` nothing about the
@@ -207,16 +193,19 @@ impl<const B: usize> Compressor<B> {
     fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
         let mut iv = interval;
         let mut t = self.last as i64;
+        let mut min_iv = self.first_min(tune);
+        let mut j = self.head;
         for i in 0..count {
             if i > 0 {
                 iv += add;
+                min_iv = tune.min_step;
+                j = (j + 1) % B;
             }
-            let min_iv = if i == 0 { self.first_min(tune) } else { tune.min_step };
             t += iv;
             if iv < min_iv || iv > MAX_INTERVAL_TICKS as i64 {
                 return false;
             }
-            if (t - self.pending(i) as i64).abs() > tune.tol {
+            if (t - self.buf[j] as i64).abs() > tune.tol {
                 return false;
             }
         }
@@ -230,16 +219,16 @@ impl<const B: usize> Compressor<B> {
         let (mut amin, mut amax) = (0i64, 0i64);
         if n > 1 {
             (amin, amax) = (i64::MAX, i64::MIN);
-            let mut prev_t = self.last as i64;
-            let mut prev_iv: Option<i64> = None;
-            for i in 0..n {
-                let t = self.pending(i) as i64;
+            let mut j = self.head;
+            let mut prev_t = self.buf[j] as i64;
+            let mut prev_iv = prev_t - self.last as i64;
+            for _ in 1..n {
+                j = (j + 1) % B;
+                let t = self.buf[j] as i64;
                 let iv = t - prev_t;
-                if let Some(p) = prev_iv {
-                    amin = amin.min(iv - p);
-                    amax = amax.max(iv - p);
-                }
-                prev_iv = Some(iv);
+                amin = amin.min(iv - prev_iv);
+                amax = amax.max(iv - prev_iv);
+                prev_iv = iv;
                 prev_t = t;
             }
         }
@@ -265,18 +254,45 @@ impl<const B: usize> Compressor<B> {
     }
 
     /// How many pending steps `add` covers, and the interval range that does it.
+    ///
+    /// Step `i` (with `k = i + 1`, offset `d_i` from `last`) bounds the interval `x` by
+    /// `k x + add i (i + 1) / 2` within `d_i +- tol`, and its own interval `x + add i` by the
+    /// driver's minimum and [`MAX_INTERVAL_TICKS`]. Intersecting these ranges step by step
+    /// gives the longest covered prefix; which bound the first failing step broke says which
+    /// way a better `add` lies.
     fn eval(&self, add: i64, n: usize, tune: &Tune) -> Fit {
+        if n == 0 {
+            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Fits };
+        }
+        let first = self.buf[self.head] as i64 - self.last as i64;
+        let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
+        let nn = n as i64;
+        // Below 2^29 every term of the 32-bit walk stays within i32 (see `eval_small`).
+        let small = first > -(1 << 28)
+            && nn < 1 << 12
+            && (end + tune.tol + 1).saturating_mul(nn) < 1 << 29
+            && (add.unsigned_abs()).saturating_mul((nn * nn) as u64) < 1 << 29
+            && tune.tol < 1 << 20
+            && (0..1 << 20).contains(&tune.min_step)
+            && self.first_min(tune) < 1 << 20;
+        if small {
+            self.eval_small(add, n, tune)
+        } else {
+            self.eval_wide(add, n, tune)
+        }
+    }
+
+    /// [`Compressor::eval`] in `i64`, dividing at every step.
+    fn eval_wide(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let (mut imin, mut imax) = (i64::MIN, i64::MAX);
         let last = self.last as i64;
         for i in 0..n {
             let ii = i as i64;
-            let d = self.pending(i) as i64 - last;
+            let d = self.buf[(self.head + i) % B] as i64 - last;
             let k = ii + 1;
             let at = add * (ii * k / 2);
-            // (i + 1) interval + add i (i + 1) / 2 within d +- tol.
-            let mut lo = -floor_div(-(d - tune.tol - at), k);
-            let mut hi = floor_div(d + tune.tol - at, k);
-            // The interval of step i is interval + add i.
+            let mut lo = -(-(d - tune.tol - at)).div_euclid(k);
+            let mut hi = (d + tune.tol - at).div_euclid(k);
             let min_iv = if i == 0 { self.first_min(tune) } else { tune.min_step };
             lo = lo.max(min_iv - add * ii);
             hi = hi.min(MAX_INTERVAL_TICKS as i64 - add * ii);
@@ -288,6 +304,70 @@ impl<const B: usize> Compressor<B> {
             (imin, imax) = (nlo, nhi);
         }
         Fit { count: n, add, imin, imax, miss: Miss::Fits }
+    }
+
+    /// [`Compressor::eval`] in `i32` (registers and hardware divider of the Cortex-M3), with
+    /// the same result as [`Compressor::eval_wide`]. It carries the range of step `i`'s
+    /// model time, `k imin + at ..= k imax + at` (`at = add i (i + 1) / 2`), forward by
+    /// additions, and divides only when a step narrows `imin` or `imax`.
+    ///
+    /// Ranges (checked by the caller): offsets below 2^28 in magnitude, `n (end + tol) < 2^29`
+    /// and `|add| n^2 < 2^29`. Then `0 < imin <= imax <= end + tol` (imin starts at the first
+    /// step's minimum interval or above and only grows), so `k imin`, `k imax`, `at` and
+    /// `add i` all stay below 2^29, and the [`MAX_INTERVAL_TICKS`] (2^30) bound
+    /// `2^30 - add i > imax` never binds.
+    fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
+        let last = self.last as u32;
+        let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);
+        let fit = |count: usize, imin: i32, imax: i32, miss: Miss| Fit {
+            count,
+            add,
+            imin: imin as i64,
+            imax: imax as i64,
+            miss,
+        };
+        let mut j = self.head;
+        let d = (self.buf[j] as u32).wrapping_sub(last) as i32;
+        let (mut imin, mut imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
+        if imin > imax {
+            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Smaller };
+        }
+        // add i, add i (i + 1) / 2, and the model time range of step i.
+        let (mut add_i, mut at) = (0i32, 0i32);
+        let (mut t_lo, mut t_hi) = (imin, imax);
+        for i in 1..n {
+            j += 1;
+            if j == B {
+                j = 0;
+            }
+            add_i += add32;
+            at += add_i;
+            t_lo += imin + add_i;
+            t_hi += imax + add_i;
+            let d = (self.buf[j] as u32).wrapping_sub(last) as i32;
+            let lim_lo = min_step - add_i;
+            if d - tol <= t_lo && d + tol >= t_hi && lim_lo <= imin {
+                // The whole range fits: nothing narrows.
+                continue;
+            }
+            let k = i as i32 + 1;
+            // ceil((d - tol - at) / k) > imax, or the minimum interval above imax.
+            if d - tol > t_hi || lim_lo > imax {
+                return fit(i, imin, imax, Miss::Larger);
+            }
+            if d + tol < t_lo {
+                return fit(i, imin, imax, Miss::Smaller);
+            }
+            let lo = if d - tol > t_lo { -(at + tol - d).div_euclid(k) } else { imin };
+            let hi = if d + tol < t_hi { (d + tol - at).div_euclid(k) } else { imax };
+            let lo = lo.max(lim_lo);
+            if lo > hi {
+                return fit(i, imin, imax, Miss::Smaller);
+            }
+            (imin, imax) = (lo, hi);
+            (t_lo, t_hi) = (k * imin + at, k * imax + at);
+        }
+        fit(n, imin, imax, Miss::Fits)
     }
 }
 
@@ -352,6 +432,49 @@ mod tests {
             assert!((g - *e as i64).abs() <= 36, "{g} vs {e}");
         }
         assert!(c.sequences < 2000 / 8, "poor compression: {} sequences", c.sequences);
+    }
+
+    #[test]
+    fn the_32_bit_walk_equals_the_64_bit_one() {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        let mut rnd = |m: u64| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x % m
+        };
+        for round in 0..4000 {
+            let mut c = Compressor::<64>::new();
+            c.last = 1_000_000 + rnd(1 << 40);
+            c.head = rnd(64) as usize;
+            c.after_dir = rnd(2) == 0;
+            c.len = 1 + rnd(64) as usize;
+            // Accelerating, decelerating or noisy intervals, some far from `last`.
+            let mut t = c.last + if round % 7 == 0 { rnd(1 << 27) } else { rnd(3000) };
+            let mut iv = 144 + rnd(20_000) as i64;
+            let acc = rnd(400) as i64 - 200;
+            for i in 0..c.len {
+                c.buf[(c.head + i) % 64] = t;
+                iv = (iv + acc + rnd(80) as i64 - 40).max(144);
+                t += iv as u64;
+            }
+            let tune =
+                Tune { tol: 1 + rnd(60) as i64, min_step: 144, min_rev: 144 + rnd(50) as i64 };
+            for _ in 0..8 {
+                let add = if rnd(4) == 0 {
+                    rnd(1 << 20) as i64 - (1 << 19)
+                } else {
+                    acc + rnd(60) as i64 - 30
+                };
+                let n = 1 + rnd(c.len as u64) as usize;
+                let (a, b) = (c.eval_wide(add, n, &tune), c.eval(add, n, &tune));
+                assert_eq!(
+                    (a.count, a.imin, a.imax, a.miss),
+                    (b.count, b.imin, b.imax, b.miss),
+                    "add {add} n {n} round {round}"
+                );
+            }
+        }
     }
 
     #[test]
