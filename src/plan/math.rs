@@ -84,6 +84,61 @@ pub const fn isqrt_u128(n: u128) -> u128 {
     s >> (z / 2)
 }
 
+/// `(u1 2^64 + u0) / v` for `u1 < v` (so the quotient fits): Knuth's long division with
+/// 32-bit digits, the divisor normalized so that each digit's estimate from a 64-by-32-bit
+/// division is at most two too large. Two `u64` divisions instead of a `u128` one (a long
+/// shift-and-subtract loop on 32-bit targets).
+fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
+    const B: u64 = 1 << 32;
+    let s = v.leading_zeros();
+    let v = v << s;
+    let (vn1, vn0) = (v >> 32, v & (B - 1));
+    let un32 = if s == 0 { u1 } else { (u1 << s) | (u0 >> (64 - s)) };
+    let un10 = u0 << s;
+    let (un1, un0) = (un10 >> 32, un10 & (B - 1));
+    // One quotient digit of (top, next) / v, and the remainder; top < v.
+    let digit = |top: u64, next: u64| -> (u64, u64) {
+        let mut q = top / vn1;
+        let mut rhat = top - q * vn1;
+        // rhat < B whenever the product is formed, so nothing overflows.
+        while q >= B || q * vn0 > (rhat << 32) + next {
+            q -= 1;
+            rhat += vn1;
+            if rhat >= B {
+                break;
+            }
+        }
+        (q, (top << 32).wrapping_add(next).wrapping_sub(q.wrapping_mul(v)))
+    };
+    let (q1, un21) = digit(un32, un1);
+    let (q0, _) = digit(un21, un0);
+    (q1 << 32) | q0
+}
+
+/// `n / d` (floor), exactly as `u128` division, with [`div_2by1`] when `d` fits in 64 bits.
+/// Panics if `d` is 0, as the `u128` division does.
+pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
+    let Ok(d64) = u64::try_from(d) else {
+        return n / d;
+    };
+    let (hi, lo) = ((n >> 64) as u64, n as u64);
+    if hi == 0 {
+        return (lo / d64) as u128;
+    }
+    let (qh, r) = (hi / d64, hi % d64);
+    ((qh as u128) << 64) | div_2by1(r, lo, d64) as u128
+}
+
+/// `n / d` truncated toward zero, exactly as `i128` division, for `d > 0`.
+pub(crate) fn div_i128_pos(n: i128, d: u128) -> i128 {
+    let q = div_u128(n.unsigned_abs(), d) as i128;
+    if n < 0 {
+        -q
+    } else {
+        q
+    }
+}
+
 /// Saturating `u128 -> u64`.
 #[inline]
 pub(crate) const fn sat_u64(v: u128) -> u64 {
@@ -151,6 +206,35 @@ mod tests {
         }
         let e = u32::MAX as u128;
         assert_eq!(isqrt_u32(u32::MAX) as u128, bitwise_isqrt(e));
+    }
+
+    #[test]
+    fn wide_division_equals_the_native_one() {
+        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for _ in 0..200_000 {
+            let (a, b, c) = (next(), next(), next());
+            let n = ((a as u128) << 64 | b as u128) >> (a % 128);
+            // Divisors of every width, including ones just below and above a power of two.
+            let d = match c % 4 {
+                0 => (c >> (c % 64)).max(1) as u128,
+                1 => (1u128 << (c % 64)) - (c % 2) as u128,
+                2 => (c as u128) << (b % 64),
+                _ => n >> (b % 128),
+            }
+            .max(1);
+            assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
+            let sn = if a % 2 == 0 { n as i128 } else { -((n >> 1) as i128) };
+            assert_eq!(div_i128_pos(sn, d), sn / d as i128, "{sn} / {d}");
+        }
+        assert_eq!(div_u128(u128::MAX, 1), u128::MAX);
+        assert_eq!(div_u128(u128::MAX, u64::MAX as u128), u128::MAX / u64::MAX as u128);
+        assert_eq!(div_u128(u128::MAX, (1 << 63) + 1), u128::MAX / ((1 << 63) + 1));
     }
 
     #[test]
