@@ -62,7 +62,7 @@ pub const fn isqrt_u64(n: u64) -> u64 {
 
 /// `floor(sqrt(n))` for a `u128`, exact. [`isqrt_u64`] when `n` fits, else the same
 /// extension step with `b = 2^32` (one 64-bit division).
-pub const fn isqrt_u128(n: u128) -> u128 {
+pub fn isqrt_u128(n: u128) -> u128 {
     if n <= u64::MAX as u128 {
         return isqrt_u64(n as u64) as u128;
     }
@@ -75,7 +75,7 @@ pub const fn isqrt_u128(n: u128) -> u128 {
     let a0 = m as u64 & 0xffff_ffff;
     // (r1 b + a1) / 2 < 2^64.
     let half = (r1 << 31) | (a1 >> 1);
-    let q = half / s1; // <= 2^32
+    let q = div_u128(half as u128, s1 as u128) as u64; // <= 2^32
     let u = ((r1 as u128) << 32 | a1 as u128) - 2 * s1 as u128 * q as u128;
     let mut s = ((s1 as u128) << 32) + q as u128;
     if ((u << 32) | a0 as u128) < q as u128 * q as u128 {
@@ -84,10 +84,34 @@ pub const fn isqrt_u128(n: u128) -> u128 {
     s >> (z / 2)
 }
 
-/// `(u1 2^64 + u0) / v` for `u1 < v` (so the quotient fits): Knuth's long division with
-/// 32-bit digits, the divisor normalized so that each digit's estimate from a 64-by-32-bit
-/// division is at most two too large. Two `u64` divisions instead of a `u128` one (a long
-/// shift-and-subtract loop on 32-bit targets).
+/// `n / d` for a normalized `d` (`d >= 2^31`) and `n < d 2^32` (so the quotient fits in 32
+/// bits): two 16-bit quotient digits, each estimated with the hardware's 32-bit division by
+/// the divisor's top digit and corrected with its low digit (Knuth's algorithm D).
+fn div_64by32(n: u64, d: u32) -> u32 {
+    const B: u32 = 1 << 16;
+    let (d1, d0) = (d >> 16, d & (B - 1));
+    // One quotient digit of (top B + next) / d, and the remainder; top < d.
+    let digit = |top: u32, next: u32| -> (u32, u32) {
+        let mut q = top / d1;
+        let mut rhat = top - q * d1;
+        // rhat < B whenever the product is formed, so nothing overflows.
+        while q >= B || q * d0 > (rhat << 16) + next {
+            q -= 1;
+            rhat += d1;
+            if rhat >= B {
+                break;
+            }
+        }
+        (q, (top << 16).wrapping_add(next).wrapping_sub(q.wrapping_mul(d)))
+    };
+    let (q1, r) = digit((n >> 32) as u32, (n >> 16) as u32 & (B - 1));
+    let (q0, _) = digit(r, n as u32 & (B - 1));
+    (q1 << 16) | q0
+}
+
+/// `(u1 2^64 + u0) / v` for `u1 < v` (so the quotient fits): the same long division with
+/// 32-bit digits, each digit's estimate from [`div_64by32`]. No `u64` or `u128` division
+/// routine (long loops on 32-bit targets).
 fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
     const B: u64 = 1 << 32;
     let s = v.leading_zeros();
@@ -96,17 +120,19 @@ fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
     let un32 = if s == 0 { u1 } else { (u1 << s) | (u0 >> (64 - s)) };
     let un10 = u0 << s;
     let (un1, un0) = (un10 >> 32, un10 & (B - 1));
-    // One quotient digit of (top, next) / v, and the remainder; top < v.
+    // One quotient digit of (top B + next) / v, and the remainder; top < v.
     let digit = |top: u64, next: u64| -> (u64, u64) {
-        let mut q = top / vn1;
-        let mut rhat = top - q * vn1;
+        let (mut q, mut rhat) = if top >> 32 >= vn1 {
+            // The estimate top / vn1 would not fit in a digit: start from the largest one.
+            (B - 1, top - (B - 1) * vn1)
+        } else {
+            let q = div_64by32(top, vn1 as u32) as u64;
+            (q, top - q * vn1)
+        };
         // rhat < B whenever the product is formed, so nothing overflows.
-        while q >= B || q * vn0 > (rhat << 32) + next {
+        while rhat < B && q * vn0 > (rhat << 32) + next {
             q -= 1;
             rhat += vn1;
-            if rhat >= B {
-                break;
-            }
         }
         (q, (top << 32).wrapping_add(next).wrapping_sub(q.wrapping_mul(v)))
     };
@@ -121,11 +147,13 @@ pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
     let Ok(d64) = u64::try_from(d) else {
         return n / d;
     };
+    assert!(d64 != 0, "division by zero");
     let (hi, lo) = ((n >> 64) as u64, n as u64);
-    if hi == 0 {
-        return (lo / d64) as u128;
+    if hi < d64 {
+        return div_2by1(hi, lo, d64) as u128;
     }
-    let (qh, r) = (hi / d64, hi % d64);
+    let qh = div_2by1(0, hi, d64);
+    let r = hi - qh * d64;
     ((qh as u128) << 64) | div_2by1(r, lo, d64) as u128
 }
 
@@ -231,6 +259,14 @@ mod tests {
             assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
             let sn = if a % 2 == 0 { n as i128 } else { -((n >> 1) as i128) };
             assert_eq!(div_i128_pos(sn, d), sn / d as i128, "{sn} / {d}");
+        }
+        for (n, d) in [(u64::MAX >> 1, 1u32 << 31), ((1 << 63) - 1, u32::MAX), (0, 1 << 31)] {
+            assert_eq!(div_64by32(n, d) as u64, n / d as u64, "{n} / {d}");
+        }
+        for _ in 0..200_000 {
+            let d = (next() as u32) | 1 << 31;
+            let n = next() % ((d as u64) << 32);
+            assert_eq!(div_64by32(n, d) as u64, n / d as u64, "{n} / {d}");
         }
         assert_eq!(div_u128(u128::MAX, 1), u128::MAX);
         assert_eq!(div_u128(u128::MAX, u64::MAX as u128), u128::MAX / u64::MAX as u128);

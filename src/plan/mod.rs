@@ -62,7 +62,7 @@ const MAX_SPEED_Q16: u64 = 10_000_000 << 16;
 /// 1000 m/s^2 in um/s^2 q16.
 const MAX_ACCEL_Q16: u64 = 1_000_000_000 << 16;
 /// sqrt(2) - 1 in q62.
-const SQRT2_M1_Q62: u128 = math::isqrt_u128(2 << 124) - (1 << 62);
+const SQRT2_M1_Q62: u128 = 1_910_222_894_239_003_202;
 
 /// What a move does; chooses its acceleration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -786,6 +786,11 @@ mod tests {
 
     fn to_f(r: Rate) -> f64 {
         r.to_num::<f64>()
+    }
+
+    #[test]
+    fn sqrt2_minus_one_is_the_floor_root() {
+        assert_eq!(SQRT2_M1_Q62, isqrt_u128(2 << 124) - (1 << 62));
     }
 
     #[test]
