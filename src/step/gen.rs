@@ -5,6 +5,7 @@
 use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
 use crate::machine::{Rate, AXES};
+use crate::plan::math::div_u128;
 use crate::plan::Block;
 use heapless::Deque;
 
@@ -73,6 +74,9 @@ pub struct StepGenerator<const B: usize = 64> {
     last_tick: u64,
     /// Axes still to check for an overdue sequence after the last step (bit per axis).
     overdue: u8,
+    /// No pending step is overdue before this tick: at most the earliest first pending step
+    /// plus `pending_ticks` (kept low when a step arrives, exact after a full check).
+    settle_at: u64,
     /// A block ended at rest: every pending step goes out before the next block.
     flush_all: bool,
     /// Generator time at the start of the current block (or the end of the last), ticks q16.
@@ -115,6 +119,7 @@ impl<const B: usize> StepGenerator<B> {
         self.marks.clear();
         self.last_tick = 0;
         self.overdue = 0;
+        self.settle_at = 0;
         self.flush_all = false;
         self.block_start_q16 = 0;
         for (m, (&p, &r)) in self.motor.iter_mut().zip(position_um.iter().zip(spm.iter())) {
@@ -143,6 +148,7 @@ impl<const B: usize> StepGenerator<B> {
             marks: Deque::new(),
             last_tick: 0,
             overdue: 0,
+            settle_at: 0,
             flush_all: false,
             block_start_q16: 0,
             motor: [0; AXES],
@@ -268,12 +274,20 @@ impl<const B: usize> StepGenerator<B> {
             self.advance(axis);
             self.last_tick = tick;
             self.overdue = (1 << AXES) - 1;
+            if let Some(f) = self.comp[axis].first_pending() {
+                self.settle_at = self.settle_at.min(f + self.pending_ticks);
+            }
         }
     }
 
     /// Sends what is owed: per axis at most one sequence whose first step waited longer than
     /// `pending_ticks` behind the last step generated, then (at a stop) everything.
     fn settle<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> Result<(), Full> {
+        if self.overdue != 0 && self.last_tick <= self.settle_at {
+            // Nothing is overdue: the checks below would all pass.
+            self.overdue = 0;
+        }
+        let full_check = self.overdue == (1 << AXES) - 1;
         for c in 0..AXES {
             if self.overdue & (1 << c) == 0 {
                 continue;
@@ -285,6 +299,14 @@ impl<const B: usize> StepGenerator<B> {
                 }
             }
             self.overdue &= !(1 << c);
+        }
+        if full_check {
+            self.settle_at = self
+                .comp
+                .iter()
+                .filter_map(|c| c.first_pending())
+                .min()
+                .map_or(u64::MAX, |f| f + self.pending_ticks);
         }
         if self.flush_all {
             for c in 0..AXES {
@@ -357,7 +379,7 @@ impl<const B: usize> StepGenerator<B> {
         let len = b.length_um_q32() as u128;
         for axis in 0..AXES {
             let spm = self.steps_per_mm[axis];
-            let (p0, p1) = (step_position_q32(start[axis], spm), step_position_q32(end[axis], spm));
+            let (p0, p1) = (step_position(start[axis], spm), step_position(end[axis], spm));
             let m = self.motor[axis];
             let m1 = motor_after(m, p1);
             let run = &mut self.axes[axis];
@@ -376,8 +398,8 @@ impl<const B: usize> StepGenerator<B> {
             let dp = dp.max(1) as u128;
             run.remaining = m1.abs_diff(m) as u32;
             run.dir = dir;
-            run.s_q48 = ((delta0.max(0) as u128 * len) << 16) / dp;
-            run.ds_q48 = (len << 48) / dp;
+            run.s_q48 = div_u128((delta0.max(0) as u128 * len) << 16, dp);
+            run.ds_q48 = div_u128(len << 48, dp);
         }
         for run in self.axes.iter_mut().filter(|r| r.remaining > 0) {
             run.next_tick = tick_at(self.block_start_q16, &b, run.s_q48);
@@ -398,9 +420,48 @@ impl<const B: usize> StepGenerator<B> {
     }
 }
 
+/// [`step_position_q32`] (the same value) with the 128-bit division by 1000 done by
+/// [`div_u128`]: `floor(p / 1000) = -floor((|p| + 999) / 1000)` for `p < 0`.
+fn step_position(um: i32, steps_per_mm: Rate) -> i64 {
+    let p = um as i128 * steps_per_mm.to_bits() as i128;
+    if p < 0 {
+        -(div_u128(p.unsigned_abs() + 999, 1000) as i128) as i64
+    } else {
+        div_u128(p as u128, 1000) as i64
+    }
+}
+
 /// Exact time of path distance `s_q48` in `b` (which starts at `start_q16`, ticks q16),
 /// generator ticks rounded to nearest.
 fn tick_at(start_q16: u64, b: &Block, s_q48: u128) -> u64 {
     let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
     start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_step_position_equals_the_reference() {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let rates = [Rate::from_num(80), Rate::from_num(93), Rate::from_num(400), Rate::MAX];
+        for i in 0..100_000 {
+            let um = (next() as i32) >> (next() % 32);
+            let spm =
+                if i % 2 == 0 { rates[i % 4] } else { Rate::from_bits(next() >> (next() % 64)) };
+            assert_eq!(step_position(um, spm), step_position_q32(um, spm), "{um} um at {spm}");
+        }
+        for um in [i32::MIN, i32::MAX, 0, -1, 1] {
+            for spm in rates {
+                assert_eq!(step_position(um, spm), step_position_q32(um, spm));
+            }
+        }
+    }
 }
