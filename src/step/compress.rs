@@ -233,10 +233,11 @@ impl<const B: usize> Compressor<B> {
             }
         }
         let (mut lo, mut hi) = ((amin - 1).max(i32::MIN as i64), (amax + 1).min(i32::MAX as i64));
+        let small_add = self.small_add_bound(n, tune);
         let mut best: Option<Fit> = None;
         while lo <= hi {
             let mid = (lo + hi).div_euclid(2);
-            let f = self.eval(mid, n, tune);
+            let f = self.eval(mid, n, tune, small_add);
             let better = match best {
                 None => true,
                 Some(b) => f.count > b.count || (f.count == b.count && f.add.abs() < b.add.abs()),
@@ -250,7 +251,7 @@ impl<const B: usize> Compressor<B> {
                 Miss::Smaller => hi = mid - 1,
             }
         }
-        best.unwrap_or_else(|| self.eval(0, 1, tune))
+        best.unwrap_or_else(|| self.eval(0, 1, tune, self.small_add_bound(1, tune)))
     }
 
     /// How many pending steps `add` covers, and the interval range that does it.
@@ -259,26 +260,37 @@ impl<const B: usize> Compressor<B> {
     /// `k x + add i (i + 1) / 2` within `d_i +- tol`, and its own interval `x + add i` by the
     /// driver's minimum and [`MAX_INTERVAL_TICKS`]. Intersecting these ranges step by step
     /// gives the longest covered prefix; which bound the first failing step broke says which
-    /// way a better `add` lies.
-    fn eval(&self, add: i64, n: usize, tune: &Tune) -> Fit {
+    /// way a better `add` lies. `small_add` is [`Compressor::small_add_bound`] of `n`.
+    fn eval(&self, add: i64, n: usize, tune: &Tune, small_add: u64) -> Fit {
         if n == 0 {
             return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Fits };
+        }
+        if add.unsigned_abs() < small_add {
+            self.eval_small(add, n, tune)
+        } else {
+            self.eval_wide(add, n, tune)
+        }
+    }
+
+    /// The `add`s (in magnitude, exclusive) for which [`Compressor::eval`] of the first `n`
+    /// pending steps may run in 32 bits (see [`Compressor::eval_small`]); 0 for none.
+    fn small_add_bound(&self, n: usize, tune: &Tune) -> u64 {
+        if n == 0 || n >= 1 << 12 {
+            return 0;
         }
         let first = self.buf[self.head] as i64 - self.last as i64;
         let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
         let nn = n as i64;
-        // Below 2^29 every term of the 32-bit walk stays within i32 (see `eval_small`).
-        let small = first > -(1 << 28)
-            && nn < 1 << 12
+        let ok = first > -(1 << 28)
             && (end + tune.tol + 1).saturating_mul(nn) < 1 << 29
-            && (add.unsigned_abs()).saturating_mul((nn * nn) as u64) < 1 << 29
             && tune.tol < 1 << 20
             && (0..1 << 20).contains(&tune.min_step)
             && self.first_min(tune) < 1 << 20;
-        if small {
-            self.eval_small(add, n, tune)
+        // |add| < 2^29 / n^2 keeps |add| n^2 below 2^29.
+        if ok {
+            (1 << 29) / (nn * nn) as u64
         } else {
-            self.eval_wide(add, n, tune)
+            0
         }
     }
 
@@ -307,15 +319,20 @@ impl<const B: usize> Compressor<B> {
     }
 
     /// [`Compressor::eval`] in `i32` (registers and hardware divider of the Cortex-M3), with
-    /// the same result as [`Compressor::eval_wide`]. It carries the range of step `i`'s
-    /// model time, `k imin + at ..= k imax + at` (`at = add i (i + 1) / 2`), forward by
-    /// additions, and divides only when a step narrows `imin` or `imax`.
+    /// the same result as [`Compressor::eval_wide`].
     ///
-    /// Ranges (checked by the caller): offsets below 2^28 in magnitude, `n (end + tol) < 2^29`
-    /// and `|add| n^2 < 2^29`. Then `0 < imin <= imax <= end + tol` (imin starts at the first
-    /// step's minimum interval or above and only grows), so `k imin`, `k imax`, `at` and
-    /// `add i` all stay below 2^29, and the [`MAX_INTERVAL_TICKS`] (2^30) bound
-    /// `2^30 - add i > imax` never binds.
+    /// Step `i`'s model time ranges over `last + k x + at` for `x` in `imin..=imax`
+    /// (`at = add i (i + 1) / 2`). The walk carries the two edges shifted by the tolerance,
+    /// `up = last + k imin + at + tol` and `down = last + k imax + at - tol`, forward by
+    /// additions (wrapping `u32`, compared as differences): a step at `down <= t <= up` whose
+    /// own interval cannot fall below the minimum narrows nothing. Any other step takes the
+    /// exact path, with a division only for a bound that narrows.
+    ///
+    /// Ranges (from [`Compressor::small_add_bound`]): offsets below 2^28 in magnitude,
+    /// `n (end + tol) < 2^29` and `|add| n^2 < 2^29`. Then `0 < imin <= imax <= end + tol`
+    /// (imin starts at the first step's minimum interval or above and only grows), so
+    /// `k imin`, `k imax`, `at`, `add i` and every difference compared stay below 2^30, and
+    /// the [`MAX_INTERVAL_TICKS`] (2^30) bound `2^30 - add i > imax` never binds.
     fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let last = self.last as u32;
         let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);
@@ -332,25 +349,29 @@ impl<const B: usize> Compressor<B> {
         if imin > imax {
             return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Smaller };
         }
-        // add i, add i (i + 1) / 2, and the model time range of step i.
-        let (mut add_i, mut at) = (0i32, 0i32);
-        let (mut t_lo, mut t_hi) = (imin, imax);
+        let mut up = last.wrapping_add((imin + tol) as u32);
+        let mut down = last.wrapping_add((imax - tol) as u32);
+        // Step i's own interval x + add i stays >= min_step for every x >= imin while
+        // add i >= min_step - imin.
+        let mut lim = min_step - imin;
+        let mut add_i = 0i32;
         for i in 1..n {
             j += 1;
             if j == B {
                 j = 0;
             }
             add_i += add32;
-            at += add_i;
-            t_lo += imin + add_i;
-            t_hi += imax + add_i;
-            let d = (self.buf[j] as u32).wrapping_sub(last) as i32;
-            let lim_lo = min_step - add_i;
-            if d - tol <= t_lo && d + tol >= t_hi && lim_lo <= imin {
-                // The whole range fits: nothing narrows.
+            up = up.wrapping_add((imin + add_i) as u32);
+            down = down.wrapping_add((imax + add_i) as u32);
+            let t = self.buf[j] as u32;
+            if up.wrapping_sub(t) as i32 >= 0 && t.wrapping_sub(down) as i32 >= 0 && add_i >= lim {
                 continue;
             }
             let k = i as i32 + 1;
+            let at = add32 * (i as i32 * k / 2);
+            let d = t.wrapping_sub(last) as i32;
+            let (t_lo, t_hi) = (k * imin + at, k * imax + at);
+            let lim_lo = min_step - add_i;
             // ceil((d - tol - at) / k) > imax, or the minimum interval above imax.
             if d - tol > t_hi || lim_lo > imax {
                 return fit(i, imin, imax, Miss::Larger);
@@ -365,7 +386,9 @@ impl<const B: usize> Compressor<B> {
                 return fit(i, imin, imax, Miss::Smaller);
             }
             (imin, imax) = (lo, hi);
-            (t_lo, t_hi) = (k * imin + at, k * imax + at);
+            up = last.wrapping_add((k * imin + at + tol) as u32);
+            down = last.wrapping_add((k * imax + at - tol) as u32);
+            lim = min_step - imin;
         }
         fit(n, imin, imax, Miss::Fits)
     }
@@ -467,7 +490,8 @@ mod tests {
                     acc + rnd(60) as i64 - 30
                 };
                 let n = 1 + rnd(c.len as u64) as usize;
-                let (a, b) = (c.eval_wide(add, n, &tune), c.eval(add, n, &tune));
+                let small = c.small_add_bound(n, &tune);
+                let (a, b) = (c.eval_wide(add, n, &tune), c.eval(add, n, &tune, small));
                 assert_eq!(
                     (a.count, a.imin, a.imax, a.miss),
                     (b.count, b.imin, b.imax, b.miss),
