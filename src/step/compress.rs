@@ -354,41 +354,49 @@ impl<const B: usize> Compressor<B> {
         // Step i's own interval x + add i stays >= min_step for every x >= imin while
         // add i >= min_step - imin.
         let mut lim = min_step - imin;
-        let mut add_i = 0i32;
+        let (mut add_i, mut at) = (0i32, 0i32);
         for i in 1..n {
             j += 1;
             if j == B {
                 j = 0;
             }
             add_i += add32;
+            at += add_i;
             up = up.wrapping_add((imin + add_i) as u32);
             down = down.wrapping_add((imax + add_i) as u32);
             let t = self.buf[j] as u32;
-            if up.wrapping_sub(t) as i32 >= 0 && t.wrapping_sub(down) as i32 >= 0 && add_i >= lim {
+            let (above, below) = (up.wrapping_sub(t) as i32, t.wrapping_sub(down) as i32);
+            if above >= 0 && below >= 0 && add_i >= lim {
                 continue;
             }
-            let k = i as i32 + 1;
-            let at = add32 * (i as i32 * k / 2);
-            let d = t.wrapping_sub(last) as i32;
-            let (t_lo, t_hi) = (k * imin + at, k * imax + at);
+            // above = k imin + at + tol - d and below = d + tol - k imax - at.
             let lim_lo = min_step - add_i;
             // ceil((d - tol - at) / k) > imax, or the minimum interval above imax.
-            if d - tol > t_hi || lim_lo > imax {
+            if below > 2 * tol || lim_lo > imax {
                 return fit(i, imin, imax, Miss::Larger);
             }
-            if d + tol < t_lo {
+            if above > 2 * tol {
                 return fit(i, imin, imax, Miss::Smaller);
             }
-            let lo = if d - tol > t_lo { -(at + tol - d).div_euclid(k) } else { imin };
-            let hi = if d + tol < t_hi { (d + tol - at).div_euclid(k) } else { imax };
+            // Both dividends are positive here: d - tol - at > k imin > 0 when the low bound
+            // narrows, d + tol - at >= k imin > 0 always.
+            let k = i as u32 + 1;
+            let d_at = t.wrapping_sub(last).wrapping_sub(at as u32);
+            let lo = if above < 0 { (d_at - tol as u32).div_ceil(k) as i32 } else { imin };
+            let hi = if below < 0 { ((d_at + tol as u32) / k) as i32 } else { imax };
             let lo = lo.max(lim_lo);
             if lo > hi {
                 return fit(i, imin, imax, Miss::Smaller);
             }
-            (imin, imax) = (lo, hi);
-            up = last.wrapping_add((k * imin + at + tol) as u32);
-            down = last.wrapping_add((k * imax + at - tol) as u32);
-            lim = min_step - imin;
+            if lo != imin {
+                imin = lo;
+                up = last.wrapping_add((k as i32 * imin + at + tol) as u32);
+                lim = min_step - imin;
+            }
+            if hi != imax {
+                imax = hi;
+                down = last.wrapping_add((k as i32 * imax + at - tol) as u32);
+            }
         }
         fit(n, imin, imax, Miss::Fits)
     }
