@@ -46,6 +46,50 @@ struct Fit {
     miss: Miss,
 }
 
+/// Signed integers for [`Compressor::add_range`]: the low bits of a tick and wrapping
+/// subtraction.
+trait Wrapping: Copy + Ord {
+    const MIN: Self;
+    const MAX: Self;
+    fn low(t: u64) -> Self;
+    fn sub(self, other: Self) -> Self;
+    fn wide(self) -> i64;
+}
+
+impl Wrapping for i32 {
+    const MIN: Self = i32::MIN;
+    const MAX: Self = i32::MAX;
+    #[inline(always)]
+    fn low(t: u64) -> Self {
+        t as i32
+    }
+    #[inline(always)]
+    fn sub(self, other: Self) -> Self {
+        self.wrapping_sub(other)
+    }
+    #[inline(always)]
+    fn wide(self) -> i64 {
+        self as i64
+    }
+}
+
+impl Wrapping for i64 {
+    const MIN: Self = i64::MIN;
+    const MAX: Self = i64::MAX;
+    #[inline(always)]
+    fn low(t: u64) -> Self {
+        t as i64
+    }
+    #[inline(always)]
+    fn sub(self, other: Self) -> Self {
+        self.wrapping_sub(other)
+    }
+    #[inline(always)]
+    fn wide(self) -> i64 {
+        self
+    }
+}
+
 /// One axis' pending steps and its committed reference time.
 #[derive(Debug, Clone)]
 pub(crate) struct Compressor<const B: usize> {
@@ -212,25 +256,44 @@ impl<const B: usize> Compressor<B> {
         count >= 1
     }
 
+    /// Smallest and largest second difference of the first `n >= 2` pending step times (the
+    /// first interval counts from `last`), computed in `T` (wrapping differences of the low
+    /// bits, exact when they fit).
+    fn add_range<T: Wrapping>(&self, n: usize) -> (i64, i64) {
+        let (mut amin, mut amax) = (T::MAX, T::MIN);
+        let mut j = self.head;
+        let mut prev_t = T::low(self.buf[j]);
+        let mut prev_iv = prev_t.sub(T::low(self.last));
+        for _ in 1..n {
+            j += 1;
+            if j == B {
+                j = 0;
+            }
+            let t = T::low(self.buf[j]);
+            let iv = t.sub(prev_t);
+            let a = iv.sub(prev_iv);
+            amin = amin.min(a);
+            amax = amax.max(a);
+            prev_iv = iv;
+            prev_t = t;
+        }
+        (amin.wide(), amax.wide())
+    }
+
     /// The longest sequence from the front of the pending steps.
     fn fit(&self, tune: &Tune) -> Fit {
         let n = self.len.min(u16::MAX as usize);
         // Range of `add` from the second differences (the first interval counts from `last`).
         let (mut amin, mut amax) = (0i64, 0i64);
         if n > 1 {
-            (amin, amax) = (i64::MAX, i64::MIN);
-            let mut j = self.head;
-            let mut prev_t = self.buf[j] as i64;
-            let mut prev_iv = prev_t - self.last as i64;
-            for _ in 1..n {
-                j = (j + 1) % B;
-                let t = self.buf[j] as i64;
-                let iv = t - prev_t;
-                amin = amin.min(iv - prev_iv);
-                amax = amax.max(iv - prev_iv);
-                prev_iv = iv;
-                prev_t = t;
-            }
+            let first = self.buf[self.head] as i64 - self.last as i64;
+            let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
+            (amin, amax) = if first > -(1 << 29) && end < 1 << 29 {
+                // Every interval and difference of intervals fits in i32.
+                self.add_range::<i32>(n)
+            } else {
+                self.add_range::<i64>(n)
+            };
         }
         let (mut lo, mut hi) = ((amin - 1).max(i32::MIN as i64), (amax + 1).min(i32::MAX as i64));
         let small_add = self.small_add_bound(n, tune);
@@ -491,6 +554,12 @@ mod tests {
             }
             let tune =
                 Tune { tol: 1 + rnd(60) as i64, min_step: 144, min_rev: 144 + rnd(50) as i64 };
+            let n = c.len;
+            let first = c.buf[c.head] as i64 - c.last as i64;
+            let end = c.buf[(c.head + n - 1) % 64] as i64 - c.last as i64;
+            if n > 1 && first > -(1 << 29) && end < 1 << 29 {
+                assert_eq!(c.add_range::<i32>(n), c.add_range::<i64>(n));
+            }
             for _ in 0..8 {
                 let add = if rnd(4) == 0 {
                     rnd(1 << 20) as i64 - (1 << 19)
