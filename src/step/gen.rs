@@ -51,8 +51,13 @@ struct AxisRun {
     s_q48: u128,
     /// Path distance per step, um q48.
     ds_q48: u128,
-    /// Exact time of the next step, generator ticks.
+    /// Exact time of the next step, generator ticks (`u64::MAX` with no step left).
     next_tick: u64,
+}
+
+impl AxisRun {
+    /// No step to make.
+    const STILL: Self = Self { remaining: 0, dir: false, s_q48: 0, ds_q48: 0, next_tick: u64::MAX };
 }
 
 /// Turns blocks into compressed step sequences; `B` pending steps per axis at most.
@@ -112,7 +117,7 @@ impl<const B: usize> StepGenerator<B> {
         self.pending_ticks = config.max_pending_ticks as u64;
         self.steps_per_mm = spm;
         self.comp.iter_mut().for_each(Compressor::reset);
-        self.axes = [AxisRun::default(); AXES];
+        self.axes = [AxisRun::STILL; AXES];
         self.block = None;
         self.next = None;
         self.tag = None;
@@ -134,14 +139,12 @@ impl<const B: usize> StepGenerator<B> {
     /// before use). Lets a large owner be built in a `static`.
     pub const fn empty() -> Self {
         let () = Self::CAPACITY_OK;
-        const STILL: AxisRun =
-            AxisRun { remaining: 0, dir: false, s_q48: 0, ds_q48: 0, next_tick: 0 };
         Self {
             tune: Tune { tol: 0, min_step: 0, min_rev: 0 },
             pending_ticks: 0,
             steps_per_mm: [Rate::ZERO; AXES],
             comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
-            axes: [STILL; AXES],
+            axes: [AxisRun::STILL; AXES],
             block: None,
             next: None,
             tag: None,
@@ -243,15 +246,15 @@ impl<const B: usize> StepGenerator<B> {
                 }
                 return if self.at_rest { GenStatus::Idle } else { GenStatus::NeedBlock };
             };
-            // The axis with the earliest next step.
-            let mut pick: Option<usize> = None;
-            for axis in 0..AXES {
-                let a = &self.axes[axis];
-                if a.remaining > 0 && pick.map_or(true, |p| a.next_tick < self.axes[p].next_tick) {
-                    pick = Some(axis);
+            // The axis with the earliest next step (the first of equals; an axis without
+            // steps left waits at `u64::MAX`).
+            let mut axis = 0;
+            for a in 1..AXES {
+                if self.axes[a].next_tick < self.axes[axis].next_tick {
+                    axis = a;
                 }
             }
-            let Some(axis) = pick else {
+            if self.axes[axis].next_tick == u64::MAX {
                 let (duration, at_rest) = (block.duration_ticks_q16(), block.ends_at_rest());
                 self.block_start_q16 = self.block_start_q16.saturating_add(duration);
                 self.at_rest = at_rest;
@@ -260,7 +263,7 @@ impl<const B: usize> StepGenerator<B> {
                 self.block = None;
                 self.blocks += 1;
                 continue;
-            };
+            }
             let (tick, dir) = (self.axes[axis].next_tick, self.axes[axis].dir);
             if self.comp[axis].push_step(axis, tick, dir, out, &self.tune).is_err() {
                 // Only a deadlock (the executor waits at the horizon and this queue is still
@@ -383,7 +386,7 @@ impl<const B: usize> StepGenerator<B> {
             let m = self.motor[axis];
             let m1 = motor_after(m, p1);
             let run = &mut self.axes[axis];
-            *run = AxisRun::default();
+            *run = AxisRun::STILL;
             if m1 == m {
                 continue;
             }
@@ -416,6 +419,8 @@ impl<const B: usize> StepGenerator<B> {
         if run.remaining > 0 {
             run.s_q48 += run.ds_q48;
             run.next_tick = tick_at(self.block_start_q16, b, run.s_q48);
+        } else {
+            run.next_tick = u64::MAX;
         }
     }
 }
