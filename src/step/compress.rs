@@ -103,9 +103,8 @@ pub(crate) struct Compressor<const B: usize> {
     dir: Option<bool>,
     /// The next sequence is the first after a DIR command.
     after_dir: bool,
-    /// The last accepted step and its direction.
+    /// The last accepted step (its direction is `dir`).
     prev_tick: u64,
-    prev_dir: Option<bool>,
     /// Steps moved later to respect the driver's minimum intervals.
     pub clamped: u32,
     /// Sequences committed.
@@ -125,7 +124,6 @@ impl<const B: usize> Compressor<B> {
             dir: None,
             after_dir: false,
             prev_tick: 0,
-            prev_dir: None,
             clamped: 0,
             sequences: 0,
             check_failures: 0,
@@ -160,7 +158,10 @@ impl<const B: usize> Compressor<B> {
         out: &mut StepProducer<'_, N>,
         tune: &Tune,
     ) -> Result<(), Full> {
-        if self.dir != Some(dir) {
+        // The last accepted step went the same way exactly when the pending direction is
+        // `dir` (both change together, below).
+        let same_dir = self.dir == Some(dir);
+        if !same_dir {
             while !self.is_empty() {
                 self.emit(axis, out, tune)?;
             }
@@ -171,7 +172,7 @@ impl<const B: usize> Compressor<B> {
         if self.len == B {
             self.emit(axis, out, tune)?;
         }
-        let gap = if self.prev_dir == Some(dir) { tune.min_step } else { tune.min_rev } as u64;
+        let gap = if same_dir { tune.min_step } else { tune.min_rev } as u64;
         let tick = if tick < self.prev_tick + gap {
             self.clamped += 1;
             self.prev_tick + gap
@@ -181,7 +182,6 @@ impl<const B: usize> Compressor<B> {
         self.buf[(self.head + self.len) % B] = tick;
         self.len += 1;
         self.prev_tick = tick;
-        self.prev_dir = Some(dir);
         Ok(())
     }
 
