@@ -32,7 +32,7 @@
 //! cruise). Its exact duration, in timer ticks with 16 fraction bits, is the sum of the three
 //! phase times, and [`Block::time_at_q16`] gives the time at any distance along the move. The
 //! step generator evaluates the same trapezoid for every step ([`Block::step_time_q16`]: no
-//! division, within 40 ns of it) and starts each block at the exact sum of the durations
+//! division; within about `v_peak 2^-30 / a` of it) and starts each block at the exact sum of the durations
 //! before it, so the planner's print-time estimate is the executed motion's duration.
 //!
 //! # Units (all integer, no floating point)
@@ -309,9 +309,13 @@ pub struct Block {
     t_decel_q16: u64,
     t_total_q16: u64,
     timer_hz: u32,
-    /// Start, cruise and end speed, um/s q8 (`floor(sqrt(v2))`), for the per-step path.
-    v_q8: [u64; 3],
-    /// Ticks q16 per um/s q8 of speed change at full acceleration: `f 2^40 / a_q16`.
+    /// Start, cruise and end speed, um/s with `8 + fine_shift / 2` fraction bits
+    /// (`floor(sqrt(v2 2^fine_shift))`), for the per-step path.
+    v_fine: [u64; 3],
+    /// Extra fraction bits (doubled) of the per-step speeds: as many as the block's largest
+    /// speed squared leaves room for in 62 bits, at most 16 (8 more bits of speed).
+    fine_shift: u32,
+    /// Ticks q16 per step of `v_fine` at full acceleration: `f 2^(40 - fine_shift / 2) / a_q16`.
     ticks_per_dv: u64,
     /// Ticks q16 per um q32 of cruise, scaled by `2^cruise_shift`.
     ticks_per_um: u64,
@@ -348,7 +352,11 @@ impl Block {
         };
         let t_dec = ramp_t(s_dec, v[1], v[2]);
         // Per-step reciprocals: one division each per block, none per step.
-        let ticks_per_dv = sat_u64(div_u128(f << 40, a));
+        // The per-step speeds get 8 more fraction bits when the peak speed is below 33 mm/s
+        // (v^2 q16 below 2^46), fewer above: (c2 << fine_shift) < 2^62.
+        let half_shift = (c2.leading_zeros().saturating_sub(2) / 2).min(8);
+        let fine_shift = 2 * half_shift;
+        let ticks_per_dv = sat_u64(div_u128(f << (40 - half_shift), a));
         let k = div_u128(f << 64, (v[1] as u128).max(1));
         let extra = (128 - k.leading_zeros()).saturating_sub(63);
         Self {
@@ -365,7 +373,8 @@ impl Block {
             t_decel_q16: t_acc.saturating_add(t_cruise),
             t_total_q16: t_acc.saturating_add(t_cruise).saturating_add(t_dec),
             timer_hz,
-            v_q8: [s2, c2, e2].map(math::isqrt_u64),
+            v_fine: [s2, c2, e2].map(|x| math::isqrt_u64(x << fine_shift)),
+            fine_shift,
             ticks_per_dv,
             ticks_per_um: (k >> extra) as u64,
             cruise_shift: 64 - extra,
@@ -466,26 +475,31 @@ impl Block {
     }
 
     /// [`time_at_q16`](Self::time_at_q16) as the step generator computes it for every step:
-    /// speed `v = sqrt(v0^2 + 2 a s)` to 1/256 um/s with a 64-bit square root, then
+    /// speed `v = sqrt(v0^2 + 2 a s)` with a 64-bit square root to 2^-16 um/s below 33 mm/s,
+    /// to as many bits as 31 hold for faster blocks (2^-14 um/s at 100 mm/s), then
     /// `t = (v - v0) / a` and `t = t_a + (s - s_a) / vc` as multiplications by per-block
-    /// reciprocals. No division. It differs from the exact time by at most
-    /// `2^-8 um/s / a` (8 ns at 500 mm/s^2, 40 ns at 100 mm/s^2) plus a tick q16.
+    /// reciprocals. No division. It differs from the exact time by at most the speed
+    /// resolution over `a`, about `v_peak 2^-30 / a` (93 ns for a 100 mm/s peak at 1 mm/s^2,
+    /// 0.2 ns at 500 mm/s^2), never more than `2^-8 um/s / a`, plus a tick q16.
     pub fn step_time_q16(&self, dist_q32: u64) -> u64 {
         let s = dist_q32.min(self.len_q32);
-        // Time to reach speed^2 `v2 + 2 a d` from speed `v` (q8) at full acceleration.
-        let ramp = |d: u64, v_q8: u64, v2: u64| -> u64 {
+        // Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
+        // acceleration; `v2 + 2 a d` is at most the cruise speed squared (plus rounding), so
+        // the shift into the finer units keeps it below 2^63.
+        let ramp = |d: u64, v_fine: u64, v2: u64| -> u64 {
             let w = sat_u64(v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32));
-            let dv = math::isqrt_u64(w).saturating_sub(v_q8);
+            let w = if w > u64::MAX >> self.fine_shift { u64::MAX } else { w << self.fine_shift };
+            let dv = math::isqrt_u64(w).saturating_sub(v_fine);
             sat_u64((dv as u128 * self.ticks_per_dv as u128) >> 16)
         };
         if s <= self.accel_end_q32 {
-            ramp(s, self.v_q8[0], self.v2[0]).min(self.t_accel_q16)
+            ramp(s, self.v_fine[0], self.v2[0]).min(self.t_accel_q16)
         } else if s <= self.decel_start_q32 {
             let d = (s - self.accel_end_q32) as u128;
             let t = sat_u64((d * self.ticks_per_um as u128) >> self.cruise_shift);
             self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
         } else {
-            let back = ramp(self.len_q32 - s, self.v_q8[2], self.v2[2]);
+            let back = ramp(self.len_q32 - s, self.v_fine[2], self.v2[2]);
             self.t_total_q16.saturating_sub(back).max(self.t_decel_q16)
         }
     }
@@ -786,6 +800,64 @@ mod tests {
 
     fn to_f(r: Rate) -> f64 {
         r.to_num::<f64>()
+    }
+
+    /// `f64` trapezoid time (s) at distance `s_mm` with start, cruise and end speeds and the
+    /// acceleration of `b` (from its accessors) and its phase distances.
+    fn f64_time(b: &Block, s_mm: f64) -> f64 {
+        let (v0, vc, v1) =
+            (to_f(b.start_speed_mm_s()), to_f(b.cruise_speed_mm_s()), to_f(b.end_speed_mm_s()));
+        let a = to_f(b.accel_mm_s2());
+        let q32 = |x: u64| x as f64 / 4294967296e3;
+        let ([sa, sd], len) = (b.phase_um_q32().map(q32), q32(b.length_um_q32()));
+        let ta = (vc - v0) / a;
+        let td = ta + (sd - sa) / vc;
+        let total = td + (vc - v1) / a;
+        if s_mm <= sa {
+            2.0 * s_mm / (v0 + (v0 * v0 + 2.0 * a * s_mm).sqrt())
+        } else if s_mm <= sd {
+            ta + (s_mm - sa) / vc
+        } else {
+            let back = len - s_mm;
+            total - 2.0 * back / (v1 + (v1 * v1 + 2.0 * a * back).sqrt())
+        }
+    }
+
+    #[test]
+    fn per_step_time_is_within_its_resolution_of_the_f64_trapezoid() {
+        for accel in [1u32, 4, 100, 500, 5_000, 200_000] {
+            for feed in [1u32, 30, 100, 300, 1_000, 10_000] {
+                for len_um in [50i32, 2_000, 50_000, 1_000_000] {
+                    let cfg = PlanConfig {
+                        travel_accel_mm_s2: mm(accel),
+                        max_accel_mm_s2: [mm(1_000_000); 4],
+                        max_feed_mm_s: [mm(20_000); 4],
+                        ..PlanConfig::default()
+                    };
+                    let mut p: Planner<4> = Planner::new(&cfg, [0; 4]);
+                    // Start and end at speed: a 90 degree corner before and after.
+                    p.push(Move::new([0, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.push(Move::new([len_um, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.push(Move::new([len_um, 0, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.pop_forced().unwrap();
+                    let b = p.pop_forced().unwrap();
+                    let vc = to_f(b.cruise_speed_mm_s()) * 1e3;
+                    let a = to_f(b.accel_mm_s2()) * 1e3;
+                    // Speed resolution over a, the ramps' phase-time rounding, a tick q16.
+                    let res = (vc * 2f64.powi(-30)).max(2f64.powi(-16)).min(2f64.powi(-8));
+                    let tol = res / a * 1.5 + 3.0 / 72e6;
+                    for i in 0..=400u64 {
+                        let s_q32 = b.length_um_q32() / 400 * i;
+                        let t = b.step_time_q16(s_q32) as f64 / 65536.0 / 72e6;
+                        let want = f64_time(&b, s_q32 as f64 / 4294967296e3);
+                        assert!(
+                            (t - want).abs() <= tol,
+                            "a {accel} feed {feed} len {len_um}: {t} vs {want} at {i}/400 (tol {tol})"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]
