@@ -285,11 +285,33 @@ impl<const B: usize> StepGenerator<B> {
 
     /// Sends what is owed: per axis at most one sequence whose first step waited longer than
     /// `pending_ticks` behind the last step generated, then (at a stop) everything.
+    #[inline]
     fn settle<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> Result<(), Full> {
         if self.overdue != 0 && self.last_tick <= self.settle_at {
             // Nothing is overdue: the checks below would all pass.
             self.overdue = 0;
         }
+        if self.overdue != 0 {
+            self.settle_overdue(out)?;
+        }
+        if self.flush_all {
+            for c in 0..AXES {
+                while !self.comp[c].is_empty() {
+                    self.comp[c].emit(c, out, &self.tune)?;
+                    self.publish(out);
+                }
+            }
+            self.flush_all = false;
+        }
+        Ok(())
+    }
+
+    /// The per-axis part of [`StepGenerator::settle`]: at most one sequence for each axis
+    /// still to check whose first step is overdue.
+    fn settle_overdue<const N: usize>(
+        &mut self,
+        out: &mut StepProducer<'_, N>,
+    ) -> Result<(), Full> {
         let full_check = self.overdue == (1 << AXES) - 1;
         for c in 0..AXES {
             if self.overdue & (1 << c) == 0 {
@@ -310,15 +332,6 @@ impl<const B: usize> StepGenerator<B> {
                 .filter_map(|c| c.first_pending())
                 .min()
                 .map_or(u64::MAX, |f| f + self.pending_ticks);
-        }
-        if self.flush_all {
-            for c in 0..AXES {
-                while !self.comp[c].is_empty() {
-                    self.comp[c].emit(c, out, &self.tune)?;
-                    self.publish(out);
-                }
-            }
-            self.flush_all = false;
         }
         Ok(())
     }
