@@ -46,12 +46,15 @@ struct Fit {
     miss: Miss,
 }
 
-/// Signed integers for [`Compressor::add_range`]: the low bits of a tick and wrapping
-/// subtraction.
+/// Signed integers for [`Compressor::add_range`] and [`Compressor::check_in`]: the low bits
+/// of a tick and wrapping arithmetic (exact while the true values fit).
 trait Wrapping: Copy + Ord {
     const MIN: Self;
     const MAX: Self;
+    /// `v`, which fits.
+    fn of(v: i64) -> Self;
     fn low(t: u64) -> Self;
+    fn add(self, other: Self) -> Self;
     fn sub(self, other: Self) -> Self;
     fn wide(self) -> i64;
 }
@@ -60,8 +63,16 @@ impl Wrapping for i32 {
     const MIN: Self = i32::MIN;
     const MAX: Self = i32::MAX;
     #[inline(always)]
+    fn of(v: i64) -> Self {
+        v as i32
+    }
+    #[inline(always)]
     fn low(t: u64) -> Self {
         t as i32
+    }
+    #[inline(always)]
+    fn add(self, other: Self) -> Self {
+        self.wrapping_add(other)
     }
     #[inline(always)]
     fn sub(self, other: Self) -> Self {
@@ -77,8 +88,16 @@ impl Wrapping for i64 {
     const MIN: Self = i64::MIN;
     const MAX: Self = i64::MAX;
     #[inline(always)]
+    fn of(v: i64) -> Self {
+        v
+    }
+    #[inline(always)]
     fn low(t: u64) -> Self {
         t as i64
+    }
+    #[inline(always)]
+    fn add(self, other: Self) -> Self {
+        self.wrapping_add(other)
     }
     #[inline(always)]
     fn sub(self, other: Self) -> Self {
@@ -235,21 +254,40 @@ impl<const B: usize> Compressor<B> {
 
     /// Replays the executor's arithmetic and checks every step against its exact time.
     fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
-        let mut iv = interval;
-        let mut t = self.last as i64;
+        // In i32 when every model time and interval stays below 2^30 in magnitude (the ranges
+        // of `eval_small`, with the interval itself bounded too).
+        let small = add.unsigned_abs() < self.small_add_bound(count, tune)
+            && interval > 0
+            && interval.saturating_mul(count as i64) < 1 << 29;
+        if small {
+            self.check_in::<i32>(interval, add, count, tune)
+        } else {
+            self.check_in::<i64>(interval, add, count, tune)
+        }
+    }
+
+    /// [`Compressor::check`] in `T`: the executor's `interval += add; t += interval`.
+    fn check_in<T: Wrapping>(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
+        let (add_t, max_iv) = (T::of(add), MAX_INTERVAL_TICKS as i64);
+        let mut iv = T::of(interval);
+        let mut t = T::low(self.last);
         let mut min_iv = self.first_min(tune);
         let mut j = self.head;
         for i in 0..count {
             if i > 0 {
-                iv += add;
+                iv = iv.add(add_t);
                 min_iv = tune.min_step;
-                j = (j + 1) % B;
+                j += 1;
+                if j == B {
+                    j = 0;
+                }
             }
-            t += iv;
-            if iv < min_iv || iv > MAX_INTERVAL_TICKS as i64 {
+            t = t.add(iv);
+            let w = iv.wide();
+            if w < min_iv || w > max_iv {
                 return false;
             }
-            if (t - self.buf[j] as i64).abs() > tune.tol {
+            if t.sub(T::low(self.buf[j])).wide().abs() > tune.tol {
                 return false;
             }
         }
@@ -351,7 +389,7 @@ impl<const B: usize> Compressor<B> {
             && self.first_min(tune) < 1 << 20;
         // |add| < 2^29 / n^2 keeps |add| n^2 below 2^29.
         if ok {
-            (1 << 29) / (nn * nn) as u64
+            ((1u32 << 29) / (n * n) as u32) as u64
         } else {
             0
         }
@@ -569,6 +607,15 @@ mod tests {
                 let n = 1 + rnd(c.len as u64) as usize;
                 let small = c.small_add_bound(n, &tune);
                 let (a, b) = (c.eval_wide(add, n, &tune), c.eval(add, n, &tune, small));
+                if b.count > 0 {
+                    let iv = b.imin + rnd(1 + (b.imax - b.imin) as u64) as i64;
+                    let count = 1 + rnd(b.count as u64) as usize;
+                    assert_eq!(
+                        c.check(iv, add, count, &tune),
+                        c.check_in::<i64>(iv, add, count, &tune),
+                        "check of {iv} {add} {count}"
+                    );
+                }
                 assert_eq!(
                     (a.count, a.imin, a.imax, a.miss),
                     (b.count, b.imin, b.imax, b.miss),
