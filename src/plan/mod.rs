@@ -760,20 +760,36 @@ impl<const N: usize> Planner<N> {
             MoveKind::Print => lim.print_accel_q16,
             MoveKind::Travel | MoveKind::Retract => lim.travel_accel_q16,
         };
+        // Axis speed v |d|/L <= vmax: v^2 <= vmax^2 L^2 / d^2 (L^2 exact); axis acceleration
+        // a |d|/L <= amax: a <= amax L / |d|. Only the tightest axis of each needs dividing
+        // (floor and saturation keep the order): the smallest vmax^2 / d^2 and amax / |d|,
+        // compared by cross-multiplying.
+        let (mut v_axis, mut a_axis) = (None::<usize>, None::<usize>);
         for (axis, &da) in d.iter().enumerate() {
             if da == 0 {
                 continue;
             }
-            // Axis speed v |d|/L <= vmax: v^2 <= vmax^2 L^2 / d^2 (L^2 exact).
-            let cap = div_u128(lim.vmax2_q16[axis] as u128 * len2 as u128, sq(da) as u128);
+            let tighter = |q: &[u64; AXES], other: Option<usize>, w: fn(i64) -> u128| {
+                other.map_or(true, |o| q[axis] as u128 * w(d[o]) < q[o] as u128 * w(da))
+            };
+            if tighter(&lim.vmax2_q16, v_axis, |v| (v * v) as u128) {
+                v_axis = Some(axis);
+            }
+            if tighter(&lim.amax_q16, a_axis, |v| v.unsigned_abs() as u128) {
+                a_axis = Some(axis);
+            }
+        }
+        if let Some(axis) = v_axis {
+            let cap = div_u128(lim.vmax2_q16[axis] as u128 * len2 as u128, sq(d[axis]) as u128);
             cruise_v2 = cruise_v2.min(sat_u64(cap));
-            // Axis acceleration a |d|/L <= amax: a <= amax L / |d|.
+        }
+        if let Some(axis) = a_axis {
             let la = lim.amax_q16[axis] as u128 * len_q32 as u128;
-            let cap = div_u128(la, (da.unsigned_abs() as u128) << 32);
+            let cap = div_u128(la, (d[axis].unsigned_abs() as u128) << 32);
             accel_q16 = accel_q16.min(sat_u64(cap));
         }
         let ratio = |v: i64| {
-            if kinematic {
+            if kinematic && v != 0 {
                 div_i128_pos((v as i128) << 94, len_q32 as u128)
             } else {
                 0
