@@ -219,9 +219,9 @@ impl<const B: usize> Compressor<B> {
             out.enqueue(axis, StepCmd::Wait(MAX_INTERVAL_TICKS / 2)).map_err(|_| Full)?;
             self.last += max / 2;
         }
-        let mut fit = self.fit(tune);
+        let (mut fit, small_add) = self.fit(tune);
         let mut interval = fit.imin + (fit.imax - fit.imin) / 2;
-        if !self.check(interval, fit.add, fit.count, tune) {
+        if !self.check(interval, fit.add, fit.count, tune, small_add) {
             // Unreachable by construction; a single step is always valid.
             self.check_failures += 1;
             fit.count = 1;
@@ -244,6 +244,7 @@ impl<const B: usize> Compressor<B> {
         Ok(())
     }
 
+    #[inline(always)]
     fn first_min(&self, tune: &Tune) -> i64 {
         if self.after_dir {
             tune.min_rev
@@ -253,10 +254,11 @@ impl<const B: usize> Compressor<B> {
     }
 
     /// Replays the executor's arithmetic and checks every step against its exact time.
-    fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
+    /// `small_add` is [`Compressor::small_add_bound`] of at least `count` pending steps.
+    fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune, small_add: u64) -> bool {
         // In i32 when every model time and interval stays below 2^30 in magnitude (the ranges
         // of `eval_small`, with the interval itself bounded too).
-        let small = add.unsigned_abs() < self.small_add_bound(count, tune)
+        let small = add.unsigned_abs() < small_add
             && interval > 0
             && interval.saturating_mul(count as i64) < 1 << 29;
         if small {
@@ -318,8 +320,9 @@ impl<const B: usize> Compressor<B> {
         (amin.wide(), amax.wide())
     }
 
-    /// The longest sequence from the front of the pending steps.
-    fn fit(&self, tune: &Tune) -> Fit {
+    /// The longest sequence from the front of the pending steps, and the 32-bit range of
+    /// `add` for all of them ([`Compressor::small_add_bound`]).
+    fn fit(&self, tune: &Tune) -> (Fit, u64) {
         let n = self.len.min(u16::MAX as usize);
         // Range of `add` from the second differences (the first interval counts from `last`).
         let (mut amin, mut amax) = (0i64, 0i64);
@@ -352,7 +355,8 @@ impl<const B: usize> Compressor<B> {
                 Miss::Smaller => hi = mid - 1,
             }
         }
-        best.unwrap_or_else(|| self.eval(0, 1, tune, self.small_add_bound(1, tune)))
+        let best = best.unwrap_or_else(|| self.eval(0, 1, tune, self.small_add_bound(1, tune)));
+        (best, small_add)
     }
 
     /// How many pending steps `add` covers, and the interval range that does it.
@@ -611,7 +615,7 @@ mod tests {
                     let iv = b.imin + rnd(1 + (b.imax - b.imin) as u64) as i64;
                     let count = 1 + rnd(b.count as u64) as usize;
                     assert_eq!(
-                        c.check(iv, add, count, &tune),
+                        c.check(iv, add, count, &tune, small),
                         c.check_in::<i64>(iv, add, count, &tune),
                         "check of {iv} {add} {count}"
                     );
