@@ -340,7 +340,8 @@ impl<const B: usize> Compressor<B> {
         let small_add = self.small_add_bound(n, tune);
         let mut best: Option<Fit> = None;
         while lo <= hi {
-            let mid = (lo + hi).div_euclid(2);
+            // floor((lo + hi) / 2), as a shift.
+            let mid = (lo + hi) >> 1;
             let f = self.eval(mid, n, tune, small_add);
             let better = match best {
                 None => true,
