@@ -8,7 +8,7 @@
 //! straight), and the mirror pair for `d < 0` (sharp turns), where `theta` is the angle between
 //! the reversed previous direction and the next one (Klipper's `junction_cos_theta = -d`).
 
-use super::math::{isqrt_u128, sat_u64};
+use super::math::{div_u128, isqrt_u128, sat_u64};
 use super::{Geom, Limits};
 
 /// One in q62.
@@ -29,10 +29,10 @@ pub(super) fn junction_v2(prev: &Geom, next: &Geom, lim: &Limits) -> u64 {
     // sin^2 and cos^2 of half the corner angle, q62.
     let (s2, k) = if dot >= 0 {
         let opd = (ONE_Q62 + dot) as u128;
-        (opd / 2, (cross2 << 62) / (2 * opd))
+        (opd / 2, div_u128(cross2 << 61, opd))
     } else {
         let omd = (ONE_Q62 - dot) as u128;
-        ((cross2 << 62) / (2 * omd), omd / 2)
+        (div_u128(cross2 << 61, omd), omd / 2)
     };
     if s2 == 0 || dot < -(ONE_Q62 - ONE_Q62 / 1_000_000) {
         // (Nearly) a full reversal, within 0.08 degrees as Klipper's `0.999999`: stop.
@@ -44,19 +44,21 @@ pub(super) fn junction_v2(prev: &Geom, next: &Geom, lim: &Limits) -> u64 {
     // a square corner passes at exactly the square-corner velocity, whatever the accel.
     // cos^2 = 0 (straight on) sets no limit.
     let x = (s * (ONE_Q62 as u128 + s)) >> 62;
-    if let Some(jd) = (lim.scv2_jd_q16 as u128 * x).checked_div(k) {
+    if k != 0 {
+        let jd = div_u128(lim.scv2_jd_q16 as u128 * x, k);
         v2 = v2.min(sat_u64(jd));
         // The arc of that radius must fit in the shorter half of each move:
         // v^2 <= 1/2 len accel tan(theta/2), tan = sin / cos.
         let cos = isqrt_u128(k << 62);
         for g in [prev, next] {
             let la = sat_u64((g.len_q32 as u128 * g.accel_q16 as u128) >> 32);
-            v2 = v2.min(sat_u64(la as u128 * s / (2 * cos)));
+            v2 = v2.min(sat_u64(div_u128(la as u128 * s, 2 * cos)));
         }
     }
     // Extruder: its velocity may jump by at most the extruder corner velocity.
     let dr = (next.e_ratio_q62 - prev.e_ratio_q62).unsigned_abs();
-    if let Some(vmax_q16) = ((lim.ecv_q16 as u128) << 62).checked_div(dr) {
+    if dr != 0 {
+        let vmax_q16 = div_u128((lim.ecv_q16 as u128) << 62, dr);
         if vmax_q16 < 1 << 56 {
             v2 = v2.min(sat_u64((vmax_q16 * vmax_q16) >> 16));
         }

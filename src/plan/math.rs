@@ -1,50 +1,170 @@
 //! Exact integer square roots and the fixed-point conversions shared by [`plan`](super) and
 //! `step`.
 //!
-//! Both square roots are the digit-by-digit (binary restoring) method: shifts, adds and
-//! compares only, no division, so they cost the same on the Cortex-M3 as on the host and are
-//! exact (`floor(sqrt(n))`) for every input. `micromath`'s approximate `sqrt` (about 5 %) is
-//! never used for motion.
+//! Both square roots are exact (`floor(sqrt(n))`) for every input and use no floating point.
+//! They normalize the argument (shift left by an even count so that one of its two top bits
+//! is set), take the root of the upper half, and extend it to the full width with one
+//! division: Zimmermann's "Karatsuba square root" step, `s = s' b + q` with
+//! `(q, u) = divrem(r' b + a1, 2 s')`, `r = u b + a0 - q^2`, and one correction when `r < 0`.
+//! On the Cortex-M3 the 32-bit root is a few Newton steps on the hardware divider, so a
+//! 64-bit root costs about as much as five divisions instead of 32 shift-and-subtract rounds.
+//! `micromath`'s approximate `sqrt` (about 5 %) is never used for motion.
+
+/// `floor(sqrt(h))` for `h` in `[2^30, 2^32)` (so the root is in `[2^15, 2^16)`): integer
+/// Newton from `2^15 + h / 2^17`, which is `(c + h / c) / 2 >= sqrt(h)` for `c = 2^16`
+/// (arithmetic-geometric mean), decreasing until it stops (then it is the floor root).
+const fn isqrt_norm_u32(h: u32) -> u32 {
+    let mut x = (1 << 15) + (h >> 17);
+    loop {
+        let y = (x + h / x) >> 1;
+        if y >= x {
+            return x;
+        }
+        x = y;
+    }
+}
+
+/// `floor(sqrt(n))` for a `u32`, exact.
+pub const fn isqrt_u32(n: u32) -> u32 {
+    if n == 0 {
+        return 0;
+    }
+    // Even shift into [2^30, 2^32): floor(floor(sqrt(n 4^k)) / 2^k) = floor(sqrt(n)).
+    let z = n.leading_zeros() & !1;
+    isqrt_norm_u32(n << z) >> (z / 2)
+}
 
 /// `floor(sqrt(n))` for a `u64`, exact.
 pub const fn isqrt_u64(n: u64) -> u64 {
-    if n < 2 {
-        return n;
+    if n <= u32::MAX as u64 {
+        return isqrt_u32(n as u32) as u64;
     }
-    let mut rem = n;
-    let mut root = 0u64;
-    // The highest power of four not above n.
-    let mut bit = 1u64 << ((63 - n.leading_zeros()) & !1);
-    while bit != 0 {
-        if rem >= root + bit {
-            rem -= root + bit;
-            root = (root >> 1) + bit;
-        } else {
-            root >>= 1;
-        }
-        bit >>= 2;
+    let z = n.leading_zeros() & !1;
+    let m = n << z;
+    // m = a3 b^3 + a2 b^2 + a1 b + a0 with b = 2^16 and a3 >= b / 4.
+    let hi = (m >> 32) as u32;
+    let s1 = isqrt_norm_u32(hi);
+    let r1 = hi - s1 * s1; // <= 2 s1 < 2^17
+    let a1 = (m >> 16) as u32 & 0xffff;
+    let a0 = m as u32 & 0xffff;
+    // q = floor((r1 b + a1) / (2 s1)) = floor(floor((r1 b + a1) / 2) / s1); the halved
+    // numerator is below 2^32.
+    let half = (r1 << 15) | (a1 >> 1);
+    let q = half / s1; // <= 2^16
+    let u = ((r1 as u64) << 16 | a1 as u64) - 2 * s1 as u64 * q as u64; // < 2 s1
+    let mut s = ((s1 as u64) << 16) + q as u64;
+    // r = u b + a0 - q^2 < 0: one step too far.
+    if ((u << 16) | a0 as u64) < q as u64 * q as u64 {
+        s -= 1;
     }
-    root
+    s >> (z / 2)
 }
 
-/// `floor(sqrt(n))` for a `u128`, exact. Falls back to [`isqrt_u64`] when `n` fits.
-pub const fn isqrt_u128(n: u128) -> u128 {
+/// `floor(sqrt(n))` for a `u128`, exact. [`isqrt_u64`] when `n` fits, else the same
+/// extension step with `b = 2^32` (one 64-bit division).
+pub fn isqrt_u128(n: u128) -> u128 {
     if n <= u64::MAX as u128 {
         return isqrt_u64(n as u64) as u128;
     }
-    let mut rem = n;
-    let mut root = 0u128;
-    let mut bit = 1u128 << ((127 - n.leading_zeros()) & !1);
-    while bit != 0 {
-        if rem >= root + bit {
-            rem -= root + bit;
-            root = (root >> 1) + bit;
-        } else {
-            root >>= 1;
-        }
-        bit >>= 2;
+    let z = n.leading_zeros() & !1;
+    let m = n << z;
+    let hi = (m >> 64) as u64;
+    let s1 = isqrt_u64(hi); // in [2^31, 2^32)
+    let r1 = hi - s1 * s1; // <= 2 s1 < 2^33
+    let a1 = (m >> 32) as u64 & 0xffff_ffff;
+    let a0 = m as u64 & 0xffff_ffff;
+    // (r1 b + a1) / 2 < 2^64.
+    let half = (r1 << 31) | (a1 >> 1);
+    let q = div_u128(half as u128, s1 as u128) as u64; // <= 2^32
+    let u = ((r1 as u128) << 32 | a1 as u128) - 2 * s1 as u128 * q as u128;
+    let mut s = ((s1 as u128) << 32) + q as u128;
+    if ((u << 32) | a0 as u128) < q as u128 * q as u128 {
+        s -= 1;
     }
-    root
+    s >> (z / 2)
+}
+
+/// `n / d` for a normalized `d` (`d >= 2^31`) and `n < d 2^32` (so the quotient fits in 32
+/// bits): two 16-bit quotient digits, each estimated with the hardware's 32-bit division by
+/// the divisor's top digit and corrected with its low digit (Knuth's algorithm D).
+fn div_64by32(n: u64, d: u32) -> u32 {
+    const B: u32 = 1 << 16;
+    let (d1, d0) = (d >> 16, d & (B - 1));
+    // One quotient digit of (top B + next) / d, and the remainder; top < d.
+    let digit = |top: u32, next: u32| -> (u32, u32) {
+        let mut q = top / d1;
+        let mut rhat = top - q * d1;
+        // rhat < B whenever the product is formed, so nothing overflows.
+        while q >= B || q * d0 > (rhat << 16) + next {
+            q -= 1;
+            rhat += d1;
+            if rhat >= B {
+                break;
+            }
+        }
+        (q, (top << 16).wrapping_add(next).wrapping_sub(q.wrapping_mul(d)))
+    };
+    let (q1, r) = digit((n >> 32) as u32, (n >> 16) as u32 & (B - 1));
+    let (q0, _) = digit(r, n as u32 & (B - 1));
+    (q1 << 16) | q0
+}
+
+/// `(u1 2^64 + u0) / v` for `u1 < v` (so the quotient fits): the same long division with
+/// 32-bit digits, each digit's estimate from [`div_64by32`]. No `u64` or `u128` division
+/// routine (long loops on 32-bit targets).
+fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
+    const B: u64 = 1 << 32;
+    let s = v.leading_zeros();
+    let v = v << s;
+    let (vn1, vn0) = (v >> 32, v & (B - 1));
+    let un32 = if s == 0 { u1 } else { (u1 << s) | (u0 >> (64 - s)) };
+    let un10 = u0 << s;
+    let (un1, un0) = (un10 >> 32, un10 & (B - 1));
+    // One quotient digit of (top B + next) / v, and the remainder; top < v.
+    let digit = |top: u64, next: u64| -> (u64, u64) {
+        let (mut q, mut rhat) = if top >> 32 >= vn1 {
+            // The estimate top / vn1 would not fit in a digit: start from the largest one.
+            (B - 1, top - (B - 1) * vn1)
+        } else {
+            let q = div_64by32(top, vn1 as u32) as u64;
+            (q, top - q * vn1)
+        };
+        // rhat < B whenever the product is formed, so nothing overflows.
+        while rhat < B && q * vn0 > (rhat << 32) + next {
+            q -= 1;
+            rhat += vn1;
+        }
+        (q, (top << 32).wrapping_add(next).wrapping_sub(q.wrapping_mul(v)))
+    };
+    let (q1, un21) = digit(un32, un1);
+    let (q0, _) = digit(un21, un0);
+    (q1 << 32) | q0
+}
+
+/// `n / d` (floor), exactly as `u128` division, with [`div_2by1`] when `d` fits in 64 bits.
+/// Panics if `d` is 0, as the `u128` division does.
+pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
+    let Ok(d64) = u64::try_from(d) else {
+        return n / d;
+    };
+    assert!(d64 != 0, "division by zero");
+    let (hi, lo) = ((n >> 64) as u64, n as u64);
+    if hi < d64 {
+        return div_2by1(hi, lo, d64) as u128;
+    }
+    let qh = div_2by1(0, hi, d64);
+    let r = hi - qh * d64;
+    ((qh as u128) << 64) | div_2by1(r, lo, d64) as u128
+}
+
+/// `n / d` truncated toward zero, exactly as `i128` division, for `d > 0`.
+pub(crate) fn div_i128_pos(n: i128, d: u128) -> i128 {
+    let q = div_u128(n.unsigned_abs(), d) as i128;
+    if n < 0 {
+        -q
+    } else {
+        q
+    }
 }
 
 /// Saturating `u128 -> u64`.
@@ -60,6 +180,98 @@ pub(crate) const fn sat_u64(v: u128) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The plain digit-by-digit root, as an independent oracle.
+    fn bitwise_isqrt(n: u128) -> u128 {
+        let (mut rem, mut root) = (n, 0u128);
+        let mut bit = 1u128 << 126;
+        while bit > n {
+            bit >>= 2;
+        }
+        while bit != 0 {
+            if rem >= root + bit {
+                rem -= root + bit;
+                root = (root >> 1) + bit;
+            } else {
+                root >>= 1;
+            }
+            bit >>= 2;
+        }
+        root
+    }
+
+    #[test]
+    fn roots_match_the_bitwise_oracle_near_squares_and_at_every_width() {
+        let mut x = 0x1234_5678_9abc_def0_u64;
+        for _ in 0..20_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            for shift in [0, 1, 2, 17, 31, 32, 33, 40, 62, 63] {
+                let n = x >> shift;
+                assert_eq!(isqrt_u64(n) as u128, bitwise_isqrt(n as u128), "n = {n}");
+                assert_eq!(isqrt_u32(n as u32) as u128, bitwise_isqrt(n as u32 as u128));
+                // Squares and their neighbours, where a root is most easily off by one.
+                let r = (n >> 32).max(1);
+                for d in [-1i64, 0, 1] {
+                    let sq = (r * r).wrapping_add(d as u64);
+                    assert_eq!(isqrt_u64(sq) as u128, bitwise_isqrt(sq as u128), "n = {sq}");
+                }
+                let wide = ((x as u128) << 64 | x.rotate_left(19) as u128) >> (2 * shift);
+                assert_eq!(isqrt_u128(wide), bitwise_isqrt(wide), "n = {wide}");
+                let r = wide >> 64 | 1;
+                for d in [-1i128, 0, 1] {
+                    let sq = (r * r).wrapping_add(d as u128);
+                    assert_eq!(isqrt_u128(sq), bitwise_isqrt(sq), "n = {sq}");
+                }
+            }
+        }
+        for n in [u64::MAX, u64::MAX - 1, 1 << 62, (1 << 62) - 1, 1 << 32, (1 << 32) - 1] {
+            assert_eq!(isqrt_u64(n) as u128, bitwise_isqrt(n as u128), "n = {n}");
+        }
+        for n in [u128::MAX, u128::MAX - 1, 1 << 126, (1 << 126) - 1, 1 << 64, (1 << 64) + 1] {
+            assert_eq!(isqrt_u128(n), bitwise_isqrt(n), "n = {n}");
+        }
+        let e = u32::MAX as u128;
+        assert_eq!(isqrt_u32(u32::MAX) as u128, bitwise_isqrt(e));
+    }
+
+    #[test]
+    fn wide_division_equals_the_native_one() {
+        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for _ in 0..200_000 {
+            let (a, b, c) = (next(), next(), next());
+            let n = ((a as u128) << 64 | b as u128) >> (a % 128);
+            // Divisors of every width, including ones just below and above a power of two.
+            let d = match c % 4 {
+                0 => (c >> (c % 64)).max(1) as u128,
+                1 => (1u128 << (c % 64)) - (c % 2) as u128,
+                2 => (c as u128) << (b % 64),
+                _ => n >> (b % 128),
+            }
+            .max(1);
+            assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
+            let sn = if a % 2 == 0 { n as i128 } else { -((n >> 1) as i128) };
+            assert_eq!(div_i128_pos(sn, d), sn / d as i128, "{sn} / {d}");
+        }
+        for (n, d) in [(u64::MAX >> 1, 1u32 << 31), ((1 << 63) - 1, u32::MAX), (0, 1 << 31)] {
+            assert_eq!(div_64by32(n, d) as u64, n / d as u64, "{n} / {d}");
+        }
+        for _ in 0..200_000 {
+            let d = (next() as u32) | 1 << 31;
+            let n = next() % ((d as u64) << 32);
+            assert_eq!(div_64by32(n, d) as u64, n / d as u64, "{n} / {d}");
+        }
+        assert_eq!(div_u128(u128::MAX, 1), u128::MAX);
+        assert_eq!(div_u128(u128::MAX, u64::MAX as u128), u128::MAX / u64::MAX as u128);
+        assert_eq!(div_u128(u128::MAX, (1 << 63) + 1), u128::MAX / ((1 << 63) + 1));
+    }
 
     #[test]
     fn isqrt_is_exact_floor() {

@@ -32,7 +32,7 @@
 //! cruise). Its exact duration, in timer ticks with 16 fraction bits, is the sum of the three
 //! phase times, and [`Block::time_at_q16`] gives the time at any distance along the move. The
 //! step generator evaluates the same trapezoid for every step ([`Block::step_time_q16`]: no
-//! division, within 40 ns of it) and starts each block at the exact sum of the durations
+//! division; within about `v_peak 2^-30 / a` of it) and starts each block at the exact sum of the durations
 //! before it, so the planner's print-time estimate is the executed motion's duration.
 //!
 //! # Units (all integer, no floating point)
@@ -50,7 +50,7 @@ use crate::machine::{MachineConfig, Rate, AXES};
 mod junction;
 pub mod math;
 
-use math::{isqrt_u128, sat_u64};
+use math::{div_i128_pos, div_u128, isqrt_u128, sat_u64};
 
 /// Largest per-axis distance of one move, in um (2^24 um = 16.7 m).
 pub const MAX_AXIS_DELTA_UM: i64 = 1 << 24;
@@ -62,7 +62,7 @@ const MAX_SPEED_Q16: u64 = 10_000_000 << 16;
 /// 1000 m/s^2 in um/s^2 q16.
 const MAX_ACCEL_Q16: u64 = 1_000_000_000 << 16;
 /// sqrt(2) - 1 in q62.
-const SQRT2_M1_Q62: u128 = math::isqrt_u128(2 << 124) - (1 << 62);
+const SQRT2_M1_Q62: u128 = 1_910_222_894_239_003_202;
 
 /// What a move does; chooses its acceleration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -309,9 +309,13 @@ pub struct Block {
     t_decel_q16: u64,
     t_total_q16: u64,
     timer_hz: u32,
-    /// Start, cruise and end speed, um/s q8 (`floor(sqrt(v2))`), for the per-step path.
-    v_q8: [u64; 3],
-    /// Ticks q16 per um/s q8 of speed change at full acceleration: `f 2^40 / a_q16`.
+    /// Start, cruise and end speed, um/s with `8 + fine_shift / 2` fraction bits
+    /// (`floor(sqrt(v2 2^fine_shift))`), for the per-step path.
+    v_fine: [u64; 3],
+    /// Extra fraction bits (doubled) of the per-step speeds: as many as the block's largest
+    /// speed squared leaves room for in 62 bits, at most 16 (8 more bits of speed).
+    fine_shift: u32,
+    /// Ticks q16 per step of `v_fine` at full acceleration: `f 2^(40 - fine_shift / 2) / a_q16`.
     ticks_per_dv: u64,
     /// Ticks q16 per um q32 of cruise, scaled by `2^cruise_shift`.
     ticks_per_um: u64,
@@ -326,7 +330,7 @@ impl Block {
         let a = e.accel_q16.max(1) as u128;
         let len = e.len_q32;
         // Distances of the ramps: (vc^2 - v^2) / 2a, um q32.
-        let ramp = |dv2: u64| sat_u64(((dv2 as u128) << 32) / (2 * a)).min(len);
+        let ramp = |dv2: u64| sat_u64(div_u128((dv2 as u128) << 32, 2 * a)).min(len);
         let s_acc = ramp(c2 - s2);
         let s_dec = ramp(c2 - e2).min(len - s_acc);
         let s_cruise = len - s_acc - s_dec;
@@ -337,16 +341,23 @@ impl Block {
             if s == 0 {
                 0
             } else {
-                sat_u64(2 * s as u128 * f / (va as u128 + vb as u128).max(1))
+                sat_u64(div_u128(2 * s as u128 * f, (va as u128 + vb as u128).max(1)))
             }
         };
         let t_acc = ramp_t(s_acc, v[0], v[1]);
-        let t_cruise =
-            if s_cruise == 0 { 0 } else { sat_u64(s_cruise as u128 * f / (v[1] as u128).max(1)) };
+        let t_cruise = if s_cruise == 0 {
+            0
+        } else {
+            sat_u64(div_u128(s_cruise as u128 * f, (v[1] as u128).max(1)))
+        };
         let t_dec = ramp_t(s_dec, v[1], v[2]);
         // Per-step reciprocals: one division each per block, none per step.
-        let ticks_per_dv = sat_u64((f << 40) / a);
-        let k = (f << 64) / (v[1] as u128).max(1);
+        // The per-step speeds get 8 more fraction bits when the peak speed is below 33 mm/s
+        // (v^2 q16 below 2^46), fewer above: (c2 << fine_shift) < 2^62.
+        let half_shift = (c2.leading_zeros().saturating_sub(2) / 2).min(8);
+        let fine_shift = 2 * half_shift;
+        let ticks_per_dv = sat_u64(div_u128(f << (40 - half_shift), a));
+        let k = div_u128(f << 64, (v[1] as u128).max(1));
         let extra = (128 - k.leading_zeros()).saturating_sub(63);
         Self {
             start_um: e.start_um,
@@ -362,7 +373,8 @@ impl Block {
             t_decel_q16: t_acc.saturating_add(t_cruise),
             t_total_q16: t_acc.saturating_add(t_cruise).saturating_add(t_dec),
             timer_hz,
-            v_q8: [s2, c2, e2].map(math::isqrt_u64),
+            v_fine: [s2, c2, e2].map(|x| math::isqrt_u64(x << fine_shift)),
+            fine_shift,
             ticks_per_dv,
             ticks_per_um: (k >> extra) as u64,
             cruise_shift: 64 - extra,
@@ -448,12 +460,13 @@ impl Block {
             }
             let w = v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32);
             let vd = isqrt_u128(w << 16);
-            sat_u64(2 * d as u128 * f / (v as u128 + vd).max(1))
+            sat_u64(div_u128(2 * d as u128 * f, (v as u128 + vd).max(1)))
         };
         if s <= self.accel_end_q32 {
             ramp(s, self.v[0], self.v2[0]).min(self.t_accel_q16)
         } else if s <= self.decel_start_q32 {
-            let t = sat_u64((s - self.accel_end_q32) as u128 * f / (self.v[1] as u128).max(1));
+            let d = (s - self.accel_end_q32) as u128 * f;
+            let t = sat_u64(div_u128(d, (self.v[1] as u128).max(1)));
             self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
         } else {
             let back = ramp(self.len_q32 - s, self.v[2], self.v2[2]);
@@ -462,26 +475,31 @@ impl Block {
     }
 
     /// [`time_at_q16`](Self::time_at_q16) as the step generator computes it for every step:
-    /// speed `v = sqrt(v0^2 + 2 a s)` to 1/256 um/s with a 64-bit square root, then
+    /// speed `v = sqrt(v0^2 + 2 a s)` with a 64-bit square root to 2^-16 um/s below 33 mm/s,
+    /// to as many bits as 31 hold for faster blocks (2^-14 um/s at 100 mm/s), then
     /// `t = (v - v0) / a` and `t = t_a + (s - s_a) / vc` as multiplications by per-block
-    /// reciprocals. No division. It differs from the exact time by at most
-    /// `2^-8 um/s / a` (8 ns at 500 mm/s^2, 40 ns at 100 mm/s^2) plus a tick q16.
+    /// reciprocals. No division. It differs from the exact time by at most the speed
+    /// resolution over `a`, about `v_peak 2^-30 / a` (93 ns for a 100 mm/s peak at 1 mm/s^2,
+    /// 0.2 ns at 500 mm/s^2), never more than `2^-8 um/s / a`, plus a tick q16.
     pub fn step_time_q16(&self, dist_q32: u64) -> u64 {
         let s = dist_q32.min(self.len_q32);
-        // Time to reach speed^2 `v2 + 2 a d` from speed `v` (q8) at full acceleration.
-        let ramp = |d: u64, v_q8: u64, v2: u64| -> u64 {
+        // Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
+        // acceleration; `v2 + 2 a d` is at most the cruise speed squared (plus rounding), so
+        // the shift into the finer units keeps it below 2^63.
+        let ramp = |d: u64, v_fine: u64, v2: u64| -> u64 {
             let w = sat_u64(v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32));
-            let dv = math::isqrt_u64(w).saturating_sub(v_q8);
+            let w = if w > u64::MAX >> self.fine_shift { u64::MAX } else { w << self.fine_shift };
+            let dv = math::isqrt_u64(w).saturating_sub(v_fine);
             sat_u64((dv as u128 * self.ticks_per_dv as u128) >> 16)
         };
         if s <= self.accel_end_q32 {
-            ramp(s, self.v_q8[0], self.v2[0]).min(self.t_accel_q16)
+            ramp(s, self.v_fine[0], self.v2[0]).min(self.t_accel_q16)
         } else if s <= self.decel_start_q32 {
             let d = (s - self.accel_end_q32) as u128;
             let t = sat_u64((d * self.ticks_per_um as u128) >> self.cruise_shift);
             self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
         } else {
-            let back = ramp(self.len_q32 - s, self.v_q8[2], self.v2[2]);
+            let back = ramp(self.len_q32 - s, self.v_fine[2], self.v2[2]);
             self.t_total_q16.saturating_sub(back).max(self.t_decel_q16)
         }
     }
@@ -489,7 +507,7 @@ impl Block {
 
 /// Ticks q16 to seconds.
 fn ticks_q16_to_s(t_q16: u64, timer_hz: u32) -> U32F32 {
-    U32F32::from_bits(sat_u64(((t_q16 as u128) << 16) / timer_hz.max(1) as u128))
+    U32F32::from_bits(sat_u64(div_u128((t_q16 as u128) << 16, timer_hz.max(1) as u128)))
 }
 
 /// The lookahead planner with a queue of `N` moves.
@@ -742,21 +760,37 @@ impl<const N: usize> Planner<N> {
             MoveKind::Print => lim.print_accel_q16,
             MoveKind::Travel | MoveKind::Retract => lim.travel_accel_q16,
         };
+        // Axis speed v |d|/L <= vmax: v^2 <= vmax^2 L^2 / d^2 (L^2 exact); axis acceleration
+        // a |d|/L <= amax: a <= amax L / |d|. Only the tightest axis of each needs dividing
+        // (floor and saturation keep the order): the smallest vmax^2 / d^2 and amax / |d|,
+        // compared by cross-multiplying.
+        let (mut v_axis, mut a_axis) = (None::<usize>, None::<usize>);
         for (axis, &da) in d.iter().enumerate() {
             if da == 0 {
                 continue;
             }
-            // Axis speed v |d|/L <= vmax: v^2 <= vmax^2 L^2 / d^2 (L^2 exact).
-            let cap = lim.vmax2_q16[axis] as u128 * len2 as u128 / sq(da) as u128;
+            let tighter = |q: &[u64; AXES], other: Option<usize>, w: fn(i64) -> u128| {
+                other.map_or(true, |o| q[axis] as u128 * w(d[o]) < q[o] as u128 * w(da))
+            };
+            if tighter(&lim.vmax2_q16, v_axis, |v| (v * v) as u128) {
+                v_axis = Some(axis);
+            }
+            if tighter(&lim.amax_q16, a_axis, |v| v.unsigned_abs() as u128) {
+                a_axis = Some(axis);
+            }
+        }
+        if let Some(axis) = v_axis {
+            let cap = div_u128(lim.vmax2_q16[axis] as u128 * len2 as u128, sq(d[axis]) as u128);
             cruise_v2 = cruise_v2.min(sat_u64(cap));
-            // Axis acceleration a |d|/L <= amax: a <= amax L / |d|.
-            let cap =
-                lim.amax_q16[axis] as u128 * len_q32 as u128 / ((da.unsigned_abs() as u128) << 32);
+        }
+        if let Some(axis) = a_axis {
+            let la = lim.amax_q16[axis] as u128 * len_q32 as u128;
+            let cap = div_u128(la, (d[axis].unsigned_abs() as u128) << 32);
             accel_q16 = accel_q16.min(sat_u64(cap));
         }
         let ratio = |v: i64| {
-            if kinematic {
-                ((v as i128) << 94) / len_q32 as i128
+            if kinematic && v != 0 {
+                div_i128_pos((v as i128) << 94, len_q32 as u128)
             } else {
                 0
             }
@@ -782,6 +816,69 @@ mod tests {
 
     fn to_f(r: Rate) -> f64 {
         r.to_num::<f64>()
+    }
+
+    /// `f64` trapezoid time (s) at distance `s_mm` with start, cruise and end speeds and the
+    /// acceleration of `b` (from its accessors) and its phase distances.
+    fn f64_time(b: &Block, s_mm: f64) -> f64 {
+        let (v0, vc, v1) =
+            (to_f(b.start_speed_mm_s()), to_f(b.cruise_speed_mm_s()), to_f(b.end_speed_mm_s()));
+        let a = to_f(b.accel_mm_s2());
+        let q32 = |x: u64| x as f64 / 4294967296e3;
+        let ([sa, sd], len) = (b.phase_um_q32().map(q32), q32(b.length_um_q32()));
+        let ta = (vc - v0) / a;
+        let td = ta + (sd - sa) / vc;
+        let total = td + (vc - v1) / a;
+        if s_mm <= sa {
+            2.0 * s_mm / (v0 + (v0 * v0 + 2.0 * a * s_mm).sqrt())
+        } else if s_mm <= sd {
+            ta + (s_mm - sa) / vc
+        } else {
+            let back = len - s_mm;
+            total - 2.0 * back / (v1 + (v1 * v1 + 2.0 * a * back).sqrt())
+        }
+    }
+
+    #[test]
+    fn per_step_time_is_within_its_resolution_of_the_f64_trapezoid() {
+        for accel in [1u32, 4, 100, 500, 5_000, 200_000] {
+            for feed in [1u32, 30, 100, 300, 1_000, 10_000] {
+                for len_um in [50i32, 2_000, 50_000, 1_000_000] {
+                    let cfg = PlanConfig {
+                        travel_accel_mm_s2: mm(accel),
+                        max_accel_mm_s2: [mm(1_000_000); 4],
+                        max_feed_mm_s: [mm(20_000); 4],
+                        ..PlanConfig::default()
+                    };
+                    let mut p: Planner<4> = Planner::new(&cfg, [0; 4]);
+                    // Start and end at speed: a 90 degree corner before and after.
+                    p.push(Move::new([0, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.push(Move::new([len_um, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.push(Move::new([len_um, 0, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.pop_forced().unwrap();
+                    let b = p.pop_forced().unwrap();
+                    let vc = to_f(b.cruise_speed_mm_s()) * 1e3;
+                    let a = to_f(b.accel_mm_s2()) * 1e3;
+                    // Speed resolution over a, the ramps' phase-time rounding, a tick q16.
+                    let res = (vc * 2f64.powi(-30)).max(2f64.powi(-16)).min(2f64.powi(-8));
+                    let tol = res / a * 1.5 + 3.0 / 72e6;
+                    for i in 0..=400u64 {
+                        let s_q32 = b.length_um_q32() / 400 * i;
+                        let t = b.step_time_q16(s_q32) as f64 / 65536.0 / 72e6;
+                        let want = f64_time(&b, s_q32 as f64 / 4294967296e3);
+                        assert!(
+                            (t - want).abs() <= tol,
+                            "a {accel} feed {feed} len {len_um}: {t} vs {want} at {i}/400 (tol {tol})"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn sqrt2_minus_one_is_the_floor_root() {
+        assert_eq!(SQRT2_M1_Q62, isqrt_u128(2 << 124) - (1 << 62));
     }
 
     #[test]

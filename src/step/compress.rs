@@ -46,13 +46,66 @@ struct Fit {
     miss: Miss,
 }
 
-/// `floor(n / k)` for `k > 0`; 32-bit (a hardware divide on the Cortex-M3) when `n` fits.
-#[inline]
-fn floor_div(n: i64, k: i64) -> i64 {
-    if let (Ok(n32), Ok(k32)) = (i32::try_from(n), i32::try_from(k)) {
-        n32.div_euclid(k32) as i64
-    } else {
-        n.div_euclid(k)
+/// Signed integers for [`Compressor::add_range`] and [`Compressor::check_in`]: the low bits
+/// of a tick and wrapping arithmetic (exact while the true values fit).
+trait Wrapping: Copy + Ord {
+    const MIN: Self;
+    const MAX: Self;
+    /// `v`, which fits.
+    fn of(v: i64) -> Self;
+    fn low(t: u64) -> Self;
+    fn add(self, other: Self) -> Self;
+    fn sub(self, other: Self) -> Self;
+    fn wide(self) -> i64;
+}
+
+impl Wrapping for i32 {
+    const MIN: Self = i32::MIN;
+    const MAX: Self = i32::MAX;
+    #[inline(always)]
+    fn of(v: i64) -> Self {
+        v as i32
+    }
+    #[inline(always)]
+    fn low(t: u64) -> Self {
+        t as i32
+    }
+    #[inline(always)]
+    fn add(self, other: Self) -> Self {
+        self.wrapping_add(other)
+    }
+    #[inline(always)]
+    fn sub(self, other: Self) -> Self {
+        self.wrapping_sub(other)
+    }
+    #[inline(always)]
+    fn wide(self) -> i64 {
+        self as i64
+    }
+}
+
+impl Wrapping for i64 {
+    const MIN: Self = i64::MIN;
+    const MAX: Self = i64::MAX;
+    #[inline(always)]
+    fn of(v: i64) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn low(t: u64) -> Self {
+        t as i64
+    }
+    #[inline(always)]
+    fn add(self, other: Self) -> Self {
+        self.wrapping_add(other)
+    }
+    #[inline(always)]
+    fn sub(self, other: Self) -> Self {
+        self.wrapping_sub(other)
+    }
+    #[inline(always)]
+    fn wide(self) -> i64 {
+        self
     }
 }
 
@@ -69,9 +122,8 @@ pub(crate) struct Compressor<const B: usize> {
     dir: Option<bool>,
     /// The next sequence is the first after a DIR command.
     after_dir: bool,
-    /// The last accepted step and its direction.
+    /// The last accepted step (its direction is `dir`).
     prev_tick: u64,
-    prev_dir: Option<bool>,
     /// Steps moved later to respect the driver's minimum intervals.
     pub clamped: u32,
     /// Sequences committed.
@@ -91,7 +143,6 @@ impl<const B: usize> Compressor<B> {
             dir: None,
             after_dir: false,
             prev_tick: 0,
-            prev_dir: None,
             clamped: 0,
             sequences: 0,
             check_failures: 0,
@@ -116,10 +167,6 @@ impl<const B: usize> Compressor<B> {
         self.last
     }
 
-    fn pending(&self, i: usize) -> u64 {
-        self.buf[(self.head + i) % B]
-    }
-
     /// Accepts the step at exact time `tick` in direction `dir`. On `Err` nothing about the
     /// step was recorded and the same call may simply be repeated.
     pub(crate) fn push_step<const N: usize>(
@@ -130,7 +177,10 @@ impl<const B: usize> Compressor<B> {
         out: &mut StepProducer<'_, N>,
         tune: &Tune,
     ) -> Result<(), Full> {
-        if self.dir != Some(dir) {
+        // The last accepted step went the same way exactly when the pending direction is
+        // `dir` (both change together, below).
+        let same_dir = self.dir == Some(dir);
+        if !same_dir {
             while !self.is_empty() {
                 self.emit(axis, out, tune)?;
             }
@@ -141,7 +191,7 @@ impl<const B: usize> Compressor<B> {
         if self.len == B {
             self.emit(axis, out, tune)?;
         }
-        let gap = if self.prev_dir == Some(dir) { tune.min_step } else { tune.min_rev } as u64;
+        let gap = if same_dir { tune.min_step } else { tune.min_rev } as u64;
         let tick = if tick < self.prev_tick + gap {
             self.clamped += 1;
             self.prev_tick + gap
@@ -151,7 +201,6 @@ impl<const B: usize> Compressor<B> {
         self.buf[(self.head + self.len) % B] = tick;
         self.len += 1;
         self.prev_tick = tick;
-        self.prev_dir = Some(dir);
         Ok(())
     }
 
@@ -170,9 +219,9 @@ impl<const B: usize> Compressor<B> {
             out.enqueue(axis, StepCmd::Wait(MAX_INTERVAL_TICKS / 2)).map_err(|_| Full)?;
             self.last += max / 2;
         }
-        let mut fit = self.fit(tune);
+        let (mut fit, small_add) = self.fit(tune);
         let mut interval = fit.imin + (fit.imax - fit.imin) / 2;
-        if !self.check(interval, fit.add, fit.count, tune) {
+        if !self.check(interval, fit.add, fit.count, tune, small_add) {
             // Unreachable by construction; a single step is always valid.
             self.check_failures += 1;
             fit.count = 1;
@@ -195,6 +244,7 @@ impl<const B: usize> Compressor<B> {
         Ok(())
     }
 
+    #[inline(always)]
     fn first_min(&self, tune: &Tune) -> i64 {
         if self.after_dir {
             tune.min_rev
@@ -204,50 +254,95 @@ impl<const B: usize> Compressor<B> {
     }
 
     /// Replays the executor's arithmetic and checks every step against its exact time.
-    fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
-        let mut iv = interval;
-        let mut t = self.last as i64;
+    /// `small_add` is [`Compressor::small_add_bound`] of at least `count` pending steps.
+    fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune, small_add: u64) -> bool {
+        // In i32 when every model time and interval stays below 2^30 in magnitude (the ranges
+        // of `eval_small`, with the interval itself bounded too).
+        let small = add.unsigned_abs() < small_add
+            && interval > 0
+            && interval.saturating_mul(count as i64) < 1 << 29;
+        if small {
+            self.check_in::<i32>(interval, add, count, tune)
+        } else {
+            self.check_in::<i64>(interval, add, count, tune)
+        }
+    }
+
+    /// [`Compressor::check`] in `T`: the executor's `interval += add; t += interval`.
+    fn check_in<T: Wrapping>(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
+        let (add_t, max_iv) = (T::of(add), MAX_INTERVAL_TICKS as i64);
+        let mut iv = T::of(interval);
+        let mut t = T::low(self.last);
+        let mut min_iv = self.first_min(tune);
+        let mut j = self.head;
         for i in 0..count {
             if i > 0 {
-                iv += add;
+                iv = iv.add(add_t);
+                min_iv = tune.min_step;
+                j += 1;
+                if j == B {
+                    j = 0;
+                }
             }
-            let min_iv = if i == 0 { self.first_min(tune) } else { tune.min_step };
-            t += iv;
-            if iv < min_iv || iv > MAX_INTERVAL_TICKS as i64 {
+            t = t.add(iv);
+            let w = iv.wide();
+            if w < min_iv || w > max_iv {
                 return false;
             }
-            if (t - self.pending(i) as i64).abs() > tune.tol {
+            if t.sub(T::low(self.buf[j])).wide().abs() > tune.tol {
                 return false;
             }
         }
         count >= 1
     }
 
-    /// The longest sequence from the front of the pending steps.
-    fn fit(&self, tune: &Tune) -> Fit {
+    /// Smallest and largest second difference of the first `n >= 2` pending step times (the
+    /// first interval counts from `last`), computed in `T` (wrapping differences of the low
+    /// bits, exact when they fit).
+    fn add_range<T: Wrapping>(&self, n: usize) -> (i64, i64) {
+        let (mut amin, mut amax) = (T::MAX, T::MIN);
+        let mut j = self.head;
+        let mut prev_t = T::low(self.buf[j]);
+        let mut prev_iv = prev_t.sub(T::low(self.last));
+        for _ in 1..n {
+            j += 1;
+            if j == B {
+                j = 0;
+            }
+            let t = T::low(self.buf[j]);
+            let iv = t.sub(prev_t);
+            let a = iv.sub(prev_iv);
+            amin = amin.min(a);
+            amax = amax.max(a);
+            prev_iv = iv;
+            prev_t = t;
+        }
+        (amin.wide(), amax.wide())
+    }
+
+    /// The longest sequence from the front of the pending steps, and the 32-bit range of
+    /// `add` for all of them ([`Compressor::small_add_bound`]).
+    fn fit(&self, tune: &Tune) -> (Fit, u64) {
         let n = self.len.min(u16::MAX as usize);
         // Range of `add` from the second differences (the first interval counts from `last`).
         let (mut amin, mut amax) = (0i64, 0i64);
         if n > 1 {
-            (amin, amax) = (i64::MAX, i64::MIN);
-            let mut prev_t = self.last as i64;
-            let mut prev_iv: Option<i64> = None;
-            for i in 0..n {
-                let t = self.pending(i) as i64;
-                let iv = t - prev_t;
-                if let Some(p) = prev_iv {
-                    amin = amin.min(iv - p);
-                    amax = amax.max(iv - p);
-                }
-                prev_iv = Some(iv);
-                prev_t = t;
-            }
+            let first = self.buf[self.head] as i64 - self.last as i64;
+            let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
+            (amin, amax) = if first > -(1 << 29) && end < 1 << 29 {
+                // Every interval and difference of intervals fits in i32.
+                self.add_range::<i32>(n)
+            } else {
+                self.add_range::<i64>(n)
+            };
         }
         let (mut lo, mut hi) = ((amin - 1).max(i32::MIN as i64), (amax + 1).min(i32::MAX as i64));
+        let small_add = self.small_add_bound(n, tune);
         let mut best: Option<Fit> = None;
         while lo <= hi {
-            let mid = (lo + hi).div_euclid(2);
-            let f = self.eval(mid, n, tune);
+            // floor((lo + hi) / 2), as a shift.
+            let mid = (lo + hi) >> 1;
+            let f = self.eval(mid, n, tune, small_add);
             let better = match best {
                 None => true,
                 Some(b) => f.count > b.count || (f.count == b.count && f.add.abs() < b.add.abs()),
@@ -261,22 +356,61 @@ impl<const B: usize> Compressor<B> {
                 Miss::Smaller => hi = mid - 1,
             }
         }
-        best.unwrap_or_else(|| self.eval(0, 1, tune))
+        let best = best.unwrap_or_else(|| self.eval(0, 1, tune, self.small_add_bound(1, tune)));
+        (best, small_add)
     }
 
     /// How many pending steps `add` covers, and the interval range that does it.
-    fn eval(&self, add: i64, n: usize, tune: &Tune) -> Fit {
+    ///
+    /// Step `i` (with `k = i + 1`, offset `d_i` from `last`) bounds the interval `x` by
+    /// `k x + add i (i + 1) / 2` within `d_i +- tol`, and its own interval `x + add i` by the
+    /// driver's minimum and [`MAX_INTERVAL_TICKS`]. Intersecting these ranges step by step
+    /// gives the longest covered prefix; which bound the first failing step broke says which
+    /// way a better `add` lies. `small_add` is [`Compressor::small_add_bound`] of `n`.
+    fn eval(&self, add: i64, n: usize, tune: &Tune, small_add: u64) -> Fit {
+        if n == 0 {
+            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Fits };
+        }
+        if add.unsigned_abs() < small_add {
+            self.eval_small(add, n, tune)
+        } else {
+            self.eval_wide(add, n, tune)
+        }
+    }
+
+    /// The `add`s (in magnitude, exclusive) for which [`Compressor::eval`] of the first `n`
+    /// pending steps may run in 32 bits (see [`Compressor::eval_small`]); 0 for none.
+    fn small_add_bound(&self, n: usize, tune: &Tune) -> u64 {
+        if n == 0 || n >= 1 << 12 {
+            return 0;
+        }
+        let first = self.buf[self.head] as i64 - self.last as i64;
+        let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
+        let nn = n as i64;
+        let ok = first > -(1 << 28)
+            && (end + tune.tol + 1).saturating_mul(nn) < 1 << 29
+            && tune.tol < 1 << 20
+            && (0..1 << 20).contains(&tune.min_step)
+            && self.first_min(tune) < 1 << 20;
+        // |add| < 2^29 / n^2 keeps |add| n^2 below 2^29.
+        if ok {
+            ((1u32 << 29) / (n * n) as u32) as u64
+        } else {
+            0
+        }
+    }
+
+    /// [`Compressor::eval`] in `i64`, dividing at every step.
+    fn eval_wide(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let (mut imin, mut imax) = (i64::MIN, i64::MAX);
         let last = self.last as i64;
         for i in 0..n {
             let ii = i as i64;
-            let d = self.pending(i) as i64 - last;
+            let d = self.buf[(self.head + i) % B] as i64 - last;
             let k = ii + 1;
             let at = add * (ii * k / 2);
-            // (i + 1) interval + add i (i + 1) / 2 within d +- tol.
-            let mut lo = -floor_div(-(d - tune.tol - at), k);
-            let mut hi = floor_div(d + tune.tol - at, k);
-            // The interval of step i is interval + add i.
+            let mut lo = -(-(d - tune.tol - at)).div_euclid(k);
+            let mut hi = (d + tune.tol - at).div_euclid(k);
             let min_iv = if i == 0 { self.first_min(tune) } else { tune.min_step };
             lo = lo.max(min_iv - add * ii);
             hi = hi.min(MAX_INTERVAL_TICKS as i64 - add * ii);
@@ -288,6 +422,89 @@ impl<const B: usize> Compressor<B> {
             (imin, imax) = (nlo, nhi);
         }
         Fit { count: n, add, imin, imax, miss: Miss::Fits }
+    }
+
+    /// [`Compressor::eval`] in `i32` (registers and hardware divider of the Cortex-M3), with
+    /// the same result as [`Compressor::eval_wide`].
+    ///
+    /// Step `i`'s model time ranges over `last + k x + at` for `x` in `imin..=imax`
+    /// (`at = add i (i + 1) / 2`). The walk carries the two edges shifted by the tolerance,
+    /// `up = last + k imin + at + tol` and `down = last + k imax + at - tol`, forward by
+    /// additions (wrapping `u32`, compared as differences): a step at `down <= t <= up` whose
+    /// own interval cannot fall below the minimum narrows nothing. Any other step takes the
+    /// exact path, with a division only for a bound that narrows.
+    ///
+    /// Ranges (from [`Compressor::small_add_bound`]): offsets below 2^28 in magnitude,
+    /// `n (end + tol) < 2^29` and `|add| n^2 < 2^29`. Then `0 < imin <= imax <= end + tol`
+    /// (imin starts at the first step's minimum interval or above and only grows), so
+    /// `k imin`, `k imax`, `at`, `add i` and every difference compared stay below 2^30, and
+    /// the [`MAX_INTERVAL_TICKS`] (2^30) bound `2^30 - add i > imax` never binds.
+    fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
+        let last = self.last as u32;
+        let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);
+        let fit = |count: usize, imin: i32, imax: i32, miss: Miss| Fit {
+            count,
+            add,
+            imin: imin as i64,
+            imax: imax as i64,
+            miss,
+        };
+        let mut j = self.head;
+        let d = (self.buf[j] as u32).wrapping_sub(last) as i32;
+        let (mut imin, mut imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
+        if imin > imax {
+            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Smaller };
+        }
+        let mut up = last.wrapping_add((imin + tol) as u32);
+        let mut down = last.wrapping_add((imax - tol) as u32);
+        // Step i's own interval x + add i stays >= min_step for every x >= imin while
+        // add i >= min_step - imin.
+        let mut lim = min_step - imin;
+        let (mut add_i, mut at) = (0i32, 0i32);
+        for i in 1..n {
+            j += 1;
+            if j == B {
+                j = 0;
+            }
+            add_i += add32;
+            at += add_i;
+            up = up.wrapping_add((imin + add_i) as u32);
+            down = down.wrapping_add((imax + add_i) as u32);
+            let t = self.buf[j] as u32;
+            let (above, below) = (up.wrapping_sub(t) as i32, t.wrapping_sub(down) as i32);
+            if above >= 0 && below >= 0 && add_i >= lim {
+                continue;
+            }
+            // above = k imin + at + tol - d and below = d + tol - k imax - at.
+            let lim_lo = min_step - add_i;
+            // ceil((d - tol - at) / k) > imax, or the minimum interval above imax.
+            if below > 2 * tol || lim_lo > imax {
+                return fit(i, imin, imax, Miss::Larger);
+            }
+            if above > 2 * tol {
+                return fit(i, imin, imax, Miss::Smaller);
+            }
+            // Both dividends are positive here: d - tol - at > k imin > 0 when the low bound
+            // narrows, d + tol - at >= k imin > 0 always.
+            let k = i as u32 + 1;
+            let d_at = t.wrapping_sub(last).wrapping_sub(at as u32);
+            let lo = if above < 0 { (d_at - tol as u32).div_ceil(k) as i32 } else { imin };
+            let hi = if below < 0 { ((d_at + tol as u32) / k) as i32 } else { imax };
+            let lo = lo.max(lim_lo);
+            if lo > hi {
+                return fit(i, imin, imax, Miss::Smaller);
+            }
+            if lo != imin {
+                imin = lo;
+                up = last.wrapping_add((k as i32 * imin + at + tol) as u32);
+                lim = min_step - imin;
+            }
+            if hi != imax {
+                imax = hi;
+                down = last.wrapping_add((k as i32 * imax + at - tol) as u32);
+            }
+        }
+        fit(n, imin, imax, Miss::Fits)
     }
 }
 
@@ -352,6 +569,65 @@ mod tests {
             assert!((g - *e as i64).abs() <= 36, "{g} vs {e}");
         }
         assert!(c.sequences < 2000 / 8, "poor compression: {} sequences", c.sequences);
+    }
+
+    #[test]
+    fn the_32_bit_walk_equals_the_64_bit_one() {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        let mut rnd = |m: u64| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x % m
+        };
+        for round in 0..4000 {
+            let mut c = Compressor::<64>::new();
+            c.last = 1_000_000 + rnd(1 << 40);
+            c.head = rnd(64) as usize;
+            c.after_dir = rnd(2) == 0;
+            c.len = 1 + rnd(64) as usize;
+            // Accelerating, decelerating or noisy intervals, some far from `last`.
+            let mut t = c.last + if round % 7 == 0 { rnd(1 << 27) } else { rnd(3000) };
+            let mut iv = 144 + rnd(20_000) as i64;
+            let acc = rnd(400) as i64 - 200;
+            for i in 0..c.len {
+                c.buf[(c.head + i) % 64] = t;
+                iv = (iv + acc + rnd(80) as i64 - 40).max(144);
+                t += iv as u64;
+            }
+            let tune =
+                Tune { tol: 1 + rnd(60) as i64, min_step: 144, min_rev: 144 + rnd(50) as i64 };
+            let n = c.len;
+            let first = c.buf[c.head] as i64 - c.last as i64;
+            let end = c.buf[(c.head + n - 1) % 64] as i64 - c.last as i64;
+            if n > 1 && first > -(1 << 29) && end < 1 << 29 {
+                assert_eq!(c.add_range::<i32>(n), c.add_range::<i64>(n));
+            }
+            for _ in 0..8 {
+                let add = if rnd(4) == 0 {
+                    rnd(1 << 20) as i64 - (1 << 19)
+                } else {
+                    acc + rnd(60) as i64 - 30
+                };
+                let n = 1 + rnd(c.len as u64) as usize;
+                let small = c.small_add_bound(n, &tune);
+                let (a, b) = (c.eval_wide(add, n, &tune), c.eval(add, n, &tune, small));
+                if b.count > 0 {
+                    let iv = b.imin + rnd(1 + (b.imax - b.imin) as u64) as i64;
+                    let count = 1 + rnd(b.count as u64) as usize;
+                    assert_eq!(
+                        c.check(iv, add, count, &tune, small),
+                        c.check_in::<i64>(iv, add, count, &tune),
+                        "check of {iv} {add} {count}"
+                    );
+                }
+                assert_eq!(
+                    (a.count, a.imin, a.imax, a.miss),
+                    (b.count, b.imin, b.imax, b.miss),
+                    "add {add} n {n} round {round}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -5,6 +5,7 @@
 use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
 use crate::machine::{Rate, AXES};
+use crate::plan::math::div_u128;
 use crate::plan::Block;
 use heapless::Deque;
 
@@ -50,8 +51,13 @@ struct AxisRun {
     s_q48: u128,
     /// Path distance per step, um q48.
     ds_q48: u128,
-    /// Exact time of the next step, generator ticks.
+    /// Exact time of the next step, generator ticks (`u64::MAX` with no step left).
     next_tick: u64,
+}
+
+impl AxisRun {
+    /// No step to make.
+    const STILL: Self = Self { remaining: 0, dir: false, s_q48: 0, ds_q48: 0, next_tick: u64::MAX };
 }
 
 /// Turns blocks into compressed step sequences; `B` pending steps per axis at most.
@@ -73,6 +79,9 @@ pub struct StepGenerator<const B: usize = 64> {
     last_tick: u64,
     /// Axes still to check for an overdue sequence after the last step (bit per axis).
     overdue: u8,
+    /// No pending step is overdue before this tick: at most the earliest first pending step
+    /// plus `pending_ticks` (kept low when a step arrives, exact after a full check).
+    settle_at: u64,
     /// A block ended at rest: every pending step goes out before the next block.
     flush_all: bool,
     /// Generator time at the start of the current block (or the end of the last), ticks q16.
@@ -108,13 +117,14 @@ impl<const B: usize> StepGenerator<B> {
         self.pending_ticks = config.max_pending_ticks as u64;
         self.steps_per_mm = spm;
         self.comp.iter_mut().for_each(Compressor::reset);
-        self.axes = [AxisRun::default(); AXES];
+        self.axes = [AxisRun::STILL; AXES];
         self.block = None;
         self.next = None;
         self.tag = None;
         self.marks.clear();
         self.last_tick = 0;
         self.overdue = 0;
+        self.settle_at = 0;
         self.flush_all = false;
         self.block_start_q16 = 0;
         for (m, (&p, &r)) in self.motor.iter_mut().zip(position_um.iter().zip(spm.iter())) {
@@ -129,20 +139,19 @@ impl<const B: usize> StepGenerator<B> {
     /// before use). Lets a large owner be built in a `static`.
     pub const fn empty() -> Self {
         let () = Self::CAPACITY_OK;
-        const STILL: AxisRun =
-            AxisRun { remaining: 0, dir: false, s_q48: 0, ds_q48: 0, next_tick: 0 };
         Self {
             tune: Tune { tol: 0, min_step: 0, min_rev: 0 },
             pending_ticks: 0,
             steps_per_mm: [Rate::ZERO; AXES],
             comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
-            axes: [STILL; AXES],
+            axes: [AxisRun::STILL; AXES],
             block: None,
             next: None,
             tag: None,
             marks: Deque::new(),
             last_tick: 0,
             overdue: 0,
+            settle_at: 0,
             flush_all: false,
             block_start_q16: 0,
             motor: [0; AXES],
@@ -222,7 +231,8 @@ impl<const B: usize> StepGenerator<B> {
             if self.settle(out).is_err() {
                 return GenStatus::QueueFull;
             }
-            let Some(block) = self.block else {
+            // Borrowed, never copied: a `Block` is a few hundred bytes.
+            let Some(block) = self.block.as_ref() else {
                 if let Some((b, tag)) = self.next {
                     if self.tag != Some(tag) {
                         if self.marks.is_full() {
@@ -241,24 +251,24 @@ impl<const B: usize> StepGenerator<B> {
                 }
                 return if self.at_rest { GenStatus::Idle } else { GenStatus::NeedBlock };
             };
-            // The axis with the earliest next step.
-            let mut pick: Option<usize> = None;
-            for axis in 0..AXES {
-                let a = &self.axes[axis];
-                if a.remaining > 0 && pick.map_or(true, |p| a.next_tick < self.axes[p].next_tick) {
-                    pick = Some(axis);
+            // The axis with the earliest next step (the first of equals; an axis without
+            // steps left waits at `u64::MAX`).
+            let mut axis = 0;
+            for a in 1..AXES {
+                if self.axes[a].next_tick < self.axes[axis].next_tick {
+                    axis = a;
                 }
             }
-            let Some(axis) = pick else {
-                self.block_start_q16 =
-                    self.block_start_q16.saturating_add(block.duration_ticks_q16());
-                self.at_rest = block.ends_at_rest();
+            if self.axes[axis].next_tick == u64::MAX {
+                let (duration, at_rest) = (block.duration_ticks_q16(), block.ends_at_rest());
+                self.block_start_q16 = self.block_start_q16.saturating_add(duration);
+                self.at_rest = at_rest;
                 // A stop sends everything before it, whether or not more blocks follow.
                 self.flush_all = self.at_rest;
                 self.block = None;
                 self.blocks += 1;
                 continue;
-            };
+            }
             let (tick, dir) = (self.axes[axis].next_tick, self.axes[axis].dir);
             if self.comp[axis].push_step(axis, tick, dir, out, &self.tune).is_err() {
                 // Only a deadlock (the executor waits at the horizon and this queue is still
@@ -269,15 +279,45 @@ impl<const B: usize> StepGenerator<B> {
                 return GenStatus::QueueFull;
             }
             self.steps[axis] += 1;
-            self.advance(axis, &block);
+            self.advance(axis);
             self.last_tick = tick;
             self.overdue = (1 << AXES) - 1;
+            if let Some(f) = self.comp[axis].first_pending() {
+                self.settle_at = self.settle_at.min(f + self.pending_ticks);
+            }
         }
     }
 
     /// Sends what is owed: per axis at most one sequence whose first step waited longer than
     /// `pending_ticks` behind the last step generated, then (at a stop) everything.
+    #[inline]
     fn settle<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> Result<(), Full> {
+        if self.overdue != 0 && self.last_tick <= self.settle_at {
+            // Nothing is overdue: the checks below would all pass.
+            self.overdue = 0;
+        }
+        if self.overdue != 0 {
+            self.settle_overdue(out)?;
+        }
+        if self.flush_all {
+            for c in 0..AXES {
+                while !self.comp[c].is_empty() {
+                    self.comp[c].emit(c, out, &self.tune)?;
+                    self.publish(out);
+                }
+            }
+            self.flush_all = false;
+        }
+        Ok(())
+    }
+
+    /// The per-axis part of [`StepGenerator::settle`]: at most one sequence for each axis
+    /// still to check whose first step is overdue.
+    fn settle_overdue<const N: usize>(
+        &mut self,
+        out: &mut StepProducer<'_, N>,
+    ) -> Result<(), Full> {
+        let full_check = self.overdue == (1 << AXES) - 1;
         for c in 0..AXES {
             if self.overdue & (1 << c) == 0 {
                 continue;
@@ -290,14 +330,13 @@ impl<const B: usize> StepGenerator<B> {
             }
             self.overdue &= !(1 << c);
         }
-        if self.flush_all {
-            for c in 0..AXES {
-                while !self.comp[c].is_empty() {
-                    self.comp[c].emit(c, out, &self.tune)?;
-                    self.publish(out);
-                }
-            }
-            self.flush_all = false;
+        if full_check {
+            self.settle_at = self
+                .comp
+                .iter()
+                .filter_map(|c| c.first_pending())
+                .min()
+                .map_or(u64::MAX, |f| f + self.pending_ticks);
         }
         Ok(())
     }
@@ -361,11 +400,11 @@ impl<const B: usize> StepGenerator<B> {
         let len = b.length_um_q32() as u128;
         for axis in 0..AXES {
             let spm = self.steps_per_mm[axis];
-            let (p0, p1) = (step_position_q32(start[axis], spm), step_position_q32(end[axis], spm));
+            let (p0, p1) = (step_position(start[axis], spm), step_position(end[axis], spm));
             let m = self.motor[axis];
             let m1 = motor_after(m, p1);
             let run = &mut self.axes[axis];
-            *run = AxisRun::default();
+            *run = AxisRun::STILL;
             if m1 == m {
                 continue;
             }
@@ -380,30 +419,72 @@ impl<const B: usize> StepGenerator<B> {
             let dp = dp.max(1) as u128;
             run.remaining = m1.abs_diff(m) as u32;
             run.dir = dir;
-            run.s_q48 = ((delta0.max(0) as u128 * len) << 16) / dp;
-            run.ds_q48 = (len << 48) / dp;
+            run.s_q48 = div_u128((delta0.max(0) as u128 * len) << 16, dp);
+            run.ds_q48 = div_u128(len << 48, dp);
+        }
+        for run in self.axes.iter_mut().filter(|r| r.remaining > 0) {
+            run.next_tick = tick_at(self.block_start_q16, &b, run.s_q48);
         }
         self.block = Some(b);
-        for axis in 0..AXES {
-            if self.axes[axis].remaining > 0 {
-                self.axes[axis].next_tick = self.tick_at(&b, self.axes[axis].s_q48);
-            }
-        }
     }
 
-    fn advance(&mut self, axis: usize, b: &Block) {
+    fn advance(&mut self, axis: usize) {
+        let Some(b) = self.block.as_ref() else {
+            return;
+        };
         let run = &mut self.axes[axis];
         run.remaining -= 1;
         if run.remaining > 0 {
             run.s_q48 += run.ds_q48;
-            let s = run.s_q48;
-            self.axes[axis].next_tick = self.tick_at(b, s);
+            run.next_tick = tick_at(self.block_start_q16, b, run.s_q48);
+        } else {
+            run.next_tick = u64::MAX;
         }
     }
+}
 
-    /// Exact time of path distance `s_q48` in `b`, generator ticks rounded to nearest.
-    fn tick_at(&self, b: &Block, s_q48: u128) -> u64 {
-        let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
-        self.block_start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
+/// [`step_position_q32`] (the same value) with the 128-bit division by 1000 done by
+/// [`div_u128`]: `floor(p / 1000) = -floor((|p| + 999) / 1000)` for `p < 0`.
+fn step_position(um: i32, steps_per_mm: Rate) -> i64 {
+    let p = um as i128 * steps_per_mm.to_bits() as i128;
+    if p < 0 {
+        -(div_u128(p.unsigned_abs() + 999, 1000) as i128) as i64
+    } else {
+        div_u128(p as u128, 1000) as i64
+    }
+}
+
+/// Exact time of path distance `s_q48` in `b` (which starts at `start_q16`, ticks q16),
+/// generator ticks rounded to nearest.
+fn tick_at(start_q16: u64, b: &Block, s_q48: u128) -> u64 {
+    let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
+    start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_step_position_equals_the_reference() {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let rates = [Rate::from_num(80), Rate::from_num(93), Rate::from_num(400), Rate::MAX];
+        for i in 0..100_000 {
+            let um = (next() as i32) >> (next() % 32);
+            let spm =
+                if i % 2 == 0 { rates[i % 4] } else { Rate::from_bits(next() >> (next() % 64)) };
+            assert_eq!(step_position(um, spm), step_position_q32(um, spm), "{um} um at {spm}");
+        }
+        for um in [i32::MIN, i32::MAX, 0, -1, 1] {
+            for spm in rates {
+                assert_eq!(step_position(um, spm), step_position_q32(um, spm));
+            }
+        }
     }
 }
