@@ -42,7 +42,9 @@
 //! an FNV-1a hash (the host simulation's `SimBoard` hash) and counts the step per axis; the
 //! origin is the print clock where the executor first starts in a job (as the host
 //! simulation's `first_step`), so homing is not in the hash. The interrupt cost figures
-//! (`COST isr_...`) leave the pins' bookkeeping out: a real pin write is one store.
+//! (`COST isr_...`) leave the pins' bookkeeping out: a real pin write is one store. STEP
+//! falls are not recorded (only rises are hashed); the executor ends each pulse on
+//! [`EmuTimer`], an emulation of the board's cycle counter.
 
 use core::cell::RefCell;
 use core::convert::Infallible;
@@ -54,7 +56,7 @@ use cortex_m::peripheral::SYST;
 use cortex_m_rt::exception;
 use embedded_hal::digital::{ErrorType, OutputPin};
 use strata::machine::AXES;
-use strata::step::{is_before, Pins, StepConfig};
+use strata::step::{is_before, Pins, StepConfig, StepTimer};
 
 use strata::thermal::{PidGains, Temp, ThermalConfig};
 
@@ -334,6 +336,28 @@ impl OutputPin for VPin {
     }
 }
 
+/// The step timer during an executor call, as a 72 MHz Cortex-M3 at 1.5 cycles per
+/// instruction would read it: the print clock at the call's start plus the instructions run
+/// since (SysTick counts of 5 instructions, 7.5 ticks each) without the virtual pins'
+/// bookkeeping (a real pin write is one store). The executor waits on it for the end of a
+/// STEP pulse, so the interrupt's cost includes that wait as on the board.
+struct EmuTimer {
+    start: u32,
+    /// SysTick value and pin bookkeeping counts at the call's start.
+    c0: u32,
+    pins0: u32,
+}
+
+impl StepTimer for EmuTimer {
+    #[inline]
+    fn now(&mut self) -> u32 {
+        let c1 = SYST::get_current();
+        let d = if c1 <= self.c0 { self.c0 - c1 } else { self.c0 + RELOAD - c1 };
+        let pins = PIN_COUNTS.load(Ordering::Relaxed).wrapping_sub(self.pins0);
+        self.start.wrapping_add((d.saturating_sub(pins) * 15) >> 1)
+    }
+}
+
 /// Virtual endstops: hit after a fixed travel.
 pub struct VEnds;
 
@@ -435,7 +459,8 @@ impl Isr {
             let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
             let p0 = PIN_COUNTS.load(Ordering::Relaxed);
             let c0 = SYST::get_current();
-            self.next = self.motion.event(self.clock as u32);
+            let mut timer = EmuTimer { start: self.clock as u32, c0, pins0: p0 };
+            self.next = self.motion.event(self.clock as u32, &mut timer);
             let c1 = SYST::get_current();
             let pins = PIN_COUNTS.load(Ordering::Relaxed).wrapping_sub(p0);
             let idle_poll = was_idle && self.next == Next::Idle;
