@@ -36,7 +36,7 @@
 
 use embedded_hal::digital::{OutputPin, PinState};
 
-use super::{is_before, StepCmd, StepConfig, StepConsumer};
+use super::{is_before, StepCmd, StepConfig, StepConsumer, MAX_INTERVAL_TICKS};
 use crate::machine::AXES;
 
 /// The step, direction and shared enable pins.
@@ -395,10 +395,13 @@ impl<'q, const N: usize> Executor<'q, N> {
         // poll is the latest one).
         let wake = if at_horizon { now.wrapping_add(self.poll) } else { h_exec };
         let mut ev = Events { wake, fall: now, raised: 0, ended: 0 };
-        self.axis::<0, P, T>(now, h_exec, at_rest, pins, timer, &mut ev)?;
-        self.axis::<1, P, T>(now, h_exec, at_rest, pins, timer, &mut ev)?;
-        self.axis::<2, P, T>(now, h_exec, at_rest, pins, timer, &mut ev)?;
-        self.axis::<3, P, T>(now, h_exec, at_rest, pins, timer, &mut ev)?;
+        // No step later than the horizon; at rest every step is queued (and one due now is
+        // not after `limit` then).
+        let limit = if at_rest { now.wrapping_add(MAX_INTERVAL_TICKS) } else { h_exec };
+        self.axis::<0, P, T>(now, limit, pins, timer, &mut ev)?;
+        self.axis::<1, P, T>(now, limit, pins, timer, &mut ev)?;
+        self.axis::<2, P, T>(now, limit, pins, timer, &mut ev)?;
+        self.axis::<3, P, T>(now, limit, pins, timer, &mut ev)?;
         if T::WAITS && ev.raised != 0 {
             if !is_before(ev.wake, ev.fall) {
                 // Nothing else is due before the pulses end (pulses from earlier calls
@@ -542,8 +545,7 @@ impl<'q, const N: usize> Executor<'q, N> {
     fn axis<const A: usize, P: OutputPin, T: StepTimer>(
         &mut self,
         now: u32,
-        h_exec: u32,
-        at_rest: bool,
+        limit: u32,
         pins: &mut Pins<P>,
         timer: &mut T,
         ev: &mut Events,
@@ -566,9 +568,8 @@ impl<'q, const N: usize> Executor<'q, N> {
             return Ok(());
         }
         let a = &mut self.axes[A];
-        if is_before(now, a.fire_at) || (!at_rest && is_before(h_exec, a.next_at)) {
-            // Not yet, or beyond the horizon (which then wakes first; at rest everything is
-            // queued already).
+        if is_before(now, a.fire_at) || is_before(limit, a.next_at) {
+            // Not yet, or beyond the horizon (which then wakes first).
             a.due_at = a.fire_at;
             a.wake_at = a.fire_at;
             earliest(&mut ev.wake, a.fire_at);

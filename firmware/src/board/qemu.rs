@@ -307,9 +307,14 @@ impl VBoard {
 }
 
 static VB: Mutex<RefCell<VBoard>> = Mutex::new(RefCell::new(VBoard::new()));
-/// SysTick counts spent in the virtual pins' bookkeeping (hash, counters), which a real pin
-/// (one store to GPIO BSRR) does not cost: the interrupt's cost figures leave it out.
-static PIN_COUNTS: AtomicU32 = AtomicU32::new(0);
+/// SysTick counts x 16 spent in the virtual pins' bookkeeping (hash, counters, and the
+/// measuring around it), which a real pin (one store to GPIO BSRR) does not cost: the
+/// interrupt's cost figures and [`EmuTimer`] leave it out.
+static PIN_COUNTS_X16: AtomicU32 = AtomicU32::new(0);
+/// What a virtual pin write costs outside the window `vpin_edge` measures itself (the
+/// SysTick reads, the sum above, the call), SysTick counts x 16 per write: calibrated at
+/// start-up ([`calibrate_pins`]).
+static PIN_OVERHEAD_X16: AtomicU32 = AtomicU32::new(0);
 
 #[inline(always)]
 fn vpin_edge(pin: VPin, high: bool) {
@@ -317,7 +322,32 @@ fn vpin_edge(pin: VPin, high: bool) {
     interrupt::free(|cs| VB.borrow(cs).borrow_mut().edge(pin, high));
     let c1 = SYST::get_current();
     let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
-    PIN_COUNTS.store(PIN_COUNTS.load(Ordering::Relaxed).wrapping_add(d), Ordering::Relaxed);
+    let x16 = (d << 4).wrapping_add(PIN_OVERHEAD_X16.load(Ordering::Relaxed));
+    let sum = PIN_COUNTS_X16.load(Ordering::Relaxed).wrapping_add(x16);
+    PIN_COUNTS_X16.store(sum, Ordering::Relaxed);
+}
+
+/// Virtual pin bookkeeping since `x16_0` (a [`PIN_COUNTS_X16`] value), SysTick counts.
+#[inline(always)]
+fn pin_counts_since(x16_0: u32) -> u32 {
+    PIN_COUNTS_X16.load(Ordering::Relaxed).wrapping_sub(x16_0) >> 4
+}
+
+/// Measures [`PIN_OVERHEAD_X16`]: 64 writes of a pin that does not change (DIR of X low,
+/// as at reset), timed as a whole, less what they measured themselves. The loop's own few
+/// instructions per write stay counted: they stand for the real write (address, store).
+/// Runs with the SysTick counter on and its interrupt off.
+fn calibrate_pins() {
+    let mut pin = VPin::Dir(0);
+    let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
+    let c0 = SYST::get_current();
+    for _ in 0..64 {
+        let _ = core::hint::black_box(&mut pin).set_low();
+    }
+    let c1 = SYST::get_current();
+    let total = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
+    let measured = PIN_COUNTS_X16.load(Ordering::Relaxed).wrapping_sub(p0);
+    PIN_OVERHEAD_X16.store((total << 4).saturating_sub(measured) / 64, Ordering::Relaxed);
 }
 
 impl ErrorType for VPin {
@@ -343,7 +373,7 @@ impl OutputPin for VPin {
 /// STEP pulse, so the interrupt's cost includes that wait as on the board.
 struct EmuTimer {
     start: u32,
-    /// SysTick value and pin bookkeeping counts at the call's start.
+    /// SysTick value and [`PIN_COUNTS_X16`] at the call's start.
     c0: u32,
     pins0: u32,
 }
@@ -353,7 +383,7 @@ impl StepTimer for EmuTimer {
     fn now(&mut self) -> u32 {
         let c1 = SYST::get_current();
         let d = if c1 <= self.c0 { self.c0 - c1 } else { self.c0 + RELOAD - c1 };
-        let pins = PIN_COUNTS.load(Ordering::Relaxed).wrapping_sub(self.pins0);
+        let pins = pin_counts_since(self.pins0);
         self.start.wrapping_add((d.saturating_sub(pins) * 15) >> 1)
     }
 }
@@ -457,12 +487,12 @@ impl Isr {
             VB.borrow(cs).borrow_mut().now = self.clock;
             let homing = self.motion.homing();
             let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
-            let p0 = PIN_COUNTS.load(Ordering::Relaxed);
+            let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
             let c0 = SYST::get_current();
             let mut timer = EmuTimer { start: self.clock as u32, c0, pins0: p0 };
             self.next = self.motion.event(self.clock as u32, &mut timer);
             let c1 = SYST::get_current();
-            let pins = PIN_COUNTS.load(Ordering::Relaxed).wrapping_sub(p0);
+            let pins = pin_counts_since(p0);
             let idle_poll = was_idle && self.next == Next::Idle;
             if !homing && !idle_poll {
                 let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
@@ -645,12 +675,14 @@ pub fn init(cfg: &StepConfig) -> Board {
     cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(RELOAD - 1);
     cp.SYST.clear_current();
-    cp.SYST.enable_interrupt();
     cp.SYST.enable_counter();
+    calibrate_pins();
+    cp.SYST.enable_interrupt();
     log!(
-        "board qemu-lm3s6965evb: sysclk period {} ns, SysTick every {} counts",
+        "board qemu-lm3s6965evb: sysclk period {} ns, SysTick every {} counts, pin overhead {}/16 counts",
         PERIOD_NS.load(Ordering::Relaxed),
-        RELOAD
+        RELOAD,
+        PIN_OVERHEAD_X16.load(Ordering::Relaxed)
     );
     Board { _syst: cp.SYST, plant: Plant::new() }
 }
