@@ -421,10 +421,10 @@ impl<'q, const N: usize> Executor<'q, N> {
                     pins.step[3].set_low()?;
                 }
                 if self.left_high != 0 || ev.ended != 0 {
-                    self.after_falls(pins, &mut ev)?;
+                    ev.wake = self.after_falls(pins, ev.fall, ev.ended, ev.wake)?;
                 }
             } else {
-                self.leave_high(&mut ev);
+                ev.wake = self.leave_high(ev.raised, ev.fall, ev.wake);
             }
         }
         if at_horizon || self.state != State::Running {
@@ -435,25 +435,32 @@ impl<'q, const N: usize> Executor<'q, N> {
         Ok(Wake::At(ev.wake))
     }
 
-    /// After the fall at `ev.fall` in the call (with a timer): STEP pins left high by
-    /// earlier calls fall too, and axes whose sequence ended take their next commands.
+    /// After the fall at `fall` in the call (with a timer): STEP pins left high by earlier
+    /// calls fall too, and the axes whose sequence `ended` take their next commands; returns
+    /// `wake` with their next steps. (Values, not `&mut Events`: the call's events stay in
+    /// registers.)
     #[inline(never)]
     fn after_falls<P: OutputPin>(
         &mut self,
         pins: &mut Pins<P>,
-        ev: &mut Events,
-    ) -> Result<(), P::Error> {
-        self.after_fall::<0, P>(pins, ev)?;
-        self.after_fall::<1, P>(pins, ev)?;
-        self.after_fall::<2, P>(pins, ev)?;
-        self.after_fall::<3, P>(pins, ev)
+        fall: u32,
+        ended: u8,
+        mut wake: u32,
+    ) -> Result<u32, P::Error> {
+        self.after_fall::<0, P>(pins, fall, ended, &mut wake)?;
+        self.after_fall::<1, P>(pins, fall, ended, &mut wake)?;
+        self.after_fall::<2, P>(pins, fall, ended, &mut wake)?;
+        self.after_fall::<3, P>(pins, fall, ended, &mut wake)?;
+        Ok(wake)
     }
 
     #[inline(always)]
     fn after_fall<const A: usize, P: OutputPin>(
         &mut self,
         pins: &mut Pins<P>,
-        ev: &mut Events,
+        fall: u32,
+        ended: u8,
+        wake: &mut u32,
     ) -> Result<(), P::Error> {
         let bit = 1u8 << A;
         let a = &mut self.axes[A];
@@ -463,31 +470,31 @@ impl<'q, const N: usize> Executor<'q, N> {
             a.high = false;
             a.armed = a.active;
             // Its deadline stays in `wake`: one call too many, only after a crowded pulse.
-        } else if ev.ended & bit == 0 {
+        } else if ended & bit == 0 {
             return Ok(());
         }
         if a.active {
             a.due_at = a.fire_at;
             a.wake_at = a.fire_at;
-            earliest(&mut ev.wake, a.fire_at);
-        } else if self.q.q[A].ready() && self.take_commands(A, ev.fall, pins)? {
+            earliest(wake, a.fire_at);
+        } else if self.q.q[A].ready() && self.take_commands(A, fall, pins)? {
             let a = &mut self.axes[A];
             a.due_at = a.fire_at;
             a.wake_at = a.fire_at;
-            earliest(&mut ev.wake, a.fire_at);
+            earliest(wake, a.fire_at);
         }
         Ok(())
     }
 
-    /// Another event comes before the pulses raised in the call (with a timer) end: they
-    /// stay high and fall as events, from `ev.fall` on and by their deadline (see
-    /// [`Executor`]'s cost notes; the last pulse of a sequence exactly at `ev.fall`).
+    /// Another event comes before the pulses `raised` in the call (with a timer) end at
+    /// `fall`: they stay high and fall as events, from `fall` on and by their deadline (see
+    /// [`Executor`]'s cost notes; the last pulse of a sequence exactly at `fall`). Returns
+    /// `wake` with those deadlines.
     #[inline(never)]
-    fn leave_high(&mut self, ev: &mut Events) {
+    fn leave_high(&mut self, raised: u8, fall: u32, mut wake: u32) -> u32 {
         self.stats.fall_events += 1;
-        let fall = ev.fall;
         for (i, a) in self.axes.iter_mut().enumerate() {
-            if ev.raised & (1 << i) == 0 {
+            if raised & (1 << i) == 0 {
                 continue;
             }
             a.high = true;
@@ -499,9 +506,10 @@ impl<'q, const N: usize> Executor<'q, N> {
             } else {
                 fall
             };
-            earliest(&mut ev.wake, a.wake_at);
+            earliest(&mut wake, a.wake_at);
         }
-        self.left_high |= ev.raised;
+        self.left_high |= raised;
+        wake
     }
 
     /// Stalled, or at the horizon: rest (idle), stall (underrun) or poll; `None` to go on.
