@@ -44,7 +44,8 @@
 //! simulation's `first_step`), so homing is not in the hash. The interrupt cost figures
 //! (`COST isr_...`) leave the pins' bookkeeping out: a real pin write is one store. STEP
 //! falls are not recorded (only rises are hashed); the executor ends each pulse on
-//! [`EmuTimer`], an emulation of the board's cycle counter.
+//! [`EmuTimer`], an emulation of the board's cycle counter whose cost beyond a real read
+//! (one load) the figures leave out too. Both overheads are calibrated at start-up.
 
 use core::cell::RefCell;
 use core::convert::Infallible;
@@ -370,12 +371,30 @@ impl OutputPin for VPin {
 /// instruction would read it: the print clock at the call's start plus the instructions run
 /// since (SysTick counts of 5 instructions, 7.5 ticks each) without the virtual pins'
 /// bookkeeping (a real pin write is one store). The executor waits on it for the end of a
-/// STEP pulse, so the interrupt's cost includes that wait as on the board.
+/// STEP pulse, so the interrupt's cost includes that wait. This emulation costs more than
+/// the board's read of its cycle counter (one load): the cost figures leave that out for
+/// the first two reads of a call (the one after the rising edge and the wait's first
+/// check) and count any further read (a spin) in full. The clock itself includes the
+/// emulation's time (it must move on while spinning), so a wait here ends up to a read's
+/// emulation earlier than on the board.
 struct EmuTimer {
     start: u32,
     /// SysTick value and [`PIN_COUNTS_X16`] at the call's start.
     c0: u32,
     pins0: u32,
+    /// Reads so far.
+    reads: u32,
+}
+
+/// What an [`EmuTimer::now`] costs beyond one instruction, SysTick counts x 16: calibrated
+/// at start-up ([`calibrate_timer`]).
+static TIMER_OVERHEAD_X16: AtomicU32 = AtomicU32::new(0);
+
+impl EmuTimer {
+    /// The emulation's cost beyond the board's in the first two reads, SysTick counts.
+    fn overhead_counts(&self) -> u32 {
+        (self.reads.min(2) * TIMER_OVERHEAD_X16.load(Ordering::Relaxed)) >> 4
+    }
 }
 
 impl StepTimer for EmuTimer {
@@ -383,9 +402,33 @@ impl StepTimer for EmuTimer {
     fn now(&mut self) -> u32 {
         let c1 = SYST::get_current();
         let d = if c1 <= self.c0 { self.c0 - c1 } else { self.c0 + RELOAD - c1 };
-        let pins = pin_counts_since(self.pins0);
-        self.start.wrapping_add((d.saturating_sub(pins) * 15) >> 1)
+        self.reads += 1;
+        self.start.wrapping_add((d.saturating_sub(pin_counts_since(self.pins0)) * 15) >> 1)
     }
+}
+
+/// Measures [`TIMER_OVERHEAD_X16`]: 64 reads timed as a whole, less the same loop without
+/// them and one instruction (a fifth of a count) per read. Runs with the SysTick counter on
+/// and its interrupt off.
+fn calibrate_timer() {
+    let counts = |c0: u32, c1: u32| if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
+    let mut t = EmuTimer {
+        start: 0,
+        c0: SYST::get_current(),
+        pins0: PIN_COUNTS_X16.load(Ordering::Relaxed),
+        reads: 0,
+    };
+    let a0 = SYST::get_current();
+    for _ in 0..64 {
+        core::hint::black_box(&mut t);
+    }
+    let a1 = SYST::get_current();
+    for _ in 0..64 {
+        core::hint::black_box(core::hint::black_box(&mut t).now());
+    }
+    let b1 = SYST::get_current();
+    let reads_x16 = (counts(a1, b1).saturating_sub(counts(a0, a1)) << 4) / 64;
+    TIMER_OVERHEAD_X16.store(reads_x16.saturating_sub(16 / 5), Ordering::Relaxed);
 }
 
 /// Virtual endstops: hit after a fixed travel.
@@ -488,15 +531,18 @@ impl Isr {
             let homing = self.motion.homing();
             let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
             let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
+            // The timer set up before the count starts (the board's costs nothing to set up).
+            let mut timer = EmuTimer { start: self.clock as u32, c0: 0, pins0: p0, reads: 0 };
             let c0 = SYST::get_current();
-            let mut timer = EmuTimer { start: self.clock as u32, c0, pins0: p0 };
+            timer.c0 = c0;
             self.next = self.motion.event(self.clock as u32, &mut timer);
             let c1 = SYST::get_current();
-            let pins = pin_counts_since(p0);
+            let pins = pin_counts_since(p0) + timer.overhead_counts();
             let idle_poll = was_idle && self.next == Next::Idle;
             if !homing && !idle_poll {
                 let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
-                // Without the virtual pins' bookkeeping (a real pin write is one store).
+                // Without the virtual pins' bookkeeping (a real pin write is one store) and
+                // the timer emulation (a real read is one load).
                 let d = d.saturating_sub(pins);
                 self.calls += 1;
                 self.call_counts += d as u64;
@@ -677,12 +723,14 @@ pub fn init(cfg: &StepConfig) -> Board {
     cp.SYST.clear_current();
     cp.SYST.enable_counter();
     calibrate_pins();
+    calibrate_timer();
     cp.SYST.enable_interrupt();
     log!(
-        "board qemu-lm3s6965evb: sysclk period {} ns, SysTick every {} counts, pin overhead {}/16 counts",
+        "board qemu-lm3s6965evb: sysclk period {} ns, SysTick every {} counts, pin overhead {}/16 counts, timer emulation {}/16 counts",
         PERIOD_NS.load(Ordering::Relaxed),
         RELOAD,
-        PIN_OVERHEAD_X16.load(Ordering::Relaxed)
+        PIN_OVERHEAD_X16.load(Ordering::Relaxed),
+        TIMER_OVERHEAD_X16.load(Ordering::Relaxed)
     );
     Board { _syst: cp.SYST, plant: Plant::new() }
 }
