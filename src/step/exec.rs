@@ -421,7 +421,7 @@ impl<'q, const N: usize> Executor<'q, N> {
                     pins.step[3].set_low()?;
                 }
                 if self.left_high != 0 || ev.ended != 0 {
-                    ev.wake = self.after_falls(pins, ev.fall, ev.ended, ev.wake)?;
+                    ev.wake = self.after_falls(pins, now, ev.fall, ev.ended, ev.wake)?;
                 }
             } else {
                 ev.wake = self.leave_high(ev.raised, ev.fall, ev.wake);
@@ -437,20 +437,33 @@ impl<'q, const N: usize> Executor<'q, N> {
 
     /// After the fall at `fall` in the call (with a timer): STEP pins left high by earlier
     /// calls fall too, and the axes whose sequence `ended` take their next commands; returns
-    /// `wake` with their next steps. (Values, not `&mut Events`: the call's events stay in
-    /// registers.)
+    /// `wake` with their next steps (recomputed as at the call's start at `now` when pins
+    /// left high fell: their deadlines are in `wake` no more). (Values, not `&mut Events`:
+    /// the call's events stay in registers.)
     #[inline(never)]
     fn after_falls<P: OutputPin>(
         &mut self,
         pins: &mut Pins<P>,
+        now: u32,
         fall: u32,
         ended: u8,
         mut wake: u32,
     ) -> Result<u32, P::Error> {
+        let left = self.left_high != 0;
         self.after_fall::<0, P>(pins, fall, ended, &mut wake)?;
         self.after_fall::<1, P>(pins, fall, ended, &mut wake)?;
         self.after_fall::<2, P>(pins, fall, ended, &mut wake)?;
         self.after_fall::<3, P>(pins, fall, ended, &mut wake)?;
+        if left {
+            // The horizon (unchanged: the generator does not run during a call) or a poll.
+            let h_exec = (self.q.horizon() & !1).wrapping_add(self.offset);
+            wake = if is_before(now, h_exec) { h_exec } else { now.wrapping_add(self.poll) };
+            for a in &self.axes {
+                if a.armed {
+                    earliest(&mut wake, a.wake_at);
+                }
+            }
+        }
         Ok(wake)
     }
 
@@ -469,7 +482,6 @@ impl<'q, const N: usize> Executor<'q, N> {
             self.left_high &= !bit;
             a.high = false;
             a.armed = a.active;
-            // Its deadline stays in `wake`: one call too many, only after a crowded pulse.
         } else if ended & bit == 0 {
             return Ok(());
         }
