@@ -199,13 +199,12 @@ enum State {
 /// Drives the pins from a [`StepConsumer`].
 ///
 /// # Cost
-/// The hot path is one pass over the four axes with adds and compares on `u32`s. A pulse's
-/// falling edge is not always an interrupt of its own: STEP may fall at any call from the
-/// driver's high time on, and must fall by the middle of the slack before the next rising
-/// edge (`fall_by`: the high and the low time both keep at least half of the spare time on
-/// top of the driver's minimum), so it usually rides along with another axis' step. The
-/// last step of a sequence falls exactly after the high time, as DIR may change then.
-/// Rising edges are exactly where they would be with a fall of its own.
+/// The hot path is one pass over the four axes with adds and compares on `u32`s. With a
+/// [`StepTimer`] a step is one call: the pulse ends in it (see the module docs), after at
+/// most the driver's high time from the rising edge (72 ticks for an A4988), usually with
+/// no wait as the pass itself takes that long. Without one, or when another event comes
+/// within the pulse, the fall is an event that usually rides along with another axis' step.
+/// Rising edges are at their commanded ticks either way.
 #[derive(Debug)]
 pub struct Executor<'q, const N: usize> {
     q: StepConsumer<'q, N>,
@@ -571,6 +570,8 @@ impl<'q, const N: usize> Executor<'q, N> {
         ev: &mut Events,
     ) -> Result<(), P::Error> {
         let a = &mut self.axes[A];
+        // Armed and not high, `due_at` is `fire_at`: then the step is known due here.
+        let mut due = false;
         if a.armed {
             if is_before(now, a.due_at) {
                 earliest(&mut ev.wake, a.wake_at);
@@ -581,6 +582,8 @@ impl<'q, const N: usize> Executor<'q, N> {
                 a.high = false;
                 a.armed = a.active;
                 self.left_high &= !(1 << A);
+            } else {
+                due = true;
             }
         }
         // No sequence: the next commands (a direction change is set right away).
@@ -588,7 +591,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             return Ok(());
         }
         let a = &mut self.axes[A];
-        if is_before(now, a.fire_at) || is_before(limit, a.next_at) {
+        if (!due && is_before(now, a.fire_at)) || is_before(limit, a.next_at) {
             // Not yet, or beyond the horizon (which then wakes first).
             a.due_at = a.fire_at;
             a.wake_at = a.fire_at;
