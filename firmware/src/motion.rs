@@ -10,7 +10,7 @@ use core::convert::Infallible;
 
 use embedded_hal::digital::{OutputPin, PinState};
 use strata::machine::MachineConfig;
-use strata::step::{Executor, Pins, StepConfig, StepProducer, StepQueue, Wake};
+use strata::step::{Executor, Pins, StepConfig, StepProducer, StepQueue, StepTimer, Wake};
 
 use crate::capacities::STEP_QUEUE;
 
@@ -150,9 +150,11 @@ impl<P: OutputPin<Error = Infallible>, E: Endstops> Motion<P, E> {
         }
     }
 
-    /// Services the event due at `now` (a homing step edge or the executor's events).
+    /// Services the event due at `now` (a homing step edge or the executor's events);
+    /// `timer` is the step timer's clock, read by the executor to end its STEP pulses in the
+    /// same call.
     #[inline]
-    pub fn event(&mut self, now: u32) -> Next {
+    pub fn event(&mut self, now: u32, timer: &mut impl StepTimer) -> Next {
         if let Some(h) = &mut self.homing {
             return match home_step(h, now, &mut self.pins, &mut self.endstops) {
                 Some(next) => Next::At(next),
@@ -166,7 +168,7 @@ impl<P: OutputPin<Error = Infallible>, E: Endstops> Motion<P, E> {
             };
         }
         let Some(exec) = &mut self.exec else { return Next::Idle };
-        let w = match exec.on_timer(now, &mut self.pins) {
+        let w = match exec.on_timer_with(now, &mut self.pins, timer) {
             Ok(w) => w,
             Err(e) => match e {},
         };

@@ -1,13 +1,27 @@
 //! The step executor: runs in the step timer interrupt, integer adds and compares only.
 //!
 //! Per axis it holds the running sequence (`next`, `interval`, `add`, `remaining`). At a due
-//! step it raises STEP and advances with `interval += add; next += interval`. STEP falls at
-//! the first call from `step_high` later on, and by the middle of the spare time before the
-//! next step at the latest (see [`Executor`]'s cost notes); after the last step of a
-//! sequence it falls exactly `step_high` later, and the executor takes the next commands: a direction change sets DIR right then, which is at least the
-//! driver's setup time before the next rising edge because the generator keeps that gap
-//! ([`StepConfig::min_reversal_ticks`]). Times are wrapping `u32` ticks compared with
-//! [`is_before`].
+//! step it raises STEP and advances with `interval += add; next += interval`. Times are
+//! wrapping `u32` ticks compared with [`is_before`].
+//!
+//! # STEP pulses
+//! With a [`StepTimer`] ([`Executor::on_timer_with`]) a pulse usually starts and ends in one
+//! call: STEP rises, the timer is read (`raised_at`), the next events are computed, and STEP
+//! falls once the timer reads `raised_at + step_high` (busy-waiting the remainder, at most
+//! the driver's high time: 72 ticks for an A4988, usually less or nothing as the work after
+//! the rise takes about as long). Every STEP still high falls together there. This is done
+//! only when no other event (another axis' step, a pulse's deadline, the horizon) is due
+//! before that fall; otherwise, and always without a timer ([`Executor::on_timer`]), a fall
+//! is an event: STEP may fall at any call from `raised_at + step_high` on, and by the middle
+//! of the slack before the axis' next rising edge (`fall_by`: the high and the low time both
+//! keep at least half of the spare time on top of the driver's minimum), so it usually rides
+//! along with another axis' event; the last pulse of a sequence then falls exactly at
+//! `raised_at + step_high`, since DIR may change then.
+//!
+//! After the last step of a sequence the executor takes the next commands when STEP has
+//! fallen: a direction change sets DIR right then, which is at least the driver's setup time
+//! before the next rising edge because the generator keeps that gap
+//! ([`StepConfig::min_reversal_ticks`]). Rising edges are at their commanded ticks either way.
 //!
 //! # Horizon, underrun, restart
 //! The generator publishes the generator time up to which every axis' commands are queued.
@@ -22,7 +36,7 @@
 
 use embedded_hal::digital::{OutputPin, PinState};
 
-use super::{is_before, StepCmd, StepConfig, StepConsumer};
+use super::{is_before, StepCmd, StepConfig, StepConsumer, MAX_INTERVAL_TICKS};
 use crate::machine::AXES;
 
 /// The step, direction and shared enable pins.
@@ -34,6 +48,41 @@ pub struct Pins<P> {
     pub dir: [P; AXES],
     /// The shared enable pin.
     pub enable: P,
+}
+
+/// The step timer as the executor reads it during a call, to end STEP pulses in the call
+/// that starts them (the same clock as the `now` argument, wrapping `u32` ticks).
+pub trait StepTimer {
+    /// False: no reading inside a call; every fall is an event ([`NoWait`]).
+    const WAITS: bool = true;
+    /// The timer's tick now.
+    fn now(&mut self) -> u32;
+    /// Returns once the timer has reached `t` (busy-waits the remainder).
+    #[inline]
+    fn wait_until(&mut self, t: u32) {
+        while is_before(self.now(), t) {}
+    }
+}
+
+/// No timer: [`Executor::on_timer`]'s mode, every STEP fall is an event.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoWait;
+
+impl StepTimer for NoWait {
+    const WAITS: bool = false;
+    fn now(&mut self) -> u32 {
+        0
+    }
+}
+
+/// The simulated board's clock: waiting moves it on (to the exact tick).
+impl<O: crate::sim::EdgeObserver> StepTimer for &crate::sim::SimBoard<O> {
+    fn now(&mut self) -> u32 {
+        self.now_u32()
+    }
+    fn wait_until(&mut self, t: u32) {
+        self.advance_to_u32(t);
+    }
 }
 
 /// When the executor wants to run next.
@@ -61,6 +110,9 @@ pub struct ExecStats {
     pub late_dir_steps: u32,
     /// Starts from idle.
     pub starts: u32,
+    /// Calls with a rising edge whose STEP fall was left to a later call, as another event
+    /// came before it (counted with a [`StepTimer`] only: without one every fall is left).
+    pub fall_events: u32,
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -109,11 +161,31 @@ impl AxisExec {
 
 /// The earlier of `t` and the wake-up so far.
 #[inline(always)]
-fn earliest(wake: &mut Option<u32>, t: u32) {
+fn earliest(wake: &mut u32, t: u32) {
+    if is_before(t, *wake) {
+        *wake = t;
+    }
+}
+
+/// The earlier of `t` and the wake-up so far, if any.
+#[inline(always)]
+fn earliest_of(wake: &mut Option<u32>, t: u32) {
     match *wake {
         Some(w) if !is_before(t, w) => {}
         _ => *wake = Some(t),
     }
+}
+
+/// What a call collects over the axes.
+struct Events {
+    /// The next wake-up so far.
+    wake: u32,
+    /// With a timer: the end of the latest pulse raised (valid when `raised` is not 0).
+    fall: u32,
+    /// With a timer: STEP pins raised (bit per axis), and those of them that ended their
+    /// sequence (the next commands follow the fall).
+    raised: u8,
+    ended: u8,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -127,13 +199,12 @@ enum State {
 /// Drives the pins from a [`StepConsumer`].
 ///
 /// # Cost
-/// The hot path is one pass over the four axes with adds and compares on `u32`s. A pulse's
-/// falling edge is not always an interrupt of its own: STEP may fall at any call from the
-/// driver's high time on, and must fall by the middle of the slack before the next rising
-/// edge (`fall_by`: the high and the low time both keep at least half of the spare time on
-/// top of the driver's minimum), so it usually rides along with another axis' step. The
-/// last step of a sequence falls exactly after the high time, as DIR may change then.
-/// Rising edges are exactly where they would be with a fall of its own.
+/// The hot path is one pass over the four axes with adds and compares on `u32`s. With a
+/// [`StepTimer`] a step is one call: the pulse ends in it (see the module docs), after at
+/// most the driver's high time from the rising edge (72 ticks for an A4988), usually with
+/// no wait as the pass itself takes that long. Without one, or when another event comes
+/// within the pulse, the fall is an event that usually rides along with another axis' step.
+/// Rising edges are at their commanded ticks either way.
 #[derive(Debug)]
 pub struct Executor<'q, const N: usize> {
     q: StepConsumer<'q, N>,
@@ -154,6 +225,8 @@ pub struct Executor<'q, const N: usize> {
     /// added when read: no 64-bit arithmetic per step).
     done_steps: [u64; AXES],
     done_position: [i64; AXES],
+    /// STEP pins left high by a call with a timer (bit per axis): they fall as events.
+    left_high: u8,
     stats: ExecStats,
 }
 
@@ -175,6 +248,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             enable_low: config.enable_active_low,
             done_steps: [0; AXES],
             done_position: [0; AXES],
+            left_high: 0,
             stats: ExecStats::default(),
         }
     }
@@ -286,11 +360,25 @@ impl<'q, const N: usize> Executor<'q, N> {
         Ok(None)
     }
 
-    /// Services every due event at `now` and says when to come back.
+    /// Services every due event at `now` and says when to come back; every STEP fall is an
+    /// event of its own or rides along with another ([`NoWait`]).
+    #[inline]
     pub fn on_timer<P: OutputPin>(
         &mut self,
         now: u32,
         pins: &mut Pins<P>,
+    ) -> Result<Wake, P::Error> {
+        self.on_timer_with(now, pins, &mut NoWait)
+    }
+
+    /// Services every due event at `now` (read from `timer`'s clock at the call's start) and
+    /// says when to come back; STEP pulses raised here usually fall before it returns (see
+    /// the module docs), after `timer` reached their end.
+    pub fn on_timer_with<P: OutputPin, T: StepTimer>(
+        &mut self,
+        now: u32,
+        pins: &mut Pins<P>,
+        timer: &mut T,
     ) -> Result<Wake, P::Error> {
         let word = self.q.horizon();
         if self.state != State::Running {
@@ -302,18 +390,137 @@ impl<'q, const N: usize> Executor<'q, N> {
         let h_exec = (word & !1).wrapping_add(self.offset);
         let at_horizon = !is_before(now, h_exec);
         // The horizon is a wake-up while ahead; events beyond it lose against it, so they
-        // need no filtering here (at the horizon `at_horizon` recomputes the wake-up).
-        let mut wake = if at_horizon { None } else { Some(h_exec) };
-        self.axis::<0, P>(now, h_exec, at_rest, pins, &mut wake)?;
-        self.axis::<1, P>(now, h_exec, at_rest, pins, &mut wake)?;
-        self.axis::<2, P>(now, h_exec, at_rest, pins, &mut wake)?;
-        self.axis::<3, P>(now, h_exec, at_rest, pins, &mut wake)?;
+        // need no filtering here (at the horizon `at_horizon` recomputes the wake-up, and a
+        // poll is the latest one).
+        let wake = if at_horizon { now.wrapping_add(self.poll) } else { h_exec };
+        let mut ev = Events { wake, fall: now, raised: 0, ended: 0 };
+        // No step later than the horizon; at rest every step is queued (and one due now is
+        // not after `limit` then).
+        let limit = if at_rest { now.wrapping_add(MAX_INTERVAL_TICKS) } else { h_exec };
+        self.axis::<0, P, T>(now, limit, pins, timer, &mut ev)?;
+        self.axis::<1, P, T>(now, limit, pins, timer, &mut ev)?;
+        self.axis::<2, P, T>(now, limit, pins, timer, &mut ev)?;
+        self.axis::<3, P, T>(now, limit, pins, timer, &mut ev)?;
+        if T::WAITS && ev.raised != 0 {
+            if !is_before(ev.wake, ev.fall) {
+                // Nothing else is due before the pulses end (pulses from earlier calls
+                // included: their deadlines are in `wake`): end them here.
+                timer.wait_until(ev.fall);
+                let r = ev.raised;
+                if r & 1 != 0 {
+                    pins.step[0].set_low()?;
+                }
+                if r & 2 != 0 {
+                    pins.step[1].set_low()?;
+                }
+                if r & 4 != 0 {
+                    pins.step[2].set_low()?;
+                }
+                if r & 8 != 0 {
+                    pins.step[3].set_low()?;
+                }
+                if self.left_high != 0 || ev.ended != 0 {
+                    ev.wake = self.after_falls(pins, now, ev.fall, ev.ended, ev.wake)?;
+                }
+            } else {
+                ev.wake = self.leave_high(ev.raised, ev.fall, ev.wake);
+            }
+        }
         if at_horizon || self.state != State::Running {
             if let Some(w) = self.at_horizon(now, word, h_exec) {
                 return Ok(w);
             }
         }
-        Ok(Wake::At(wake.unwrap_or(now.wrapping_add(self.poll))))
+        Ok(Wake::At(ev.wake))
+    }
+
+    /// After the fall at `fall` in the call (with a timer): STEP pins left high by earlier
+    /// calls fall too, and the axes whose sequence `ended` take their next commands; returns
+    /// `wake` with their next steps (recomputed as at the call's start at `now` when pins
+    /// left high fell: their deadlines are in `wake` no more). (Values, not `&mut Events`:
+    /// the call's events stay in registers.)
+    #[inline(never)]
+    fn after_falls<P: OutputPin>(
+        &mut self,
+        pins: &mut Pins<P>,
+        now: u32,
+        fall: u32,
+        ended: u8,
+        mut wake: u32,
+    ) -> Result<u32, P::Error> {
+        let left = self.left_high != 0;
+        self.after_fall::<0, P>(pins, fall, ended, &mut wake)?;
+        self.after_fall::<1, P>(pins, fall, ended, &mut wake)?;
+        self.after_fall::<2, P>(pins, fall, ended, &mut wake)?;
+        self.after_fall::<3, P>(pins, fall, ended, &mut wake)?;
+        if left {
+            // The horizon (unchanged: the generator does not run during a call) or a poll.
+            let h_exec = (self.q.horizon() & !1).wrapping_add(self.offset);
+            wake = if is_before(now, h_exec) { h_exec } else { now.wrapping_add(self.poll) };
+            for a in &self.axes {
+                if a.armed {
+                    earliest(&mut wake, a.wake_at);
+                }
+            }
+        }
+        Ok(wake)
+    }
+
+    #[inline(always)]
+    fn after_fall<const A: usize, P: OutputPin>(
+        &mut self,
+        pins: &mut Pins<P>,
+        fall: u32,
+        ended: u8,
+        wake: &mut u32,
+    ) -> Result<(), P::Error> {
+        let bit = 1u8 << A;
+        let a = &mut self.axes[A];
+        if self.left_high & bit != 0 {
+            pins.step[A].set_low()?;
+            self.left_high &= !bit;
+            a.high = false;
+            a.armed = a.active;
+        } else if ended & bit == 0 {
+            return Ok(());
+        }
+        if a.active {
+            a.due_at = a.fire_at;
+            a.wake_at = a.fire_at;
+            earliest(wake, a.fire_at);
+        } else if self.q.q[A].ready() && self.take_commands(A, fall, pins)? {
+            let a = &mut self.axes[A];
+            a.due_at = a.fire_at;
+            a.wake_at = a.fire_at;
+            earliest(wake, a.fire_at);
+        }
+        Ok(())
+    }
+
+    /// Another event comes before the pulses `raised` in the call (with a timer) end at
+    /// `fall`: they stay high and fall as events, from `fall` on and by their deadline (see
+    /// [`Executor`]'s cost notes; the last pulse of a sequence exactly at `fall`). Returns
+    /// `wake` with those deadlines.
+    #[inline(never)]
+    fn leave_high(&mut self, raised: u8, fall: u32, mut wake: u32) -> u32 {
+        self.stats.fall_events += 1;
+        for (i, a) in self.axes.iter_mut().enumerate() {
+            if raised & (1 << i) == 0 {
+                continue;
+            }
+            a.high = true;
+            a.armed = true;
+            a.due_at = fall;
+            a.wake_at = if a.active {
+                let slack = a.next_at.wrapping_sub(fall).wrapping_sub(self.low_ticks) as i32;
+                fall.wrapping_add((slack.max(0) as u32) >> 1)
+            } else {
+                fall
+            };
+            earliest(&mut wake, a.wake_at);
+        }
+        self.left_high |= raised;
+        wake
     }
 
     /// Stalled, or at the horizon: rest (idle), stall (underrun) or poll; `None` to go on.
@@ -325,9 +532,9 @@ impl<'q, const N: usize> Executor<'q, N> {
         let mut wake = None;
         for a in &self.axes {
             if a.high {
-                earliest(&mut wake, a.wake_at);
+                earliest_of(&mut wake, a.wake_at);
             } else if a.active && (at_rest || !is_before(h_exec, a.next_at)) {
-                earliest(&mut wake, a.fire_at);
+                earliest_of(&mut wake, a.fire_at);
             }
         }
         let polled = Some(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
@@ -350,26 +557,33 @@ impl<'q, const N: usize> Executor<'q, N> {
         }
     }
 
-    /// Axis `A`: falling edge, next commands, rising edge; adds its next event to `wake`.
+    /// Axis `A`: falling edge, next commands, rising edge; adds its next event to
+    /// `ev.wake`. With a timer a rising edge goes to `ev.raised` (and `ev.fall`) and the
+    /// axis is left as after its fall; the call ends the pulse or marks it high.
     #[inline(always)]
-    fn axis<const A: usize, P: OutputPin>(
+    fn axis<const A: usize, P: OutputPin, T: StepTimer>(
         &mut self,
         now: u32,
-        h_exec: u32,
-        at_rest: bool,
+        limit: u32,
         pins: &mut Pins<P>,
-        wake: &mut Option<u32>,
+        timer: &mut T,
+        ev: &mut Events,
     ) -> Result<(), P::Error> {
         let a = &mut self.axes[A];
+        // Armed and not high, `due_at` is `fire_at`: then the step is known due here.
+        let mut due = false;
         if a.armed {
             if is_before(now, a.due_at) {
-                earliest(wake, a.wake_at);
+                earliest(&mut ev.wake, a.wake_at);
                 return Ok(());
             }
             if a.high {
                 pins.step[A].set_low()?;
                 a.high = false;
                 a.armed = a.active;
+                self.left_high &= !(1 << A);
+            } else {
+                due = true;
             }
         }
         // No sequence: the next commands (a direction change is set right away).
@@ -377,12 +591,11 @@ impl<'q, const N: usize> Executor<'q, N> {
             return Ok(());
         }
         let a = &mut self.axes[A];
-        if is_before(now, a.fire_at) || (!at_rest && is_before(h_exec, a.next_at)) {
-            // Not yet, or beyond the horizon (which then wakes first; at rest everything is
-            // queued already).
+        if (!due && is_before(now, a.fire_at)) || is_before(limit, a.next_at) {
+            // Not yet, or beyond the horizon (which then wakes first).
             a.due_at = a.fire_at;
             a.wake_at = a.fire_at;
-            earliest(wake, a.fire_at);
+            earliest(&mut ev.wake, a.fire_at);
             return Ok(());
         }
         let due = a.next_at;
@@ -393,6 +606,27 @@ impl<'q, const N: usize> Executor<'q, N> {
             }
         }
         pins.step[A].set_high()?;
+        if T::WAITS {
+            // The pulse counts from a timer read after the edge.
+            ev.fall = timer.now().wrapping_add(self.high_ticks);
+            ev.raised |= 1 << A;
+            let a = &mut self.axes[A];
+            a.remaining -= 1;
+            if a.remaining != 0 {
+                a.interval = a.interval.wrapping_add(a.add);
+                let next = due.wrapping_add(a.interval);
+                a.next_at = next;
+                a.fire_at = next;
+                a.due_at = next;
+                a.wake_at = next;
+                earliest(&mut ev.wake, next);
+            } else {
+                a.armed = false;
+                ev.ended |= 1 << A;
+                self.sequence_done(A, due);
+            }
+            return Ok(());
+        }
         let a = &mut self.axes[A];
         a.high = true;
         let fall_at = now.wrapping_add(self.high_ticks);
@@ -412,7 +646,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             a.wake_at = fall_at;
             self.sequence_done(A, due);
         }
-        earliest(wake, self.axes[A].wake_at);
+        earliest(&mut ev.wake, self.axes[A].wake_at);
         Ok(())
     }
 
@@ -484,17 +718,23 @@ impl<'q, const N: usize> Executor<'q, N> {
 mod tests {
     use super::*;
     use crate::sim::{SimBoard, SimTiming};
-    use crate::step::{pack_horizon, StepQueue};
+    use crate::step::{pack_horizon, DriverTiming, StepQueue};
 
-    /// Runs the executor on `board` until it idles, stalls or passes `until`.
+    /// Runs the executor on `board` until it idles, stalls or passes `until`; `timed`: with
+    /// the board's clock as the [`StepTimer`] (pulses end in the call), else without.
     fn run<O: crate::sim::EdgeObserver, const N: usize>(
         e: &mut Executor<'_, N>,
         b: &SimBoard<O>,
         pins: &mut Pins<crate::sim::SimPin<'_, O>>,
         until: u64,
+        timed: bool,
     ) -> Wake {
         loop {
-            let w = e.on_timer(b.now_u32(), pins).unwrap();
+            let w = if timed {
+                e.on_timer_with(b.now_u32(), pins, &mut &*b).unwrap()
+            } else {
+                e.on_timer(b.now_u32(), pins).unwrap()
+            };
             match w {
                 Wake::At(t) if b.now() < until && !e.is_stalled() => b.advance_to_u32(t),
                 _ => return w,
@@ -513,6 +753,11 @@ mod tests {
 
     #[test]
     fn idle_without_commands_then_exact_sequence_timing() {
+        idle_without_commands_then_exact_sequence_timing_in(false);
+        idle_without_commands_then_exact_sequence_timing_in(true);
+    }
+
+    fn idle_without_commands_then_exact_sequence_timing_in(timed: bool) {
         let cfg = StepConfig::default();
         let board = SimBoard::new(SimTiming::from_config(&cfg), 10, Rises::default());
         let mut pins = board.pins();
@@ -526,7 +771,7 @@ mod tests {
         p.enqueue(0, StepCmd::Wait(5_000)).unwrap();
         p.enqueue(0, StepCmd::Steps { interval: 300, count: 1, add: 0 }).unwrap();
         p.publish(pack_horizon(20_000, true));
-        assert_eq!(run(&mut e, &board, &mut pins, u64::MAX), Wake::Idle);
+        assert_eq!(run(&mut e, &board, &mut pins, u64::MAX, timed), Wake::Idle);
         assert!(board.enabled());
         let t0 = 10 + cfg.start_lead_ticks as u64;
         let got: std::vec::Vec<u64> = board.observer().0.iter().map(|&(_, t)| t - t0).collect();
@@ -540,6 +785,11 @@ mod tests {
 
     #[test]
     fn late_direction_command_delays_the_step_by_the_setup_time() {
+        late_direction_command_delays_the_step_by_the_setup_time_in(false);
+        late_direction_command_delays_the_step_by_the_setup_time_in(true);
+    }
+
+    fn late_direction_command_delays_the_step_by_the_setup_time_in(timed: bool) {
         let cfg = StepConfig::default();
         let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Rises::default());
         let mut pins = board.pins();
@@ -551,12 +801,12 @@ mod tests {
         p.enqueue(0, StepCmd::Steps { interval: 1000, count: 100, add: 0 }).unwrap();
         p.publish(pack_horizon(200_000, false));
         let lead = cfg.start_lead_ticks as u64;
-        run(&mut e, &board, &mut pins, lead + 10_000);
+        run(&mut e, &board, &mut pins, lead + 10_000, timed);
         // Now at lead + 10_000 (an X step). Y: first step due in 5 ticks, DIR with it.
         let now_gen = board.now() - lead;
         p.enqueue(1, StepCmd::Dir(true)).unwrap();
         p.enqueue(1, StepCmd::Steps { interval: now_gen as u32 + 5, count: 1, add: 0 }).unwrap();
-        run(&mut e, &board, &mut pins, lead + 20_000);
+        run(&mut e, &board, &mut pins, lead + 20_000, timed);
         assert_eq!(e.stats().late_dir_steps, 1);
         assert_eq!(board.violation_count(), 0, "{:?}", board.first_violation());
         let y = board.observer().0.iter().find(|s| s.0 == 1).unwrap().1;
@@ -565,6 +815,11 @@ mod tests {
 
     #[test]
     fn underrun_stalls_every_axis_and_resumes_with_one_shift() {
+        underrun_stalls_every_axis_and_resumes_with_one_shift_in(false);
+        underrun_stalls_every_axis_and_resumes_with_one_shift_in(true);
+    }
+
+    fn underrun_stalls_every_axis_and_resumes_with_one_shift_in(timed: bool) {
         let cfg = StepConfig::default();
         let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Rises::default());
         let mut pins = board.pins();
@@ -577,7 +832,7 @@ mod tests {
         p.enqueue(1, StepCmd::Steps { interval: 1500, count: 10, add: 0 }).unwrap();
         // Queued up to 10_000 for X and 15_000 for Y, but the generator vouches for 9_800 only.
         p.publish(pack_horizon(9_800, false));
-        run(&mut e, &board, &mut pins, u64::MAX);
+        run(&mut e, &board, &mut pins, u64::MAX, timed);
         assert!(e.is_stalled());
         let s = e.stats();
         assert_eq!(s.underruns, 1);
@@ -589,7 +844,7 @@ mod tests {
         assert_eq!(w, Wake::At(board.now_u32() + cfg.stall_poll_ticks));
         board.advance_to(board.now() + 1_000_000);
         p.publish(pack_horizon(30_000, true));
-        assert_eq!(run(&mut e, &board, &mut pins, u64::MAX), Wake::Idle);
+        assert_eq!(run(&mut e, &board, &mut pins, u64::MAX, timed), Wake::Idle);
         assert_eq!(e.position_steps(), [10, -10, 0, 0]);
         assert_eq!(board.violation_count(), 0);
         // After the stall, both axes continue on their old rhythm, shifted alike.
@@ -599,5 +854,207 @@ mod tests {
         let y7 = steps.iter().filter(|s| s.0 == 1).nth(6).unwrap().1;
         assert_eq!(x10 - resume, 10_000 - 9_800);
         assert_eq!(y7 - resume, 10_500 - 9_800);
+    }
+
+    /// Every edge `(pin, high, tick)`.
+    #[derive(Default)]
+    struct Edges(std::vec::Vec<(crate::sim::PinId, bool, u64)>);
+
+    impl crate::sim::EdgeObserver for Edges {
+        fn on_edge(&mut self, e: &crate::sim::Edge) {
+            self.0.push((e.pin, e.high, e.tick));
+        }
+    }
+
+    impl Edges {
+        /// `(rise, fall)` ticks of `axis`' STEP pulses.
+        fn pulses(&self, axis: u8) -> std::vec::Vec<(u64, u64)> {
+            let mut out = std::vec::Vec::new();
+            let mut rise = None;
+            for &(pin, high, tick) in &self.0 {
+                if pin == crate::sim::PinId::Step(axis) {
+                    match (high, rise.take()) {
+                        (true, None) => rise = Some(tick),
+                        (false, Some(r)) => out.push((r, tick)),
+                        _ => panic!("STEP of axis {axis}: edge out of order at {tick}"),
+                    }
+                }
+            }
+            assert!(rise.is_none(), "axis {axis} ends high");
+            out
+        }
+    }
+
+    /// The rising-edge ticks (from the sequence start) of `(interval, count, add)` sequences
+    /// run back to back, each after a wait of the given ticks.
+    fn commanded(seqs: &[(u32, u32, u16, i32)]) -> std::vec::Vec<u64> {
+        let (mut t, mut out) = (0u64, std::vec::Vec::new());
+        for &(wait, interval, count, add) in seqs {
+            t += wait as u64;
+            let mut iv = interval as i64;
+            for _ in 0..count {
+                t = (t as i64 + iv) as u64;
+                out.push(t);
+                iv += add as i64;
+            }
+        }
+        out
+    }
+
+    /// Queues the sequences of `commanded` for `axis`, with a direction before each.
+    fn queue_seqs<const N: usize>(
+        p: &mut crate::step::StepProducer<'_, N>,
+        axis: usize,
+        seqs: &[(u32, u32, u16, i32)],
+        dirs: &[bool],
+    ) {
+        for (&(wait, interval, count, add), &dir) in seqs.iter().zip(dirs) {
+            if wait > 0 {
+                p.enqueue(axis, StepCmd::Wait(wait)).unwrap();
+            }
+            p.enqueue(axis, StepCmd::Dir(dir)).unwrap();
+            p.enqueue(axis, StepCmd::Steps { interval, count, add }).unwrap();
+        }
+    }
+
+    #[test]
+    fn pulses_end_in_the_call_that_raises_them() {
+        for driver in [DriverTiming::A4988, DriverTiming::TMC2208] {
+            let cfg = StepConfig { driver, ..StepConfig::default() };
+            let high = cfg.step_high_ticks() as u64;
+            let board = SimBoard::new(SimTiming::from_config(&cfg), 7, Edges::default());
+            let mut pins = board.pins();
+            let mut q: StepQueue<16> = StepQueue::new();
+            let (mut p, c) = q.split();
+            let mut e = Executor::new(&cfg, c);
+            // X: on, reversal at the shortest gap, accelerating; Y decelerating, apart from X.
+            let rev = cfg.min_reversal_ticks();
+            let x = [(0, 1000, 40, 0), (0, rev, 20, 3), (5_000, 2_000, 10, -7)];
+            let y = [(0, 1_517, 30, 11), (0, rev + 1_000, 5, 0)];
+            queue_seqs(&mut p, 0, &x, &[true, false, true]);
+            queue_seqs(&mut p, 1, &y, &[false, true]);
+            p.publish(pack_horizon(200_000, true));
+            let mut calls = 0u32;
+            loop {
+                calls += 1;
+                match e.on_timer_with(board.now_u32(), &mut pins, &mut &board).unwrap() {
+                    Wake::At(t) => board.advance_to_u32(t),
+                    Wake::Idle => break,
+                }
+            }
+            assert_eq!(board.violation_count(), 0, "{:?}", board.first_violation());
+            let t0 = 7 + cfg.start_lead_ticks as u64;
+            let edges = board.observer();
+            let all = [edges.pulses(0), edges.pulses(1)];
+            for (axis, seqs) in [(0u8, &x[..]), (1, &y[..])] {
+                let pulses = &all[axis as usize];
+                let rises: std::vec::Vec<u64> = pulses.iter().map(|p| p.0 - t0).collect();
+                assert_eq!(rises, commanded(seqs), "axis {axis}: every rise at its tick");
+                // Each falls exactly at the driver's high time, unless the other axis rose
+                // during it: then both fall at the end of the later pulse.
+                let other = &all[1 - axis as usize];
+                for &(r, f) in pulses {
+                    match other.iter().find(|o| o.0 > r && o.0 < r + high) {
+                        None => assert_eq!(f - r, high, "axis {axis} at {r}"),
+                        Some(&(_, f2)) => assert_eq!(f, f2, "axis {axis} at {r}"),
+                    }
+                }
+            }
+            // DIR changes at the fall of a sequence's last pulse, the setup time before
+            // the next rise at least (the board checks it; here: it happened at a fall).
+            for &(pin, _, tick) in edges.0.iter() {
+                if let crate::sim::PinId::Dir(a) = pin {
+                    let falls = edges.pulses(a);
+                    assert!(
+                        tick <= t0 || falls.iter().any(|&(_, f)| f == tick),
+                        "DIR of {a} at {tick}"
+                    );
+                }
+            }
+            // One call per step, the start and a last poll; a crowded pulse (left high) may
+            // cost one more, at its fall deadline.
+            let s = e.stats();
+            let steps = s.steps.iter().sum::<u64>() as u32;
+            assert_eq!(steps, 70 + 35);
+            assert!(s.fall_events <= 10, "{s:?}");
+            assert!(calls <= steps + 2 + s.fall_events, "{calls} calls for {steps} steps");
+        }
+    }
+
+    #[test]
+    fn crowded_pulses_fall_as_events_and_keep_their_times() {
+        let cfg = StepConfig::default();
+        let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Edges::default());
+        let mut pins = board.pins();
+        let mut q: StepQueue<16> = StepQueue::new();
+        let (mut p, c) = q.split();
+        let mut e = Executor::new(&cfg, c);
+        // Y's steps come 30 ticks after X's (inside X's pulse of 72 ticks), Z's 1 to 120
+        // ticks after X's.
+        let x = [(0, 1_000, 80, 0)];
+        let y = [(30, 1_000, 80, 0)];
+        let z = [(0, 1_001, 15, 1)];
+        queue_seqs(&mut p, 0, &x, &[true]);
+        queue_seqs(&mut p, 1, &y, &[true]);
+        queue_seqs(&mut p, 2, &z, &[false]);
+        p.publish(pack_horizon(100_000, true));
+        assert_eq!(run(&mut e, &board, &mut pins, u64::MAX, true), Wake::Idle);
+        assert_eq!(board.violation_count(), 0, "{:?}", board.first_violation());
+        let t0 = cfg.start_lead_ticks as u64;
+        let edges = board.observer();
+        for (axis, seqs) in [(0u8, &x[..]), (1, &y[..]), (2, &z[..])] {
+            let pulses = edges.pulses(axis);
+            let rises: std::vec::Vec<u64> = pulses.iter().map(|p| p.0 - t0).collect();
+            assert_eq!(rises, commanded(seqs));
+            assert!(pulses.iter().all(|&(r, f)| f - r >= 72));
+        }
+        let s = e.stats();
+        assert!(s.fall_events >= 80, "{s:?}");
+        assert_eq!(s.steps, [80, 80, 15, 0]);
+    }
+
+    /// A board clock that moves on by `per_read` ticks at every read, as a real one does
+    /// while the interrupt runs: rises come late, and pulses must still be long enough.
+    struct SlowTimer<'b, O> {
+        board: &'b SimBoard<O>,
+        per_read: u64,
+    }
+
+    impl<O: crate::sim::EdgeObserver> StepTimer for SlowTimer<'_, O> {
+        fn now(&mut self) -> u32 {
+            self.board.advance_to(self.board.now() + self.per_read);
+            self.board.now_u32()
+        }
+    }
+
+    #[test]
+    fn pulses_count_from_the_timer_read_after_the_edge() {
+        let cfg = StepConfig::default();
+        let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Edges::default());
+        let mut pins = board.pins();
+        let mut q: StepQueue<16> = StepQueue::new();
+        let (mut p, c) = q.split();
+        let mut e = Executor::new(&cfg, c);
+        queue_seqs(&mut p, 0, &[(0, 1_000, 30, 0)], &[true]);
+        queue_seqs(&mut p, 1, &[(0, 1_010, 30, 0)], &[true]);
+        queue_seqs(&mut p, 3, &[(0, 1_003, 30, 0)], &[false]);
+        p.publish(pack_horizon(100_000, true));
+        let mut timer = SlowTimer { board: &board, per_read: 5 };
+        loop {
+            // The call starts a little late, as an interrupt does.
+            let now = timer.now();
+            match e.on_timer_with(now, &mut pins, &mut timer).unwrap() {
+                Wake::At(t) => board.advance_to_u32(t),
+                Wake::Idle => break,
+            }
+        }
+        let v = board.violations();
+        let short = v[crate::sim::ViolationKind::PulseTooShort as usize];
+        assert_eq!(short, 0, "{:?}", board.first_violation());
+        for axis in [0, 1, 3] {
+            let pulses = board.observer().pulses(axis);
+            assert_eq!(pulses.len(), 30);
+            assert!(pulses.iter().all(|&(r, f)| f - r >= 72), "axis {axis}: {pulses:?}");
+        }
     }
 }

@@ -6,7 +6,8 @@
 //! `(interval, count, add)` in timer ticks. The sequences travel through a [`StepQueue`] (one
 //! bounded single-producer single-consumer queue per axis, plus a published *horizon*) to the
 //! [`Executor`] (timer interrupt), which only does `next += interval; interval += add` per
-//! step and drives `embedded-hal` output pins with the driver's pulse and direction timing.
+//! step and drives `embedded-hal` output pins with the driver's pulse and direction timing
+//! (a STEP pulse usually rises and falls in the same interrupt: [`StepTimer`]).
 //!
 //! # Which steps, when
 //! An axis' ideal position in steps is `P = position_um * steps_per_mm / 1000` (exact fixed
@@ -25,8 +26,9 @@
 //!
 //! # Time
 //! Generator time starts at 0 ticks at the first block and runs on (`u64`); the executor
-//! maps it to its wrapping `u32` timer with an offset, compares only with [`is_before`], and
-//! never reads a clock: `now` is an argument.
+//! maps it to its wrapping `u32` timer with an offset and compares only with [`is_before`].
+//! `now` is an argument; inside a call the executor reads the board's [`StepTimer`] (if
+//! given) only to end the STEP pulses it raised.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -38,7 +40,7 @@ mod compress;
 mod exec;
 mod gen;
 
-pub use exec::{ExecStats, Executor, Pins, Wake};
+pub use exec::{ExecStats, Executor, NoWait, Pins, StepTimer, Wake};
 pub use gen::{GenStats, GenStatus, StepGenerator};
 
 /// Wrap-safe "`a` is strictly earlier than `b`" for wrapping `u32` tick counters (valid while

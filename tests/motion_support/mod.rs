@@ -153,7 +153,8 @@ pub fn run_job_with<const P: usize, const Q: usize>(
         if throttle(board.now()) {
             let _: GenStatus = gen.run(&mut prod);
         }
-        let wake = exec.on_timer(board.now_u32(), &mut pins).unwrap();
+        // The board's clock as the step timer: pulses end in the call that raises them.
+        let wake = exec.on_timer_with(board.now_u32(), &mut pins, &mut &board).unwrap();
         wakes += 1;
         if gen0_tick.is_none() && !exec.is_idle() {
             let off = exec.offset();

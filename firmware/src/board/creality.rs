@@ -9,6 +9,9 @@
 //! compare-1 interrupt at the executor's next wake: the interrupt reads the cycle counter,
 //! runs every due event (at most [`EVENTS_PER_IRQ`]) and sets the compare to the next wake,
 //! or 60000 ticks ahead when the wake is further away (the handler then just re-arms).
+//! STEP pulses usually end in the interrupt that raised them: the executor reads the cycle
+//! counter after the rising edge and lowers STEP once the driver's high time has passed
+//! (busy-waiting what its own work did not take).
 //!
 //! # Heaters
 //! - Thermistors: ADC1 (12 bits, 239.5-cycle sampling at 9 MHz, about 28 us a conversion),
@@ -45,7 +48,7 @@ use stm32f1xx_hal::prelude::*;
 use stm32f1xx_hal::rcc;
 use stm32f1xx_hal::serial::{Config, Rx, Serial, Tx};
 use stm32f1xx_hal::watchdog::IndependentWatchdog;
-use strata::step::{is_before, Pins, StepConfig};
+use strata::step::{is_before, Pins, StepConfig, StepTimer};
 use strata::thermal::thermistor::Oversampler;
 use strata::thermal::ThermalConfig;
 
@@ -159,6 +162,17 @@ impl Endstops for Ends {
 /// The motion type of this board.
 pub type BoardMotion = Motion<Pin, Ends>;
 
+/// The step timer: the DWT cycle counter (72 MHz), which the executor reads to end a STEP
+/// pulse in the interrupt that raised it (busy-waiting the rest of the 1 us when needed).
+struct CycleCounter;
+
+impl StepTimer for CycleCounter {
+    #[inline(always)]
+    fn now(&mut self) -> u32 {
+        DWT::cycle_count()
+    }
+}
+
 struct Isr {
     motion: BoardMotion,
     tim: TIM2,
@@ -181,7 +195,7 @@ impl Isr {
                 break Some(now.wrapping_add(MIN_ARM));
             }
             n += 1;
-            self.next = self.motion.event(now);
+            self.next = self.motion.event(now, &mut CycleCounter);
             match self.next {
                 Next::At(_) => {}
                 // Poll: new commands or the horizon moving on (thread mode also pends the

@@ -44,7 +44,10 @@
 //! an FNV-1a hash (the host simulation's `SimBoard` hash) and counts the step per axis; the
 //! origin is the print clock where the executor first starts in a job (as the host
 //! simulation's `first_step`), so homing is not in the hash. The interrupt cost figures
-//! (`COST isr_...`) leave the pins' bookkeeping out: a real pin write is one store.
+//! (`COST isr_...`) leave the pins' bookkeeping out: a real pin write is one store. STEP
+//! falls are not recorded (only rises are hashed); the executor ends each pulse on
+//! [`EmuTimer`], an emulation of the board's cycle counter whose cost beyond a real read
+//! (one load) the figures leave out too. Both overheads are calibrated at start-up.
 
 use core::cell::RefCell;
 use core::convert::Infallible;
@@ -56,7 +59,7 @@ use cortex_m::peripheral::SYST;
 use cortex_m_rt::exception;
 use embedded_hal::digital::{ErrorType, OutputPin};
 use strata::machine::AXES;
-use strata::step::{is_before, Pins, StepConfig};
+use strata::step::{is_before, Pins, StepConfig, StepTimer};
 
 use strata::thermal::{PidGains, Temp, ThermalConfig};
 
@@ -287,9 +290,14 @@ impl VBoard {
 }
 
 static VB: Mutex<RefCell<VBoard>> = Mutex::new(RefCell::new(VBoard::new()));
-/// SysTick counts spent in the virtual pins' bookkeeping (hash, counters), which a real pin
-/// (one store to GPIO BSRR) does not cost: the interrupt's cost figures leave it out.
-static PIN_COUNTS: AtomicU32 = AtomicU32::new(0);
+/// SysTick counts x 16 spent in the virtual pins' bookkeeping (hash, counters, and the
+/// measuring around it), which a real pin (one store to GPIO BSRR) does not cost: the
+/// interrupt's cost figures and [`EmuTimer`] leave it out.
+static PIN_COUNTS_X16: AtomicU32 = AtomicU32::new(0);
+/// What a virtual pin write costs outside the window `vpin_edge` measures itself (the
+/// SysTick reads, the sum above, the call), SysTick counts x 16 per write: calibrated at
+/// start-up ([`calibrate_pins`]).
+static PIN_OVERHEAD_X16: AtomicU32 = AtomicU32::new(0);
 
 #[inline(always)]
 fn vpin_edge(pin: VPin, high: bool) {
@@ -297,7 +305,32 @@ fn vpin_edge(pin: VPin, high: bool) {
     interrupt::free(|cs| VB.borrow(cs).borrow_mut().edge(pin, high));
     let c1 = SYST::get_current();
     let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
-    PIN_COUNTS.store(PIN_COUNTS.load(Ordering::Relaxed).wrapping_add(d), Ordering::Relaxed);
+    let x16 = (d << 4).wrapping_add(PIN_OVERHEAD_X16.load(Ordering::Relaxed));
+    let sum = PIN_COUNTS_X16.load(Ordering::Relaxed).wrapping_add(x16);
+    PIN_COUNTS_X16.store(sum, Ordering::Relaxed);
+}
+
+/// Virtual pin bookkeeping since `x16_0` (a [`PIN_COUNTS_X16`] value), SysTick counts.
+#[inline(always)]
+fn pin_counts_since(x16_0: u32) -> u32 {
+    PIN_COUNTS_X16.load(Ordering::Relaxed).wrapping_sub(x16_0) >> 4
+}
+
+/// Measures [`PIN_OVERHEAD_X16`]: 64 writes of a pin that does not change (DIR of X low,
+/// as at reset), timed as a whole, less what they measured themselves. The loop's own few
+/// instructions per write stay counted: they stand for the real write (address, store).
+/// Runs with the SysTick counter on and its interrupt off.
+fn calibrate_pins() {
+    let mut pin = VPin::Dir(0);
+    let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
+    let c0 = SYST::get_current();
+    for _ in 0..64 {
+        let _ = core::hint::black_box(&mut pin).set_low();
+    }
+    let c1 = SYST::get_current();
+    let total = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
+    let measured = PIN_COUNTS_X16.load(Ordering::Relaxed).wrapping_sub(p0);
+    PIN_OVERHEAD_X16.store((total << 4).saturating_sub(measured) / 64, Ordering::Relaxed);
 }
 
 impl ErrorType for VPin {
@@ -314,6 +347,74 @@ impl OutputPin for VPin {
         vpin_edge(*self, true);
         Ok(())
     }
+}
+
+/// The step timer during an executor call, as a 72 MHz Cortex-M3 at 1.5 cycles per
+/// instruction would read it: the print clock at the call's start plus the instructions run
+/// since (SysTick counts of 5 instructions, 7.5 ticks each; mps2-an385: 40 and 60) without
+/// the virtual pins' bookkeeping (a real pin write is one store). The executor waits on it for the end of a
+/// STEP pulse, so the interrupt's cost includes that wait. This emulation costs more than
+/// the board's read of its cycle counter (one load): the cost figures leave that out for
+/// the first two reads of a call (the one after the rising edge and the wait's first
+/// check) and count any further read (a spin) in full. The clock itself includes the
+/// emulation's time (it must move on while spinning), so a wait here ends up to a read's
+/// emulation earlier than on the board.
+struct EmuTimer {
+    start: u32,
+    /// SysTick value and [`PIN_COUNTS_X16`] at the call's start.
+    c0: u32,
+    pins0: u32,
+    /// Reads so far.
+    reads: u32,
+}
+
+/// What an [`EmuTimer::now`] costs beyond one instruction, SysTick counts x 16: calibrated
+/// at start-up ([`calibrate_timer`]).
+static TIMER_OVERHEAD_X16: AtomicU32 = AtomicU32::new(0);
+
+impl EmuTimer {
+    /// The emulation's cost beyond the board's in the first two reads, SysTick counts.
+    fn overhead_counts(&self) -> u32 {
+        (self.reads.min(2) * TIMER_OVERHEAD_X16.load(Ordering::Relaxed)) >> 4
+    }
+}
+
+impl StepTimer for EmuTimer {
+    // A call of its own: the same instructions in the calibration as in the executor.
+    #[inline(never)]
+    fn now(&mut self) -> u32 {
+        let c1 = SYST::get_current();
+        let d = if c1 <= self.c0 { self.c0 - c1 } else { self.c0 + RELOAD - c1 };
+        self.reads += 1;
+        // 1.5 cycles (72 MHz ticks) per instruction, `PERIOD_NS` instructions per count.
+        let ticks_x2 = 3 * PERIOD_NS.load(Ordering::Relaxed);
+        self.start.wrapping_add((d.saturating_sub(pin_counts_since(self.pins0)) * ticks_x2) >> 1)
+    }
+}
+
+/// Measures [`TIMER_OVERHEAD_X16`]: 64 reads (calls) timed as a whole, less the same loop
+/// without them and one instruction (a fifth of a count; mps2-an385: a fortieth) per read. Runs with the SysTick counter on
+/// and its interrupt off.
+fn calibrate_timer() {
+    let counts = |c0: u32, c1: u32| if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
+    let mut t = EmuTimer {
+        start: 0,
+        c0: SYST::get_current(),
+        pins0: PIN_COUNTS_X16.load(Ordering::Relaxed),
+        reads: 0,
+    };
+    let a0 = SYST::get_current();
+    for _ in 0..64 {
+        core::hint::black_box(&mut t);
+    }
+    let a1 = SYST::get_current();
+    for _ in 0..64 {
+        core::hint::black_box(core::hint::black_box(&mut t).now());
+    }
+    let b1 = SYST::get_current();
+    let reads_x16 = (counts(a1, b1).saturating_sub(counts(a0, a1)) << 4) / 64;
+    let one_insn_x16 = 16 / PERIOD_NS.load(Ordering::Relaxed).max(1);
+    TIMER_OVERHEAD_X16.store(reads_x16.saturating_sub(one_insn_x16), Ordering::Relaxed);
 }
 
 /// Virtual endstops: hit after a fixed travel.
@@ -415,15 +516,19 @@ impl Isr {
             VB.borrow(cs).borrow_mut().now = self.clock;
             let homing = self.motion.homing();
             let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
-            let p0 = PIN_COUNTS.load(Ordering::Relaxed);
+            let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
+            // The timer set up before the count starts (the board's costs nothing to set up).
+            let mut timer = EmuTimer { start: self.clock as u32, c0: 0, pins0: p0, reads: 0 };
             let c0 = SYST::get_current();
-            self.next = self.motion.event(self.clock as u32);
+            timer.c0 = c0;
+            self.next = self.motion.event(self.clock as u32, &mut timer);
             let c1 = SYST::get_current();
-            let pins = PIN_COUNTS.load(Ordering::Relaxed).wrapping_sub(p0);
+            let pins = pin_counts_since(p0) + timer.overhead_counts();
             let idle_poll = was_idle && self.next == Next::Idle;
             if !homing && !idle_poll {
                 let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
-                // Without the virtual pins' bookkeeping (a real pin write is one store).
+                // Without the virtual pins' bookkeeping (a real pin write is one store) and
+                // the timer emulation (a real read is one load).
                 let d = d.saturating_sub(pins);
                 self.calls += 1;
                 self.call_counts += d as u64;
@@ -594,13 +699,17 @@ pub fn init(cfg: &StepConfig) -> Board {
     cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(RELOAD - 1);
     cp.SYST.clear_current();
-    cp.SYST.enable_interrupt();
     cp.SYST.enable_counter();
+    calibrate_pins();
+    calibrate_timer();
+    cp.SYST.enable_interrupt();
     log!(
-        "board qemu-{}: sysclk period {} ns, SysTick every {} counts",
+        "board qemu-{}: sysclk period {} ns, SysTick every {} counts, pin overhead {}/16 counts, timer emulation {}/16 counts",
         qemu_machine::NAME,
         PERIOD_NS.load(Ordering::Relaxed),
-        RELOAD
+        RELOAD,
+        PIN_OVERHEAD_X16.load(Ordering::Relaxed),
+        TIMER_OVERHEAD_X16.load(Ordering::Relaxed)
     );
     Board { _syst: cp.SYST, plant: Plant::new() }
 }

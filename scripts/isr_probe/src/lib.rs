@@ -6,7 +6,7 @@
 use core::convert::Infallible;
 
 use embedded_hal::digital::{ErrorType, OutputPin};
-use strata::step::{Executor, Pins, Wake};
+use strata::step::{Executor, Pins, StepTimer, Wake};
 
 /// Stand-in for a GPIO port's bit set/reset register (written with volatile stores, as a
 /// register is: the compiler may not merge them).
@@ -36,10 +36,22 @@ impl OutputPin for RegPin {
     }
 }
 
-/// The timer interrupt body: service due edges, return the next compare value (0 = idle).
+/// The Cortex-M3's DWT cycle counter (CYCCNT), read as the board's step timer.
+pub struct CycleCounter;
+
+impl StepTimer for CycleCounter {
+    #[inline]
+    fn now(&mut self) -> u32 {
+        // SAFETY: DWT_CYCCNT is a readable 32-bit register on every Cortex-M3.
+        unsafe { core::ptr::read_volatile(0xE000_1004 as *const u32) }
+    }
+}
+
+/// The timer interrupt body: service due edges (STEP pulses end inside, on the cycle
+/// counter), return the next compare value (0 = idle).
 #[no_mangle]
 pub fn strata_step_isr(exec: &mut Executor<'static, 64>, pins: &mut Pins<RegPin>, now: u32) -> u32 {
-    match exec.on_timer(now, pins) {
+    match exec.on_timer_with(now, pins, &mut CycleCounter) {
         Ok(Wake::At(t)) => t,
         Ok(Wake::Idle) => 0,
         Err(e) => match e {},

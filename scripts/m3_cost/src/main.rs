@@ -15,7 +15,9 @@ use cortex_m_rt::{entry, exception};
 use embedded_hal::digital::{ErrorType, OutputPin};
 use strata::machine::{Rate, AXES};
 use strata::plan::{Block, Move, MoveKind, PlanConfig, Planner};
-use strata::step::{Executor, Pins, StepConfig, StepGenerator, StepQueue, Wake};
+use strata::step::{
+    is_before, Executor, Pins, StepConfig, StepGenerator, StepQueue, StepTimer, Wake,
+};
 
 static WRAPS: AtomicU32 = AtomicU32::new(0);
 static mut BSRR: u32 = 0;
@@ -166,23 +168,53 @@ fn counts(c0: u32, c1: u32) -> u32 {
     c0.wrapping_sub(c1) & RELOAD
 }
 
+/// The step timer of the real board (72 MHz, about 1.5 cycles per instruction), emulated:
+/// `now` at the call's start plus the instructions run since (SysTick counts of 5
+/// instructions, 7.5 ticks each). Waiting for a pulse's end spins on it, as on the board.
+struct EmuTimer {
+    start: u32,
+    c0: u32,
+}
+
+impl StepTimer for EmuTimer {
+    #[inline]
+    fn now(&mut self) -> u32 {
+        self.start.wrapping_add((counts(self.c0, SYST::get_current()) * 15) >> 1)
+    }
+}
+
 /// The timer interrupt's body, as the firmware has it: a function of its own reaching the
 /// executor and the pins through pointers (inlined into the timing loop, the executor on
 /// the stack would be addressed through extra instructions).
 #[inline(never)]
 fn step_isr(exec: &mut Executor<'_, 64>, pins: &mut Pins<RegPin>, now: u32) -> Wake {
+    let mut timer = EmuTimer { start: now, c0: SYST::get_current() };
+    match exec.on_timer_with(now, pins, &mut timer) {
+        Ok(w) => w,
+        Err(e) => match e {},
+    }
+}
+
+/// [`step_isr`] without a timer: every STEP fall is an event (the executor before pulses
+/// ended in the call that raises them).
+#[inline(never)]
+fn step_isr_events(exec: &mut Executor<'_, 64>, pins: &mut Pins<RegPin>, now: u32) -> Wake {
     match exec.on_timer(now, pins) {
         Ok(w) => w,
         Err(e) => match e {},
     }
 }
 
-/// Generates and executes `blocks`, timing every `on_timer` call on its own.
+/// Generates and executes `blocks`, timing every `on_timer` call on its own (`timed`: with
+/// the emulated step timer, pulses end in the call; else every fall is an event). The
+/// generator keeps ahead: the executor is not run into a horizon where the motion does not
+/// rest (the firmware's queue is deep enough for that; a stall would be an underrun).
 fn execute(
     blocks: &[Block],
     scfg: &StepConfig,
     start: [i32; AXES],
     insns: &dyn Fn(u64) -> f64,
+    timed: bool,
 ) -> Figures {
     // The bracket alone (two SysTick reads), averaged.
     let mut empty = 0u64;
@@ -213,6 +245,8 @@ fn execute(
     // Calls that raised at least one step, and their instructions (SysTick counts).
     let (mut rise_calls, mut rise_isr) = (0u64, 0u64);
     let mut done = 0u64;
+    // The horizon the executor was last held at.
+    let mut held = None;
     let t0 = ticks();
     loop {
         if gen.wants_block() {
@@ -224,8 +258,19 @@ fn execute(
         gen.run(&mut prod);
         for _ in 0..256 {
             let was_idle = exec.is_idle();
+            let (h, rest) = exec.horizon();
+            if !was_idle && !rest && !is_before(now, h) && held != Some(h) {
+                // Let the generator move the horizon on (unless it did not last time: a
+                // full queue behind the horizon, which only a stall resolves).
+                held = Some(h);
+                break;
+            }
             let c0 = SYST::get_current();
-            let w = step_isr(&mut exec, &mut pins, now);
+            let w = if timed {
+                step_isr(&mut exec, &mut pins, now)
+            } else {
+                step_isr_events(&mut exec, &mut pins, now)
+            };
             let c1 = SYST::get_current();
             let d = counts(c0, c1);
             isr += d as u64;
@@ -255,13 +300,16 @@ fn execute(
     let other_calls = calls - rise_calls;
     let other = (isr as f64 - rise_isr as f64 - bracket * other_calls as f64) * PERIOD_INSNS;
     let isr = (isr as f64 - bracket * calls as f64) * PERIOD_INSNS;
+    let st = exec.stats();
     print(format_args!(
         "  calls with a rising edge: {rise_calls}, {:.1} instructions each; other calls \
          (falls, horizon): {other_calls}, {:.1} each; worst call while running (not a start \
-         from idle): {:.0}\n",
+         from idle): {:.0}; pulses left to a later call: {}; underruns {}\n",
         rise / rise_calls as f64,
         other / other_calls.max(1) as f64,
-        (max_running as f64 - bracket) * PERIOD_INSNS
+        (max_running as f64 - bracket) * PERIOD_INSNS,
+        st.fall_events,
+        st.underruns
     ));
     Figures {
         steps,
@@ -377,7 +425,8 @@ fn main() -> ! {
     }
     // Generation + execution.
     let gen_step = insns(gen_t) / steps as f64;
-    execute(&blocks, &scfg, start, &insns).report("execute (job)", gen_step);
+    execute(&blocks, &scfg, start, &insns, false).report("execute (job, falls as events)", gen_step);
+    execute(&blocks, &scfg, start, &insns, true).report("execute (job)", gen_step);
 
     // X and Y both at 40 kHz (800 steps/mm at 50 mm/s each: 70.7 mm/s diagonal), in phase:
     // every interrupt with a step serves both axes.
@@ -393,7 +442,9 @@ fn main() -> ! {
     while let Some(b) = p.pop_forced() {
         let _ = xy.push(b);
     }
-    let f = execute(&xy, &fcfg, [0, 0, 200, 0], &insns);
+    let f = execute(&xy, &fcfg, [0, 0, 200, 0], &insns, false);
+    f.report("execute (X+Y 40 kHz, falls as events)", f64::NAN);
+    let f = execute(&xy, &fcfg, [0, 0, 200, 0], &insns, true);
     f.report("execute (X+Y 40 kHz)", f64::NAN);
     let cruise_ticks = 72_000_000 / 40_000;
     print(format_args!(
