@@ -94,9 +94,11 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
         // generated while the toolpaths of a large layer take half a second.
         printer.service(ep, now, done_ms, STATUS_EVERY_MS, &mut |motion| {
             if let Some(p) = prod.as_mut() {
+                #[cfg(feature = "qemu")]
+                let t = cost.motion_lent();
                 motion.run(p);
                 #[cfg(feature = "qemu")]
-                cost.generated();
+                cost.motion_returned(t);
             }
         });
         #[cfg(feature = "qemu")]

@@ -3,7 +3,9 @@
 //! - per layer `COST layer=K compute_insns=N print_ticks=M`;
 //! - per job `COST triangles=N slice_insns=N gen_gap_max_insns=N` (the longest stretch of a
 //!   `service` call between two step generations: slicing and toolpaths hold the step
-//!   generator that long), and the board's `COST isr_calls=...`.
+//!   generator that long), and the board's `COST isr_calls=...`. The steps generated at
+//!   the toolpath stage's progress points inside a `service` call (the printer lends its
+//!   motion half there) count with that call's layer but not as slicing.
 //!
 //! Approximations:
 //! - `compute_insns` are the thread-mode instructions (SysTick handler time taken out) spent
@@ -60,6 +62,9 @@ pub struct Cost {
     /// the current call.
     gap_max: u64,
     generated_at: u64,
+    /// Instructions the current `service` call spent generating steps (left out of the
+    /// slicing figure, still in the layer's).
+    lent: u64,
     active: bool,
 }
 
@@ -83,6 +88,7 @@ impl Cost {
             slice_insns: 0,
             gap_max: 0,
             generated_at: 0,
+            lent: 0,
             active: false,
         }
     }
@@ -100,17 +106,26 @@ impl Cost {
             strata_counted_on();
             let t = self.thread_now();
             self.generated_at = t;
+            self.lent = 0;
             (t, layer, before)
         })
     }
 
-    /// The printer lent its motion half inside a `service` call and steps were generated.
-    pub fn generated(&mut self) {
+    /// The printer lends its motion half inside a `service` call (steps are generated
+    /// until [`Cost::motion_returned`]); returns the time.
+    pub fn motion_lent(&mut self) -> u64 {
+        let t = self.thread_now();
         if self.active {
-            let t = self.thread_now();
             self.gap_max = self.gap_max.max(t - self.generated_at);
-            self.generated_at = t;
         }
+        t
+    }
+
+    /// The lent motion half (since `t0`) is back.
+    pub fn motion_returned(&mut self, t0: u64) {
+        let t = self.thread_now();
+        self.lent += t - t0;
+        self.generated_at = t;
     }
 
     fn add(&mut self, layer: u32, insns: u64) {
@@ -128,7 +143,7 @@ impl Cost {
                 self.report(p, false);
                 return;
             }
-            self.slice_insns += d;
+            self.slice_insns += d - self.lent.min(d);
             self.gap_max = self.gap_max.max(now - self.generated_at.max(t));
             self.add(layer, d);
         }
