@@ -5,8 +5,9 @@
 //! `last` is the executed time of the axis' previous step. For a fixed `add` every step bounds
 //! `interval` to an integer range; walking the steps and intersecting the ranges gives the
 //! longest run that `add` can cover, and which side the first failing step fell off says
-//! whether a larger or a smaller `add` would go further, so `add` is found by bisection over
-//! the range of the observed second differences. Interval limits (driver high + low time, the
+//! whether a larger or a smaller `add` would go further. The search starts at an estimate
+//! from the pending steps' second differences, gallops outward until the miss turns and
+//! bisects between the last two candidates. Interval limits (driver high + low time, the
 //! reversal gap after a direction change, [`MAX_INTERVAL_TICKS`]) are constraints of the same
 //! range.
 
@@ -46,11 +47,9 @@ struct Fit {
     miss: Miss,
 }
 
-/// Signed integers for [`Compressor::add_range`] and [`Compressor::check_in`]: the low bits
+/// Signed integers for [`Compressor::check_in`]: the low bits
 /// of a tick and wrapping arithmetic (exact while the true values fit).
 trait Wrapping: Copy + Ord {
-    const MIN: Self;
-    const MAX: Self;
     /// `v`, which fits.
     fn of(v: i64) -> Self;
     fn low(t: u64) -> Self;
@@ -60,8 +59,6 @@ trait Wrapping: Copy + Ord {
 }
 
 impl Wrapping for i32 {
-    const MIN: Self = i32::MIN;
-    const MAX: Self = i32::MAX;
     #[inline(always)]
     fn of(v: i64) -> Self {
         v as i32
@@ -85,8 +82,6 @@ impl Wrapping for i32 {
 }
 
 impl Wrapping for i64 {
-    const MIN: Self = i64::MIN;
-    const MAX: Self = i64::MAX;
     #[inline(always)]
     fn of(v: i64) -> Self {
         v
@@ -128,6 +123,8 @@ pub(crate) struct Compressor<const B: usize> {
     pub clamped: u32,
     /// Sequences committed.
     pub sequences: u64,
+    /// Step count of the last sequence committed (0: none yet).
+    prev_count: usize,
     /// Sequences that failed the final check (must stay 0; the fallback is a one-step
     /// sequence).
     pub check_failures: u32,
@@ -145,6 +142,7 @@ impl<const B: usize> Compressor<B> {
             prev_tick: 0,
             clamped: 0,
             sequences: 0,
+            prev_count: 0,
             check_failures: 0,
         }
     }
@@ -219,6 +217,9 @@ impl<const B: usize> Compressor<B> {
             out.enqueue(axis, StepCmd::Wait(MAX_INTERVAL_TICKS / 2)).map_err(|_| Full)?;
             self.last += max / 2;
         }
+        if out.free(axis) == 0 {
+            return Err(Full);
+        }
         let (mut fit, small_add) = self.fit(tune);
         let mut interval = fit.imin + (fit.imax - fit.imin) / 2;
         if !self.check(interval, fit.add, fit.count, tune, small_add) {
@@ -241,6 +242,7 @@ impl<const B: usize> Compressor<B> {
         self.len -= fit.count;
         self.after_dir = false;
         self.sequences += 1;
+        self.prev_count = fit.count;
         Ok(())
     }
 
@@ -296,53 +298,46 @@ impl<const B: usize> Compressor<B> {
         count >= 1
     }
 
-    /// Smallest and largest second difference of the first `n >= 2` pending step times (the
-    /// first interval counts from `last`), computed in `T` (wrapping differences of the low
-    /// bits, exact when they fit).
-    fn add_range<T: Wrapping>(&self, n: usize) -> (i64, i64) {
-        let (mut amin, mut amax) = (T::MAX, T::MIN);
-        let mut j = self.head;
-        let mut prev_t = T::low(self.buf[j]);
-        let mut prev_iv = prev_t.sub(T::low(self.last));
-        for _ in 1..n {
-            j += 1;
-            if j == B {
-                j = 0;
-            }
-            let t = T::low(self.buf[j]);
-            let iv = t.sub(prev_t);
-            let a = iv.sub(prev_iv);
-            amin = amin.min(a);
-            amax = amax.max(a);
-            prev_iv = iv;
-            prev_t = t;
+    /// A first estimate of `add`: the second difference of the pending steps over a span of
+    /// `m` steps, `(d_2m - 2 d_m + d_0) / m^2`, rounded, with `m` a power of two (a shift)
+    /// near half the previous sequence's length (the curvature around the middle of a
+    /// sequence as long as the last). Exact for steps on one quadratic; the rounding of the
+    /// exact times errs by at most `2 / m^2`.
+    fn guess_add(&self, n: usize) -> i64 {
+        if n < 3 {
+            // Second difference with the first interval counted from `last`.
+            return if n == 2 {
+                let t0 = self.buf[self.head];
+                let t1 = self.buf[(self.head + 1) % B];
+                (t1.wrapping_sub(t0) as i64).wrapping_sub(t0.wrapping_sub(self.last) as i64)
+            } else {
+                0
+            };
         }
-        (amin.wide(), amax.wide())
+        // Largest power of two m with 2 m <= min(n - 1, prev_count).
+        let span = (n - 1).min(self.prev_count.max(2)) as u32;
+        let shift = span.ilog2() - 1;
+        let m = 1usize << shift;
+        let t0 = self.buf[self.head];
+        let t1 = self.buf[(self.head + m) % B];
+        let t2 = self.buf[(self.head + 2 * m) % B];
+        let dd = (t2.wrapping_sub(t1) as i64).wrapping_sub(t1.wrapping_sub(t0) as i64);
+        let s = 2 * shift;
+        (dd.saturating_add((1 << s) >> 1)) >> s
     }
 
     /// The longest sequence from the front of the pending steps, and the 32-bit range of
     /// `add` for all of them ([`Compressor::small_add_bound`]).
+    ///
+    /// Starts at [`Compressor::guess_add`], gallops away from it (1, 2, 4, ... further) in the
+    /// direction the miss points until the miss turns, then bisects between the last two
+    /// candidates.
     fn fit(&self, tune: &Tune) -> (Fit, u64) {
         let n = self.len.min(u16::MAX as usize);
-        // Range of `add` from the second differences (the first interval counts from `last`).
-        let (mut amin, mut amax) = (0i64, 0i64);
-        if n > 1 {
-            let first = self.buf[self.head] as i64 - self.last as i64;
-            let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
-            (amin, amax) = if first > -(1 << 29) && end < 1 << 29 {
-                // Every interval and difference of intervals fits in i32.
-                self.add_range::<i32>(n)
-            } else {
-                self.add_range::<i64>(n)
-            };
-        }
-        let (mut lo, mut hi) = ((amin - 1).max(i32::MIN as i64), (amax + 1).min(i32::MAX as i64));
         let small_add = self.small_add_bound(n, tune);
+        let (amin, amax) = (i32::MIN as i64, i32::MAX as i64);
         let mut best: Option<Fit> = None;
-        while lo <= hi {
-            // floor((lo + hi) / 2), as a shift.
-            let mid = (lo + hi) >> 1;
-            let f = self.eval(mid, n, tune, small_add);
+        let mut consider = |f: Fit| {
             let better = match best {
                 None => true,
                 Some(b) => f.count > b.count || (f.count == b.count && f.add.abs() < b.add.abs()),
@@ -350,10 +345,81 @@ impl<const B: usize> Compressor<B> {
             if better && f.count > 0 {
                 best = Some(f);
             }
-            match f.miss {
-                Miss::Fits => break,
-                Miss::Larger => lo = mid + 1,
-                Miss::Smaller => hi = mid - 1,
+        };
+        let guess = self.guess_add(n).clamp(amin, amax);
+        let f = self.eval(guess, n, tune, small_add);
+        consider(f);
+        let (mut lo, mut hi) = (guess, guess);
+        let mut done = false;
+        match f.miss {
+            Miss::Fits => done = true,
+            Miss::Larger => {
+                // Every add <= lo is known to miss to the larger side.
+                let mut step = (guess.abs() >> 3).max(1);
+                loop {
+                    let c = (guess + step).min(amax);
+                    let f = self.eval(c, n, tune, small_add);
+                    consider(f);
+                    match f.miss {
+                        Miss::Fits => {
+                            done = true;
+                            break;
+                        }
+                        Miss::Larger => {
+                            lo = c;
+                            if c == amax {
+                                done = true;
+                                break;
+                            }
+                        }
+                        Miss::Smaller => {
+                            hi = c;
+                            break;
+                        }
+                    }
+                    step <<= 1;
+                }
+            }
+            Miss::Smaller => {
+                let mut step = (guess.abs() >> 3).max(1);
+                loop {
+                    let c = (guess - step).max(amin);
+                    let f = self.eval(c, n, tune, small_add);
+                    consider(f);
+                    match f.miss {
+                        Miss::Fits => {
+                            done = true;
+                            break;
+                        }
+                        Miss::Smaller => {
+                            hi = c;
+                            if c == amin {
+                                done = true;
+                                break;
+                            }
+                        }
+                        Miss::Larger => {
+                            lo = c;
+                            break;
+                        }
+                    }
+                    step <<= 1;
+                }
+            }
+        }
+        if !done {
+            // lo misses to the larger side, hi to the smaller: bisect strictly between.
+            let (mut lo, mut hi) = (lo + 1, hi - 1);
+            while lo <= hi {
+                // floor((lo + hi) / 2), as a shift.
+                let mid = (lo + hi) >> 1;
+                let f = self.eval(mid, n, tune, small_add);
+                consider(f);
+                match f.miss {
+                    Miss::Fits => break,
+                    Miss::Larger => lo = mid + 1,
+                    Miss::Smaller => hi = mid - 1,
+                }
             }
         }
         let best = best.unwrap_or_else(|| self.eval(0, 1, tune, self.small_add_bound(1, tune)));
@@ -597,12 +663,6 @@ mod tests {
             }
             let tune =
                 Tune { tol: 1 + rnd(60) as i64, min_step: 144, min_rev: 144 + rnd(50) as i64 };
-            let n = c.len;
-            let first = c.buf[c.head] as i64 - c.last as i64;
-            let end = c.buf[(c.head + n - 1) % 64] as i64 - c.last as i64;
-            if n > 1 && first > -(1 << 29) && end < 1 << 29 {
-                assert_eq!(c.add_range::<i32>(n), c.add_range::<i64>(n));
-            }
             for _ in 0..8 {
                 let add = if rnd(4) == 0 {
                     rnd(1 << 20) as i64 - (1 << 19)
