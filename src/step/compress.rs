@@ -13,6 +13,8 @@
 
 use super::{StepCmd, StepProducer, MAX_INTERVAL_TICKS};
 
+const STEP_GAIN: u32 = 2;
+
 /// The axis' queue is full: try again after the executor has taken some commands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Full;
@@ -45,6 +47,9 @@ struct Fit {
     imin: i64,
     imax: i64,
     miss: Miss,
+    /// How far (ticks) the failing step fell outside its window when that measures the miss,
+    /// else 0.
+    over: u32,
 }
 
 /// Signed integers for [`Compressor::check_in`]: the low bits
@@ -326,6 +331,17 @@ impl<const B: usize> Compressor<B> {
         (dd.saturating_add((1 << s) >> 1)) >> s
     }
 
+    /// A first gallop step from a miss: step `i` (`k = i + 1`) `over` ticks outside its window
+    /// takes a change of about `2 over / (k i)` in `add` (the window's drift `add i k / 2`
+    /// less the interval's share), at least 1.
+    fn step_of(f: &Fit) -> i64 {
+        let i = f.count as u32;
+        if i == 0 || i >= 1 << 12 {
+            return 1;
+        }
+        (f.over.saturating_mul(STEP_GAIN) / (i * (i + 1))).max(1) as i64
+    }
+
     /// The longest sequence from the front of the pending steps, and the 32-bit range of
     /// `add` for all of them ([`Compressor::small_add_bound`]).
     ///
@@ -351,11 +367,12 @@ impl<const B: usize> Compressor<B> {
         consider(f);
         let (mut lo, mut hi) = (guess, guess);
         let mut done = false;
+        let first_step = Self::step_of(&f);
         match f.miss {
             Miss::Fits => done = true,
             Miss::Larger => {
                 // Every add <= lo is known to miss to the larger side.
-                let mut step = (guess.abs() >> 3).max(1);
+                let mut step = first_step;
                 loop {
                     let c = (guess + step).min(amax);
                     let f = self.eval(c, n, tune, small_add);
@@ -381,7 +398,7 @@ impl<const B: usize> Compressor<B> {
                 }
             }
             Miss::Smaller => {
-                let mut step = (guess.abs() >> 3).max(1);
+                let mut step = first_step;
                 loop {
                     let c = (guess - step).max(amin);
                     let f = self.eval(c, n, tune, small_add);
@@ -435,7 +452,7 @@ impl<const B: usize> Compressor<B> {
     /// way a better `add` lies. `small_add` is [`Compressor::small_add_bound`] of `n`.
     fn eval(&self, add: i64, n: usize, tune: &Tune, small_add: u64) -> Fit {
         if n == 0 {
-            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Fits };
+            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Fits, over: 0 };
         }
         if add.unsigned_abs() < small_add {
             self.eval_small(add, n, tune)
@@ -483,11 +500,11 @@ impl<const B: usize> Compressor<B> {
             let (nlo, nhi) = (imin.max(lo), imax.min(hi));
             if nlo > nhi {
                 let miss = if lo > imax { Miss::Larger } else { Miss::Smaller };
-                return Fit { count: i, add, imin, imax, miss };
+                return Fit { count: i, add, imin, imax, miss, over: 0 };
             }
             (imin, imax) = (nlo, nhi);
         }
-        Fit { count: n, add, imin, imax, miss: Miss::Fits }
+        Fit { count: n, add, imin, imax, miss: Miss::Fits, over: 0 }
     }
 
     /// [`Compressor::eval`] in `i32` (registers and hardware divider of the Cortex-M3), with
@@ -508,18 +525,19 @@ impl<const B: usize> Compressor<B> {
     fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let last = self.last as u32;
         let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);
-        let fit = |count: usize, imin: i32, imax: i32, miss: Miss| Fit {
+        let fit = |count: usize, imin: i32, imax: i32, miss: Miss, over: i32| Fit {
             count,
             add,
             imin: imin as i64,
             imax: imax as i64,
             miss,
+            over: over as u32,
         };
         let mut j = self.head;
         let d = (self.buf[j] as u32).wrapping_sub(last) as i32;
         let (mut imin, mut imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
         if imin > imax {
-            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Smaller };
+            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Smaller, over: 0 };
         }
         let mut up = last.wrapping_add((imin + tol) as u32);
         let mut down = last.wrapping_add((imax - tol) as u32);
@@ -544,11 +562,14 @@ impl<const B: usize> Compressor<B> {
             // above = k imin + at + tol - d and below = d + tol - k imax - at.
             let lim_lo = min_step - add_i;
             // ceil((d - tol - at) / k) > imax, or the minimum interval above imax.
-            if below > 2 * tol || lim_lo > imax {
-                return fit(i, imin, imax, Miss::Larger);
+            if below > 2 * tol {
+                return fit(i, imin, imax, Miss::Larger, below - 2 * tol);
+            }
+            if lim_lo > imax {
+                return fit(i, imin, imax, Miss::Larger, 0);
             }
             if above > 2 * tol {
-                return fit(i, imin, imax, Miss::Smaller);
+                return fit(i, imin, imax, Miss::Smaller, above - 2 * tol);
             }
             // Both dividends are positive here: d - tol - at > k imin > 0 when the low bound
             // narrows, d + tol - at >= k imin > 0 always.
@@ -558,7 +579,7 @@ impl<const B: usize> Compressor<B> {
             let hi = if below < 0 { ((d_at + tol as u32) / k) as i32 } else { imax };
             let lo = lo.max(lim_lo);
             if lo > hi {
-                return fit(i, imin, imax, Miss::Smaller);
+                return fit(i, imin, imax, Miss::Smaller, 0);
             }
             if lo != imin {
                 imin = lo;
@@ -570,7 +591,7 @@ impl<const B: usize> Compressor<B> {
                 down = last.wrapping_add((k as i32 * imax + at - tol) as u32);
             }
         }
-        fit(n, imin, imax, Miss::Fits)
+        fit(n, imin, imax, Miss::Fits, 0)
     }
 }
 
