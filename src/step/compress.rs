@@ -13,8 +13,6 @@
 
 use super::{StepCmd, StepProducer, MAX_INTERVAL_TICKS};
 
-const STEP_GAIN: u32 = 2;
-
 /// The axis' queue is full: try again after the executor has taken some commands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Full;
@@ -331,15 +329,18 @@ impl<const B: usize> Compressor<B> {
         (dd.saturating_add((1 << s) >> 1)) >> s
     }
 
-    /// A first gallop step from a miss: step `i` (`k = i + 1`) `over` ticks outside its window
-    /// takes a change of about `2 over / (k i)` in `add` (the window's drift `add i k / 2`
-    /// less the interval's share), at least 1.
-    fn step_of(f: &Fit) -> i64 {
+    /// How far `add` must move (in the miss's direction) before the failing step can fit:
+    /// step `i` (`k = i + 1`) `over` ticks outside the model times reachable needs
+    /// `|change| i k / 2 >= over`, as the interval range of the steps before it only
+    /// narrows that way (their bounds `(d_j -+ tol - add j (j + 1) / 2) / (j + 1)` move
+    /// against the change). At least 1.
+    fn reach(f: &Fit) -> i64 {
         let i = f.count as u32;
         if i == 0 || i >= 1 << 12 {
             return 1;
         }
-        (f.over.saturating_mul(STEP_GAIN) / (i * (i + 1))).max(1) as i64
+        let ik = i * (i + 1);
+        ((2 * f.over).div_ceil(ik)).max(1) as i64
     }
 
     /// The longest sequence from the front of the pending steps, and the 32-bit range of
@@ -362,82 +363,35 @@ impl<const B: usize> Compressor<B> {
                 best = Some(f);
             }
         };
-        let guess = self.guess_add(n).clamp(amin, amax);
-        let f = self.eval(guess, n, tune, small_add);
-        consider(f);
-        let (mut lo, mut hi) = (guess, guess);
-        let mut done = false;
-        let first_step = Self::step_of(&f);
-        match f.miss {
-            Miss::Fits => done = true,
-            Miss::Larger => {
-                // Every add <= lo is known to miss to the larger side.
-                let mut step = first_step;
-                loop {
-                    let c = (guess + step).min(amax);
-                    let f = self.eval(c, n, tune, small_add);
-                    consider(f);
-                    match f.miss {
-                        Miss::Fits => {
-                            done = true;
-                            break;
-                        }
-                        Miss::Larger => {
-                            lo = c;
-                            if c == amax {
-                                done = true;
-                                break;
-                            }
-                        }
-                        Miss::Smaller => {
-                            hi = c;
-                            break;
-                        }
-                    }
-                    step <<= 1;
-                }
+        // No add <= lo or >= hi can cover more steps than `best` (bounds just outside the
+        // i32 range until a miss sets them).
+        let (mut lo, mut hi) = (amin - 1, amax + 1);
+        let mut c = self.guess_add(n).clamp(amin, amax);
+        // Distance of the last move while the search is one-sided (it at least doubles).
+        let mut step = 0i64;
+        loop {
+            let f = self.eval(c, n, tune, small_add);
+            consider(f);
+            // Every add short of c + reach (in the miss's direction) fails the same step.
+            let reach = Self::reach(&f);
+            match f.miss {
+                Miss::Fits => break,
+                Miss::Larger => lo = lo.max(c + reach - 1).min(amax),
+                Miss::Smaller => hi = hi.min(c - reach + 1).max(amin),
             }
-            Miss::Smaller => {
-                let mut step = first_step;
-                loop {
-                    let c = (guess - step).max(amin);
-                    let f = self.eval(c, n, tune, small_add);
-                    consider(f);
-                    match f.miss {
-                        Miss::Fits => {
-                            done = true;
-                            break;
-                        }
-                        Miss::Smaller => {
-                            hi = c;
-                            if c == amin {
-                                done = true;
-                                break;
-                            }
-                        }
-                        Miss::Larger => {
-                            lo = c;
-                            break;
-                        }
-                    }
-                    step <<= 1;
-                }
+            if hi - lo <= 1 {
+                break;
             }
-        }
-        if !done {
-            // lo misses to the larger side, hi to the smaller: bisect strictly between.
-            let (mut lo, mut hi) = (lo + 1, hi - 1);
-            while lo <= hi {
+            let next = if hi > amax {
+                (c + 2 * step).max(lo + 1)
+            } else if lo < amin {
+                (c - 2 * step).min(hi - 1)
+            } else {
                 // floor((lo + hi) / 2), as a shift.
-                let mid = (lo + hi) >> 1;
-                let f = self.eval(mid, n, tune, small_add);
-                consider(f);
-                match f.miss {
-                    Miss::Fits => break,
-                    Miss::Larger => lo = mid + 1,
-                    Miss::Smaller => hi = mid - 1,
-                }
-            }
+                (lo + hi) >> 1
+            };
+            step = (next - c).abs();
+            c = next;
         }
         let best = best.unwrap_or_else(|| self.eval(0, 1, tune, self.small_add_bound(1, tune)));
         (best, small_add)
@@ -452,7 +406,14 @@ impl<const B: usize> Compressor<B> {
     /// way a better `add` lies. `small_add` is [`Compressor::small_add_bound`] of `n`.
     fn eval(&self, add: i64, n: usize, tune: &Tune, small_add: u64) -> Fit {
         if n == 0 {
-            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Fits, over: 0 };
+            return Fit {
+                count: 0,
+                add,
+                imin: i64::MIN,
+                imax: i64::MAX,
+                miss: Miss::Fits,
+                over: 0,
+            };
         }
         if add.unsigned_abs() < small_add {
             self.eval_small(add, n, tune)
@@ -499,8 +460,15 @@ impl<const B: usize> Compressor<B> {
             hi = hi.min(MAX_INTERVAL_TICKS as i64 - add * ii);
             let (nlo, nhi) = (imin.max(lo), imax.min(hi));
             if nlo > nhi {
-                let miss = if lo > imax { Miss::Larger } else { Miss::Smaller };
-                return Fit { count: i, add, imin, imax, miss, over: 0 };
+                // The tolerance window's distance from the model times reachable (as in
+                // `eval_small`), when the walk has an interval range.
+                let (miss, over) = if lo > imax {
+                    (Miss::Larger, (d - tune.tol - at).saturating_sub(k.saturating_mul(imax)))
+                } else {
+                    (Miss::Smaller, k.saturating_mul(imin).saturating_add(at - d - tune.tol))
+                };
+                let over = if i == 0 { 0 } else { over.clamp(0, 1 << 30) as u32 };
+                return Fit { count: i, add, imin, imax, miss, over };
             }
             (imin, imax) = (nlo, nhi);
         }
@@ -537,7 +505,14 @@ impl<const B: usize> Compressor<B> {
         let d = (self.buf[j] as u32).wrapping_sub(last) as i32;
         let (mut imin, mut imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
         if imin > imax {
-            return Fit { count: 0, add, imin: i64::MIN, imax: i64::MAX, miss: Miss::Smaller, over: 0 };
+            return Fit {
+                count: 0,
+                add,
+                imin: i64::MIN,
+                imax: i64::MAX,
+                miss: Miss::Smaller,
+                over: 0,
+            };
         }
         let mut up = last.wrapping_add((imin + tol) as u32);
         let mut down = last.wrapping_add((imax - tol) as u32);
@@ -667,6 +642,7 @@ mod tests {
             x ^= x << 17;
             x % m
         };
+        let mut reached = 0;
         for round in 0..4000 {
             let mut c = Compressor::<64>::new();
             c.last = 1_000_000 + rnd(1 << 40);
@@ -707,8 +683,20 @@ mod tests {
                     (b.count, b.imin, b.imax, b.miss),
                     "add {add} n {n} round {round}"
                 );
+                // No add short of `reach` in the miss's direction covers more steps.
+                for f in [a, b] {
+                    let reach = Compressor::<64>::reach(&f);
+                    if f.miss != Miss::Fits && reach > 1 {
+                        let delta = 1 + rnd(reach as u64 - 1) as i64;
+                        let other = if f.miss == Miss::Larger { add + delta } else { add - delta };
+                        let o = c.eval_wide(other, n, &tune);
+                        assert!(o.count <= f.count, "add {add} -> {other}: {o:?} vs {f:?}");
+                        reached += 1;
+                    }
+                }
             }
         }
+        assert!(reached > 20_000, "{reached} bounds checked");
     }
 
     #[test]
