@@ -501,8 +501,7 @@ impl<const B: usize> Compressor<B> {
             miss,
             over: over as u32,
         };
-        let mut j = self.head;
-        let d = (self.buf[j] as u32).wrapping_sub(last) as i32;
+        let d = (self.buf[self.head % B] as u32).wrapping_sub(last) as i32;
         let (mut imin, mut imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
         if imin > imax {
             return Fit {
@@ -519,21 +518,20 @@ impl<const B: usize> Compressor<B> {
         // Step i's own interval x + add i stays >= min_step for every x >= imin while
         // add i >= min_step - imin.
         let mut lim = min_step - imin;
-        let (mut add_i, mut at) = (0i32, 0i32);
-        for i in 1..n {
-            j += 1;
-            if j == B {
-                j = 0;
-            }
+        let mut add_i = 0i32;
+        // Steps by their unwrapped buffer position (`% B`: a mask for the usual powers of
+        // two); few values live in the fast path.
+        let (start, end) = (self.head, self.head + n);
+        for j in start + 1..end {
             add_i += add32;
-            at += add_i;
             up = up.wrapping_add((imin + add_i) as u32);
             down = down.wrapping_add((imax + add_i) as u32);
-            let t = self.buf[j] as u32;
+            let t = self.buf[j % B] as u32;
             let (above, below) = (up.wrapping_sub(t) as i32, t.wrapping_sub(down) as i32);
             if above >= 0 && below >= 0 && add_i >= lim {
                 continue;
             }
+            let i = j - start;
             // above = k imin + at + tol - d and below = d + tol - k imax - at.
             let lim_lo = min_step - add_i;
             // ceil((d - tol - at) / k) > imax, or the minimum interval above imax.
@@ -549,6 +547,8 @@ impl<const B: usize> Compressor<B> {
             // Both dividends are positive here: d - tol - at > k imin > 0 when the low bound
             // narrows, d + tol - at >= k imin > 0 always.
             let k = i as u32 + 1;
+            // at = add i (i + 1) / 2.
+            let at = add32.wrapping_mul(((i * (i + 1)) / 2) as i32);
             let d_at = t.wrapping_sub(last).wrapping_sub(at as u32);
             let lo = if above < 0 { (d_at - tol as u32).div_ceil(k) as i32 } else { imin };
             let hi = if below < 0 { ((d_at + tol as u32) / k) as i32 } else { imax };
