@@ -274,31 +274,34 @@ impl<const B: usize> Compressor<B> {
     }
 
     /// [`Compressor::check`] in `T`: the executor's `interval += add; t += interval`.
+    ///
+    /// The intervals change linearly, so the first step's and the rest's extremes (the
+    /// second and the last interval) decide the interval limits; the walk compares times.
     fn check_in<T: Wrapping>(&self, interval: i64, add: i64, count: usize, tune: &Tune) -> bool {
-        let (add_t, max_iv) = (T::of(add), MAX_INTERVAL_TICKS as i64);
-        let mut iv = T::of(interval);
-        let mut t = T::low(self.last);
-        let mut min_iv = self.first_min(tune);
-        let mut j = self.head;
-        for i in 0..count {
-            if i > 0 {
-                iv = iv.add(add_t);
-                min_iv = tune.min_step;
-                j += 1;
-                if j == B {
-                    j = 0;
-                }
-            }
-            t = t.add(iv);
-            let w = iv.wide();
-            if w < min_iv || w > max_iv {
-                return false;
-            }
-            if t.sub(T::low(self.buf[j])).wide().abs() > tune.tol {
+        let max_iv = MAX_INTERVAL_TICKS as i64;
+        if count == 0 || interval < self.first_min(tune) || interval > max_iv {
+            return false;
+        }
+        if count > 1 {
+            let (second, end) = (interval + add, interval + add * (count as i64 - 1));
+            if second.min(end) < tune.min_step || second.max(end) > max_iv {
                 return false;
             }
         }
-        count >= 1
+        let add_t = T::of(add);
+        let mut iv = T::of(interval);
+        let mut t = T::low(self.last).add(iv);
+        if t.sub(T::low(self.buf[self.head % B])).wide().abs() > tune.tol {
+            return false;
+        }
+        for j in self.head + 1..self.head + count {
+            iv = iv.add(add_t);
+            t = t.add(iv);
+            if t.sub(T::low(self.buf[j % B])).wide().abs() > tune.tol {
+                return false;
+            }
+        }
+        true
     }
 
     /// A first estimate of `add`: the second difference of the pending steps over a span of
