@@ -349,9 +349,11 @@ impl<const B: usize> Compressor<B> {
     /// The longest sequence from the front of the pending steps, and the 32-bit range of
     /// `add` for all of them ([`Compressor::small_add_bound`]).
     ///
-    /// Starts at [`Compressor::guess_add`], gallops away from it (1, 2, 4, ... further) in the
-    /// direction the miss points until the miss turns, then bisects between the last two
-    /// candidates.
+    /// Starts at [`Compressor::guess_add`]. Each miss moves a bound past every `add` that
+    /// fails the same step ([`Compressor::reach`]; the `add`s behind the candidate are taken
+    /// to miss the same way, as the bisection always did). While only one bound is known the
+    /// candidates gallop in the miss's direction (at least doubling each move), then the
+    /// search bisects between the bounds.
     fn fit(&self, tune: &Tune) -> (Fit, u64) {
         let n = self.len.min(u16::MAX as usize);
         let small_add = self.small_add_bound(n, tune);
@@ -366,8 +368,8 @@ impl<const B: usize> Compressor<B> {
                 best = Some(f);
             }
         };
-        // No add <= lo or >= hi can cover more steps than `best` (bounds just outside the
-        // i32 range until a miss sets them).
+        // No add <= lo or >= hi covers more steps than `best` (bounds just outside the i32
+        // range until a miss sets them).
         let (mut lo, mut hi) = (amin - 1, amax + 1);
         let mut c = self.guess_add(n).clamp(amin, amax);
         // Distance of the last move while the search is one-sided (it at least doubles).
