@@ -549,26 +549,26 @@ impl<const B: usize> Compressor<B> {
             if above > 2 * tol {
                 return fit(i, imin, imax, Miss::Smaller, above - 2 * tol);
             }
-            // Both dividends are positive here: d - tol - at > k imin > 0 when the low bound
-            // narrows, d + tol - at >= k imin > 0 always.
+            // A bound that narrows moves by the whole intervals its window edge is away:
+            // ceil((d - tol - at) / k) = imin + ceil(-above / k) and
+            // floor((d + tol - at) / k) = imax - ceil(-below / k); the edges move with it.
             let k = i as u32 + 1;
-            // at = add i (i + 1) / 2.
-            let at = add32.wrapping_mul(((i * (i + 1)) / 2) as i32);
-            let d_at = t.wrapping_sub(last).wrapping_sub(at as u32);
-            let lo = if above < 0 { (d_at - tol as u32).div_ceil(k) as i32 } else { imin };
-            let hi = if below < 0 { ((d_at + tol as u32) / k) as i32 } else { imax };
+            let lo =
+                if above < 0 { imin + (above.unsigned_abs().div_ceil(k)) as i32 } else { imin };
+            let hi =
+                if below < 0 { imax - (below.unsigned_abs().div_ceil(k)) as i32 } else { imax };
             let lo = lo.max(lim_lo);
             if lo > hi {
                 return fit(i, imin, imax, Miss::Smaller, 0);
             }
             if lo != imin {
+                up = up.wrapping_add(k.wrapping_mul((lo - imin) as u32));
                 imin = lo;
-                up = last.wrapping_add((k as i32 * imin + at + tol) as u32);
                 lim = min_step - imin;
             }
             if hi != imax {
+                down = down.wrapping_sub(k.wrapping_mul((imax - hi) as u32));
                 imax = hi;
-                down = last.wrapping_add((k as i32 * imax + at - tol) as u32);
             }
         }
         fit(n, imin, imax, Miss::Fits, 0)
