@@ -7,7 +7,10 @@
 //! [`Printer::service`] pumps the protocol [`Endpoint`]: it answers `Hello` with the
 //! capacities, hands job messages to [`Printer::handle`] and sends status reports and
 //! `LayerDone` hashes back. [`Printer::poll`] does a bounded amount of work: moves into the
-//! planner (up to its queue), blocks into the step generator, steps into the queue.
+//! planner (up to its queue), blocks into the step generator, steps into the queue. While a
+//! message makes the toolpath stage compute a layer, `service` lends its caller the motion
+//! half at the stage's progress points ([`MotionSlot`]), so steps keep being generated
+//! during a long layer.
 //!
 //! Flow control reaches back to the host: the slicer cuts one layer at a time, and only
 //! while the `MOVES` buffer (toolpath moves waiting for the planner) is at most a quarter
