@@ -167,6 +167,23 @@ pub(crate) fn div_i128_pos(n: i128, d: u128) -> i128 {
     }
 }
 
+/// `floor(x y / 2^shift)` saturated to `u64`, for `shift` in `1..=64`: the 128-bit product
+/// split into 64-bit halves, so that only 64-bit shifts remain (a variable 128-bit shift is
+/// long on a 32-bit core).
+#[inline]
+pub(crate) fn mul_shr_sat(x: u64, y: u64, shift: u32) -> u64 {
+    let p = x as u128 * y as u128;
+    let (hi, lo) = ((p >> 64) as u64, p as u64);
+    if shift >= 64 {
+        // shift == 64.
+        hi
+    } else if hi >> shift != 0 {
+        u64::MAX
+    } else {
+        (hi << (64 - shift)) | (lo >> shift)
+    }
+}
+
 /// Saturating `u128 -> u64`.
 #[inline]
 pub(crate) const fn sat_u64(v: u128) -> u64 {
@@ -271,6 +288,28 @@ mod tests {
         assert_eq!(div_u128(u128::MAX, 1), u128::MAX);
         assert_eq!(div_u128(u128::MAX, u64::MAX as u128), u128::MAX / u64::MAX as u128);
         assert_eq!(div_u128(u128::MAX, (1 << 63) + 1), u128::MAX / ((1 << 63) + 1));
+    }
+
+    #[test]
+    fn split_multiply_shift_equals_the_128_bit_one() {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for i in 0..200_000u32 {
+            let (a, b) = (next() >> (next() % 64), next() >> (next() % 64));
+            let shift = 1 + i % 64;
+            let want = sat_u64((a as u128 * b as u128) >> shift);
+            assert_eq!(mul_shr_sat(a, b, shift), want, "{a} {b} {shift}");
+        }
+        for shift in 1..=64 {
+            for (a, b) in [(u64::MAX, u64::MAX), (0, u64::MAX), (1, 1), (u64::MAX, 1)] {
+                assert_eq!(mul_shr_sat(a, b, shift), sat_u64((a as u128 * b as u128) >> shift));
+            }
+        }
     }
 
     #[test]
