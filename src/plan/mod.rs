@@ -487,7 +487,8 @@ impl Block {
         // acceleration; `v2 + 2 a d` is at most the cruise speed squared (plus rounding), so
         // the shift into the finer units keeps it below 2^63.
         let ramp = |d: u64, v_fine: u64, v2: u64| -> u64 {
-            let w = sat_u64(v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32));
+            // v2 + 2 a d / 2^32 = v2 + a d / 2^31, saturated.
+            let w = v2.saturating_add(math::mul_shr_sat(self.accel_q16, d, 31));
             let w = if w > u64::MAX >> self.fine_shift { u64::MAX } else { w << self.fine_shift };
             let dv = math::isqrt_u64(w).saturating_sub(v_fine);
             if (dv | self.ticks_per_dv) >> 32 == 0 {
