@@ -57,7 +57,8 @@ pub const fn isqrt_u64(n: u64) -> u64 {
     if ((u << 16) | a0 as u64) < q as u64 * q as u64 {
         s -= 1;
     }
-    s >> (z / 2)
+    // s = floor(sqrt(m)) < 2^32: a 32-bit shift.
+    ((s as u32) >> (z / 2)) as u64
 }
 
 /// `floor(sqrt(n))` for a `u128`, exact. [`isqrt_u64`] when `n` fits, else the same
