@@ -489,8 +489,12 @@ impl Block {
         let ramp = |d: u64, v_fine: u64, v2: u64| -> u64 {
             // v2 + 2 a d / 2^32 = v2 + a d / 2^31, saturated.
             let w = v2.saturating_add(math::mul_shr_sat(self.accel_q16, d, 31));
-            let w = if w > u64::MAX >> self.fine_shift { u64::MAX } else { w << self.fine_shift };
-            let dv = math::isqrt_u64(w).saturating_sub(v_fine);
+            let root = if w > u64::MAX >> self.fine_shift {
+                math::isqrt_u64(u64::MAX)
+            } else {
+                math::isqrt_u64_shl(w, self.fine_shift)
+            };
+            let dv = root.saturating_sub(v_fine);
             if (dv | self.ticks_per_dv) >> 32 == 0 {
                 // One 32x32 -> 64 multiplication.
                 (dv * self.ticks_per_dv) >> 16
