@@ -483,33 +483,41 @@ impl Block {
     /// 0.2 ns at 500 mm/s^2), never more than `2^-8 um/s / a`, plus a tick q16.
     pub fn step_time_q16(&self, dist_q32: u64) -> u64 {
         let s = dist_q32.min(self.len_q32);
-        // Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
-        // acceleration; `v2 + 2 a d` is at most the cruise speed squared (plus rounding), so
-        // the shift into the finer units keeps it below 2^63.
-        let ramp = |d: u64, v_fine: u64, v2: u64| -> u64 {
-            // v2 + 2 a d / 2^32 = v2 + a d / 2^31, saturated.
-            let w = v2.saturating_add(math::mul_shr_sat(self.accel_q16, d, 31));
-            let root = if w > u64::MAX >> self.fine_shift {
-                math::isqrt_u64(u64::MAX)
-            } else {
-                math::isqrt_u64_shl(w, self.fine_shift)
-            };
-            let dv = root.saturating_sub(v_fine);
-            if (dv | self.ticks_per_dv) >> 32 == 0 {
-                // One 32x32 -> 64 multiplication.
-                (dv * self.ticks_per_dv) >> 16
-            } else {
-                sat_u64((dv as u128 * self.ticks_per_dv as u128) >> 16)
-            }
-        };
-        if s <= self.accel_end_q32 {
-            ramp(s, self.v_fine[0], self.v2[0]).min(self.t_accel_q16)
-        } else if s <= self.decel_start_q32 {
+        let accel = s <= self.accel_end_q32;
+        if !accel && s <= self.decel_start_q32 {
             let t = math::mul_shr_sat(s - self.accel_end_q32, self.ticks_per_um, self.cruise_shift);
-            self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
+            return self.t_accel_q16.saturating_add(t).min(self.t_decel_q16);
+        }
+        // Acceleration from the start, or deceleration measured back from the end.
+        let (d, phase) = if accel { (s, 0) } else { (self.len_q32 - s, 2) };
+        let t = self.ramp_ticks_q16(d, self.v_fine[phase], self.v2[phase]);
+        if accel {
+            t.min(self.t_accel_q16)
         } else {
-            let back = ramp(self.len_q32 - s, self.v_fine[2], self.v2[2]);
-            self.t_total_q16.saturating_sub(back).max(self.t_decel_q16)
+            self.t_total_q16.saturating_sub(t).max(self.t_decel_q16)
+        }
+    }
+
+    /// Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
+    /// acceleration, ticks q16; `v2 + 2 a d` is at most the cruise speed squared (plus
+    /// rounding), so the shift into the finer units keeps it below 2^63.
+    // Inlined: its one call runs for every ramp step.
+    #[inline(always)]
+    fn ramp_ticks_q16(&self, d: u64, v_fine: u64, v2: u64) -> u64 {
+        // v2 + 2 a d / 2^32 = v2 + a d / 2^31, saturated.
+        let w = v2.saturating_add(math::mul_shr_sat(self.accel_q16, d, 31));
+        let root = if w > u64::MAX >> self.fine_shift {
+            // floor(sqrt(u64::MAX)), the root of the saturated value.
+            u32::MAX as u64
+        } else {
+            math::isqrt_u64_shl(w, self.fine_shift)
+        };
+        let dv = root.saturating_sub(v_fine);
+        if (dv | self.ticks_per_dv) >> 32 == 0 {
+            // One 32x32 -> 64 multiplication.
+            (dv * self.ticks_per_dv) >> 16
+        } else {
+            sat_u64((dv as u128 * self.ticks_per_dv as u128) >> 16)
         }
     }
 }
