@@ -318,7 +318,7 @@ mod tests {
         };
         for shift in (0..64).step_by(2) {
             let limit = u64::MAX >> shift;
-            let mut check = |w: u64| {
+            let check = |w: u64| {
                 assert_eq!(isqrt_u64_shl(w, shift), isqrt_u64(w << shift), "{w} << {shift}");
             };
             for w in [0, 1, 2, 3, 4, limit, limit - 1, limit / 2, limit >> 1 << 1] {

@@ -903,7 +903,7 @@ mod tests {
                     for b in [p.pop_forced().unwrap(), p.pop_forced().unwrap()] {
                         let len = b.length_um_q32();
                         let [sa, sd] = b.phase_um_q32();
-                        let mut check = |s: u64| {
+                        let check = |s: u64| {
                             assert_eq!(b.step_time_q16(s), reference_step_time_q16(&b, s), "{s}");
                         };
                         for i in 0..=300u64 {
