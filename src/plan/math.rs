@@ -40,7 +40,23 @@ pub const fn isqrt_u64(n: u64) -> u64 {
         return isqrt_u32(n as u32) as u64;
     }
     let z = n.leading_zeros() & !1;
-    let m = n << z;
+    // floor(floor(sqrt(n 4^k)) / 2^k) = floor(sqrt(n)).
+    (isqrt_norm_u64(n << z) >> (z / 2)) as u64
+}
+
+/// `floor(sqrt(w 2^shift))` for an even `shift` and `w <= u64::MAX >> shift`, exact: the
+/// shift joins [`isqrt_u64`]'s normalization (one 64-bit shift instead of two).
+pub const fn isqrt_u64_shl(w: u64, shift: u32) -> u64 {
+    if w == 0 {
+        return 0;
+    }
+    // z >= shift (w 2^shift fits), both even: the root of w 2^z over 2^((z - shift) / 2).
+    let z = w.leading_zeros() & !1;
+    (isqrt_norm_u64(w << z) >> ((z - shift) / 2)) as u64
+}
+
+/// `floor(sqrt(m))` for `m >= 2^62` (so the root is in `[2^31, 2^32)`).
+const fn isqrt_norm_u64(m: u64) -> u32 {
     // m = a3 b^3 + a2 b^2 + a1 b + a0 with b = 2^16 and a3 >= b / 4.
     let hi = (m >> 32) as u32;
     let s1 = isqrt_norm_u32(hi);
@@ -57,7 +73,8 @@ pub const fn isqrt_u64(n: u64) -> u64 {
     if ((u << 16) | a0 as u64) < q as u64 * q as u64 {
         s -= 1;
     }
-    s >> (z / 2)
+    // s = floor(sqrt(m)) < 2^32.
+    s as u32
 }
 
 /// `floor(sqrt(n))` for a `u128`, exact. [`isqrt_u64`] when `n` fits, else the same
@@ -167,6 +184,23 @@ pub(crate) fn div_i128_pos(n: i128, d: u128) -> i128 {
     }
 }
 
+/// `floor(x y / 2^shift)` saturated to `u64`, for `shift` in `1..=64`: the 128-bit product
+/// split into 64-bit halves, so that only 64-bit shifts remain (a variable 128-bit shift is
+/// long on a 32-bit core).
+#[inline]
+pub(crate) fn mul_shr_sat(x: u64, y: u64, shift: u32) -> u64 {
+    let p = x as u128 * y as u128;
+    let (hi, lo) = ((p >> 64) as u64, p as u64);
+    if shift >= 64 {
+        // shift == 64.
+        hi
+    } else if hi >> shift != 0 {
+        u64::MAX
+    } else {
+        (hi << (64 - shift)) | (lo >> shift)
+    }
+}
+
 /// Saturating `u128 -> u64`.
 #[inline]
 pub(crate) const fn sat_u64(v: u128) -> u64 {
@@ -271,6 +305,57 @@ mod tests {
         assert_eq!(div_u128(u128::MAX, 1), u128::MAX);
         assert_eq!(div_u128(u128::MAX, u64::MAX as u128), u128::MAX / u64::MAX as u128);
         assert_eq!(div_u128(u128::MAX, (1 << 63) + 1), u128::MAX / ((1 << 63) + 1));
+    }
+
+    #[test]
+    fn shifted_root_equals_the_root_of_the_shifted_value() {
+        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for shift in (0..64).step_by(2) {
+            let limit = u64::MAX >> shift;
+            let check = |w: u64| {
+                assert_eq!(isqrt_u64_shl(w, shift), isqrt_u64(w << shift), "{w} << {shift}");
+            };
+            for w in [0, 1, 2, 3, 4, limit, limit - 1, limit / 2, limit >> 1 << 1] {
+                check(w.min(limit));
+            }
+            for _ in 0..20_000 {
+                let w = (next() >> (next() % 64)) & limit;
+                check(w);
+                // Near squares: r^2 - 1, r^2, r^2 + 1 (within the limit).
+                let r = isqrt_u64(w);
+                for v in [r * r, (r * r).saturating_sub(1), r * r + 1] {
+                    check(v.min(limit));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn split_multiply_shift_equals_the_128_bit_one() {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for i in 0..200_000u32 {
+            let (a, b) = (next() >> (next() % 64), next() >> (next() % 64));
+            let shift = 1 + i % 64;
+            let want = sat_u64((a as u128 * b as u128) >> shift);
+            assert_eq!(mul_shr_sat(a, b, shift), want, "{a} {b} {shift}");
+        }
+        for shift in 1..=64 {
+            for (a, b) in [(u64::MAX, u64::MAX), (0, u64::MAX), (1, 1), (u64::MAX, 1)] {
+                assert_eq!(mul_shr_sat(a, b, shift), sat_u64((a as u128 * b as u128) >> shift));
+            }
+        }
     }
 
     #[test]

@@ -483,24 +483,41 @@ impl Block {
     /// 0.2 ns at 500 mm/s^2), never more than `2^-8 um/s / a`, plus a tick q16.
     pub fn step_time_q16(&self, dist_q32: u64) -> u64 {
         let s = dist_q32.min(self.len_q32);
-        // Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
-        // acceleration; `v2 + 2 a d` is at most the cruise speed squared (plus rounding), so
-        // the shift into the finer units keeps it below 2^63.
-        let ramp = |d: u64, v_fine: u64, v2: u64| -> u64 {
-            let w = sat_u64(v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32));
-            let w = if w > u64::MAX >> self.fine_shift { u64::MAX } else { w << self.fine_shift };
-            let dv = math::isqrt_u64(w).saturating_sub(v_fine);
-            sat_u64((dv as u128 * self.ticks_per_dv as u128) >> 16)
-        };
-        if s <= self.accel_end_q32 {
-            ramp(s, self.v_fine[0], self.v2[0]).min(self.t_accel_q16)
-        } else if s <= self.decel_start_q32 {
-            let d = (s - self.accel_end_q32) as u128;
-            let t = sat_u64((d * self.ticks_per_um as u128) >> self.cruise_shift);
-            self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
+        let accel = s <= self.accel_end_q32;
+        if !accel && s <= self.decel_start_q32 {
+            let t = math::mul_shr_sat(s - self.accel_end_q32, self.ticks_per_um, self.cruise_shift);
+            return self.t_accel_q16.saturating_add(t).min(self.t_decel_q16);
+        }
+        // Acceleration from the start, or deceleration measured back from the end.
+        let (d, phase) = if accel { (s, 0) } else { (self.len_q32 - s, 2) };
+        let t = self.ramp_ticks_q16(d, self.v_fine[phase], self.v2[phase]);
+        if accel {
+            t.min(self.t_accel_q16)
         } else {
-            let back = ramp(self.len_q32 - s, self.v_fine[2], self.v2[2]);
-            self.t_total_q16.saturating_sub(back).max(self.t_decel_q16)
+            self.t_total_q16.saturating_sub(t).max(self.t_decel_q16)
+        }
+    }
+
+    /// Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
+    /// acceleration, ticks q16; `v2 + 2 a d` is at most the cruise speed squared (plus
+    /// rounding), so the shift into the finer units keeps it below 2^63.
+    // Inlined: its one call runs for every ramp step.
+    #[inline(always)]
+    fn ramp_ticks_q16(&self, d: u64, v_fine: u64, v2: u64) -> u64 {
+        // v2 + 2 a d / 2^32 = v2 + a d / 2^31, saturated.
+        let w = v2.saturating_add(math::mul_shr_sat(self.accel_q16, d, 31));
+        let root = if w > u64::MAX >> self.fine_shift {
+            // floor(sqrt(u64::MAX)), the root of the saturated value.
+            u32::MAX as u64
+        } else {
+            math::isqrt_u64_shl(w, self.fine_shift)
+        };
+        let dv = root.saturating_sub(v_fine);
+        if (dv | self.ticks_per_dv) >> 32 == 0 {
+            // One 32x32 -> 64 multiplication.
+            (dv * self.ticks_per_dv) >> 16
+        } else {
+            sat_u64((dv as u128 * self.ticks_per_dv as u128) >> 16)
         }
     }
 }
@@ -836,6 +853,75 @@ mod tests {
         } else {
             let back = len - s_mm;
             total - 2.0 * back / (v1 + (v1 * v1 + 2.0 * a * back).sqrt())
+        }
+    }
+
+    /// The per-step time as first written (128-bit products and shifts throughout): the
+    /// oracle for the faster [`Block::step_time_q16`], which must give the same bits.
+    fn reference_step_time_q16(b: &Block, dist_q32: u64) -> u64 {
+        let s = dist_q32.min(b.len_q32);
+        let ramp = |d: u64, v_fine: u64, v2: u64| -> u64 {
+            let w = sat_u64(v2 as u128 + ((2 * b.accel_q16 as u128 * d as u128) >> 32));
+            let w = if w > u64::MAX >> b.fine_shift { u64::MAX } else { w << b.fine_shift };
+            let dv = math::isqrt_u64(w).saturating_sub(v_fine);
+            sat_u64((dv as u128 * b.ticks_per_dv as u128) >> 16)
+        };
+        if s <= b.accel_end_q32 {
+            ramp(s, b.v_fine[0], b.v2[0]).min(b.t_accel_q16)
+        } else if s <= b.decel_start_q32 {
+            let d = (s - b.accel_end_q32) as u128;
+            let t = sat_u64((d * b.ticks_per_um as u128) >> b.cruise_shift);
+            b.t_accel_q16.saturating_add(t).min(b.t_decel_q16)
+        } else {
+            let back = ramp(b.len_q32 - s, b.v_fine[2], b.v2[2]);
+            b.t_total_q16.saturating_sub(back).max(b.t_decel_q16)
+        }
+    }
+
+    #[test]
+    fn per_step_time_equals_the_128_bit_reference() {
+        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for accel in [1u32, 4, 100, 500, 5_000, 200_000, 1_000_000] {
+            for feed in [1u32, 30, 100, 300, 1_000, 10_000, 20_000] {
+                for len_um in [1i32, 50, 2_000, 50_000, 300_000, 1_000_000] {
+                    let cfg = PlanConfig {
+                        travel_accel_mm_s2: mm(accel),
+                        max_accel_mm_s2: [mm(1_000_000); 4],
+                        max_feed_mm_s: [mm(20_000); 4],
+                        ..PlanConfig::default()
+                    };
+                    let mut p: Planner<4> = Planner::new(&cfg, [0; 4]);
+                    p.push(Move::new([0, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.push(Move::new([len_um, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    p.push(Move::new([len_um, 0, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
+                    for b in [p.pop_forced().unwrap(), p.pop_forced().unwrap()] {
+                        let len = b.length_um_q32();
+                        let [sa, sd] = b.phase_um_q32();
+                        let check = |s: u64| {
+                            assert_eq!(b.step_time_q16(s), reference_step_time_q16(&b, s), "{s}");
+                        };
+                        for i in 0..=300u64 {
+                            check(len / 300 * i);
+                        }
+                        for edge in [0, sa, sd, len] {
+                            for k in 0..4 {
+                                check(edge.saturating_sub(k));
+                                check(edge.saturating_add(k));
+                            }
+                        }
+                        for _ in 0..300 {
+                            check(next() % (len + 1));
+                        }
+                        check(u64::MAX);
+                    }
+                }
+            }
         }
     }
 

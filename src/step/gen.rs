@@ -5,7 +5,7 @@
 use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
 use crate::machine::{Rate, AXES};
-use crate::plan::math::div_u128;
+use crate::plan::math::{div_u128, sat_u64};
 use crate::plan::Block;
 use heapless::Deque;
 
@@ -47,17 +47,36 @@ struct AxisRun {
     remaining: u32,
     /// Positive direction.
     dir: bool,
-    /// Path distance of the next step, um q48.
-    s_q48: u128,
-    /// Path distance per step, um q48.
-    ds_q48: u128,
+    /// Path distance of the next step, um q32 (saturated) and its next 16 fraction bits
+    /// (um q48 split so that a step adds 64-bit words, no 128-bit arithmetic).
+    s_q32: u64,
+    s_frac: u32,
+    /// Path distance per step, the same split.
+    ds_q32: u64,
+    ds_frac: u32,
     /// Exact time of the next step, generator ticks (`u64::MAX` with no step left).
     next_tick: u64,
 }
 
 impl AxisRun {
     /// No step to make.
-    const STILL: Self = Self { remaining: 0, dir: false, s_q48: 0, ds_q48: 0, next_tick: u64::MAX };
+    const STILL: Self = Self {
+        remaining: 0,
+        dir: false,
+        s_q32: 0,
+        s_frac: 0,
+        ds_q32: 0,
+        ds_frac: 0,
+        next_tick: u64::MAX,
+    };
+
+    /// Moves to the next step's distance: `s += ds` in um q48, the integer part saturated
+    /// (a distance past `u64::MAX` um q32 is clamped there, as the time is).
+    fn step_distance(&mut self) {
+        let frac = self.s_frac + self.ds_frac;
+        self.s_frac = frac & 0xffff;
+        self.s_q32 = self.s_q32.saturating_add(self.ds_q32).saturating_add((frac >> 16) as u64);
+    }
 }
 
 /// Turns blocks into compressed step sequences; `B` pending steps per axis at most.
@@ -419,11 +438,13 @@ impl<const B: usize> StepGenerator<B> {
             let dp = dp.max(1) as u128;
             run.remaining = m1.abs_diff(m) as u32;
             run.dir = dir;
-            run.s_q48 = div_u128((delta0.max(0) as u128 * len) << 16, dp);
-            run.ds_q48 = div_u128(len << 48, dp);
+            let s_q48 = div_u128((delta0.max(0) as u128 * len) << 16, dp);
+            let ds_q48 = div_u128(len << 48, dp);
+            (run.s_q32, run.s_frac) = (sat_u64(s_q48 >> 16), s_q48 as u32 & 0xffff);
+            (run.ds_q32, run.ds_frac) = (sat_u64(ds_q48 >> 16), ds_q48 as u32 & 0xffff);
         }
         for run in self.axes.iter_mut().filter(|r| r.remaining > 0) {
-            run.next_tick = tick_at(self.block_start_q16, &b, run.s_q48);
+            run.next_tick = tick_at(self.block_start_q16, &b, run.s_q32);
         }
         self.block = Some(b);
     }
@@ -435,8 +456,8 @@ impl<const B: usize> StepGenerator<B> {
         let run = &mut self.axes[axis];
         run.remaining -= 1;
         if run.remaining > 0 {
-            run.s_q48 += run.ds_q48;
-            run.next_tick = tick_at(self.block_start_q16, b, run.s_q48);
+            run.step_distance();
+            run.next_tick = tick_at(self.block_start_q16, b, run.s_q32);
         } else {
             run.next_tick = u64::MAX;
         }
@@ -454,10 +475,11 @@ fn step_position(um: i32, steps_per_mm: Rate) -> i64 {
     }
 }
 
-/// Exact time of path distance `s_q48` in `b` (which starts at `start_q16`, ticks q16),
-/// generator ticks rounded to nearest.
-fn tick_at(start_q16: u64, b: &Block, s_q48: u128) -> u64 {
-    let s_q32 = (s_q48 >> 16).min(u64::MAX as u128) as u64;
+/// Exact time of path distance `s_q32` (um q32) in `b` (which starts at `start_q16`, ticks
+/// q16), generator ticks rounded to nearest.
+// Inlined: the per-step call's register saves cost more than the copy (about 200 bytes).
+#[inline(always)]
+fn tick_at(start_q16: u64, b: &Block, s_q32: u64) -> u64 {
     start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
 }
 
