@@ -34,4 +34,4 @@ if [ -z "${STRATA_FIRMWARE_ELF:-}" ]; then
 fi
 STRATA_QEMU="$work/qemu" cargo run --quiet --release -p strata-host --example m3_cost -- "$model" | tail -1
 sleep 1.5 # the plugin rewrites its table every second
-python3 scripts/m3_profile/attribute.py "$STRATA_FIRMWARE_ELF" "$work/prof.txt.pcs" "$@"
+python3 scripts/m3_profile/attribute.py "$STRATA_FIRMWARE_ELF" "$work/prof.txt" "$@"

@@ -631,27 +631,23 @@ impl<
     /// when it succeeded.
     fn through_slicer<R>(
         &mut self,
-        mut motion: MotionHook<'_, '_, MOVES, P>,
+        motion: MotionHook<'_, '_, MOVES, P>,
         step: impl FnOnce(&mut Slicer<A, S, L>, &mut dyn FnMut(&Layer<'_>)) -> Result<R, SliceError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
         let Self { slicer, tp, moves, feed, planner, tags, gen, .. } = self;
-        let mut failed = None;
+        let slot = MotionSlot { moves, planner, tags, gen, allowed };
+        let mut events = EventSink { slot, feed, motion, failed: None };
         let mut tp_err = None;
         let r = {
-            let mut events = |e: &ToolEvent<'_>| match (e, motion.as_deref_mut()) {
-                (ToolEvent::Progress, Some(lend)) => {
-                    lend(&mut MotionSlot { moves, planner, tags, gen, allowed })
-                }
-                _ => on_event(e, moves, feed, &mut failed),
-            };
             let mut sink = |l: &Layer<'_>| {
                 if tp_err.is_none() {
-                    tp_err = tp.push_layer(l, &mut events).err();
+                    tp_err = tp.push_layer(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
             step(slicer, &mut sink)
         };
+        let failed = events.failed;
         self.check(r.is_err(), tp_err.is_some(), failed);
         r.ok()
     }
@@ -660,7 +656,7 @@ impl<
     /// a toolpath or move-buffer error; the step's result when it succeeded.
     fn through_toolpath<R>(
         &mut self,
-        mut motion: MotionHook<'_, '_, MOVES, P>,
+        motion: MotionHook<'_, '_, MOVES, P>,
         step: impl FnOnce(
             &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
             &mut dyn FnMut(&ToolEvent<'_>),
@@ -668,13 +664,10 @@ impl<
     ) -> Option<R> {
         let allowed = self.motion_allowed();
         let Self { tp, moves, feed, planner, tags, gen, .. } = self;
-        let mut failed = None;
-        let r = step(tp, &mut |e: &ToolEvent<'_>| match (e, motion.as_deref_mut()) {
-            (ToolEvent::Progress, Some(lend)) => {
-                lend(&mut MotionSlot { moves, planner, tags, gen, allowed })
-            }
-            _ => on_event(e, moves, feed, &mut failed),
-        });
+        let slot = MotionSlot { moves, planner, tags, gen, allowed };
+        let mut events = EventSink { slot, feed, motion, failed: None };
+        let r = step(tp, &mut |e: &ToolEvent<'_>| events.event(e));
+        let failed = events.failed;
         self.check(false, r.is_err(), failed);
         r.ok()
     }
@@ -903,31 +896,43 @@ struct Feed {
     xyz: [i32; 3],
 }
 
-/// Toolpath events into planner moves (absolute E); a full move buffer sets `failed`.
-fn on_event<const M: usize>(
-    e: &ToolEvent<'_>,
-    moves: &mut Deque<Tagged, M>,
-    feed: &mut Feed,
-    failed: &mut Option<u32>,
-) {
-    match e {
-        ToolEvent::LayerStart { index, .. } => feed.layer = *index,
-        ToolEvent::Move(m) => {
-            feed.e_um = feed.e_um.wrapping_add(m.e_um);
-            let xyz = [m.to.x, m.to.y, m.z_um];
-            let kind = if xyz == feed.xyz {
-                MoveKind::Retract
-            } else if m.e_um > 0 {
-                MoveKind::Print
-            } else {
-                MoveKind::Travel
-            };
-            feed.xyz = xyz;
-            let mv = Move::new([xyz[0], xyz[1], xyz[2], feed.e_um], m.feed_mm_s, kind);
-            if moves.push_back(Tagged::pack(feed.layer, &mv)).is_err() {
-                failed.get_or_insert(feed.layer);
+/// Where the toolpath stage's events go inside [`Printer::service`]: planner moves (absolute
+/// E) into the move buffer (the first layer whose moves do not fit is kept in `failed`), and at a progress
+/// point the motion half lent to `motion` (nothing when there is none).
+struct EventSink<'a, 'h, 'f, const MOVES: usize, const P: usize> {
+    slot: MotionSlot<'a, MOVES, P>,
+    feed: &'a mut Feed,
+    motion: MotionHook<'h, 'f, MOVES, P>,
+    failed: Option<u32>,
+}
+
+impl<const MOVES: usize, const P: usize> EventSink<'_, '_, '_, MOVES, P> {
+    fn event(&mut self, e: &ToolEvent<'_>) {
+        let feed = &mut *self.feed;
+        match e {
+            ToolEvent::Progress => {
+                if let Some(lend) = self.motion.as_deref_mut() {
+                    lend(&mut self.slot);
+                }
             }
+            ToolEvent::LayerStart { index, .. } => feed.layer = *index,
+            ToolEvent::Move(m) => {
+                feed.e_um = feed.e_um.wrapping_add(m.e_um);
+                let xyz = [m.to.x, m.to.y, m.z_um];
+                let kind = if xyz == feed.xyz {
+                    MoveKind::Retract
+                } else if m.e_um > 0 {
+                    MoveKind::Print
+                } else {
+                    MoveKind::Travel
+                };
+                feed.xyz = xyz;
+                let mv = Move::new([xyz[0], xyz[1], xyz[2], feed.e_um], m.feed_mm_s, kind);
+                if self.slot.moves.push_back(Tagged::pack(feed.layer, &mv)).is_err() {
+                    self.failed.get_or_insert(feed.layer);
+                }
+            }
+            ToolEvent::LayerEnd(_) => {}
         }
-        ToolEvent::LayerEnd(_) | ToolEvent::Progress => {}
     }
 }

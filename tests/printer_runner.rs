@@ -19,7 +19,11 @@ fn new_printer() -> Box<Small> {
 
 /// A closed 6 x 6 x 0.8 mm box at (100, 100) mm, zmin-sorted.
 fn block() -> Vec<Triangle> {
-    let (o, w, h) = (100_000, 6_000, 800);
+    box_at(100_000, 6_000, 800)
+}
+
+/// A closed `w` x `w` x `h` um box with its corner at (`o`, `o`), zmin-sorted.
+fn box_at(o: i32, w: i32, h: i32) -> Vec<Triangle> {
     let c = |i: usize| {
         Point3::new(o + w * (i & 1) as i32, o + w * (i >> 1 & 1) as i32, h * (i >> 2 & 1) as i32)
     };
@@ -162,22 +166,8 @@ type Tight = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 512, 16>;
 fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     // A 20 x 20 x 10 mm box of 12 triangles in one batch: its last triangles complete every
     // layer at once, 50 layers of moves (thousands) against a 512-move buffer.
-    let (o, w, h) = (90_000, 20_000, 10_000);
-    let c = |i: usize| {
-        Point3::new(o + w * (i & 1) as i32, o + w * (i >> 1 & 1) as i32, h * (i >> 2 & 1) as i32)
-    };
-    let quads =
-        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
-    let mut tris: Vec<Triangle> = quads
-        .iter()
-        .flat_map(|q| {
-            [
-                Triangle { v: [c(q[0]), c(q[1]), c(q[2])] },
-                Triangle { v: [c(q[0]), c(q[2]), c(q[3])] },
-            ]
-        })
-        .collect();
-    tris.sort_by_key(Triangle::z_min);
+    let h = 10_000;
+    let tris = box_at(90_000, 20_000, h);
     let mut p: Box<Tight> = Box::new(Tight::new(&MachineConfig::default()));
     let mut spec = job(&tris);
     spec.model_height_um = h;
@@ -546,7 +536,6 @@ fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same(
     assert!(lent.lends >= 6, "{} progress points", lent.lends);
     assert!(lent.lends_with_steps > 0, "no steps generated inside a layer's computation");
     assert_eq!(kept.lends, lent.lends, "the progress points depend on the job only");
-    assert_eq!(kept.lends_with_steps, 0);
     // The same commands and hashes either way.
     assert_eq!(lent.cmds, kept.cmds, "the command streams differ");
     assert_eq!(lent.hashes, kept.hashes);

@@ -75,7 +75,7 @@ pub type Mark = Option<(u64, u32, (u32, u32, u32))>;
 /// Triangles the slicer took, layers it cut and layers the toolpath stage emitted.
 fn progress(p: &FwPrinter) -> (u32, u32, u32) {
     let s = p.slicer().stats();
-    (s.triangles, s.layers, p.toolpath().stats().layers)
+    (s.triangles, s.layers, p.toolpath().layers_emitted())
 }
 
 impl Cost {

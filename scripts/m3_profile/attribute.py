@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Attributes symprof's per-address counts to source functions, innermost inlined frame
-first (addr2line -i): `attribute.py ELF COUNTS.pcs [--depth N] [--top K]`."""
+first (addr2line -i): `attribute.py ELF COUNTS [--depth N] [--top K]`."""
 import subprocess, sys, collections, argparse
 ap = argparse.ArgumentParser()
 ap.add_argument("elf"); ap.add_argument("pcs")

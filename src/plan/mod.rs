@@ -878,6 +878,22 @@ mod tests {
         }
     }
 
+    /// The blocks of three travel moves at `feed` mm/s with `accel` mm/s^2 (the axes' own
+    /// limits out of the way): 1 mm up, `len_um` along X, 1 mm down (90 degree corners).
+    fn cornered_blocks(accel: u32, feed: u32, len_um: i32) -> [Block; 2] {
+        let cfg = PlanConfig {
+            travel_accel_mm_s2: mm(accel),
+            max_accel_mm_s2: [mm(1_000_000); 4],
+            max_feed_mm_s: [mm(20_000); 4],
+            ..PlanConfig::default()
+        };
+        let mut p: Planner<4> = Planner::new(&cfg, [0; 4]);
+        for to in [[0, 1_000, 0, 0], [len_um, 1_000, 0, 0], [len_um, 0, 0, 0]] {
+            p.push(Move::new(to, mm(feed), MoveKind::Travel)).unwrap();
+        }
+        [p.pop_forced().unwrap(), p.pop_forced().unwrap()]
+    }
+
     #[test]
     fn per_step_time_equals_the_128_bit_reference() {
         let mut x = 0x9e37_79b9_7f4a_7c15_u64;
@@ -890,17 +906,7 @@ mod tests {
         for accel in [1u32, 4, 100, 500, 5_000, 200_000, 1_000_000] {
             for feed in [1u32, 30, 100, 300, 1_000, 10_000, 20_000] {
                 for len_um in [1i32, 50, 2_000, 50_000, 300_000, 1_000_000] {
-                    let cfg = PlanConfig {
-                        travel_accel_mm_s2: mm(accel),
-                        max_accel_mm_s2: [mm(1_000_000); 4],
-                        max_feed_mm_s: [mm(20_000); 4],
-                        ..PlanConfig::default()
-                    };
-                    let mut p: Planner<4> = Planner::new(&cfg, [0; 4]);
-                    p.push(Move::new([0, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
-                    p.push(Move::new([len_um, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
-                    p.push(Move::new([len_um, 0, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
-                    for b in [p.pop_forced().unwrap(), p.pop_forced().unwrap()] {
+                    for b in cornered_blocks(accel, feed, len_um) {
                         let len = b.length_um_q32();
                         let [sa, sd] = b.phase_um_q32();
                         let check = |s: u64| {
@@ -930,19 +936,8 @@ mod tests {
         for accel in [1u32, 4, 100, 500, 5_000, 200_000] {
             for feed in [1u32, 30, 100, 300, 1_000, 10_000] {
                 for len_um in [50i32, 2_000, 50_000, 1_000_000] {
-                    let cfg = PlanConfig {
-                        travel_accel_mm_s2: mm(accel),
-                        max_accel_mm_s2: [mm(1_000_000); 4],
-                        max_feed_mm_s: [mm(20_000); 4],
-                        ..PlanConfig::default()
-                    };
-                    let mut p: Planner<4> = Planner::new(&cfg, [0; 4]);
                     // Start and end at speed: a 90 degree corner before and after.
-                    p.push(Move::new([0, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
-                    p.push(Move::new([len_um, 1_000, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
-                    p.push(Move::new([len_um, 0, 0, 0], mm(feed), MoveKind::Travel)).unwrap();
-                    p.pop_forced().unwrap();
-                    let b = p.pop_forced().unwrap();
+                    let [_, b] = cornered_blocks(accel, feed, len_um);
                     let vc = to_f(b.cruise_speed_mm_s()) * 1e3;
                     let a = to_f(b.accel_mm_s2()) * 1e3;
                     // Speed resolution over a, the ramps' phase-time rounding, a tick q16.

@@ -836,6 +836,11 @@ impl<
         &self.cfg
     }
 
+    /// Layers emitted so far ([`ToolpathStats::layers`] without computing the rest).
+    pub fn layers_emitted(&self) -> u32 {
+        self.stats.layers
+    }
+
     /// Totals so far.
     pub fn stats(&self) -> ToolpathStats {
         let mut s = self.stats;
