@@ -1,6 +1,7 @@
 //! Cost figures on QEMU (`-icount shift=0`: one instruction = 1 ns of virtual time), one
 //! semihosting line each:
-//! - per layer `COST layer=K compute_insns=N print_ticks=M`;
+//! - per layer `COST layer=K compute_insns=N service_insns=S print_ticks=M` (`S`: the
+//!   slicing and toolpath part of `N`);
 //! - per job `COST triangles=N slice_insns=N gen_gap_max_insns=N` (the longest stretch of a
 //!   `service` call between two step generations: slicing and toolpaths hold the step
 //!   generator that long), and the board's `COST isr_calls=...`. The steps generated at
@@ -51,6 +52,9 @@ const RING: usize = 32;
 /// Cost accounting of one job.
 pub struct Cost {
     ring: [u64; RING],
+    /// The `service` part of each layer's bucket (slicing and toolpaths, lent motion work
+    /// left out).
+    ring_service: [u64; RING],
     /// Next layer to report.
     reported: u32,
     /// Released print time at the last report, ticks.
@@ -83,6 +87,7 @@ impl Cost {
     pub const fn new() -> Self {
         Self {
             ring: [0; RING],
+            ring_service: [0; RING],
             reported: 0,
             planned_ticks: 0,
             slice_insns: 0,
@@ -128,9 +133,10 @@ impl Cost {
         self.generated_at = t;
     }
 
-    fn add(&mut self, layer: u32, insns: u64) {
-        let l = layer.clamp(self.reported, self.reported + RING as u32 - 1);
-        self.ring[l as usize % RING] += insns;
+    fn add(&mut self, layer: u32, insns: u64, service: u64) {
+        let l = layer.clamp(self.reported, self.reported + RING as u32 - 1) as usize % RING;
+        self.ring[l] += insns;
+        self.ring_service[l] += service;
     }
 
     /// Ends a `service` measurement.
@@ -143,9 +149,10 @@ impl Cost {
                 self.report(p, false);
                 return;
             }
-            self.slice_insns += d - self.lent.min(d);
+            let service = d - self.lent.min(d);
+            self.slice_insns += service;
             self.gap_max = self.gap_max.max(now - self.generated_at.max(t));
-            self.add(layer, d);
+            self.add(layer, d, service);
         }
         self.report(p, false);
     }
@@ -166,7 +173,7 @@ impl Cost {
             if !worked {
                 return;
             }
-            self.add(p.status(0).layer, d);
+            self.add(p.status(0).layer, d, 0);
             self.report(p, false);
         }
     }
@@ -181,13 +188,15 @@ impl Cost {
             let ticks = (p.planned_s() * 72e6) as u64;
             let k = self.reported as usize % RING;
             log!(
-                "COST layer={} compute_insns={} print_ticks={}",
+                "COST layer={} compute_insns={} service_insns={} print_ticks={}",
                 self.reported,
                 self.ring[k],
+                self.ring_service[k],
                 ticks - self.planned_ticks.min(ticks)
             );
             self.planned_ticks = ticks;
             self.ring[k] = 0;
+            self.ring_service[k] = 0;
             self.reported += 1;
         }
     }

@@ -9,8 +9,9 @@
 //! - worst interrupt under 900 cycles (X and Y both stepping at 40 kHz: 72e6 / 80e3).
 //!
 //! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S] [--relay LOSS]
-//! [--max-deviation MM] MODEL.stl...` (job budget S seconds of wall time, default 1800;
-//! admission's error bound MM, default 0.02 as `strata print`; `--relay` streams through the
+//! [--max-deviation MM] [--layers K] MODEL.stl...` (job budget S seconds of wall time, default 1800;
+//! admission's error bound MM, default 0.02 as `strata print`; `--layers K` lists the K
+//! worst layers with their compute split between slicing/toolpaths and planning/steps; `--relay` streams through the
 //! fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
 //! every frame's header; `cylinder:R:H:SIDES:BAND` (mm) is a generated banded cylinder; model
 //! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
@@ -47,6 +48,7 @@ struct Row {
     s: CostSummary,
     print_s: f64,
     wall_s: f64,
+    layers_cost: Vec<hil::LayerCost>,
 }
 
 struct Opts {
@@ -56,6 +58,8 @@ struct Opts {
     relay: Option<f64>,
     /// Admission's error bound, mm.
     max_deviation: f64,
+    /// Worst layers to list with their split (slicing and toolpaths / planning and steps).
+    worst_layers: usize,
 }
 
 /// `cylinder:R:H:SIDES:BAND` (mm) is [`hil::banded_cylinder`]; anything else an STL file.
@@ -125,12 +129,35 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
         s: CostSummary::of(&costs, timer_hz),
         print_s: st.done_ms as f64 / 1000.0,
         wall_s: t0.elapsed().as_secs_f64(),
+        layers_cost: costs.layers,
     })
+}
+
+/// The `k` layers of `r` with the lowest real-time factor, with their compute split.
+fn print_worst_layers(r: &Row, k: usize, timer_hz: f64) {
+    let rtf = |l: &hil::LayerCost| {
+        let compute_s = l.compute_insns as f64 * CYCLES_PER_INSN / CPU_HZ;
+        l.print_ticks as f64 / timer_hz / compute_s.max(1e-12)
+    };
+    let mut layers: Vec<&hil::LayerCost> = r.layers_cost.iter().collect();
+    layers.sort_by(|a, b| rtf(a).total_cmp(&rtf(b)));
+    println!("\n{}: worst layers (insns: slicing+toolpaths / planning+steps)", r.name);
+    for l in layers.iter().take(k) {
+        println!(
+            "  L{:<4} rtf {:>6.1}  print {:>6.2} s  compute {:>11}  service {:>11}  motion {:>11}",
+            l.layer,
+            rtf(l),
+            l.print_ticks as f64 / timer_hz,
+            l.compute_insns,
+            l.service_insns,
+            l.compute_insns - l.service_insns.min(l.compute_insns)
+        );
+    }
 }
 
 fn main() {
     let mut o =
-        Opts { echo: false, timeout: Duration::from_secs(1800), relay: None, max_deviation: 0.02 };
+        Opts { echo: false, timeout: Duration::from_secs(1800), relay: None, max_deviation: 0.02, worst_layers: 0 };
     let mut models = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -144,6 +171,10 @@ fn main() {
                 Some(d) => o.max_deviation = d,
                 None => models.clear(),
             },
+            "--layers" => match args.next().and_then(|s| s.parse().ok()) {
+                Some(k) => o.worst_layers = k,
+                None => models.clear(),
+            },
             "--relay" => match args.next().and_then(|s| s.parse().ok()) {
                 Some(l) => o.relay = Some(l),
                 None => models.clear(),
@@ -154,7 +185,7 @@ fn main() {
     if models.is_empty() {
         eprintln!(
             "usage: m3_cost [--echo] [--timeout SECONDS] [--relay LOSS] [--max-deviation MM] \
-             MODEL.stl..."
+             [--layers K] MODEL.stl..."
         );
         std::process::exit(2);
     }
@@ -213,6 +244,12 @@ fn main() {
             s.data_bss.map_or("-".into(), |v| v.to_string()),
             s.stack_hwm.map_or("-".into(), |v| v.to_string()),
         );
+    }
+    if o.worst_layers > 0 {
+        let timer_hz = strata::step::StepConfig::from_machine(&MachineConfig::default()).timer_hz;
+        for r in &rows {
+            print_worst_layers(r, o.worst_layers, timer_hz as f64);
+        }
     }
     println!();
     for r in &rows {

@@ -696,6 +696,8 @@ pub struct LayerCost {
     pub layer: u64,
     /// Instructions spent on the layer's toolpath and planning.
     pub compute_insns: u64,
+    /// The slicing and toolpath part of `compute_insns` (the rest: planning, steps).
+    pub service_insns: u64,
     /// The layer's print time, timer ticks.
     pub print_ticks: u64,
 }
@@ -709,6 +711,7 @@ impl Costs {
                 (Some(&layer), "COST") => c.layers.push(LayerCost {
                     layer,
                     compute_insns: first(&r, &["compute_insns", "insns"]).unwrap_or(0),
+                    service_insns: first(&r, &["service_insns"]).unwrap_or(0),
                     print_ticks: first(&r, &["print_ticks", "ticks"]).unwrap_or(0),
                 }),
                 _ => c.records.push(r),
