@@ -156,8 +156,13 @@ fn print_worst_layers(r: &Row, k: usize, timer_hz: f64) {
 }
 
 fn main() {
-    let mut o =
-        Opts { echo: false, timeout: Duration::from_secs(1800), relay: None, max_deviation: 0.02, worst_layers: 0 };
+    let mut o = Opts {
+        echo: false,
+        timeout: Duration::from_secs(1800),
+        relay: None,
+        max_deviation: 0.02,
+        worst_layers: 0,
+    };
     let mut models = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
