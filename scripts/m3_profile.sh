@@ -2,20 +2,23 @@
 # Where the firmware's instructions go on the emulated Cortex-M3: runs one print job as
 # scripts/m3_hil_cost.sh does (QEMU lm3s6965evb, the real host code streaming MODEL) with the
 # symprof TCG plugin counting executed instructions per address, then attributes them to source
-# functions through the ELF's debug info (innermost inlined frame; --depth N shows N frames).
+# functions through the ELF's debug info (innermost inlined frame; --depth N shows N frames;
+# --own strata: library helpers inlined into the core count with their caller).
 #
 #   scripts/m3_profile.sh [--counted] MODEL.stl|cylinder:R:H:SIDES:BAND [--depth N] [--top K]
+#     [--own PREFIX]
 #
-# --counted: only the instructions of the regions the real-time factor counts (the firmware's
-# `service` calls with a message and its `poll` calls; interrupts taken inside them included),
-# not the main loop's idle turns. Slower (a plugin callback per instruction).
+# --counted: only the instructions the real-time factor counts (the firmware's `service` calls
+# that moved the pipeline and its `poll` calls that worked, in thread mode: the SysTick
+# interrupts taken inside them left out), not the main loop's idle turns. Slower (a plugin
+# callback per instruction).
 #
 # Needs gcc, qemu-system-arm and llvm-addr2line (rustup component llvm-tools, or apt llvm).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 plugin_args=""
 if [ "${1:-}" = "--counted" ]; then
-  plugin_args=",on=strata_counted_on,off=strata_counted_off"
+  plugin_args=",on=strata_counted_on,off=strata_counted_off,keep=strata_counted_keep,isr=SysTick"
   shift
 fi
 model="$1"; shift

@@ -46,6 +46,15 @@ pub extern "C" fn strata_counted_off() {
     core::hint::black_box(2u32);
 }
 
+/// Keeps the measured region that just ended for `scripts/m3_profile.sh --counted` (called
+/// after [`strata_counted_off`] when the region counts in the figures: a `service` call
+/// that moved the pipeline, a `poll` that worked).
+#[no_mangle]
+#[inline(never)]
+pub extern "C" fn strata_counted_keep() {
+    core::hint::black_box(3u32);
+}
+
 /// Per-layer buckets kept (the slicer runs at most a few layers ahead of the planner).
 const RING: usize = 32;
 
@@ -149,6 +158,7 @@ impl Cost {
                 self.report(p, false);
                 return;
             }
+            strata_counted_keep();
             let service = d - self.lent.min(d);
             self.slice_insns += service;
             self.gap_max = self.gap_max.max(now - self.generated_at.max(t));
@@ -173,6 +183,7 @@ impl Cost {
             if !worked {
                 return;
             }
+            strata_counted_keep();
             self.add(p.status(0).layer, d, 0);
             self.report(p, false);
         }

@@ -1,11 +1,14 @@
 #!/usr/bin/env python3
 """Attributes symprof's per-address counts to source functions, innermost inlined frame
-first (addr2line -i): `attribute.py ELF COUNTS [--depth N] [--top K]`."""
+first (addr2line -i): `attribute.py ELF COUNTS [--depth N] [--top K] [--own PREFIX]`
+(--own: start at the innermost frame whose name contains PREFIX, e.g. `strata`, so that
+inlined library helpers count with the function that used them)."""
 import subprocess, sys, collections, argparse
 ap = argparse.ArgumentParser()
 ap.add_argument("elf"); ap.add_argument("pcs")
 ap.add_argument("--depth", type=int, default=1, help="inline frames to show, innermost first")
 ap.add_argument("--top", type=int, default=40)
+ap.add_argument("--own", default=None, help="skip inner frames until one contains this")
 a = ap.parse_args()
 rows = [l.split() for l in open(a.pcs)]
 addrs = [r[0] for r in rows]
@@ -23,6 +26,9 @@ total = sum(counts)
 for f, c in zip(frames, counts):
     fns = [f[i] for i in range(0, len(f), 2)]
     fns = [x.split("::h")[0] if "::h" in x else x for x in fns]
+    if a.own:
+        own = [i for i, x in enumerate(fns) if a.own in x]
+        fns = fns[own[0]:] if own else fns
     key = " <- ".join(fns[:a.depth])
     agg[key] += c
 print(f"total {total}")
