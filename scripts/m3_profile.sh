@@ -37,4 +37,6 @@ if [ -z "${STRATA_FIRMWARE_ELF:-}" ]; then
 fi
 STRATA_QEMU="$work/qemu" cargo run --quiet --release -p strata-host --example m3_cost -- "$model" | tail -1
 sleep 1.5 # the plugin rewrites its table every second
+# M3_PROFILE_OUT=FILE keeps the counts (attribute.py ELF FILE ... reads them again).
+[ -z "${M3_PROFILE_OUT:-}" ] || cp "$work/prof.txt" "$M3_PROFILE_OUT"
 python3 scripts/m3_profile/attribute.py "$STRATA_FIRMWARE_ELF" "$work/prof.txt" "$@"

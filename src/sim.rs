@@ -151,19 +151,6 @@ struct SimState {
     edges: u64,
 }
 
-/// FNV-1a 64 offset basis.
-const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
-/// FNV-1a 64 prime.
-const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
-
-fn fnv1a(mut h: u64, bytes: &[u8]) -> u64 {
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(FNV_PRIME);
-    }
-    h
-}
-
 /// The simulated board: clock, pins, checks and an observer.
 #[derive(Debug)]
 pub struct SimBoard<O = ()> {
@@ -208,7 +195,7 @@ impl<O: EdgeObserver> SimBoard<O> {
                 enable_high: timing.enable_active_low,
                 violations: [0; KINDS],
                 first_violation: None,
-                hash: FNV_OFFSET,
+                hash: crate::step::FNV_OFFSET,
                 hash_origin: start_tick,
                 edges: 0,
             }),
@@ -392,7 +379,7 @@ impl<O: EdgeObserver> SimBoard<O> {
             bytes[0] = axis as u8;
             bytes[1] = positive as u8;
             bytes[2..].copy_from_slice(&rel.to_le_bytes());
-            st.hash = fnv1a(st.hash, &bytes);
+            st.hash = crate::step::fnv(st.hash, &bytes);
         }
         drop(st);
         let mut obs = self.observer.borrow_mut();

@@ -9,6 +9,7 @@ ap.add_argument("elf"); ap.add_argument("pcs")
 ap.add_argument("--depth", type=int, default=1, help="inline frames to show, innermost first")
 ap.add_argument("--top", type=int, default=40)
 ap.add_argument("--own", default=None, help="skip inner frames until one contains this")
+ap.add_argument("--lines", default=None, help="source lines (innermost frame) of functions containing this")
 a = ap.parse_args()
 rows = [l.split() for l in open(a.pcs)]
 addrs = [r[0] for r in rows]
@@ -30,6 +31,12 @@ for f, c in zip(frames, counts):
         own = [i for i, x in enumerate(fns) if a.own in x]
         fns = fns[own[0]:] if own else fns
     key = " <- ".join(fns[:a.depth])
+    if a.lines is not None:
+        locs = [f[i + 1] for i in range(0, len(f), 2)]
+        own = [i for i, x in enumerate(fns) if a.lines in x]
+        if not own:
+            continue
+        key = f"{fns[own[0]].split('::')[-1]} {locs[0].split('/')[-1]} ({fns[0][-40:]})"
     agg[key] += c
 print(f"total {total}")
 for k, c in agg.most_common(a.top):

@@ -159,6 +159,12 @@ impl<const B: usize> Compressor<B> {
         self.len == 0
     }
 
+    /// Steps pending.
+    #[inline(always)]
+    pub(crate) fn pending(&self) -> usize {
+        self.len
+    }
+
     pub(crate) fn first_pending(&self) -> Option<u64> {
         (self.len > 0).then(|| self.buf[self.head])
     }

@@ -75,7 +75,9 @@ impl AxisRun {
     fn step_distance(&mut self) {
         let frac = self.s_frac + self.ds_frac;
         self.s_frac = frac & 0xffff;
-        self.s_q32 = self.s_q32.saturating_add(self.ds_q32).saturating_add((frac >> 16) as u64);
+        // Wrapping adds (two instructions each on the Cortex-M3, saturating ones six): a
+        // position stays below the block's length, far below 2^64.
+        self.s_q32 = self.s_q32.wrapping_add(self.ds_q32).wrapping_add((frac >> 16) as u64);
     }
 }
 
@@ -301,8 +303,10 @@ impl<const B: usize> StepGenerator<B> {
             self.advance(axis);
             self.last_tick = tick;
             self.overdue = (1 << AXES) - 1;
-            if let Some(f) = self.comp[axis].first_pending() {
-                self.settle_at = self.settle_at.min(f + self.pending_ticks);
+            // The axis' first pending step changed only if it is this one (an emit inside
+            // `push_step` moves it later, which leaves `settle_at` a valid lower bound).
+            if self.comp[axis].pending() == 1 {
+                self.settle_at = self.settle_at.min(tick + self.pending_ticks);
             }
         }
     }
@@ -480,7 +484,8 @@ fn step_position(um: i32, steps_per_mm: Rate) -> i64 {
 // Inlined: the per-step call's register saves cost more than the copy (about 200 bytes).
 #[inline(always)]
 fn tick_at(start_q16: u64, b: &Block, s_q32: u64) -> u64 {
-    start_q16.saturating_add(b.step_time_q16(s_q32)).saturating_add(1 << 15) >> 16
+    // Wrapping: generator time in q16 ticks wraps after 2^48 ticks (45 days at 72 MHz).
+    start_q16.wrapping_add(b.step_time_q16(s_q32)).wrapping_add(1 << 15) >> 16
 }
 
 #[cfg(test)]

@@ -237,10 +237,11 @@ pub struct StepProducer<'q, const N: usize> {
     hash: u64,
 }
 
-const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+/// FNV-1a 64 offset basis (the step hashes here and in [`crate::sim`]).
+pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
 const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
 
-/// FNV-1a step of `bytes` into `h`.
+/// FNV-1a step of `bytes` into `h` (the simulated board's edge hash).
 pub(crate) fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
     for &b in bytes {
         h ^= b as u64;
@@ -249,24 +250,21 @@ pub(crate) fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
     h
 }
 
-/// FNV-1a step of one queued command of `axis` into `h`: axis, kind and fields, little endian.
+/// FNV-1a over 32-bit words (`h ^= w; h *= prime`) of one queued command of `axis`: a word
+/// of axis, kind and count, then the command's two 32-bit fields. Three 64-bit
+/// multiplications per command instead of twelve bytewise ones.
 fn hash_cmd(h: u64, axis: usize, cmd: &StepCmd) -> u64 {
-    let mut b = [0u8; 12];
-    b[0] = axis as u8;
-    match *cmd {
-        StepCmd::Dir(positive) => b[1..3].copy_from_slice(&[1, positive as u8]),
-        StepCmd::Wait(ticks) => {
-            b[1] = 2;
-            b[2..6].copy_from_slice(&ticks.to_le_bytes());
-        }
-        StepCmd::Steps { interval, count, add } => {
-            b[1] = 3;
-            b[2..6].copy_from_slice(&interval.to_le_bytes());
-            b[6..8].copy_from_slice(&count.to_le_bytes());
-            b[8..12].copy_from_slice(&add.to_le_bytes());
-        }
+    let (kind, a, b) = match *cmd {
+        StepCmd::Dir(positive) => (1 | (positive as u32) << 8, 0, 0),
+        StepCmd::Wait(ticks) => (2, ticks, 0),
+        StepCmd::Steps { interval, count, add } => (3 | (count as u32) << 16, interval, add as u32),
+    };
+    let mut h = h;
+    for w in [axis as u32 | kind << 4, a, b] {
+        h ^= w as u64;
+        h = h.wrapping_mul(FNV_PRIME);
     }
-    fnv(h, &b)
+    h
 }
 
 impl<const N: usize> StepProducer<'_, N> {
