@@ -7,7 +7,8 @@
 //! longest run that `add` can cover, and which side the first failing step fell off says
 //! whether a larger or a smaller `add` would go further. The search starts at an estimate
 //! from the pending steps' second differences, gallops outward until the miss turns and
-//! bisects between the last two candidates. Interval limits (driver high + low time, the
+//! bisects between the last two candidates, and stops early when a probe no longer
+//! lengthens the sequence. Interval limits (driver high + low time, the
 //! reversal gap after a direction change, [`MAX_INTERVAL_TICKS`]) are constraints of the same
 //! range.
 
@@ -356,27 +357,33 @@ impl<const B: usize> Compressor<B> {
         ((2 * f.over).div_ceil(ik)).max(1) as i64
     }
 
-    /// The longest sequence from the front of the pending steps, and the 32-bit range of
-    /// `add` for all of them ([`Compressor::small_add_bound`]).
+    /// A long sequence from the front of the pending steps (the longest the probes found),
+    /// and the 32-bit range of `add` for all of them ([`Compressor::small_add_bound`]).
     ///
     /// Starts at [`Compressor::guess_add`]. Each miss moves a bound past every `add` that
     /// fails the same step ([`Compressor::reach`]; the `add`s behind the candidate are taken
     /// to miss the same way, as the bisection always did). While only one bound is known the
     /// candidates gallop in the miss's direction (at least doubling each move), then the
-    /// search bisects between the bounds.
+    /// search bisects between the bounds. A probe after the first that covers no more steps
+    /// than the best so far ends the search.
     fn fit(&self, tune: &Tune) -> (Fit, u64) {
         let n = self.len.min(u16::MAX as usize);
         let small_add = self.small_add_bound(n, tune);
         let (amin, amax) = (i32::MIN as i64, i32::MAX as i64);
         let mut best: Option<Fit> = None;
-        let mut consider = |f: Fit| {
-            let better = match best {
-                None => true,
-                Some(b) => f.count > b.count || (f.count == b.count && f.add.abs() < b.add.abs()),
+        // Keeps the better of `best` and `f`; true when `f` covers more steps.
+        let consider = |best: &mut Option<Fit>, f: Fit| {
+            let (better, longer) = match *best {
+                None => (true, f.count > 0),
+                Some(b) => (
+                    f.count > b.count || (f.count == b.count && f.add.abs() < b.add.abs()),
+                    f.count > b.count,
+                ),
             };
             if better && f.count > 0 {
-                best = Some(f);
+                *best = Some(f);
             }
+            longer
         };
         // No add <= lo or >= hi covers more steps than `best` (bounds just outside the i32
         // range until a miss sets them).
@@ -384,9 +391,11 @@ impl<const B: usize> Compressor<B> {
         let mut c = self.guess_add(n).clamp(amin, amax);
         // Distance of the last move while the search is one-sided (it at least doubles).
         let mut step = 0i64;
+        let mut evals = 0;
         loop {
+            evals += 1;
             let f = self.eval(c, n, tune, small_add);
-            consider(f);
+            let improved = consider(&mut best, f);
             // Every add short of c + reach (in the miss's direction) fails the same step.
             let reach = Self::reach(&f);
             match f.miss {
@@ -394,7 +403,10 @@ impl<const B: usize> Compressor<B> {
                 Miss::Larger => lo = lo.max(c + reach - 1).min(amax),
                 Miss::Smaller => hi = hi.min(c - reach + 1).max(amin),
             }
-            if hi - lo <= 1 {
+            // The search ends when the bounds meet, or when a probe after the first does not
+            // lengthen the sequence (greedy: each further probe costs a walk over the
+            // pending steps and rarely gains more than a step).
+            if hi - lo <= 1 || (evals >= 2 && !improved) {
                 break;
             }
             let next = if hi > amax {
