@@ -7,8 +7,8 @@
 //! longest run that `add` can cover, and which side the first failing step fell off says
 //! whether a larger or a smaller `add` would go further. The search starts at an estimate
 //! from the pending steps' second differences, gallops outward until the miss turns and
-//! bisects between the last two candidates, and stops early when a probe no longer
-//! lengthens the sequence. Interval limits (driver high + low time, the
+//! bisects between the last two candidates; it stops early when the first probe covers as
+//! many steps as the last sequence or a later one no longer lengthens it. Interval limits (driver high + low time, the
 //! reversal gap after a direction change, [`MAX_INTERVAL_TICKS`]) are constraints of the same
 //! range.
 
@@ -364,8 +364,8 @@ impl<const B: usize> Compressor<B> {
     /// fails the same step ([`Compressor::reach`]; the `add`s behind the candidate are taken
     /// to miss the same way, as the bisection always did). While only one bound is known the
     /// candidates gallop in the miss's direction (at least doubling each move), then the
-    /// search bisects between the bounds. A probe after the first that covers no more steps
-    /// than the best so far ends the search.
+    /// search bisects between the bounds. A first probe that covers as many steps as the
+    /// last sequence, or a later one that covers no more than the best so far, ends it.
     fn fit(&self, tune: &Tune) -> (Fit, u64) {
         let n = self.len.min(u16::MAX as usize);
         let small_add = self.small_add_bound(n, tune);
@@ -403,10 +403,12 @@ impl<const B: usize> Compressor<B> {
                 Miss::Larger => lo = lo.max(c + reach - 1).min(amax),
                 Miss::Smaller => hi = hi.min(c - reach + 1).max(amin),
             }
-            // The search ends when the bounds meet, or when a probe after the first does not
-            // lengthen the sequence (greedy: each further probe costs a walk over the
-            // pending steps and rarely gains more than a step).
-            if hi - lo <= 1 || (evals >= 2 && !improved) {
+            // The search ends when the bounds meet, when the first probe already covers as
+            // many steps as the last sequence (lengths change slowly along a ramp), or when
+            // a later probe does not lengthen the sequence: each probe is a walk over the
+            // pending steps and rarely gains more than a step.
+            let enough = if evals == 1 { f.count >= self.prev_count.max(4) } else { !improved };
+            if hi - lo <= 1 || enough {
                 break;
             }
             let next = if hi > amax {
