@@ -103,6 +103,20 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
     window_spans: 1 << 16,
 };
 
+/// The toolpath settings the printer derives from `job` (the host's admission control sizes
+/// the job with the same).
+pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathConfig {
+    let mut cfg = ToolpathConfig::new(machine, &job.settings);
+    cfg.outer_perimeter_last = job.options.outer_perimeter_last;
+    cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
+    cfg.skirt_loops = job.options.skirt_loops;
+    cfg.skirt_distance_um = job.options.skirt_distance_um;
+    // The thin-area figures are a host report (`strata slice`); the printer makes the same
+    // toolpaths without them and saves an offset per island and layer.
+    cfg.measure_thin_area = false;
+    cfg
+}
+
 /// The motion half of the pipeline (move buffer, planner, step generator), lent by
 /// [`Printer::service`] to its caller at the progress points of a long layer computation
 /// ([`ToolEvent::Progress`]): the firmware generates steps there
@@ -500,11 +514,7 @@ impl<
         job.settings.validate(&self.machine).map_err(|_| ErrorCode::BadJob)?;
         let slice_cfg =
             SliceConfig::new(&job.settings, job.model_height_um).map_err(|_| ErrorCode::BadJob)?;
-        let mut tp_cfg = ToolpathConfig::new(&self.machine, &job.settings);
-        tp_cfg.outer_perimeter_last = job.options.outer_perimeter_last;
-        tp_cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
-        tp_cfg.skirt_loops = job.options.skirt_loops;
-        tp_cfg.skirt_distance_um = job.options.skirt_distance_um;
+        let tp_cfg = job_toolpath_config(&self.machine, job);
         self.slicer.reset(slice_cfg).map_err(|_| ErrorCode::BadJob)?;
         self.tp.reset(tp_cfg).map_err(|_| ErrorCode::BadJob)?;
         self.tp.set_position(Point2::new(0, 0), 0);

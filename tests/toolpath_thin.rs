@@ -159,3 +159,42 @@ fn a_stage_sized_to_the_printing_needs_prints_the_same_and_flags_unmeasured_isla
         big.stats.thin_area_um2, small.stats.thin_area_um2, small.stats.thin_unmeasured
     );
 }
+
+#[test]
+fn the_measurement_leaves_the_toolpaths_unchanged() {
+    // The fin block of the first test and a model with thin slivers: the printer leaves the
+    // measurement out (`measure_thin_area: false`), which must change only the figures.
+    let poly = [
+        [100.0, 100.0],
+        [110.0, 100.0],
+        [110.0, 104.85],
+        [115.0, 104.85],
+        [115.0, 105.15],
+        [110.0, 105.15],
+        [110.0, 110.0],
+        [100.0, 110.0],
+    ];
+    let mut fin = to_um(&prism(&poly, 0.0, 1.0));
+    fin.sort_by_key(|t| t.z_min());
+    let machine = MachineConfig::default();
+    let mut models = vec![("fin block", fin)];
+    if let Some(dir) = common::shared_models() {
+        models.push(("LM8UU", load_placed(&dir.join("embodier_LM8UU_8p2pi.stl"), &machine)));
+    }
+    let settings = PrintSettings::default();
+    for (name, tris) in &models {
+        let on = ToolpathConfig::new(&machine, &settings);
+        assert!(on.measure_thin_area, "measured by default");
+        let mut off = on;
+        off.measure_thin_area = false;
+        let a = run_cfg(tris, &settings, on).expect("measured run");
+        let b = run_cfg(tris, &settings, off).expect("unmeasured run");
+        assert!(a.stats.thin_area_um2 > 0, "{name}: the measured run finds thin area");
+        assert_eq!(b.stats.thin_area_um2, 0, "{name}");
+        assert_eq!(b.stats.thin_unmeasured, 0, "{name}");
+        assert_eq!(a.layers.len(), b.layers.len(), "{name}");
+        for (la, lb) in a.layers.iter().zip(&b.layers) {
+            assert_eq!(la.moves, lb.moves, "{name}: layer {}", la.index);
+        }
+    }
+}

@@ -31,7 +31,7 @@ use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::MachineConfig;
 use strata::protocol::{Capacities, JobSpec};
 use strata::slice::{peak_needs, Layer, PeakNeeds, SliceConfig, Slicer};
-use strata::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathNeeds};
+use strata::toolpath::{ToolEvent, Toolpath, ToolpathConfig, ToolpathNeeds};
 
 /// What a model needs against what the device has.
 #[derive(Debug, Clone, Copy)]
@@ -268,14 +268,9 @@ type NeedsSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
 type NeedsToolpath =
     Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
 
-/// The toolpath settings the device derives from `job` (`strata::printer` does the same).
+/// The toolpath settings the device derives from `job`.
 pub fn device_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathConfig {
-    let mut cfg = ToolpathConfig::new(machine, &job.settings);
-    cfg.outer_perimeter_last = job.options.outer_perimeter_last;
-    cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
-    cfg.skirt_loops = job.options.skirt_loops;
-    cfg.skirt_distance_um = job.options.skirt_distance_um;
-    cfg
+    strata::printer::job_toolpath_config(machine, job)
 }
 
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized

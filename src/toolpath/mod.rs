@@ -237,6 +237,10 @@ pub struct ToolpathConfig {
     pub min_retract_travel_um: i32,
     /// Travel inside the part without retraction.
     pub comb: bool,
+    /// Measure each island's area thinner than a line ([`LayerStats::thin_area_um2`]): one
+    /// more offset per island and layer, for reports only (the toolpaths do not depend on
+    /// it); the printer leaves it out.
+    pub measure_thin_area: bool,
 }
 
 impl ToolpathConfig {
@@ -269,6 +273,7 @@ impl ToolpathConfig {
             simplify_tolerance_um: 10,
             min_retract_travel_um: 1_500,
             comb: true,
+            measure_thin_area: true,
         }
     }
 
@@ -661,6 +666,7 @@ const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     simplify_tolerance_um: 0,
     min_retract_travel_um: 0,
     comb: false,
+    measure_thin_area: false,
 };
 
 /// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
@@ -1079,22 +1085,24 @@ impl<
                     let pts = self.tmp.ring_points(r);
                     self.paths.add_loop(pts, feature, island, PathKind::Perimeter(depth))?;
                 }
-                if depth == 0 {
+                if depth == 0 && cfg.measure_thin_area {
                     opened2 = Some(self.measure(|t| t.grow_tmp_area2(island)));
                 }
             }
             let opened2 = match opened2 {
-                Some(a) => a,
+                _ if !cfg.measure_thin_area => None,
+                Some(a) => Some(a),
                 // No perimeters: the centre lines of an external perimeter all the same.
-                None => self.measure(|t| {
+                None => Some(self.measure(|t| {
                     t.offset_island(island, w / 2)?;
                     t.tmp.clear();
                     t.work.engine().union_into(&mut t.tmp, island, 0, min_width)?;
                     t.grow_tmp_area2(island)
-                }),
+                })),
             };
             match opened2 {
-                Some(opened2) => {
+                None => {}
+                Some(Some(opened2)) => {
                     let region2: i64 = self
                         .contour
                         .rings()
@@ -1104,7 +1112,7 @@ impl<
                         .sum();
                     layer.thin_area_um2 += ((region2 - opened2).max(0) / 2) as u64;
                 }
-                None => layer.thin_unmeasured += 1,
+                Some(None) => layer.thin_unmeasured += 1,
             }
             self.offset_island(island, cfg.infill_inset_um())?;
             self.work.engine().union_into(&mut self.fill, island, 0, min_width)?;
