@@ -333,25 +333,24 @@ impl<const E: usize> Offsetter<E> {
         for i in 0..n {
             let e = self.segs[i];
             let y0 = e.a.y.min(e.b.y);
+            let (ex0, ex1) = (e.a.x.min(e.b.x), e.a.x.max(e.b.x));
+            // One pass: drop the active segments that end below `e`, test the others whose
+            // x ranges overlap `e`'s (`intersect` records splits only, `act` stays).
             let mut k = 0;
             for m in 0..n_act {
-                let f = self.act[m];
-                let s = self.segs[f as usize];
-                if s.a.y.max(s.b.y) >= y0 {
-                    self.act[k] = f;
-                    k += 1;
+                let fi = self.act[m];
+                let f = self.segs[fi as usize];
+                if f.a.y.max(f.b.y) < y0 {
+                    continue;
                 }
-            }
-            n_act = k;
-            let (ex0, ex1) = (e.a.x.min(e.b.x), e.a.x.max(e.b.x));
-            for m in 0..n_act {
-                let fi = self.act[m] as usize;
-                let f = self.segs[fi];
+                self.act[k] = fi;
+                k += 1;
                 if f.a.x.max(f.b.x) < ex0 || f.a.x.min(f.b.x) > ex1 {
                     continue;
                 }
-                overlap |= self.intersect(i, e, fi, f)?;
+                overlap |= self.intersect(i, e, fi as usize, f)?;
             }
+            n_act = k;
             // `act` holds at most `n` entries.
             self.act[n_act] = i as u16;
             n_act += 1;
