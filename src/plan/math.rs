@@ -165,6 +165,9 @@ pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
         return n / d;
     };
     assert!(d64 != 0, "division by zero");
+    if d64 < 1 << 16 {
+        return div_small(n, d64 as u32);
+    }
     let (hi, lo) = ((n >> 64) as u64, n as u64);
     if hi < d64 {
         return div_2by1(hi, lo, d64) as u128;
@@ -172,6 +175,25 @@ pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
     let qh = div_2by1(0, hi, d64);
     let r = hi - qh * d64;
     ((qh as u128) << 64) | div_2by1(r, lo, d64) as u128
+}
+
+/// `n / d` for `0 < d < 2^16` (the steps per mm scale's 1000, for one): long division with
+/// 16-bit digits, each digit one 32-bit hardware division (the remainder stays below `d`,
+/// so `remainder 2^16 + digit` fits in 32 bits).
+fn div_small(n: u128, d: u32) -> u128 {
+    let mut rem = 0u32;
+    let mut q = [0u32; 4];
+    for (k, qk) in q.iter_mut().enumerate().rev() {
+        let w = (n >> (32 * k)) as u32;
+        let hi = (rem << 16) | (w >> 16);
+        let qh = hi / d;
+        rem = hi - qh * d;
+        let lo = (rem << 16) | (w & 0xffff);
+        let ql = lo / d;
+        rem = lo - ql * d;
+        *qk = (qh << 16) | ql;
+    }
+    (q[3] as u128) << 96 | (q[2] as u128) << 64 | (q[1] as u128) << 32 | q[0] as u128
 }
 
 /// `n / d` truncated toward zero, exactly as `i128` division, for `d > 0`.
@@ -283,8 +305,11 @@ mod tests {
             let (a, b, c) = (next(), next(), next());
             let n = ((a as u128) << 64 | b as u128) >> (a % 128);
             // Divisors of every width, including ones just below and above a power of two.
-            let d = match c % 4 {
+            let d = match c % 5 {
                 0 => (c >> (c % 64)).max(1) as u128,
+                // Divisors of the 16-bit digit path (1000: the steps per mm scale).
+                4 => [1, 1000, 65_535, c & 0xffff, (1 << 16) - 1 - (c & 0xff)][(b % 5) as usize]
+                    as u128,
                 1 => (1u128 << (c % 64)) - (c % 2) as u128,
                 2 => (c as u128) << (b % 64),
                 _ => n >> (b % 128),
@@ -303,6 +328,10 @@ mod tests {
             assert_eq!(div_64by32(n, d) as u64, n / d as u64, "{n} / {d}");
         }
         assert_eq!(div_u128(u128::MAX, 1), u128::MAX);
+        assert_eq!(div_u128(u128::MAX, 1000), u128::MAX / 1000);
+        assert_eq!(div_u128(u128::MAX, 65_535), u128::MAX / 65_535);
+        assert_eq!(div_u128(u128::MAX, 65_536), u128::MAX / 65_536);
+        assert_eq!(div_u128(999, 1000), 0);
         assert_eq!(div_u128(u128::MAX, u64::MAX as u128), u128::MAX / u64::MAX as u128);
         assert_eq!(div_u128(u128::MAX, (1 << 63) + 1), u128::MAX / ((1 << 63) + 1));
     }

@@ -109,6 +109,9 @@ pub struct StepGenerator<const B: usize = 64> {
     block_start_q16: u64,
     /// Motor position per axis after every step generated or being generated.
     motor: [i64; AXES],
+    /// The last block's end per axis (um) and its step position (steps q32): the next
+    /// block starts there, so its start needs no division.
+    end_position: [(i32, i64); AXES],
     /// The last completed block ended at rest (true before the first).
     at_rest: bool,
     blocks: u32,
@@ -148,6 +151,9 @@ impl<const B: usize> StepGenerator<B> {
         self.settle_at = 0;
         self.flush_all = false;
         self.block_start_q16 = 0;
+        for (axis, e) in self.end_position.iter_mut().enumerate() {
+            *e = (position_um[axis], step_position(position_um[axis], spm[axis]));
+        }
         for (m, (&p, &r)) in self.motor.iter_mut().zip(position_um.iter().zip(spm.iter())) {
             *m = nearest_step(step_position_q32(p, r));
         }
@@ -176,6 +182,7 @@ impl<const B: usize> StepGenerator<B> {
             flush_all: false,
             block_start_q16: 0,
             motor: [0; AXES],
+            end_position: [(0, 0); AXES],
             at_rest: true,
             blocks: 0,
             steps: [0; AXES],
@@ -423,7 +430,10 @@ impl<const B: usize> StepGenerator<B> {
         let len = b.length_um_q32() as u128;
         for axis in 0..AXES {
             let spm = self.steps_per_mm[axis];
-            let (p0, p1) = (step_position(start[axis], spm), step_position(end[axis], spm));
+            let (last_um, last_p) = self.end_position[axis];
+            let p0 = if start[axis] == last_um { last_p } else { step_position(start[axis], spm) };
+            let p1 = step_position(end[axis], spm);
+            self.end_position[axis] = (end[axis], p1);
             let m = self.motor[axis];
             let m1 = motor_after(m, p1);
             let run = &mut self.axes[axis];
