@@ -22,6 +22,18 @@ fn prism(poly: &[[f64; 2]], z0: f64, z1: f64) -> Vec<TriMm> {
     loft(&[(z0, poly.to_vec()), (z1, poly.to_vec())])
 }
 
+/// A 10 mm block with a 0.3 mm x 5 mm fin on its right side (mm, counter-clockwise).
+const FIN_BLOCK: [[f64; 2]; 8] = [
+    [100.0, 100.0],
+    [110.0, 100.0],
+    [110.0, 104.85],
+    [115.0, 104.85],
+    [115.0, 105.15],
+    [110.0, 105.15],
+    [110.0, 110.0],
+    [100.0, 110.0],
+];
+
 fn default_run(mesh: &[TriMm]) -> TpRun {
     let mut tris = to_um(mesh);
     tris.sort_by_key(|t| t.z_min());
@@ -32,16 +44,7 @@ fn default_run(mesh: &[TriMm]) -> TpRun {
 fn a_fin_on_a_block_is_reported_with_its_area() {
     // A 10 mm block with a 0.3 mm x 5 mm fin on its right side (one island, one loop), 1 mm
     // tall: 5 layers. The fin is thinner than the 0.45 mm line: nothing can print it.
-    let poly = [
-        [100.0, 100.0],
-        [110.0, 100.0],
-        [110.0, 104.85],
-        [115.0, 104.85],
-        [115.0, 105.15],
-        [110.0, 105.15],
-        [110.0, 110.0],
-        [100.0, 110.0],
-    ];
+    let poly = FIN_BLOCK;
     let r = default_run(&prism(&poly, 0.0, 1.0));
     assert_eq!(r.layers.len(), 5);
     // Fin area 5 mm x 0.3 mm; tolerance: the block-and-fin outline (50.6 mm) x 1 um.
@@ -164,16 +167,7 @@ fn a_stage_sized_to_the_printing_needs_prints_the_same_and_flags_unmeasured_isla
 fn the_measurement_leaves_the_toolpaths_unchanged() {
     // The fin block of the first test and a model with thin slivers: the printer leaves the
     // measurement out (`measure_thin_area: false`), which must change only the figures.
-    let poly = [
-        [100.0, 100.0],
-        [110.0, 100.0],
-        [110.0, 104.85],
-        [115.0, 104.85],
-        [115.0, 105.15],
-        [110.0, 105.15],
-        [110.0, 110.0],
-        [100.0, 110.0],
-    ];
+    let poly = FIN_BLOCK;
     let mut fin = to_um(&prism(&poly, 0.0, 1.0));
     fin.sort_by_key(|t| t.z_min());
     let machine = MachineConfig::default();
