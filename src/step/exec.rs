@@ -117,23 +117,22 @@ pub struct ExecStats {
 
 #[derive(Debug, Clone, Copy, Default)]
 struct AxisExec {
-    /// `high || active`: the axis has an event; it needs service from `due_at` on and wants
-    /// a call by `wake_at`. Otherwise it waits for commands.
+    /// `high || active`: the axis has an event at `at`. Otherwise it waits for commands.
     armed: bool,
-    /// STEP is high; it may fall from `due_at` (the driver's high time) on and falls by
-    /// `wake_at` at the latest.
+    /// STEP is high (left high by a call, [`Executor::left_high`]); it may fall from
+    /// `fall_from` (the driver's high time) on and falls by `at` at the latest.
     high: bool,
-    /// A sequence is running; its next step is due at `next_at` and is raised at `fire_at`
-    /// (later than `next_at` only when DIR changed less than the setup time before it).
+    /// A sequence is running; its next step is due at `next_at` and, while STEP is low,
+    /// is raised at `at` ([`AxisExec::fire_time`]).
     active: bool,
     /// DIR changed at `dir_at` and no step has followed yet.
     dir_fresh: bool,
     /// Current direction is positive.
     positive: bool,
-    due_at: u32,
-    wake_at: u32,
+    /// The axis' next event: its rising edge, or with STEP high the fall's deadline.
+    at: u32,
+    fall_from: u32,
     next_at: u32,
-    fire_at: u32,
     interval: u32,
     add: u32,
     /// Steps of the running sequence not raised yet, of `count`.
@@ -146,8 +145,35 @@ struct AxisExec {
 }
 
 impl AxisExec {
+    /// Takes a wait or a sequence (no sequence running; a direction change is the
+    /// executor's: it sets a pin); true when a sequence starts.
+    #[inline]
+    fn load(&mut self, cmd: StepCmd, setup: u32) -> bool {
+        match cmd {
+            StepCmd::Dir(_) => false,
+            StepCmd::Wait(ticks) => {
+                self.reference = self.reference.wrapping_add(ticks);
+                false
+            }
+            StepCmd::Steps { interval, count, add } => {
+                if count == 0 {
+                    return false;
+                }
+                self.interval = interval;
+                self.add = add as u32;
+                self.remaining = count;
+                self.count = count;
+                self.next_at = self.reference.wrapping_add(interval);
+                self.at = self.fire_time(setup);
+                self.active = true;
+                self.armed = true;
+                true
+            }
+        }
+    }
+
     /// When the step due at `next_at` may rise: at `next_at`, or the DIR setup time after a
-    /// direction change if that is later.
+    /// direction change if that is later (only then do the two differ).
     #[inline]
     fn fire_time(&self, setup: u32) -> u32 {
         let ready = self.dir_at.wrapping_add(setup);
@@ -176,16 +202,38 @@ fn earliest_of(wake: &mut Option<u32>, t: u32) {
     }
 }
 
+/// The deadline of a STEP pulse of `a` that may fall from `fall` on: by the middle of the
+/// spare time between the shortest pulse and the shortest low time (`low`) before the next
+/// step; the last pulse of a sequence exactly at `fall` (DIR may change then).
+#[inline(always)]
+fn fall_deadline(a: &AxisExec, fall: u32, low: u32) -> u32 {
+    if a.active {
+        let slack = a.next_at.wrapping_sub(fall).wrapping_sub(low) as i32;
+        fall.wrapping_add((slack.max(0) as u32) >> 1)
+    } else {
+        fall
+    }
+}
+
 /// What a call collects over the axes.
 struct Events {
     /// The next wake-up so far.
     wake: u32,
     /// With a timer: the end of the latest pulse raised (valid when `raised` is not 0).
     fall: u32,
-    /// With a timer: STEP pins raised (bit per axis), and those of them that ended their
-    /// sequence (the next commands follow the fall).
-    raised: u8,
-    ended: u8,
+    /// With a timer: STEP pins raised (bit per axis).
+    raised: u32,
+}
+
+/// What follows the last step of a sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SeqEnd {
+    /// The next sequence runs (no direction change before it).
+    Chained,
+    /// A direction change comes next: it is taken when STEP falls.
+    DirFirst,
+    /// No command queued.
+    Empty,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -225,8 +273,11 @@ pub struct Executor<'q, const N: usize> {
     /// added when read: no 64-bit arithmetic per step).
     done_steps: [u64; AXES],
     done_position: [i64; AXES],
-    /// STEP pins left high by a call with a timer (bit per axis): they fall as events.
-    left_high: u8,
+    /// STEP pins left high by a call (bit per axis): they fall as events.
+    left_high: u32,
+    /// With a timer: axes whose sequence ended in the call before a direction change (bit
+    /// per axis): they take it after the fall in the call.
+    ended: u32,
     stats: ExecStats,
 }
 
@@ -249,6 +300,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             done_steps: [0; AXES],
             done_position: [0; AXES],
             left_high: 0,
+            ended: 0,
             stats: ExecStats::default(),
         }
     }
@@ -319,10 +371,8 @@ impl<'q, const N: usize> Executor<'q, N> {
         for a in &mut self.axes {
             a.reference = a.reference.wrapping_add(delta);
             a.next_at = a.next_at.wrapping_add(delta);
-            a.fire_at = a.fire_time(setup);
             if a.active && !a.high {
-                a.due_at = a.fire_at;
-                a.wake_at = a.fire_at;
+                a.at = a.fire_time(setup);
             }
         }
         self.offset = offset;
@@ -389,14 +439,19 @@ impl<'q, const N: usize> Executor<'q, N> {
         let at_rest = word & 1 != 0;
         let h_exec = (word & !1).wrapping_add(self.offset);
         let at_horizon = !is_before(now, h_exec);
+        // Read once: the pass does not change the state.
+        let special = at_horizon || self.state != State::Running;
         // The horizon is a wake-up while ahead; events beyond it lose against it, so they
         // need no filtering here (at the horizon `at_horizon` recomputes the wake-up, and a
         // poll is the latest one).
         let wake = if at_horizon { now.wrapping_add(self.poll) } else { h_exec };
-        let mut ev = Events { wake, fall: now, raised: 0, ended: 0 };
+        let mut ev = Events { wake, fall: now, raised: 0 };
         // No step later than the horizon; at rest every step is queued (and one due now is
         // not after `limit` then).
         let limit = if at_rest { now.wrapping_add(MAX_INTERVAL_TICKS) } else { h_exec };
+        if self.left_high != 0 {
+            self.fall_due(now, pins)?;
+        }
         self.axis::<0, P, T>(now, limit, pins, timer, &mut ev)?;
         self.axis::<1, P, T>(now, limit, pins, timer, &mut ev)?;
         self.axis::<2, P, T>(now, limit, pins, timer, &mut ev)?;
@@ -406,27 +461,19 @@ impl<'q, const N: usize> Executor<'q, N> {
                 // Nothing else is due before the pulses end (pulses from earlier calls
                 // included: their deadlines are in `wake`): end them here.
                 timer.wait_until(ev.fall);
-                let r = ev.raised;
-                if r & 1 != 0 {
-                    pins.step[0].set_low()?;
+                let mut r = ev.raised;
+                while r != 0 {
+                    pins.step[r.trailing_zeros() as usize & (AXES - 1)].set_low()?;
+                    r &= r - 1;
                 }
-                if r & 2 != 0 {
-                    pins.step[1].set_low()?;
-                }
-                if r & 4 != 0 {
-                    pins.step[2].set_low()?;
-                }
-                if r & 8 != 0 {
-                    pins.step[3].set_low()?;
-                }
-                if self.left_high != 0 || ev.ended != 0 {
-                    ev.wake = self.after_falls(pins, now, ev.fall, ev.ended, ev.wake)?;
+                if self.left_high | self.ended != 0 {
+                    ev.wake = self.after_falls(pins, now, ev.fall, ev.wake)?;
                 }
             } else {
                 ev.wake = self.leave_high(ev.raised, ev.fall, ev.wake);
             }
         }
-        if at_horizon || self.state != State::Running {
+        if special {
             if let Some(w) = self.at_horizon(now, word, h_exec) {
                 return Ok(w);
             }
@@ -434,21 +481,38 @@ impl<'q, const N: usize> Executor<'q, N> {
         Ok(Wake::At(ev.wake))
     }
 
+    /// STEP pins left high by earlier calls whose high time has passed at `now` fall (the
+    /// pass then sees their axes as after their fall).
+    #[inline(never)]
+    fn fall_due<P: OutputPin>(&mut self, now: u32, pins: &mut Pins<P>) -> Result<(), P::Error> {
+        let setup = self.setup_ticks;
+        for (i, a) in self.axes.iter_mut().enumerate() {
+            if a.high && !is_before(now, a.fall_from) {
+                pins.step[i].set_low()?;
+                a.high = false;
+                a.armed = a.active;
+                a.at = a.fire_time(setup);
+                self.left_high &= !(1 << i);
+            }
+        }
+        Ok(())
+    }
+
     /// After the fall at `fall` in the call (with a timer): STEP pins left high by earlier
-    /// calls fall too, and the axes whose sequence `ended` take their next commands; returns
-    /// `wake` with their next steps (recomputed as at the call's start at `now` when pins
-    /// left high fell: their deadlines are in `wake` no more). (Values, not `&mut Events`:
-    /// the call's events stay in registers.)
+    /// calls fall too, and the axes whose sequence `ended` before a direction change take
+    /// their next commands; returns `wake` with their next steps (recomputed as at the
+    /// call's start at `now` when pins left high fell: their deadlines are in `wake` no
+    /// more). (Values, not `&mut Events`: the call's events stay in registers.)
     #[inline(never)]
     fn after_falls<P: OutputPin>(
         &mut self,
         pins: &mut Pins<P>,
         now: u32,
         fall: u32,
-        ended: u8,
         mut wake: u32,
     ) -> Result<u32, P::Error> {
         let left = self.left_high != 0;
+        let ended = core::mem::take(&mut self.ended);
         self.after_fall::<0, P>(pins, fall, ended, &mut wake)?;
         self.after_fall::<1, P>(pins, fall, ended, &mut wake)?;
         self.after_fall::<2, P>(pins, fall, ended, &mut wake)?;
@@ -459,22 +523,23 @@ impl<'q, const N: usize> Executor<'q, N> {
             wake = if is_before(now, h_exec) { h_exec } else { now.wrapping_add(self.poll) };
             for a in &self.axes {
                 if a.armed {
-                    earliest(&mut wake, a.wake_at);
+                    earliest(&mut wake, a.at);
                 }
             }
         }
         Ok(wake)
     }
 
+    /// Axis `A` after the fall at `fall` in the call (see [`Executor::after_falls`]).
     #[inline(always)]
     fn after_fall<const A: usize, P: OutputPin>(
         &mut self,
         pins: &mut Pins<P>,
         fall: u32,
-        ended: u8,
+        ended: u32,
         wake: &mut u32,
     ) -> Result<(), P::Error> {
-        let bit = 1u8 << A;
+        let bit = 1 << A;
         let a = &mut self.axes[A];
         if self.left_high & bit != 0 {
             pins.step[A].set_low()?;
@@ -484,15 +549,10 @@ impl<'q, const N: usize> Executor<'q, N> {
         } else if ended & bit == 0 {
             return Ok(());
         }
-        if a.active {
-            a.due_at = a.fire_at;
-            a.wake_at = a.fire_at;
-            earliest(wake, a.fire_at);
-        } else if self.q.q[A].ready() && self.take_commands(A, fall, pins)? {
+        if a.active || (self.q.q[A].ready() && self.take_commands(A, fall, pins)?) {
             let a = &mut self.axes[A];
-            a.due_at = a.fire_at;
-            a.wake_at = a.fire_at;
-            earliest(wake, a.fire_at);
+            a.at = a.fire_time(self.setup_ticks);
+            earliest(wake, a.at);
         }
         Ok(())
     }
@@ -502,22 +562,19 @@ impl<'q, const N: usize> Executor<'q, N> {
     /// [`Executor`]'s cost notes; the last pulse of a sequence exactly at `fall`). Returns
     /// `wake` with those deadlines.
     #[inline(never)]
-    fn leave_high(&mut self, raised: u8, fall: u32, mut wake: u32) -> u32 {
+    fn leave_high(&mut self, raised: u32, fall: u32, mut wake: u32) -> u32 {
         self.stats.fall_events += 1;
+        // Those whose sequence ended take their commands after their fall, in a later pass.
+        self.ended = 0;
         for (i, a) in self.axes.iter_mut().enumerate() {
             if raised & (1 << i) == 0 {
                 continue;
             }
             a.high = true;
             a.armed = true;
-            a.due_at = fall;
-            a.wake_at = if a.active {
-                let slack = a.next_at.wrapping_sub(fall).wrapping_sub(self.low_ticks) as i32;
-                fall.wrapping_add((slack.max(0) as u32) >> 1)
-            } else {
-                fall
-            };
-            earliest(&mut wake, a.wake_at);
+            a.fall_from = fall;
+            a.at = fall_deadline(a, fall, self.low_ticks);
+            earliest(&mut wake, a.at);
         }
         self.left_high |= raised;
         wake
@@ -531,10 +588,8 @@ impl<'q, const N: usize> Executor<'q, N> {
         // The events' wake-up without those beyond the horizon (unless it is a rest point).
         let mut wake = None;
         for a in &self.axes {
-            if a.high {
-                earliest_of(&mut wake, a.wake_at);
-            } else if a.active && (at_rest || !is_before(h_exec, a.next_at)) {
-                earliest_of(&mut wake, a.fire_at);
+            if a.high || (a.active && (at_rest || !is_before(h_exec, a.next_at))) {
+                earliest_of(&mut wake, a.at);
             }
         }
         let polled = Some(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
@@ -557,9 +612,11 @@ impl<'q, const N: usize> Executor<'q, N> {
         }
     }
 
-    /// Axis `A`: falling edge, next commands, rising edge; adds its next event to
-    /// `ev.wake`. With a timer a rising edge goes to `ev.raised` (and `ev.fall`) and the
-    /// axis is left as after its fall; the call ends the pulse or marks it high.
+    /// Axis `A`: next commands, rising edge; adds its next event to `ev.wake` (a pin left
+    /// high that may fall has fallen before: [`Executor::fall_due`]). With a timer a rising
+    /// edge goes to `ev.raised` (and `ev.fall`) and the axis is left as after its fall; the
+    /// call ends the pulse or marks it high. Without one STEP stays high, left to a later
+    /// call.
     #[inline(always)]
     fn axis<const A: usize, P: OutputPin, T: StepTimer>(
         &mut self,
@@ -570,38 +627,29 @@ impl<'q, const N: usize> Executor<'q, N> {
         ev: &mut Events,
     ) -> Result<(), P::Error> {
         let a = &mut self.axes[A];
-        // Armed and not high, `due_at` is `fire_at`: then the step is known due here.
-        let mut due = false;
         if a.armed {
-            if is_before(now, a.due_at) {
-                earliest(&mut ev.wake, a.wake_at);
+            if is_before(now, a.at) {
+                // Not yet (or STEP high till then).
+                earliest(&mut ev.wake, a.at);
                 return Ok(());
             }
-            if a.high {
-                pins.step[A].set_low()?;
-                a.high = false;
-                a.armed = a.active;
-                self.left_high &= !(1 << A);
-            } else {
-                due = true;
-            }
-        }
-        // No sequence: the next commands (a direction change is set right away).
-        if !a.armed && (!self.q.q[A].ready() || !self.take_commands(A, now, pins)?) {
+        } else if !self.q.q[A].ready() || !self.take_commands(A, now, pins)? {
+            // No sequence: the next commands (a direction change is set right away).
+            return Ok(());
+        } else if is_before(now, self.axes[A].at) {
+            earliest(&mut ev.wake, self.axes[A].at);
             return Ok(());
         }
         let a = &mut self.axes[A];
-        if (!due && is_before(now, a.fire_at)) || is_before(limit, a.next_at) {
-            // Not yet, or beyond the horizon (which then wakes first).
-            a.due_at = a.fire_at;
-            a.wake_at = a.fire_at;
-            earliest(&mut ev.wake, a.fire_at);
+        let due = a.next_at;
+        if is_before(limit, due) {
+            // Beyond the horizon (which then wakes first).
+            earliest(&mut ev.wake, a.at);
             return Ok(());
         }
-        let due = a.next_at;
         if a.dir_fresh {
             a.dir_fresh = false;
-            if a.fire_at != due {
+            if a.at != due {
                 self.stats.late_dir_steps += 1;
             }
         }
@@ -616,49 +664,61 @@ impl<'q, const N: usize> Executor<'q, N> {
                 a.interval = a.interval.wrapping_add(a.add);
                 let next = due.wrapping_add(a.interval);
                 a.next_at = next;
-                a.fire_at = next;
-                a.due_at = next;
-                a.wake_at = next;
+                a.at = next;
                 earliest(&mut ev.wake, next);
             } else {
-                a.armed = false;
-                ev.ended |= 1 << A;
-                self.sequence_done(A, due);
+                match self.sequence_done(A, due) {
+                    SeqEnd::Chained => earliest(&mut ev.wake, self.axes[A].at),
+                    // Taken when STEP has fallen.
+                    SeqEnd::DirFirst => self.ended |= 1 << A,
+                    SeqEnd::Empty => {}
+                }
             }
             return Ok(());
         }
+        let fall = now.wrapping_add(self.high_ticks);
         let a = &mut self.axes[A];
-        a.high = true;
-        let fall_at = now.wrapping_add(self.high_ticks);
-        a.due_at = fall_at;
         a.remaining -= 1;
         if a.remaining != 0 {
             a.interval = a.interval.wrapping_add(a.add);
-            let next = due.wrapping_add(a.interval);
-            a.next_at = next;
-            a.fire_at = next;
-            // Spare time between the shortest pulse and the shortest low time before the
-            // next step: STEP falls by the middle of it.
-            let slack = next.wrapping_sub(fall_at).wrapping_sub(self.low_ticks) as i32;
-            a.wake_at = fall_at.wrapping_add((slack.max(0) as u32) >> 1);
+            a.next_at = due.wrapping_add(a.interval);
         } else {
-            // The next commands (maybe a direction change) are taken when STEP falls.
-            a.wake_at = fall_at;
             self.sequence_done(A, due);
         }
-        earliest(&mut ev.wake, self.axes[A].wake_at);
+        let a = &mut self.axes[A];
+        a.high = true;
+        a.armed = true;
+        a.fall_from = fall;
+        a.at = fall_deadline(a, fall, self.low_ticks);
+        self.left_high |= 1 << A;
+        earliest(&mut ev.wake, a.at);
         Ok(())
     }
 
-    /// The last step of `axis`' sequence (due at `due`) is out.
+    /// The last step of `axis`' sequence (due at `due`) is out: books it and takes the next
+    /// commands up to the next sequence unless a direction change comes first (waits and
+    /// sequences set no pin, so they need not wait for STEP to fall).
     #[inline(never)]
-    fn sequence_done(&mut self, axis: usize, due: u32) {
+    fn sequence_done(&mut self, axis: usize, due: u32) -> SeqEnd {
         let a = &mut self.axes[axis];
         a.active = false;
+        a.armed = false;
         a.reference = due;
         let n = a.count as i64;
         self.done_steps[axis] += n as u64;
         self.done_position[axis] += if a.positive { n } else { -n };
+        loop {
+            match self.q.peek(axis) {
+                None => return SeqEnd::Empty,
+                Some(StepCmd::Dir(_)) => return SeqEnd::DirFirst,
+                Some(&cmd) => {
+                    self.q.dequeue(axis);
+                    if self.axes[axis].load(cmd, self.setup_ticks) {
+                        return SeqEnd::Chained;
+                    }
+                }
+            }
+        }
     }
 
     /// Takes the commands of `axis` (no sequence running) at `now` up to the next sequence;
@@ -688,29 +748,14 @@ impl<'q, const N: usize> Executor<'q, N> {
         pins: &mut Pins<P>,
     ) -> Result<bool, P::Error> {
         let a = &mut self.axes[axis];
-        match cmd {
-            StepCmd::Dir(positive) => {
-                pins.dir[axis].set_state(PinState::from(positive != self.invert[axis]))?;
-                a.positive = positive;
-                a.dir_fresh = true;
-                a.dir_at = now;
-            }
-            StepCmd::Wait(ticks) => a.reference = a.reference.wrapping_add(ticks),
-            StepCmd::Steps { interval, count, add } => {
-                if count > 0 {
-                    a.interval = interval;
-                    a.add = add as u32;
-                    a.remaining = count;
-                    a.count = count;
-                    a.next_at = a.reference.wrapping_add(interval);
-                    a.fire_at = a.fire_time(self.setup_ticks);
-                    a.active = true;
-                    a.armed = true;
-                    return Ok(true);
-                }
-            }
+        if let StepCmd::Dir(positive) = cmd {
+            pins.dir[axis].set_state(PinState::from(positive != self.invert[axis]))?;
+            a.positive = positive;
+            a.dir_fresh = true;
+            a.dir_at = now;
+            return Ok(false);
         }
-        Ok(false)
+        Ok(a.load(cmd, self.setup_ticks))
     }
 }
 
