@@ -269,10 +269,9 @@ pub struct Executor<'q, const N: usize> {
     poll: u32,
     invert: [bool; AXES],
     enable_low: bool,
-    /// Steps and signed position of the sequences completed, per axis (the running one is
-    /// added when read: no 64-bit arithmetic per step).
-    done_steps: [u64; AXES],
-    done_position: [i64; AXES],
+    /// Steps of the sequences completed, per axis, negative and positive (the running one
+    /// is added when read: no 64-bit arithmetic per step, one add per sequence).
+    done: [[u64; 2]; AXES],
     /// STEP pins left high by a call (bit per axis): they fall as events.
     left_high: u32,
     /// With a timer: axes whose sequence ended in the call before a direction change (bit
@@ -297,8 +296,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             poll: config.stall_poll_ticks.max(1),
             invert: config.invert_dir,
             enable_low: config.enable_active_low,
-            done_steps: [0; AXES],
-            done_position: [0; AXES],
+            done: [[0; 2]; AXES],
             left_high: 0,
             ended: 0,
             stats: ExecStats::default(),
@@ -343,14 +341,17 @@ impl<'q, const N: usize> Executor<'q, N> {
     pub fn position_steps(&self) -> [i64; AXES] {
         core::array::from_fn(|axis| {
             let n = self.running_steps(axis) as i64;
-            self.done_position[axis] + if self.axes[axis].positive { n } else { -n }
+            let [neg, pos] = self.done[axis];
+            pos as i64 - neg as i64 + if self.axes[axis].positive { n } else { -n }
         })
     }
 
     /// Counters.
     pub fn stats(&self) -> ExecStats {
         let mut s = self.stats;
-        s.steps = core::array::from_fn(|a| self.done_steps[a] + self.running_steps(a) as u64);
+        s.steps = core::array::from_fn(|a| {
+            self.done[a][0] + self.done[a][1] + self.running_steps(a) as u64
+        });
         s
     }
 
@@ -424,6 +425,7 @@ impl<'q, const N: usize> Executor<'q, N> {
     /// Services every due event at `now` (read from `timer`'s clock at the call's start) and
     /// says when to come back; STEP pulses raised here usually fall before it returns (see
     /// the module docs), after `timer` reached their end.
+    #[inline(never)]
     pub fn on_timer_with<P: OutputPin, T: StepTimer>(
         &mut self,
         now: u32,
@@ -431,16 +433,18 @@ impl<'q, const N: usize> Executor<'q, N> {
         timer: &mut T,
     ) -> Result<Wake, P::Error> {
         let word = self.q.horizon();
+        // Stalled still (the pass does not change the state), or at the horizon.
+        let mut special = false;
         if self.state != State::Running {
             if let Some(w) = self.wake_up(now, word, pins)? {
                 return Ok(w);
             }
+            special = self.state != State::Running;
         }
         let at_rest = word & 1 != 0;
         let h_exec = (word & !1).wrapping_add(self.offset);
         let at_horizon = !is_before(now, h_exec);
-        // Read once: the pass does not change the state.
-        let special = at_horizon || self.state != State::Running;
+        special |= at_horizon;
         // The horizon is a wake-up while ahead; events beyond it lose against it, so they
         // need no filtering here (at the horizon `at_horizon` recomputes the wake-up, and a
         // poll is the latest one).
@@ -667,7 +671,7 @@ impl<'q, const N: usize> Executor<'q, N> {
                 a.at = next;
                 earliest(&mut ev.wake, next);
             } else {
-                match self.sequence_done(A, due) {
+                match self.sequence_done::<A>(due) {
                     SeqEnd::Chained => earliest(&mut ev.wake, self.axes[A].at),
                     // Taken when STEP has fallen.
                     SeqEnd::DirFirst => self.ended |= 1 << A,
@@ -683,7 +687,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             a.interval = a.interval.wrapping_add(a.add);
             a.next_at = due.wrapping_add(a.interval);
         } else {
-            self.sequence_done(A, due);
+            self.sequence_done::<A>(due);
         }
         let a = &mut self.axes[A];
         a.high = true;
@@ -699,26 +703,27 @@ impl<'q, const N: usize> Executor<'q, N> {
     /// commands up to the next sequence unless a direction change comes first (waits and
     /// sequences set no pin, so they need not wait for STEP to fall).
     #[inline(never)]
-    fn sequence_done(&mut self, axis: usize, due: u32) -> SeqEnd {
-        let a = &mut self.axes[axis];
-        a.active = false;
-        a.armed = false;
+    fn sequence_done<const A: usize>(&mut self, due: u32) -> SeqEnd {
+        let a = &mut self.axes[A];
         a.reference = due;
-        let n = a.count as i64;
-        self.done_steps[axis] += n as u64;
-        self.done_position[axis] += if a.positive { n } else { -n };
-        loop {
-            match self.q.peek(axis) {
-                None => return SeqEnd::Empty,
-                Some(StepCmd::Dir(_)) => return SeqEnd::DirFirst,
+        self.done[A][a.positive as usize] += a.count as u64;
+        let end = loop {
+            match self.q.peek(A) {
+                None => break SeqEnd::Empty,
+                Some(StepCmd::Dir(_)) => break SeqEnd::DirFirst,
                 Some(&cmd) => {
-                    self.q.dequeue(axis);
-                    if self.axes[axis].load(cmd, self.setup_ticks) {
+                    self.q.dequeue(A);
+                    // A sequence sets `active` (and `armed`) again.
+                    if self.axes[A].load(cmd, self.setup_ticks) {
                         return SeqEnd::Chained;
                     }
                 }
             }
-        }
+        };
+        let a = &mut self.axes[A];
+        a.active = false;
+        a.armed = false;
+        end
     }
 
     /// Takes the commands of `axis` (no sequence running) at `now` up to the next sequence;
