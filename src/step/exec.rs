@@ -129,6 +129,9 @@ struct AxisExec {
     dir_fresh: bool,
     /// Current direction is positive.
     positive: bool,
+    /// A direction change taken at a sequence's last step: it is set when that STEP pulse
+    /// falls (at the fall the next commands are taken).
+    held_dir: Option<bool>,
     /// The axis' next event: its rising edge, or with STEP high the fall's deadline.
     at: u32,
     fall_from: u32,
@@ -446,10 +449,9 @@ impl<'q, const N: usize> Executor<'q, N> {
         let at_horizon = !is_before(now, h_exec);
         special |= at_horizon;
         // The horizon is a wake-up while ahead; events beyond it lose against it, so they
-        // need no filtering here (at the horizon `at_horizon` recomputes the wake-up, and a
-        // poll is the latest one).
-        let wake = if at_horizon { now.wrapping_add(self.poll) } else { h_exec };
-        let mut ev = Events { wake, fall: now, raised: 0 };
+        // need no filtering here (at the horizon, and while stalled, `at_horizon` computes
+        // the wake-up).
+        let mut ev = Events { wake: h_exec, fall: now, raised: 0 };
         // No step later than the horizon; at rest every step is queued (and one due now is
         // not after `limit` then).
         let limit = if at_rest { now.wrapping_add(MAX_INTERVAL_TICKS) } else { h_exec };
@@ -478,9 +480,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             }
         }
         if special {
-            if let Some(w) = self.at_horizon(now, word, h_exec) {
-                return Ok(w);
-            }
+            return Ok(self.at_horizon(now, word));
         }
         Ok(Wake::At(ev.wake))
     }
@@ -497,6 +497,9 @@ impl<'q, const N: usize> Executor<'q, N> {
                 a.armed = a.active;
                 a.at = a.fire_time(setup);
                 self.left_high &= !(1 << i);
+                if let Some(positive) = a.held_dir.take() {
+                    set_dir(a, &mut pins.dir[i], positive != self.invert[i], positive, now)?;
+                }
             }
         }
         Ok(())
@@ -553,6 +556,9 @@ impl<'q, const N: usize> Executor<'q, N> {
         } else if ended & bit == 0 {
             return Ok(());
         }
+        if let Some(positive) = a.held_dir.take() {
+            set_dir(a, &mut pins.dir[A], positive != self.invert[A], positive, fall)?;
+        }
         if a.active || (self.q.q[A].ready() && self.take_commands(A, fall, pins)?) {
             let a = &mut self.axes[A];
             a.at = a.fire_time(self.setup_ticks);
@@ -584,10 +590,12 @@ impl<'q, const N: usize> Executor<'q, N> {
         wake
     }
 
-    /// Stalled, or at the horizon: rest (idle), stall (underrun) or poll; `None` to go on.
+    /// Stalled, or at the horizon: rest (idle), stall (underrun) or poll; at a rest point
+    /// with work left the next event, a poll at the latest.
     #[inline(never)]
-    fn at_horizon(&mut self, now: u32, word: u32, h_exec: u32) -> Option<Wake> {
+    fn at_horizon(&mut self, now: u32, word: u32) -> Wake {
         let (h_gen, at_rest) = (word & !1, word & 1 != 0);
+        let h_exec = h_gen.wrapping_add(self.offset);
         let poll = now.wrapping_add(self.poll);
         // The events' wake-up without those beyond the horizon (unless it is a rest point).
         let mut wake = None;
@@ -596,7 +604,7 @@ impl<'q, const N: usize> Executor<'q, N> {
                 earliest_of(&mut wake, a.at);
             }
         }
-        let polled = Some(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
+        let polled = Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll));
         if let State::Stalled(_) = self.state {
             return polled;
         }
@@ -604,9 +612,9 @@ impl<'q, const N: usize> Executor<'q, N> {
             if !self.axes.iter().any(|a| a.armed) && !self.q.has_data() {
                 self.state = State::Idle;
                 self.rest_gen = h_gen;
-                return Some(Wake::Idle);
+                return Wake::Idle;
             }
-            None
+            polled
         } else {
             self.state = State::Stalled(h_gen);
             self.q.set_stalled_at(word);
@@ -708,12 +716,14 @@ impl<'q, const N: usize> Executor<'q, N> {
         a.reference = due;
         self.done[A][a.positive as usize] += a.count as u64;
         let end = loop {
-            match self.q.peek(A) {
+            match self.q.dequeue(A) {
                 None => break SeqEnd::Empty,
-                Some(StepCmd::Dir(_)) => break SeqEnd::DirFirst,
-                Some(&cmd) => {
-                    self.q.dequeue(A);
-                    // A sequence sets `active` (and `armed`) again.
+                Some(StepCmd::Dir(positive)) => {
+                    self.axes[A].held_dir = Some(positive);
+                    break SeqEnd::DirFirst;
+                }
+                // A sequence sets `active` (and `armed`) again.
+                Some(cmd) => {
                     if self.axes[A].load(cmd, self.setup_ticks) {
                         return SeqEnd::Chained;
                     }
@@ -754,14 +764,27 @@ impl<'q, const N: usize> Executor<'q, N> {
     ) -> Result<bool, P::Error> {
         let a = &mut self.axes[axis];
         if let StepCmd::Dir(positive) = cmd {
-            pins.dir[axis].set_state(PinState::from(positive != self.invert[axis]))?;
-            a.positive = positive;
-            a.dir_fresh = true;
-            a.dir_at = now;
+            set_dir(a, &mut pins.dir[axis], positive != self.invert[axis], positive, now)?;
             return Ok(false);
         }
         Ok(a.load(cmd, self.setup_ticks))
     }
+}
+
+/// Sets DIR of `a` (pin level `high`) to `positive` at `now`.
+#[inline]
+fn set_dir<P: OutputPin>(
+    a: &mut AxisExec,
+    pin: &mut P,
+    high: bool,
+    positive: bool,
+    now: u32,
+) -> Result<(), P::Error> {
+    pin.set_state(PinState::from(high))?;
+    a.positive = positive;
+    a.dir_fresh = true;
+    a.dir_at = now;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -325,12 +325,6 @@ impl<const N: usize> StepConsumer<'_, N> {
         self.q[axis].dequeue()
     }
 
-    /// The next command of `axis`, left in the queue.
-    #[inline]
-    pub(crate) fn peek(&self, axis: usize) -> Option<&StepCmd> {
-        self.q[axis].peek()
-    }
-
     #[inline]
     pub(crate) fn has_data(&self) -> bool {
         self.q.iter().any(|q| q.ready())
