@@ -36,7 +36,7 @@
 
 use embedded_hal::digital::{OutputPin, PinState};
 
-use super::{is_before, StepCmd, StepConfig, StepConsumer, MAX_INTERVAL_TICKS};
+use super::{is_before, StepCmd, StepConfig, StepConsumer};
 use crate::machine::AXES;
 
 /// The step, direction and shared enable pins.
@@ -139,8 +139,8 @@ struct AxisExec {
     interval: u32,
     add: u32,
     /// Steps of the running sequence not raised yet, of `count`.
-    remaining: u16,
-    count: u16,
+    remaining: u32,
+    count: u32,
     /// Time of the last step (or the end of the last wait): sequences count from here. Kept
     /// up to date when a sequence ends (the only time it is read).
     reference: u32,
@@ -164,8 +164,8 @@ impl AxisExec {
                 }
                 self.interval = interval;
                 self.add = add as u32;
-                self.remaining = count;
-                self.count = count;
+                self.remaining = count as u32;
+                self.count = count as u32;
                 self.next_at = self.reference.wrapping_add(interval);
                 self.at = self.fire_time(setup);
                 self.active = true;
@@ -331,7 +331,7 @@ impl<'q, const N: usize> Executor<'q, N> {
     }
 
     /// Steps of the running sequence of `axis` raised so far.
-    fn running_steps(&self, axis: usize) -> u16 {
+    fn running_steps(&self, axis: usize) -> u32 {
         let a = &self.axes[axis];
         if a.active {
             a.count - a.remaining
@@ -452,16 +452,16 @@ impl<'q, const N: usize> Executor<'q, N> {
         // need no filtering here (at the horizon, and while stalled, `at_horizon` computes
         // the wake-up).
         let mut ev = Events { wake: h_exec, fall: now, raised: 0 };
-        // No step later than the horizon; at rest every step is queued (and one due now is
-        // not after `limit` then).
-        let limit = if at_rest { now.wrapping_add(MAX_INTERVAL_TICKS) } else { h_exec };
         if self.left_high != 0 {
             self.fall_due(now, pins)?;
         }
-        self.axis::<0, P, T>(now, limit, pins, timer, &mut ev)?;
-        self.axis::<1, P, T>(now, limit, pins, timer, &mut ev)?;
-        self.axis::<2, P, T>(now, limit, pins, timer, &mut ev)?;
-        self.axis::<3, P, T>(now, limit, pins, timer, &mut ev)?;
+        // No step later than the horizon: only a call at or past it can meet one (a due step
+        // is not later than `now`); at rest every step is queued.
+        if at_horizon && !at_rest {
+            self.pass::<true, P, T>(now, h_exec, pins, timer, &mut ev)?;
+        } else {
+            self.pass::<false, P, T>(now, h_exec, pins, timer, &mut ev)?;
+        }
         if T::WAITS && ev.raised != 0 {
             if !is_before(ev.wake, ev.fall) {
                 // Nothing else is due before the pulses end (pulses from earlier calls
@@ -624,13 +624,29 @@ impl<'q, const N: usize> Executor<'q, N> {
         }
     }
 
+    /// Every axis at `now` (no step later than `limit` if `LIMITED`).
+    #[inline(always)]
+    fn pass<const LIMITED: bool, P: OutputPin, T: StepTimer>(
+        &mut self,
+        now: u32,
+        limit: u32,
+        pins: &mut Pins<P>,
+        timer: &mut T,
+        ev: &mut Events,
+    ) -> Result<(), P::Error> {
+        self.axis::<0, LIMITED, P, T>(now, limit, pins, timer, ev)?;
+        self.axis::<1, LIMITED, P, T>(now, limit, pins, timer, ev)?;
+        self.axis::<2, LIMITED, P, T>(now, limit, pins, timer, ev)?;
+        self.axis::<3, LIMITED, P, T>(now, limit, pins, timer, ev)
+    }
+
     /// Axis `A`: next commands, rising edge; adds its next event to `ev.wake` (a pin left
     /// high that may fall has fallen before: [`Executor::fall_due`]). With a timer a rising
     /// edge goes to `ev.raised` (and `ev.fall`) and the axis is left as after its fall; the
     /// call ends the pulse or marks it high. Without one STEP stays high, left to a later
     /// call.
     #[inline(always)]
-    fn axis<const A: usize, P: OutputPin, T: StepTimer>(
+    fn axis<const A: usize, const LIMITED: bool, P: OutputPin, T: StepTimer>(
         &mut self,
         now: u32,
         limit: u32,
@@ -654,7 +670,7 @@ impl<'q, const N: usize> Executor<'q, N> {
         }
         let a = &mut self.axes[A];
         let due = a.next_at;
-        if is_before(limit, due) {
+        if LIMITED && is_before(limit, due) {
             // Beyond the horizon (which then wakes first).
             earliest(&mut ev.wake, a.at);
             return Ok(());
