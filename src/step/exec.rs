@@ -1102,6 +1102,113 @@ mod tests {
         assert_eq!(s.steps, [80, 80, 15, 0]);
     }
 
+    /// Queues `seqs` of `commanded` for `axis`, a direction before a sequence only where
+    /// `dirs` changes (and before the first), so sequences of one direction follow each
+    /// other directly.
+    fn queue_runs<const N: usize>(
+        p: &mut crate::step::StepProducer<'_, N>,
+        axis: usize,
+        seqs: &[(u32, u32, u16, i32)],
+        dirs: &[bool],
+    ) {
+        for (i, (&(wait, interval, count, add), &dir)) in seqs.iter().zip(dirs).enumerate() {
+            if wait > 0 {
+                p.enqueue(axis, StepCmd::Wait(wait)).unwrap();
+            }
+            if i == 0 || dirs[i - 1] != dir {
+                p.enqueue(axis, StepCmd::Dir(dir)).unwrap();
+            }
+            p.enqueue(axis, StepCmd::Steps { interval, count, add }).unwrap();
+        }
+    }
+
+    #[test]
+    fn sequences_follow_at_the_last_step_and_directions_at_its_fall() {
+        let cfg = StepConfig::default();
+        let high = cfg.step_high_ticks() as u64;
+        let rev = cfg.min_reversal_ticks();
+        // X: runs of one direction (one after a wait), then reversals at the shortest gap.
+        let x = [
+            (0, 1_000, 5, 0),
+            (0, 900, 4, 10),
+            (2_000, 800, 3, 0),
+            (0, rev, 5, 0),
+            (0, rev, 3, 7),
+            (0, 600, 2, 0),
+        ];
+        let x_dirs = [true, true, true, false, true, true];
+        // Y: X's steps 30 ticks later (inside X's pulses), so every pulse is crowded.
+        let mut y = x;
+        y[0].0 = 30;
+        let x_steps: u64 = x.iter().map(|s| s.2 as u64).sum();
+        let signed: i64 =
+            x.iter().zip(&x_dirs).map(|(s, &d)| if d { 1 } else { -1 } * s.2 as i64).sum();
+        for (crowded, timed) in [(false, true), (true, true), (false, false), (true, false)] {
+            let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Edges::default());
+            let mut pins = board.pins();
+            let mut q: StepQueue<32> = StepQueue::new();
+            let (mut p, c) = q.split();
+            let mut e = Executor::new(&cfg, c);
+            queue_runs(&mut p, 0, &x, &x_dirs);
+            if crowded {
+                queue_runs(&mut p, 1, &y, &x_dirs);
+            }
+            p.publish(pack_horizon(100_000, true));
+            let mut calls = 0u32;
+            loop {
+                calls += 1;
+                let w = if timed {
+                    e.on_timer_with(board.now_u32(), &mut pins, &mut &board).unwrap()
+                } else {
+                    e.on_timer(board.now_u32(), &mut pins).unwrap()
+                };
+                match w {
+                    Wake::At(t) => board.advance_to_u32(t),
+                    Wake::Idle => break,
+                }
+            }
+            let what = format!("crowded {crowded}, timed {timed}");
+            assert_eq!(board.violation_count(), 0, "{what}: {:?}", board.first_violation());
+            let t0 = cfg.start_lead_ticks as u64;
+            let edges = board.observer();
+            for (axis, seqs) in [(0u8, &x), (1, &y)].into_iter().take(1 + crowded as usize) {
+                let pulses = edges.pulses(axis);
+                let rises: std::vec::Vec<u64> = pulses.iter().map(|p| p.0 - t0).collect();
+                assert_eq!(rises, commanded(seqs), "{what}: axis {axis}, every rise at its tick");
+                for &(r, f) in &pulses {
+                    assert!(f - r >= high, "{what}: axis {axis} pulse at {r}");
+                    if timed && !crowded {
+                        assert_eq!(f - r, high, "{what}: the pulse ends in its call");
+                    }
+                }
+                // DIR changes only when the last pulse before it has fallen, before the next
+                // rise (the board checks the setup time).
+                for &(pin, _, tick) in &edges.0 {
+                    if pin == crate::sim::PinId::Dir(axis) && tick > t0 {
+                        let before = pulses.iter().rfind(|p| p.0 < tick).unwrap();
+                        assert!(before.1 <= tick, "{what}: DIR of {axis} at {tick} during a pulse");
+                        if !crowded {
+                            assert_eq!(before.1, tick, "{what}: DIR of {axis} at the fall");
+                        }
+                    }
+                }
+            }
+            let mut want = [x_steps, 0, 0, 0];
+            let mut pos = [signed, 0, 0, 0];
+            if crowded {
+                want[1] = x_steps;
+                pos[1] = signed;
+            }
+            assert_eq!(e.stats().steps, want, "{what}");
+            assert_eq!(e.position_steps(), pos, "{what}");
+            if timed && !crowded {
+                // One call per step, the start and the rest: the next sequence and a
+                // direction change need no call of their own.
+                assert!(calls as u64 <= x_steps + 2, "{what}: {calls} calls");
+            }
+        }
+    }
+
     /// A board clock that moves on by `per_read` ticks at every read, as a real one does
     /// while the interrupt runs: rises come late, and pulses must still be long enough.
     struct SlowTimer<'b, O> {
