@@ -12,16 +12,19 @@
 //! the rise takes about as long). Every STEP still high falls together there. This is done
 //! only when no other event (another axis' step, a pulse's deadline, the horizon) is due
 //! before that fall; otherwise, and always without a timer ([`Executor::on_timer`]), a fall
-//! is an event: STEP may fall at any call from `raised_at + step_high` on, and by the middle
-//! of the slack before the axis' next rising edge (`fall_by`: the high and the low time both
-//! keep at least half of the spare time on top of the driver's minimum), so it usually rides
-//! along with another axis' event; the last pulse of a sequence then falls exactly at
-//! `raised_at + step_high`, since DIR may change then.
+//! is an event: STEP may fall at any call from `raised_at + step_high` on (such pins fall
+//! first in a call, before its pass over the axes), and by the middle of the slack before
+//! the axis' next rising edge (the high and the low time both keep at least half of the
+//! spare time on top of the driver's minimum), so it usually rides along with another axis'
+//! event; a pulse with no step of the axis after it (a direction change next, or nothing
+//! queued) then falls exactly at `raised_at + step_high`, since DIR may change then.
 //!
-//! After the last step of a sequence the executor takes the next commands when STEP has
-//! fallen: a direction change sets DIR right then, which is at least the driver's setup time
-//! before the next rising edge because the generator keeps that gap
-//! ([`StepConfig::min_reversal_ticks`]). Rising edges are at their commanded ticks either way.
+//! At the last step of a sequence the executor takes the next commands right away, up to the
+//! next sequence (waits and sequences set no pin), so the next step needs no call of its own.
+//! A direction change is held until STEP has fallen and set then (in the same call with a
+//! timer, when the pulse ends in it), which is at least the driver's setup time before the
+//! next rising edge because the generator keeps that gap ([`StepConfig::min_reversal_ticks`]).
+//! Rising edges are at their commanded ticks either way.
 //!
 //! # Horizon, underrun, restart
 //! The generator publishes the generator time up to which every axis' commands are queued.
@@ -119,7 +122,7 @@ pub struct ExecStats {
 struct AxisExec {
     /// `high || active`: the axis has an event at `at`. Otherwise it waits for commands.
     armed: bool,
-    /// STEP is high (left high by a call, [`Executor::left_high`]); it may fall from
+    /// STEP is high (left high by a call, `Executor::left_high`); it may fall from
     /// `fall_from` (the driver's high time) on and falls by `at` at the latest.
     high: bool,
     /// A sequence is running; its next step is due at `next_at` and, while STEP is low,
@@ -142,7 +145,7 @@ struct AxisExec {
     remaining: u32,
     count: u32,
     /// Time of the last step (or the end of the last wait): sequences count from here. Kept
-    /// up to date when a sequence ends (the only time it is read).
+    /// up to date when a sequence ends (read only when the next commands are taken).
     reference: u32,
     dir_at: u32,
 }
@@ -250,12 +253,14 @@ enum State {
 /// Drives the pins from a [`StepConsumer`].
 ///
 /// # Cost
-/// The hot path is one pass over the four axes with adds and compares on `u32`s. With a
-/// [`StepTimer`] a step is one call: the pulse ends in it (see the module docs), after at
-/// most the driver's high time from the rising edge (72 ticks for an A4988), usually with
-/// no wait as the pass itself takes that long. Without one, or when another event comes
-/// within the pulse, the fall is an event that usually rides along with another axis' step.
-/// Rising edges are at their commanded ticks either way.
+/// The hot path is one pass over the four axes with adds and compares on `u32`s (the
+/// horizon is compared with a step only in a call at or past it: a step due earlier is
+/// within it). With a [`StepTimer`] a step is one call: the pulse ends in it (see the module
+/// docs), after at most the driver's high time from the rising edge (72 ticks for an A4988),
+/// usually with no wait as the pass itself takes that long; the end of a sequence loads the
+/// next one in the same call (one 64-bit add per sequence for the counters). Without one, or
+/// when another event comes within the pulse, the fall is an event that usually rides along
+/// with another axis' step. Rising edges are at their commanded ticks either way.
 #[derive(Debug)]
 pub struct Executor<'q, const N: usize> {
     q: StepConsumer<'q, N>,
@@ -506,8 +511,8 @@ impl<'q, const N: usize> Executor<'q, N> {
     }
 
     /// After the fall at `fall` in the call (with a timer): STEP pins left high by earlier
-    /// calls fall too, and the axes whose sequence `ended` before a direction change take
-    /// their next commands; returns `wake` with their next steps (recomputed as at the
+    /// calls fall too, and the axes whose sequence `ended` before a direction change set
+    /// DIR (held till now) and take their next commands; returns `wake` with their next steps (recomputed as at the
     /// call's start at `now` when pins left high fell: their deadlines are in `wake` no
     /// more). (Values, not `&mut Events`: the call's events stay in registers.)
     #[inline(never)]
