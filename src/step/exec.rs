@@ -122,7 +122,7 @@ pub struct ExecStats {
 struct AxisExec {
     /// `high || active`: the axis has an event at `at`. Otherwise it waits for commands.
     armed: bool,
-    /// STEP is high (left high by a call, `Executor::left_high`); it may fall from
+    /// STEP is high (left by a call; with a timer in `Executor::left_high`); it may fall from
     /// `fall_from` (the driver's high time) on and falls by `at` at the latest.
     high: bool,
     /// A sequence is running; its next step is due at `next_at` and, while STEP is low,
@@ -280,7 +280,7 @@ pub struct Executor<'q, const N: usize> {
     /// Steps of the sequences completed, per axis, negative and positive (the running one
     /// is added when read: no 64-bit arithmetic per step, one add per sequence).
     done: [[u64; 2]; AXES],
-    /// STEP pins left high by a call (bit per axis): they fall as events.
+    /// STEP pins left high by a call with a timer (bit per axis): they fall as events.
     left_high: u32,
     /// With a timer: axes whose sequence ended in the call before a direction change (bit
     /// per axis): they take it after the fall in the call.
@@ -457,7 +457,7 @@ impl<'q, const N: usize> Executor<'q, N> {
         // need no filtering here (at the horizon, and while stalled, `at_horizon` computes
         // the wake-up).
         let mut ev = Events { wake: h_exec, fall: now, raised: 0 };
-        if self.left_high != 0 {
+        if T::WAITS && self.left_high != 0 {
             self.fall_due(now, pins)?;
         }
         // No step later than the horizon: only a call at or past it can meet one (a due step
@@ -490,22 +490,37 @@ impl<'q, const N: usize> Executor<'q, N> {
         Ok(Wake::At(ev.wake))
     }
 
-    /// STEP pins left high by earlier calls whose high time has passed at `now` fall (the
-    /// pass then sees their axes as after their fall).
+    /// With a timer: STEP pins left high by earlier calls whose high time has passed at
+    /// `now` fall (the pass then sees their axes as after their fall).
     #[inline(never)]
     fn fall_due<P: OutputPin>(&mut self, now: u32, pins: &mut Pins<P>) -> Result<(), P::Error> {
-        let setup = self.setup_ticks;
-        for (i, a) in self.axes.iter_mut().enumerate() {
-            if a.high && !is_before(now, a.fall_from) {
-                pins.step[i].set_low()?;
-                a.high = false;
-                a.armed = a.active;
-                a.at = a.fire_time(setup);
+        let mut left = self.left_high;
+        while left != 0 {
+            let i = left.trailing_zeros() as usize & (AXES - 1);
+            left &= left - 1;
+            if !is_before(now, self.axes[i].fall_from) {
+                self.fall(i, now, pins)?;
                 self.left_high &= !(1 << i);
-                if let Some(positive) = a.held_dir.take() {
-                    set_dir(a, &mut pins.dir[i], positive != self.invert[i], positive, now)?;
-                }
             }
+        }
+        Ok(())
+    }
+
+    /// STEP of `axis`, high, falls at `now` (a direction change held till then is set).
+    #[inline]
+    fn fall<P: OutputPin>(
+        &mut self,
+        axis: usize,
+        now: u32,
+        pins: &mut Pins<P>,
+    ) -> Result<(), P::Error> {
+        pins.step[axis].set_low()?;
+        let a = &mut self.axes[axis];
+        a.high = false;
+        a.armed = a.active;
+        a.at = a.fire_time(self.setup_ticks);
+        if let Some(positive) = a.held_dir.take() {
+            set_dir(a, &mut pins.dir[axis], positive != self.invert[axis], positive, now)?;
         }
         Ok(())
     }
@@ -645,11 +660,11 @@ impl<'q, const N: usize> Executor<'q, N> {
         self.axis::<3, LIMITED, P, T>(now, limit, pins, timer, ev)
     }
 
-    /// Axis `A`: next commands, rising edge; adds its next event to `ev.wake` (a pin left
-    /// high that may fall has fallen before: [`Executor::fall_due`]). With a timer a rising
-    /// edge goes to `ev.raised` (and `ev.fall`) and the axis is left as after its fall; the
-    /// call ends the pulse or marks it high. Without one STEP stays high, left to a later
-    /// call.
+    /// Axis `A`: falling edge, next commands, rising edge; adds its next event to `ev.wake`.
+    /// With a timer a pin left high that may fall has fallen before ([`Executor::fall_due`]),
+    /// and a rising edge goes to `ev.raised` (and `ev.fall`) with the axis left as after its
+    /// fall: the call ends the pulse or marks it high. Without one STEP stays high, left to a
+    /// later call.
     #[inline(always)]
     fn axis<const A: usize, const LIMITED: bool, P: OutputPin, T: StepTimer>(
         &mut self,
@@ -659,6 +674,14 @@ impl<'q, const N: usize> Executor<'q, N> {
         timer: &mut T,
         ev: &mut Events,
     ) -> Result<(), P::Error> {
+        if !T::WAITS && self.axes[A].high {
+            // Without a timer STEP falls here, from its high time on (by `at`).
+            if is_before(now, self.axes[A].fall_from) {
+                earliest(&mut ev.wake, self.axes[A].at);
+                return Ok(());
+            }
+            self.fall(A, now, pins)?;
+        }
         let a = &mut self.axes[A];
         if a.armed {
             if is_before(now, a.at) {
@@ -723,7 +746,6 @@ impl<'q, const N: usize> Executor<'q, N> {
         a.armed = true;
         a.fall_from = fall;
         a.at = fall_deadline(a, fall, self.low_ticks);
-        self.left_high |= 1 << A;
         earliest(&mut ev.wake, a.at);
         Ok(())
     }
