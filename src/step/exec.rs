@@ -12,8 +12,8 @@
 //! the rise takes about as long). Every STEP still high falls together there. This is done
 //! only when no other event (another axis' step, a pulse's deadline, the horizon) is due
 //! before that fall; otherwise, and always without a timer ([`Executor::on_timer`]), a fall
-//! is an event: STEP may fall at any call from `raised_at + step_high` on (such pins fall
-//! first in a call, before its pass over the axes), and by the middle of the slack before
+//! is an event: STEP may fall at any call from `raised_at + step_high` on (before the axis'
+//! other events in that call), and by the middle of the slack before
 //! the axis' next rising edge (the high and the low time both keep at least half of the
 //! spare time on top of the driver's minimum), so it usually rides along with another axis'
 //! event; a pulse with no step of the axis after it (a direction change next, or nothing
@@ -210,7 +210,7 @@ fn earliest_of(wake: &mut Option<u32>, t: u32) {
 
 /// The deadline of a STEP pulse of `a` that may fall from `fall` on: by the middle of the
 /// spare time between the shortest pulse and the shortest low time (`low`) before the next
-/// step; the last pulse of a sequence exactly at `fall` (DIR may change then).
+/// step; with no sequence running exactly at `fall` (DIR may change then).
 #[inline(always)]
 fn fall_deadline(a: &AxisExec, fall: u32, low: u32) -> u32 {
     if a.active {
@@ -236,7 +236,7 @@ struct Events {
 enum SeqEnd {
     /// The next sequence runs (no direction change before it).
     Chained,
-    /// A direction change comes next: it is taken when STEP falls.
+    /// A direction change comes next: it is held until STEP falls.
     DirFirst,
     /// No command queued.
     Empty,
@@ -520,16 +520,17 @@ impl<'q, const N: usize> Executor<'q, N> {
         a.armed = a.active;
         a.at = a.fire_time(self.setup_ticks);
         if let Some(positive) = a.held_dir.take() {
-            set_dir(a, &mut pins.dir[axis], positive != self.invert[axis], positive, now)?;
+            set_dir(a, &mut pins.dir[axis], positive, self.invert[axis], now)?;
         }
         Ok(())
     }
 
     /// After the fall at `fall` in the call (with a timer): STEP pins left high by earlier
-    /// calls fall too, and the axes whose sequence `ended` before a direction change set
-    /// DIR (held till now) and take their next commands; returns `wake` with their next steps (recomputed as at the
-    /// call's start at `now` when pins left high fell: their deadlines are in `wake` no
-    /// more). (Values, not `&mut Events`: the call's events stay in registers.)
+    /// calls fall too, and the axes whose sequence ended before a direction change set DIR
+    /// (held till now) and take their next commands; returns `wake` with their next steps
+    /// (recomputed as at the call's start at `now` when pins left high fell: their deadlines
+    /// are in `wake` no more). (Values, not `&mut Events`: the call's events stay in
+    /// registers.)
     #[inline(never)]
     fn after_falls<P: OutputPin>(
         &mut self,
@@ -577,7 +578,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             return Ok(());
         }
         if let Some(positive) = a.held_dir.take() {
-            set_dir(a, &mut pins.dir[A], positive != self.invert[A], positive, fall)?;
+            set_dir(a, &mut pins.dir[A], positive, self.invert[A], fall)?;
         }
         if a.active || (self.q.q[A].ready() && self.take_commands(A, fall, pins)?) {
             let a = &mut self.axes[A];
@@ -589,7 +590,7 @@ impl<'q, const N: usize> Executor<'q, N> {
 
     /// Another event comes before the pulses `raised` in the call (with a timer) end at
     /// `fall`: they stay high and fall as events, from `fall` on and by their deadline (see
-    /// [`Executor`]'s cost notes; the last pulse of a sequence exactly at `fall`). Returns
+    /// [`Executor`]'s cost notes; one with no sequence running exactly at `fall`). Returns
     /// `wake` with those deadlines.
     #[inline(never)]
     fn leave_high(&mut self, raised: u32, fall: u32, mut wake: u32) -> u32 {
@@ -725,7 +726,7 @@ impl<'q, const N: usize> Executor<'q, N> {
             } else {
                 match self.sequence_done::<A>(due) {
                     SeqEnd::Chained => earliest(&mut ev.wake, self.axes[A].at),
-                    // Taken when STEP has fallen.
+                    // Set when STEP has fallen ([`Executor::after_falls`]).
                     SeqEnd::DirFirst => self.ended |= 1 << A,
                     SeqEnd::Empty => {}
                 }
@@ -750,7 +751,7 @@ impl<'q, const N: usize> Executor<'q, N> {
         Ok(())
     }
 
-    /// The last step of `axis`' sequence (due at `due`) is out: books it and takes the next
+    /// The last step of axis `A`'s sequence (due at `due`) is out: books it and takes the next
     /// commands up to the next sequence unless a direction change comes first (waits and
     /// sequences set no pin, so they need not wait for STEP to fall).
     #[inline(never)]
@@ -807,23 +808,23 @@ impl<'q, const N: usize> Executor<'q, N> {
     ) -> Result<bool, P::Error> {
         let a = &mut self.axes[axis];
         if let StepCmd::Dir(positive) = cmd {
-            set_dir(a, &mut pins.dir[axis], positive != self.invert[axis], positive, now)?;
+            set_dir(a, &mut pins.dir[axis], positive, self.invert[axis], now)?;
             return Ok(false);
         }
         Ok(a.load(cmd, self.setup_ticks))
     }
 }
 
-/// Sets DIR of `a` (pin level `high`) to `positive` at `now`.
+/// Sets DIR of `a` to `positive` at `now` (`pin` high for positive unless `invert`).
 #[inline]
 fn set_dir<P: OutputPin>(
     a: &mut AxisExec,
     pin: &mut P,
-    high: bool,
     positive: bool,
+    invert: bool,
     now: u32,
 ) -> Result<(), P::Error> {
-    pin.set_state(PinState::from(high))?;
+    pin.set_state(PinState::from(positive != invert))?;
     a.positive = positive;
     a.dir_fresh = true;
     a.dir_at = now;
