@@ -518,7 +518,9 @@ impl<'q, const N: usize> Executor<'q, N> {
         let a = &mut self.axes[axis];
         a.high = false;
         a.armed = a.active;
-        a.at = a.fire_time(self.setup_ticks);
+        // No direction change since the rise (one held sets it now and ends the sequence):
+        // a running sequence's next step rises at `next_at`.
+        a.at = a.next_at;
         if let Some(positive) = a.held_dir.take() {
             set_dir(a, &mut pins.dir[axis], positive, self.invert[axis], now)?;
         }
@@ -580,10 +582,13 @@ impl<'q, const N: usize> Executor<'q, N> {
         if let Some(positive) = a.held_dir.take() {
             set_dir(a, &mut pins.dir[A], positive, self.invert[A], fall)?;
         }
-        if a.active || (self.q.q[A].ready() && self.take_commands(A, fall, pins)?) {
-            let a = &mut self.axes[A];
-            a.at = a.fire_time(self.setup_ticks);
+        // A running sequence's next step rises at `next_at` (no direction change since the
+        // rise); a new one's at `at` ([`AxisExec::load`]).
+        if a.active {
+            a.at = a.next_at;
             earliest(wake, a.at);
+        } else if self.q.q[A].ready() && self.take_commands(A, fall, pins)? {
+            earliest(wake, self.axes[A].at);
         }
         Ok(())
     }
@@ -675,16 +680,18 @@ impl<'q, const N: usize> Executor<'q, N> {
         timer: &mut T,
         ev: &mut Events,
     ) -> Result<(), P::Error> {
-        if !T::WAITS && self.axes[A].high {
+        let mut armed = self.axes[A].armed;
+        if !T::WAITS && armed && self.axes[A].high {
             // Without a timer STEP falls here, from its high time on (by `at`).
             if is_before(now, self.axes[A].fall_from) {
                 earliest(&mut ev.wake, self.axes[A].at);
                 return Ok(());
             }
             self.fall(A, now, pins)?;
+            armed = self.axes[A].armed;
         }
         let a = &mut self.axes[A];
-        if a.armed {
+        if armed {
             if is_before(now, a.at) {
                 // Not yet (or STEP high till then).
                 earliest(&mut ev.wake, a.at);
