@@ -12,16 +12,19 @@
 //! the rise takes about as long). Every STEP still high falls together there. This is done
 //! only when no other event (another axis' step, a pulse's deadline, the horizon) is due
 //! before that fall; otherwise, and always without a timer ([`Executor::on_timer`]), a fall
-//! is an event: STEP may fall at any call from `raised_at + step_high` on, and by the middle
-//! of the slack before the axis' next rising edge (`fall_by`: the high and the low time both
-//! keep at least half of the spare time on top of the driver's minimum), so it usually rides
-//! along with another axis' event; the last pulse of a sequence then falls exactly at
-//! `raised_at + step_high`, since DIR may change then.
+//! is an event: STEP may fall at any call from `raised_at + step_high` on (before the axis'
+//! other events in that call), and by the middle of the slack before
+//! the axis' next rising edge (the high and the low time both keep at least half of the
+//! spare time on top of the driver's minimum), so it usually rides along with another axis'
+//! event; a pulse with no step of the axis after it (a direction change next, or nothing
+//! queued) then falls exactly at `raised_at + step_high`, since DIR may change then.
 //!
-//! After the last step of a sequence the executor takes the next commands when STEP has
-//! fallen: a direction change sets DIR right then, which is at least the driver's setup time
-//! before the next rising edge because the generator keeps that gap
-//! ([`StepConfig::min_reversal_ticks`]). Rising edges are at their commanded ticks either way.
+//! At the last step of a sequence the executor takes the next commands right away, up to the
+//! next sequence (waits and sequences set no pin), so the next step needs no call of its own.
+//! A direction change is held until STEP has fallen and set then (in the same call with a
+//! timer, when the pulse ends in it), which is at least the driver's setup time before the
+//! next rising edge because the generator keeps that gap ([`StepConfig::min_reversal_ticks`]).
+//! Rising edges are at their commanded ticks either way.
 //!
 //! # Horizon, underrun, restart
 //! The generator publishes the generator time up to which every axis' commands are queued.
@@ -36,7 +39,7 @@
 
 use embedded_hal::digital::{OutputPin, PinState};
 
-use super::{is_before, StepCmd, StepConfig, StepConsumer, MAX_INTERVAL_TICKS};
+use super::{is_before, StepCmd, StepConfig, StepConsumer};
 use crate::machine::AXES;
 
 /// The step, direction and shared enable pins.
@@ -117,37 +120,66 @@ pub struct ExecStats {
 
 #[derive(Debug, Clone, Copy, Default)]
 struct AxisExec {
-    /// `high || active`: the axis has an event; it needs service from `due_at` on and wants
-    /// a call by `wake_at`. Otherwise it waits for commands.
+    /// `high || active`: the axis has an event at `at`. Otherwise it waits for commands.
     armed: bool,
-    /// STEP is high; it may fall from `due_at` (the driver's high time) on and falls by
-    /// `wake_at` at the latest.
+    /// STEP is high (left by a call; with a timer in `Executor::left_high`); it may fall from
+    /// `fall_from` (the driver's high time) on and falls by `at` at the latest.
     high: bool,
-    /// A sequence is running; its next step is due at `next_at` and is raised at `fire_at`
-    /// (later than `next_at` only when DIR changed less than the setup time before it).
+    /// A sequence is running; its next step is due at `next_at` and, while STEP is low,
+    /// is raised at `at` ([`AxisExec::fire_time`]).
     active: bool,
     /// DIR changed at `dir_at` and no step has followed yet.
     dir_fresh: bool,
     /// Current direction is positive.
     positive: bool,
-    due_at: u32,
-    wake_at: u32,
+    /// A direction change taken at a sequence's last step: it is set when that STEP pulse
+    /// falls (at the fall the next commands are taken).
+    held_dir: Option<bool>,
+    /// The axis' next event: its rising edge, or with STEP high the fall's deadline.
+    at: u32,
+    fall_from: u32,
     next_at: u32,
-    fire_at: u32,
     interval: u32,
     add: u32,
     /// Steps of the running sequence not raised yet, of `count`.
-    remaining: u16,
-    count: u16,
+    remaining: u32,
+    count: u32,
     /// Time of the last step (or the end of the last wait): sequences count from here. Kept
-    /// up to date when a sequence ends (the only time it is read).
+    /// up to date when a sequence ends (read only when the next commands are taken).
     reference: u32,
     dir_at: u32,
 }
 
 impl AxisExec {
+    /// Takes a wait or a sequence (no sequence running; a direction change is the
+    /// executor's: it sets a pin); true when a sequence starts.
+    #[inline]
+    fn load(&mut self, cmd: StepCmd, setup: u32) -> bool {
+        match cmd {
+            StepCmd::Dir(_) => false,
+            StepCmd::Wait(ticks) => {
+                self.reference = self.reference.wrapping_add(ticks);
+                false
+            }
+            StepCmd::Steps { interval, count, add } => {
+                if count == 0 {
+                    return false;
+                }
+                self.interval = interval;
+                self.add = add as u32;
+                self.remaining = count as u32;
+                self.count = count as u32;
+                self.next_at = self.reference.wrapping_add(interval);
+                self.at = self.fire_time(setup);
+                self.active = true;
+                self.armed = true;
+                true
+            }
+        }
+    }
+
     /// When the step due at `next_at` may rise: at `next_at`, or the DIR setup time after a
-    /// direction change if that is later.
+    /// direction change if that is later (only then do the two differ).
     #[inline]
     fn fire_time(&self, setup: u32) -> u32 {
         let ready = self.dir_at.wrapping_add(setup);
@@ -176,16 +208,38 @@ fn earliest_of(wake: &mut Option<u32>, t: u32) {
     }
 }
 
+/// The deadline of a STEP pulse of `a` that may fall from `fall` on: by the middle of the
+/// spare time between the shortest pulse and the shortest low time (`low`) before the next
+/// step; with no sequence running exactly at `fall` (DIR may change then).
+#[inline(always)]
+fn fall_deadline(a: &AxisExec, fall: u32, low: u32) -> u32 {
+    if a.active {
+        let slack = a.next_at.wrapping_sub(fall).wrapping_sub(low) as i32;
+        fall.wrapping_add((slack.max(0) as u32) >> 1)
+    } else {
+        fall
+    }
+}
+
 /// What a call collects over the axes.
 struct Events {
     /// The next wake-up so far.
     wake: u32,
     /// With a timer: the end of the latest pulse raised (valid when `raised` is not 0).
     fall: u32,
-    /// With a timer: STEP pins raised (bit per axis), and those of them that ended their
-    /// sequence (the next commands follow the fall).
-    raised: u8,
-    ended: u8,
+    /// With a timer: STEP pins raised (bit per axis).
+    raised: u32,
+}
+
+/// What follows the last step of a sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SeqEnd {
+    /// The next sequence runs (no direction change before it).
+    Chained,
+    /// A direction change comes next: it is held until STEP falls.
+    DirFirst,
+    /// No command queued.
+    Empty,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -199,12 +253,14 @@ enum State {
 /// Drives the pins from a [`StepConsumer`].
 ///
 /// # Cost
-/// The hot path is one pass over the four axes with adds and compares on `u32`s. With a
-/// [`StepTimer`] a step is one call: the pulse ends in it (see the module docs), after at
-/// most the driver's high time from the rising edge (72 ticks for an A4988), usually with
-/// no wait as the pass itself takes that long. Without one, or when another event comes
-/// within the pulse, the fall is an event that usually rides along with another axis' step.
-/// Rising edges are at their commanded ticks either way.
+/// The hot path is one pass over the four axes with adds and compares on `u32`s (the
+/// horizon is compared with a step only in a call at or past it: a step due earlier is
+/// within it). With a [`StepTimer`] a step is one call: the pulse ends in it (see the module
+/// docs), after at most the driver's high time from the rising edge (72 ticks for an A4988),
+/// usually with no wait as the pass itself takes that long; the end of a sequence loads the
+/// next one in the same call (one 64-bit add per sequence for the counters). Without one, or
+/// when another event comes within the pulse, the fall is an event that usually rides along
+/// with another axis' step. Rising edges are at their commanded ticks either way.
 #[derive(Debug)]
 pub struct Executor<'q, const N: usize> {
     q: StepConsumer<'q, N>,
@@ -221,12 +277,14 @@ pub struct Executor<'q, const N: usize> {
     poll: u32,
     invert: [bool; AXES],
     enable_low: bool,
-    /// Steps and signed position of the sequences completed, per axis (the running one is
-    /// added when read: no 64-bit arithmetic per step).
-    done_steps: [u64; AXES],
-    done_position: [i64; AXES],
+    /// Steps of the sequences completed, per axis, negative and positive (the running one
+    /// is added when read: no 64-bit arithmetic per step, one add per sequence).
+    done: [[u64; 2]; AXES],
     /// STEP pins left high by a call with a timer (bit per axis): they fall as events.
-    left_high: u8,
+    left_high: u32,
+    /// With a timer: axes whose sequence ended in the call before a direction change (bit
+    /// per axis): they take it after the fall in the call.
+    ended: u32,
     stats: ExecStats,
 }
 
@@ -246,9 +304,9 @@ impl<'q, const N: usize> Executor<'q, N> {
             poll: config.stall_poll_ticks.max(1),
             invert: config.invert_dir,
             enable_low: config.enable_active_low,
-            done_steps: [0; AXES],
-            done_position: [0; AXES],
+            done: [[0; 2]; AXES],
             left_high: 0,
+            ended: 0,
             stats: ExecStats::default(),
         }
     }
@@ -278,7 +336,7 @@ impl<'q, const N: usize> Executor<'q, N> {
     }
 
     /// Steps of the running sequence of `axis` raised so far.
-    fn running_steps(&self, axis: usize) -> u16 {
+    fn running_steps(&self, axis: usize) -> u32 {
         let a = &self.axes[axis];
         if a.active {
             a.count - a.remaining
@@ -291,14 +349,17 @@ impl<'q, const N: usize> Executor<'q, N> {
     pub fn position_steps(&self) -> [i64; AXES] {
         core::array::from_fn(|axis| {
             let n = self.running_steps(axis) as i64;
-            self.done_position[axis] + if self.axes[axis].positive { n } else { -n }
+            let [neg, pos] = self.done[axis];
+            pos as i64 - neg as i64 + if self.axes[axis].positive { n } else { -n }
         })
     }
 
     /// Counters.
     pub fn stats(&self) -> ExecStats {
         let mut s = self.stats;
-        s.steps = core::array::from_fn(|a| self.done_steps[a] + self.running_steps(a) as u64);
+        s.steps = core::array::from_fn(|a| {
+            self.done[a][0] + self.done[a][1] + self.running_steps(a) as u64
+        });
         s
     }
 
@@ -319,10 +380,8 @@ impl<'q, const N: usize> Executor<'q, N> {
         for a in &mut self.axes {
             a.reference = a.reference.wrapping_add(delta);
             a.next_at = a.next_at.wrapping_add(delta);
-            a.fire_at = a.fire_time(setup);
             if a.active && !a.high {
-                a.due_at = a.fire_at;
-                a.wake_at = a.fire_at;
+                a.at = a.fire_time(setup);
             }
         }
         self.offset = offset;
@@ -374,6 +433,7 @@ impl<'q, const N: usize> Executor<'q, N> {
     /// Services every due event at `now` (read from `timer`'s clock at the call's start) and
     /// says when to come back; STEP pulses raised here usually fall before it returns (see
     /// the module docs), after `timer` reached their end.
+    #[inline(never)]
     pub fn on_timer_with<P: OutputPin, T: StepTimer>(
         &mut self,
         now: u32,
@@ -381,74 +441,108 @@ impl<'q, const N: usize> Executor<'q, N> {
         timer: &mut T,
     ) -> Result<Wake, P::Error> {
         let word = self.q.horizon();
+        // Stalled still (the pass does not change the state), or at the horizon.
+        let mut special = false;
         if self.state != State::Running {
             if let Some(w) = self.wake_up(now, word, pins)? {
                 return Ok(w);
             }
+            special = self.state != State::Running;
         }
         let at_rest = word & 1 != 0;
         let h_exec = (word & !1).wrapping_add(self.offset);
         let at_horizon = !is_before(now, h_exec);
+        special |= at_horizon;
         // The horizon is a wake-up while ahead; events beyond it lose against it, so they
-        // need no filtering here (at the horizon `at_horizon` recomputes the wake-up, and a
-        // poll is the latest one).
-        let wake = if at_horizon { now.wrapping_add(self.poll) } else { h_exec };
-        let mut ev = Events { wake, fall: now, raised: 0, ended: 0 };
-        // No step later than the horizon; at rest every step is queued (and one due now is
-        // not after `limit` then).
-        let limit = if at_rest { now.wrapping_add(MAX_INTERVAL_TICKS) } else { h_exec };
-        self.axis::<0, P, T>(now, limit, pins, timer, &mut ev)?;
-        self.axis::<1, P, T>(now, limit, pins, timer, &mut ev)?;
-        self.axis::<2, P, T>(now, limit, pins, timer, &mut ev)?;
-        self.axis::<3, P, T>(now, limit, pins, timer, &mut ev)?;
+        // need no filtering here (at the horizon, and while stalled, `at_horizon` computes
+        // the wake-up).
+        let mut ev = Events { wake: h_exec, fall: now, raised: 0 };
+        if T::WAITS && self.left_high != 0 {
+            self.fall_due(now, pins)?;
+        }
+        // No step later than the horizon: only a call at or past it can meet one (a due step
+        // is not later than `now`); at rest every step is queued.
+        if at_horizon && !at_rest {
+            self.pass::<true, P, T>(now, h_exec, pins, timer, &mut ev)?;
+        } else {
+            self.pass::<false, P, T>(now, h_exec, pins, timer, &mut ev)?;
+        }
         if T::WAITS && ev.raised != 0 {
             if !is_before(ev.wake, ev.fall) {
                 // Nothing else is due before the pulses end (pulses from earlier calls
                 // included: their deadlines are in `wake`): end them here.
                 timer.wait_until(ev.fall);
-                let r = ev.raised;
-                if r & 1 != 0 {
-                    pins.step[0].set_low()?;
+                let mut r = ev.raised;
+                while r != 0 {
+                    pins.step[r.trailing_zeros() as usize & (AXES - 1)].set_low()?;
+                    r &= r - 1;
                 }
-                if r & 2 != 0 {
-                    pins.step[1].set_low()?;
-                }
-                if r & 4 != 0 {
-                    pins.step[2].set_low()?;
-                }
-                if r & 8 != 0 {
-                    pins.step[3].set_low()?;
-                }
-                if self.left_high != 0 || ev.ended != 0 {
-                    ev.wake = self.after_falls(pins, now, ev.fall, ev.ended, ev.wake)?;
+                if self.left_high | self.ended != 0 {
+                    ev.wake = self.after_falls(pins, now, ev.fall, ev.wake)?;
                 }
             } else {
                 ev.wake = self.leave_high(ev.raised, ev.fall, ev.wake);
             }
         }
-        if at_horizon || self.state != State::Running {
-            if let Some(w) = self.at_horizon(now, word, h_exec) {
-                return Ok(w);
-            }
+        if special {
+            return Ok(self.at_horizon(now, word));
         }
         Ok(Wake::At(ev.wake))
     }
 
+    /// With a timer: STEP pins left high by earlier calls whose high time has passed at
+    /// `now` fall (the pass then sees their axes as after their fall).
+    #[inline(never)]
+    fn fall_due<P: OutputPin>(&mut self, now: u32, pins: &mut Pins<P>) -> Result<(), P::Error> {
+        let mut left = self.left_high;
+        while left != 0 {
+            let i = left.trailing_zeros() as usize & (AXES - 1);
+            left &= left - 1;
+            if !is_before(now, self.axes[i].fall_from) {
+                self.fall(i, now, pins)?;
+                self.left_high &= !(1 << i);
+            }
+        }
+        Ok(())
+    }
+
+    /// STEP of `axis`, high, falls at `now` (a direction change held till then is set).
+    #[inline]
+    fn fall<P: OutputPin>(
+        &mut self,
+        axis: usize,
+        now: u32,
+        pins: &mut Pins<P>,
+    ) -> Result<(), P::Error> {
+        pins.step[axis].set_low()?;
+        let a = &mut self.axes[axis];
+        a.high = false;
+        a.armed = a.active;
+        // No direction change since the rise (one held sets it now and ends the sequence):
+        // a running sequence's next step rises at `next_at`.
+        a.at = a.next_at;
+        if let Some(positive) = a.held_dir.take() {
+            set_dir(a, &mut pins.dir[axis], positive, self.invert[axis], now)?;
+        }
+        Ok(())
+    }
+
     /// After the fall at `fall` in the call (with a timer): STEP pins left high by earlier
-    /// calls fall too, and the axes whose sequence `ended` take their next commands; returns
-    /// `wake` with their next steps (recomputed as at the call's start at `now` when pins
-    /// left high fell: their deadlines are in `wake` no more). (Values, not `&mut Events`:
-    /// the call's events stay in registers.)
+    /// calls fall too, and the axes whose sequence ended before a direction change set DIR
+    /// (held till now) and take their next commands; returns `wake` with their next steps
+    /// (recomputed as at the call's start at `now` when pins left high fell: their deadlines
+    /// are in `wake` no more). (Values, not `&mut Events`: the call's events stay in
+    /// registers.)
     #[inline(never)]
     fn after_falls<P: OutputPin>(
         &mut self,
         pins: &mut Pins<P>,
         now: u32,
         fall: u32,
-        ended: u8,
         mut wake: u32,
     ) -> Result<u32, P::Error> {
         let left = self.left_high != 0;
+        let ended = core::mem::take(&mut self.ended);
         self.after_fall::<0, P>(pins, fall, ended, &mut wake)?;
         self.after_fall::<1, P>(pins, fall, ended, &mut wake)?;
         self.after_fall::<2, P>(pins, fall, ended, &mut wake)?;
@@ -459,22 +553,23 @@ impl<'q, const N: usize> Executor<'q, N> {
             wake = if is_before(now, h_exec) { h_exec } else { now.wrapping_add(self.poll) };
             for a in &self.axes {
                 if a.armed {
-                    earliest(&mut wake, a.wake_at);
+                    earliest(&mut wake, a.at);
                 }
             }
         }
         Ok(wake)
     }
 
+    /// Axis `A` after the fall at `fall` in the call (see [`Executor::after_falls`]).
     #[inline(always)]
     fn after_fall<const A: usize, P: OutputPin>(
         &mut self,
         pins: &mut Pins<P>,
         fall: u32,
-        ended: u8,
+        ended: u32,
         wake: &mut u32,
     ) -> Result<(), P::Error> {
-        let bit = 1u8 << A;
+        let bit = 1 << A;
         let a = &mut self.axes[A];
         if self.left_high & bit != 0 {
             pins.step[A].set_low()?;
@@ -484,60 +579,58 @@ impl<'q, const N: usize> Executor<'q, N> {
         } else if ended & bit == 0 {
             return Ok(());
         }
+        if let Some(positive) = a.held_dir.take() {
+            set_dir(a, &mut pins.dir[A], positive, self.invert[A], fall)?;
+        }
+        // A running sequence's next step rises at `next_at` (no direction change since the
+        // rise); a new one's at `at` ([`AxisExec::load`]).
         if a.active {
-            a.due_at = a.fire_at;
-            a.wake_at = a.fire_at;
-            earliest(wake, a.fire_at);
+            a.at = a.next_at;
+            earliest(wake, a.at);
         } else if self.q.q[A].ready() && self.take_commands(A, fall, pins)? {
-            let a = &mut self.axes[A];
-            a.due_at = a.fire_at;
-            a.wake_at = a.fire_at;
-            earliest(wake, a.fire_at);
+            earliest(wake, self.axes[A].at);
         }
         Ok(())
     }
 
     /// Another event comes before the pulses `raised` in the call (with a timer) end at
     /// `fall`: they stay high and fall as events, from `fall` on and by their deadline (see
-    /// [`Executor`]'s cost notes; the last pulse of a sequence exactly at `fall`). Returns
+    /// [`Executor`]'s cost notes; one with no sequence running exactly at `fall`). Returns
     /// `wake` with those deadlines.
     #[inline(never)]
-    fn leave_high(&mut self, raised: u8, fall: u32, mut wake: u32) -> u32 {
+    fn leave_high(&mut self, raised: u32, fall: u32, mut wake: u32) -> u32 {
         self.stats.fall_events += 1;
+        // Those whose sequence ended take their commands after their fall, in a later pass.
+        self.ended = 0;
         for (i, a) in self.axes.iter_mut().enumerate() {
             if raised & (1 << i) == 0 {
                 continue;
             }
             a.high = true;
             a.armed = true;
-            a.due_at = fall;
-            a.wake_at = if a.active {
-                let slack = a.next_at.wrapping_sub(fall).wrapping_sub(self.low_ticks) as i32;
-                fall.wrapping_add((slack.max(0) as u32) >> 1)
-            } else {
-                fall
-            };
-            earliest(&mut wake, a.wake_at);
+            a.fall_from = fall;
+            a.at = fall_deadline(a, fall, self.low_ticks);
+            earliest(&mut wake, a.at);
         }
         self.left_high |= raised;
         wake
     }
 
-    /// Stalled, or at the horizon: rest (idle), stall (underrun) or poll; `None` to go on.
+    /// Stalled, or at the horizon: rest (idle), stall (underrun) or poll; at a rest point
+    /// with work left the next event, a poll at the latest.
     #[inline(never)]
-    fn at_horizon(&mut self, now: u32, word: u32, h_exec: u32) -> Option<Wake> {
+    fn at_horizon(&mut self, now: u32, word: u32) -> Wake {
         let (h_gen, at_rest) = (word & !1, word & 1 != 0);
+        let h_exec = h_gen.wrapping_add(self.offset);
         let poll = now.wrapping_add(self.poll);
         // The events' wake-up without those beyond the horizon (unless it is a rest point).
         let mut wake = None;
         for a in &self.axes {
-            if a.high {
-                earliest_of(&mut wake, a.wake_at);
-            } else if a.active && (at_rest || !is_before(h_exec, a.next_at)) {
-                earliest_of(&mut wake, a.fire_at);
+            if a.high || (a.active && (at_rest || !is_before(h_exec, a.next_at))) {
+                earliest_of(&mut wake, a.at);
             }
         }
-        let polled = Some(Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll)));
+        let polled = Wake::At(wake.filter(|&w| is_before(w, poll)).unwrap_or(poll));
         if let State::Stalled(_) = self.state {
             return polled;
         }
@@ -545,9 +638,9 @@ impl<'q, const N: usize> Executor<'q, N> {
             if !self.axes.iter().any(|a| a.armed) && !self.q.has_data() {
                 self.state = State::Idle;
                 self.rest_gen = h_gen;
-                return Some(Wake::Idle);
+                return Wake::Idle;
             }
-            None
+            polled
         } else {
             self.state = State::Stalled(h_gen);
             self.q.set_stalled_at(word);
@@ -557,11 +650,9 @@ impl<'q, const N: usize> Executor<'q, N> {
         }
     }
 
-    /// Axis `A`: falling edge, next commands, rising edge; adds its next event to
-    /// `ev.wake`. With a timer a rising edge goes to `ev.raised` (and `ev.fall`) and the
-    /// axis is left as after its fall; the call ends the pulse or marks it high.
+    /// Every axis at `now` (no step later than `limit` if `LIMITED`).
     #[inline(always)]
-    fn axis<const A: usize, P: OutputPin, T: StepTimer>(
+    fn pass<const LIMITED: bool, P: OutputPin, T: StepTimer>(
         &mut self,
         now: u32,
         limit: u32,
@@ -569,39 +660,60 @@ impl<'q, const N: usize> Executor<'q, N> {
         timer: &mut T,
         ev: &mut Events,
     ) -> Result<(), P::Error> {
-        let a = &mut self.axes[A];
-        // Armed and not high, `due_at` is `fire_at`: then the step is known due here.
-        let mut due = false;
-        if a.armed {
-            if is_before(now, a.due_at) {
-                earliest(&mut ev.wake, a.wake_at);
+        self.axis::<0, LIMITED, P, T>(now, limit, pins, timer, ev)?;
+        self.axis::<1, LIMITED, P, T>(now, limit, pins, timer, ev)?;
+        self.axis::<2, LIMITED, P, T>(now, limit, pins, timer, ev)?;
+        self.axis::<3, LIMITED, P, T>(now, limit, pins, timer, ev)
+    }
+
+    /// Axis `A`: falling edge, next commands, rising edge; adds its next event to `ev.wake`.
+    /// With a timer a pin left high that may fall has fallen before ([`Executor::fall_due`]),
+    /// and a rising edge goes to `ev.raised` (and `ev.fall`) with the axis left as after its
+    /// fall: the call ends the pulse or marks it high. Without one STEP stays high, left to a
+    /// later call.
+    #[inline(always)]
+    fn axis<const A: usize, const LIMITED: bool, P: OutputPin, T: StepTimer>(
+        &mut self,
+        now: u32,
+        limit: u32,
+        pins: &mut Pins<P>,
+        timer: &mut T,
+        ev: &mut Events,
+    ) -> Result<(), P::Error> {
+        let mut armed = self.axes[A].armed;
+        if !T::WAITS && armed && self.axes[A].high {
+            // Without a timer STEP falls here, from its high time on (by `at`).
+            if is_before(now, self.axes[A].fall_from) {
+                earliest(&mut ev.wake, self.axes[A].at);
                 return Ok(());
             }
-            if a.high {
-                pins.step[A].set_low()?;
-                a.high = false;
-                a.armed = a.active;
-                self.left_high &= !(1 << A);
-            } else {
-                due = true;
-            }
+            self.fall(A, now, pins)?;
+            armed = self.axes[A].armed;
         }
-        // No sequence: the next commands (a direction change is set right away).
-        if !a.armed && (!self.q.q[A].ready() || !self.take_commands(A, now, pins)?) {
+        let a = &mut self.axes[A];
+        if armed {
+            if is_before(now, a.at) {
+                // Not yet (or STEP high till then).
+                earliest(&mut ev.wake, a.at);
+                return Ok(());
+            }
+        } else if !self.q.q[A].ready() || !self.take_commands(A, now, pins)? {
+            // No sequence: the next commands (a direction change is set right away).
+            return Ok(());
+        } else if is_before(now, self.axes[A].at) {
+            earliest(&mut ev.wake, self.axes[A].at);
             return Ok(());
         }
         let a = &mut self.axes[A];
-        if (!due && is_before(now, a.fire_at)) || is_before(limit, a.next_at) {
-            // Not yet, or beyond the horizon (which then wakes first).
-            a.due_at = a.fire_at;
-            a.wake_at = a.fire_at;
-            earliest(&mut ev.wake, a.fire_at);
+        let due = a.next_at;
+        if LIMITED && is_before(limit, due) {
+            // Beyond the horizon (which then wakes first).
+            earliest(&mut ev.wake, a.at);
             return Ok(());
         }
-        let due = a.next_at;
         if a.dir_fresh {
             a.dir_fresh = false;
-            if a.fire_at != due {
+            if a.at != due {
                 self.stats.late_dir_steps += 1;
             }
         }
@@ -616,49 +728,63 @@ impl<'q, const N: usize> Executor<'q, N> {
                 a.interval = a.interval.wrapping_add(a.add);
                 let next = due.wrapping_add(a.interval);
                 a.next_at = next;
-                a.fire_at = next;
-                a.due_at = next;
-                a.wake_at = next;
+                a.at = next;
                 earliest(&mut ev.wake, next);
             } else {
-                a.armed = false;
-                ev.ended |= 1 << A;
-                self.sequence_done(A, due);
+                match self.sequence_done::<A>(due) {
+                    SeqEnd::Chained => earliest(&mut ev.wake, self.axes[A].at),
+                    // Set when STEP has fallen ([`Executor::after_falls`]).
+                    SeqEnd::DirFirst => self.ended |= 1 << A,
+                    SeqEnd::Empty => {}
+                }
             }
             return Ok(());
         }
+        let fall = now.wrapping_add(self.high_ticks);
         let a = &mut self.axes[A];
-        a.high = true;
-        let fall_at = now.wrapping_add(self.high_ticks);
-        a.due_at = fall_at;
         a.remaining -= 1;
         if a.remaining != 0 {
             a.interval = a.interval.wrapping_add(a.add);
-            let next = due.wrapping_add(a.interval);
-            a.next_at = next;
-            a.fire_at = next;
-            // Spare time between the shortest pulse and the shortest low time before the
-            // next step: STEP falls by the middle of it.
-            let slack = next.wrapping_sub(fall_at).wrapping_sub(self.low_ticks) as i32;
-            a.wake_at = fall_at.wrapping_add((slack.max(0) as u32) >> 1);
+            a.next_at = due.wrapping_add(a.interval);
         } else {
-            // The next commands (maybe a direction change) are taken when STEP falls.
-            a.wake_at = fall_at;
-            self.sequence_done(A, due);
+            self.sequence_done::<A>(due);
         }
-        earliest(&mut ev.wake, self.axes[A].wake_at);
+        let a = &mut self.axes[A];
+        a.high = true;
+        a.armed = true;
+        a.fall_from = fall;
+        a.at = fall_deadline(a, fall, self.low_ticks);
+        earliest(&mut ev.wake, a.at);
         Ok(())
     }
 
-    /// The last step of `axis`' sequence (due at `due`) is out.
+    /// The last step of axis `A`'s sequence (due at `due`) is out: books it and takes the next
+    /// commands up to the next sequence unless a direction change comes first (waits and
+    /// sequences set no pin, so they need not wait for STEP to fall).
     #[inline(never)]
-    fn sequence_done(&mut self, axis: usize, due: u32) {
-        let a = &mut self.axes[axis];
-        a.active = false;
+    fn sequence_done<const A: usize>(&mut self, due: u32) -> SeqEnd {
+        let a = &mut self.axes[A];
         a.reference = due;
-        let n = a.count as i64;
-        self.done_steps[axis] += n as u64;
-        self.done_position[axis] += if a.positive { n } else { -n };
+        self.done[A][a.positive as usize] += a.count as u64;
+        let end = loop {
+            match self.q.dequeue(A) {
+                None => break SeqEnd::Empty,
+                Some(StepCmd::Dir(positive)) => {
+                    self.axes[A].held_dir = Some(positive);
+                    break SeqEnd::DirFirst;
+                }
+                // A sequence sets `active` (and `armed`) again.
+                Some(cmd) => {
+                    if self.axes[A].load(cmd, self.setup_ticks) {
+                        return SeqEnd::Chained;
+                    }
+                }
+            }
+        };
+        let a = &mut self.axes[A];
+        a.active = false;
+        a.armed = false;
+        end
     }
 
     /// Takes the commands of `axis` (no sequence running) at `now` up to the next sequence;
@@ -688,30 +814,28 @@ impl<'q, const N: usize> Executor<'q, N> {
         pins: &mut Pins<P>,
     ) -> Result<bool, P::Error> {
         let a = &mut self.axes[axis];
-        match cmd {
-            StepCmd::Dir(positive) => {
-                pins.dir[axis].set_state(PinState::from(positive != self.invert[axis]))?;
-                a.positive = positive;
-                a.dir_fresh = true;
-                a.dir_at = now;
-            }
-            StepCmd::Wait(ticks) => a.reference = a.reference.wrapping_add(ticks),
-            StepCmd::Steps { interval, count, add } => {
-                if count > 0 {
-                    a.interval = interval;
-                    a.add = add as u32;
-                    a.remaining = count;
-                    a.count = count;
-                    a.next_at = a.reference.wrapping_add(interval);
-                    a.fire_at = a.fire_time(self.setup_ticks);
-                    a.active = true;
-                    a.armed = true;
-                    return Ok(true);
-                }
-            }
+        if let StepCmd::Dir(positive) = cmd {
+            set_dir(a, &mut pins.dir[axis], positive, self.invert[axis], now)?;
+            return Ok(false);
         }
-        Ok(false)
+        Ok(a.load(cmd, self.setup_ticks))
     }
+}
+
+/// Sets DIR of `a` to `positive` at `now` (`pin` high for positive unless `invert`).
+#[inline]
+fn set_dir<P: OutputPin>(
+    a: &mut AxisExec,
+    pin: &mut P,
+    positive: bool,
+    invert: bool,
+    now: u32,
+) -> Result<(), P::Error> {
+    pin.set_state(PinState::from(positive != invert))?;
+    a.positive = positive;
+    a.dir_fresh = true;
+    a.dir_at = now;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -1011,6 +1135,113 @@ mod tests {
         let s = e.stats();
         assert!(s.fall_events >= 80, "{s:?}");
         assert_eq!(s.steps, [80, 80, 15, 0]);
+    }
+
+    /// Queues `seqs` of `commanded` for `axis`, a direction before a sequence only where
+    /// `dirs` changes (and before the first), so sequences of one direction follow each
+    /// other directly.
+    fn queue_runs<const N: usize>(
+        p: &mut crate::step::StepProducer<'_, N>,
+        axis: usize,
+        seqs: &[(u32, u32, u16, i32)],
+        dirs: &[bool],
+    ) {
+        for (i, (&(wait, interval, count, add), &dir)) in seqs.iter().zip(dirs).enumerate() {
+            if wait > 0 {
+                p.enqueue(axis, StepCmd::Wait(wait)).unwrap();
+            }
+            if i == 0 || dirs[i - 1] != dir {
+                p.enqueue(axis, StepCmd::Dir(dir)).unwrap();
+            }
+            p.enqueue(axis, StepCmd::Steps { interval, count, add }).unwrap();
+        }
+    }
+
+    #[test]
+    fn sequences_follow_at_the_last_step_and_directions_at_its_fall() {
+        let cfg = StepConfig::default();
+        let high = cfg.step_high_ticks() as u64;
+        let rev = cfg.min_reversal_ticks();
+        // X: runs of one direction (one after a wait), then reversals at the shortest gap.
+        let x = [
+            (0, 1_000, 5, 0),
+            (0, 900, 4, 10),
+            (2_000, 800, 3, 0),
+            (0, rev, 5, 0),
+            (0, rev, 3, 7),
+            (0, 600, 2, 0),
+        ];
+        let x_dirs = [true, true, true, false, true, true];
+        // Y: X's steps 30 ticks later (inside X's pulses), so every pulse is crowded.
+        let mut y = x;
+        y[0].0 = 30;
+        let x_steps: u64 = x.iter().map(|s| s.2 as u64).sum();
+        let signed: i64 =
+            x.iter().zip(&x_dirs).map(|(s, &d)| if d { 1 } else { -1 } * s.2 as i64).sum();
+        for (crowded, timed) in [(false, true), (true, true), (false, false), (true, false)] {
+            let board = SimBoard::new(SimTiming::from_config(&cfg), 0, Edges::default());
+            let mut pins = board.pins();
+            let mut q: StepQueue<32> = StepQueue::new();
+            let (mut p, c) = q.split();
+            let mut e = Executor::new(&cfg, c);
+            queue_runs(&mut p, 0, &x, &x_dirs);
+            if crowded {
+                queue_runs(&mut p, 1, &y, &x_dirs);
+            }
+            p.publish(pack_horizon(100_000, true));
+            let mut calls = 0u32;
+            loop {
+                calls += 1;
+                let w = if timed {
+                    e.on_timer_with(board.now_u32(), &mut pins, &mut &board).unwrap()
+                } else {
+                    e.on_timer(board.now_u32(), &mut pins).unwrap()
+                };
+                match w {
+                    Wake::At(t) => board.advance_to_u32(t),
+                    Wake::Idle => break,
+                }
+            }
+            let what = format!("crowded {crowded}, timed {timed}");
+            assert_eq!(board.violation_count(), 0, "{what}: {:?}", board.first_violation());
+            let t0 = cfg.start_lead_ticks as u64;
+            let edges = board.observer();
+            for (axis, seqs) in [(0u8, &x), (1, &y)].into_iter().take(1 + crowded as usize) {
+                let pulses = edges.pulses(axis);
+                let rises: std::vec::Vec<u64> = pulses.iter().map(|p| p.0 - t0).collect();
+                assert_eq!(rises, commanded(seqs), "{what}: axis {axis}, every rise at its tick");
+                for &(r, f) in &pulses {
+                    assert!(f - r >= high, "{what}: axis {axis} pulse at {r}");
+                    if timed && !crowded {
+                        assert_eq!(f - r, high, "{what}: the pulse ends in its call");
+                    }
+                }
+                // DIR changes only when the last pulse before it has fallen, before the next
+                // rise (the board checks the setup time).
+                for &(pin, _, tick) in &edges.0 {
+                    if pin == crate::sim::PinId::Dir(axis) && tick > t0 {
+                        let before = pulses.iter().rfind(|p| p.0 < tick).unwrap();
+                        assert!(before.1 <= tick, "{what}: DIR of {axis} at {tick} during a pulse");
+                        if !crowded {
+                            assert_eq!(before.1, tick, "{what}: DIR of {axis} at the fall");
+                        }
+                    }
+                }
+            }
+            let mut want = [x_steps, 0, 0, 0];
+            let mut pos = [signed, 0, 0, 0];
+            if crowded {
+                want[1] = x_steps;
+                pos[1] = signed;
+            }
+            assert_eq!(e.stats().steps, want, "{what}");
+            assert_eq!(e.position_steps(), pos, "{what}");
+            if timed && !crowded {
+                // One call per step, the start and the rest: the next sequence and a
+                // direction change need no call of their own.
+                assert!(calls as u64 <= x_steps + 2, "{what}: {calls} calls");
+            }
+        }
     }
 
     /// A board clock that moves on by `per_read` ticks at every read, as a real one does
