@@ -37,6 +37,7 @@ impl Angle {
     }
 
     /// `(t, u)` of a point: line key and position along the line.
+    #[inline]
     pub fn key(self, p: Point2) -> (i64, i64) {
         let (x, y) = (i64::from(p.x), i64::from(p.y));
         match self {
@@ -301,17 +302,27 @@ pub fn line_spans<P: Iterator<Item = Point2>>(
     let mut n = 0;
     for mut pts in loops {
         let Some(first) = pts.next() else { continue };
-        let mut p = first;
-        // Every edge, the closing one last.
-        for q in pts.chain(core::iter::once(first)) {
-            let (a, b) = (angle.key(p), angle.key(q));
-            p = q;
-            if a.0.min(b.0) <= t && t < a.0.max(b.0) {
+        // Every edge `p -> q`, the closing one last. It crosses `t` when `min <= t < max` of
+        // its ends' `t`: one end at or below `t` (`low`), the other above. A point's `t` is
+        // computed once; `u` only at crossings.
+        let first_low = angle.key(first).0 <= t;
+        let (mut p, mut p_low) = (first, first_low);
+        loop {
+            let (q, q_low, closing) = match pts.next() {
+                Some(q) => (q, angle.key(q).0 <= t, false),
+                None => (first, first_low, true),
+            };
+            if p_low != q_low {
                 let slot = out.get_mut(n).ok_or(Buffer::WindowSpans)?;
-                let dir = if b.0 > a.0 { 1 } else { -1 };
-                *slot = Span { u0: cross_u(a, b, t) as i32, u1: dir };
+                // Towards larger `t` when it starts at or below.
+                let dir = if p_low { 1 } else { -1 };
+                *slot = Span { u0: cross_u(angle.key(p), angle.key(q), t) as i32, u1: dir };
                 n += 1;
             }
+            if closing {
+                break;
+            }
+            (p, p_low) = (q, q_low);
         }
     }
     let out = &mut out[..n];
