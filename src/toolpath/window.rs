@@ -16,7 +16,7 @@
 
 use crate::geom::Point2;
 
-use super::scan::Angle;
+use super::scan::{Angle, ScanLoop};
 use super::Buffer;
 
 /// Blocks a window can hold: one per layer, `bottom + top + 2` layers at most (the layers
@@ -219,7 +219,8 @@ fn delta(prev: Point2, p: Point2) -> Option<u32> {
 }
 
 /// Words of a stored loop's header: its points, island, words of its points and the
-/// packed `t` range of its points for [`Angle::D45`] and [`Angle::D135`] ([`pack_range`]).
+/// packed `t` range of its points for [`Angle::D45`] and [`Angle::D135`] (in 32 `t` units,
+/// see [`LoopPoints::t_range`]).
 pub const LOOP_HEADER: usize = 5;
 
 /// `t` ranges in loop headers are in units of `2^T_SHIFT` `t` (32 `t`, 23 um), rounded
@@ -382,14 +383,46 @@ impl<'a> StoredRings<'a> {
         data.get(1).map_or(0, |&w| w as u16)
     }
 
-    /// The points of the loops that may cross line `t` of `angle` (their header's range
-    /// holds `t`); the others are skipped undecoded.
-    pub fn near_line(self, angle: Angle, t: i64) -> impl Iterator<Item = LoopPoints<'a>> {
-        self.filter_map(move |(_, pts)| {
-            let (lo, hi) = pts.t_range(angle);
+    /// The loops that may cross line `t` of `angle` (their header's range holds `t`), for
+    /// [`line_spans`](super::scan::line_spans); the others are skipped undecoded.
+    pub fn near_line(self, angle: Angle, t: i64) -> NearLine<'a> {
+        // `t` in range units, rounded down: `lo x 32 <= t` is `lo <= tq` and `t < hi x 32` is
+        // `tq < hi`; clamped to `i16` (the saturated bounds compare as unbounded).
+        let tq = (t >> T_SHIFT).clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16;
+        NearLine { rings: self, word: range_word(angle), tq }
+    }
+}
+
+/// The loops of a stored layer that may cross one line ([`StoredRings::near_line`]).
+pub struct NearLine<'a> {
+    rings: StoredRings<'a>,
+    /// The line direction's range word in a loop header, and the line's `t` in its units.
+    word: usize,
+    tq: i16,
+}
+
+impl<'a> Iterator for NearLine<'a> {
+    type Item = LoopCut<'a>;
+
+    fn next(&mut self) -> Option<LoopCut<'a>> {
+        let r = &mut self.rings;
+        while r.left > 0 {
+            r.left -= 1;
+            let head = r.at;
+            let h = |i: usize| r.data.get(head + i).copied();
+            let (n, words, range) = (h(0)?, h(2)? as usize, h(self.word)?);
+            r.at = head.checked_add(LOOP_HEADER + words)?;
             // An edge crosses `t` when `min <= t < max` of its ends' `t`.
-            (lo <= t && t < hi).then_some(pts)
-        })
+            let (lo, hi) = (range as u16 as i16, (range >> 16) as u16 as i16);
+            if n >= 3 && lo <= self.tq && (self.tq < hi || hi == i16::MAX) {
+                let range = [h(range_word(Angle::D45))?, h(range_word(Angle::D135))?];
+                let words = r.data.sub(head + LOOP_HEADER, words);
+                let pts =
+                    LoopPoints { words, range, left: n, first: true, last: Point2::new(0, 0) };
+                return Some(LoopCut(pts));
+            }
+        }
+        None
     }
 }
 
@@ -412,6 +445,68 @@ impl<'a> Iterator for StoredRings<'a> {
             }
         }
         None
+    }
+}
+
+/// A stored loop that may cross a line ([`NearLine`]): cut by
+/// [`line_spans`](super::scan::line_spans) straight from its words.
+pub struct LoopCut<'a>(pub LoopPoints<'a>);
+
+impl LoopCut<'_> {
+    /// [`ScanLoop::crossing_edges`] with `t` of a point `y - x` (`D45`) or `y + x`.
+    #[inline(always)]
+    fn walk<const D45: bool>(
+        self,
+        t: i64,
+        mut f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        let key = |p: Point2| {
+            let (x, y) = (i64::from(p.x), i64::from(p.y));
+            if D45 {
+                y - x
+            } else {
+                y + x
+            }
+        };
+        let mut pts = self.0;
+        let Some(first) = pts.next() else { return Ok(()) };
+        let first_low = key(first) <= t;
+        let (mut p, mut p_low) = (first, first_low);
+        // The later points, as `LoopPoints::next` reads them (a truncated loop ends early).
+        while pts.left > 0 {
+            pts.left -= 1;
+            let Some(w) = pts.word() else { break };
+            let q = if w != FAR {
+                let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
+                Point2::new(p.x.wrapping_add(dx), p.y.wrapping_add(dy))
+            } else {
+                let (Some(x), Some(y)) = (pts.word(), pts.word()) else { break };
+                Point2::new(x as i32, y as i32)
+            };
+            let q_low = key(q) <= t;
+            if p_low != q_low {
+                f(p, q)?;
+            }
+            (p, p_low) = (q, q_low);
+        }
+        if p_low != first_low {
+            f(p, first)?;
+        }
+        Ok(())
+    }
+}
+
+impl ScanLoop for LoopCut<'_> {
+    fn crossing_edges(
+        self,
+        angle: Angle,
+        t: i64,
+        f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        match angle {
+            Angle::D45 => self.walk::<true>(t, f),
+            Angle::D135 => self.walk::<false>(t, f),
+        }
     }
 }
 
