@@ -453,8 +453,10 @@ impl<'a> Iterator for StoredRings<'a> {
 pub struct LoopCut<'a>(pub LoopPoints<'a>);
 
 impl LoopCut<'_> {
-    /// [`ScanLoop::crossing_edges`] with `t` of a point `y - x` (`D45`) or `y + x`.
-    #[inline(always)]
+    /// [`ScanLoop::crossing_edges`] with `t` of a point `y - x` (`D45`) or `y + x`. Not
+    /// inlined: its loop keeps its state in registers (inlined into the infill pass, it
+    /// spilled to the stack).
+    #[inline(never)]
     fn walk<const D45: bool>(
         self,
         t: i64,
