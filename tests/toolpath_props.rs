@@ -11,6 +11,8 @@ use slice_support::{cuboid, to_um};
 use strata::geom::Point2;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::slice::{Layer, LayerRepairs, LoopInfo};
+use strata::toolpath::scan::{line_spans, Angle, Span};
+use strata::toolpath::window::{Encoder, Fifo, StoredRings};
 use strata::toolpath::{Buffer, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 use toolpath_support::run_cfg;
 
@@ -299,5 +301,106 @@ fn self_intersecting_loops_with_repeated_corners_close_every_chain() {
         })
         .unwrap()
         .join()
+        .unwrap();
+}
+
+/// One loop for the window scan: up to 14 points around a centre, spread from 3 mm (every
+/// point an offset) to 1.2 m (escapes, and `t` beyond the header's packed range).
+fn scan_loop() -> impl Strategy<Value = Vec<Point2>> {
+    (prop::sample::select(vec![3_000i32, 60_000, 400_000, 1_200_000]), any::<(i16, i16)>())
+        .prop_flat_map(|(spread, (cx, cy))| {
+            let c = (i32::from(cx) * 16, i32::from(cy) * 16);
+            prop::collection::vec((-spread..=spread, -spread..=spread), 0..14).prop_map(
+                move |pts| pts.into_iter().map(|(x, y)| Point2::new(c.0 + x, c.1 + y)).collect(),
+            )
+        })
+}
+
+/// The spans along line `t` of the loops (those of at least three points), from every edge
+/// of every loop: crossings where `min(t(p), t(q)) <= t < max`, at `u` rounded to nearest
+/// (halves away from zero), sorted by `(u, dir)`, then the runs of non-zero winding.
+fn reference_spans(loops: &[Vec<Point2>], angle: Angle, t: i64) -> (Vec<(i32, i32)>, usize) {
+    let key = |p: Point2| {
+        let (x, y) = (i64::from(p.x), i64::from(p.y));
+        match angle {
+            Angle::D45 => (y - x, x + y),
+            Angle::D135 => (x + y, y - x),
+        }
+    };
+    let mut cross = Vec::new();
+    for pts in loops.iter().filter(|l| l.len() >= 3) {
+        for (i, &p) in pts.iter().enumerate() {
+            let ((tp, up), (tq, uq)) = (key(p), key(pts[(i + 1) % pts.len()]));
+            if tp.min(tq) <= t && t < tp.max(tq) {
+                let (num, den) = (i128::from(uq - up) * i128::from(t - tp), i128::from(tq - tp));
+                let mag = (2 * num.abs() + den.abs()) / (2 * den.abs());
+                let d = if (num < 0) != (den < 0) { -mag } else { mag };
+                cross.push(((i128::from(up) + d) as i32, if tq > tp { 1 } else { -1 }));
+            }
+        }
+    }
+    cross.sort();
+    let (mut spans, mut w, mut start) = (Vec::new(), 0, 0);
+    for &(u, dir) in &cross {
+        if w == 0 {
+            start = u;
+        }
+        w += dir;
+        if w == 0 && u > start {
+            spans.push((start, u));
+        }
+    }
+    (spans, cross.len())
+}
+
+#[test]
+fn window_line_spans_skipping_loops_match_every_edge_of_every_loop() {
+    let strategy = (
+        prop::collection::vec(scan_loop(), 0..7),
+        0usize..2048,
+        prop::sample::select(vec![1i64, 636, 1414, 40_000]),
+        any::<(bool, u16, i32)>(),
+    );
+    let mut runner = TestRunner::new_with_rng(
+        Config::with_cases(400),
+        TestRng::deterministic_rng(RngAlgorithm::ChaCha),
+    );
+    runner
+        .run(&strategy, |(loops, skip, step, (d45, pick, line))| {
+            // The loops stored as the window stores a layer, from anywhere in its storage.
+            let mut fifo = Fifo::<u32, 2048>::new(0, Buffer::RingPoints);
+            fifo.reserve(skip).unwrap();
+            fifo.commit(0, skip);
+            fifo.pop();
+            let mut enc = Encoder::new(fifo.reserve(2048).unwrap());
+            for (island, pts) in loops.iter().enumerate() {
+                enc.begin(island as u16).unwrap();
+                pts.iter().for_each(|&p| enc.push(p).unwrap());
+                enc.end(true);
+            }
+            let words = enc.finish(loops.len() as u32, loops.len() as u16);
+            fifo.commit(1, words);
+            let data = fifo.data(&fifo.find(1).unwrap());
+            let angle = if d45 { Angle::D45 } else { Angle::D135 };
+            // Lines through vertices (step 1), near them, and anywhere.
+            let vertex_t: Vec<i64> = loops.iter().flatten().map(|&p| angle.key(p).0).collect();
+            let mut lines = vec![i64::from(line / 4096)];
+            if let Some(&t) = vertex_t.get(usize::from(pick) % vertex_t.len().max(1)) {
+                let on = t.div_euclid(step);
+                lines.extend([on - 1, on, on + 1]);
+            }
+            for line in lines {
+                let line = line as i32;
+                let t = i64::from(line) * step;
+                let mut out = [Span::default(); 128];
+                let near = StoredRings::new(data).near_line(angle, t);
+                let (k, used) = line_spans(near, angle, line, step, &mut out).unwrap();
+                let got: Vec<(i32, i32)> = out[..k].iter().map(|s| (s.u0, s.u1)).collect();
+                let (want, crossings) = reference_spans(&loops, angle, t);
+                prop_assert_eq!(&got, &want, "line {} step {}", line, step);
+                prop_assert_eq!(used, crossings);
+            }
+            Ok(())
+        })
         .unwrap();
 }

@@ -10,8 +10,8 @@
 //! `strata::printer::board`. `embodier_asc.stl` and `xyz_20mm_cube.stl` print end to end on
 //! QEMU (host/tests/hil_qemu.rs). What the larger sample models need beyond them (host `cargo
 //! run --release --example toolpath_report`): embodier_hotend_v2 373 active triangles, CROSS
-//! 512, PATH 1010, RING 1928 and about 1,100 moves in its largest layer; embodier_LM8UU_8p2pi
-//! 283 active triangles, PTS 690 (1,740 for its thin-wall measurement), RING 1600.
+//! 512, PATH 1010, RING 2090 and about 1,100 moves in its largest layer; embodier_LM8UU_8p2pi
+//! 283 active triangles, PTS 690 (1,740 for its thin-wall measurement), RING 1654.
 //!
 //! The planner lookahead `P` must stay 32: the host simulation (`strata simulate`, the HIL
 //! test) plans with 32 moves of lookahead, and the per-layer hashes compare step commands.

@@ -511,7 +511,8 @@ impl<'a> Skin<'a> {
         let mut at = 0;
         for (c, data) in layers {
             let out = self.spans.get_mut(at..).unwrap_or(&mut []);
-            let rings = StoredRings::new(*data).map(|(_, pts)| pts);
+            // Only the loops whose range holds the line are decoded.
+            let rings = StoredRings::new(*data).near_line(self.angle, i64::from(line) * self.step);
             let (n, used) = line_spans(rings, self.angle, line, self.step, out)?;
             self.peak = self.peak.max(at + used);
             *c = Cursor { start: at, idx: at, end: at + n };

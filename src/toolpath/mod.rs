@@ -67,7 +67,8 @@
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
 //!   two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
-//!   `bottom + top + 2` layers, about a word a point: [`window::StoredRings`]) and
+//!   `bottom + top + 2` layers, about a word a point and five a loop:
+//!   [`window::StoredRings`]) and
 //!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
 //!   filled);
 //! - about 1 KB of fixed state (settings, counters, the window's block table).
@@ -503,7 +504,7 @@ pub struct ToolpathNeeds {
     pub path_points: u32,
     /// Paths of one layer (their records are in `path_points`).
     pub paths: u32,
-    /// Words of the contours stored in the window (about one a point): `RING`.
+    /// Words of the contours stored in the window (about one a point, five a loop): `RING`.
     pub ring_points: u32,
     /// Crossings of the window's layers with one scanline (their spans): `SPANS`.
     pub spans: u32,

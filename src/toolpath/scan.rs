@@ -37,6 +37,7 @@ impl Angle {
     }
 
     /// `(t, u)` of a point: line key and position along the line.
+    #[inline]
     pub fn key(self, p: Point2) -> (i64, i64) {
         let (x, y) = (i64::from(p.x), i64::from(p.y));
         match self {
@@ -284,35 +285,71 @@ pub struct Span {
     pub u1: i32,
 }
 
+/// A closed loop as [`line_spans`] cuts it: any iterator of its points, or a type with a
+/// faster walk of its own (the window's stored loops,
+/// [`NearLine`](super::window::NearLine)).
+pub trait ScanLoop {
+    /// Calls `f(p, q)` for every edge `p -> q` of the loop (the closing one last) that
+    /// crosses line `t` of `angle`: `min <= t < max` of its ends' `t`, i.e. one end at or
+    /// below `t` and the other above.
+    fn crossing_edges(
+        self,
+        angle: Angle,
+        t: i64,
+        f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer>;
+}
+
+impl<I: Iterator<Item = Point2>> ScanLoop for I {
+    fn crossing_edges(
+        mut self,
+        angle: Angle,
+        t: i64,
+        mut f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        let Some(first) = self.next() else { return Ok(()) };
+        // A point's `t` is computed once: `low` when at or below `t`.
+        let first_low = angle.key(first).0 <= t;
+        let (mut p, mut p_low) = (first, first_low);
+        for q in self {
+            let q_low = angle.key(q).0 <= t;
+            if p_low != q_low {
+                f(p, q)?;
+            }
+            (p, p_low) = (q, q_low);
+        }
+        if p_low != first_low {
+            f(p, first)?;
+        }
+        Ok(())
+    }
+}
+
 /// Writes to `out` the intervals of non-zero winding of `loops` along line `line` (`t = line
 /// x step`) in increasing `u`, empty ones skipped, and returns their number and the number
 /// of crossings: the same intervals as [`crossings`], [`sort_by_line`] and [`intervals`]
 /// give on that line. `out` must hold every crossing of the line (it is their scratch
 /// first): more is [`Buffer::WindowSpans`].
-pub fn line_spans<P: Iterator<Item = Point2>>(
-    loops: impl Iterator<Item = P>,
+pub fn line_spans<L: ScanLoop>(
+    loops: impl Iterator<Item = L>,
     angle: Angle,
     line: i32,
     step: i64,
     out: &mut [Span],
 ) -> Result<(usize, usize), Buffer> {
-    // Crossings as (u, dir) first.
+    // Crossings as (u, dir) first; `u` computed only at crossings.
     let t = i64::from(line) * step;
     let mut n = 0;
-    for mut pts in loops {
-        let Some(first) = pts.next() else { continue };
-        let mut p = first;
-        // Every edge, the closing one last.
-        for q in pts.chain(core::iter::once(first)) {
+    for l in loops {
+        l.crossing_edges(angle, t, |p, q| {
+            let slot = out.get_mut(n).ok_or(Buffer::WindowSpans)?;
             let (a, b) = (angle.key(p), angle.key(q));
-            p = q;
-            if a.0.min(b.0) <= t && t < a.0.max(b.0) {
-                let slot = out.get_mut(n).ok_or(Buffer::WindowSpans)?;
-                let dir = if b.0 > a.0 { 1 } else { -1 };
-                *slot = Span { u0: cross_u(a, b, t) as i32, u1: dir };
-                n += 1;
-            }
-        }
+            // Towards larger `t` or not.
+            let dir = if b.0 > a.0 { 1 } else { -1 };
+            *slot = Span { u0: cross_u(a, b, t) as i32, u1: dir };
+            n += 1;
+            Ok(())
+        })?;
     }
     let out = &mut out[..n];
     out.sort_unstable_by_key(|c| (c.u0, c.u1));

@@ -3,11 +3,12 @@
 //! Skins need to know, for layer `L`, the regions of the `bottom` layers below and the `top`
 //! layers above. The slicer emits layers in order, so the toolpath of layer `L` is built when
 //! layer `L + top` arrives; until then `L`'s simplified contours wait here (a [`Fifo`] of
-//! words, one block per layer in the [`StoredRings`] layout: about one word a point), and
-//! they stay for `bottom`
-//! more layers: the skin detection cuts them with each scanline when it needs them
-//! ([`scan::line_spans`](super::scan::line_spans)), so no per-line data of the window is
-//! stored.
+//! words, one block per layer in the [`StoredRings`] layout: about one word a point and five
+//! a loop), and they stay for `bottom` more layers: the skin detection cuts them with each
+//! scanline when it needs them ([`scan::line_spans`](super::scan::line_spans)), so no
+//! per-line data of the window is stored. A loop's header holds the range of its points'
+//! line keys `t` for both line directions and its length in words, so a scanline skips the
+//! loops it cannot cross without decoding them ([`StoredRings::near_line`]).
 //!
 //! A [`Fifo`] is circular: a block that reaches the end of the array goes on at 0, so it
 //! holds whatever fits in its free room (no fragmentation: the largest use is the capacity
@@ -15,6 +16,7 @@
 
 use crate::geom::Point2;
 
+use super::scan::{Angle, ScanLoop};
 use super::Buffer;
 
 /// Blocks a window can hold: one per layer, `bottom + top + 2` layers at most (the layers
@@ -51,6 +53,17 @@ impl<'a, T> Parts<'a, T> {
         match i.checked_sub(self.a.len()) {
             None => self.a.get(i),
             Some(j) => self.b.get(j),
+        }
+    }
+
+    /// Elements `start..start + len` (those that exist).
+    pub fn sub(&self, start: usize, len: usize) -> Self {
+        let end = start.saturating_add(len);
+        let (a, b) = (self.a.len(), self.b.len());
+        let part = |s: &'a [T], lo: usize, hi: usize| s.get(lo.min(hi)..hi).unwrap_or(&[]);
+        Self {
+            a: part(self.a, start.min(a), end.min(a)),
+            b: part(self.b, start.saturating_sub(a).min(b), end.saturating_sub(a).min(b)),
         }
     }
 }
@@ -205,6 +218,40 @@ fn delta(prev: Point2, p: Point2) -> Option<u32> {
     Some(u32::from(d(prev.x, p.x)? as u16) | u32::from(d(prev.y, p.y)? as u16) << 16)
 }
 
+/// Words of a stored loop's header: its points, island, words of its points and the
+/// packed `t` range of its points for [`Angle::D45`] and [`Angle::D135`] (in 32 `t` units,
+/// see [`LoopPoints::t_range`]).
+pub const LOOP_HEADER: usize = 5;
+
+/// `t` ranges in loop headers are in units of `2^T_SHIFT` `t` (32 `t`, 23 um), rounded
+/// outwards.
+const T_SHIFT: u32 = 5;
+
+/// Header word of a loop whose points' `t` lie in `lo..=hi`: `lo` rounded down and `hi`
+/// rounded up to [`T_SHIFT`] units, as `i16`s (`lo + hi x 2^16`); a bound beyond `i16`
+/// saturates to `i16::MIN` (no lower bound) or `i16::MAX` (no upper bound).
+fn pack_range(lo: i64, hi: i64) -> u32 {
+    let sat = |v: i64| v.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16;
+    let hi_up = (hi >> T_SHIFT) + i64::from(hi & ((1 << T_SHIFT) - 1) != 0);
+    u32::from(sat(lo >> T_SHIFT)) | u32::from(sat(hi_up)) << 16
+}
+
+/// Bounds `(lo, hi)` in `t` of a [`pack_range`] word: every point has `lo <= t <= hi`.
+fn unpack_range(w: u32) -> (i64, i64) {
+    let (lo, hi) = (w as u16 as i16, (w >> 16) as u16 as i16);
+    let lo = if lo == i16::MIN { i64::MIN } else { i64::from(lo) << T_SHIFT };
+    let hi = if hi == i16::MAX { i64::MAX } else { i64::from(hi) << T_SHIFT };
+    (lo, hi)
+}
+
+/// Index of `angle`'s range word in a loop header.
+fn range_word(angle: Angle) -> usize {
+    match angle {
+        Angle::D45 => 3,
+        Angle::D135 => 4,
+    }
+}
+
 /// Writes one stored layer in the [`StoredRings`] layout into a reserved block.
 pub struct Encoder<'a> {
     out: PartsMut<'a, u32>,
@@ -213,12 +260,14 @@ pub struct Encoder<'a> {
     ring: usize,
     n: u32,
     last: Point2,
+    /// Smallest and largest `t` of the loop's points, [`Angle::D45`] then [`Angle::D135`].
+    t: [(i64, i64); 2],
 }
 
 impl<'a> Encoder<'a> {
     /// A layer in `out` (its header first).
     pub fn new(out: PartsMut<'a, u32>) -> Self {
-        Self { out, at: 2, ring: 2, n: 0, last: Point2::new(0, 0) }
+        Self { out, at: 2, ring: 2, n: 0, last: Point2::new(0, 0), t: [(0, 0); 2] }
     }
 
     fn word(&mut self, w: u32) -> Result<(), Buffer> {
@@ -230,8 +279,12 @@ impl<'a> Encoder<'a> {
     /// Starts a loop of `island`.
     pub fn begin(&mut self, island: u16) -> Result<(), Buffer> {
         (self.ring, self.n) = (self.at, 0);
-        self.word(0)?;
-        self.word(u32::from(island))
+        self.t = [(i64::MAX, i64::MIN); 2];
+        // Points, words and ranges are written by `end`.
+        for w in [0, u32::from(island), 0, 0, 0] {
+            self.word(w)?;
+        }
+        Ok(())
     }
 
     /// Appends a point to the loop.
@@ -246,6 +299,10 @@ impl<'a> Encoder<'a> {
                 self.word(p.y as u32)?;
             }
         }
+        for (r, a) in self.t.iter_mut().zip([Angle::D45, Angle::D135]) {
+            let t = a.key(p).0;
+            *r = (r.0.min(t), r.1.max(t));
+        }
         self.last = p;
         self.n += 1;
         Ok(())
@@ -254,8 +311,13 @@ impl<'a> Encoder<'a> {
     /// Ends the loop: kept with its points if `keep`, else removed.
     pub fn end(&mut self, keep: bool) {
         if keep {
-            if let Some(h) = self.out.get_mut(self.ring) {
-                *h = self.n;
+            let words = (self.at - self.ring - LOOP_HEADER) as u32;
+            let [(l45, h45), (l135, h135)] = self.t;
+            let head = [self.n, words, pack_range(l45, h45), pack_range(l135, h135)];
+            for (i, w) in [0, 2, 3, 4].into_iter().zip(head) {
+                if let Some(h) = self.out.get_mut(self.ring + i) {
+                    *h = w;
+                }
             }
         } else {
             self.at = self.ring;
@@ -284,7 +346,7 @@ pub struct LoopWords {
 impl Default for LoopWords {
     /// A loop without points: its header.
     fn default() -> Self {
-        Self { prev: None, words: 2 }
+        Self { prev: None, words: LOOP_HEADER }
     }
 }
 
@@ -297,11 +359,13 @@ impl LoopWords {
 }
 
 /// The loops of one stored layer, in words: `(loops, islands)`, then every loop is a
-/// header `(points, island)`, its first point (x, y) and every later point as its offset
-/// from the previous one (`dx + dy x 2^16`, both `i16`) or, when an offset does not fit,
-/// the escape word `0x8000_8000` and the point (x, y): one word a point on a typical loop
-/// (simplified points are under 33 mm apart). Yields `(island, points)` for the loops of
-/// at least three points.
+/// [`LOOP_HEADER`] `(points, island, words of its points, t range at 45 degrees, t range at
+/// 135 degrees)`, its first point (x, y) and every later point as its offset from the
+/// previous one (`dx + dy x 2^16`, both `i16`) or, when an offset does not fit, the escape
+/// word `0x8000_8000` and the point (x, y): one word a point on a typical loop (simplified
+/// points are under 33 mm apart) and five a loop. Yields `(island, points)` for the loops of
+/// at least three points; the next loop is found from the words, without walking the
+/// points.
 pub struct StoredRings<'a> {
     data: Parts<'a, u32>,
     at: usize,
@@ -318,6 +382,48 @@ impl<'a> StoredRings<'a> {
     pub fn islands(data: Parts<'_, u32>) -> u16 {
         data.get(1).map_or(0, |&w| w as u16)
     }
+
+    /// The loops that may cross line `t` of `angle` (their header's range holds `t`), for
+    /// [`line_spans`](super::scan::line_spans); the others are skipped undecoded.
+    pub fn near_line(self, angle: Angle, t: i64) -> NearLine<'a> {
+        // `t` in range units, rounded down: `lo x 32 <= t` is `lo <= tq` and `t < hi x 32` is
+        // `tq < hi`; clamped to `i16` (the saturated bounds compare as unbounded).
+        let tq = (t >> T_SHIFT).clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16;
+        NearLine { rings: self, word: range_word(angle), tq }
+    }
+}
+
+/// The loops of a stored layer that may cross one line ([`StoredRings::near_line`]).
+pub struct NearLine<'a> {
+    rings: StoredRings<'a>,
+    /// The line direction's range word in a loop header, and the line's `t` in its units.
+    word: usize,
+    tq: i16,
+}
+
+impl<'a> Iterator for NearLine<'a> {
+    type Item = LoopCut<'a>;
+
+    fn next(&mut self) -> Option<LoopCut<'a>> {
+        let r = &mut self.rings;
+        while r.left > 0 {
+            r.left -= 1;
+            let head = r.at;
+            let h = |i: usize| r.data.get(head + i).copied();
+            let (n, words, range) = (h(0)?, h(2)? as usize, h(self.word)?);
+            r.at = head.checked_add(LOOP_HEADER + words)?;
+            // An edge crosses `t` when `min <= t < max` of its ends' `t`.
+            let (lo, hi) = (range as u16 as i16, (range >> 16) as u16 as i16);
+            if n >= 3 && lo <= self.tq && (self.tq < hi || hi == i16::MAX) {
+                let range = [h(range_word(Angle::D45))?, h(range_word(Angle::D135))?];
+                let words = r.data.sub(head + LOOP_HEADER, words);
+                let pts =
+                    LoopPoints { words, range, left: n, first: true, last: Point2::new(0, 0) };
+                return Some(LoopCut(pts));
+            }
+        }
+        None
+    }
 }
 
 impl<'a> Iterator for StoredRings<'a> {
@@ -326,19 +432,15 @@ impl<'a> Iterator for StoredRings<'a> {
     fn next(&mut self) -> Option<Self::Item> {
         while self.left > 0 {
             self.left -= 1;
-            let (&n, &island) = (self.data.get(self.at)?, self.data.get(self.at + 1)?);
-            let pts = LoopPoints { data: self.data, at: self.at + 2, left: n, last: None };
-            // Skip the points: one word each, three after an escape, two for the first.
-            let mut at = self.at + 2;
-            for k in 0..n {
-                at += match (k, self.data.get(at)) {
-                    (0, _) => 2,
-                    (_, Some(&FAR)) => 3,
-                    _ => 1,
-                };
-            }
-            self.at = at;
+            let head = self.at;
+            let h = |i: usize| self.data.get(head + i).copied();
+            let (n, island, words) = (h(0)?, h(1)?, h(2)? as usize);
+            let range = [h(range_word(Angle::D45))?, h(range_word(Angle::D135))?];
+            self.at = head.checked_add(LOOP_HEADER + words)?;
             if n >= 3 {
+                let words = self.data.sub(head + LOOP_HEADER, words);
+                let pts =
+                    LoopPoints { words, range, left: n, first: true, last: Point2::new(0, 0) };
                 return Some((island as u16, pts));
             }
         }
@@ -346,38 +448,118 @@ impl<'a> Iterator for StoredRings<'a> {
     }
 }
 
+/// A stored loop that may cross a line ([`NearLine`]): cut by
+/// [`line_spans`](super::scan::line_spans) straight from its words.
+pub struct LoopCut<'a>(pub LoopPoints<'a>);
+
+impl LoopCut<'_> {
+    /// [`ScanLoop::crossing_edges`] with `t` of a point `y - x` (`D45`) or `y + x`. Not
+    /// inlined: its loop keeps its state in registers (inlined into the infill pass, it
+    /// spilled to the stack).
+    #[inline(never)]
+    fn walk<const D45: bool>(
+        self,
+        t: i64,
+        mut f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        let key = |p: Point2| {
+            let (x, y) = (i64::from(p.x), i64::from(p.y));
+            if D45 {
+                y - x
+            } else {
+                y + x
+            }
+        };
+        let mut pts = self.0;
+        let Some(first) = pts.next() else { return Ok(()) };
+        let first_low = key(first) <= t;
+        let (mut p, mut p_low) = (first, first_low);
+        // The later points, as `LoopPoints::next` reads them (a truncated loop ends early).
+        while pts.left > 0 {
+            pts.left -= 1;
+            let Some(w) = pts.word() else { break };
+            let q = if w != FAR {
+                let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
+                Point2::new(p.x.wrapping_add(dx), p.y.wrapping_add(dy))
+            } else {
+                let (Some(x), Some(y)) = (pts.word(), pts.word()) else { break };
+                Point2::new(x as i32, y as i32)
+            };
+            let q_low = key(q) <= t;
+            if p_low != q_low {
+                f(p, q)?;
+            }
+            (p, p_low) = (q, q_low);
+        }
+        if p_low != first_low {
+            f(p, first)?;
+        }
+        Ok(())
+    }
+}
+
+impl ScanLoop for LoopCut<'_> {
+    fn crossing_edges(
+        self,
+        angle: Angle,
+        t: i64,
+        f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        match angle {
+            Angle::D45 => self.walk::<true>(t, f),
+            Angle::D135 => self.walk::<false>(t, f),
+        }
+    }
+}
+
 /// The points of one stored loop.
 #[derive(Clone)]
 pub struct LoopPoints<'a> {
-    data: Parts<'a, u32>,
-    at: usize,
+    /// The words not yet read (`a`, then `b` after the end of the storage).
+    words: Parts<'a, u32>,
+    /// The header's packed `t` ranges.
+    range: [u32; 2],
+    /// Points not yet read, whether none was, and the last one read.
     left: u32,
-    last: Option<Point2>,
+    first: bool,
+    last: Point2,
+}
+
+impl LoopPoints<'_> {
+    /// Bounds `(lo, hi)` of the loop's points' `t` for `angle` (from its header): every
+    /// point has `lo <= t <= hi`.
+    pub fn t_range(&self, angle: Angle) -> (i64, i64) {
+        unpack_range(self.range[range_word(angle) - range_word(Angle::D45)])
+    }
+
+    /// The next word.
+    #[inline]
+    fn word(&mut self) -> Option<u32> {
+        if self.words.a.is_empty() {
+            self.words.a = core::mem::take(&mut self.words.b);
+        }
+        let (&w, rest) = self.words.a.split_first()?;
+        self.words.a = rest;
+        Some(w)
+    }
 }
 
 impl Iterator for LoopPoints<'_> {
     type Item = Point2;
 
+    #[inline]
     fn next(&mut self) -> Option<Point2> {
-        if self.left == 0 {
-            return None;
-        }
-        self.left -= 1;
-        let w = *self.data.get(self.at)?;
-        let p = match self.last {
-            Some(q) if w != FAR => {
-                self.at += 1;
-                let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
-                Point2::new(q.x.wrapping_add(dx), q.y.wrapping_add(dy))
-            }
-            _ => {
-                let skip = usize::from(self.last.is_some());
-                let (x, y) = (self.data.get(self.at + skip)?, self.data.get(self.at + skip + 1)?);
-                self.at += skip + 2;
-                Point2::new(*x as i32, *y as i32)
-            }
+        self.left = self.left.checked_sub(1)?;
+        let w = self.word()?;
+        let p = if w != FAR && !self.first {
+            let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
+            Point2::new(self.last.x.wrapping_add(dx), self.last.y.wrapping_add(dy))
+        } else {
+            // The first point, or an escaped one: (x, y).
+            let x = if self.first { w } else { self.word()? };
+            Point2::new(x as i32, self.word()? as i32)
         };
-        self.last = Some(p);
+        (self.first, self.last) = (false, p);
         Some(p)
     }
 }
@@ -391,11 +573,11 @@ mod tests {
         let a = [Point2::new(100_000, 5), Point2::new(100_010, -7), Point2::new(40_000, 9)];
         let b = [Point2::new(-3, 4), Point2::new(i32::MAX, i32::MIN), Point2::new(0, 0)];
         // A block wrapping past the end of the storage.
-        let mut f = Fifo::<u32, 30>::new(0, Buffer::RingPoints);
-        f.reserve(10).unwrap();
-        f.commit(0, 10);
+        let mut f = Fifo::<u32, 40>::new(0, Buffer::RingPoints);
+        f.reserve(14).unwrap();
+        f.commit(0, 14);
         f.pop();
-        let mut e = Encoder::new(f.reserve(20).unwrap());
+        let mut e = Encoder::new(f.reserve(26).unwrap());
         for (island, pts, keep) in [(0, &a[..], true), (5, &a[..2], false), (1, &b[..], true)] {
             e.begin(island).unwrap();
             pts.iter().for_each(|&p| e.push(p).unwrap());
@@ -408,17 +590,97 @@ mod tests {
             w.words
         };
         assert_eq!(words, 2 + count(&a) + count(&b));
-        // a: 2 + 2 + 3 (60 mm jump) + 1; b: 2 + 2 + 3 + 3.
-        assert_eq!(words, 2 + 8 + 10);
+        // a: 5 + 2 + 3 (60 mm jump) + 1; b: 5 + 2 + 3 + 3.
+        assert_eq!(words, 2 + 11 + 13);
         f.commit(1, words);
         let data = f.data(&f.find(1).unwrap());
-        assert_eq!((data.a.len(), data.b.len()), (20, 0));
+        assert_eq!((data.a.len(), data.b.len()), (26, 0));
         assert_eq!(StoredRings::islands(data), 2);
         let got: std::vec::Vec<(u16, std::vec::Vec<Point2>)> =
             StoredRings::new(data).map(|(i, p)| (i, p.collect())).collect();
         assert_eq!(got, [(0, a.to_vec()), (1, b.to_vec())]);
         let mut small = Fifo::<u32, 3>::new(0, Buffer::RingPoints);
         assert_eq!(Encoder::new(small.reserve(3).unwrap()).begin(0), Err(Buffer::RingPoints));
+    }
+
+    /// Seeded xorshift: `0..n`.
+    fn rand(state: &mut u64, n: u64) -> u64 {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        *state % n
+    }
+
+    #[test]
+    fn loop_headers_bound_their_points_and_skip_to_the_next_loop() {
+        let mut seed = 0x5eed_1234_abcd_0001u64;
+        let lim = i64::from(i16::MAX) << T_SHIFT;
+        for case in 0..300 {
+            // Loops of 0..12 points: clustered (offsets), far apart (escapes) or beyond the
+            // packed range (saturated bounds); some dropped, some too short to be yielded.
+            let mut loops = std::vec::Vec::new();
+            for _ in 0..rand(&mut seed, 6) {
+                let spread = [2_000, 80_000, 3_000_000][rand(&mut seed, 3) as usize];
+                let c = |s: &mut u64| rand(s, 2 * spread + 1) as i32 - spread as i32;
+                let (cx, cy) = (c(&mut seed), c(&mut seed));
+                let pts: std::vec::Vec<Point2> = (0..rand(&mut seed, 12))
+                    .map(|_| Point2::new(cx + c(&mut seed) / 8, cy + c(&mut seed) / 8))
+                    .collect();
+                loops.push((rand(&mut seed, 5) as u16, pts, rand(&mut seed, 4) != 0));
+            }
+            let mut f = Fifo::<u32, 512>::new(0, Buffer::RingPoints);
+            // Start anywhere: blocks wrap.
+            let skip = rand(&mut seed, 512) as usize;
+            f.reserve(skip).unwrap();
+            f.commit(0, skip);
+            f.pop();
+            let mut e = Encoder::new(f.reserve(400).unwrap());
+            let mut kept = 0;
+            for (island, pts, keep) in &loops {
+                e.begin(*island).unwrap();
+                pts.iter().for_each(|&p| e.push(p).unwrap());
+                e.end(*keep);
+                kept += u32::from(*keep);
+            }
+            let words = e.finish(kept, 5);
+            let want_words: usize = 2
+                + (loops.iter().filter(|l| l.2))
+                    .map(|(_, pts, _)| {
+                        let mut w = LoopWords::default();
+                        pts.iter().for_each(|&p| w.add(p));
+                        w.words
+                    })
+                    .sum::<usize>();
+            assert_eq!(words, want_words, "case {case}");
+            f.commit(1, words);
+            let data = f.data(&f.find(1).unwrap());
+            let want: std::vec::Vec<_> =
+                loops.iter().filter(|l| l.2 && l.1.len() >= 3).map(|l| (l.0, &l.1)).collect();
+            let got: std::vec::Vec<_> = StoredRings::new(data).collect();
+            assert_eq!(got.len(), want.len(), "case {case}");
+            for ((island, pts), (w_island, w_pts)) in got.into_iter().zip(want) {
+                assert_eq!(island, w_island, "case {case}");
+                for angle in [Angle::D45, Angle::D135] {
+                    let (lo, hi) = pts.t_range(angle);
+                    let ts = w_pts.iter().map(|&p| angle.key(p).0);
+                    let (min, max) = (ts.clone().min().unwrap(), ts.max().unwrap());
+                    assert!(lo <= min && max <= hi, "case {case}: {lo}..{hi} {min}..{max}");
+                    // Within a unit of the points unless saturated.
+                    let (lo_sat, hi_sat) =
+                        (lo == i64::MIN || lo == lim, hi == i64::MAX || hi == -lim - 32);
+                    assert!(lo_sat || lo > min - (1 << T_SHIFT), "case {case}");
+                    assert!(hi_sat || hi < max + (1 << T_SHIFT), "case {case}");
+                }
+                // The loop's points, and the next loop found from its header's words.
+                assert_eq!(&pts.collect::<std::vec::Vec<_>>(), w_pts, "case {case}");
+            }
+        }
+        // The packed bounds: rounded outwards, saturated beyond `i16` units.
+        assert_eq!(unpack_range(pack_range(-33, 33)), (-64, 64));
+        assert_eq!(unpack_range(pack_range(-32, 32)), (-32, 32));
+        assert_eq!(unpack_range(pack_range(-lim - 100, lim + 100)), (i64::MIN, i64::MAX));
+        assert_eq!(unpack_range(pack_range(lim + 100, lim + 200)), (lim, i64::MAX));
+        assert_eq!(unpack_range(pack_range(-lim - 200, -lim - 100)).0, i64::MIN);
     }
 
     #[test]
