@@ -300,6 +300,56 @@ pub trait ScanLoop {
     ) -> Result<(), Buffer>;
 }
 
+/// The walk along one closed loop for [`ScanLoop::crossing_edges`]: fed each point and
+/// whether it lies at or below the line (`low`, its `t` computed once), it reports the
+/// edges whose ends lie on different sides, the closing edge at [`close`](Self::close).
+pub(super) struct CrossingWalk {
+    first: Point2,
+    first_low: bool,
+    last: Point2,
+    last_low: bool,
+}
+
+impl CrossingWalk {
+    #[inline(always)]
+    pub(super) fn new(first: Point2, low: bool) -> Self {
+        Self { first, first_low: low, last: first, last_low: low }
+    }
+
+    /// The point fed last.
+    #[inline(always)]
+    pub(super) fn last(&self) -> Point2 {
+        self.last
+    }
+
+    /// The next point `q`: `f(last, q)` if that edge crosses the line.
+    #[inline(always)]
+    pub(super) fn to(
+        &mut self,
+        q: Point2,
+        low: bool,
+        f: &mut impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        if self.last_low != low {
+            f(self.last, q)?;
+        }
+        (self.last, self.last_low) = (q, low);
+        Ok(())
+    }
+
+    /// The closing edge, back to the first point.
+    #[inline(always)]
+    pub(super) fn close(
+        self,
+        f: &mut impl FnMut(Point2, Point2) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        if self.last_low != self.first_low {
+            f(self.last, self.first)?;
+        }
+        Ok(())
+    }
+}
+
 impl<I: Iterator<Item = Point2>> ScanLoop for I {
     fn crossing_edges(
         mut self,
@@ -308,20 +358,11 @@ impl<I: Iterator<Item = Point2>> ScanLoop for I {
         mut f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
     ) -> Result<(), Buffer> {
         let Some(first) = self.next() else { return Ok(()) };
-        // A point's `t` is computed once: `low` when at or below `t`.
-        let first_low = angle.key(first).0 <= t;
-        let (mut p, mut p_low) = (first, first_low);
+        let mut walk = CrossingWalk::new(first, angle.key(first).0 <= t);
         for q in self {
-            let q_low = angle.key(q).0 <= t;
-            if p_low != q_low {
-                f(p, q)?;
-            }
-            (p, p_low) = (q, q_low);
+            walk.to(q, angle.key(q).0 <= t, &mut f)?;
         }
-        if p_low != first_low {
-            f(p, first)?;
-        }
-        Ok(())
+        walk.close(&mut f)
     }
 }
 

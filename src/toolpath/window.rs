@@ -16,7 +16,7 @@
 
 use crate::geom::Point2;
 
-use super::scan::{Angle, ScanLoop};
+use super::scan::{Angle, CrossingWalk, ScanLoop};
 use super::Buffer;
 
 /// Blocks a window can hold: one per layer, `bottom + top + 2` layers at most (the layers
@@ -472,29 +472,22 @@ impl LoopCut<'_> {
         };
         let mut pts = self.0;
         let Some(first) = pts.next() else { return Ok(()) };
-        let first_low = key(first) <= t;
-        let (mut p, mut p_low) = (first, first_low);
+        let mut walk = CrossingWalk::new(first, key(first) <= t);
         // The later points, as `LoopPoints::next` reads them (a truncated loop ends early).
         while pts.left > 0 {
             pts.left -= 1;
             let Some(w) = pts.word() else { break };
             let q = if w != FAR {
                 let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
+                let p = walk.last();
                 Point2::new(p.x.wrapping_add(dx), p.y.wrapping_add(dy))
             } else {
                 let (Some(x), Some(y)) = (pts.word(), pts.word()) else { break };
                 Point2::new(x as i32, y as i32)
             };
-            let q_low = key(q) <= t;
-            if p_low != q_low {
-                f(p, q)?;
-            }
-            (p, p_low) = (q, q_low);
+            walk.to(q, key(q) <= t, &mut f)?;
         }
-        if p_low != first_low {
-            f(p, first)?;
-        }
-        Ok(())
+        walk.close(&mut f)
     }
 }
 
