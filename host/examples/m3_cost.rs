@@ -8,11 +8,11 @@
 //! - step interrupt at most 150 instructions per step on average;
 //! - worst interrupt under 900 cycles (X and Y both stepping at 40 kHz: 72e6 / 80e3).
 //!
-//! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S] [--relay LOSS]
-//! [--max-deviation MM] [--layers K] MODEL.stl...` (job budget S seconds of wall time, default 1800;
-//! admission's error bound MM, default 0.02 as `strata print`; `--layers K` lists the K
-//! worst layers with their compute split between slicing/toolpaths and planning/steps; `--relay` streams through the
-//! fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
+//! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S]
+//! [--relay LOSS] [--max-deviation MM] [--layers K] MODEL.stl...` (job budget S seconds of
+//! wall time, default 1800; admission's error bound MM, default 0.02 as `strata print`;
+//! `--layers K` lists the K worst layers with their compute split between slicing/toolpaths
+//! and planning/steps; `--relay` streams through the fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
 //! every frame's header; `cylinder:R:H:SIDES:BAND` (mm) is a generated banded cylinder; model
 //! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
 //! builds the firmware first and runs the four sample models. Exits non-zero when a job

@@ -8,9 +8,9 @@
 //! whether a larger or a smaller `add` would go further. The search starts at an estimate
 //! from the pending steps' second differences, gallops outward until the miss turns and
 //! bisects between the last two candidates; it stops early when the first probe covers as
-//! many steps as the last sequence or a later one no longer lengthens it. Interval limits (driver high + low time, the
-//! reversal gap after a direction change, [`MAX_INTERVAL_TICKS`]) are constraints of the same
-//! range.
+//! many steps as the last sequence or a later one no longer lengthens it. Interval limits
+//! (driver high + low time, the reversal gap after a direction change,
+//! [`MAX_INTERVAL_TICKS`]) are constraints of the same range.
 
 use super::{StepCmd, StepProducer, MAX_INTERVAL_TICKS};
 
