@@ -95,3 +95,36 @@ fn compression_ratio_of_a_print_like_job() {
     );
     assert!(steps > 10 * seqs);
 }
+
+#[test]
+fn the_generator_says_when_it_waits_on_a_full_step_queue() {
+    use strata::plan::Planner;
+    use strata::step::{GenStatus, StepGenerator, StepQueue};
+    // One 30 mm move into 4-command queues: the generator stops at a full queue, and says
+    // so (the emulated board lets its executor stall only then); once everything is taken,
+    // it stops for want of blocks and says it does not wait on a queue.
+    let cfg = JobConfig::default();
+    let mut planner: Planner<4> = Planner::new(&cfg.plan, cfg.start_um);
+    planner.push(mv([30_000, 0, 0, 0], 100.0, Travel)).unwrap();
+    let block = planner.pop_forced().expect("one block");
+    let mut q: StepQueue<4> = StepQueue::new();
+    let (mut prod, mut cons) = q.split();
+    let mut gen: StepGenerator = StepGenerator::new(&cfg.step, cfg.start_um);
+    assert!(!gen.waits_on_a_full_queue());
+    gen.load(block).unwrap();
+    assert_eq!(gen.run(&mut prod), GenStatus::QueueFull);
+    assert!(gen.waits_on_a_full_queue());
+    let mut status = GenStatus::QueueFull;
+    for _ in 0..100_000 {
+        for axis in 0..4 {
+            while cons.dequeue(axis).is_some() {}
+        }
+        status = gen.run(&mut prod);
+        if status != GenStatus::QueueFull {
+            break;
+        }
+        assert!(gen.waits_on_a_full_queue());
+    }
+    assert_eq!(status, GenStatus::Idle, "the move is generated and ends at rest");
+    assert!(!gen.waits_on_a_full_queue());
+}

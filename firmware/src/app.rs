@@ -168,7 +168,8 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
         }
         if let Some(p) = prod.as_ref() {
             let finished = printer.motion_finished() || !printer.is_active();
-            board::after_poll(p, finished, printer.state() == DeviceState::Paused);
+            let gen_blocked = printer.generator().waits_on_a_full_queue();
+            board::after_poll(p, finished, printer.state() == DeviceState::Paused, gen_blocked);
         }
 
         loop {

@@ -114,6 +114,8 @@ pub struct StepGenerator<const B: usize = 64> {
     end_position: [(i32, i64); AXES],
     /// The last completed block ended at rest (true before the first).
     at_rest: bool,
+    /// The last run stopped at a full step queue.
+    queue_blocked: bool,
     blocks: u32,
     steps: [u64; AXES],
 }
@@ -158,6 +160,7 @@ impl<const B: usize> StepGenerator<B> {
             *m = nearest_step(step_position_q32(p, r));
         }
         self.at_rest = true;
+        self.queue_blocked = false;
         self.blocks = 0;
         self.steps = [0; AXES];
     }
@@ -184,6 +187,7 @@ impl<const B: usize> StepGenerator<B> {
             motor: [0; AXES],
             end_position: [(0, 0); AXES],
             at_rest: true,
+            queue_blocked: false,
             blocks: 0,
             steps: [0; AXES],
         }
@@ -238,6 +242,12 @@ impl<const B: usize> StepGenerator<B> {
         }
     }
 
+    /// The last [`run`](Self::run) stopped at a full step queue: it has steps to send and
+    /// waits for the executor (not for a block, nor for room for layer marks).
+    pub fn waits_on_a_full_queue(&self) -> bool {
+        self.queue_blocked
+    }
+
     /// Steps generated so far, all axes (cheaper than [`stats`](Self::stats)).
     pub fn steps_generated(&self) -> u64 {
         self.steps.iter().sum()
@@ -252,11 +262,13 @@ impl<const B: usize> StepGenerator<B> {
     }
 
     fn run_inner<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> GenStatus {
+        self.queue_blocked = false;
         loop {
             // Work owed by the last step or block end comes first, and is retried as it was
             // when a queue is full: the commands depend on the blocks only, never on how
             // fast the executor drains the queues.
             if self.settle(out).is_err() {
+                self.queue_blocked = true;
                 return GenStatus::QueueFull;
             }
             // Borrowed, never copied: a `Block` is a few hundred bytes.
@@ -304,6 +316,7 @@ impl<const B: usize> StepGenerator<B> {
                 if out.executor_waiting() {
                     self.unblock(axis, out);
                 }
+                self.queue_blocked = true;
                 return GenStatus::QueueFull;
             }
             self.steps[axis] += 1;

@@ -305,7 +305,13 @@ pub fn executor_config(cfg: &StepConfig) -> StepConfig {
 }
 
 /// Nothing to tell the interrupt: real time never runs ahead of the pipeline artificially.
-pub fn after_poll(_prod: &crate::motion::Producer, _finished: bool, _paused: bool) {}
+pub fn after_poll(
+    _prod: &crate::motion::Producer,
+    _finished: bool,
+    _paused: bool,
+    _gen_blocked: bool,
+) {
+}
 
 /// Clocks, pins, USART1, TIM2 and the cycle counter.
 pub fn init(cfg: &StepConfig) -> Board {

@@ -661,12 +661,15 @@ pub fn executor_config(cfg: &StepConfig) -> StepConfig {
 
 /// After thread mode's polls: tells the interrupt whether the job's last block is queued
 /// (`finished`: the motion may come to rest), and lets it run into the horizon it waits at
-/// when that is a deadlock (a step queue is full behind the horizon, so the generator
-/// waits for the executor to stall) or the job is paused.
-pub fn after_poll(prod: &Producer, finished: bool, paused: bool) {
+/// when that is a deadlock (the generator stopped at a full step queue, `gen_blocked`, and
+/// a queue is full behind the horizon: it waits for the executor to stall) or the job is
+/// paused. A queue that is merely full while the generator waits for blocks (the host is
+/// slow) is no deadlock: the motion waits at the horizon, as the host simulation's never
+/// runs dry there.
+pub fn after_poll(prod: &Producer, finished: bool, paused: bool, gen_blocked: bool) {
     FINAL.store(finished, Ordering::Release);
     let b = BLOCKED.load(Ordering::Acquire);
-    if b != 0 && (paused || (0..AXES).any(|a| prod.free(a) == 0)) {
+    if b != 0 && (paused || (gen_blocked && (0..AXES).any(|a| prod.free(a) == 0))) {
         ALLOW.store(b, Ordering::Release);
     }
 }
