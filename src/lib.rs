@@ -45,3 +45,18 @@ pub mod step;
 pub mod stl;
 pub mod thermal;
 pub mod toolpath;
+
+/// Test helpers shared by the modules' unit tests.
+#[cfg(test)]
+pub(crate) mod test_rng {
+    /// A xorshift64 generator from `seed` (not 0): deterministic pseudo-random `u64`s for
+    /// randomised unit tests.
+    pub(crate) fn xorshift(mut x: u64) -> impl FnMut() -> u64 {
+        move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        }
+    }
+}

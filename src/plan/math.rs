@@ -258,11 +258,9 @@ mod tests {
 
     #[test]
     fn roots_match_the_bitwise_oracle_near_squares_and_at_every_width() {
-        let mut x = 0x1234_5678_9abc_def0_u64;
+        let mut next = crate::test_rng::xorshift(0x1234_5678_9abc_def0);
         for _ in 0..20_000 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
+            let x = next();
             for shift in [0, 1, 2, 17, 31, 32, 33, 40, 62, 63] {
                 let n = x >> shift;
                 assert_eq!(isqrt_u64(n) as u128, bitwise_isqrt(n as u128), "n = {n}");
@@ -294,13 +292,7 @@ mod tests {
 
     #[test]
     fn wide_division_equals_the_native_one() {
-        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut next = crate::test_rng::xorshift(0x9e37_79b9_7f4a_7c15);
         for _ in 0..200_000 {
             let (a, b, c) = (next(), next(), next());
             let n = ((a as u128) << 64 | b as u128) >> (a % 128);
@@ -338,13 +330,7 @@ mod tests {
 
     #[test]
     fn shifted_root_equals_the_root_of_the_shifted_value() {
-        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut next = crate::test_rng::xorshift(0x9e37_79b9_7f4a_7c15);
         for shift in (0..64).step_by(2) {
             let limit = u64::MAX >> shift;
             let check = |w: u64| {
@@ -367,13 +353,7 @@ mod tests {
 
     #[test]
     fn split_multiply_shift_equals_the_128_bit_one() {
-        let mut x = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut next = crate::test_rng::xorshift(0x2545_f491_4f6c_dd1d);
         for i in 0..200_000u32 {
             let (a, b) = (next() >> (next() % 64), next() >> (next() % 64));
             let shift = 1 + i % 64;

@@ -664,13 +664,8 @@ mod tests {
 
     #[test]
     fn the_32_bit_walk_equals_the_64_bit_one() {
-        let mut x = 0x2545_f491_4f6c_dd1d_u64;
-        let mut rnd = |m: u64| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x % m
-        };
+        let mut next = crate::test_rng::xorshift(0x2545_f491_4f6c_dd1d);
+        let mut rnd = |m: u64| next() % m;
         let mut reached = 0;
         for round in 0..4000 {
             let mut c = Compressor::<64>::new();

@@ -517,13 +517,7 @@ mod tests {
 
     #[test]
     fn fast_step_position_equals_the_reference() {
-        let mut x = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut next = crate::test_rng::xorshift(0x2545_f491_4f6c_dd1d);
         let rates = [Rate::from_num(80), Rate::from_num(93), Rate::from_num(400), Rate::MAX];
         for i in 0..100_000 {
             let um = (next() as i32) >> (next() % 32);

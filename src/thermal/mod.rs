@@ -602,13 +602,7 @@ mod tests {
     #[test]
     fn arbitrary_readings_and_times_never_panic() {
         let mut c = ctl();
-        let mut x = 0x1234_5678_9abc_def0u64;
-        let mut next = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut next = crate::test_rng::xorshift(0x1234_5678_9abc_def0);
         for round in 0..200 {
             c.reset();
             let _ = c.set_targets(0, (next() % 300) as i16, (next() % 120) as i16);

@@ -170,13 +170,7 @@ mod tests {
 
     #[test]
     fn arbitrary_inputs_never_panic() {
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut next = crate::test_rng::xorshift(0x9e37_79b9_7f4a_7c15);
         let mut pid = Pid::new();
         let gains = PidGains { kp: Temp::MAX, ki: Temp::MAX, kd: Temp::MAX };
         for i in 0..100_000 {

@@ -246,13 +246,7 @@ mod tests {
 
     #[test]
     fn arbitrary_inputs_never_panic() {
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut next = crate::test_rng::xorshift(0x2545_f491_4f6c_dd1d);
         let mut pr = Protection::new();
         for _ in 0..50_000 {
             let p = ProtectParams {
