@@ -268,11 +268,6 @@ type NeedsSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
 type NeedsToolpath =
     Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
 
-/// The toolpath settings the device derives from `job`.
-pub fn device_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathConfig {
-    strata::printer::job_toolpath_config(machine, job)
-}
-
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
 /// the stage's needs, the layers where they peak and the most moves of a layer. A need found growing while the stage takes a layer is attributed to that layer (the
@@ -287,7 +282,7 @@ pub fn toolpath_peaks(
 ) -> Result<ToolpathPeaks, String> {
     let slice_cfg =
         SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
-    let cfg = device_toolpath_config(machine, job);
+    let cfg = strata::printer::job_toolpath_config(machine, job);
     std::thread::scope(|scope| {
         std::thread::Builder::new()
             .name("admission".into())
