@@ -1090,30 +1090,30 @@ impl<
                     opened2 = Some(self.measure(|t| t.grow_tmp_area2(island)));
                 }
             }
-            let opened2 = match opened2 {
-                _ if !cfg.measure_thin_area => None,
-                Some(a) => Some(a),
-                // No perimeters: the centre lines of an external perimeter all the same.
-                None => Some(self.measure(|t| {
-                    t.offset_island(island, w / 2)?;
-                    t.tmp.clear();
-                    t.work.engine().union_into(&mut t.tmp, island, 0, min_width)?;
-                    t.grow_tmp_area2(island)
-                })),
-            };
-            match opened2 {
-                None => {}
-                Some(Some(opened2)) => {
-                    let region2: i64 = self
-                        .contour
-                        .rings()
-                        .iter()
-                        .filter(|r| r.island == island)
-                        .map(|r| r.area2)
-                        .sum();
-                    layer.thin_area_um2 += ((region2 - opened2).max(0) / 2) as u64;
+            if cfg.measure_thin_area {
+                let opened2 = match opened2 {
+                    Some(a) => a,
+                    // No perimeters: the centre lines of an external perimeter all the same.
+                    None => self.measure(|t| {
+                        t.offset_island(island, w / 2)?;
+                        t.tmp.clear();
+                        t.work.engine().union_into(&mut t.tmp, island, 0, min_width)?;
+                        t.grow_tmp_area2(island)
+                    }),
+                };
+                match opened2 {
+                    Some(opened2) => {
+                        let region2: i64 = self
+                            .contour
+                            .rings()
+                            .iter()
+                            .filter(|r| r.island == island)
+                            .map(|r| r.area2)
+                            .sum();
+                        layer.thin_area_um2 += ((region2 - opened2).max(0) / 2) as u64;
+                    }
+                    None => layer.thin_unmeasured += 1,
                 }
-                Some(None) => layer.thin_unmeasured += 1,
             }
             self.offset_island(island, cfg.infill_inset_um())?;
             self.work.engine().union_into(&mut self.fill, island, 0, min_width)?;
