@@ -4,21 +4,9 @@ use crate::geom::Point2;
 
 use super::Buffer;
 
-/// Integer square root (floor) of a `u64`, exact: Newton's method from a power-of-two start.
-pub fn isqrt(n: u64) -> u64 {
-    if n < 2 {
-        return n;
-    }
-    let bits = 64 - n.leading_zeros();
-    let mut x = 1u64 << bits.div_ceil(2);
-    loop {
-        let y = (x + n / x) / 2;
-        if y >= x {
-            return x;
-        }
-        x = y;
-    }
-}
+/// Integer square root (floor) of a `u64`, exact: the planner's root (no 64-bit division,
+/// which the Cortex-M3 does in a library loop).
+pub use crate::plan::math::isqrt_u64 as isqrt;
 
 /// `num / den` rounded to the nearest integer, halves away from zero (`den != 0`).
 pub fn div_round(num: i64, den: i64) -> i64 {
