@@ -1,6 +1,7 @@
 //! Bounded loop buffers and the integer helpers every toolpath stage shares.
 
 use crate::geom::Point2;
+use crate::plan::math::div_u128;
 
 use super::Buffer;
 
@@ -18,13 +19,18 @@ pub fn div_round(num: i64, den: i64) -> i64 {
     }
 }
 
-/// [`div_round`] in `i128`.
+/// [`div_round`] in `i128`: `(|num| + den / 2) / den` with the sign of `num / den`, the
+/// division by the planner's exact long division (a 64-bit divisor takes two 32-bit digits on
+/// the hardware divider, not the library's 128-bit loop; for `i64` operands the library's
+/// 64-bit division is faster and [`div_round`] keeps it).
 pub fn div_round_128(num: i128, den: i128) -> i128 {
     let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+    let den = den.unsigned_abs();
+    let q = div_u128(num.unsigned_abs() + den / 2, den) as i128;
     if num >= 0 {
-        (num + den / 2) / den
+        q
     } else {
-        -((-num + den / 2) / den)
+        -q
     }
 }
 
@@ -290,6 +296,29 @@ mod tests {
         assert_eq!(div_round(-4, -3), 1);
         assert_eq!(div_round(7, -2), -4);
         assert_eq!(div_round_128(-7, 2), -4);
+    }
+
+    #[test]
+    fn rounding_division_equals_the_plain_i128_formula() {
+        // Halves away from zero with the native division, signs normalised first.
+        let plain = |num: i128, den: i128| {
+            let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+            if num >= 0 {
+                (num + den / 2) / den
+            } else {
+                -((-num + den / 2) / den)
+            }
+        };
+        let mut next = crate::test_rng::xorshift(7);
+        for k in 0..20_000 {
+            // Numerators and divisors of every width the offsets and scanlines use.
+            let num = (next() as i64 >> (k % 40)) as i128 * if k % 3 == 0 { 1 << 20 } else { 1 };
+            let den = (next() as i64 >> (k % 63)) as i128;
+            if den == 0 {
+                continue;
+            }
+            assert_eq!(div_round_128(num, den), plain(num, den), "{num} / {den}");
+        }
     }
 
     #[test]
