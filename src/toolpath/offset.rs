@@ -360,6 +360,18 @@ impl<const E: usize> Offsetter<E> {
 
     /// Splits `e` and `f` where they meet. Returns true for a collinear overlap.
     fn intersect(&mut self, ei: usize, e: Seg, fi: usize, f: Seg) -> Result<bool, Buffer> {
+        // Segments sharing an endpoint (neighbours along a loop, mostly) meet nowhere else
+        // unless they are collinear: one orientation settles it.
+        let other = if e.a == f.a || e.a == f.b {
+            Some(e.b)
+        } else if e.b == f.a || e.b == f.b {
+            Some(e.a)
+        } else {
+            None
+        };
+        if other.is_some_and(|q| orient(f.a, f.b, q) != 0) {
+            return Ok(false);
+        }
         let d1 = orient(f.a, f.b, e.a);
         let d2 = orient(f.a, f.b, e.b);
         if d1 == 0 && d2 == 0 {
