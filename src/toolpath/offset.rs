@@ -197,17 +197,22 @@ impl<const E: usize> Offsetter<E> {
             return Ok(());
         };
         let first_vertex = i;
-        let mut prev = (0..n).map(|k| (i + n - 1 - k) % n).find(|&j| pts[j] != pts[i]).unwrap_or(i);
+        let prev = (0..n).map(|k| (i + n - 1 - k) % n).find(|&j| pts[j] != pts[i]).unwrap_or(i);
         let mut first_out: Option<Point2> = None;
         let mut last_out = Point2::new(0, 0);
         let mut steps = 0;
+        // An edge's vector, length (um, floor) and normal (engine units).
+        let edge = |from: Point2, to: Point2| {
+            let v = (i64::from(to.x) - i64::from(from.x), i64::from(to.y) - i64::from(from.y));
+            let len = isqrt((v.0 * v.0 + v.1 * v.1) as u64) as i64;
+            (v, len, normal(v.0, v.1, len.max(1), d))
+        };
+        // The edge into the vertex: the previous vertex's edge out.
+        let (mut a, mut la, mut na) = edge(pts[prev], pts[i]);
         loop {
             let Some(next) = next_distinct(i) else { return Ok(()) };
-            let (p, a0, b1) = (pts[i], pts[prev], pts[next]);
-            let a = (i64::from(p.x) - i64::from(a0.x), i64::from(p.y) - i64::from(a0.y));
-            let b = (i64::from(b1.x) - i64::from(p.x), i64::from(b1.y) - i64::from(p.y));
-            let la = isqrt((a.0 * a.0 + a.1 * a.1) as u64) as i64;
-            let lb = isqrt((b.0 * b.0 + b.1 * b.1) as u64) as i64;
+            let p = pts[i];
+            let (b, lb, nb) = edge(p, pts[next]);
             let mut emit = |q: Point2, this: &mut Self| -> Result<(), Buffer> {
                 match first_out {
                     None => first_out = Some(q),
@@ -218,8 +223,6 @@ impl<const E: usize> Offsetter<E> {
             };
             let ps = (i64::from(p.x) * i64::from(SCALE), i64::from(p.y) * i64::from(SCALE));
             let at = |v: (i64, i64)| Point2::new((ps.0 + v.0) as i32, (ps.1 + v.1) as i32);
-            let na = normal(a.0, a.1, la.max(1), d);
-            let nb = normal(b.0, b.1, lb.max(1), d);
             let cross = a.0 * b.1 - a.1 * b.0;
             let dot = a.0 * b.0 + a.1 * b.1;
             let lab = la * lb;
@@ -254,7 +257,7 @@ impl<const E: usize> Offsetter<E> {
                 self.arc(ps, mid, nb, r, &mut emit)?;
                 emit(at(nb), self)?;
             }
-            prev = i;
+            (a, la, na) = (b, lb, nb);
             i = next;
             steps += 1;
             if i == first_vertex || steps > n {
