@@ -433,6 +433,8 @@ impl<const B: usize> Compressor<B> {
     /// driver's minimum and [`MAX_INTERVAL_TICKS`]. Intersecting these ranges step by step
     /// gives the longest covered prefix; which bound the first failing step broke says which
     /// way a better `add` lies. `small_add` is [`Compressor::small_add_bound`] of `n`.
+    // Inlined into `fit` (its probes' loop); the rare `eval_wide` stays out of line.
+    #[inline(always)]
     fn eval(&self, add: i64, n: usize, tune: &Tune, small_add: u64) -> Fit {
         if n == 0 {
             return Fit {
@@ -474,6 +476,7 @@ impl<const B: usize> Compressor<B> {
     }
 
     /// [`Compressor::eval`] in `i64`, dividing at every step.
+    #[inline(never)]
     fn eval_wide(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let (mut imin, mut imax) = (i64::MIN, i64::MAX);
         let last = self.last as i64;
@@ -519,6 +522,7 @@ impl<const B: usize> Compressor<B> {
     /// (imin starts at the first step's minimum interval or above and only grows), so
     /// `k imin`, `k imax`, `at`, `add i` and every difference compared stay below 2^30, and
     /// the [`MAX_INTERVAL_TICKS`] (2^30) bound `2^30 - add i > imax` never binds.
+    #[inline(always)]
     fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let last = self.last as u32;
         let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);
