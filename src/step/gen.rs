@@ -322,11 +322,15 @@ impl<const B: usize> StepGenerator<B> {
             self.steps[axis] += 1;
             self.advance(axis);
             self.last_tick = tick;
-            self.overdue = (1 << AXES) - 1;
             // The axis' first pending step changed only if it is this one (an emit inside
             // `push_step` moves it later, which leaves `settle_at` a valid lower bound).
             if self.comp[axis].pending() == 1 {
                 self.settle_at = self.settle_at.min(tick + self.pending_ticks);
+            }
+            // Every axis is checked after a step, unless nothing can be overdue yet (the
+            // last `settle` left `overdue` at 0).
+            if tick > self.settle_at {
+                self.overdue = (1 << AXES) - 1;
             }
         }
     }
@@ -335,10 +339,6 @@ impl<const B: usize> StepGenerator<B> {
     /// `pending_ticks` behind the last step generated, then (at a stop) everything.
     #[inline]
     fn settle<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> Result<(), Full> {
-        if self.overdue != 0 && self.last_tick <= self.settle_at {
-            // Nothing is overdue: the checks below would all pass.
-            self.overdue = 0;
-        }
         if self.overdue != 0 {
             self.settle_overdue(out)?;
         }
