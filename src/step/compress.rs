@@ -455,6 +455,7 @@ impl<const B: usize> Compressor<B> {
 
     /// The `add`s (in magnitude, exclusive) for which [`Compressor::eval`] of the first `n`
     /// pending steps may run in 32 bits (see [`Compressor::eval_small`]); 0 for none.
+    #[inline(always)]
     fn small_add_bound(&self, n: usize, tune: &Tune) -> u64 {
         if n == 0 || n >= 1 << 12 {
             return 0;
