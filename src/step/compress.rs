@@ -247,7 +247,9 @@ impl<const B: usize> Compressor<B> {
         };
         out.enqueue(axis, cmd).map_err(|_| Full)?;
         let n = fit.count as i64;
-        self.last = (self.last as i64 + n * interval + fit.add * n * (n - 1) / 2) as u64;
+        // n (n - 1) / 2 < 2^31 in a word (n < 2^16), then one 64-bit product with `add`.
+        let steps_sum = (fit.count as u32 * (fit.count as u32).wrapping_sub(1) / 2) as i64;
+        self.last = (self.last as i64 + n * interval + fit.add * steps_sum) as u64;
         self.head = (self.head + fit.count) % B;
         self.len -= fit.count;
         self.after_dir = false;
@@ -270,9 +272,10 @@ impl<const B: usize> Compressor<B> {
     fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune, small_add: u64) -> bool {
         // In i32 when every model time and interval stays below 2^30 in magnitude (the ranges
         // of `eval_small`, with the interval itself bounded too).
+        // interval count < 2^29, compared as a quotient (count < 2^16; no 64-bit product).
         let small = add.unsigned_abs() < small_add
             && interval > 0
-            && interval.saturating_mul(count as i64) < 1 << 29;
+            && (count == 0 || interval <= (((1u32 << 29) - 1) / count as u32) as i64);
         if small {
             // `eval_small` intersects the exact integer ranges of these steps (tested equal
             // to `eval_wide` and to this replay), so its fits need no replay: only debug
@@ -340,7 +343,13 @@ impl<const B: usize> Compressor<B> {
         let t2 = self.buf[(self.head + 2 * m) % B];
         let dd = (t2.wrapping_sub(t1) as i64).wrapping_sub(t1.wrapping_sub(t0) as i64);
         let s = 2 * shift;
-        (dd.saturating_add((1 << s) >> 1)) >> s
+        // s <= 28 (n < 2^16). In 32 bits when `dd` leaves room for the rounding half (as
+        // usual): the same value.
+        let half = (1i32 << s) >> 1;
+        match i32::try_from(dd) {
+            Ok(d) if d <= i32::MAX - half => ((d + half) >> s) as i64,
+            _ => (dd.saturating_add(half as i64)) >> s,
+        }
     }
 
     /// How far `add` must move (in the miss's direction) before the failing step can fit:
