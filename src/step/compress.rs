@@ -167,7 +167,8 @@ impl<const B: usize> Compressor<B> {
     }
 
     pub(crate) fn first_pending(&self) -> Option<u64> {
-        (self.len > 0).then(|| self.buf[self.head])
+        // (`head` is always below B: the `% B` only spares the bounds check.)
+        (self.len > 0).then(|| self.buf[self.head % B])
     }
 
     /// Time of the last committed step.

@@ -378,15 +378,15 @@ impl<const B: usize> StepGenerator<B> {
         out: &mut StepProducer<'_, N>,
     ) -> Result<(), Full> {
         let full_check = self.overdue == (1 << AXES) - 1;
+        // A first pending step `f` is overdue when `f + pending_ticks < last_tick`.
+        let overdue_below = self.last_tick.saturating_sub(self.pending_ticks);
         for c in 0..AXES {
             if self.overdue & (1 << c) == 0 {
                 continue;
             }
-            if let Some(f) = self.comp[c].first_pending() {
-                if f + self.pending_ticks < self.last_tick {
-                    self.comp[c].emit(c, out, &self.tune)?;
-                    self.publish(out);
-                }
+            if self.comp[c].first_pending().is_some_and(|f| f < overdue_below) {
+                self.comp[c].emit(c, out, &self.tune)?;
+                self.publish(out);
             }
             self.overdue &= !(1 << c);
         }
