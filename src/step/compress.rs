@@ -472,10 +472,11 @@ impl<const B: usize> Compressor<B> {
         }
         let first = self.buf[self.head] as i64 - self.last as i64;
         let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
-        // (end + tol + 1) n < 2^29, compared as a quotient (no 64-bit product).
+        // (end + tol + 1) n < 2^29, that is end + tol + 1 <= floor((2^29 - 1) / n), compared
+        // as a quotient (no 64-bit product).
         let span_max = (((1u32 << 29) - 1) / n as u32) as i64;
         let ok = first > -(1 << 28)
-            && end + tune.tol + 1 <= span_max
+            && end + tune.tol < span_max
             && tune.tol < 1 << 20
             && (0..1 << 20).contains(&tune.min_step)
             && self.first_min(tune) < 1 << 20;
