@@ -167,7 +167,8 @@ impl<const B: usize> Compressor<B> {
     }
 
     pub(crate) fn first_pending(&self) -> Option<u64> {
-        (self.len > 0).then(|| self.buf[self.head])
+        // (`head` is always below B: the `% B` only spares the bounds check.)
+        (self.len > 0).then(|| self.buf[self.head % B])
     }
 
     /// Time of the last committed step.
@@ -247,7 +248,9 @@ impl<const B: usize> Compressor<B> {
         };
         out.enqueue(axis, cmd).map_err(|_| Full)?;
         let n = fit.count as i64;
-        self.last = (self.last as i64 + n * interval + fit.add * n * (n - 1) / 2) as u64;
+        // n (n - 1) / 2 < 2^31 in a word (n < 2^16), then one 64-bit product with `add`.
+        let steps_sum = (fit.count as u32 * (fit.count as u32).wrapping_sub(1) / 2) as i64;
+        self.last = (self.last as i64 + n * interval + fit.add * steps_sum) as u64;
         self.head = (self.head + fit.count) % B;
         self.len -= fit.count;
         self.after_dir = false;
@@ -270,9 +273,10 @@ impl<const B: usize> Compressor<B> {
     fn check(&self, interval: i64, add: i64, count: usize, tune: &Tune, small_add: u64) -> bool {
         // In i32 when every model time and interval stays below 2^30 in magnitude (the ranges
         // of `eval_small`, with the interval itself bounded too).
+        // interval count < 2^29, compared as a quotient (count < 2^16; no 64-bit product).
         let small = add.unsigned_abs() < small_add
             && interval > 0
-            && interval.saturating_mul(count as i64) < 1 << 29;
+            && (count == 0 || interval <= (((1u32 << 29) - 1) / count as u32) as i64);
         if small {
             // `eval_small` intersects the exact integer ranges of these steps (tested equal
             // to `eval_wide` and to this replay), so its fits need no replay: only debug
@@ -340,7 +344,13 @@ impl<const B: usize> Compressor<B> {
         let t2 = self.buf[(self.head + 2 * m) % B];
         let dd = (t2.wrapping_sub(t1) as i64).wrapping_sub(t1.wrapping_sub(t0) as i64);
         let s = 2 * shift;
-        (dd.saturating_add((1 << s) >> 1)) >> s
+        // s <= 28 (n < 2^16). In 32 bits when `dd` leaves room for the rounding half (as
+        // usual): the same value.
+        let half = (1i32 << s) >> 1;
+        match i32::try_from(dd) {
+            Ok(d) if d <= i32::MAX - half => ((d + half) >> s) as i64,
+            _ => (dd.saturating_add(half as i64)) >> s,
+        }
     }
 
     /// How far `add` must move (in the miss's direction) before the failing step can fit:
@@ -433,6 +443,8 @@ impl<const B: usize> Compressor<B> {
     /// driver's minimum and [`MAX_INTERVAL_TICKS`]. Intersecting these ranges step by step
     /// gives the longest covered prefix; which bound the first failing step broke says which
     /// way a better `add` lies. `small_add` is [`Compressor::small_add_bound`] of `n`.
+    // Inlined into `fit` (its probes' loop); the rare `eval_wide` stays out of line.
+    #[inline(always)]
     fn eval(&self, add: i64, n: usize, tune: &Tune, small_add: u64) -> Fit {
         if n == 0 {
             return Fit {
@@ -453,15 +465,18 @@ impl<const B: usize> Compressor<B> {
 
     /// The `add`s (in magnitude, exclusive) for which [`Compressor::eval`] of the first `n`
     /// pending steps may run in 32 bits (see [`Compressor::eval_small`]); 0 for none.
+    #[inline(always)]
     fn small_add_bound(&self, n: usize, tune: &Tune) -> u64 {
         if n == 0 || n >= 1 << 12 {
             return 0;
         }
         let first = self.buf[self.head] as i64 - self.last as i64;
         let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
-        let nn = n as i64;
+        // (end + tol + 1) n < 2^29, that is end + tol + 1 <= floor((2^29 - 1) / n), compared
+        // as a quotient (no 64-bit product).
+        let span_max = (((1u32 << 29) - 1) / n as u32) as i64;
         let ok = first > -(1 << 28)
-            && (end + tune.tol + 1).saturating_mul(nn) < 1 << 29
+            && end + tune.tol < span_max
             && tune.tol < 1 << 20
             && (0..1 << 20).contains(&tune.min_step)
             && self.first_min(tune) < 1 << 20;
@@ -474,6 +489,7 @@ impl<const B: usize> Compressor<B> {
     }
 
     /// [`Compressor::eval`] in `i64`, dividing at every step.
+    #[inline(never)]
     fn eval_wide(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let (mut imin, mut imax) = (i64::MIN, i64::MAX);
         let last = self.last as i64;
@@ -519,6 +535,7 @@ impl<const B: usize> Compressor<B> {
     /// (imin starts at the first step's minimum interval or above and only grows), so
     /// `k imin`, `k imax`, `at`, `add i` and every difference compared stay below 2^30, and
     /// the [`MAX_INTERVAL_TICKS`] (2^30) bound `2^30 - add i > imax` never binds.
+    #[inline(always)]
     fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let last = self.last as u32;
         let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);

@@ -70,6 +70,17 @@ impl AxisRun {
         next_tick: u64::MAX,
     };
 
+    /// One step of the block `b` (which starts at `start_q16`) is generated: on to the next.
+    fn advance(&mut self, start_q16: u64, b: &Block) {
+        self.remaining -= 1;
+        if self.remaining > 0 {
+            self.step_distance();
+            self.next_tick = tick_at(start_q16, b, self.s_q32);
+        } else {
+            self.next_tick = u64::MAX;
+        }
+    }
+
     /// Moves to the next step's distance: `s += ds` in um q48, the integer part saturated
     /// (a distance past `u64::MAX` um q32 is clamped there, as the time is).
     fn step_distance(&mut self) {
@@ -117,6 +128,8 @@ pub struct StepGenerator<const B: usize = 64> {
     /// The last run stopped at a full step queue.
     queue_blocked: bool,
     blocks: u32,
+    /// Steps per axis of the blocks completed and the current one: a block's steps are
+    /// counted when it starts, those of its axes' `remaining` are still to generate.
     steps: [u64; AXES],
 }
 
@@ -234,7 +247,7 @@ impl<const B: usize> StepGenerator<B> {
     /// Counters.
     pub fn stats(&self) -> GenStats {
         GenStats {
-            steps: self.steps,
+            steps: core::array::from_fn(|a| self.generated(a)),
             sequences: self.comp.each_ref().map(|c| c.sequences),
             clamped: self.comp.iter().map(|c| c.clamped).sum(),
             check_failures: self.comp.iter().map(|c| c.check_failures).sum(),
@@ -250,7 +263,12 @@ impl<const B: usize> StepGenerator<B> {
 
     /// Steps generated so far, all axes (cheaper than [`stats`](Self::stats)).
     pub fn steps_generated(&self) -> u64 {
-        self.steps.iter().sum()
+        (0..AXES).map(|a| self.generated(a)).sum()
+    }
+
+    /// Steps generated so far on `axis`.
+    fn generated(&self, axis: usize) -> u64 {
+        self.steps[axis] - self.axes[axis].remaining as u64
     }
 
     /// Generates and sends steps until the blocks run out or a queue is full, publishing the
@@ -319,14 +337,17 @@ impl<const B: usize> StepGenerator<B> {
                 self.queue_blocked = true;
                 return GenStatus::QueueFull;
             }
-            self.steps[axis] += 1;
-            self.advance(axis);
+            self.axes[axis].advance(self.block_start_q16, block);
             self.last_tick = tick;
-            self.overdue = (1 << AXES) - 1;
             // The axis' first pending step changed only if it is this one (an emit inside
             // `push_step` moves it later, which leaves `settle_at` a valid lower bound).
             if self.comp[axis].pending() == 1 {
                 self.settle_at = self.settle_at.min(tick + self.pending_ticks);
+            }
+            // Every axis is checked after a step, unless nothing can be overdue yet (the
+            // last `settle` left `overdue` at 0).
+            if tick > self.settle_at {
+                self.overdue = (1 << AXES) - 1;
             }
         }
     }
@@ -335,10 +356,6 @@ impl<const B: usize> StepGenerator<B> {
     /// `pending_ticks` behind the last step generated, then (at a stop) everything.
     #[inline]
     fn settle<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> Result<(), Full> {
-        if self.overdue != 0 && self.last_tick <= self.settle_at {
-            // Nothing is overdue: the checks below would all pass.
-            self.overdue = 0;
-        }
         if self.overdue != 0 {
             self.settle_overdue(out)?;
         }
@@ -361,15 +378,15 @@ impl<const B: usize> StepGenerator<B> {
         out: &mut StepProducer<'_, N>,
     ) -> Result<(), Full> {
         let full_check = self.overdue == (1 << AXES) - 1;
+        // A first pending step `f` is overdue when `f + pending_ticks < last_tick`.
+        let overdue_below = self.last_tick.saturating_sub(self.pending_ticks);
         for c in 0..AXES {
             if self.overdue & (1 << c) == 0 {
                 continue;
             }
-            if let Some(f) = self.comp[c].first_pending() {
-                if f + self.pending_ticks < self.last_tick {
-                    self.comp[c].emit(c, out, &self.tune)?;
-                    self.publish(out);
-                }
+            if self.comp[c].first_pending().is_some_and(|f| f < overdue_below) {
+                self.comp[c].emit(c, out, &self.tune)?;
+                self.publish(out);
             }
             self.overdue &= !(1 << c);
         }
@@ -464,6 +481,7 @@ impl<const B: usize> StepGenerator<B> {
             // 0 <= delta0 < dp; the first crossing is delta0 / dp of the way along.
             let dp = dp.max(1) as u128;
             run.remaining = m1.abs_diff(m) as u32;
+            self.steps[axis] += run.remaining as u64;
             run.dir = dir;
             let s_q48 = div_u128((delta0.max(0) as u128 * len) << 16, dp);
             let ds_q48 = div_u128(len << 48, dp);
@@ -474,20 +492,6 @@ impl<const B: usize> StepGenerator<B> {
             run.next_tick = tick_at(self.block_start_q16, &b, run.s_q32);
         }
         self.block = Some(b);
-    }
-
-    fn advance(&mut self, axis: usize) {
-        let Some(b) = self.block.as_ref() else {
-            return;
-        };
-        let run = &mut self.axes[axis];
-        run.remaining -= 1;
-        if run.remaining > 0 {
-            run.step_distance();
-            run.next_tick = tick_at(self.block_start_q16, b, run.s_q32);
-        } else {
-            run.next_tick = u64::MAX;
-        }
     }
 }
 

@@ -259,20 +259,23 @@ fn hash_cmd(h: u64, axis: usize, cmd: &StepCmd) -> u64 {
         StepCmd::Wait(ticks) => (2, ticks, 0),
         StepCmd::Steps { interval, count, add } => (3 | (count as u32) << 16, interval, add as u32),
     };
-    let mut h = h;
-    for w in [axis as u32 | kind << 4, a, b] {
-        h ^= w as u64;
-        h = h.wrapping_mul(FNV_PRIME);
-    }
-    h
+    // Written out: a loop over the three words kept them in a stack array.
+    let word = |h: u64, w: u32| (h ^ w as u64).wrapping_mul(FNV_PRIME);
+    word(word(word(h, axis as u32 | kind << 4), a), b)
 }
 
 impl<const N: usize> StepProducer<'_, N> {
     /// Queues `cmd` for `axis`; gives it back when that queue is full.
     pub fn enqueue(&mut self, axis: usize, cmd: StepCmd) -> Result<(), StepCmd> {
-        self.q[axis].enqueue(cmd)?;
-        self.hash = hash_cmd(self.hash, axis, &cmd);
-        Ok(())
+        // The queue's result is returned as it is: taken apart (`?`), its tag byte (the
+        // command's) split the command's copies, and the compiler moved the 11 bytes after
+        // it with two bytewise `__aeabi_memcpy` calls; now the command moves as three words.
+        let hash = hash_cmd(self.hash, axis, &cmd);
+        let queued = self.q[axis].enqueue(cmd);
+        if queued.is_ok() {
+            self.hash = hash;
+        }
+        queued
     }
 
     /// The hash of the commands queued since the last call (FNV-1a over axis and command,
