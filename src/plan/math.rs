@@ -10,18 +10,41 @@
 //! 64-bit root costs about as much as five divisions instead of 32 shift-and-subtract rounds.
 //! `micromath`'s approximate `sqrt` (about 5 %) is never used for motion.
 
-/// `floor(sqrt(h))` for `h` in `[2^30, 2^32)` (so the root is in `[2^15, 2^16)`): integer
-/// Newton from `2^15 + h / 2^17`, which is `(c + h / c) / 2 >= sqrt(h)` for `c = 2^16`
-/// (arithmetic-geometric mean), decreasing until it stops (then it is the floor root).
-const fn isqrt_norm_u32(h: u32) -> u32 {
-    let mut x = (1 << 15) + (h >> 17);
-    loop {
-        let y = (x + h / x) >> 1;
-        if y >= x {
-            return x;
+/// First estimates of the root of `h` in `[2^30, 2^32)` by its top 8 bits `i = h >> 24` (64 to
+/// 255; the entries below 64 are unused, there only so that a `u8` index needs no bounds
+/// check): `floor(2^12 sqrt(i + 1/2))`, the root at the middle of the interval, within 129 of
+/// the root of every `h` in it (half the interval's root width, `2^10 / sqrt(i)`, plus 1).
+const ROOT_GUESS: [u16; 256] = {
+    let mut t = [0u16; 256];
+    let mut k = 0;
+    while k < 256 {
+        // floor(sqrt((2 i + 1) 2^23)) by the digit-by-digit method (compile time only).
+        let n = (2 * k as u64 + 1) << 23;
+        let (mut rem, mut root, mut bit) = (n, 0u64, 1u64 << 62);
+        while bit != 0 {
+            if rem >= root + bit {
+                rem -= root + bit;
+                root = (root >> 1) + bit;
+            } else {
+                root >>= 1;
+            }
+            bit >>= 2;
         }
-        x = y;
+        t[k] = root as u16;
+        k += 1;
     }
+    t
+};
+
+/// `floor(sqrt(h))` for `h` in `[2^30, 2^32)` (so the root is in `[2^15, 2^16)`): one integer
+/// Newton step from the table's guess `x0`, `x1 = (x0 + h / x0) / 2`. `x1 >= floor(sqrt(h))`
+/// for any `x0` (arithmetic-geometric mean), and `x1 - sqrt(h) <= (x0 - sqrt(h))^2 / (2 x0)
+/// <= 129^2 / (2^16 - 258) < 1/2`, so `x1` is the floor root or one above it (then
+/// `x1^2 > h`).
+const fn isqrt_norm_u32(h: u32) -> u32 {
+    let x0 = ROOT_GUESS[(h >> 24) as usize] as u32;
+    let x1 = (x0 + h / x0) >> 1; // <= 2^16: its square needs 64 bits
+    x1 - ((x1 as u64 * x1 as u64 > h as u64) as u32)
 }
 
 /// `floor(sqrt(n))` for a `u32`, exact.
@@ -254,6 +277,40 @@ mod tests {
             bit >>= 2;
         }
         root
+    }
+
+    #[test]
+    fn normalized_32_bit_root_is_exact_at_every_square_and_guess_interval() {
+        let check = |h: u32| {
+            let r = isqrt_norm_u32(h) as u64;
+            assert!(r * r <= h as u64 && (r + 1) * (r + 1) > h as u64, "h = {h}");
+        };
+        // Where a root is most easily off by one: around every square of the range, and at
+        // both ends of every table interval (the guess's largest error).
+        for r in 1u64 << 15..1 << 16 {
+            for h in [r * r - 1, r * r, r * r + 1, r * r + 2 * r] {
+                check(h.clamp(1 << 30, u32::MAX as u64) as u32);
+            }
+        }
+        for i in 64u32..256 {
+            for h in [i << 24, (i << 24) + 1, (i << 24) | 0xff_ffff, ((i << 24) | 0xff_ffff) - 1] {
+                check(h);
+            }
+        }
+        let mut next = crate::test_rng::xorshift(0x0123_4567_89ab_cdef);
+        for _ in 0..1_000_000 {
+            check((next() as u32) | 1 << 30);
+        }
+    }
+
+    /// All 3 2^30 inputs (about 10 s in release: `cargo test --release -- --ignored`).
+    #[test]
+    #[ignore]
+    fn normalized_32_bit_root_is_exact_everywhere() {
+        for h in 1u32 << 30..=u32::MAX {
+            let r = isqrt_norm_u32(h) as u64;
+            assert!(r * r <= h as u64 && (r + 1) * (r + 1) > h as u64, "h = {h}");
+        }
     }
 
     #[test]

@@ -499,20 +499,17 @@ impl Block {
     }
 
     /// Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
-    /// acceleration, ticks q16; `v2 + 2 a d` is at most the cruise speed squared (plus
-    /// rounding), so the shift into the finer units keeps it below 2^63.
+    /// acceleration, ticks q16, for `d` within the ramp that starts (or ends) at `v2`.
     // Inlined: its one call runs for every ramp step.
     #[inline(always)]
     fn ramp_ticks_q16(&self, d: u64, v_fine: u64, v2: u64) -> u64 {
-        // v2 + 2 a d / 2^32 = v2 + a d / 2^31, saturated.
-        let w = v2.saturating_add(math::mul_shr_sat(self.accel_q16, d, 31));
-        let root = if w > u64::MAX >> self.fine_shift {
-            // floor(sqrt(u64::MAX)), the root of the saturated value.
-            u32::MAX as u64
-        } else {
-            math::isqrt_u64_shl(w, self.fine_shift)
-        };
-        let dv = root.saturating_sub(v_fine);
+        // v2 + 2 a d / 2^32 = v2 + a d / 2^31. No saturation or overflow: the ramp's length is
+        // at most floor((c2 - v2) 2^32 / 2a), so the sum is at most the cruise speed squared
+        // c2, and `c2 << fine_shift` stays below 2^62 (or `fine_shift` is 0).
+        let w = v2 + math::mul_shr_sat(self.accel_q16, d, 31);
+        debug_assert!(w <= self.v2[1] && w <= u64::MAX >> self.fine_shift);
+        // At least v_fine = floor(sqrt(v2 2^fine_shift)): w >= v2.
+        let dv = math::isqrt_u64_shl(w, self.fine_shift) - v_fine;
         if (dv | self.ticks_per_dv) >> 32 == 0 {
             // One 32x32 -> 64 multiplication.
             (dv * self.ticks_per_dv) >> 16
