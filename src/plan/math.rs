@@ -78,7 +78,10 @@ pub const fn isqrt_u64_shl(w: u64, shift: u32) -> u64 {
     (isqrt_norm_u64(w << z) >> ((z - shift) / 2)) as u64
 }
 
-/// `floor(sqrt(m))` for `m >= 2^62` (so the root is in `[2^31, 2^32)`).
+/// `floor(sqrt(m))` for `m >= 2^62` (so the root is in `[2^31, 2^32)`), in 32-bit
+/// arithmetic but for the final comparison.
+// Inlined into its two callers: one of them runs for every ramp step.
+#[inline(always)]
 const fn isqrt_norm_u64(m: u64) -> u32 {
     // m = a3 b^3 + a2 b^2 + a1 b + a0 with b = 2^16 and a3 >= b / 4.
     let hi = (m >> 32) as u32;
@@ -90,18 +93,18 @@ const fn isqrt_norm_u64(m: u64) -> u32 {
     // numerator is below 2^32.
     let half = (r1 << 15) | (a1 >> 1);
     let q = half / s1; // <= 2^16
-    let u = ((r1 as u64) << 16 | a1 as u64) - 2 * s1 as u64 * q as u64; // < 2 s1
-    let mut s = ((s1 as u64) << 16) + q as u64;
+                       // u = r1 b + a1 - 2 s1 q = 2 (half - s1 q) + (a1 & 1) < 2 s1.
+    let u = 2 * (half - q * s1) + (a1 & 1);
+    // s = s1 b + q, once 2^32 (q = b) before the correction below brings it under: mod 2^32.
+    let s = (s1 << 16).wrapping_add(q);
     // r = u b + a0 - q^2 < 0: one step too far.
-    if ((u << 16) | a0 as u64) < q as u64 * q as u64 {
-        s -= 1;
-    }
+    let over = ((u as u64) << 16 | a0 as u64) < q as u64 * q as u64;
     // s = floor(sqrt(m)) < 2^32.
-    s as u32
+    s.wrapping_sub(over as u32)
 }
 
 /// `floor(sqrt(n))` for a `u128`, exact. [`isqrt_u64`] when `n` fits, else the same
-/// extension step with `b = 2^32` (one 64-bit division).
+/// extension step with `b = 2^32` (one 64-by-32-bit division).
 pub fn isqrt_u128(n: u128) -> u128 {
     if n <= u64::MAX as u128 {
         return isqrt_u64(n as u64) as u128;
@@ -109,19 +112,21 @@ pub fn isqrt_u128(n: u128) -> u128 {
     let z = n.leading_zeros() & !1;
     let m = n << z;
     let hi = (m >> 64) as u64;
-    let s1 = isqrt_u64(hi); // in [2^31, 2^32)
+    let s1 = isqrt_norm_u64(hi) as u64; // in [2^31, 2^32)
     let r1 = hi - s1 * s1; // <= 2 s1 < 2^33
     let a1 = (m >> 32) as u64 & 0xffff_ffff;
     let a0 = m as u64 & 0xffff_ffff;
-    // (r1 b + a1) / 2 < 2^64.
+    // q = floor((r1 b + a1) / 2 / s1) <= b; the halved numerator is below 2^64.
     let half = (r1 << 31) | (a1 >> 1);
-    let q = div_u128(half as u128, s1 as u128) as u64; // <= 2^32
-    let u = ((r1 as u128) << 32 | a1 as u128) - 2 * s1 as u128 * q as u128;
-    let mut s = ((s1 as u128) << 32) + q as u128;
-    if ((u << 32) | a0 as u128) < q as u128 * q as u128 {
-        s -= 1;
-    }
-    s >> (z / 2)
+    let q = if half >> 32 >= s1 { 1 << 32 } else { div_64by32(half, s1 as u32) as u64 };
+    // u = r1 b + a1 - 2 s1 q = 2 (half - s1 q) + (a1 & 1) < 2 s1.
+    let u = 2 * (half - q * s1) + (a1 & 1);
+    // s = s1 b + q, once 2^64 (q = b) before the correction below brings it under.
+    let s = (s1 << 32).wrapping_add(q);
+    // r = u b + a0 - q^2 < 0 (one step too far): never for u >= b (q^2 <= b^2); for q = b
+    // whenever u < b.
+    let over = u >> 32 == 0 && (q >> 32 != 0 || (u << 32 | a0) < q * q);
+    (s.wrapping_sub(over as u64) >> (z / 2)) as u128
 }
 
 /// `n / d` for a normalized `d` (`d >= 2^31`) and `n < d 2^32` (so the quotient fits in 32
@@ -300,6 +305,56 @@ mod tests {
         let mut next = crate::test_rng::xorshift(0x0123_4567_89ab_cdef);
         for _ in 0..1_000_000 {
             check((next() as u32) | 1 << 30);
+        }
+    }
+
+    #[test]
+    fn normalized_64_bit_root_is_exact_around_every_carry_of_its_low_half() {
+        let check = |m: u64| {
+            let r = isqrt_norm_u64(m) as u128;
+            assert!(r * r <= m as u128 && (r + 1) * (r + 1) > m as u128, "m = {m}");
+        };
+        // Roots s1 b - 1, s1 b, s1 b + 1 (where q is 0 or b) and squares around them.
+        for k in 1u64 << 15..1 << 16 {
+            for s in [(k << 16) - 1, k << 16, (k << 16) + 1] {
+                for m in [s * s - 1, s * s, s * s + 2 * s, (s + 1) * (s + 1)] {
+                    if m >= 1 << 62 {
+                        check(m);
+                    }
+                }
+            }
+        }
+        let top = u32::MAX as u64;
+        for m in [top * top - 1, top * top, u64::MAX, 1 << 62] {
+            check(m);
+        }
+        let mut next = crate::test_rng::xorshift(0x0f1e_2d3c_4b5a_6978);
+        for _ in 0..1_000_000 {
+            let s = next() >> 32 | 1 << 31;
+            check(next() | 1 << 63);
+            check(s * s);
+            check(s * s - 1);
+            check(s * s + 2 * s);
+        }
+    }
+
+    #[test]
+    fn wide_root_is_exact_around_every_carry_of_its_low_half() {
+        let mut next = crate::test_rng::xorshift(0x7f4a_7c15_9e37_79b9);
+        let check = |n: u128| assert_eq!(isqrt_u128(n), bitwise_isqrt(n), "n = {n}");
+        for i in 0..100_000u64 {
+            // Roots k b - 1, k b, k b + 1 with b = 2^32 (q is 0 or b), and random ones.
+            let k = (next() >> 33) | 1 << 31;
+            let s = match i % 4 {
+                0 => (k << 32) - 1,
+                1 => k << 32,
+                2 => (k << 32) + 1,
+                _ => next() | 1 << 63,
+            } as u128;
+            for n in [s * s - 1, s * s, s * s + 2 * s] {
+                check(n);
+                check(n >> (2 * (i % 32)));
+            }
         }
     }
 
