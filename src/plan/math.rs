@@ -186,15 +186,15 @@ fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
     (q1 << 32) | q0
 }
 
-/// `n / d` (floor), exactly as `u128` division, with [`div_2by1`] when `d` fits in 64 bits.
-/// Panics if `d` is 0, as the `u128` division does.
+/// `n / d` (floor), exactly as `u128` division: [`div_by_u32`] when `d` fits in 32 bits,
+/// [`div_2by1`] when it fits in 64. Panics if `d` is 0, as the `u128` division does.
 pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
     let Ok(d64) = u64::try_from(d) else {
         return n / d;
     };
     assert!(d64 != 0, "division by zero");
-    if d64 < 1 << 16 {
-        return div_small(n, d64 as u32);
+    if let Ok(d32) = u32::try_from(d64) {
+        return div_by_u32(n, d32);
     }
     let (hi, lo) = ((n >> 64) as u64, n as u64);
     if hi < d64 {
@@ -205,21 +205,34 @@ pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
     ((qh as u128) << 64) | div_2by1(r, lo, d64) as u128
 }
 
-/// `n / d` for `0 < d < 2^16` (the steps per mm scale's 1000, for one): long division with
-/// 16-bit digits, each digit one 32-bit hardware division (the remainder stays below `d`,
-/// so `remainder 2^16 + digit` fits in 32 bits).
-fn div_small(n: u128, d: u32) -> u128 {
-    let mut rem = 0u32;
+/// `n / d` for `0 < d < 2^32` (the steps per mm scale's 1000, speeds below 65 mm/s): long
+/// division with 32-bit digits from the top nonzero word of `n` down. The first digit is
+/// one hardware division (no remainder carried in); each further one divides
+/// `rem 2^32 + word` with `rem < d`: for `d < 2^16` as two 16-bit digits, each one hardware
+/// division (`rem 2^16 + half word` fits in 32 bits), else with [`div_64by32`] after
+/// shifting both by the divisor's normalization (which keeps the quotient).
+fn div_by_u32(n: u128, d: u32) -> u128 {
+    let w = [n as u32, (n >> 32) as u32, (n >> 64) as u32, (n >> 96) as u32];
     let mut q = [0u32; 4];
-    for (k, qk) in q.iter_mut().enumerate().rev() {
-        let w = (n >> (32 * k)) as u32;
-        let hi = (rem << 16) | (w >> 16);
-        let qh = hi / d;
-        rem = hi - qh * d;
-        let lo = (rem << 16) | (w & 0xffff);
-        let ql = lo / d;
-        rem = lo - ql * d;
-        *qk = (qh << 16) | ql;
+    let mut k = 3;
+    while k > 0 && w[k] == 0 {
+        k -= 1;
+    }
+    q[k] = w[k] / d;
+    let mut rem = w[k] - q[k] * d;
+    let s = d.leading_zeros();
+    while k > 0 {
+        k -= 1;
+        q[k] = if d < 1 << 16 {
+            let hi = (rem << 16) | (w[k] >> 16);
+            let qh = hi / d;
+            let lo = ((hi - qh * d) << 16) | (w[k] & 0xffff);
+            (qh << 16) | (lo / d)
+        } else {
+            div_64by32(((rem as u64) << 32 | w[k] as u64) << s, d << s)
+        };
+        // The remainder is below d < 2^32: exact mod 2^32.
+        rem = w[k].wrapping_sub(q[k].wrapping_mul(d));
     }
     (q[3] as u128) << 96 | (q[2] as u128) << 64 | (q[1] as u128) << 32 | q[0] as u128
 }
@@ -411,9 +424,9 @@ mod tests {
             // Divisors of every width, including ones just below and above a power of two.
             let d = match c % 5 {
                 0 => (c >> (c % 64)).max(1) as u128,
-                // Divisors of the 16-bit digit path (1000: the steps per mm scale).
-                4 => [1, 1000, 65_535, c & 0xffff, (1 << 16) - 1 - (c & 0xff)][(b % 5) as usize]
-                    as u128,
+                // Divisors of the 32-bit digit path (1000: the steps per mm scale).
+                4 => [1, 1000, 65_535, c & 0xffff, (1 << 16) - 1 - (c & 0xff), 1 << 16, c >> 32]
+                    [(b % 7) as usize] as u128,
                 1 => (1u128 << (c % 64)) - (c % 2) as u128,
                 2 => (c as u128) << (b % 64),
                 _ => n >> (b % 128),
@@ -430,6 +443,16 @@ mod tests {
             let d = (next() as u32) | 1 << 31;
             let n = next() % ((d as u64) << 32);
             assert_eq!(div_64by32(n, d) as u64, n / d as u64, "{n} / {d}");
+        }
+        // Words of zeros above, between and below, and divisors at every edge of the paths.
+        let ns = [0, 1, 999, u32::MAX as u128, 1 << 32, 1 << 64, 1 << 96, (1 << 96) + 7, u128::MAX];
+        let ds =
+            [1u128, 2, 3, 1000, 65_535, 65_536, 65_537, 1 << 31, (1 << 31) + 1, u32::MAX as u128];
+        for (n, d) in ns.iter().flat_map(|&n| ds.iter().map(move |&d| (n, d))) {
+            for n in [n, n.wrapping_sub(1), n.wrapping_add(d)] {
+                assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
+                assert_eq!(div_u128(n, d + (1 << 32)), n / (d + (1 << 32)), "{n} / {d} + 2^32");
+            }
         }
         assert_eq!(div_u128(u128::MAX, 1), u128::MAX);
         assert_eq!(div_u128(u128::MAX, 1000), u128::MAX / 1000);

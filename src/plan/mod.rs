@@ -798,8 +798,9 @@ impl<const N: usize> Planner<N> {
             cruise_v2 = cruise_v2.min(sat_u64(cap));
         }
         if let Some(axis) = a_axis {
-            let la = lim.amax_q16[axis] as u128 * len_q32 as u128;
-            let cap = div_u128(la, (d[axis].unsigned_abs() as u128) << 32);
+            // floor(amax L / (|d| 2^32)) = floor(floor(amax L / 2^32) / |d|): a 32-bit divisor.
+            let la = (lim.amax_q16[axis] as u128 * len_q32 as u128) >> 32;
+            let cap = div_u128(la, d[axis].unsigned_abs() as u128);
             accel_q16 = accel_q16.min(sat_u64(cap));
         }
         let ratio = |v: i64| {
