@@ -69,6 +69,8 @@ pub const fn isqrt_u64(n: u64) -> u64 {
 
 /// `floor(sqrt(w 2^shift))` for an even `shift` and `w <= u64::MAX >> shift`, exact: the
 /// shift joins [`isqrt_u64`]'s normalization (one 64-bit shift instead of two).
+// Inlined: its one call runs for every ramp step.
+#[inline(always)]
 pub const fn isqrt_u64_shl(w: u64, shift: u32) -> u64 {
     if w == 0 {
         return 0;

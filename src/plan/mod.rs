@@ -506,7 +506,7 @@ impl Block {
         // v2 + 2 a d / 2^32 = v2 + a d / 2^31. No saturation or overflow: the ramp's length is
         // at most floor((c2 - v2) 2^32 / 2a), so the sum is at most the cruise speed squared
         // c2, and `c2 << fine_shift` stays below 2^62 (or `fine_shift` is 0).
-        let w = v2 + math::mul_shr_sat(self.accel_q16, d, 31);
+        let w = v2 + ((self.accel_q16 as u128 * d as u128) >> 31) as u64;
         debug_assert!(w <= self.v2[1] && w <= u64::MAX >> self.fine_shift);
         // At least v_fine = floor(sqrt(v2 2^fine_shift)): w >= v2.
         let dv = math::isqrt_u64_shl(w, self.fine_shift) - v_fine;
