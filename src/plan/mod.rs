@@ -373,7 +373,8 @@ impl Block {
             t_decel_q16: t_acc.saturating_add(t_cruise),
             t_total_q16: t_acc.saturating_add(t_cruise).saturating_add(t_dec),
             timer_hz,
-            v_fine: [s2, c2, e2].map(|x| math::isqrt_u64(x << fine_shift)),
+            // floor(sqrt(v2 2^fine_shift)) = floor(floor(sqrt(v2 2^16)) / 2^(8 - half_shift)).
+            v_fine: v.map(|x| x >> (8 - half_shift)),
             fine_shift,
             ticks_per_dv,
             ticks_per_um: (k >> extra) as u64,
