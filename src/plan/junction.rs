@@ -8,7 +8,7 @@
 //! straight), and the mirror pair for `d < 0` (sharp turns), where `theta` is the angle between
 //! the reversed previous direction and the next one (Klipper's `junction_cos_theta = -d`).
 
-use super::math::{div_u128, isqrt_u128, sat_u64};
+use super::math::{div_sat_u64, div_u128, isqrt_u128, sat_u64};
 use super::{Geom, Limits};
 
 /// One in q62.
@@ -45,20 +45,19 @@ pub(super) fn junction_v2(prev: &Geom, next: &Geom, lim: &Limits) -> u64 {
     // cos^2 = 0 (straight on) sets no limit.
     let x = (s * (ONE_Q62 as u128 + s)) >> 62;
     if k != 0 {
-        let jd = div_u128(lim.scv2_jd_q16 as u128 * x, k);
-        v2 = v2.min(sat_u64(jd));
+        v2 = v2.min(div_sat_u64(lim.scv2_jd_q16 as u128 * x, k));
         // The arc of that radius must fit in the shorter half of each move:
         // v^2 <= 1/2 len accel tan(theta/2), tan = sin / cos.
         let cos = isqrt_u128(k << 62);
         for g in [prev, next] {
             let la = sat_u64((g.len_q32 as u128 * g.accel_q16 as u128) >> 32);
-            v2 = v2.min(sat_u64(div_u128(la as u128 * s, 2 * cos)));
+            v2 = v2.min(div_sat_u64(la as u128 * s, 2 * cos));
         }
     }
     // Extruder: its velocity may jump by at most the extruder corner velocity.
     let dr = (next.e_ratio_q62 - prev.e_ratio_q62).unsigned_abs();
     if dr != 0 {
-        let vmax_q16 = div_u128((lim.ecv_q16 as u128) << 62, dr);
+        let vmax_q16 = div_sat_u64((lim.ecv_q16 as u128) << 62, dr) as u128;
         if vmax_q16 < 1 << 56 {
             v2 = v2.min(sat_u64((vmax_q16 * vmax_q16) >> 16));
         }

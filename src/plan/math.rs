@@ -192,7 +192,7 @@ fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
 /// [`div_2by1`] when it fits in 64. Panics if `d` is 0, as the `u128` division does.
 pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
     let Ok(d64) = u64::try_from(d) else {
-        return n / d;
+        return div_wide(n, d);
     };
     assert!(d64 != 0, "division by zero");
     if let Ok(d32) = u32::try_from(d64) {
@@ -207,12 +207,33 @@ pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
     ((qh as u128) << 64) | div_2by1(r, lo, d64) as u128
 }
 
+/// `sat_u64(div_u128(n, d))`, without dividing when the quotient saturates: `n / d >= 2^64`
+/// exactly when `floor(n / 2^64) >= d`.
+pub(crate) fn div_sat_u64(n: u128, d: u128) -> u64 {
+    let hi = (n >> 64) as u64;
+    match u64::try_from(d) {
+        Ok(d64) if d64 != 0 && hi >= d64 => u64::MAX,
+        Ok(d64) if d64 > u32::MAX as u64 => div_2by1(hi, n as u64, d64),
+        // Below 2^64: d >= 2^64 or hi < d.
+        _ => div_u128(n, d) as u64,
+    }
+}
+
+/// `n / d` for `d >= 2^64` (no caller in the planner's own units): the `u128` operator,
+/// out of line so that [`div_u128`] stays short.
+#[cold]
+#[inline(never)]
+fn div_wide(n: u128, d: u128) -> u128 {
+    n / d
+}
+
 /// `n / d` for `0 < d < 2^32` (the steps per mm scale's 1000, speeds below 65 mm/s): long
 /// division with 32-bit digits from the top nonzero word of `n` down. The first digit is
 /// one hardware division (no remainder carried in); each further one divides
 /// `rem 2^32 + word` with `rem < d`: for `d < 2^16` as two 16-bit digits, each one hardware
 /// division (`rem 2^16 + half word` fits in 32 bits), else with [`div_64by32`] after
 /// shifting both by the divisor's normalization (which keeps the quotient).
+#[inline(never)]
 fn div_by_u32(n: u128, d: u32) -> u128 {
     let w = [n as u32, (n >> 32) as u32, (n >> 64) as u32, (n >> 96) as u32];
     let mut q = [0u32; 4];
@@ -435,6 +456,7 @@ mod tests {
             }
             .max(1);
             assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
+            assert_eq!(div_sat_u64(n, d), sat_u64(n / d), "{n} / {d}");
             let sn = if a % 2 == 0 { n as i128 } else { -((n >> 1) as i128) };
             assert_eq!(div_i128_pos(sn, d), sn / d as i128, "{sn} / {d}");
         }
@@ -454,6 +476,11 @@ mod tests {
             for n in [n, n.wrapping_sub(1), n.wrapping_add(d)] {
                 assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
                 assert_eq!(div_u128(n, d + (1 << 32)), n / (d + (1 << 32)), "{n} / {d} + 2^32");
+                for d in [d, d + (1 << 32), d << 64, d.wrapping_neg()] {
+                    assert_eq!(div_sat_u64(n, d), sat_u64(n / d), "{n} / {d}");
+                    let e = d << 32 | 1;
+                    assert_eq!(div_sat_u64(n, e), sat_u64(n / e), "{n} / {e}");
+                }
             }
         }
         assert_eq!(div_u128(u128::MAX, 1), u128::MAX);

@@ -50,7 +50,7 @@ use crate::machine::{MachineConfig, Rate, AXES};
 mod junction;
 pub mod math;
 
-use math::{div_i128_pos, div_u128, isqrt_u128, sat_u64};
+use math::{div_i128_pos, div_sat_u64, div_u128, isqrt_u128, sat_u64};
 
 /// Largest per-axis distance of one move, in um (2^24 um = 16.7 m).
 pub const MAX_AXIS_DELTA_UM: i64 = 1 << 24;
@@ -330,7 +330,7 @@ impl Block {
         let a = e.accel_q16.max(1) as u128;
         let len = e.len_q32;
         // Distances of the ramps: (vc^2 - v^2) / 2a, um q32.
-        let ramp = |dv2: u64| sat_u64(div_u128((dv2 as u128) << 32, 2 * a)).min(len);
+        let ramp = |dv2: u64| div_sat_u64((dv2 as u128) << 32, 2 * a).min(len);
         let s_acc = ramp(c2 - s2);
         let s_dec = ramp(c2 - e2).min(len - s_acc);
         let s_cruise = len - s_acc - s_dec;
@@ -341,14 +341,14 @@ impl Block {
             if s == 0 {
                 0
             } else {
-                sat_u64(div_u128(2 * s as u128 * f, (va as u128 + vb as u128).max(1)))
+                div_sat_u64(2 * s as u128 * f, (va as u128 + vb as u128).max(1))
             }
         };
         let t_acc = ramp_t(s_acc, v[0], v[1]);
         let t_cruise = if s_cruise == 0 {
             0
         } else {
-            sat_u64(div_u128(s_cruise as u128 * f, (v[1] as u128).max(1)))
+            div_sat_u64(s_cruise as u128 * f, (v[1] as u128).max(1))
         };
         let t_dec = ramp_t(s_dec, v[1], v[2]);
         // Per-step reciprocals: one division each per block, none per step.
@@ -356,7 +356,7 @@ impl Block {
         // (v^2 q16 below 2^46), fewer above: (c2 << fine_shift) < 2^62.
         let half_shift = (c2.leading_zeros().saturating_sub(2) / 2).min(8);
         let fine_shift = 2 * half_shift;
-        let ticks_per_dv = sat_u64(div_u128(f << (40 - half_shift), a));
+        let ticks_per_dv = div_sat_u64(f << (40 - half_shift), a);
         let k = div_u128(f << 64, (v[1] as u128).max(1));
         let extra = (128 - k.leading_zeros()).saturating_sub(63);
         Self {
@@ -461,13 +461,13 @@ impl Block {
             }
             let w = v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32);
             let vd = isqrt_u128(w << 16);
-            sat_u64(div_u128(2 * d as u128 * f, (v as u128 + vd).max(1)))
+            div_sat_u64(2 * d as u128 * f, (v as u128 + vd).max(1))
         };
         if s <= self.accel_end_q32 {
             ramp(s, self.v[0], self.v2[0]).min(self.t_accel_q16)
         } else if s <= self.decel_start_q32 {
             let d = (s - self.accel_end_q32) as u128 * f;
-            let t = sat_u64(div_u128(d, (self.v[1] as u128).max(1)));
+            let t = div_sat_u64(d, (self.v[1] as u128).max(1));
             self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
         } else {
             let back = ramp(self.len_q32 - s, self.v[2], self.v2[2]);
@@ -522,7 +522,7 @@ impl Block {
 
 /// Ticks q16 to seconds.
 fn ticks_q16_to_s(t_q16: u64, timer_hz: u32) -> U32F32 {
-    U32F32::from_bits(sat_u64(div_u128((t_q16 as u128) << 16, timer_hz.max(1) as u128)))
+    U32F32::from_bits(div_sat_u64((t_q16 as u128) << 16, timer_hz.max(1) as u128))
 }
 
 /// The lookahead planner with a queue of `N` moves.
@@ -795,14 +795,14 @@ impl<const N: usize> Planner<N> {
             }
         }
         if let Some(axis) = v_axis {
-            let cap = div_u128(lim.vmax2_q16[axis] as u128 * len2 as u128, sq(d[axis]) as u128);
-            cruise_v2 = cruise_v2.min(sat_u64(cap));
+            let cap = div_sat_u64(lim.vmax2_q16[axis] as u128 * len2 as u128, sq(d[axis]) as u128);
+            cruise_v2 = cruise_v2.min(cap);
         }
         if let Some(axis) = a_axis {
             // floor(amax L / (|d| 2^32)) = floor(floor(amax L / 2^32) / |d|): a 32-bit divisor.
             let la = (lim.amax_q16[axis] as u128 * len_q32 as u128) >> 32;
-            let cap = div_u128(la, d[axis].unsigned_abs() as u128);
-            accel_q16 = accel_q16.min(sat_u64(cap));
+            let cap = div_sat_u64(la, d[axis].unsigned_abs() as u128);
+            accel_q16 = accel_q16.min(cap);
         }
         let ratio = |v: i64| {
             if kinematic && v != 0 {
