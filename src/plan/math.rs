@@ -156,36 +156,73 @@ fn div_64by32(n: u64, d: u32) -> u32 {
     (q1 << 16) | q0
 }
 
-/// `(u1 2^64 + u0) / v` for `u1 < v` (so the quotient fits): the same long division with
-/// 32-bit digits, each digit's estimate from [`div_64by32`]. No `u64` or `u128` division
-/// routine (long loops on 32-bit targets).
+/// `(u1 2^64 + u0) / v` for `u1 < v` (so the quotient fits): long division of the normalized
+/// operands with 32-bit digits, each digit one 3-by-2-word step of Möller and Granlund
+/// ("Improved division by invariant integers", 2011, algorithm 5) with the divisor's
+/// reciprocal: two multiplications and at most two corrections instead of a division. No
+/// `u64` or `u128` division routine (long loops on 32-bit targets).
 fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
-    const B: u64 = 1 << 32;
     let s = v.leading_zeros();
-    let v = v << s;
-    let (vn1, vn0) = (v >> 32, v & (B - 1));
-    let un32 = if s == 0 { u1 } else { (u1 << s) | (u0 >> (64 - s)) };
-    let un10 = u0 << s;
-    let (un1, un0) = (un10 >> 32, un10 & (B - 1));
-    // One quotient digit of (top B + next) / v, and the remainder; top < v.
-    let digit = |top: u64, next: u64| -> (u64, u64) {
-        let (mut q, mut rhat) = if top >> 32 >= vn1 {
-            // The estimate top / vn1 would not fit in a digit: start from the largest one.
-            (B - 1, top - (B - 1) * vn1)
-        } else {
-            let q = div_64by32(top, vn1 as u32) as u64;
-            (q, top - q * vn1)
-        };
-        // rhat < B whenever the product is formed, so nothing overflows.
-        while rhat < B && q * vn0 > (rhat << 32) + next {
-            q -= 1;
-            rhat += vn1;
+    let d = v << s;
+    // (u1 2^64 + u0) 2^s = h 2^64 + l with h < d.
+    let (h, l) = if s == 0 { (u1, u0) } else { ((u1 << s) | (u0 >> (64 - s)), u0 << s) };
+    let r = reciprocal_3by2(d);
+    let (q1, rem) = div_3by2(h, (l >> 32) as u32, d, r);
+    let (q0, _) = div_3by2(rem, l as u32, d, r);
+    (q1 as u64) << 32 | q0 as u64
+}
+
+/// `floor((2^96 - 1) / d) - 2^32` for a normalized `d` (`d >= 2^63`): Möller and Granlund's
+/// algorithm 6, the 2-by-1 reciprocal of the top word (one [`div_64by32`]) corrected for the
+/// low word.
+fn reciprocal_3by2(d: u64) -> u32 {
+    let (d1, d0) = ((d >> 32) as u32, d as u32);
+    // floor((2^64 - 1) / d1) - 2^32 = floor(((2^32 - 1 - d1) 2^32 + 2^32 - 1) / d1).
+    let mut v = div_64by32(((!d1 as u64) << 32) | 0xffff_ffff, d1);
+    let mut p = d1.wrapping_mul(v).wrapping_add(d0);
+    if p < d0 {
+        v = v.wrapping_sub(1);
+        if p >= d1 {
+            v = v.wrapping_sub(1);
+            p = p.wrapping_sub(d1);
         }
-        (q, (top << 32).wrapping_add(next).wrapping_sub(q.wrapping_mul(v)))
-    };
-    let (q1, un21) = digit(un32, un1);
-    let (q0, _) = digit(un21, un0);
-    (q1 << 32) | q0
+        p = p.wrapping_sub(d1);
+    }
+    let t = v as u64 * d0 as u64;
+    let (t1, t0) = ((t >> 32) as u32, t as u32);
+    p = p.wrapping_add(t1);
+    if p < t1 {
+        v = v.wrapping_sub(1);
+        if ((p as u64) << 32 | t0 as u64) >= d {
+            v = v.wrapping_sub(1);
+        }
+    }
+    v
+}
+
+/// `(u 2^32 + u0) / d` and its remainder for a normalized `d`, `u < d` (so the quotient is one
+/// word) and `r = reciprocal_3by2(d)`: Möller and Granlund's algorithm 5. The estimate
+/// `q = floor(r u2 / 2^32) + u2 2^32 + u1` (`u = u2 2^32 + u1`; below 2^64) is the quotient
+/// or one above it, more rarely one below.
+#[inline(always)]
+fn div_3by2(u: u64, u0: u32, d: u64, r: u32) -> (u32, u64) {
+    let (d1, u2, u1) = ((d >> 32) as u32, (u >> 32) as u32, u as u32);
+    let q = r as u64 * u2 as u64 + u;
+    let (mut q1, q0) = ((q >> 32) as u32, q as u32);
+    let r1 = u1.wrapping_sub(q1.wrapping_mul(d1));
+    // The remainder for q1 + 1, mod 2^64.
+    let mut rem =
+        ((r1 as u64) << 32 | u0 as u64).wrapping_sub(d as u32 as u64 * q1 as u64).wrapping_sub(d);
+    q1 = q1.wrapping_add(1);
+    if (rem >> 32) as u32 >= q0 {
+        q1 = q1.wrapping_sub(1);
+        rem = rem.wrapping_add(d);
+    }
+    if rem >= d {
+        q1 += 1;
+        rem -= d;
+    }
+    (q1, rem)
 }
 
 /// `n / d` (floor), exactly as `u128` division: [`div_by_u32`] when `d` fits in 32 bits,
@@ -490,6 +527,45 @@ mod tests {
         assert_eq!(div_u128(999, 1000), 0);
         assert_eq!(div_u128(u128::MAX, u64::MAX as u128), u128::MAX / u64::MAX as u128);
         assert_eq!(div_u128(u128::MAX, (1 << 63) + 1), u128::MAX / ((1 << 63) + 1));
+    }
+
+    #[test]
+    fn two_by_one_division_equals_the_native_one_at_its_corners() {
+        let mut next = crate::test_rng::xorshift(0x1405_7b7e_f767_814f);
+        for i in 0..300_000u64 {
+            let v = match i % 4 {
+                0 => next() >> (next() % 32),
+                1 => (next() | 1 << 63) & !0xffff_ffff,
+                2 => next() | 0xffff_ffff,
+                _ => (1 << (32 + next() % 32)) - (next() % 3),
+            }
+            .max(1 << 32);
+            let u1 = [v - 1, next() % v, 0, v >> 1][(i / 4 % 4) as usize];
+            for u0 in [next(), u64::MAX, 0] {
+                let n = (u1 as u128) << 64 | u0 as u128;
+                assert_eq!(div_2by1(u1, u0, v) as u128, n / v as u128, "{n} / {v}");
+            }
+        }
+    }
+
+    #[test]
+    fn reciprocal_is_the_floor_of_the_wide_quotient() {
+        let mut next = crate::test_rng::xorshift(0x5851_f42d_4c95_7f2d);
+        let check = |d: u64| {
+            let want = (u128::MAX >> 32) / d as u128 - (1 << 32);
+            assert_eq!(reciprocal_3by2(d) as u128, want, "d = {d}");
+        };
+        for d in [1 << 63, u64::MAX, (1 << 63) | 1, (1 << 63) | 0xffff_ffff, 0xffff_ffff_0000_0000]
+        {
+            check(d);
+        }
+        for _ in 0..200_000 {
+            let d = next() | 1 << 63;
+            check(d);
+            // Low words of 0 and all ones, where the corrections are taken.
+            check(d & !0xffff_ffff);
+            check(d | 0xffff_ffff);
+        }
     }
 
     #[test]
