@@ -323,7 +323,9 @@ pub struct Block {
 }
 
 impl Block {
-    fn new(e: &Entry, end_v2: u64, timer_hz: u32) -> Self {
+    /// The block of `e` ending at `end_v2`; `start_v` is `sqrt_q16(e.start_v2)` when the
+    /// caller already has it (the previous block's end speed).
+    fn new(e: &Entry, end_v2: u64, timer_hz: u32, start_v: Option<u64>) -> Self {
         let (s2, e2) = (e.start_v2, end_v2);
         let peak = (s2 + e2 + e.delta_v2) / 2;
         let c2 = e.cruise_v2.min(peak).max(s2).max(e2);
@@ -334,7 +336,10 @@ impl Block {
         let s_acc = ramp(c2 - s2);
         let s_dec = ramp(c2 - e2).min(len - s_acc);
         let s_cruise = len - s_acc - s_dec;
-        let v = [sqrt_q16(s2), sqrt_q16(c2), sqrt_q16(e2)];
+        // Equal speeds squared (no acceleration or no deceleration phase) share their root.
+        let v0 = start_v.unwrap_or_else(|| sqrt_q16(s2));
+        let v1 = if c2 == s2 { v0 } else { sqrt_q16(c2) };
+        let v = [v0, v1, if e2 == c2 { v1 } else { sqrt_q16(e2) }];
         let f = timer_hz as u128;
         // Ramp time 2 s / (v_a + v_b); cruise time s / v; ticks q16.
         let ramp_t = |s: u64, va: u64, vb: u64| {
@@ -537,6 +542,8 @@ pub struct Planner<const N: usize> {
     last: Option<Geom>,
     /// End speed^2 of the last released block: the fixed start of the head.
     exit_v2: u64,
+    /// Its root, `sqrt_q16(exit_v2)` (the head's start speed).
+    exit_v: u64,
     released_q16: u64,
     released: u32,
 }
@@ -560,6 +567,7 @@ impl<const N: usize> Planner<N> {
         self.position_um = position_um;
         self.last = None;
         self.exit_v2 = 0;
+        self.exit_v = 0;
         self.released_q16 = 0;
         self.released = 0;
     }
@@ -576,6 +584,7 @@ impl<const N: usize> Planner<N> {
             position_um: [0; AXES],
             last: None,
             exit_v2: 0,
+            exit_v: 0,
             released_q16: 0,
             released: 0,
         }
@@ -621,7 +630,8 @@ impl<const N: usize> Planner<N> {
         (0..self.len)
             .map(|i| {
                 let end = if i + 1 < self.len { self.at(i + 1).start_v2 } else { 0 };
-                Block::new(self.at(i), end, self.lim.timer_hz).t_total_q16
+                let start_v = (i == 0).then_some(self.exit_v);
+                Block::new(self.at(i), end, self.lim.timer_hz, start_v).t_total_q16
             })
             .fold(0, u64::saturating_add)
     }
@@ -754,10 +764,13 @@ impl<const N: usize> Planner<N> {
             return None;
         }
         let end_v2 = if self.len >= 2 { self.at(1).start_v2 } else { 0 };
-        let block = Block::new(self.at(0), end_v2, self.lim.timer_hz);
+        // The head starts where the last block ended (replan never changes it).
+        debug_assert!(self.at(0).start_v2 == self.exit_v2 && self.exit_v == sqrt_q16(self.exit_v2));
+        let block = Block::new(self.at(0), end_v2, self.lim.timer_hz, Some(self.exit_v));
         self.head = (self.head + 1) % N;
         self.len -= 1;
         self.exit_v2 = end_v2;
+        self.exit_v = block.v[2];
         self.released_q16 = self.released_q16.saturating_add(block.t_total_q16);
         self.released += 1;
         Some(block)
