@@ -8,7 +8,7 @@
 //! straight), and the mirror pair for `d < 0` (sharp turns), where `theta` is the angle between
 //! the reversed previous direction and the next one (Klipper's `junction_cos_theta = -d`).
 
-use super::math::{div_sat_u64, div_u128, isqrt_u128, sat_u64};
+use super::math::{div_sat_u64, div_u128, isqrt_u128, sat_u64, Divisor};
 use super::{Geom, Limits};
 
 /// One in q62.
@@ -48,10 +48,11 @@ pub(super) fn junction_v2(prev: &Geom, next: &Geom, lim: &Limits) -> u64 {
         v2 = v2.min(div_sat_u64(lim.scv2_jd_q16 as u128 * x, k));
         // The arc of that radius must fit in the shorter half of each move:
         // v^2 <= 1/2 len accel tan(theta/2), tan = sin / cos.
-        let cos = isqrt_u128(k << 62);
+        // cos < 2^63 (k < 2^63): 2 cos fits.
+        let by_2cos = Divisor::new(2 * isqrt_u128(k << 62) as u64);
         for g in [prev, next] {
             let la = sat_u64((g.len_q32 as u128 * g.accel_q16 as u128) >> 32);
-            v2 = v2.min(div_sat_u64(la as u128 * s, 2 * cos));
+            v2 = v2.min(by_2cos.div_sat(la as u128 * s));
         }
     }
     // Extruder: its velocity may jump by at most the extruder corner velocity.

@@ -156,20 +156,73 @@ fn div_64by32(n: u64, d: u32) -> u32 {
     (q1 << 16) | q0
 }
 
-/// `(u1 2^64 + u0) / v` for `u1 < v` (so the quotient fits): long division of the normalized
-/// operands with 32-bit digits, each digit one 3-by-2-word step of Möller and Granlund
-/// ("Improved division by invariant integers", 2011, algorithm 5) with the divisor's
-/// reciprocal: two multiplications and at most two corrections instead of a division. No
-/// `u64` or `u128` division routine (long loops on 32-bit targets).
-fn div_2by1(u1: u64, u0: u64, v: u64) -> u64 {
-    let s = v.leading_zeros();
-    let d = v << s;
-    // (u1 2^64 + u0) 2^s = h 2^64 + l with h < d.
-    let (h, l) = if s == 0 { (u1, u0) } else { ((u1 << s) | (u0 >> (64 - s)), u0 << s) };
-    let r = reciprocal_3by2(d);
-    let (q1, rem) = div_3by2(h, (l >> 32) as u32, d, r);
-    let (q0, _) = div_3by2(rem, l as u32, d, r);
-    (q1 as u64) << 32 | q0 as u64
+/// A nonzero `u64` divisor prepared once for several divisions: from 2^32 on normalized
+/// (`d = v 2^s >= 2^63`) with its [`reciprocal_3by2`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Divisor {
+    v: u64,
+    d: u64,
+    s: u32,
+    r: u32,
+}
+
+impl Divisor {
+    /// Panics if `v` is 0, as a division by it would.
+    // Inlined: for a 32-bit `v` it is a test and a copy.
+    #[inline(always)]
+    pub(crate) fn new(v: u64) -> Self {
+        assert!(v != 0, "division by zero");
+        if v >> 32 == 0 {
+            // Divided by div_by_u32: nothing to prepare.
+            return Self { v, d: 0, s: 0, r: 0 };
+        }
+        let s = v.leading_zeros();
+        let d = v << s;
+        Self { v, d, s, r: reciprocal_3by2(d) }
+    }
+
+    /// `n / v`, exactly as `u128` division.
+    #[inline]
+    pub(crate) fn div(&self, n: u128) -> u128 {
+        if self.v >> 32 == 0 {
+            return div_by_u32(n, self.v as u32);
+        }
+        let (hi, lo) = ((n >> 64) as u64, n as u64);
+        if hi < self.v {
+            return self.div_2by1(hi, lo) as u128;
+        }
+        let qh = self.div_2by1(0, hi);
+        ((qh as u128) << 64) | self.div_2by1(hi - qh * self.v, lo) as u128
+    }
+
+    /// `sat_u64(n / v)`, without dividing when the quotient saturates: `n / v >= 2^64`
+    /// exactly when `floor(n / 2^64) >= v`.
+    #[inline]
+    pub(crate) fn div_sat(&self, n: u128) -> u64 {
+        let hi = (n >> 64) as u64;
+        if hi >= self.v {
+            u64::MAX
+        } else if self.v >> 32 == 0 {
+            div_by_u32(n, self.v as u32) as u64
+        } else {
+            self.div_2by1(hi, n as u64)
+        }
+    }
+
+    /// `(u1 2^64 + u0) / v` for `2^32 <= v` and `u1 < v` (so the quotient fits): long
+    /// division of the normalized operands with 32-bit digits, each digit one 3-by-2-word
+    /// step of Möller and Granlund ("Improved division by invariant integers", 2011,
+    /// algorithm 5) with the reciprocal: two multiplications and at most two corrections
+    /// instead of a division. No `u64` or `u128` division routine (long loops on 32-bit
+    /// targets).
+    fn div_2by1(&self, u1: u64, u0: u64) -> u64 {
+        let (d, s) = (self.d, self.s);
+        // (u1 2^64 + u0) 2^s = h 2^64 + l with h < d.
+        let (h, l) = if s == 0 { (u1, u0) } else { ((u1 << s) | (u0 >> (64 - s)), u0 << s) };
+        let (q1, rem) = div_3by2(h, (l >> 32) as u32, d, self.r);
+        let (q0, _) = div_3by2(rem, l as u32, d, self.r);
+        (q1 as u64) << 32 | q0 as u64
+    }
 }
 
 /// `floor((2^96 - 1) / d) - 2^32` for a normalized `d` (`d >= 2^63`): Möller and Granlund's
@@ -225,34 +278,21 @@ fn div_3by2(u: u64, u0: u32, d: u64, r: u32) -> (u32, u64) {
     (q1, rem)
 }
 
-/// `n / d` (floor), exactly as `u128` division: [`div_by_u32`] when `d` fits in 32 bits,
-/// [`div_2by1`] when it fits in 64. Panics if `d` is 0, as the `u128` division does.
+/// `n / d` (floor), exactly as `u128` division: [`Divisor::div`] when `d` fits in 64 bits.
+/// Panics if `d` is 0, as the `u128` division does.
 pub(crate) fn div_u128(n: u128, d: u128) -> u128 {
-    let Ok(d64) = u64::try_from(d) else {
-        return div_wide(n, d);
-    };
-    assert!(d64 != 0, "division by zero");
-    if let Ok(d32) = u32::try_from(d64) {
-        return div_by_u32(n, d32);
+    match u64::try_from(d) {
+        Ok(d64) => Divisor::new(d64).div(n),
+        Err(_) => div_wide(n, d),
     }
-    let (hi, lo) = ((n >> 64) as u64, n as u64);
-    if hi < d64 {
-        return div_2by1(hi, lo, d64) as u128;
-    }
-    let qh = div_2by1(0, hi, d64);
-    let r = hi - qh * d64;
-    ((qh as u128) << 64) | div_2by1(r, lo, d64) as u128
 }
 
-/// `sat_u64(div_u128(n, d))`, without dividing when the quotient saturates: `n / d >= 2^64`
-/// exactly when `floor(n / 2^64) >= d`.
+/// `sat_u64(div_u128(n, d))` ([`Divisor::div_sat`]).
 pub(crate) fn div_sat_u64(n: u128, d: u128) -> u64 {
-    let hi = (n >> 64) as u64;
     match u64::try_from(d) {
-        Ok(d64) if d64 != 0 && hi >= d64 => u64::MAX,
-        Ok(d64) if d64 > u32::MAX as u64 => div_2by1(hi, n as u64, d64),
-        // Below 2^64: d >= 2^64 or hi < d.
-        _ => div_u128(n, d) as u64,
+        Ok(d64) => Divisor::new(d64).div_sat(n),
+        // Below 2^64.
+        Err(_) => div_wide(n, d) as u64,
     }
 }
 
@@ -297,9 +337,9 @@ fn div_by_u32(n: u128, d: u32) -> u128 {
     (q[3] as u128) << 96 | (q[2] as u128) << 64 | (q[1] as u128) << 32 | q[0] as u128
 }
 
-/// `n / d` truncated toward zero, exactly as `i128` division, for `d > 0`.
-pub(crate) fn div_i128_pos(n: i128, d: u128) -> i128 {
-    let q = div_u128(n.unsigned_abs(), d) as i128;
+/// `n / d` truncated toward zero, exactly as `i128` division by a positive `d`.
+pub(crate) fn div_i128_pos(n: i128, d: &Divisor) -> i128 {
+    let q = d.div(n.unsigned_abs()) as i128;
     if n < 0 {
         -q
     } else {
@@ -495,7 +535,9 @@ mod tests {
             assert_eq!(div_u128(n, d), n / d, "{n} / {d}");
             assert_eq!(div_sat_u64(n, d), sat_u64(n / d), "{n} / {d}");
             let sn = if a % 2 == 0 { n as i128 } else { -((n >> 1) as i128) };
-            assert_eq!(div_i128_pos(sn, d), sn / d as i128, "{sn} / {d}");
+            if let Ok(d64) = u64::try_from(d) {
+                assert_eq!(div_i128_pos(sn, &Divisor::new(d64)), sn / d as i128, "{sn} / {d}");
+            }
         }
         for (n, d) in [(u64::MAX >> 1, 1u32 << 31), ((1 << 63) - 1, u32::MAX), (0, 1 << 31)] {
             assert_eq!(div_64by32(n, d) as u64, n / d as u64, "{n} / {d}");
@@ -543,7 +585,8 @@ mod tests {
             let u1 = [v - 1, next() % v, 0, v >> 1][(i / 4 % 4) as usize];
             for u0 in [next(), u64::MAX, 0] {
                 let n = (u1 as u128) << 64 | u0 as u128;
-                assert_eq!(div_2by1(u1, u0, v) as u128, n / v as u128, "{n} / {v}");
+                let q = Divisor::new(v).div_2by1(u1, u0);
+                assert_eq!(q as u128, n / v as u128, "{n} / {v}");
             }
         }
     }

@@ -50,7 +50,7 @@ use crate::machine::{MachineConfig, Rate, AXES};
 mod junction;
 pub mod math;
 
-use math::{div_i128_pos, div_sat_u64, div_u128, isqrt_u128, sat_u64};
+use math::{div_i128_pos, div_sat_u64, isqrt_u128, sat_u64, Divisor};
 
 /// Largest per-axis distance of one move, in um (2^24 um = 16.7 m).
 pub const MAX_AXIS_DELTA_UM: i64 = 1 << 24;
@@ -329,10 +329,11 @@ impl Block {
         let (s2, e2) = (e.start_v2, end_v2);
         let peak = (s2 + e2 + e.delta_v2) / 2;
         let c2 = e.cruise_v2.min(peak).max(s2).max(e2);
-        let a = e.accel_q16.max(1) as u128;
+        // Both ramps' distances and the per-step reciprocal divide by a.
+        let by_a = Divisor::new(e.accel_q16.max(1));
         let len = e.len_q32;
-        // Distances of the ramps: (vc^2 - v^2) / 2a, um q32.
-        let ramp = |dv2: u64| div_sat_u64((dv2 as u128) << 32, 2 * a).min(len);
+        // Distances of the ramps: (vc^2 - v^2) 2^32 / 2a = (vc^2 - v^2) 2^31 / a, um q32.
+        let ramp = |dv2: u64| by_a.div_sat((dv2 as u128) << 31).min(len);
         let s_acc = ramp(c2 - s2);
         let s_dec = ramp(c2 - e2).min(len - s_acc);
         let s_cruise = len - s_acc - s_dec;
@@ -350,19 +351,16 @@ impl Block {
             }
         };
         let t_acc = ramp_t(s_acc, v[0], v[1]);
-        let t_cruise = if s_cruise == 0 {
-            0
-        } else {
-            div_sat_u64(s_cruise as u128 * f, (v[1] as u128).max(1))
-        };
+        let by_v1 = Divisor::new(v[1].max(1));
+        let t_cruise = if s_cruise == 0 { 0 } else { by_v1.div_sat(s_cruise as u128 * f) };
         let t_dec = ramp_t(s_dec, v[1], v[2]);
         // Per-step reciprocals: one division each per block, none per step.
         // The per-step speeds get 8 more fraction bits when the peak speed is below 33 mm/s
         // (v^2 q16 below 2^46), fewer above: (c2 << fine_shift) < 2^62.
         let half_shift = (c2.leading_zeros().saturating_sub(2) / 2).min(8);
         let fine_shift = 2 * half_shift;
-        let ticks_per_dv = div_sat_u64(f << (40 - half_shift), a);
-        let k = div_u128(f << 64, (v[1] as u128).max(1));
+        let ticks_per_dv = by_a.div_sat(f << (40 - half_shift));
+        let k = by_v1.div(f << 64);
         let extra = (128 - k.leading_zeros()).saturating_sub(63);
         Self {
             start_um: e.start_um,
@@ -817,9 +815,11 @@ impl<const N: usize> Planner<N> {
             let cap = div_sat_u64(la, d[axis].unsigned_abs() as u128);
             accel_q16 = accel_q16.min(cap);
         }
+        // Every axis divides by the length (at least 2^32: 1 um).
+        let by_len = Divisor::new(len_q32);
         let ratio = |v: i64| {
             if kinematic && v != 0 {
-                div_i128_pos((v as i128) << 94, len_q32 as u128)
+                div_i128_pos((v as i128) << 94, &by_len)
             } else {
                 0
             }
