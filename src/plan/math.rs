@@ -217,10 +217,15 @@ impl Divisor {
     /// targets).
     fn div_2by1(&self, u1: u64, u0: u64) -> u64 {
         let (d, s) = (self.d, self.s);
-        // (u1 2^64 + u0) 2^s = h 2^64 + l with h < d.
-        let (h, l) = if s == 0 { (u1, u0) } else { ((u1 << s) | (u0 >> (64 - s)), u0 << s) };
-        let (q1, rem) = div_3by2(h, (l >> 32) as u32, d, self.r);
-        let (q0, _) = div_3by2(rem, l as u32, d, self.r);
+        // (u1 2^64 + u0) 2^s = (n3, n2, n1, n0) in 32-bit words, (n3, n2) < d. Word by word,
+        // as s < 32 (v >= 2^32): `lo >> 1 >> (31 - s)` is `lo >> (32 - s)`, and 0 for s = 0.
+        let shl = |hi: u64, lo: u64| ((hi as u32) << s) | ((lo as u32) >> 1 >> (31 - s));
+        let n3 = shl(u1 >> 32, u1);
+        let n2 = shl(u1, u0 >> 32);
+        let n1 = shl(u0 >> 32, u0);
+        let n0 = (u0 as u32) << s;
+        let (q1, rem) = div_3by2((n3 as u64) << 32 | n2 as u64, n1, d, self.r);
+        let (q0, _) = div_3by2(rem, n0, d, self.r);
         (q1 as u64) << 32 | q0 as u64
     }
 }
