@@ -91,11 +91,11 @@ const fn isqrt_norm_u64(m: u64) -> u32 {
     let r1 = hi - s1 * s1; // <= 2 s1 < 2^17
     let a1 = (m >> 16) as u32 & 0xffff;
     let a0 = m as u32 & 0xffff;
-    // q = floor((r1 b + a1) / (2 s1)) = floor(floor((r1 b + a1) / 2) / s1); the halved
-    // numerator is below 2^32.
+    // q = floor((r1 b + a1) / (2 s1)) = floor(floor((r1 b + a1) / 2) / s1) <= 2^16; the
+    // halved numerator is below 2^32.
     let half = (r1 << 15) | (a1 >> 1);
-    let q = half / s1; // <= 2^16
-                       // u = r1 b + a1 - 2 s1 q = 2 (half - s1 q) + (a1 & 1) < 2 s1.
+    let q = half / s1;
+    // u = r1 b + a1 - 2 s1 q = 2 (half - s1 q) + (a1 & 1) < 2 s1.
     let u = 2 * (half - q * s1) + (a1 & 1);
     // s = s1 b + q, once 2^32 (q = b) before the correction below brings it under: mod 2^32.
     let s = (s1 << 16).wrapping_add(q);
