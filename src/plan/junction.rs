@@ -18,14 +18,16 @@ const ONE_Q62: i128 = 1 << 62;
 pub(super) fn junction_v2(prev: &Geom, next: &Geom, lim: &Limits) -> u64 {
     let mut v2 = prev.cruise_v2.min(next.cruise_v2);
     let (p, n) = (prev.unit, next.unit);
-    let m = |a: i64, b: i64| a as i128 * b as i128;
+    // Skips the (long, on a 32-bit core) 128-bit product of a zero: Z of planar moves.
+    let m = |a: i64, b: i64| if a == 0 || b == 0 { 0 } else { a as i128 * b as i128 };
     let dot = (m(p[0], n[0]) + m(p[1], n[1]) + m(p[2], n[2])) >> 62;
     let cross = [
         (m(p[1], n[2]) - m(p[2], n[1])) >> 62,
         (m(p[2], n[0]) - m(p[0], n[2])) >> 62,
         (m(p[0], n[1]) - m(p[1], n[0])) >> 62,
     ];
-    let cross2 = cross.iter().map(|&c| (c * c) as u128).sum::<u128>() >> 62;
+    let cross2 =
+        cross.iter().map(|&c| if c == 0 { 0 } else { (c * c) as u128 }).sum::<u128>() >> 62;
     // sin^2 and cos^2 of half the corner angle, q62.
     let (s2, k) = if dot >= 0 {
         let opd = (ONE_Q62 + dot) as u128;
