@@ -795,13 +795,16 @@ impl<const N: usize> Planner<N> {
             if da == 0 {
                 continue;
             }
-            let tighter = |q: &[u64; AXES], other: Option<usize>, w: fn(i64) -> u128| {
-                other.map_or(true, |o| q[axis] as u128 * w(d[o]) < q[o] as u128 * w(da))
+            // Weights below 2^48: 64x64-bit products.
+            let tighter = |q: &[u64; AXES], other: Option<usize>, w: fn(i64) -> u64| {
+                other.map_or(true, |o| {
+                    (q[axis] as u128 * w(d[o]) as u128) < q[o] as u128 * w(da) as u128
+                })
             };
-            if tighter(&lim.vmax2_q16, v_axis, |v| (v * v) as u128) {
+            if tighter(&lim.vmax2_q16, v_axis, sq) {
                 v_axis = Some(axis);
             }
-            if tighter(&lim.amax_q16, a_axis, |v| v.unsigned_abs() as u128) {
+            if tighter(&lim.amax_q16, a_axis, i64::unsigned_abs) {
                 a_axis = Some(axis);
             }
         }
