@@ -310,36 +310,33 @@ fn div_wide(n: u128, d: u128) -> u128 {
 }
 
 /// `n / d` for `0 < d < 2^32` (the steps per mm scale's 1000, speeds below 65 mm/s): long
-/// division with 32-bit digits from the top nonzero word of `n` down. The first digit is
-/// one hardware division (no remainder carried in); each further one divides
-/// `rem 2^32 + word` with `rem < d`: for `d < 2^16` as two 16-bit digits, each one hardware
-/// division (`rem 2^16 + half word` fits in 32 bits), else with [`div_64by32`] after
-/// shifting both by the divisor's normalization (which keeps the quotient).
+/// division with 32-bit digits. A digit with no remainder carried in (the leading ones) is
+/// one hardware division; the others divide `rem 2^32 + word` with `0 < rem < d`: for
+/// `d < 2^16` as two 16-bit digits, each one hardware division (`rem 2^16 + half word` fits
+/// in 32 bits), else with [`div_64by32`] after shifting both by the divisor's normalization
+/// (which keeps the quotient).
 #[inline(never)]
 fn div_by_u32(n: u128, d: u32) -> u128 {
-    let w = [n as u32, (n >> 32) as u32, (n >> 64) as u32, (n >> 96) as u32];
-    let mut q = [0u32; 4];
-    let mut k = 3;
-    while k > 0 && w[k] == 0 {
-        k -= 1;
-    }
-    q[k] = w[k] / d;
-    let mut rem = w[k] - q[k] * d;
     let s = d.leading_zeros();
-    while k > 0 {
-        k -= 1;
-        q[k] = if d < 1 << 16 {
-            let hi = (rem << 16) | (w[k] >> 16);
+    // The digit of rem 2^32 + w and the new remainder, below d < 2^32 (exact mod 2^32).
+    let digit = |rem: u32, w: u32| {
+        let q = if rem == 0 {
+            w / d
+        } else if d < 1 << 16 {
+            let hi = (rem << 16) | (w >> 16);
             let qh = hi / d;
-            let lo = ((hi - qh * d) << 16) | (w[k] & 0xffff);
+            let lo = ((hi - qh * d) << 16) | (w & 0xffff);
             (qh << 16) | (lo / d)
         } else {
-            div_64by32(((rem as u64) << 32 | w[k] as u64) << s, d << s)
+            div_64by32(((rem as u64) << 32 | w as u64) << s, d << s)
         };
-        // The remainder is below d < 2^32: exact mod 2^32.
-        rem = w[k].wrapping_sub(q[k].wrapping_mul(d));
-    }
-    (q[3] as u128) << 96 | (q[2] as u128) << 64 | (q[1] as u128) << 32 | q[0] as u128
+        (q, w.wrapping_sub(q.wrapping_mul(d)))
+    };
+    let (q3, rem) = digit(0, (n >> 96) as u32);
+    let (q2, rem) = digit(rem, (n >> 64) as u32);
+    let (q1, rem) = digit(rem, (n >> 32) as u32);
+    let (q0, _) = digit(rem, n as u32);
+    (q3 as u128) << 96 | (q2 as u128) << 64 | (q1 as u128) << 32 | q0 as u128
 }
 
 /// `n / d` truncated toward zero, exactly as `i128` division by a positive `d`.
