@@ -50,7 +50,7 @@ use crate::machine::{MachineConfig, Rate, AXES};
 mod junction;
 pub mod math;
 
-use math::{div_i128_pos, div_u128, isqrt_u128, sat_u64};
+use math::{div_i128_pos, div_sat_u64, isqrt_u128, sat_u64, Divisor};
 
 /// Largest per-axis distance of one move, in um (2^24 um = 16.7 m).
 pub const MAX_AXIS_DELTA_UM: i64 = 1 << 24;
@@ -323,41 +323,44 @@ pub struct Block {
 }
 
 impl Block {
-    fn new(e: &Entry, end_v2: u64, timer_hz: u32) -> Self {
+    /// The block of `e` ending at `end_v2`; `start_v` is `sqrt_q16(e.start_v2)` when the
+    /// caller already has it (the previous block's end speed).
+    fn new(e: &Entry, end_v2: u64, timer_hz: u32, start_v: Option<u64>) -> Self {
         let (s2, e2) = (e.start_v2, end_v2);
         let peak = (s2 + e2 + e.delta_v2) / 2;
         let c2 = e.cruise_v2.min(peak).max(s2).max(e2);
-        let a = e.accel_q16.max(1) as u128;
+        // Both ramps' distances and the per-step reciprocal divide by a.
+        let by_a = Divisor::new(e.accel_q16.max(1));
         let len = e.len_q32;
-        // Distances of the ramps: (vc^2 - v^2) / 2a, um q32.
-        let ramp = |dv2: u64| sat_u64(div_u128((dv2 as u128) << 32, 2 * a)).min(len);
+        // Distances of the ramps: (vc^2 - v^2) 2^32 / 2a = (vc^2 - v^2) 2^31 / a, um q32.
+        let ramp = |dv2: u64| by_a.div_sat((dv2 as u128) << 31).min(len);
         let s_acc = ramp(c2 - s2);
         let s_dec = ramp(c2 - e2).min(len - s_acc);
         let s_cruise = len - s_acc - s_dec;
-        let v = [sqrt_q16(s2), sqrt_q16(c2), sqrt_q16(e2)];
+        // Equal speeds squared (no acceleration or no deceleration phase) share their root.
+        let v0 = start_v.unwrap_or_else(|| sqrt_q16(s2));
+        let v1 = if c2 == s2 { v0 } else { sqrt_q16(c2) };
+        let v = [v0, v1, if e2 == c2 { v1 } else { sqrt_q16(e2) }];
         let f = timer_hz as u128;
         // Ramp time 2 s / (v_a + v_b); cruise time s / v; ticks q16.
         let ramp_t = |s: u64, va: u64, vb: u64| {
             if s == 0 {
                 0
             } else {
-                sat_u64(div_u128(2 * s as u128 * f, (va as u128 + vb as u128).max(1)))
+                div_sat_u64(2 * s as u128 * f, (va as u128 + vb as u128).max(1))
             }
         };
         let t_acc = ramp_t(s_acc, v[0], v[1]);
-        let t_cruise = if s_cruise == 0 {
-            0
-        } else {
-            sat_u64(div_u128(s_cruise as u128 * f, (v[1] as u128).max(1)))
-        };
+        let by_v1 = Divisor::new(v[1].max(1));
+        let t_cruise = if s_cruise == 0 { 0 } else { by_v1.div_sat(s_cruise as u128 * f) };
         let t_dec = ramp_t(s_dec, v[1], v[2]);
         // Per-step reciprocals: one division each per block, none per step.
         // The per-step speeds get 8 more fraction bits when the peak speed is below 33 mm/s
         // (v^2 q16 below 2^46), fewer above: (c2 << fine_shift) < 2^62.
         let half_shift = (c2.leading_zeros().saturating_sub(2) / 2).min(8);
         let fine_shift = 2 * half_shift;
-        let ticks_per_dv = sat_u64(div_u128(f << (40 - half_shift), a));
-        let k = div_u128(f << 64, (v[1] as u128).max(1));
+        let ticks_per_dv = by_a.div_sat(f << (40 - half_shift));
+        let k = by_v1.div(f << 64);
         let extra = (128 - k.leading_zeros()).saturating_sub(63);
         Self {
             start_um: e.start_um,
@@ -373,7 +376,8 @@ impl Block {
             t_decel_q16: t_acc.saturating_add(t_cruise),
             t_total_q16: t_acc.saturating_add(t_cruise).saturating_add(t_dec),
             timer_hz,
-            v_fine: [s2, c2, e2].map(|x| math::isqrt_u64(x << fine_shift)),
+            // floor(sqrt(v2 2^fine_shift)) = floor(floor(sqrt(v2 2^16)) / 2^(8 - half_shift)).
+            v_fine: v.map(|x| x >> (8 - half_shift)),
             fine_shift,
             ticks_per_dv,
             ticks_per_um: (k >> extra) as u64,
@@ -460,13 +464,13 @@ impl Block {
             }
             let w = v2 as u128 + ((2 * self.accel_q16 as u128 * d as u128) >> 32);
             let vd = isqrt_u128(w << 16);
-            sat_u64(div_u128(2 * d as u128 * f, (v as u128 + vd).max(1)))
+            div_sat_u64(2 * d as u128 * f, (v as u128 + vd).max(1))
         };
         if s <= self.accel_end_q32 {
             ramp(s, self.v[0], self.v2[0]).min(self.t_accel_q16)
         } else if s <= self.decel_start_q32 {
             let d = (s - self.accel_end_q32) as u128 * f;
-            let t = sat_u64(div_u128(d, (self.v[1] as u128).max(1)));
+            let t = div_sat_u64(d, (self.v[1] as u128).max(1));
             self.t_accel_q16.saturating_add(t).min(self.t_decel_q16)
         } else {
             let back = ramp(self.len_q32 - s, self.v[2], self.v2[2]);
@@ -499,20 +503,17 @@ impl Block {
     }
 
     /// Time to reach speed^2 `v2 + 2 a d` from speed `v` (`v_fine` units) at full
-    /// acceleration, ticks q16; `v2 + 2 a d` is at most the cruise speed squared (plus
-    /// rounding), so the shift into the finer units keeps it below 2^63.
+    /// acceleration, ticks q16, for `d` within the ramp that starts (or ends) at `v2`.
     // Inlined: its one call runs for every ramp step.
     #[inline(always)]
     fn ramp_ticks_q16(&self, d: u64, v_fine: u64, v2: u64) -> u64 {
-        // v2 + 2 a d / 2^32 = v2 + a d / 2^31, saturated.
-        let w = v2.saturating_add(math::mul_shr_sat(self.accel_q16, d, 31));
-        let root = if w > u64::MAX >> self.fine_shift {
-            // floor(sqrt(u64::MAX)), the root of the saturated value.
-            u32::MAX as u64
-        } else {
-            math::isqrt_u64_shl(w, self.fine_shift)
-        };
-        let dv = root.saturating_sub(v_fine);
+        // v2 + 2 a d / 2^32 = v2 + a d / 2^31. No saturation or overflow: the ramp's length is
+        // at most floor((c2 - v2) 2^32 / 2a), so the sum is at most the cruise speed squared
+        // c2, and `c2 << fine_shift` stays below 2^62 (or `fine_shift` is 0).
+        let w = v2 + ((self.accel_q16 as u128 * d as u128) >> 31) as u64;
+        debug_assert!(w <= self.v2[1] && w <= u64::MAX >> self.fine_shift);
+        // At least v_fine = floor(sqrt(v2 2^fine_shift)): w >= v2.
+        let dv = math::isqrt_u64_shl(w, self.fine_shift) - v_fine;
         if (dv | self.ticks_per_dv) >> 32 == 0 {
             // One 32x32 -> 64 multiplication.
             (dv * self.ticks_per_dv) >> 16
@@ -524,7 +525,7 @@ impl Block {
 
 /// Ticks q16 to seconds.
 fn ticks_q16_to_s(t_q16: u64, timer_hz: u32) -> U32F32 {
-    U32F32::from_bits(sat_u64(div_u128((t_q16 as u128) << 16, timer_hz.max(1) as u128)))
+    U32F32::from_bits(div_sat_u64((t_q16 as u128) << 16, timer_hz.max(1) as u128))
 }
 
 /// The lookahead planner with a queue of `N` moves.
@@ -539,6 +540,8 @@ pub struct Planner<const N: usize> {
     last: Option<Geom>,
     /// End speed^2 of the last released block: the fixed start of the head.
     exit_v2: u64,
+    /// Its root, `sqrt_q16(exit_v2)` (the head's start speed).
+    exit_v: u64,
     released_q16: u64,
     released: u32,
 }
@@ -562,6 +565,7 @@ impl<const N: usize> Planner<N> {
         self.position_um = position_um;
         self.last = None;
         self.exit_v2 = 0;
+        self.exit_v = 0;
         self.released_q16 = 0;
         self.released = 0;
     }
@@ -578,6 +582,7 @@ impl<const N: usize> Planner<N> {
             position_um: [0; AXES],
             last: None,
             exit_v2: 0,
+            exit_v: 0,
             released_q16: 0,
             released: 0,
         }
@@ -623,7 +628,8 @@ impl<const N: usize> Planner<N> {
         (0..self.len)
             .map(|i| {
                 let end = if i + 1 < self.len { self.at(i + 1).start_v2 } else { 0 };
-                Block::new(self.at(i), end, self.lim.timer_hz).t_total_q16
+                let start_v = (i == 0).then_some(self.exit_v);
+                Block::new(self.at(i), end, self.lim.timer_hz, start_v).t_total_q16
             })
             .fold(0, u64::saturating_add)
     }
@@ -756,10 +762,13 @@ impl<const N: usize> Planner<N> {
             return None;
         }
         let end_v2 = if self.len >= 2 { self.at(1).start_v2 } else { 0 };
-        let block = Block::new(self.at(0), end_v2, self.lim.timer_hz);
+        // The head starts where the last block ended (replan never changes it).
+        debug_assert!(self.at(0).start_v2 == self.exit_v2 && self.exit_v == sqrt_q16(self.exit_v2));
+        let block = Block::new(self.at(0), end_v2, self.lim.timer_hz, Some(self.exit_v));
         self.head = (self.head + 1) % N;
         self.len -= 1;
         self.exit_v2 = end_v2;
+        self.exit_v = block.v[2];
         self.released_q16 = self.released_q16.saturating_add(block.t_total_q16);
         self.released += 1;
         Some(block)
@@ -786,28 +795,34 @@ impl<const N: usize> Planner<N> {
             if da == 0 {
                 continue;
             }
-            let tighter = |q: &[u64; AXES], other: Option<usize>, w: fn(i64) -> u128| {
-                other.map_or(true, |o| q[axis] as u128 * w(d[o]) < q[o] as u128 * w(da))
+            // Weights below 2^48: 64x64-bit products.
+            let tighter = |q: &[u64; AXES], other: Option<usize>, w: fn(i64) -> u64| {
+                other.map_or(true, |o| {
+                    (q[axis] as u128 * w(d[o]) as u128) < q[o] as u128 * w(da) as u128
+                })
             };
-            if tighter(&lim.vmax2_q16, v_axis, |v| (v * v) as u128) {
+            if tighter(&lim.vmax2_q16, v_axis, sq) {
                 v_axis = Some(axis);
             }
-            if tighter(&lim.amax_q16, a_axis, |v| v.unsigned_abs() as u128) {
+            if tighter(&lim.amax_q16, a_axis, i64::unsigned_abs) {
                 a_axis = Some(axis);
             }
         }
         if let Some(axis) = v_axis {
-            let cap = div_u128(lim.vmax2_q16[axis] as u128 * len2 as u128, sq(d[axis]) as u128);
-            cruise_v2 = cruise_v2.min(sat_u64(cap));
+            let cap = div_sat_u64(lim.vmax2_q16[axis] as u128 * len2 as u128, sq(d[axis]) as u128);
+            cruise_v2 = cruise_v2.min(cap);
         }
         if let Some(axis) = a_axis {
-            let la = lim.amax_q16[axis] as u128 * len_q32 as u128;
-            let cap = div_u128(la, (d[axis].unsigned_abs() as u128) << 32);
-            accel_q16 = accel_q16.min(sat_u64(cap));
+            // floor(amax L / (|d| 2^32)) = floor(floor(amax L / 2^32) / |d|): a 32-bit divisor.
+            let la = (lim.amax_q16[axis] as u128 * len_q32 as u128) >> 32;
+            let cap = div_sat_u64(la, d[axis].unsigned_abs() as u128);
+            accel_q16 = accel_q16.min(cap);
         }
+        // Every axis divides by the length (at least 2^32: 1 um).
+        let by_len = Divisor::new(len_q32);
         let ratio = |v: i64| {
             if kinematic && v != 0 {
-                div_i128_pos((v as i128) << 94, len_q32 as u128)
+                div_i128_pos((v as i128) << 94, &by_len)
             } else {
                 0
             }
