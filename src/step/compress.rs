@@ -405,6 +405,8 @@ impl<const B: usize> Compressor<B> {
         loop {
             evals += 1;
             let f = self.eval(c, n, tune, small_add);
+            // (The same value: the search goes on from the probe's own copy.)
+            c = f.add;
             let improved = consider(&mut best, f);
             // The search ends when every step fits, when the first probe already covers as
             // many steps as the last sequence (lengths change slowly along a ramp), when a
@@ -542,9 +544,10 @@ impl<const B: usize> Compressor<B> {
     fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let last = self.last as u32;
         let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);
+        // (`add` fits in i32: rebuilt from `add32`, the i64 need not live through the walk.)
         let fit = |count: usize, imin: i32, imax: i32, miss: Miss, over: i32| Fit {
             count,
-            add,
+            add: add32 as i64,
             imin: imin as i64,
             imax: imax as i64,
             miss,
