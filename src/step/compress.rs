@@ -405,20 +405,25 @@ impl<const B: usize> Compressor<B> {
         loop {
             evals += 1;
             let f = self.eval(c, n, tune, small_add);
+            // (The same value: the search goes on from the probe's own copy.)
+            c = f.add;
             let improved = consider(&mut best, f);
+            // The search ends when every step fits, when the first probe already covers as
+            // many steps as the last sequence (lengths change slowly along a ramp), when a
+            // later probe does not lengthen the sequence (each probe is a walk over the
+            // pending steps and rarely gains more than a step), or when the bounds meet.
+            let enough = if evals == 1 { f.count >= self.prev_count.max(4) } else { !improved };
+            if f.miss == Miss::Fits || enough {
+                break;
+            }
             // Every add short of c + reach (in the miss's direction) fails the same step.
             let reach = Self::reach(&f);
-            match f.miss {
-                Miss::Fits => break,
-                Miss::Larger => lo = lo.max(c + reach - 1).min(amax),
-                Miss::Smaller => hi = hi.min(c - reach + 1).max(amin),
+            if f.miss == Miss::Larger {
+                lo = lo.max(c + reach - 1).min(amax);
+            } else {
+                hi = hi.min(c - reach + 1).max(amin);
             }
-            // The search ends when the bounds meet, when the first probe already covers as
-            // many steps as the last sequence (lengths change slowly along a ramp), or when
-            // a later probe does not lengthen the sequence: each probe is a walk over the
-            // pending steps and rarely gains more than a step.
-            let enough = if evals == 1 { f.count >= self.prev_count.max(4) } else { !improved };
-            if hi - lo <= 1 || enough {
+            if hi - lo <= 1 {
                 break;
             }
             let next = if hi > amax {
@@ -539,16 +544,17 @@ impl<const B: usize> Compressor<B> {
     fn eval_small(&self, add: i64, n: usize, tune: &Tune) -> Fit {
         let last = self.last as u32;
         let (tol, min_step, add32) = (tune.tol as i32, tune.min_step as i32, add as i32);
+        // (`add` fits in i32: rebuilt from `add32`, the i64 need not live through the walk.)
         let fit = |count: usize, imin: i32, imax: i32, miss: Miss, over: i32| Fit {
             count,
-            add,
+            add: add32 as i64,
             imin: imin as i64,
             imax: imax as i64,
             miss,
             over: over as u32,
         };
         let d = (self.buf[self.head % B] as u32).wrapping_sub(last) as i32;
-        let (mut imin, mut imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
+        let (imin, imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
         if imin > imax {
             return Fit {
                 count: 0,
@@ -561,58 +567,64 @@ impl<const B: usize> Compressor<B> {
         }
         let mut up = last.wrapping_add((imin + tol) as u32);
         let mut down = last.wrapping_add((imax - tol) as u32);
-        // Step i's own interval x + add i stays >= min_step for every x >= imin while
-        // add i >= min_step - imin.
-        let mut lim = min_step - imin;
-        let mut add_i = 0i32;
+        // The walk carries step i's own intervals at the range's ends, `lo_iv = imin + add i`
+        // and `hi_iv = imax + add i` (the edges advance by them), instead of imin and imax
+        // (recovered as `lo_iv - add i` where needed): fewer values live in the loop.
+        let (mut lo_iv, mut hi_iv) = (imin, imax);
         // Steps by their unwrapped buffer position (`% B`: a mask for the usual powers of
-        // two); few values live in the fast path.
+        // two).
         let (start, end) = (self.head, self.head + n);
         for j in start + 1..end {
-            add_i += add32;
-            up = up.wrapping_add((imin + add_i) as u32);
-            down = down.wrapping_add((imax + add_i) as u32);
+            lo_iv += add32;
+            hi_iv += add32;
+            up = up.wrapping_add(lo_iv as u32);
+            down = down.wrapping_add(hi_iv as u32);
             let t = self.buf[j % B] as u32;
             let (above, below) = (up.wrapping_sub(t) as i32, t.wrapping_sub(down) as i32);
-            if above >= 0 && below >= 0 && add_i >= lim {
+            // Inside both edges, and the interval at imin (the shortest) not below the
+            // minimum: nothing narrows.
+            if (above | below) >= 0 && lo_iv >= min_step {
                 continue;
             }
             let i = j - start;
+            let range = |lo_iv: i32, hi_iv: i32| {
+                let add_i = add32.wrapping_mul(i as i32);
+                (lo_iv - add_i, hi_iv - add_i)
+            };
             // above = k imin + at + tol - d and below = d + tol - k imax - at.
-            let lim_lo = min_step - add_i;
             // ceil((d - tol - at) / k) > imax, or the minimum interval above imax.
             if below > 2 * tol {
+                let (imin, imax) = range(lo_iv, hi_iv);
                 return fit(i, imin, imax, Miss::Larger, below - 2 * tol);
             }
-            if lim_lo > imax {
+            if min_step > hi_iv {
+                let (imin, imax) = range(lo_iv, hi_iv);
                 return fit(i, imin, imax, Miss::Larger, 0);
             }
             if above > 2 * tol {
+                let (imin, imax) = range(lo_iv, hi_iv);
                 return fit(i, imin, imax, Miss::Smaller, above - 2 * tol);
             }
             // A bound that narrows moves by the whole intervals its window edge is away:
             // ceil((d - tol - at) / k) = imin + ceil(-above / k) and
             // floor((d + tol - at) / k) = imax - ceil(-below / k); the edges move with it.
-            let k = i as u32 + 1;
-            let lo =
-                if above < 0 { imin + (above.unsigned_abs().div_ceil(k)) as i32 } else { imin };
-            let hi =
-                if below < 0 { imax - (below.unsigned_abs().div_ceil(k)) as i32 } else { imax };
-            let lo = lo.max(lim_lo);
+            // (i < n < 2^16: through u16, k is visibly nonzero and the divisions need no
+            // zero check; `(|v| + i) / k` rounds up, its numerator below 2^31.)
+            let i16 = i as u16 as u32;
+            let k = i16 + 1;
+            let ceil = |v: i32| if v < 0 { ((v.unsigned_abs() + i16) / k) as i32 } else { 0 };
+            let lo = (lo_iv + ceil(above)).max(min_step);
+            let hi = hi_iv - ceil(below);
             if lo > hi {
+                let (imin, imax) = range(lo_iv, hi_iv);
                 return fit(i, imin, imax, Miss::Smaller, 0);
             }
-            if lo != imin {
-                up = up.wrapping_add(k.wrapping_mul((lo - imin) as u32));
-                imin = lo;
-                lim = min_step - imin;
-            }
-            if hi != imax {
-                down = down.wrapping_sub(k.wrapping_mul((imax - hi) as u32));
-                imax = hi;
-            }
+            up = up.wrapping_add(k.wrapping_mul((lo - lo_iv) as u32));
+            down = down.wrapping_sub(k.wrapping_mul((hi_iv - hi) as u32));
+            (lo_iv, hi_iv) = (lo, hi);
         }
-        fit(n, imin, imax, Miss::Fits, 0)
+        let add_i = add32.wrapping_mul(n as i32 - 1);
+        fit(n, lo_iv - add_i, hi_iv - add_i, Miss::Fits, 0)
     }
 }
 
