@@ -18,23 +18,32 @@ const ROOT_GUESS: [u16; 256] = {
     let mut t = [0u16; 256];
     let mut k = 0;
     while k < 256 {
-        // floor(sqrt((2 i + 1) 2^23)) by the digit-by-digit method (compile time only).
-        let n = (2 * k as u64 + 1) << 23;
-        let (mut rem, mut root, mut bit) = (n, 0u64, 1u64 << 62);
-        while bit != 0 {
-            if rem >= root + bit {
-                rem -= root + bit;
-                root = (root >> 1) + bit;
-            } else {
-                root >>= 1;
-            }
-            bit >>= 2;
-        }
-        t[k] = root as u16;
+        // floor(sqrt((2 i + 1) 2^23)), at compile time.
+        t[k] = digit_root(((2 * k as u128) + 1) << 23) as u16;
         k += 1;
     }
     t
 };
+
+/// `floor(sqrt(n))` by the plain digit-by-digit method (one bit of the root per round): the
+/// table's builder at compile time and the tests' independent oracle, never a motion path.
+const fn digit_root(n: u128) -> u128 {
+    let (mut rem, mut root) = (n, 0u128);
+    let mut bit = 1u128 << 126;
+    while bit > n {
+        bit >>= 2;
+    }
+    while bit != 0 {
+        if rem >= root + bit {
+            rem -= root + bit;
+            root = (root >> 1) + bit;
+        } else {
+            root >>= 1;
+        }
+        bit >>= 2;
+    }
+    root
+}
 
 /// `floor(sqrt(h))` for `h` in `[2^30, 2^32)` (so the root is in `[2^15, 2^16)`): one integer
 /// Newton step from the table's guess `x0`, `x1 = (x0 + h / x0) / 2`. `x1 >= floor(sqrt(h))`
@@ -380,30 +389,16 @@ pub(crate) const fn sat_u64(v: u128) -> u64 {
 mod tests {
     use super::*;
 
-    /// The plain digit-by-digit root, as an independent oracle.
-    fn bitwise_isqrt(n: u128) -> u128 {
-        let (mut rem, mut root) = (n, 0u128);
-        let mut bit = 1u128 << 126;
-        while bit > n {
-            bit >>= 2;
-        }
-        while bit != 0 {
-            if rem >= root + bit {
-                rem -= root + bit;
-                root = (root >> 1) + bit;
-            } else {
-                root >>= 1;
-            }
-            bit >>= 2;
-        }
-        root
+    /// `r` is the floor root of `n`: `r^2 <= n < (r + 1)^2`.
+    fn is_floor_root(n: u128, r: u128) -> bool {
+        r.checked_mul(r).is_some_and(|sq| sq <= n)
+            && (r + 1).checked_mul(r + 1).map_or(true, |sq| sq > n)
     }
 
     #[test]
     fn normalized_32_bit_root_is_exact_at_every_square_and_guess_interval() {
         let check = |h: u32| {
-            let r = isqrt_norm_u32(h) as u64;
-            assert!(r * r <= h as u64 && (r + 1) * (r + 1) > h as u64, "h = {h}");
+            assert!(is_floor_root(h.into(), isqrt_norm_u32(h).into()), "h = {h}");
         };
         // Where a root is most easily off by one: around every square of the range, and at
         // both ends of every table interval (the guess's largest error).
@@ -426,8 +421,7 @@ mod tests {
     #[test]
     fn normalized_64_bit_root_is_exact_around_every_carry_of_its_low_half() {
         let check = |m: u64| {
-            let r = isqrt_norm_u64(m) as u128;
-            assert!(r * r <= m as u128 && (r + 1) * (r + 1) > m as u128, "m = {m}");
+            assert!(is_floor_root(m.into(), isqrt_norm_u64(m).into()), "m = {m}");
         };
         // Roots s1 b - 1, s1 b, s1 b + 1 (where q is 0 or b) and squares around them.
         for k in 1u64 << 15..1 << 16 {
@@ -456,7 +450,7 @@ mod tests {
     #[test]
     fn wide_root_is_exact_around_every_carry_of_its_low_half() {
         let mut next = crate::test_rng::xorshift(0x7f4a_7c15_9e37_79b9);
-        let check = |n: u128| assert_eq!(isqrt_u128(n), bitwise_isqrt(n), "n = {n}");
+        let check = |n: u128| assert_eq!(isqrt_u128(n), digit_root(n), "n = {n}");
         for i in 0..100_000u64 {
             // Roots k b - 1, k b, k b + 1 with b = 2^32 (q is 0 or b), and random ones.
             let k = (next() >> 33) | 1 << 31;
@@ -478,8 +472,7 @@ mod tests {
     #[ignore]
     fn normalized_32_bit_root_is_exact_everywhere() {
         for h in 1u32 << 30..=u32::MAX {
-            let r = isqrt_norm_u32(h) as u64;
-            assert!(r * r <= h as u64 && (r + 1) * (r + 1) > h as u64, "h = {h}");
+            assert!(is_floor_root(h.into(), isqrt_norm_u32(h).into()), "h = {h}");
         }
     }
 
@@ -490,31 +483,31 @@ mod tests {
             let x = next();
             for shift in [0, 1, 2, 17, 31, 32, 33, 40, 62, 63] {
                 let n = x >> shift;
-                assert_eq!(isqrt_u64(n) as u128, bitwise_isqrt(n as u128), "n = {n}");
-                assert_eq!(isqrt_u32(n as u32) as u128, bitwise_isqrt(n as u32 as u128));
+                assert_eq!(isqrt_u64(n) as u128, digit_root(n as u128), "n = {n}");
+                assert_eq!(isqrt_u32(n as u32) as u128, digit_root(n as u32 as u128));
                 // Squares and their neighbours, where a root is most easily off by one.
                 let r = (n >> 32).max(1);
                 for d in [-1i64, 0, 1] {
                     let sq = (r * r).wrapping_add(d as u64);
-                    assert_eq!(isqrt_u64(sq) as u128, bitwise_isqrt(sq as u128), "n = {sq}");
+                    assert_eq!(isqrt_u64(sq) as u128, digit_root(sq as u128), "n = {sq}");
                 }
                 let wide = ((x as u128) << 64 | x.rotate_left(19) as u128) >> (2 * shift);
-                assert_eq!(isqrt_u128(wide), bitwise_isqrt(wide), "n = {wide}");
+                assert_eq!(isqrt_u128(wide), digit_root(wide), "n = {wide}");
                 let r = wide >> 64 | 1;
                 for d in [-1i128, 0, 1] {
                     let sq = (r * r).wrapping_add(d as u128);
-                    assert_eq!(isqrt_u128(sq), bitwise_isqrt(sq), "n = {sq}");
+                    assert_eq!(isqrt_u128(sq), digit_root(sq), "n = {sq}");
                 }
             }
         }
         for n in [u64::MAX, u64::MAX - 1, 1 << 62, (1 << 62) - 1, 1 << 32, (1 << 32) - 1] {
-            assert_eq!(isqrt_u64(n) as u128, bitwise_isqrt(n as u128), "n = {n}");
+            assert_eq!(isqrt_u64(n) as u128, digit_root(n as u128), "n = {n}");
         }
         for n in [u128::MAX, u128::MAX - 1, 1 << 126, (1 << 126) - 1, 1 << 64, (1 << 64) + 1] {
-            assert_eq!(isqrt_u128(n), bitwise_isqrt(n), "n = {n}");
+            assert_eq!(isqrt_u128(n), digit_root(n), "n = {n}");
         }
         let e = u32::MAX as u128;
-        assert_eq!(isqrt_u32(u32::MAX) as u128, bitwise_isqrt(e));
+        assert_eq!(isqrt_u32(u32::MAX) as u128, digit_root(e));
     }
 
     #[test]
@@ -655,21 +648,16 @@ mod tests {
     #[test]
     fn isqrt_is_exact_floor() {
         for n in 0u64..20_000 {
-            let r = isqrt_u64(n);
-            assert!(r * r <= n && (r + 1) * (r + 1) > n, "n = {n}");
+            assert!(is_floor_root(n.into(), isqrt_u64(n).into()), "n = {n}");
         }
         for &n in &[u64::MAX, u64::MAX - 1, 1 << 62, (1 << 62) - 1, 4_294_967_295 * 4_294_967_295] {
-            let r = isqrt_u64(n) as u128;
-            assert!(r * r <= n as u128 && (r + 1) * (r + 1) > n as u128, "n = {n}");
+            assert!(is_floor_root(n.into(), isqrt_u64(n).into()), "n = {n}");
         }
         let mut x = 0x9e37_79b9_7f4a_7c15_u128;
         for _ in 0..2000 {
             x = x.wrapping_mul(0x2545_f491_4f6c_dd1d_9e37_79b9_7f4a_7c15).wrapping_add(7);
             for n in [x, x >> 3, x >> 40, x >> 90, u128::MAX - (x >> 100)] {
-                let r = isqrt_u128(n);
-                assert!(r * r <= n, "n = {n}");
-                let r1 = r + 1;
-                assert!(r1.checked_mul(r1).map_or(true, |sq| sq > n), "n = {n}");
+                assert!(is_floor_root(n, isqrt_u128(n)), "n = {n}");
             }
         }
     }
