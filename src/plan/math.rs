@@ -650,7 +650,14 @@ mod tests {
         for n in 0u64..20_000 {
             assert!(is_floor_root(n.into(), isqrt_u64(n).into()), "n = {n}");
         }
-        for &n in &[u64::MAX, u64::MAX - 1, 1 << 62, (1 << 62) - 1, 4_294_967_295 * 4_294_967_295] {
+        for &n in &[
+            u64::MAX,
+            u64::MAX - 1,
+            1 << 62,
+            (1 << 62) - 1,
+            (1 << 32) - 1,
+            4_294_967_295 * 4_294_967_295,
+        ] {
             assert!(is_floor_root(n.into(), isqrt_u64(n).into()), "n = {n}");
         }
         let mut x = 0x9e37_79b9_7f4a_7c15_u128;

@@ -23,9 +23,10 @@
 
 use crate::geom::Point2;
 
-use super::poly::{div_round, div_round_128, isqrt, orient, LoopBuf, Ring};
+use super::poly::{div_round, div_round_128, orient, LoopBuf, Ring};
 use super::simplify::simplify_closed;
 use super::Buffer;
+use crate::plan::math::isqrt_u64;
 
 /// Bytes of engine state per unit of its capacity `E` (an edge, a split point, a piece and
 /// an active-list entry).
@@ -138,7 +139,7 @@ fn normal(dx: i64, dy: i64, len: i64, d: i64) -> (i64, i64) {
 
 /// `v` scaled to length `r` (engine units).
 fn scale_to(v: (i64, i64), r: i64) -> (i64, i64) {
-    let len = isqrt((v.0 * v.0 + v.1 * v.1) as u64) as i64;
+    let len = isqrt_u64((v.0 * v.0 + v.1 * v.1) as u64) as i64;
     if len == 0 {
         return (0, 0);
     }
@@ -204,7 +205,7 @@ impl<const E: usize> Offsetter<E> {
         // An edge's vector, length (um, floor) and normal (engine units).
         let edge = |from: Point2, to: Point2| {
             let v = (i64::from(to.x) - i64::from(from.x), i64::from(to.y) - i64::from(from.y));
-            let len = isqrt((v.0 * v.0 + v.1 * v.1) as u64) as i64;
+            let len = isqrt_u64((v.0 * v.0 + v.1 * v.1) as u64) as i64;
             (v, len, normal(v.0, v.1, len.max(1), d))
         };
         // The edge into the vertex: the previous vertex's edge out.

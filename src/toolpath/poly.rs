@@ -1,13 +1,9 @@
 //! Bounded loop buffers and the integer helpers every toolpath stage shares.
 
 use crate::geom::Point2;
-use crate::plan::math::div_u128;
+use crate::plan::math::{div_u128, isqrt_u64};
 
 use super::Buffer;
-
-/// Integer square root (floor) of a `u64`, exact: the planner's root (no 64-bit division,
-/// which the Cortex-M3 does in a library loop).
-pub use crate::plan::math::isqrt_u64 as isqrt;
 
 /// `num / den` rounded to the nearest integer, halves away from zero (`den != 0`).
 pub fn div_round(num: i64, den: i64) -> i64 {
@@ -50,7 +46,7 @@ pub fn dist2(a: Point2, b: Point2) -> i64 {
 
 /// Distance rounded down to whole units.
 pub fn dist(a: Point2, b: Point2) -> i64 {
-    isqrt(dist2(a, b) as u64) as i64
+    isqrt_u64(dist2(a, b) as u64) as i64
 }
 
 /// One closed loop of a [`LoopBuf`]: `points[start..start + len]`, closing edge implied.
@@ -278,15 +274,6 @@ pub fn segment_touches_rings(points: &[Point2], rings: &[Ring], a: Point2, b: Po
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn isqrt_is_exact_floor() {
-        for n in (0..10_000u64).chain([u64::MAX, u64::MAX - 1, 1 << 62, (1 << 32) - 1]) {
-            let r = isqrt(n);
-            assert!(u128::from(r) * u128::from(r) <= u128::from(n), "{n}");
-            assert!(u128::from(r + 1) * u128::from(r + 1) > u128::from(n), "{n}");
-        }
-    }
 
     #[test]
     fn rounding_division_goes_half_away_from_zero() {

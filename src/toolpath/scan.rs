@@ -14,8 +14,9 @@
 
 use crate::geom::Point2;
 
-use super::poly::{div_round, isqrt, Ring};
+use super::poly::{div_round, Ring};
 use super::Buffer;
+use crate::plan::math::isqrt_u64;
 
 /// Line direction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -59,7 +60,7 @@ impl Angle {
 /// The `t` step for lines `spacing_um` apart: `round(spacing x sqrt 2)`.
 pub fn line_step(spacing_um: i32) -> i64 {
     let s2 = 2 * i64::from(spacing_um) * i64::from(spacing_um);
-    let r = isqrt(s2 as u64) as i64;
+    let r = isqrt_u64(s2 as u64) as i64;
     // Round to nearest: compare with (r + 0.5)^2 = r^2 + r + 0.25.
     if s2 - r * r > r {
         r + 1

@@ -9,7 +9,8 @@
 
 use crate::geom::Point2;
 
-use super::poly::{dist2, isqrt, orient};
+use super::poly::{dist2, orient};
+use crate::plan::math::isqrt_u64;
 
 /// Longest run of points one chord may replace.
 pub const MAX_RUN: usize = 48;
@@ -19,7 +20,7 @@ fn chord_ok(pts: &[Point2], a: usize, c: usize, tol: i64) -> bool {
     let n = pts.len();
     let (pa, pc) = (pts[a % n], pts[c % n]);
     let len2 = dist2(pa, pc);
-    let len = isqrt(len2 as u64) as i64;
+    let len = isqrt_u64(len2 as u64) as i64;
     for j in a + 1..c {
         let q = pts[j % n];
         if len == 0 {
