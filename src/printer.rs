@@ -49,8 +49,9 @@ use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 /// RAM on the board = the `Printer` (slicer + toolpath + move buffer + planner + generator,
 /// about 45 KB with these values) + the protocol endpoint, the step queue, the executor and
 /// the UART buffers + the stack: `.data + .bss` 51,964 B, 13.6 KB left for the stack, of
-/// which a job uses about 7.7 KB (QEMU build; the firmware prints both after every job). Per-unit bytes: slicer 24 per active
-/// triangle, 37 per segment, 72 per loop; toolpath see `ToolpathNeeds`; 24 per queued move.
+/// which a job uses about 7.7 KB (QEMU build; the firmware prints both after every job).
+/// Per-unit bytes: slicer 24 per active triangle, 37 per segment, 72 per loop; toolpath see
+/// `ToolpathNeeds`; 24 per queued move.
 pub mod board {
     use super::Printer;
 
