@@ -70,6 +70,11 @@ pub struct MoveStream {
 }
 
 impl MoveStream {
+    /// Layer 0 at the origin, E 0 (where a job starts).
+    pub const fn new() -> Self {
+        Self { layer: 0, e_um: 0, xyz: [0; 3] }
+    }
+
     /// The layer the next moves belong to (the toolpath stage's `LayerStart`).
     pub fn start_layer(&mut self, index: u32) {
         self.layer = index;
@@ -612,7 +617,7 @@ mod tests {
 
     #[test]
     fn the_stream_makes_absolute_moves_of_each_kind() {
-        let mut s = MoveStream::default();
+        let mut s = MoveStream::new();
         let feed = Rate::from_num(40);
         let at = |x, y, e_um| ToolMove {
             to: Point2::new(x, y),

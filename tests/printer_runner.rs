@@ -11,7 +11,7 @@ use strata::protocol::{
 };
 use strata::step::{StepCmd, StepQueue};
 
-type Small = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 2048, 16>;
+type Small = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 16384, 16>;
 
 fn new_printer() -> Box<Small> {
     Box::new(Small::new(&MachineConfig::default()))
@@ -160,12 +160,12 @@ fn step_commands_and_hashes_do_not_depend_on_how_fast_the_queue_drains() {
 }
 
 /// A small move buffer: one layer of a 20 mm cube fits, a whole model does not.
-type Tight = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 512, 16>;
+type Tight = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 4096, 16>;
 
 #[test]
 fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     // A 20 x 20 x 10 mm box of 12 triangles in one batch: its last triangles complete every
-    // layer at once, 50 layers of moves (thousands) against a 512-move buffer.
+    // layer at once, 50 layers of moves (tens of kilobytes) against a 4 KB move buffer.
     let h = 10_000;
     let tris = box_at(90_000, 20_000, h);
     let mut p: Box<Tight> = Box::new(Tight::new(&MachineConfig::default()));

@@ -204,7 +204,7 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
         path_points: 2,
         window_ring_words: 2,
         window_spans: 0,
-        layer_moves: 8,
+        move_buffer_bytes: 8,
         ..CREALITY_CAPACITIES
     };
     let e = admit_job(&tris, &machine, &job, &tiny, 0.02).unwrap_err();
@@ -216,7 +216,8 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
         "the skin window at 1.00 mm needs",
         "contour words; the printer holds 2",
         "scanline spans; the printer holds 0",
-        "buffered toolpath moves; the printer holds 6 (three quarters of its move buffer of 8)",
+        "bytes of buffered toolpath moves; the printer holds 6 (three quarters of its move \
+         buffer of 8 bytes)",
     ] {
         assert!(e.contains(what), "{what}: {e}");
     }
@@ -234,7 +235,7 @@ fn a_small_model_that_fits_is_streamed_unchanged() {
     assert!(needs.active_triangles <= 12);
     let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
     assert_eq!(peaks.layers, 3);
-    assert!(peaks.layer_moves.value > 0);
+    assert!(peaks.layer_move_bytes.value > 0);
     let opts = SimOptions { capacities: caps, ..SimOptions::default() };
     let rep = simulate(&tris, &machine, job, &opts).unwrap_or_else(|(e, _)| panic!("{e}"));
     assert_eq!(rep.triangles, tris.len());
@@ -282,7 +283,7 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
     let exact = Capacities {
         active_triangles: field("active_triangles"),
         contour_points: field("contour_points"),
-        layer_moves: field("layer_moves"),
+        move_buffer_bytes: field("move_buffer_bytes"),
         toolpath_points: field("toolpath_points"),
         toolpath_loops: field("toolpath_loops"),
         scan_crossings: field("scan_crossings"),
@@ -306,7 +307,10 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
         ("toolpath path points", Capacities { path_points: exact.path_points - 1, ..exact }),
         ("contour words", Capacities { window_ring_words: exact.window_ring_words - 1, ..exact }),
         ("scanline spans", Capacities { window_spans: exact.window_spans - 1, ..exact }),
-        ("buffered toolpath moves", Capacities { layer_moves: exact.layer_moves - 1, ..exact }),
+        (
+            "bytes of buffered toolpath moves",
+            Capacities { move_buffer_bytes: exact.move_buffer_bytes - 1, ..exact },
+        ),
     ];
     for (what, caps) in less {
         let e = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap_err();
