@@ -403,6 +403,11 @@ impl<
         &self.tp
     }
 
+    /// Bytes in use in the move buffer (coded moves waiting for the planner).
+    pub fn move_buffer_used(&self) -> usize {
+        self.moves.used_bytes()
+    }
+
     /// True when the job's last block went to the step generator and it sent every step.
     pub fn motion_finished(&self) -> bool {
         self.state == DeviceState::Done

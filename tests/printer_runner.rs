@@ -207,6 +207,25 @@ fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     assert!(busy > 10, "{busy}");
 }
 
+/// A move buffer smaller than the block's first layer.
+type Cramped = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 96, 16>;
+
+#[test]
+fn a_layer_that_overflows_the_move_buffer_fails_the_job_naming_it() {
+    let tris = block();
+    let mut p: Box<Cramped> = Box::new(Cramped::new(&MachineConfig::default()));
+    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
+    let bytes = batch(&tris);
+    assert_eq!(p.handle(&Message::decode(&bytes).unwrap()), Accept::Taken);
+    assert_eq!(p.handle(&Message::EndOfModel), Accept::Taken);
+    // The first layer (a 6 mm square: perimeters and infill, dozens of moves) cannot fit
+    // 96 bytes: a typed failure at layer 0, not a dropped move.
+    assert_eq!(p.state(), DeviceState::Failed);
+    assert_eq!(p.error(), (ErrorCode::Moves, 0));
+    // What was accepted stays within the buffer.
+    assert!(p.move_buffer_used() <= 96, "{}", p.move_buffer_used());
+}
+
 #[test]
 fn identical_jobs_give_identical_hashes() {
     let mut a = new_printer();

@@ -262,6 +262,9 @@ pub struct ToolpathPeaks {
     /// one layer at a time, each while its move buffer is at most a quarter full: a layer's
     /// bytes must fit the other three quarters.
     pub layer_move_bytes: Peak,
+    /// Bytes of all the job's moves, coded (what the move buffer would hold if nothing were
+    /// planned).
+    pub move_bytes: u64,
     /// Layers.
     pub layers: u32,
 }
@@ -327,6 +330,7 @@ fn measure(
         ToolEvent::LayerEnd(_) => {
             let mut p = peaks.get();
             p.layer_move_bytes.raise(layer_bytes, emitting.get());
+            p.move_bytes += u64::from(layer_bytes);
             p.layers += 1;
             peaks.set(p);
         }

@@ -7,8 +7,10 @@ use std::collections::HashSet;
 
 use strata::geom::{Point3, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::printer::CREALITY_CAPACITIES;
-use strata::protocol::{Capacities, JobOptions, JobSpec};
+use strata::printer::{Accept, Printer, CREALITY_CAPACITIES};
+use strata::protocol::{
+    BatchBuilder, Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message,
+};
 use strata::slice::{SliceConfig, Slicer};
 use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
 use strata_host::model;
@@ -315,5 +317,53 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
     for (what, caps) in less {
         let e = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap_err();
         assert!(e.contains(what), "{what}: {e}");
+    }
+}
+
+/// A printer with a 64 KB move buffer (a small model's every layer fits it unplanned).
+type Roomy = Printer<1024, 768, 48, 2048, 64, 4096, 8192, 8192, 4096, { 1 << 16 }, 32>;
+
+/// Takes the job and the whole model without planning a move (no `poll`): every layer's
+/// moves stay in the move buffer. Returns the bytes in use and the state and error.
+fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, ErrorCode) {
+    let mut batch = BatchBuilder::new();
+    for t in tris {
+        batch.push(t).unwrap();
+    }
+    let payload = batch.payload().to_vec();
+    std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(move || {
+            let mut p = Box::new(Roomy::new(&MachineConfig::default()));
+            for m in
+                [Message::JobStart(job), Message::decode(&payload).unwrap(), Message::EndOfModel]
+            {
+                assert_eq!(p.handle(&m), Accept::Taken);
+            }
+            (p.move_buffer_used(), p.state(), p.error().0)
+        })
+        .unwrap()
+        .join()
+        .unwrap()
+}
+
+/// Admission codes the job's moves as the device's move buffer codes them (the coding's
+/// state running on across layers): a printer that plans nothing holds, after the whole
+/// model, exactly the bytes admission counted, and more than the largest layer's.
+#[test]
+fn admission_counts_the_bytes_the_move_buffer_holds() {
+    let machine = MachineConfig::default();
+    for (tris, skirt_loops) in [
+        (cuboid(100_000, 112_000, 100_000, 109_000, 1_000), 1),
+        (cuboid(60_000, 61_500, 150_000, 190_000, 2_200), 0),
+    ] {
+        let spec =
+            JobSpec { options: JobOptions { skirt_loops, ..JobOptions::default() }, ..job(&tris) };
+        let peaks = toolpath_peaks(&tris, &machine, &spec).unwrap();
+        let (held, state, error) = buffer_unplanned(&tris, spec);
+        assert_eq!((state, error), (DeviceState::Printing, ErrorCode::None));
+        assert!(peaks.layers >= 5, "{}", peaks.layers);
+        assert_eq!(held as u64, peaks.move_bytes);
+        assert!(u64::from(peaks.layer_move_bytes.value) < peaks.move_bytes);
     }
 }
