@@ -237,7 +237,8 @@ pub struct Printer<
     error: ErrorCode,
     detail: u32,
     job: Option<JobSpec>,
-    feed: MoveStream,
+    /// The toolpath stream's layer, absolute E and position (moves for the buffer).
+    stream: MoveStream,
     triangles: u32,
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
@@ -306,7 +307,7 @@ impl<
             error: ErrorCode::None,
             detail: 0,
             job: None,
-            feed: MoveStream::new(),
+            stream: MoveStream::new(),
             triangles: 0,
             batch_pos: 0,
             waiting_for_room: false,
@@ -499,7 +500,7 @@ impl<
         self.tags.clear();
         self.gen.reset(&self.step_cfg, [0; AXES]);
         self.layers = self.slicer.layer_count();
-        self.feed = MoveStream::new();
+        self.stream = MoveStream::new();
         self.triangles = 0;
         self.batch_pos = 0;
         self.report_sent = false;
@@ -621,9 +622,9 @@ impl<
         step: impl FnOnce(&mut Slicer<A, S, L>, &mut dyn FnMut(&Layer<'_>)) -> Result<R, SliceError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { slicer, tp, moves, feed, planner, tags, gen, .. } = self;
+        let Self { slicer, tp, moves, stream, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
-        let mut events = EventSink { slot, feed, motion, failed: None };
+        let mut events = EventSink { slot, stream, motion, failed: None };
         let mut tp_err = None;
         let r = {
             let mut sink = |l: &Layer<'_>| {
@@ -649,9 +650,9 @@ impl<
         ) -> Result<R, ToolpathError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { tp, moves, feed, planner, tags, gen, .. } = self;
+        let Self { tp, moves, stream, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
-        let mut events = EventSink { slot, feed, motion, failed: None };
+        let mut events = EventSink { slot, stream, motion, failed: None };
         let r = step(tp, &mut |e: &ToolEvent<'_>| events.event(e));
         let failed = events.failed;
         self.check(false, r.is_err(), failed);
@@ -880,24 +881,24 @@ impl<
 /// none).
 struct EventSink<'a, 'h, 'f, const MOVE_BYTES: usize, const P: usize> {
     slot: MotionSlot<'a, MOVE_BYTES, P>,
-    feed: &'a mut MoveStream,
+    stream: &'a mut MoveStream,
     motion: MotionHook<'h, 'f, MOVE_BYTES, P>,
     failed: Option<u32>,
 }
 
 impl<const MOVE_BYTES: usize, const P: usize> EventSink<'_, '_, '_, MOVE_BYTES, P> {
     fn event(&mut self, e: &ToolEvent<'_>) {
-        let feed = &mut *self.feed;
+        let stream = &mut *self.stream;
         match e {
             ToolEvent::Progress => {
                 if let Some(lend) = self.motion.as_deref_mut() {
                     lend(&mut self.slot);
                 }
             }
-            ToolEvent::LayerStart { index, .. } => feed.start_layer(*index),
+            ToolEvent::LayerStart { index, .. } => stream.start_layer(*index),
             ToolEvent::Move(m) => {
-                if self.slot.moves.push(&feed.next(m)).is_err() {
-                    self.failed.get_or_insert(feed.layer());
+                if self.slot.moves.push(&stream.next(m)).is_err() {
+                    self.failed.get_or_insert(stream.layer());
                 }
             }
             ToolEvent::LayerEnd(_) => {}
