@@ -35,6 +35,7 @@
 pub mod gcode;
 pub mod geom;
 pub mod machine;
+pub mod move_ring;
 pub mod place;
 pub mod plan;
 pub mod printer;

@@ -13,13 +13,14 @@
 //! during a long layer.
 //!
 //! Flow control reaches back to the host: the slicer cuts one layer at a time, and only
-//! while the `MOVES` buffer (toolpath moves waiting for the planner) is at most a quarter
-//! full; the toolpath stage turns each cut into at most one layer's moves. A batch whose next
-//! triangle would need a cut that has to wait stays in the endpoint's receive slot (and is
-//! resumed where it stopped), so the device announces fewer credits and the host stops
-//! sending. The slicer thus works about a layer ahead of the motion while the next layer's
-//! triangles stream in. A layer's moves must fit the other three quarters: overflowing them
-//! is a typed error ([`ErrorCode::Moves`]), never a silent drop.
+//! while the move buffer (toolpath moves waiting for the planner, delta-coded into
+//! `MOVE_BYTES` bytes, see [`crate::move_ring`]) is at most a quarter full; the toolpath
+//! stage turns each cut into at most one layer's moves. A batch whose next triangle would need
+//! a cut that has to wait stays in the endpoint's receive slot (and is resumed where it
+//! stopped), so the device announces fewer credits and the host stops sending. The slicer
+//! thus works about a layer ahead of the motion while the next layer's triangles stream in.
+//! A layer's coded moves must fit the other three quarters: overflowing them is a typed
+//! error ([`ErrorCode::Moves`]), never a silent drop.
 //!
 //! Planner blocks are released only when the planner queue is full or the model has ended
 //! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
@@ -31,8 +32,9 @@
 use heapless::Deque;
 
 use crate::geom::{Point2, Triangle};
-use crate::machine::{MachineConfig, Rate, AXES};
-use crate::plan::{Move, MoveKind, PlanConfig, PlanError, Planner};
+use crate::machine::{MachineConfig, AXES};
+use crate::move_ring::{MoveRing, MoveStream};
+use crate::plan::{PlanConfig, PlanError, Planner};
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
     VERSION,
@@ -48,10 +50,11 @@ use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 ///
 /// RAM on the board = the `Printer` (slicer + toolpath + move buffer + planner + generator,
 /// about 45 KB with these values) + the protocol endpoint, the step queue, the executor and
-/// the UART buffers + the stack: `.data + .bss` 51,964 B, 13.6 KB left for the stack, of
+/// the UART buffers + the stack: `.data + .bss` 51,500 B, 14.0 KB left for the stack, of
 /// which a job uses about 7.7 KB (QEMU build; the firmware prints both after every job).
 /// Per-unit bytes: slicer 24 per active triangle, 37 per segment, 72 per loop; toolpath see
-/// `ToolpathNeeds`; 24 per queued move.
+/// `ToolpathNeeds`; move buffer `MOVE_BYTES` + 56 (Cortex-M3), about 6 bytes per queued move
+/// (5.0 to 6.3 on average over the sample models, at most 29).
 pub mod board {
     use super::Printer;
 
@@ -73,14 +76,17 @@ pub mod board {
     pub const RING: usize = 512;
     /// Toolpath: the skin window's crossings with one scanline.
     pub const SPANS: usize = 48;
-    /// Toolpath moves waiting for the planner: the slicer cuts a layer while at most a quarter
-    /// is in use, so a layer's moves must fit the other three quarters.
-    pub const MOVES: usize = 448;
+    /// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded): the
+    /// slicer cuts a layer while at most a quarter is in use, so a layer's moves must fit the
+    /// other three quarters (7,680 B; the largest layers of the sample models at the default
+    /// settings: embodier_asc 1,167 B, xyz_20mm_cube 1,568 B, embodier_LM8UU_8p2pi 3,685 B,
+    /// embodier_hotend_v2 6,153 B).
+    pub const MOVE_BYTES: usize = 10_240;
     /// Planner lookahead, moves (the host simulation plans with the same).
     pub const P: usize = 32;
 
     /// The job runner of the firmware build.
-    pub type BoardPrinter = Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>;
+    pub type BoardPrinter = Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVE_BYTES, P>;
 }
 
 /// The capacities the firmware build ([`board`]) announces.
@@ -93,7 +99,7 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
     active_triangles: 1024,
     contour_points: 768,
     contour_loops: 48,
-    layer_moves: 4096,
+    move_buffer_bytes: 1 << 16,
     layer_window: 4,
     ram_bytes: 64 * 1024,
     toolpath_points: 1 << 15,
@@ -128,8 +134,8 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
 /// The commands stay those of [`Printer::poll`]: moves go to the planner in the same order,
 /// blocks leave it only when it is full (the model is not done while a layer is computed),
 /// and the step generator's commands depend only on the blocks.
-pub struct MotionSlot<'a, const MOVES: usize, const P: usize> {
-    moves: &'a mut Deque<Tagged, MOVES>,
+pub struct MotionSlot<'a, const MOVE_BYTES: usize, const P: usize> {
+    moves: &'a mut MoveRing<MOVE_BYTES>,
     planner: &'a mut Planner<P>,
     tags: &'a mut Deque<u32, P>,
     gen: &'a mut StepGenerator,
@@ -138,10 +144,10 @@ pub struct MotionSlot<'a, const MOVES: usize, const P: usize> {
 }
 
 /// What [`Printer::service`]'s caller does with a lent [`MotionSlot`] (`None`: nothing).
-type MotionHook<'h, 'f, const MOVES: usize, const P: usize> =
-    Option<&'h mut (dyn FnMut(&mut MotionSlot<'_, MOVES, P>) + 'f)>;
+type MotionHook<'h, 'f, const MOVE_BYTES: usize, const P: usize> =
+    Option<&'h mut (dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>) + 'f)>;
 
-impl<const MOVES: usize, const P: usize> MotionSlot<'_, MOVES, P> {
+impl<const MOVE_BYTES: usize, const P: usize> MotionSlot<'_, MOVE_BYTES, P> {
     /// Moves into the planner, blocks into the generator, steps into `out`, as
     /// [`Printer::poll`] does; true when something happened. A planning error is left in
     /// place for the next `poll` to report.
@@ -159,7 +165,7 @@ impl<const MOVES: usize, const P: usize> MotionSlot<'_, MOVES, P> {
         out: &mut StepProducer<'_, Q>,
     ) -> Result<bool, u32> {
         let mut worked = false;
-        while let Some(t) = self.moves.front().copied() {
+        while let Some(t) = self.moves.front() {
             let before = self.planner.position_um();
             let mv = t.unpack();
             match self.planner.push(mv) {
@@ -168,11 +174,11 @@ impl<const MOVES: usize, const P: usize> MotionSlot<'_, MOVES, P> {
                     worked = true;
                     // A move that goes nowhere makes no block and has no tag.
                     if mv.target_um != before {
-                        let _ = self.tags.push_back(t.layer());
+                        let _ = self.tags.push_back(u32::from(t.layer));
                     }
                 }
                 Err(PlanError::QueueFull) => break,
-                Err(_) => return Err(t.layer()),
+                Err(_) => return Err(u32::from(t.layer)),
             }
         }
         let input_done = toolpath_done && self.moves.is_empty();
@@ -200,46 +206,10 @@ pub enum Accept {
     Busy,
 }
 
-/// A toolpath move waiting for the planner, packed (24 bytes instead of a [`Move`]'s 32 plus
-/// its layer): the feed keeps 16 fractional bits (the toolpath's feeds are whole or simple
-/// fractions of mm/s; the same packing runs on the host simulation and the board).
-#[derive(Debug, Clone, Copy)]
-struct Tagged {
-    target_um: [i32; AXES],
-    /// Feed, mm/s as U16F16 bits.
-    feed: u32,
-    layer: u16,
-    kind: u8,
-}
-
-impl Tagged {
-    fn pack(layer: u32, mv: &Move) -> Self {
-        let bits = (mv.feed_mm_s.to_bits() >> 16).min(u32::MAX as u64) as u32;
-        let kind = match mv.kind {
-            MoveKind::Print => 0,
-            MoveKind::Travel => 1,
-            MoveKind::Retract => 2,
-        };
-        Self { target_um: mv.target_um, feed: bits, layer: layer.min(u16::MAX as u32) as u16, kind }
-    }
-
-    fn layer(&self) -> u32 {
-        u32::from(self.layer)
-    }
-
-    fn unpack(&self) -> Move {
-        let kind = match self.kind {
-            0 => MoveKind::Print,
-            1 => MoveKind::Travel,
-            _ => MoveKind::Retract,
-        };
-        Move::new(self.target_um, Rate::from_bits(u64::from(self.feed) << 16), kind)
-    }
-}
-
 /// The job runner. Capacities: slicer `A` active triangles, `S` segments, `L` loops;
-/// toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS` (see [`Toolpath`]); `MOVES`
-/// toolpath moves waiting for the planner; `P` moves of planner lookahead.
+/// toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS` (see [`Toolpath`]); `MOVE_BYTES`
+/// bytes of delta-coded toolpath moves waiting for the planner ([`MoveRing`]); `P` moves of
+/// planner lookahead.
 pub struct Printer<
     const A: usize,
     const S: usize,
@@ -250,7 +220,7 @@ pub struct Printer<
     const PATH: usize,
     const RING: usize,
     const SPANS: usize,
-    const MOVES: usize,
+    const MOVE_BYTES: usize,
     const P: usize,
 > {
     machine: MachineConfig,
@@ -258,7 +228,7 @@ pub struct Printer<
     step_cfg: StepConfig,
     slicer: Slicer<A, S, L>,
     tp: Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
-    moves: Deque<Tagged, MOVES>,
+    moves: MoveRing<MOVE_BYTES>,
     planner: Planner<P>,
     /// Layer of every move in the planner that makes a block.
     tags: Deque<u32, P>,
@@ -267,7 +237,8 @@ pub struct Printer<
     error: ErrorCode,
     detail: u32,
     job: Option<JobSpec>,
-    feed: Feed,
+    /// The toolpath stream's layer, absolute E and position (moves for the buffer).
+    stream: MoveStream,
     triangles: u32,
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
@@ -304,9 +275,9 @@ impl<
         const PATH: usize,
         const RING: usize,
         const SPANS: usize,
-        const MOVES: usize,
+        const MOVE_BYTES: usize,
         const P: usize,
-    > Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>
+    > Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVE_BYTES, P>
 {
     /// A runner for `machine`, idle. (Large: on the host, build it in a `Box` on a thread
     /// with a big stack; on a board use [`Printer::empty`] in a `static` and
@@ -328,7 +299,7 @@ impl<
             step_cfg: StepConfig::from_machine(&machine),
             slicer: Slicer::empty(),
             tp: Toolpath::empty(),
-            moves: Deque::new(),
+            moves: MoveRing::new(),
             planner: Planner::empty(),
             tags: Deque::new(),
             gen: StepGenerator::empty(),
@@ -336,7 +307,7 @@ impl<
             error: ErrorCode::None,
             detail: 0,
             job: None,
-            feed: Feed { layer: 0, e_um: 0, xyz: [0; 3] },
+            stream: MoveStream::new(),
             triangles: 0,
             batch_pos: 0,
             waiting_for_room: false,
@@ -360,7 +331,7 @@ impl<
         active_triangles: A as u32,
         contour_points: S as u32,
         contour_loops: L as u32,
-        layer_moves: MOVES as u32,
+        move_buffer_bytes: MOVE_BYTES as u32,
         layer_window: crate::toolpath::window::MAX_BLOCKS as u16,
         ram_bytes: core::mem::size_of::<Self>() as u32,
         toolpath_points: PTS as u32,
@@ -431,6 +402,11 @@ impl<
     /// The toolpath stage (statistics and needs).
     pub fn toolpath(&self) -> &Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS> {
         &self.tp
+    }
+
+    /// Bytes in use in the move buffer (coded moves waiting for the planner).
+    pub fn move_buffer_used(&self) -> usize {
+        self.moves.used_bytes()
     }
 
     /// True when the job's last block went to the step generator and it sent every step.
@@ -524,7 +500,7 @@ impl<
         self.tags.clear();
         self.gen.reset(&self.step_cfg, [0; AXES]);
         self.layers = self.slicer.layer_count();
-        self.feed = Feed::default();
+        self.stream = MoveStream::new();
         self.triangles = 0;
         self.batch_pos = 0;
         self.report_sent = false;
@@ -548,7 +524,7 @@ impl<
     fn handle_with(
         &mut self,
         msg: &Message<'_>,
-        mut motion: MotionHook<'_, '_, MOVES, P>,
+        mut motion: MotionHook<'_, '_, MOVE_BYTES, P>,
     ) -> Accept {
         match (msg, self.state) {
             (Message::EmergencyStop, _) => {
@@ -631,7 +607,7 @@ impl<
         Accept::Taken
     }
 
-    fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVES, P>) {
+    fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         self.through_slicer(motion, |slicer, sink| slicer.push(t, &mut |l: &Layer<'_>| sink(l)));
         self.triangles += 1;
     }
@@ -642,13 +618,13 @@ impl<
     /// when it succeeded.
     fn through_slicer<R>(
         &mut self,
-        motion: MotionHook<'_, '_, MOVES, P>,
+        motion: MotionHook<'_, '_, MOVE_BYTES, P>,
         step: impl FnOnce(&mut Slicer<A, S, L>, &mut dyn FnMut(&Layer<'_>)) -> Result<R, SliceError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { slicer, tp, moves, feed, planner, tags, gen, .. } = self;
+        let Self { slicer, tp, moves, stream, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
-        let mut events = EventSink { slot, feed, motion, failed: None };
+        let mut events = EventSink { slot, stream, motion, failed: None };
         let mut tp_err = None;
         let r = {
             let mut sink = |l: &Layer<'_>| {
@@ -667,16 +643,16 @@ impl<
     /// a toolpath or move-buffer error; the step's result when it succeeded.
     fn through_toolpath<R>(
         &mut self,
-        motion: MotionHook<'_, '_, MOVES, P>,
+        motion: MotionHook<'_, '_, MOVE_BYTES, P>,
         step: impl FnOnce(
             &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
             &mut dyn FnMut(&ToolEvent<'_>),
         ) -> Result<R, ToolpathError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { tp, moves, feed, planner, tags, gen, .. } = self;
+        let Self { tp, moves, stream, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
-        let mut events = EventSink { slot, feed, motion, failed: None };
+        let mut events = EventSink { slot, stream, motion, failed: None };
         let r = step(tp, &mut |e: &ToolEvent<'_>| events.event(e));
         let failed = events.failed;
         self.check(false, r.is_err(), failed);
@@ -691,12 +667,12 @@ impl<
 
     /// The move buffer can take another layer: at most a quarter of it is in use.
     fn room_for_a_layer(&self) -> bool {
-        self.moves.len() <= MOVES / 4
+        self.moves.room_for_a_layer()
     }
 
     /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
     /// emits at most one layer's moves); false when no plane was left or on an error.
-    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
+    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
         let cut = self
             .through_slicer(motion, |slicer, sink| slicer.cut_one(&mut |l: &Layer<'_>| sink(l)));
         cut == Some(true) && self.is_active()
@@ -704,7 +680,7 @@ impl<
 
     /// After the last plane: the toolpath stage's next waiting layer into moves; false when
     /// none was left or on an error.
-    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
+    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
         let flushed = self.through_toolpath(motion, |tp, events| {
             tp.flush_one(&mut |e: &ToolEvent<'_>| events(e))
         });
@@ -712,7 +688,7 @@ impl<
     }
 
     /// Ends the model: every plane is cut and every layer flushed (or the job failed).
-    fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVES, P>) {
+    fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, sink| {
             slicer.finish(&mut |l: &Layer<'_>| sink(l))
         });
@@ -797,7 +773,7 @@ impl<
                 / self.plan_cfg.timer_hz.max(1) as u64) as u32,
             done_ms,
             triangles: self.triangles,
-            queue_fill_pct: (self.moves.len() * 100 / MOVES.max(1)) as u8,
+            queue_fill_pct: (self.moves.used_bytes() * 100 / MOVE_BYTES.max(1)) as u8,
             error: self.error,
             detail: self.detail,
             hotend_c_x10: self.temps_c_x10.0,
@@ -816,7 +792,7 @@ impl<
         now_ms: u32,
         done_ms: u32,
         status_every_ms: u32,
-        motion: &mut dyn FnMut(&mut MotionSlot<'_, MOVES, P>),
+        motion: &mut dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>),
     ) {
         if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
             self.link_lost(silent_ms);
@@ -885,9 +861,9 @@ impl<
         const PATH: usize,
         const RING: usize,
         const SPANS: usize,
-        const MOVES: usize,
+        const MOVE_BYTES: usize,
         const P: usize,
-    > core::fmt::Debug for Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVES, P>
+    > core::fmt::Debug for Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVE_BYTES, P>
 {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("Printer")
@@ -899,48 +875,30 @@ impl<
     }
 }
 
-/// Where the toolpath stream stands: its layer, absolute E and position.
-#[derive(Debug, Clone, Copy, Default)]
-struct Feed {
-    layer: u32,
-    e_um: i32,
-    xyz: [i32; 3],
-}
-
 /// Where the toolpath stage's events go inside [`Printer::service`]: planner moves (absolute
-/// E) into the move buffer (the first layer whose moves do not fit is kept in `failed`), and at a progress
-/// point the motion half lent to `motion` (nothing when there is none).
-struct EventSink<'a, 'h, 'f, const MOVES: usize, const P: usize> {
-    slot: MotionSlot<'a, MOVES, P>,
-    feed: &'a mut Feed,
-    motion: MotionHook<'h, 'f, MOVES, P>,
+/// E, [`MoveStream`]) into the move buffer (the first layer whose moves do not fit is kept in
+/// `failed`), and at a progress point the motion half lent to `motion` (nothing when there is
+/// none).
+struct EventSink<'a, 'h, 'f, const MOVE_BYTES: usize, const P: usize> {
+    slot: MotionSlot<'a, MOVE_BYTES, P>,
+    stream: &'a mut MoveStream,
+    motion: MotionHook<'h, 'f, MOVE_BYTES, P>,
     failed: Option<u32>,
 }
 
-impl<const MOVES: usize, const P: usize> EventSink<'_, '_, '_, MOVES, P> {
+impl<const MOVE_BYTES: usize, const P: usize> EventSink<'_, '_, '_, MOVE_BYTES, P> {
     fn event(&mut self, e: &ToolEvent<'_>) {
-        let feed = &mut *self.feed;
+        let stream = &mut *self.stream;
         match e {
             ToolEvent::Progress => {
                 if let Some(lend) = self.motion.as_deref_mut() {
                     lend(&mut self.slot);
                 }
             }
-            ToolEvent::LayerStart { index, .. } => feed.layer = *index,
+            ToolEvent::LayerStart { index, .. } => stream.start_layer(*index),
             ToolEvent::Move(m) => {
-                feed.e_um = feed.e_um.wrapping_add(m.e_um);
-                let xyz = [m.to.x, m.to.y, m.z_um];
-                let kind = if xyz == feed.xyz {
-                    MoveKind::Retract
-                } else if m.e_um > 0 {
-                    MoveKind::Print
-                } else {
-                    MoveKind::Travel
-                };
-                feed.xyz = xyz;
-                let mv = Move::new([xyz[0], xyz[1], xyz[2], feed.e_um], m.feed_mm_s, kind);
-                if self.slot.moves.push_back(Tagged::pack(feed.layer, &mv)).is_err() {
-                    self.failed.get_or_insert(feed.layer);
+                if self.slot.moves.push(&stream.next(m)).is_err() {
+                    self.failed.get_or_insert(stream.layer());
                 }
             }
             ToolEvent::LayerEnd(_) => {}

@@ -11,7 +11,7 @@ use strata::protocol::{
 };
 use strata::step::{StepCmd, StepQueue};
 
-type Small = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 2048, 16>;
+type Small = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 16384, 16>;
 
 fn new_printer() -> Box<Small> {
     Box::new(Small::new(&MachineConfig::default()))
@@ -160,12 +160,12 @@ fn step_commands_and_hashes_do_not_depend_on_how_fast_the_queue_drains() {
 }
 
 /// A small move buffer: one layer of a 20 mm cube fits, a whole model does not.
-type Tight = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 512, 16>;
+type Tight = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 4096, 16>;
 
 #[test]
 fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     // A 20 x 20 x 10 mm box of 12 triangles in one batch: its last triangles complete every
-    // layer at once, 50 layers of moves (thousands) against a 512-move buffer.
+    // layer at once, 50 layers of moves (tens of kilobytes) against a 4 KB move buffer.
     let h = 10_000;
     let tris = box_at(90_000, 20_000, h);
     let mut p: Box<Tight> = Box::new(Tight::new(&MachineConfig::default()));
@@ -205,6 +205,25 @@ fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     assert_eq!(hashes, (0..50).collect::<Vec<u32>>());
     // The batch and the end of the model both had to wait for room, more than once.
     assert!(busy > 10, "{busy}");
+}
+
+/// A move buffer smaller than the block's first layer.
+type Cramped = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 96, 16>;
+
+#[test]
+fn a_layer_that_overflows_the_move_buffer_fails_the_job_naming_it() {
+    let tris = block();
+    let mut p: Box<Cramped> = Box::new(Cramped::new(&MachineConfig::default()));
+    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
+    let bytes = batch(&tris);
+    assert_eq!(p.handle(&Message::decode(&bytes).unwrap()), Accept::Taken);
+    assert_eq!(p.handle(&Message::EndOfModel), Accept::Taken);
+    // The first layer (a 6 mm square: perimeters and infill, dozens of moves) cannot fit
+    // 96 bytes: a typed failure at layer 0, not a dropped move.
+    assert_eq!(p.state(), DeviceState::Failed);
+    assert_eq!(p.error(), (ErrorCode::Moves, 0));
+    // What was accepted stays within the buffer.
+    assert!(p.move_buffer_used() <= 96, "{}", p.move_buffer_used());
 }
 
 #[test]

@@ -64,7 +64,7 @@ const SAMPLE_CAPS: Capacities = Capacities {
     active_triangles: 1024,
     contour_points: 768,
     contour_loops: 48,
-    layer_moves: 4096,
+    move_buffer_bytes: 4096,
     layer_window: 4,
     ram_bytes: 65536,
     toolpath_points: 80,

@@ -17,7 +17,8 @@
 //! streamed) runs through a host-sized toolpath stage with the job's settings, exactly as the
 //! device will run it ([`toolpath_peaks`]), and every toolpath need is compared with the
 //! device's toolpath capacities (`PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`) and the
-//! moves of every layer with the part of the move buffer a layer may fill. Simplifying
+//! bytes of every layer's moves (coded by the device's own `strata::move_ring` encoder) with
+//! the part of the move buffer a layer may fill. Simplifying
 //! the mesh only reduces the slicer's needs, so a toolpath need that does not fit refuses the
 //! model, naming the resource, the layer where it peaks, the need and the capacity.
 
@@ -29,6 +30,7 @@ use meshopt::{simplify_decoder, SimplifyOptions};
 use rstar::{PointDistance, RTree, RTreeObject, AABB};
 use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::MachineConfig;
+use strata::move_ring::{self, MoveEncoder, MoveStream, MAX_RECORD};
 use strata::protocol::{Capacities, JobSpec};
 use strata::slice::{peak_needs, Layer, PeakNeeds, SliceConfig, Slicer};
 use strata::toolpath::{ToolEvent, Toolpath, ToolpathConfig, ToolpathNeeds};
@@ -255,9 +257,14 @@ pub struct ToolpathPeaks {
     pub ring_words: Peak,
     /// `SPANS`: the skin window's crossings with one scanline.
     pub spans: Peak,
-    /// Most moves of one layer (the device cuts one layer at a time, each while its move
-    /// buffer is at most a quarter full: a layer's moves must fit the other three quarters).
-    pub layer_moves: Peak,
+    /// Most bytes of one layer's moves in the move buffer, coded as the device codes them
+    /// (`strata::move_ring`, the coding's state running on across layers). The device cuts
+    /// one layer at a time, each while its move buffer is at most a quarter full: a layer's
+    /// bytes must fit the other three quarters.
+    pub layer_move_bytes: Peak,
+    /// Bytes of all the job's moves, coded (what the move buffer would hold if nothing were
+    /// planned).
+    pub move_bytes: u64,
     /// Layers.
     pub layers: u32,
 }
@@ -270,7 +277,8 @@ type NeedsToolpath =
 
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
-/// the stage's needs, the layers where they peak and the most moves of a layer. A need found growing while the stage takes a layer is attributed to that layer (the
+/// the stage's needs, the layers where they peak and the most move-buffer bytes of a layer.
+/// A need found growing while the stage takes a layer is attributed to that layer (the
 /// window's stored contours) or to the layer it builds meanwhile (the others: a layer is built
 /// once the layers its top skins wait for have arrived; the last of them when it builds
 /// several at once, as at the end of the model). Runs on a thread with a large stack (the
@@ -303,18 +311,26 @@ fn measure(
     let mut tp = Box::new(NeedsToolpath::new(cfg).map_err(|e| e.to_string())?);
     tp.set_position(Point2::new(0, 0), 0);
     let peaks = Cell::new(ToolpathPeaks::default());
-    // The layer being emitted and its moves.
+    // The layer being emitted and its moves' bytes, coded as the device's move buffer codes
+    // them.
     let emitting = Cell::new((0u32, 0i32));
-    let layer_moves = Cell::new(0u32);
+    let mut layer_bytes = 0u32;
+    let mut stream = MoveStream::new();
+    let mut encoder = MoveEncoder::new();
+    let mut record = [0u8; MAX_RECORD];
     let events = &mut |e: &ToolEvent<'_>| match e {
         ToolEvent::LayerStart { index, z_um, .. } => {
             emitting.set((*index, *z_um));
-            layer_moves.set(0);
+            stream.start_layer(*index);
+            layer_bytes = 0;
         }
-        ToolEvent::Move(_) => layer_moves.set(layer_moves.get() + 1),
+        ToolEvent::Move(m) => {
+            layer_bytes += encoder.encode(&stream.next(m), &mut record) as u32;
+        }
         ToolEvent::LayerEnd(_) => {
             let mut p = peaks.get();
-            p.layer_moves.raise(layer_moves.get(), emitting.get());
+            p.layer_move_bytes.raise(layer_bytes, emitting.get());
+            p.move_bytes += u64::from(layer_bytes);
             p.layers += 1;
             peaks.set(p);
         }
@@ -368,21 +384,22 @@ fn measure(
     Ok(p)
 }
 
-/// Moves of one layer a move buffer of `moves` holds: the device cuts a layer only while
-/// the buffer is at most a quarter full (`strata::printer`), so the other three quarters.
-pub fn layer_room(moves: u32) -> u32 {
-    moves - moves / 4
+/// Bytes of one layer's moves a move buffer of `bytes` holds: the device cuts a layer only
+/// while the buffer is at most a quarter full (`strata::move_ring::layer_room`), so the other
+/// three quarters.
+pub fn layer_room(bytes: u32) -> u32 {
+    move_ring::layer_room(bytes as usize) as u32
 }
 
-/// The smallest move buffer whose [`layer_room`] holds `layer_moves`.
-pub fn move_buffer_for(layer_moves: u32) -> u32 {
-    (layer_moves..).find(|&m| layer_room(m) >= layer_moves).unwrap_or(u32::MAX)
+/// The smallest move buffer, bytes, whose [`layer_room`] holds `layer_bytes`.
+pub fn move_buffer_for(layer_bytes: u32) -> u32 {
+    (layer_bytes..).find(|&m| layer_room(m) >= layer_bytes).unwrap_or(u32::MAX)
 }
 
 /// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user
 /// (empty when everything fits). `PTS >= max(layer_points, offset_edges)`,
 /// `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >= path_points`, `RING >= ring_points`,
-/// `SPANS >= spans` (the `ToolpathNeeds` docs), and every layer's moves within
+/// `SPANS >= spans` (the `ToolpathNeeds` docs), and every layer's move bytes within
 /// [`layer_room`] of the move buffer.
 /// Paths are not compared with `CROSS`: a layer with more paths than the nearest-path grid
 /// holds is ordered by a scan instead (same order, no error).
@@ -408,16 +425,16 @@ pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<Stri
     need(&peaks.path_points, "toolpath path points", caps.path_points, AREA);
     need(&peaks.ring_words, "contour words", caps.window_ring_words, WINDOW);
     need(&peaks.spans, "scanline spans", caps.window_spans, WINDOW);
-    let room = layer_room(caps.layer_moves);
-    let m = &peaks.layer_moves;
+    let room = layer_room(caps.move_buffer_bytes);
+    let m = &peaks.layer_move_bytes;
     if m.value > room {
         out.push(format!(
-            "layer at {:.2} mm needs {} buffered toolpath moves; the printer holds {room} (three \
-             quarters of its move buffer of {}): too many moves in one layer for this printer's \
-             memory",
+            "layer at {:.2} mm needs {} bytes of buffered toolpath moves; the printer holds \
+             {room} (three quarters of its move buffer of {} bytes): too many moves in one \
+             layer for this printer's memory",
             mm(m.z_um),
             m.value,
-            caps.layer_moves
+            caps.move_buffer_bytes
         ));
     }
     out

@@ -56,7 +56,7 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     let caps = serial::connect(&mut port, &mut ep, t0)?;
     eprintln!(
         "printer: {} active triangles, {} contour points per layer, toolpath PTS {} LOOPS {} \
-         CROSS {} PATH {} RING {} SPANS {}, {} buffered moves, {} KB RAM",
+         CROSS {} PATH {} RING {} SPANS {}, {} B move buffer, {} KB RAM",
         caps.active_triangles,
         caps.contour_points,
         caps.toolpath_points,
@@ -65,7 +65,7 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         caps.path_points,
         caps.window_ring_words,
         caps.window_spans,
-        caps.layer_moves,
+        caps.move_buffer_bytes,
         caps.ram_bytes / 1024
     );
     let job = job_of(&args.print, &tris)?;

@@ -22,7 +22,7 @@ use crate::preview::PathRecorder;
 use crate::session::{HostEndpoint, HostJob, Phase};
 
 /// The simulated device: host-sized buffers (slicer 1024 active triangles, 768 contour
-/// points, 48 loops; a host-sized toolpath stage; 2^17 buffered moves) and the board's 32
+/// points, 48 loops; a host-sized toolpath stage; a 128 KB move buffer) and the board's 32
 /// moves of lookahead. What it announces, and so what admission holds a model to, is
 /// [`SimOptions::capacities`]: by default the 64 KB firmware build's (`BOARD_CAPACITIES`).
 pub type SimPrinter = Printer<

@@ -7,8 +7,10 @@ use std::collections::HashSet;
 
 use strata::geom::{Point3, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::printer::CREALITY_CAPACITIES;
-use strata::protocol::{Capacities, JobOptions, JobSpec};
+use strata::printer::{Accept, Printer, CREALITY_CAPACITIES};
+use strata::protocol::{
+    BatchBuilder, Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message,
+};
 use strata::slice::{SliceConfig, Slicer};
 use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
 use strata_host::model;
@@ -204,7 +206,7 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
         path_points: 2,
         window_ring_words: 2,
         window_spans: 0,
-        layer_moves: 8,
+        move_buffer_bytes: 8,
         ..CREALITY_CAPACITIES
     };
     let e = admit_job(&tris, &machine, &job, &tiny, 0.02).unwrap_err();
@@ -216,7 +218,8 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
         "the skin window at 1.00 mm needs",
         "contour words; the printer holds 2",
         "scanline spans; the printer holds 0",
-        "buffered toolpath moves; the printer holds 6 (three quarters of its move buffer of 8)",
+        "bytes of buffered toolpath moves; the printer holds 6 (three quarters of its move \
+         buffer of 8 bytes)",
     ] {
         assert!(e.contains(what), "{what}: {e}");
     }
@@ -234,7 +237,7 @@ fn a_small_model_that_fits_is_streamed_unchanged() {
     assert!(needs.active_triangles <= 12);
     let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
     assert_eq!(peaks.layers, 3);
-    assert!(peaks.layer_moves.value > 0);
+    assert!(peaks.layer_move_bytes.value > 0);
     let opts = SimOptions { capacities: caps, ..SimOptions::default() };
     let rep = simulate(&tris, &machine, job, &opts).unwrap_or_else(|(e, _)| panic!("{e}"));
     assert_eq!(rep.triangles, tris.len());
@@ -282,7 +285,7 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
     let exact = Capacities {
         active_triangles: field("active_triangles"),
         contour_points: field("contour_points"),
-        layer_moves: field("layer_moves"),
+        move_buffer_bytes: field("move_buffer_bytes"),
         toolpath_points: field("toolpath_points"),
         toolpath_loops: field("toolpath_loops"),
         scan_crossings: field("scan_crossings"),
@@ -306,10 +309,61 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
         ("toolpath path points", Capacities { path_points: exact.path_points - 1, ..exact }),
         ("contour words", Capacities { window_ring_words: exact.window_ring_words - 1, ..exact }),
         ("scanline spans", Capacities { window_spans: exact.window_spans - 1, ..exact }),
-        ("buffered toolpath moves", Capacities { layer_moves: exact.layer_moves - 1, ..exact }),
+        (
+            "bytes of buffered toolpath moves",
+            Capacities { move_buffer_bytes: exact.move_buffer_bytes - 1, ..exact },
+        ),
     ];
     for (what, caps) in less {
         let e = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap_err();
         assert!(e.contains(what), "{what}: {e}");
+    }
+}
+
+/// A printer with a 64 KB move buffer (a small model's every layer fits it unplanned).
+type Roomy = Printer<1024, 768, 48, 2048, 64, 4096, 8192, 8192, 4096, { 1 << 16 }, 32>;
+
+/// Takes the job and the whole model without planning a move (no `poll`): every layer's
+/// moves stay in the move buffer. Returns the bytes in use and the state and error.
+fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, ErrorCode) {
+    let mut batch = BatchBuilder::new();
+    for t in tris {
+        batch.push(t).unwrap();
+    }
+    let payload = batch.payload().to_vec();
+    std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(move || {
+            let mut p = Box::new(Roomy::new(&MachineConfig::default()));
+            for m in
+                [Message::JobStart(job), Message::decode(&payload).unwrap(), Message::EndOfModel]
+            {
+                assert_eq!(p.handle(&m), Accept::Taken);
+            }
+            (p.move_buffer_used(), p.state(), p.error().0)
+        })
+        .unwrap()
+        .join()
+        .unwrap()
+}
+
+/// Admission codes the job's moves as the device's move buffer codes them (the coding's
+/// state running on across layers): a printer that plans nothing holds, after the whole
+/// model, exactly the bytes admission counted, and more than the largest layer's.
+#[test]
+fn admission_counts_the_bytes_the_move_buffer_holds() {
+    let machine = MachineConfig::default();
+    for (tris, skirt_loops) in [
+        (cuboid(100_000, 112_000, 100_000, 109_000, 1_000), 1),
+        (cuboid(60_000, 61_500, 150_000, 190_000, 2_200), 0),
+    ] {
+        let spec =
+            JobSpec { options: JobOptions { skirt_loops, ..JobOptions::default() }, ..job(&tris) };
+        let peaks = toolpath_peaks(&tris, &machine, &spec).unwrap();
+        let (held, state, error) = buffer_unplanned(&tris, spec);
+        assert_eq!((state, error), (DeviceState::Printing, ErrorCode::None));
+        assert!(peaks.layers >= 5, "{}", peaks.layers);
+        assert_eq!(held as u64, peaks.move_bytes);
+        assert!(u64::from(peaks.layer_move_bytes.value) < peaks.move_bytes);
     }
 }

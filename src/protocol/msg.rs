@@ -47,8 +47,9 @@ pub struct Capacities {
     pub contour_points: u32,
     /// Loops of one layer (`Slicer` `LOOPS`).
     pub contour_loops: u32,
-    /// Toolpath moves buffered between the toolpath stage and the planner.
-    pub layer_moves: u32,
+    /// Bytes of the move buffer between the toolpath stage and the planner (delta-coded
+    /// records, `strata::move_ring`): a layer's records must fit three quarters of it.
+    pub move_buffer_bytes: u32,
     /// Layers the skin window holds (top solid layers the toolpath stage can wait for).
     pub layer_window: u16,
     /// RAM the pipeline's buffers take on the device, bytes.
@@ -203,7 +204,7 @@ pub struct Status {
     pub done_ms: u32,
     /// Triangles received.
     pub triangles: u32,
-    /// Move buffer fill, percent.
+    /// Move buffer fill (bytes in use), percent.
     pub queue_fill_pct: u8,
     /// Error, if failed.
     pub error: ErrorCode,
@@ -434,7 +435,7 @@ impl<'a> Message<'a> {
                 w.u32(c.active_triangles)?;
                 w.u32(c.contour_points)?;
                 w.u32(c.contour_loops)?;
-                w.u32(c.layer_moves)?;
+                w.u32(c.move_buffer_bytes)?;
                 w.u16(c.layer_window)?;
                 w.u32(c.ram_bytes)?;
                 w.u32(c.toolpath_points)?;
@@ -532,7 +533,7 @@ impl<'a> Message<'a> {
                     active_triangles: r.u32()?,
                     contour_points: r.u32()?,
                     contour_loops: r.u32()?,
-                    layer_moves: r.u32()?,
+                    move_buffer_bytes: r.u32()?,
                     layer_window: r.u16()?,
                     ram_bytes: r.u32()?,
                     toolpath_points: r.u32()?,
