@@ -39,6 +39,7 @@ pub mod place;
 pub mod plan;
 pub mod printer;
 pub mod protocol;
+pub mod scratch;
 pub mod sim;
 pub mod slice;
 pub mod step;

@@ -37,6 +37,7 @@ use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
     VERSION,
 };
+use crate::scratch::Scratch;
 use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
@@ -258,6 +259,8 @@ pub struct Printer<
     step_cfg: StepConfig,
     slicer: Slicer<A, S, L>,
     tp: Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+    /// The slicer's cut, then the toolpath stage's offset engine and infill scratch.
+    scratch: Scratch<S, PTS, CROSS>,
     moves: Deque<Tagged, MOVES>,
     planner: Planner<P>,
     /// Layer of every move in the planner that makes a block.
@@ -328,6 +331,7 @@ impl<
             step_cfg: StepConfig::from_machine(&machine),
             slicer: Slicer::empty(),
             tp: Toolpath::empty(),
+            scratch: Scratch::new(),
             moves: Deque::new(),
             planner: Planner::empty(),
             tags: Deque::new(),
@@ -632,31 +636,37 @@ impl<
     }
 
     fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVES, P>) {
-        self.through_slicer(motion, |slicer, sink| slicer.push(t, &mut |l: &Layer<'_>| sink(l)));
+        self.through_slicer(motion, |slicer, work, sink| {
+            slicer.push(t, work, &mut |l, w| sink(l, w))
+        });
         self.triangles += 1;
     }
 
-    /// Runs `step` on the slicer with a sink that takes each layer through the toolpath stage
-    /// into the move buffer (lending `motion` the motion half at its progress points), then
-    /// records a slicer, toolpath or move-buffer error (the job fails); the step's result
-    /// when it succeeded.
+    /// Runs `step` on the slicer and the scratch with a sink that takes each layer through
+    /// the toolpath stage into the move buffer (lending `motion` the motion half at its
+    /// progress points), then records a slicer, toolpath or move-buffer error (the job
+    /// fails); the step's result when it succeeded.
     fn through_slicer<R>(
         &mut self,
         motion: MotionHook<'_, '_, MOVES, P>,
-        step: impl FnOnce(&mut Slicer<A, S, L>, &mut dyn FnMut(&Layer<'_>)) -> Result<R, SliceError>,
+        step: impl FnOnce(
+            &mut Slicer<A, S, L>,
+            &mut Scratch<S, PTS, CROSS>,
+            &mut dyn FnMut(&Layer<'_>, &mut Scratch<S, PTS, CROSS>),
+        ) -> Result<R, SliceError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { slicer, tp, moves, feed, planner, tags, gen, .. } = self;
+        let Self { slicer, tp, scratch, moves, feed, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
         let mut events = EventSink { slot, feed, motion, failed: None };
         let mut tp_err = None;
         let r = {
-            let mut sink = |l: &Layer<'_>| {
+            let mut sink = |l: &Layer<'_>, work: &mut Scratch<S, PTS, CROSS>| {
                 if tp_err.is_none() {
-                    tp_err = tp.push_layer(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
+                    tp_err = tp.push_layer(l, work, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
-            step(slicer, &mut sink)
+            step(slicer, scratch, &mut sink)
         };
         let failed = events.failed;
         self.check(r.is_err(), tp_err.is_some(), failed);
@@ -670,14 +680,15 @@ impl<
         motion: MotionHook<'_, '_, MOVES, P>,
         step: impl FnOnce(
             &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+            &mut Scratch<S, PTS, CROSS>,
             &mut dyn FnMut(&ToolEvent<'_>),
         ) -> Result<R, ToolpathError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { tp, moves, feed, planner, tags, gen, .. } = self;
+        let Self { tp, scratch, moves, feed, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
         let mut events = EventSink { slot, feed, motion, failed: None };
-        let r = step(tp, &mut |e: &ToolEvent<'_>| events.event(e));
+        let r = step(tp, scratch, &mut |e: &ToolEvent<'_>| events.event(e));
         let failed = events.failed;
         self.check(false, r.is_err(), failed);
         r.ok()
@@ -697,29 +708,27 @@ impl<
     /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
     /// emits at most one layer's moves); false when no plane was left or on an error.
     fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
-        let cut = self
-            .through_slicer(motion, |slicer, sink| slicer.cut_one(&mut |l: &Layer<'_>| sink(l)));
+        let cut = self.through_slicer(motion, |slicer, work, sink| {
+            slicer.cut_one(work, &mut |l, w| sink(l, w))
+        });
         cut == Some(true) && self.is_active()
     }
 
     /// After the last plane: the toolpath stage's next waiting layer into moves; false when
     /// none was left or on an error.
     fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
-        let flushed = self.through_toolpath(motion, |tp, events| {
-            tp.flush_one(&mut |e: &ToolEvent<'_>| events(e))
-        });
+        let flushed = self
+            .through_toolpath(motion, |tp, work, events| tp.flush_one(work, &mut |e| events(e)));
         flushed == Some(true) && self.is_active()
     }
 
     /// Ends the model: every plane is cut and every layer flushed (or the job failed).
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVES, P>) {
-        let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, sink| {
-            slicer.finish(&mut |l: &Layer<'_>| sink(l))
+        let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
+            slicer.finish(work, &mut |l, w| sink(l, w))
         });
         if sliced.is_some() && self.is_active() {
-            self.through_toolpath(motion, |tp, events| {
-                tp.finish(&mut |e: &ToolEvent<'_>| events(e))
-            });
+            self.through_toolpath(motion, |tp, work, events| tp.finish(work, &mut |e| events(e)));
         }
         self.toolpath_done = true;
     }
