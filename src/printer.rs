@@ -47,12 +47,15 @@ use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 /// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
 /// announces [`BOARD_CAPACITIES`].
 ///
-/// RAM on the board = the `Printer` (slicer + toolpath + move buffer + planner + generator,
-/// about 45 KB with these values) + the protocol endpoint, the step queue, the executor and
-/// the UART buffers + the stack: `.data + .bss` 51,964 B, 13.6 KB left for the stack, of
-/// which a job uses about 7.7 KB (QEMU build; the firmware prints both after every job).
-/// Per-unit bytes: slicer 24 per active triangle, 37 per segment, 72 per loop; toolpath see
-/// `ToolpathNeeds`; 24 per queued move.
+/// RAM on the board = the `Printer` (slicer + toolpath + their scratch + move buffer +
+/// planner + generator, about 40 KB with these values) + the protocol endpoint, the step
+/// queue, the executor and the UART buffers + the stack: `.data + .bss` 46,396 B, 19.1 KB
+/// left for the stack, of which a job used about 7.7 KB when last measured (QEMU build; the
+/// firmware prints both after every job).
+/// Per-unit bytes: slicer 24 per active triangle, 8 per segment, 72 per loop; the scratch
+/// the slicer and the toolpath stage take turns in holds the largest of the cut (29 per
+/// segment), the offset engine (50 per `PTS`) and the infill scratch (22 per `CROSS`): here
+/// the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`; 24 per queued move.
 pub mod board {
     use super::Printer;
 

@@ -56,14 +56,7 @@
 //!
 //! [`Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>`](Toolpath) holds:
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
-//!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 74 bytes per
-//!   `PTS` (points 3 x 8, edge 16, split 12, piece 20, active entry 2), 123 bytes per
-//!   `LOOPS`;
-//! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
-//!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
-//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units;
-//!   the engine (50 of the 74 bytes per `PTS`) and this scratch take turns in one place (per
-//!   layer: offsets, then infill and ordering), so only the larger of the two counts;
+//!   infill domain): 24 bytes per `PTS`, 123 bytes per `LOOPS`;
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
 //!   two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
@@ -73,8 +66,19 @@
 //!   filled);
 //! - about 1 KB of fixed state (settings, counters, the window's block table).
 //!
+//! It works in a [`Scratch`] lent to every call that computes layers (the slicer's sink hands
+//! on the slicer's; a [`ToolpathScratch`] when used alone), where two tenants take turns per
+//! layer (offsets, then infill and ordering) with the slicer's cut, the largest of the three
+//! counting:
+//! - the offset engine (`PTS` edges, splits and pieces): 50 bytes per `PTS` (edge 16, split
+//!   12, piece 20, active entry 2);
+//! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
+//!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
+//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units.
+//!
 //! [`ToolpathStats::needs`] reports the largest use of each, so a model's needs are known
-//! after one host run, and [`ToolpathNeeds::bytes`] what a stage sized to them takes.
+//! after one host run, and [`ToolpathNeeds::stage_bytes`] and
+//! [`ToolpathNeeds::work_bytes`] what a stage sized to them and its tenants take.
 
 use core::fmt;
 
