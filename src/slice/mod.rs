@@ -354,7 +354,8 @@ impl SliceStats {
 }
 
 /// The streaming slicer. Capacities: `ACTIVE` triangles in the active set, `SEGMENTS` cut
-/// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer.
+/// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer. It cuts
+/// each layer in a [`Scratch`] lent to the calls that may cut (see the [module docs](self)).
 ///
 /// Large capacities make a large value: on the host, build it where the stack is big enough
 /// (or in a `static`/boxed slot and call [`Slicer::reset`]).
