@@ -21,12 +21,15 @@ use strata::gcode::{GcodeOptions, GcodeWriter};
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
+use strata::scratch::Scratch;
 use strata::slice::{Layer, LayerRepairs, LoopInfo, SliceConfig, Slicer};
 use strata::toolpath::{ToolEvent, ToolMove, Toolpath, ToolpathConfig};
 
 /// Capacities comfortably above 3DBenchy's needs (see `examples/toolpath_report.rs`).
 type BenchSlicer = Slicer<8192, 8192, 256>;
 type BenchToolpath = Toolpath<8192, 256, 16384, 32768, 16384, 16384>;
+/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+type BenchScratch = Scratch<8192, 8192, 16384>;
 
 fn placed_sorted(bytes: &[u8], machine: &MachineConfig) -> Vec<Triangle> {
     let mut raw = Vec::new();
@@ -46,6 +49,7 @@ fn placed_sorted(bytes: &[u8], machine: &MachineConfig) -> Vec<Triangle> {
 struct Stages {
     slicer: Box<BenchSlicer>,
     toolpath: Box<BenchToolpath>,
+    work: Box<BenchScratch>,
 }
 
 fn stages(slice: SliceConfig, cfg: ToolpathConfig) -> Stages {
@@ -54,6 +58,7 @@ fn stages(slice: SliceConfig, cfg: ToolpathConfig) -> Stages {
         .spawn(move || Stages {
             slicer: Box::new(BenchSlicer::new(slice).expect("slice config")),
             toolpath: Box::new(BenchToolpath::new(cfg).expect("toolpath config")),
+            work: Box::new(BenchScratch::new()),
         })
         .expect("spawn")
         .join()
@@ -91,12 +96,14 @@ fn file_to_gcode(bytes: &[u8], job: &Job, st: &mut Stages) -> String {
     st.toolpath.set_position(pos, z);
     let tp = &mut st.toolpath;
     let mut events = |e: &ToolEvent<'_>| gw.event(e).expect("write");
-    let mut sink = |l: &Layer<'_>| tp.push_layer(l, &mut events).expect("toolpaths");
+    let mut sink = |l: &Layer<'_>, work: &mut BenchScratch| {
+        tp.push_layer(l, work, &mut events).expect("toolpaths")
+    };
     for t in &tris {
-        st.slicer.push(t, &mut sink).expect("slices");
+        st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
     }
-    st.slicer.finish(&mut sink).expect("slices");
-    st.toolpath.finish(&mut events).expect("toolpaths");
+    st.slicer.finish(&mut st.work, &mut sink).expect("slices");
+    st.toolpath.finish(&mut st.work, &mut events).expect("toolpaths");
     gw.end(&job.machine, &job.cfg).expect("write");
     gw.into_inner()
 }
@@ -104,7 +111,7 @@ fn file_to_gcode(bytes: &[u8], job: &Job, st: &mut Stages) -> String {
 fn slice_layers(tris: &[Triangle], st: &mut Stages, slice: SliceConfig) -> Vec<OwnedLayer> {
     st.slicer.reset(slice).expect("slice config");
     let mut out = Vec::new();
-    let mut sink = |l: &Layer<'_>| {
+    let mut sink = |l: &Layer<'_>, _: &mut BenchScratch| {
         out.push(OwnedLayer {
             index: l.index,
             z_um: l.z_um,
@@ -113,9 +120,9 @@ fn slice_layers(tris: &[Triangle], st: &mut Stages, slice: SliceConfig) -> Vec<O
         })
     };
     for t in tris {
-        st.slicer.push(t, &mut sink).expect("slices");
+        st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
     }
-    st.slicer.finish(&mut sink).expect("slices");
+    st.slicer.finish(&mut st.work, &mut sink).expect("slices");
     out
 }
 
@@ -146,9 +153,9 @@ fn toolpaths(
             active_triangles: 0,
             segments: l.points.len() as u32,
         };
-        st.toolpath.push_layer(&layer, &mut events).expect("toolpaths");
+        st.toolpath.push_layer(&layer, &mut st.work, &mut events).expect("toolpaths");
     }
-    st.toolpath.finish(&mut events).expect("toolpaths");
+    st.toolpath.finish(&mut st.work, &mut events).expect("toolpaths");
     moves
 }
 
@@ -184,9 +191,10 @@ fn bench(c: &mut Criterion) {
     let job = Job { machine, settings, cfg, slice };
     let mut st = stages(slice, cfg);
     eprintln!(
-        "stage values: slicer {} KB, toolpath {} KB",
+        "stage values: slicer {} KB, toolpath {} KB, their scratch {} KB",
         std::mem::size_of::<BenchSlicer>() / 1024,
-        std::mem::size_of::<BenchToolpath>() / 1024
+        std::mem::size_of::<BenchToolpath>() / 1024,
+        std::mem::size_of::<BenchScratch>() / 1024
     );
     let text = file_to_gcode(&bytes, &job, &mut st);
     let stats = st.toolpath.stats();
@@ -220,11 +228,11 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             st.slicer.reset(slice).expect("slice config");
             let mut n = 0usize;
-            let mut sink = |l: &Layer<'_>| n += black_box(l.points.len());
+            let mut sink = |l: &Layer<'_>, _: &mut BenchScratch| n += black_box(l.points.len());
             for t in &tris {
-                st.slicer.push(t, &mut sink).expect("slices");
+                st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
             }
-            st.slicer.finish(&mut sink).expect("slices");
+            st.slicer.finish(&mut st.work, &mut sink).expect("slices");
             n
         })
     });

@@ -13,10 +13,11 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
-use strata::slice::{peak_needs, Layer, SliceConfig, Slicer};
+use strata::slice::{peak_needs, Layer, SliceConfig, SliceScratch, Slicer};
 
 /// Bench capacities: comfortably above 3DBenchy's peaks (4,685 active, 4,681 segments).
 type BenchSlicer = Slicer<8192, 8192, 256>;
+type BenchScratch = SliceScratch<8192>;
 
 fn placed_sorted(bytes: &[u8]) -> Vec<Triangle> {
     let mut raw = Vec::new();
@@ -33,14 +34,19 @@ fn placed_sorted(bytes: &[u8]) -> Vec<Triangle> {
 }
 
 /// One full run; returns the points emitted so nothing is optimised out.
-fn slice_all(slicer: &mut BenchSlicer, tris: &[Triangle], config: SliceConfig) -> usize {
+fn slice_all(
+    slicer: &mut BenchSlicer,
+    work: &mut BenchScratch,
+    tris: &[Triangle],
+    config: SliceConfig,
+) -> usize {
     slicer.reset(config).expect("valid config");
     let mut points = 0usize;
-    let mut sink = |l: &Layer<'_>| points += black_box(l.points.len());
+    let mut sink = |l: &Layer<'_>, _: &mut BenchScratch| points += black_box(l.points.len());
     for t in tris {
-        slicer.push(t, &mut sink).expect("slices");
+        slicer.push(t, work, &mut sink).expect("slices");
     }
-    slicer.finish(&mut sink).expect("slices");
+    slicer.finish(work, &mut sink).expect("slices");
     points
 }
 
@@ -54,6 +60,7 @@ fn slice(c: &mut Criterion) {
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let config = SliceConfig::new(&PrintSettings::default(), top).expect("config");
     let mut slicer = Box::new(BenchSlicer::new(config).expect("config"));
+    let mut work = Box::new(BenchScratch::new());
     let mut group = c.benchmark_group("slice");
     group
         .sample_size(20)
@@ -61,7 +68,7 @@ fn slice(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(5))
         .throughput(Throughput::Elements(tris.len() as u64));
     group.bench_function("3DBenchy/240_layers", |b| {
-        b.iter(|| slice_all(&mut slicer, black_box(&tris), config))
+        b.iter(|| slice_all(&mut slicer, &mut work, black_box(&tris), config))
     });
     group.bench_function("3DBenchy/peak_needs", |b| {
         b.iter(|| peak_needs(black_box(&tris), &config).expect("needs"))

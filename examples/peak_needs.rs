@@ -7,12 +7,7 @@ use std::path::{Path, PathBuf};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
-use strata::slice::{peak_needs, SliceConfig, Slicer};
-
-/// RAM per unit of capacity (see the `slice` module docs).
-const ACTIVE_BYTES: u64 = 24;
-const SEGMENT_BYTES: u64 = 37;
-const LOOP_BYTES: u64 = 72;
+use strata::slice::{peak_needs, slicer_bytes, SliceConfig, SliceScratch, Slicer};
 
 fn stl_files(dir: &Path, out: &mut Vec<PathBuf>) {
     let mut entries: Vec<PathBuf> =
@@ -52,10 +47,11 @@ fn peak_loops(tris: &[Triangle], config: SliceConfig) -> u32 {
             .stack_size(64 << 20)
             .spawn_scoped(s, || {
                 let mut slicer = Box::new(Slicer::<65536, 65536, 4096>::new(config).unwrap());
+                let mut work = Box::new(SliceScratch::new());
                 for t in tris {
-                    slicer.push(t, &mut |_| {}).unwrap();
+                    slicer.push(t, &mut work, &mut |_, _| {}).unwrap();
                 }
-                slicer.finish(&mut |_| {}).unwrap().peak_loops
+                slicer.finish(&mut work, &mut |_, _| {}).unwrap().peak_loops
             })
             .unwrap()
             .join()
@@ -85,9 +81,10 @@ fn main() {
         let config = SliceConfig::new(&PrintSettings::default(), top).unwrap();
         let n = peak_needs(&tris, &config).unwrap();
         let loops = peak_loops(&tris, config);
-        let ram = u64::from(n.active_triangles) * ACTIVE_BYTES
-            + u64::from(n.contour_points) * SEGMENT_BYTES
-            + u64::from(loops) * LOOP_BYTES;
+        let (active, points) = (n.active_triangles as usize, n.contour_points as usize);
+        // The slicer and the cut in its scratch.
+        let ram =
+            slicer_bytes(active, points, loops as usize) + strata::scratch::bytes(points, 0, 0);
         let idle = tris.len() as u32 - n.spanning_triangles;
         println!(
             "| {name} | {} | {} | {:.0} % | {} ({}) | {} ({}) | {loops} | {:.1} KB |",

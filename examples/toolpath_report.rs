@@ -14,11 +14,16 @@ use strata::gcode::{GcodeOptions, GcodeWriter};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
+use strata::scratch::Scratch;
 use strata::slice::{Layer, SliceConfig, Slicer};
 use strata::toolpath::{LayerStats, ToolEvent, Toolpath, ToolpathConfig, ToolpathStats};
 
 type HostSlicer = Slicer<{ 1 << 16 }, { 1 << 16 }, 4096>;
 type HostToolpath = Toolpath<{ 1 << 15 }, 4096, { 1 << 16 }, { 1 << 17 }, { 1 << 17 }, { 1 << 17 }>;
+/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+type HostScratch = Scratch<{ 1 << 16 }, { 1 << 15 }, { 1 << 16 }>;
+/// The stage values.
+type Stages = (Box<HostSlicer>, Box<HostToolpath>, Box<HostScratch>);
 
 fn stl_files(dir: &Path, out: &mut Vec<PathBuf>) {
     let mut entries: Vec<PathBuf> =
@@ -40,11 +45,7 @@ struct Row {
     gcode_bytes: usize,
 }
 
-fn run(
-    bytes: &[u8],
-    machine: &MachineConfig,
-    st: &mut (Box<HostSlicer>, Box<HostToolpath>),
-) -> Option<Row> {
+fn run(bytes: &[u8], machine: &MachineConfig, st: &mut Stages) -> Option<Row> {
     let t0 = Instant::now();
     let mut raw = Vec::new();
     let mut bounds = Bounds::EMPTY;
@@ -60,7 +61,7 @@ fn run(
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let slice = SliceConfig::new(&settings, top).ok()?;
     let cfg = ToolpathConfig::new(machine, &settings);
-    let (slicer, tp) = st;
+    let (slicer, tp, work) = st;
     slicer.reset(slice).ok()?;
     tp.reset(cfg).ok()?;
     let mut gw = GcodeWriter::new(String::new(), GcodeOptions::default(), &cfg);
@@ -75,20 +76,20 @@ fn run(
         let _ = gw.event(e);
     };
     let mut failed = None;
-    let mut sink = |l: &Layer<'_>| {
+    let mut sink = |l: &Layer<'_>, work: &mut HostScratch| {
         if failed.is_none() {
-            failed = tp.push_layer(l, &mut events).err();
+            failed = tp.push_layer(l, work, &mut events).err();
         }
     };
     for t in &tris {
-        slicer.push(t, &mut sink).ok()?;
+        slicer.push(t, work, &mut sink).ok()?;
     }
-    slicer.finish(&mut sink).ok()?;
+    slicer.finish(work, &mut sink).ok()?;
     if let Some(e) = failed {
         eprintln!("toolpath error: {e}");
         return None;
     }
-    let stats = tp.finish(&mut events).ok()?;
+    let stats = tp.finish(work, &mut events).ok()?;
     gw.end(machine, &cfg).ok()?;
     let gcode_bytes = gw.into_inner().len();
     Some(Row { stats, layers, seconds: t0.elapsed().as_secs_f64(), gcode_bytes })
@@ -107,7 +108,7 @@ fn main() {
     let handle = std::thread::Builder::new()
         .stack_size(512 << 20)
         .spawn(move || {
-            let mut st = (
+            let mut st: Stages = (
                 Box::new(HostSlicer::new(
                     SliceConfig::new(&PrintSettings::default(), 1000).expect("config"),
                 )
@@ -119,6 +120,7 @@ fn main() {
                     ))
                     .expect("toolpath"),
                 ),
+                Box::new(HostScratch::new()),
             );
             println!(
                 "| model | layers | retractions | per layer (mean / max) | travel mm | per layer \

@@ -18,8 +18,9 @@
 //! - [`printer`]: the device-side job runner: protocol messages in, slicer, toolpaths,
 //!   planner and step generator driven with bounded work per poll, status reports out.
 //!
-//! Shared foundations: [`geom`] (integer micrometre geometry) and [`machine`] (printer profile
-//! and print settings with validation);
+//! Shared foundations: [`geom`] (integer micrometre geometry), [`machine`] (printer profile
+//! and print settings with validation) and [`scratch`] (the per-layer working memory the
+//! slicer and the toolpath stage take turns in);
 //! [`sim`] is the simulated stepper backend (pins, hand-advanced clock, timing checks, step hash).
 //!
 //! Guarantees:
@@ -40,6 +41,7 @@ pub mod place;
 pub mod plan;
 pub mod printer;
 pub mod protocol;
+pub mod scratch;
 pub mod sim;
 pub mod slice;
 pub mod step;

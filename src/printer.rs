@@ -39,6 +39,7 @@ use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
     VERSION,
 };
+use crate::scratch::Scratch;
 use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
@@ -48,13 +49,16 @@ use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 /// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
 /// announces [`BOARD_CAPACITIES`].
 ///
-/// RAM on the board = the `Printer` (slicer + toolpath + move buffer + planner + generator,
-/// about 45 KB with these values) + the protocol endpoint, the step queue, the executor and
-/// the UART buffers + the stack: `.data + .bss` 51,500 B, 14.0 KB left for the stack, of
-/// which a job uses about 7.7 KB (QEMU build; the firmware prints both after every job).
-/// Per-unit bytes: slicer 24 per active triangle, 37 per segment, 72 per loop; toolpath see
-/// `ToolpathNeeds`; move buffer `MOVE_BYTES` + 56 (Cortex-M3), about 6 bytes per queued move
-/// (5.0 to 6.3 on average over the sample models, at most 29).
+/// RAM on the board = the `Printer` (slicer + toolpath + their scratch + move buffer +
+/// planner + generator, about 40 KB with these values) + the protocol endpoint, the step
+/// queue, the executor and the UART buffers + the stack: `.data + .bss` 46,396 B, 19.1 KB
+/// left for the stack, of which a job used about 7.7 KB when last measured (QEMU build; the
+/// firmware prints both after every job).
+/// Per-unit bytes: slicer 24 per active triangle, 8 per segment, 72 per loop; the scratch
+/// the slicer and the toolpath stage take turns in holds the largest of the cut (29 per
+/// segment), the offset engine (50 per `PTS`) and the infill scratch (22 per `CROSS`): here
+/// the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`; move buffer `MOVE_BYTES` + 56 (Cortex-M3), about 6 bytes per
+/// queued move (5.0 to 6.3 on average over the sample models, at most 29).
 pub mod board {
     use super::Printer;
 
@@ -228,6 +232,8 @@ pub struct Printer<
     step_cfg: StepConfig,
     slicer: Slicer<A, S, L>,
     tp: Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+    /// The slicer's cut, then the toolpath stage's offset engine and infill scratch.
+    scratch: Scratch<S, PTS, CROSS>,
     moves: MoveRing<MOVE_BYTES>,
     planner: Planner<P>,
     /// Layer of every move in the planner that makes a block.
@@ -299,6 +305,7 @@ impl<
             step_cfg: StepConfig::from_machine(&machine),
             slicer: Slicer::empty(),
             tp: Toolpath::empty(),
+            scratch: Scratch::new(),
             moves: MoveRing::new(),
             planner: Planner::empty(),
             tags: Deque::new(),
@@ -608,31 +615,37 @@ impl<
     }
 
     fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
-        self.through_slicer(motion, |slicer, sink| slicer.push(t, &mut |l: &Layer<'_>| sink(l)));
+        self.through_slicer(motion, |slicer, work, sink| {
+            slicer.push(t, work, &mut |l, w| sink(l, w))
+        });
         self.triangles += 1;
     }
 
-    /// Runs `step` on the slicer with a sink that takes each layer through the toolpath stage
-    /// into the move buffer (lending `motion` the motion half at its progress points), then
-    /// records a slicer, toolpath or move-buffer error (the job fails); the step's result
-    /// when it succeeded.
+    /// Runs `step` on the slicer and the scratch with a sink that takes each layer through
+    /// the toolpath stage into the move buffer (lending `motion` the motion half at its
+    /// progress points), then records a slicer, toolpath or move-buffer error (the job
+    /// fails); the step's result when it succeeded.
     fn through_slicer<R>(
         &mut self,
         motion: MotionHook<'_, '_, MOVE_BYTES, P>,
-        step: impl FnOnce(&mut Slicer<A, S, L>, &mut dyn FnMut(&Layer<'_>)) -> Result<R, SliceError>,
+        step: impl FnOnce(
+            &mut Slicer<A, S, L>,
+            &mut Scratch<S, PTS, CROSS>,
+            &mut dyn FnMut(&Layer<'_>, &mut Scratch<S, PTS, CROSS>),
+        ) -> Result<R, SliceError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { slicer, tp, moves, stream, planner, tags, gen, .. } = self;
+        let Self { slicer, tp, scratch, moves, stream, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
         let mut events = EventSink { slot, stream, motion, failed: None };
         let mut tp_err = None;
         let r = {
-            let mut sink = |l: &Layer<'_>| {
+            let mut sink = |l: &Layer<'_>, work: &mut Scratch<S, PTS, CROSS>| {
                 if tp_err.is_none() {
-                    tp_err = tp.push_layer(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
+                    tp_err = tp.push_layer(l, work, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
-            step(slicer, &mut sink)
+            step(slicer, scratch, &mut sink)
         };
         let failed = events.failed;
         self.check(r.is_err(), tp_err.is_some(), failed);
@@ -646,14 +659,15 @@ impl<
         motion: MotionHook<'_, '_, MOVE_BYTES, P>,
         step: impl FnOnce(
             &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+            &mut Scratch<S, PTS, CROSS>,
             &mut dyn FnMut(&ToolEvent<'_>),
         ) -> Result<R, ToolpathError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
-        let Self { tp, moves, stream, planner, tags, gen, .. } = self;
+        let Self { tp, scratch, moves, stream, planner, tags, gen, .. } = self;
         let slot = MotionSlot { moves, planner, tags, gen, allowed };
         let mut events = EventSink { slot, stream, motion, failed: None };
-        let r = step(tp, &mut |e: &ToolEvent<'_>| events.event(e));
+        let r = step(tp, scratch, &mut |e: &ToolEvent<'_>| events.event(e));
         let failed = events.failed;
         self.check(false, r.is_err(), failed);
         r.ok()
@@ -673,29 +687,27 @@ impl<
     /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
     /// emits at most one layer's moves); false when no plane was left or on an error.
     fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let cut = self
-            .through_slicer(motion, |slicer, sink| slicer.cut_one(&mut |l: &Layer<'_>| sink(l)));
+        let cut = self.through_slicer(motion, |slicer, work, sink| {
+            slicer.cut_one(work, &mut |l, w| sink(l, w))
+        });
         cut == Some(true) && self.is_active()
     }
 
     /// After the last plane: the toolpath stage's next waiting layer into moves; false when
     /// none was left or on an error.
     fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let flushed = self.through_toolpath(motion, |tp, events| {
-            tp.flush_one(&mut |e: &ToolEvent<'_>| events(e))
-        });
+        let flushed = self
+            .through_toolpath(motion, |tp, work, events| tp.flush_one(work, &mut |e| events(e)));
         flushed == Some(true) && self.is_active()
     }
 
     /// Ends the model: every plane is cut and every layer flushed (or the job failed).
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
-        let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, sink| {
-            slicer.finish(&mut |l: &Layer<'_>| sink(l))
+        let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
+            slicer.finish(work, &mut |l, w| sink(l, w))
         });
         if sliced.is_some() && self.is_active() {
-            self.through_toolpath(motion, |tp, events| {
-                tp.finish(&mut |e: &ToolEvent<'_>| events(e))
-            });
+            self.through_toolpath(motion, |tp, work, events| tp.finish(work, &mut |e| events(e)));
         }
         self.toolpath_done = true;
     }

@@ -13,10 +13,13 @@ use strata::machine::{MachineConfig, PrintSettings};
 use strata::slice::{Layer, LayerRepairs, LoopInfo};
 use strata::toolpath::scan::{line_spans, Angle, Span};
 use strata::toolpath::window::{Encoder, Fifo, StoredRings};
-use strata::toolpath::{Buffer, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
-use toolpath_support::run_cfg;
+use strata::toolpath::{
+    Buffer, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathScratch,
+};
+use toolpath_support::{run_cfg, TestScratch};
 
 type PropToolpath = Toolpath<4096, 64, 4096, 16384, 8192, 8192>;
+type PropScratch = ToolpathScratch<4096, 4096>;
 
 /// One arbitrary loop: points in a 30 mm square around the bed centre, a hole flag and a
 /// parent index (possibly nonsense).
@@ -108,13 +111,14 @@ fn small_capacities_give_typed_errors_and_misuse_is_reported() {
                 active_triangles: 0,
                 segments: 3,
             };
+            let mut work = Box::new(PropScratch::new());
             let mut sink = |_: &ToolEvent<'_>| {};
             let e = ToolpathError::OutOfOrder { expected: 0, got: 1 };
-            assert_eq!(tp.push_layer(&layer, &mut sink), Err(e));
-            assert_eq!(tp.finish(&mut sink), Err(e));
+            assert_eq!(tp.push_layer(&layer, &mut work, &mut sink), Err(e));
+            assert_eq!(tp.finish(&mut work, &mut sink), Err(e));
             tp.reset(cfg()).unwrap();
-            assert!(tp.finish(&mut sink).is_ok());
-            assert_eq!(tp.finish(&mut sink), Err(ToolpathError::Finished));
+            assert!(tp.finish(&mut work, &mut sink).is_ok());
+            assert_eq!(tp.finish(&mut work, &mut sink), Err(ToolpathError::Finished));
             // Settings out of range are refused by name.
             let mut bad = cfg();
             bad.top_layers = 17;
@@ -140,20 +144,21 @@ fn run_cfg_small(
     let slice_cfg = strata::slice::SliceConfig::new(settings, top).unwrap();
     let mut slicer = Box::new(toolpath_support::TestSlicer::new(slice_cfg).unwrap());
     let mut tp = Box::new(Tiny::new(cfg())?);
+    let mut work = Box::new(TestScratch::<256, 8>::new());
     let mut first = None;
     let mut events = |_: &ToolEvent<'_>| {};
-    let mut sink = |l: &Layer<'_>| {
+    let mut sink = |l: &Layer<'_>, work: &mut TestScratch<256, 8>| {
         if first.is_none() {
-            first = tp.push_layer(l, &mut events).err();
+            first = tp.push_layer(l, work, &mut events).err();
         }
     };
     for t in tris {
-        slicer.push(t, &mut sink).unwrap();
+        slicer.push(t, &mut work, &mut sink).unwrap();
     }
-    slicer.finish(&mut sink).unwrap();
+    slicer.finish(&mut work, &mut sink).unwrap();
     match first {
         Some(e) => Err(e),
-        None => tp.finish(&mut events).map(|_| ()),
+        None => tp.finish(&mut work, &mut events).map(|_| ()),
     }
 }
 
@@ -161,6 +166,7 @@ fn run_cfg_small(
 /// extrusions (skirt aside) inside the input box.
 fn check_layers(tp: &mut PropToolpath, layers: &Layers) -> Result<(), TestCaseError> {
     tp.reset(cfg()).unwrap();
+    let mut work = Box::new(PropScratch::new());
     let mut moves = Vec::new();
     let mut events = |e: &ToolEvent<'_>| {
         if let ToolEvent::Move(m) = e {
@@ -192,13 +198,13 @@ fn check_layers(tp: &mut PropToolpath, layers: &Layers) -> Result<(), TestCaseEr
             active_triangles: 0,
             segments: 0,
         };
-        result = tp.push_layer(&layer, &mut events);
+        result = tp.push_layer(&layer, &mut work, &mut events);
         if result.is_err() {
             break;
         }
     }
     if result.is_ok() {
-        result = tp.finish(&mut events).map(|_| ());
+        result = tp.finish(&mut work, &mut events).map(|_| ());
     }
     // The offset arrangement closes every boundary chain.
     prop_assert_eq!(tp.stats().open_chains, 0);

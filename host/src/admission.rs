@@ -32,6 +32,7 @@ use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::MachineConfig;
 use strata::move_ring::{self, MoveEncoder, MoveStream, MAX_RECORD};
 use strata::protocol::{Capacities, JobSpec};
+use strata::scratch::Scratch;
 use strata::slice::{peak_needs, Layer, PeakNeeds, SliceConfig, Slicer};
 use strata::toolpath::{ToolEvent, Toolpath, ToolpathConfig, ToolpathNeeds};
 
@@ -274,6 +275,8 @@ type NeedsSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
 /// The toolpath stage of the needs run (as `strata slice`'s).
 type NeedsToolpath =
     Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
+/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+type NeedsScratch = Scratch<{ 1 << 17 }, { 1 << 16 }, { 1 << 16 }>;
 
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
@@ -309,6 +312,7 @@ fn measure(
 ) -> Result<ToolpathPeaks, String> {
     let mut slicer = Box::new(NeedsSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
     let mut tp = Box::new(NeedsToolpath::new(cfg).map_err(|e| e.to_string())?);
+    let mut work = Box::new(NeedsScratch::new());
     tp.set_position(Point2::new(0, 0), 0);
     let peaks = Cell::new(ToolpathPeaks::default());
     // The layer being emitted and its moves' bytes, coded as the device's move buffer codes
@@ -337,7 +341,7 @@ fn measure(
         ToolEvent::Progress => {}
     };
     let mut failed = None;
-    let mut sink = |l: &Layer<'_>| {
+    let mut sink = |l: &Layer<'_>, work: &mut NeedsScratch| {
         if failed.is_some() {
             return;
         }
@@ -345,7 +349,7 @@ fn measure(
         // Heights as the nozzle's (the top of the layer), as `LayerStart` gives them.
         let pushed = (l.index, cfg.layer_z_um(l.index));
         emitting.set(pushed);
-        if let Err(e) = tp.push_layer(l, events) {
+        if let Err(e) = tp.push_layer(l, work, events) {
             failed = Some(e);
             return;
         }
@@ -363,13 +367,13 @@ fn measure(
         peaks.set(p);
     };
     for t in tris {
-        slicer.push(t, &mut sink).map_err(|e| e.to_string())?;
+        slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
     }
-    slicer.finish(&mut sink).map_err(|e| e.to_string())?;
+    slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
     if let Some(e) = failed {
         return Err(format!("the toolpath stage cannot measure this model: {e}"));
     }
-    let stats = tp.finish(events).map_err(|e| e.to_string())?;
+    let stats = tp.finish(&mut work, events).map_err(|e| e.to_string())?;
     let mut p = peaks.get();
     p.needs = stats.needs;
     // Needs that grew in the end-of-model flush belong to its last layer.

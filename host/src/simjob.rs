@@ -495,13 +495,16 @@ pub(crate) fn device_turn<const N: usize>(
     }
 }
 
-/// RAM of a device pipeline sized exactly to this job's needs: slicer (24 bytes per active
-/// triangle, 37 per segment, 72 per loop), toolpath stage at its needs, planner and step
-/// generator and queues (12 KB, the motion test's bound).
+/// RAM of a device pipeline sized exactly to this job's needs: slicer, toolpath stage and
+/// the scratch they take turns in (the slicer's cut or the toolpath stage's engine and infill
+/// scratch, the largest), planner and step generator and queues (12 KB, the motion test's
+/// bound).
 pub fn device_ram(slice: &strata::slice::SliceStats, needs: &ToolpathNeeds) -> u64 {
-    let slicer = 200
-        + 24 * slice.peak_active as u64
-        + 37 * slice.peak_segments as u64
-        + 72 * slice.peak_loops as u64;
-    slicer + needs.bytes() as u64 + 12 * 1024
+    let slicer = strata::slice::slicer_bytes(
+        slice.peak_active as usize,
+        slice.peak_segments as usize,
+        slice.peak_loops as usize,
+    );
+    let cut = strata::scratch::bytes(slice.peak_segments as usize, 0, 0);
+    (slicer + needs.stage_bytes() + cut.max(needs.work_bytes())) as u64 + 12 * 1024
 }

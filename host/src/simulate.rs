@@ -76,7 +76,8 @@ struct DeviceNeeds {
     path_points: u32,
     window_ring_words: u32,
     window_spans: u32,
-    /// RAM of a toolpath stage with exactly these capacities (`ToolpathNeeds::bytes`).
+    /// RAM of a toolpath stage with exactly these capacities and a scratch of its own
+    /// (`ToolpathNeeds::bytes`).
     toolpath_ram_bytes: u64,
 }
 
@@ -90,7 +91,7 @@ struct Summary {
     peak_active_triangles: u32,
     peak_contour_points: u32,
     /// RAM of a device pipeline sized exactly to this job (`simjob::device_ram`: the slicer at
-    /// its peaks, the toolpath stage at `device_needs`, motion).
+    /// its peaks, the toolpath stage at `device_needs`, the scratch they share, motion).
     device_ram_bytes: u64,
     /// The capacities a device needs for this job, named as the announced `Capacities`.
     device_needs: DeviceNeeds,

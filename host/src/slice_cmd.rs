@@ -16,7 +16,10 @@ use serde::Serialize;
 use strata::gcode::{GcodeOptions, GcodeStats, GcodeWriter};
 use strata::geom::{Point2, Triangle};
 use strata::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
-use strata::slice::{peak_needs, Layer, LayerRepairs, PeakNeeds, SliceConfig, SliceStats, Slicer};
+use strata::scratch::Scratch;
+use strata::slice::{
+    peak_needs, Layer, LayerRepairs, PeakNeeds, SliceConfig, SliceScratch, SliceStats, Slicer,
+};
 use strata::toolpath::{
     LayerStats, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds,
     ToolpathStats,
@@ -29,6 +32,8 @@ type HostSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
 /// Host toolpath capacities: PTS, LOOPS, CROSS, PATH, RING, SPANS (about 20 MB).
 type HostToolpath =
     Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
+/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+type HostScratch = Scratch<{ 1 << 17 }, { 1 << 16 }, { 1 << 16 }>;
 const SLICER_STACK_BYTES: usize = 256 << 20;
 
 /// Options of `strata slice`.
@@ -267,12 +272,13 @@ fn run_slicer(
             .stack_size(SLICER_STACK_BYTES)
             .spawn_scoped(scope, || {
                 let mut slicer = HostSlicer::new(config).map_err(|e| e.to_string())?;
+                let mut work = Box::new(SliceScratch::new());
                 let mut layers = Vec::with_capacity(slicer.layer_count() as usize);
-                let mut sink = |l: &Layer<'_>| layers.push(layer_out(l));
+                let mut sink = |l: &Layer<'_>, _: &mut _| layers.push(layer_out(l));
                 for t in tris {
-                    slicer.push(t, &mut sink).map_err(|e| e.to_string())?;
+                    slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
                 }
-                let stats = slicer.finish(&mut sink).map_err(|e| e.to_string())?;
+                let stats = slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
                 Ok((layers, stats))
             })
             .map_err(|e| format!("cannot start the slicer thread: {e}"))?;
@@ -465,6 +471,7 @@ fn run_toolpaths(
             .spawn_scoped(scope, || {
                 let mut slicer = Box::new(HostSlicer::new(config).map_err(|e| e.to_string())?);
                 let mut tp = Box::new(HostToolpath::new(cfg).map_err(|e| e.to_string())?);
+                let mut work = Box::new(HostScratch::new());
                 let mut gw = GcodeWriter::new(String::new(), opts, &cfg);
                 gw.start(machine, settings, &cfg).map_err(|e| e.to_string())?;
                 let (pos, z) = gw.position();
@@ -478,19 +485,19 @@ fn run_toolpaths(
                     write_error |= gw.event(e).is_err();
                 };
                 let mut failed: Option<ToolpathError> = None;
-                let mut sink = |l: &Layer<'_>| {
+                let mut sink = |l: &Layer<'_>, work: &mut HostScratch| {
                     if failed.is_none() {
-                        failed = tp.push_layer(l, &mut events).err();
+                        failed = tp.push_layer(l, work, &mut events).err();
                     }
                 };
                 for t in tris {
-                    slicer.push(t, &mut sink).map_err(|e| e.to_string())?;
+                    slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
                 }
-                let slice = slicer.finish(&mut sink).map_err(|e| e.to_string())?;
+                let slice = slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
                 if let Some(e) = failed {
                     return Err(e.to_string());
                 }
-                let stats = tp.finish(&mut events).map_err(|e| e.to_string())?;
+                let stats = tp.finish(&mut work, &mut events).map_err(|e| e.to_string())?;
                 if write_error {
                     return Err("G-code formatting failed".into());
                 }

@@ -11,7 +11,7 @@ use strata::printer::{Accept, Printer, CREALITY_CAPACITIES};
 use strata::protocol::{
     BatchBuilder, Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message,
 };
-use strata::slice::{SliceConfig, Slicer};
+use strata::slice::{SliceConfig, SliceScratch, Slicer};
 use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
 use strata_host::model;
 use strata_host::simjob::{device_ram, simulate, SimOptions};
@@ -270,10 +270,11 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
         .stack_size(64 << 20)
         .spawn(move || {
             let mut slicer = Box::new(Slicer::<4096, 4096, 256>::new(cfg).unwrap());
+            let mut work = Box::new(SliceScratch::new());
             for t in &tris {
-                slicer.push(t, &mut |_| {}).unwrap();
+                slicer.push(t, &mut work, &mut |_, _| {}).unwrap();
             }
-            slicer.finish(&mut |_| {}).unwrap()
+            slicer.finish(&mut work, &mut |_, _| {}).unwrap()
         })
         .unwrap()
         .join()

@@ -7,6 +7,8 @@
 //! the links form cycles only, whatever is chosen at points where loops touch. Segments left
 //! without predecessor start open chains, which `repair` joins or drops.
 
+use core::mem::size_of;
+
 use crate::geom::{doubled_signed_area, Point2};
 
 use super::intersect::Segment;
@@ -55,21 +57,34 @@ pub(super) struct LayerOutcome {
     pub dropped_small_loops: u32,
 }
 
-/// A layer's segments, links, loops and loop points. Memory per unit of capacity: 37 bytes
-/// per segment (16 segment + 4 link + 1 flags + 8 hash slots + 8 output point) and
-/// `size_of::<LoopInfo>() + size_of::<Chain>()` per loop.
-pub(super) struct Contours<const S: usize, const L: usize> {
-    pub segs: [Segment; S],
-    pub next: [u32; S],
+/// A layer's cut: its segments, their links and flags, and the endpoint hash table. It lives
+/// in the shared [`Scratch`](crate::scratch::Scratch) and is dead once the layer's loops are
+/// written: 29 bytes per segment (16 segment + 4 link + 1 flags + 8 hash slots).
+pub(crate) struct CutScratch<const S: usize> {
+    pub(super) segs: [Segment; S],
+    pub(super) next: [u32; S],
     flags: [u8; S],
     table: [[u32; 2]; S],
+    len: usize,
+}
+
+/// A layer's loops and loop points (the slicer's output, read through
+/// [`Layer`](super::Layer)) and the open chains of its repair. Memory per unit of capacity:
+/// 8 bytes per segment (an output point) and `size_of::<LoopInfo>() + size_of::<Chain>()`
+/// per loop.
+pub(super) struct Contours<const S: usize, const L: usize> {
     pub points: [Point2; S],
     pub loops: [LoopInfo; L],
     pub chains: [Chain; L],
-    pub seg_len: usize,
     pub points_len: usize,
     pub loops_len: usize,
     pub chains_len: usize,
+}
+
+/// The chaining of one layer: reads and links the cut, writes the contours.
+pub(super) struct Chaining<'a, const S: usize, const L: usize> {
+    pub cut: &'a mut CutScratch<S>,
+    pub out: &'a mut Contours<S, L>,
 }
 
 /// Slot of `p` in a table of `slots` entries: multiplicative hash, then a multiply-shift
@@ -80,17 +95,45 @@ fn slot_of(p: Point2, slots: usize) -> usize {
     ((h * slots as u64) >> 32) as usize
 }
 
+impl<const S: usize> CutScratch<S> {
+    /// Bytes per segment: the segment, its link, its flags and two hash slots.
+    pub(crate) const BYTES_PER_SEGMENT: usize =
+        size_of::<Segment>() + size_of::<u32>() + size_of::<u8>() + size_of::<[u32; 2]>();
+
+    /// No segments. All zero: written in place by a memset (no constant in flash).
+    pub(crate) const EMPTY: Self = Self {
+        segs: [Segment { start: Point2::new(0, 0), end: Point2::new(0, 0) }; S],
+        next: [0; S],
+        flags: [0; S],
+        table: [[0; 2]; S],
+        len: 0,
+    };
+
+    /// Forgets the previous layer's segments.
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    /// Segments of the layer.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Adds a segment; `Err` when the segment buffer is full.
+    pub fn push(&mut self, s: Segment) -> Result<(), Resource> {
+        let slot = self.segs.get_mut(self.len).ok_or(Resource::Segments)?;
+        *slot = s;
+        self.len += 1;
+        Ok(())
+    }
+}
+
 impl<const S: usize, const L: usize> Contours<S, L> {
     /// Empty buffers.
     pub const EMPTY: Self = Self {
-        segs: [Segment { start: Point2::new(0, 0), end: Point2::new(0, 0) }; S],
-        next: [NONE; S],
-        flags: [0; S],
-        table: [[NONE; 2]; S],
         points: [Point2::new(0, 0); S],
         loops: [LoopInfo::EMPTY; L],
         chains: [Chain { head: 0, tail: 0, segments: 0, length_um: 0, state: ChainState::Open }; L],
-        seg_len: 0,
         points_len: 0,
         loops_len: 0,
         chains_len: 0,
@@ -98,20 +141,13 @@ impl<const S: usize, const L: usize> Contours<S, L> {
 
     /// Forgets the previous layer.
     pub fn clear(&mut self) {
-        self.seg_len = 0;
         self.points_len = 0;
         self.loops_len = 0;
         self.chains_len = 0;
     }
+}
 
-    /// Adds a segment; `Err` when the segment buffer is full.
-    pub fn push_segment(&mut self, s: Segment) -> Result<(), Resource> {
-        let slot = self.segs.get_mut(self.seg_len).ok_or(Resource::Segments)?;
-        *slot = s;
-        self.seg_len += 1;
-        Ok(())
-    }
-
+impl<const S: usize, const L: usize> Chaining<'_, S, L> {
     /// Chains, repairs, filters, orients and nests the layer's loops.
     pub fn build(
         &mut self,
@@ -119,35 +155,37 @@ impl<const S: usize, const L: usize> Contours<S, L> {
         join_tolerance_um: i32,
         max_gap_um: i32,
     ) -> Result<LayerOutcome, Resource> {
+        self.out.clear();
         self.link();
         self.collect_open_chains()?;
         let repairs = self.repair(join_tolerance_um, max_gap_um);
         let mut outcome = LayerOutcome { repairs, dropped_small_loops: 0 };
         let min_doubled = min_loop_area_um2.saturating_mul(2);
-        for c in 0..self.chains_len {
-            if self.chains[c].state == ChainState::Closed {
-                let head = self.chains[c].head as usize;
+        for c in 0..self.out.chains_len {
+            if self.out.chains[c].state == ChainState::Closed {
+                let head = self.out.chains[c].head as usize;
                 if !self.emit(head, min_doubled)? {
                     outcome.dropped_small_loops += 1;
                 }
             }
         }
-        for i in 0..self.seg_len {
-            if self.flags[i] & DONE == 0 && !self.emit(i, min_doubled)? {
+        for i in 0..self.cut.len {
+            if self.cut.flags[i] & DONE == 0 && !self.emit(i, min_doubled)? {
                 outcome.dropped_small_loops += 1;
             }
         }
+        let out = &mut *self.out;
         super::nest::orient_and_nest(
-            &mut self.points[..self.points_len],
-            &mut self.loops[..self.loops_len],
+            &mut out.points[..out.points_len],
+            &mut out.loops[..out.loops_len],
         );
         Ok(outcome)
     }
 
     /// Links each segment to an unclaimed segment starting at its end point.
     fn link(&mut self) {
-        let n = self.seg_len;
-        let Self { segs, next, flags, table, .. } = self;
+        let CutScratch { segs, next, flags, table, len } = &mut *self.cut;
+        let n = *len;
         let slots = 2 * n;
         let table = &mut table.as_flattened_mut()[..slots];
         table.fill(NONE);
@@ -180,23 +218,24 @@ impl<const S: usize, const L: usize> Contours<S, L> {
 
     /// Records every maximal path starting at a segment without predecessor.
     fn collect_open_chains(&mut self) -> Result<(), Resource> {
-        for head in 0..self.seg_len {
-            if self.flags[head] & HAS_PRED != 0 {
+        let (cut, out) = (&mut *self.cut, &mut *self.out);
+        for head in 0..cut.len {
+            if cut.flags[head] & HAS_PRED != 0 {
                 continue;
             }
             let (mut cur, mut segments, mut length_um) = (head, 0u32, 0i64);
             loop {
-                self.flags[cur] |= DONE;
+                cut.flags[cur] |= DONE;
                 segments += 1;
-                let s = self.segs[cur];
+                let s = cut.segs[cur];
                 let (dx, dy) = (i64::from(s.end.x - s.start.x), i64::from(s.end.y - s.start.y));
                 length_um += dx.abs().max(dy.abs());
-                match self.next[cur] {
+                match cut.next[cur] {
                     NONE => break,
                     n => cur = n as usize,
                 }
             }
-            let chain = self.chains.get_mut(self.chains_len).ok_or(Resource::OpenChains)?;
+            let chain = out.chains.get_mut(out.chains_len).ok_or(Resource::OpenChains)?;
             *chain = Chain {
                 head: head as u32,
                 tail: cur as u32,
@@ -204,30 +243,31 @@ impl<const S: usize, const L: usize> Contours<S, L> {
                 length_um,
                 state: ChainState::Open,
             };
-            self.chains_len += 1;
+            out.chains_len += 1;
         }
         Ok(())
     }
 
     fn push_point(&mut self, p: Point2) -> Result<(), Resource> {
-        let slot = self.points.get_mut(self.points_len).ok_or(Resource::ContourPoints)?;
+        let out = &mut *self.out;
+        let slot = out.points.get_mut(out.points_len).ok_or(Resource::ContourPoints)?;
         *slot = p;
-        self.points_len += 1;
+        out.points_len += 1;
         Ok(())
     }
 
     /// Writes the cycle through segment `head` as a loop; `Ok(false)` when it is dropped
     /// for its area (below `min_doubled / 2` or zero).
     fn emit(&mut self, head: usize, min_doubled: i64) -> Result<bool, Resource> {
-        let start = self.points_len;
+        let start = self.out.points_len;
         let mut cur = head;
         // A cycle visits each segment once: the bound only guards against a broken link.
-        for _ in 0..self.seg_len {
-            self.flags[cur] |= DONE;
-            let seg = self.segs[cur];
+        for _ in 0..self.cut.len {
+            self.cut.flags[cur] |= DONE;
+            let seg = self.cut.segs[cur];
             self.push_point(seg.start)?;
-            let nxt = self.next[cur] as usize;
-            let Some(following) = self.segs[..self.seg_len].get(nxt) else { break };
+            let nxt = self.cut.next[cur] as usize;
+            let Some(following) = self.cut.segs[..self.cut.len].get(nxt) else { break };
             if seg.end != following.start {
                 // A repaired gap: keep the segment's own end, then bridge straight across.
                 self.push_point(seg.end)?;
@@ -237,10 +277,11 @@ impl<const S: usize, const L: usize> Contours<S, L> {
                 break;
             }
         }
-        let points = &self.points[start..self.points_len];
+        let out = &mut *self.out;
+        let points = &out.points[start..out.points_len];
         let doubled = doubled_signed_area(points);
         if doubled == 0 || doubled.abs() < min_doubled {
-            self.points_len = start;
+            out.points_len = start;
             return Ok(false);
         }
         let (mut min, mut max) = (points[0], points[0]);
@@ -258,9 +299,9 @@ impl<const S: usize, const L: usize> Contours<S, L> {
             min,
             max,
         };
-        let slot = self.loops.get_mut(self.loops_len).ok_or(Resource::Loops)?;
+        let slot = out.loops.get_mut(out.loops_len).ok_or(Resource::Loops)?;
         *slot = info;
-        self.loops_len += 1;
+        out.loops_len += 1;
         Ok(true)
     }
 }

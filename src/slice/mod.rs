@@ -20,14 +20,19 @@
 //!
 //! # Memory
 //!
-//! A [`Slicer<ACTIVE, SEGMENTS, LOOPS>`](Slicer) holds all its buffers inline:
+//! A [`Slicer<ACTIVE, SEGMENTS, LOOPS>`](Slicer) holds its buffers inline:
 //! - 24 bytes per `ACTIVE` (three corners packed as 21-bit fields in three `u64`);
-//! - 37 bytes per `SEGMENTS` (segment 16, link 4, flags 1, two hash slots 8, output point 8);
+//! - 8 bytes per `SEGMENTS` (an output point);
 //! - 72 bytes per `LOOPS` (a [`LoopInfo`] of 48 and an open-chain record of 24);
 //! - about 200 bytes of state.
 //!
-//! For example `Slicer<1024, 512, 32>` takes about 45 KB. [`peak_needs`] tells the host which
-//! capacities a model needs.
+//! The cut of a layer (29 bytes per `SEGMENTS`: segment 16, link 4, flags 1, two hash slots
+//! 8) is only needed while the layer is chained: it lives in a [`Scratch`] the caller lends
+//! to every call that may cut ([`Slicer::push`], [`Slicer::cut_one`], [`Slicer::finish`]) and
+//! that the toolpath stage reuses (a [`SliceScratch`] when slicing alone).
+//!
+//! For example `Slicer<1024, 512, 32>` takes about 30 KB and its cut about 15 KB.
+//! [`peak_needs`] tells the host which capacities a model needs.
 
 mod chain;
 mod intersect;
@@ -41,12 +46,28 @@ use core::fmt;
 
 use crate::geom::{Point2, Triangle};
 use crate::machine::PrintSettings;
+use crate::scratch::Scratch;
 
-use chain::Contours;
+use chain::{Chaining, Contours};
 use packed::PackedTriangle;
+
+pub(crate) use chain::CutScratch;
 
 pub use packed::MAX_COORD_UM;
 pub use peak::{peak_needs, PeakNeeds};
+
+/// The [`Scratch`] of a slicer used alone (no toolpath stage shares it).
+pub type SliceScratch<const SEGMENTS: usize> = Scratch<SEGMENTS, 0, 0>;
+
+/// RAM of a [`Slicer`] with these capacities (`ACTIVE`, `SEGMENTS`, `LOOPS`), without the
+/// cut in its [`Scratch`] ([`scratch::bytes`](crate::scratch::bytes)), bytes: 24 per active
+/// triangle, 8 per segment, 72 per loop and the fixed state.
+pub fn slicer_bytes(active: usize, segments: usize, loops: usize) -> usize {
+    core::mem::size_of::<Slicer<0, 0, 0>>()
+        + active * core::mem::size_of::<PackedTriangle>()
+        + segments * core::mem::size_of::<Point2>()
+        + loops * (core::mem::size_of::<LoopInfo>() + core::mem::size_of::<chain::Chain>())
+}
 
 /// Default tolerance for joining open chain ends that nearly meet, in um.
 pub const DEFAULT_JOIN_TOLERANCE_UM: i32 = 20;
@@ -333,7 +354,8 @@ impl SliceStats {
 }
 
 /// The streaming slicer. Capacities: `ACTIVE` triangles in the active set, `SEGMENTS` cut
-/// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer.
+/// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer. It cuts
+/// each layer in a [`Scratch`] lent to the calls that may cut (see the [module docs](self)).
 ///
 /// Large capacities make a large value: on the host, build it where the stack is big enough
 /// (or in a `static`/boxed slot and call [`Slicer::reset`]).
@@ -430,16 +452,18 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     }
 
     /// Takes the next triangle (sorted by lowest z). Cuts every plane at or below its lowest
-    /// z first, calling `sink` once per layer in order.
-    pub fn push(
+    /// z first in `scratch`, calling `sink` once per layer in order with the layer and
+    /// `scratch` (free again: the layer's loops are in the slicer).
+    pub fn push<const P: usize, const C: usize>(
         &mut self,
         tri: &Triangle,
-        sink: &mut impl FnMut(&Layer<'_>),
+        scratch: &mut Scratch<SEGMENTS, P, C>,
+        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
     ) -> Result<(), SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
         }
-        let result = self.push_inner(tri, sink);
+        let result = self.push_inner(tri, scratch, sink);
         if let Err(e) = result {
             self.stopped = Some(e);
         }
@@ -453,17 +477,22 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         self.stopped.is_none() && self.next_layer < self.layers && z_min >= self.next_plane
     }
 
-    /// Cuts the next plane, if any is left, and hands its layer to `sink`: true when a layer
-    /// was cut. The triangles still to come must lie at or above that plane (the stream is
-    /// sorted; use [`Slicer::would_cut`] for the next triangle, or call this at the end).
-    pub fn cut_one(&mut self, sink: &mut impl FnMut(&Layer<'_>)) -> Result<bool, SliceError> {
+    /// Cuts the next plane, if any is left, in `scratch` and hands its layer to `sink` (as
+    /// [`Slicer::push`] does): true when a layer was cut. The triangles still to come must
+    /// lie at or above that plane (the stream is sorted; use [`Slicer::would_cut`] for the
+    /// next triangle, or call this at the end).
+    pub fn cut_one<const P: usize, const C: usize>(
+        &mut self,
+        scratch: &mut Scratch<SEGMENTS, P, C>,
+        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+    ) -> Result<bool, SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
         }
         if self.next_layer >= self.layers {
             return Ok(false);
         }
-        match self.cut_next(sink) {
+        match self.cut_next(scratch, sink) {
             Ok(()) => Ok(true),
             Err(e) => {
                 self.stopped = Some(e);
@@ -472,23 +501,29 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         }
     }
 
-    /// Ends the stream: cuts the remaining planes and returns the totals.
-    pub fn finish(&mut self, sink: &mut impl FnMut(&Layer<'_>)) -> Result<SliceStats, SliceError> {
+    /// Ends the stream: cuts the remaining planes (as [`Slicer::push`] does) and returns the
+    /// totals.
+    pub fn finish<const P: usize, const C: usize>(
+        &mut self,
+        scratch: &mut Scratch<SEGMENTS, P, C>,
+        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+    ) -> Result<SliceStats, SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
         }
         let mut result = Ok(());
         while result.is_ok() && self.next_layer < self.layers {
-            result = self.cut_next(sink);
+            result = self.cut_next(scratch, sink);
         }
         self.stopped = Some(result.err().unwrap_or(SliceError::Finished));
         result.map(|()| self.stats)
     }
 
-    fn push_inner(
+    fn push_inner<const P: usize, const C: usize>(
         &mut self,
         tri: &Triangle,
-        sink: &mut impl FnMut(&Layer<'_>),
+        scratch: &mut Scratch<SEGMENTS, P, C>,
+        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
     ) -> Result<(), SliceError> {
         let index = self.stats.triangles;
         let (z_min, z_max) = (tri.z_min(), tri.z_max());
@@ -500,7 +535,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         self.stats.triangles = self.stats.triangles.saturating_add(1);
         // Sorted input: no later triangle reaches below these planes, so they are complete.
         while self.next_layer < self.layers && z_min >= self.next_plane {
-            self.cut_next(sink)?;
+            self.cut_next(scratch, sink)?;
         }
         // The first plane it crosses can only be the next plane (all lower ones are cut).
         let spans = self
@@ -521,20 +556,26 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         Ok(())
     }
 
-    /// Cuts the next plane, expires triangles below the plane after it, emits the layer.
-    fn cut_next(&mut self, sink: &mut impl FnMut(&Layer<'_>)) -> Result<(), SliceError> {
+    /// Cuts the next plane in `scratch`, expires triangles below the plane after it, emits
+    /// the layer.
+    fn cut_next<const P: usize, const C: usize>(
+        &mut self,
+        scratch: &mut Scratch<SEGMENTS, P, C>,
+        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+    ) -> Result<(), SliceError> {
         let layer = self.next_layer;
         let plane = self.next_plane;
         let after = self.config.plane_z_um(layer + 1);
         let capacity_error =
             |what, capacity: usize| SliceError::Capacity { what, capacity: capacity as u32, layer };
         let active_triangles = self.active_len as u32;
-        self.contours.clear();
+        let cut = scratch.cut();
+        cut.clear();
         let mut i = 0;
         while i < self.active_len {
             let t = self.active[i];
             if let Some(seg) = intersect::cut(&t.corners(), plane) {
-                self.contours.push_segment(seg).map_err(|w| capacity_error(w, SEGMENTS))?;
+                cut.push(seg).map_err(|w| capacity_error(w, SEGMENTS))?;
             }
             if i64::from(t.z_max()) < after {
                 // Crosses no later plane: swap-remove (order is irrelevant).
@@ -544,8 +585,9 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
                 i += 1;
             }
         }
+        let segments = cut.len() as u32;
         let c = &mut self.contours;
-        let outcome = c
+        let outcome = Chaining { cut, out: &mut *c }
             .build(
                 self.config.min_loop_area_um2,
                 self.config.join_tolerance_um,
@@ -569,7 +611,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
             repairs: outcome.repairs,
             dropped_small_loops: outcome.dropped_small_loops,
             active_triangles,
-            segments: c.seg_len as u32,
+            segments,
         };
         let st = &mut self.stats;
         st.layers += 1;
@@ -580,7 +622,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         st.loops = st.loops.saturating_add(out.loops.len() as u32);
         st.dropped_small_loops = st.dropped_small_loops.saturating_add(out.dropped_small_loops);
         st.repairs.add(&out.repairs);
-        sink(&out);
+        sink(&out, scratch);
         self.next_layer += 1;
         self.next_plane = after as i32;
         Ok(())
@@ -595,12 +637,15 @@ mod tests {
     #[test]
     fn memory_per_capacity_unit_is_as_documented() {
         assert_eq!(size_of::<PackedTriangle>(), 24);
-        assert_eq!(size_of::<intersect::Segment>() + 4 + 1 + 8 + size_of::<Point2>(), 37);
         assert_eq!(size_of::<LoopInfo>() + size_of::<chain::Chain>(), 72);
         let fixed = size_of::<Slicer<0, 0, 0>>();
         assert!(fixed <= 200, "{fixed}");
         let device = size_of::<Slicer<1024, 512, 32>>();
-        assert_eq!(device, fixed + 1024 * 24 + 512 * 37 + 32 * 72);
-        assert!(device < 46 * 1024, "{device}");
+        assert_eq!(device, fixed + 1024 * 24 + 512 * 8 + 32 * 72);
+        assert_eq!(device, slicer_bytes(1024, 512, 32));
+        assert!(device < 31 * 1024, "{device}");
+        // The cut, in the scratch.
+        assert_eq!(size_of::<intersect::Segment>() + 4 + 1 + 8, 29);
+        assert_eq!(CutScratch::<0>::BYTES_PER_SEGMENT, 29);
     }
 }

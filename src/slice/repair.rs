@@ -15,7 +15,7 @@
 
 use crate::geom::Point2;
 
-use super::chain::{ChainState, Contours, NONE};
+use super::chain::{ChainState, Chaining, NONE};
 use super::LayerRepairs;
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -38,23 +38,23 @@ fn dist2(a: Point2, b: Point2) -> i64 {
     dx * dx + dy * dy
 }
 
-impl<const S: usize, const L: usize> Contours<S, L> {
+impl<const S: usize, const L: usize> Chaining<'_, S, L> {
     fn chain_start(&self, c: usize) -> Point2 {
-        self.segs[self.chains[c].head as usize].start
+        self.cut.segs[self.out.chains[c].head as usize].start
     }
 
     fn chain_end(&self, c: usize) -> Point2 {
-        self.segs[self.chains[c].tail as usize].end
+        self.cut.segs[self.out.chains[c].tail as usize].end
     }
 
     /// Reverses chain `c` in place: link order and every segment's direction.
     fn reverse(&mut self, c: usize) {
-        let chain = self.chains[c];
+        let chain = self.out.chains[c];
         let (mut prev, mut cur) = (NONE, chain.head as usize);
         for _ in 0..chain.segments {
-            let nxt = self.next[cur];
-            self.next[cur] = prev;
-            let s = &mut self.segs[cur];
+            let nxt = self.cut.next[cur];
+            self.cut.next[cur] = prev;
+            let s = &mut self.cut.segs[cur];
             core::mem::swap(&mut s.start, &mut s.end);
             prev = cur as u32;
             if nxt == NONE {
@@ -62,7 +62,7 @@ impl<const S: usize, const L: usize> Contours<S, L> {
             }
             cur = nxt as usize;
         }
-        let chain = &mut self.chains[c];
+        let chain = &mut self.out.chains[c];
         core::mem::swap(&mut chain.head, &mut chain.tail);
     }
 
@@ -80,14 +80,14 @@ impl<const S: usize, const L: usize> Contours<S, L> {
         let own = dist2(end, self.chain_start(c));
         // Closing across a gap needs a chain longer than the gap.
         let long_enough = pass != Pass::Gap || {
-            let len = self.chains[c].length_um;
+            let len = self.out.chains[c].length_um;
             len >= reach || len.saturating_mul(len) > own
         };
         if long_enough {
             consider(own, Join::Close);
         }
-        for d in 0..self.chains_len {
-            if d == c || self.chains[d].state != ChainState::Open {
+        for d in 0..self.out.chains_len {
+            if d == c || self.out.chains[d].state != ChainState::Open {
                 continue;
             }
             consider(dist2(end, self.chain_start(d)), Join::Append(d));
@@ -99,11 +99,11 @@ impl<const S: usize, const L: usize> Contours<S, L> {
             Pass::Near => repairs.tolerance_joins += 1,
             Pass::Gap => repairs.gaps_closed += 1,
         }
-        let tail = self.chains[c].tail as usize;
+        let tail = self.out.chains[c].tail as usize;
         let d = match join {
             Join::Close => {
-                self.next[tail] = self.chains[c].head;
-                self.chains[c].state = ChainState::Closed;
+                self.cut.next[tail] = self.out.chains[c].head;
+                self.out.chains[c].state = ChainState::Closed;
                 return false;
             }
             Join::Append(d) => d,
@@ -112,10 +112,10 @@ impl<const S: usize, const L: usize> Contours<S, L> {
                 d
             }
         };
-        let other = self.chains[d];
-        self.next[tail] = other.head;
-        self.chains[d].state = ChainState::Merged;
-        let chain = &mut self.chains[c];
+        let other = self.out.chains[d];
+        self.cut.next[tail] = other.head;
+        self.out.chains[d].state = ChainState::Merged;
+        let chain = &mut self.out.chains[c];
         chain.tail = other.tail;
         chain.segments += other.segments;
         chain.length_um += other.length_um;
@@ -125,7 +125,7 @@ impl<const S: usize, const L: usize> Contours<S, L> {
     /// Runs the three passes over the open chains; counts what was joined and dropped.
     pub(super) fn repair(&mut self, join_tolerance_um: i32, max_gap_um: i32) -> LayerRepairs {
         let mut repairs = LayerRepairs::default();
-        if self.chains_len == 0 {
+        if self.out.chains_len == 0 {
             return repairs;
         }
         let passes = [
@@ -134,19 +134,19 @@ impl<const S: usize, const L: usize> Contours<S, L> {
             (Pass::Gap, i64::from(max_gap_um)),
         ];
         for (pass, reach) in passes {
-            for c in 0..self.chains_len {
+            for c in 0..self.out.chains_len {
                 for _side in 0..2 {
-                    if self.chains[c].state != ChainState::Open {
+                    if self.out.chains[c].state != ChainState::Open {
                         break;
                     }
                     while self.extend(c, pass, reach, &mut repairs) {}
-                    if self.chains[c].state == ChainState::Open {
+                    if self.out.chains[c].state == ChainState::Open {
                         self.reverse(c);
                     }
                 }
             }
         }
-        for chain in &self.chains[..self.chains_len] {
+        for chain in &self.out.chains[..self.out.chains_len] {
             if chain.state == ChainState::Open {
                 repairs.dropped_chains += 1;
                 repairs.dropped_segments += chain.segments;

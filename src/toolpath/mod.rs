@@ -56,14 +56,7 @@
 //!
 //! [`Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>`](Toolpath) holds:
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
-//!   infill domain) and the offset engine (`PTS` edges, splits and pieces): 74 bytes per
-//!   `PTS` (points 3 x 8, edge 16, split 12, piece 20, active entry 2), 123 bytes per
-//!   `LOOPS`;
-//! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
-//!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
-//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units;
-//!   the engine (50 of the 74 bytes per `PTS`) and this scratch take turns in one place (per
-//!   layer: offsets, then infill and ordering), so only the larger of the two counts;
+//!   infill domain): 24 bytes per `PTS`, 123 bytes per `LOOPS`;
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
 //!   two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
@@ -73,17 +66,29 @@
 //!   filled);
 //! - about 1 KB of fixed state (settings, counters, the window's block table).
 //!
+//! It works in a [`Scratch`] lent to every call that computes layers (the slicer's sink hands
+//! on the slicer's; a [`ToolpathScratch`] when used alone), where two tenants take turns per
+//! layer (offsets, then infill and ordering) with the slicer's cut, the largest of the three
+//! counting:
+//! - the offset engine (`PTS` edges, splits and pieces): 50 bytes per `PTS` (edge 16, split
+//!   12, piece 20, active entry 2);
+//! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
+//!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
+//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units.
+//!
 //! [`ToolpathStats::needs`] reports the largest use of each, so a model's needs are known
-//! after one host run, and [`ToolpathNeeds::bytes`] what a stage sized to them takes.
+//! after one host run, and [`ToolpathNeeds::stage_bytes`] and
+//! [`ToolpathNeeds::work_bytes`] what a stage sized to them and its tenants take.
 
 use core::fmt;
 
 use crate::geom::Point2;
 use crate::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
+use crate::scratch::Scratch;
 use crate::slice::Layer;
 
 use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
-use offset::{Join, Offsetter};
+use offset::Join;
 use order::{Ctx, Emitter};
 use paths::{PathBuf, PathKind};
 use poly::{LoopBuf, Ring};
@@ -511,17 +516,15 @@ pub struct ToolpathNeeds {
 }
 
 impl ToolpathNeeds {
-    /// Bytes per `PTS`: three loop buffers' points and the offset engine.
-    pub const PTS_BYTES: usize = Self::LOOP_PTS_BYTES + Self::ENGINE_BYTES;
-    /// Bytes per `PTS` of the three loop buffers.
-    pub const LOOP_PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>();
-    /// Bytes per `PTS` of the offset engine, which takes turns with the infill scratch
-    /// ([`CROSS_BYTES`](Self::CROSS_BYTES) per `CROSS`) in one place: the larger counts.
+    /// Bytes per `PTS` in the stage: three loop buffers' points.
+    pub const PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>();
+    /// Bytes per `PTS` of the offset engine, in the [`Scratch`] (where it takes turns with
+    /// the infill scratch and the slicer's cut: the largest counts).
     pub const ENGINE_BYTES: usize = offset::BYTES_PER_EDGE;
     /// Bytes per `LOOPS`: three loop buffers' loop records, island map and stage scratch.
     pub const LOOPS_BYTES: usize = 3 * core::mem::size_of::<Ring>() + 2 + 1;
-    /// Bytes per `CROSS`: a crossing, its order (then segment-end) entry and its share of
-    /// the segment and piece pool.
+    /// Bytes per `CROSS` of the infill scratch, in the [`Scratch`]: a crossing, its order
+    /// (then segment-end) entry and its share of the segment and piece pool.
     pub const CROSS_BYTES: usize =
         core::mem::size_of::<Crossing>() + core::mem::size_of::<u16>() + POOL_WORDS * 4;
     /// Bytes per `PATH`: a point and its feature (a path record takes two).
@@ -531,20 +534,30 @@ impl ToolpathNeeds {
     /// Bytes per `SPANS` entry (a crossing, then a span, of one scanline).
     pub const SPAN_BYTES: usize = core::mem::size_of::<Span>();
 
-    /// RAM of a [`Toolpath`] whose capacities equal these needs, on this target: what the
-    /// stage needs for the model's largest layer (and its window).
+    /// What the stage needs for the model's largest layer (and its window) with a
+    /// [`Scratch`] of its own, on this target: [`stage_bytes`](Self::stage_bytes) plus
+    /// [`work_bytes`](Self::work_bytes).
     pub fn bytes(&self) -> usize {
-        let fixed = core::mem::size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
-        let pts = (self.layer_points.max(self.offset_edges)) as usize;
-        let cross = self.crossings as usize;
-        // The engine and the infill scratch share one place (the engine's fixed part, in
-        // `fixed`, included).
-        let engine = pts * Self::ENGINE_BYTES;
-        let scratch =
-            (cross * Self::CROSS_BYTES).saturating_sub(core::mem::size_of::<Offsetter<0>>());
-        fixed
-            + pts * Self::LOOP_PTS_BYTES
-            + engine.max(scratch)
+        self.stage_bytes() + self.work_bytes()
+    }
+
+    /// The `PTS` these needs call for (loop points or offset edges, the larger).
+    fn pts(&self) -> usize {
+        self.layer_points.max(self.offset_edges) as usize
+    }
+
+    /// RAM of the stage's tenants of a [`Scratch`] (the offset engine or the infill scratch,
+    /// the larger) for these needs, bytes; a slicer's cut may share the place
+    /// ([`scratch::bytes`](crate::scratch::bytes)).
+    pub fn work_bytes(&self) -> usize {
+        crate::scratch::bytes(0, self.pts(), self.crossings as usize)
+    }
+
+    /// RAM of a [`Toolpath`] whose capacities equal these needs, on this target, without
+    /// its [`Scratch`].
+    pub fn stage_bytes(&self) -> usize {
+        core::mem::size_of::<Toolpath<0, 0, 0, 0, 0, 0>>()
+            + self.pts() * Self::PTS_BYTES
             + self.layer_loops as usize * Self::LOOPS_BYTES
             + self.path_points as usize * Self::PATH_BYTES
             + self.ring_points as usize * Self::RING_BYTES
@@ -560,7 +573,8 @@ impl ToolpathNeeds {
 // The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build
 // checks them for the device).
 const _: () = assert!(
-    ToolpathNeeds::PTS_BYTES == 74
+    ToolpathNeeds::PTS_BYTES == 24
+        && ToolpathNeeds::ENGINE_BYTES == 50
         && ToolpathNeeds::LOOPS_BYTES == 123
         && ToolpathNeeds::CROSS_BYTES == 22
         && ToolpathNeeds::PATH_BYTES == 9
@@ -674,51 +688,22 @@ const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
 const FIRST_LAYER: u32 = 0;
 
 /// The infill scratch (`CROSS` entries each): crossings, their order then segment ends,
-/// and the pool of segments and pieces.
-struct FillScratch<const C: usize> {
+/// and the pool of segments and pieces. It takes turns with the offset engine (per layer:
+/// offsets, then infill and ordering) and the slicer's cut in a [`Scratch`].
+pub(crate) struct FillScratch<const C: usize> {
     cross: [Crossing; C],
     idx: [u16; C],
     pool: [[u32; POOL_WORDS]; C],
 }
 
 impl<const C: usize> FillScratch<C> {
-    const fn new() -> Self {
-        Self { cross: [Crossing::EMPTY; C], idx: [0; C], pool: [[0; POOL_WORDS]; C] }
-    }
+    /// Cleared.
+    pub(crate) const EMPTY: Self =
+        Self { cross: [Crossing::EMPTY; C], idx: [0; C], pool: [[0; POOL_WORDS]; C] };
 }
 
-/// The offset engine and the infill scratch never work at once (per layer: offsets, then
-/// infill and ordering): they take turns in one place, the larger of the two. A turn starts
-/// from a cleared value, written in place by the optimised build (a memset: no stack
-/// temporary, no constant in flash).
-enum Work<const P: usize, const C: usize> {
-    Offset(Offsetter<P>),
-    Fill(FillScratch<C>),
-}
-
-impl<const P: usize, const C: usize> Work<P, C> {
-    /// The engine (a new one if the scratch had the place).
-    fn engine(&mut self) -> &mut Offsetter<P> {
-        match self {
-            Self::Offset(e) => e,
-            Self::Fill(_) => {
-                *self = Self::Offset(Offsetter::new());
-                self.engine()
-            }
-        }
-    }
-
-    /// The infill scratch (cleared if the engine had the place).
-    fn scratch(&mut self) -> &mut FillScratch<C> {
-        match self {
-            Self::Fill(f) => f,
-            Self::Offset(_) => {
-                *self = Self::Fill(FillScratch::new());
-                self.scratch()
-            }
-        }
-    }
-}
+/// The [`Scratch`] of a toolpath stage used alone (no slicer shares it).
+pub type ToolpathScratch<const PTS: usize, const CROSS: usize> = Scratch<0, PTS, CROSS>;
 
 /// The streaming toolpath stage. Capacities (see the [module docs](self) for their memory):
 /// `PTS` points of a layer or of one island's offset, `LOOPS` loops of a layer, `CROSS`
@@ -739,9 +724,7 @@ pub struct Toolpath<
     contour: LoopBuf<PTS, LOOPS>,
     tmp: LoopBuf<PTS, LOOPS>,
     fill: LoopBuf<PTS, LOOPS>,
-    /// The offset engine, or the infill scratch.
-    work: Work<PTS, CROSS>,
-    /// Engine peaks and open chains of the engines dropped so far.
+    /// Engine peaks and open chains of the engines that had the scratch so far.
     offset_peaks: offset::OffsetPeaks,
     open_chains: u32,
     spans: [Span; SPANS],
@@ -785,7 +768,6 @@ impl<
             contour: LoopBuf::new(),
             tmp: LoopBuf::new(),
             fill: LoopBuf::new(),
-            work: Work::Offset(Offsetter::new()),
             offset_peaks: offset::OffsetPeaks { edges: 0, splits: 0, pieces: 0 },
             open_chains: 0,
             spans: [Span { u0: 0, u1: 0 }; SPANS],
@@ -818,9 +800,6 @@ impl<
             b.peak_rings = 0;
         }
         (self.offset_peaks, self.open_chains) = (offset::OffsetPeaks::default(), 0);
-        if let Work::Offset(e) = &mut self.work {
-            (e.peaks, e.open_chains) = (offset::OffsetPeaks::default(), 0);
-        }
         self.paths.clear();
         self.paths.peak_points = 0;
         self.paths.peak_paths = 0;
@@ -851,8 +830,8 @@ impl<
     /// Totals so far.
     pub fn stats(&self) -> ToolpathStats {
         let mut s = self.stats;
-        let (p, open_chains) = self.offset_totals();
-        s.open_chains = open_chains;
+        let p = self.offset_peaks;
+        s.open_chains = self.open_chains;
         let n = &mut s.needs;
         n.layer_points = [self.contour.peak_points, self.tmp.peak_points, self.fill.peak_points]
             .into_iter()
@@ -873,25 +852,23 @@ impl<
         s
     }
 
-    /// Offset engine peaks and open chains so far, the live engine's included.
-    fn offset_totals(&self) -> (offset::OffsetPeaks, u32) {
-        let (mut p, mut chains) = (self.offset_peaks, self.open_chains);
-        if let Work::Offset(e) = &self.work {
+    /// Adds the engine's peaks and open chains to the stage's, if the engine has `work`, and
+    /// zeroes them there (so the next turn, or another owner, starts from none).
+    fn collect_engine_counters<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) {
+        if let Some(e) = work.live_engine() {
+            let p = &mut self.offset_peaks;
             p.edges = p.edges.max(e.peaks.edges);
             p.splits = p.splits.max(e.peaks.splits);
             p.pieces = p.pieces.max(e.peaks.pieces);
-            chains += e.open_chains;
+            self.open_chains += e.open_chains;
+            (e.peaks, e.open_chains) = (offset::OffsetPeaks::default(), 0);
         }
-        (p, chains)
     }
 
     /// Gives the engine's place to the infill scratch (the engine's counters are kept).
-    fn park_engine(&mut self) {
-        (self.offset_peaks, self.open_chains) = self.offset_totals();
-        if let Work::Offset(e) = &mut self.work {
-            (e.peaks, e.open_chains) = (offset::OffsetPeaks::default(), 0);
-        }
-        self.work.scratch();
+    fn park_engine<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) {
+        self.collect_engine_counters(work);
+        work.fill();
     }
 
     fn capacity(&self, what: Buffer, layer: u32) -> ToolpathError {
@@ -912,16 +889,18 @@ impl<
     }
 
     /// Takes the next layer from the slicer; emits every layer whose `top_layers` layers
-    /// above have now arrived.
-    pub fn push_layer(
+    /// above have now arrived, computing them in `work` (the [`Scratch`] the slicer hands
+    /// its sink).
+    pub fn push_layer<const S: usize>(
         &mut self,
         layer: &Layer<'_>,
+        work: &mut Scratch<S, PTS, CROSS>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
         if let Some(e) = self.stopped {
             return Err(e);
         }
-        let result = self.push_inner(layer, sink);
+        let result = self.push_inner(layer, work, sink);
         if let Err(e) = result {
             self.stopped = Some(e);
         }
@@ -929,11 +908,12 @@ impl<
     }
 
     /// After the model's last layer was pushed: processes the next layer still waiting in
-    /// the window; true when one was processed, false when none is left (then
+    /// the window (in `work`); true when one was processed, false when none is left (then
     /// [`Toolpath::finish`] only returns the totals). Lets an owner release the last layers
     /// one at a time, as its move buffer allows.
-    pub fn flush_one(
+    pub fn flush_one<const S: usize>(
         &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<bool, ToolpathError> {
         if let Some(e) = self.stopped {
@@ -943,7 +923,7 @@ impl<
             return Ok(false);
         }
         let l = self.next_out;
-        match self.process(l, sink).map_err(|w| self.capacity(w, l)) {
+        match self.process(l, work, sink).map_err(|w| self.capacity(w, l)) {
             Ok(()) => Ok(true),
             Err(e) => {
                 self.stopped = Some(e);
@@ -952,9 +932,11 @@ impl<
         }
     }
 
-    /// Ends the stream: emits the remaining layers (the top ones) and returns the totals.
-    pub fn finish(
+    /// Ends the stream: emits the remaining layers (the top ones, computed in `work`) and
+    /// returns the totals.
+    pub fn finish<const S: usize>(
         &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<ToolpathStats, ToolpathError> {
         if let Some(e) = self.stopped {
@@ -963,15 +945,16 @@ impl<
         let mut result = Ok(());
         while result.is_ok() && self.next_out < self.next_in {
             let l = self.next_out;
-            result = self.process(l, sink).map_err(|w| self.capacity(w, l));
+            result = self.process(l, work, sink).map_err(|w| self.capacity(w, l));
         }
         self.stopped = Some(result.err().unwrap_or(ToolpathError::Finished));
         result.map(|()| self.stats())
     }
 
-    fn push_inner(
+    fn push_inner<const S: usize>(
         &mut self,
         layer: &Layer<'_>,
+        work: &mut Scratch<S, PTS, CROSS>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
         if layer.index != self.next_in {
@@ -983,7 +966,7 @@ impl<
         let top = u32::from(self.cfg.top_layers);
         while self.next_out + top < self.next_in {
             let l = self.next_out;
-            self.process(l, sink).map_err(|w| self.capacity(w, l))?;
+            self.process(l, work, sink).map_err(|w| self.capacity(w, l))?;
         }
         Ok(())
     }
@@ -1046,8 +1029,26 @@ impl<
         Ok(())
     }
 
-    /// Builds and emits layer `l`.
-    fn process(&mut self, l: u32, sink: &mut impl FnMut(&ToolEvent<'_>)) -> Result<(), Buffer> {
+    /// Builds and emits layer `l` in `work`; the engine's counters are collected whatever
+    /// happens (the slicer may have `work` next).
+    fn process<const S: usize>(
+        &mut self,
+        l: u32,
+        work: &mut Scratch<S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), Buffer> {
+        let built = self.build(l, work, sink);
+        self.collect_engine_counters(work);
+        built
+    }
+
+    /// Builds and emits layer `l` in `work`.
+    fn build<const S: usize>(
+        &mut self,
+        l: u32,
+        work: &mut Scratch<S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), Buffer> {
         let cfg = self.cfg;
         let blk = self.ring.find(l).ok_or(Buffer::RingPoints)?;
         decode(self.ring.data(&blk), &mut self.contour)?;
@@ -1059,7 +1060,7 @@ impl<
         let w = cfg.line_width_um;
         // Skirt around the first layer.
         if l == FIRST_LAYER && cfg.skirt_loops > 0 && !self.contour.rings().is_empty() {
-            self.skirt()?;
+            self.skirt(work)?;
         }
         // Perimeters and the infill domain, island by island.
         let min_width = i64::from(w / 8);
@@ -1069,9 +1070,9 @@ impl<
             let mut opened2: Option<Option<i64>> = None;
             for depth in 0..cfg.perimeters {
                 let d = i32::from(depth) * w + w / 2;
-                self.offset_island(island, d)?;
+                self.offset_island(work, island, d)?;
                 self.tmp.clear();
-                self.work.engine().union_into(&mut self.tmp, island, depth, min_width)?;
+                work.engine().union_into(&mut self.tmp, island, depth, min_width)?;
                 if self.tmp.rings().is_empty() {
                     if depth == 0 {
                         layer.thin_islands += 1;
@@ -1087,18 +1088,18 @@ impl<
                     self.paths.add_loop(pts, feature, island, PathKind::Perimeter(depth))?;
                 }
                 if depth == 0 && cfg.measure_thin_area {
-                    opened2 = Some(self.measure(|t| t.grow_tmp_area2(island)));
+                    opened2 = Some(self.measure(work, |t, work| t.grow_tmp_area2(work, island)));
                 }
             }
             if cfg.measure_thin_area {
                 let opened2 = match opened2 {
                     Some(a) => a,
                     // No perimeters: the centre lines of an external perimeter all the same.
-                    None => self.measure(|t| {
-                        t.offset_island(island, w / 2)?;
+                    None => self.measure(work, |t, work| {
+                        t.offset_island(work, island, w / 2)?;
                         t.tmp.clear();
-                        t.work.engine().union_into(&mut t.tmp, island, 0, min_width)?;
-                        t.grow_tmp_area2(island)
+                        work.engine().union_into(&mut t.tmp, island, 0, min_width)?;
+                        t.grow_tmp_area2(work, island)
                     }),
                 };
                 match opened2 {
@@ -1115,8 +1116,8 @@ impl<
                     None => layer.thin_unmeasured += 1,
                 }
             }
-            self.offset_island(island, cfg.infill_inset_um())?;
-            self.work.engine().union_into(&mut self.fill, island, 0, min_width)?;
+            self.offset_island(work, island, cfg.infill_inset_um())?;
+            work.engine().union_into(&mut self.fill, island, 0, min_width)?;
             sink(&ToolEvent::Progress);
         }
         // Infill.
@@ -1124,9 +1125,9 @@ impl<
             let angle = if l % 2 == 0 { Angle::D45 } else { Angle::D135 };
             let grid = cfg.infill_pattern == InfillPattern::Grid;
             let mut progress = || sink(&ToolEvent::Progress);
-            self.infill_pass(l, angle, true, &mut progress)?;
+            self.infill_pass(work, l, angle, true, &mut progress)?;
             if grid && cfg.sparse_every() > 0 {
-                self.infill_pass(l, angle.other(), false, &mut progress)?;
+                self.infill_pass(work, l, angle.other(), false, &mut progress)?;
             }
         }
         layer.paths = self.paths.len() as u32;
@@ -1138,7 +1139,7 @@ impl<
             z_um: layer.z_um,
             height_um: cfg.layer_height_of(l),
         });
-        self.park_engine();
+        self.park_engine(work);
         let ctx = Ctx {
             cfg: &self.cfg,
             points: self.contour.points(),
@@ -1147,7 +1148,7 @@ impl<
             first_layer: l == FIRST_LAYER,
         };
         // The infill pool is free again: the nearest-path grid's cells and entries.
-        let pool = self.work.scratch().pool.as_flattened_mut();
+        let pool = work.fill().pool.as_flattened_mut();
         let (grid_head, grid_next) = pool.split_at_mut(POOL_WORDS * CROSS / 2);
         order::emit_layer(
             &mut self.em,
@@ -1192,15 +1193,18 @@ impl<
     /// Runs a thin-area measurement: its use of the offset engine and of `tmp` is kept out
     /// of the printing needs (recorded in [`ToolpathStats::thin_pts`]), and a buffer it
     /// overflows gives `None` instead of an error (the toolpaths do not depend on it).
-    fn measure(&mut self, f: impl FnOnce(&mut Self) -> Result<i64, Buffer>) -> Option<i64> {
+    fn measure<const S: usize>(
+        &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
+        f: impl FnOnce(&mut Self, &mut Scratch<S, PTS, CROSS>) -> Result<i64, Buffer>,
+    ) -> Option<i64> {
         let (peaks, points, rings) =
-            (self.work.engine().peaks, self.tmp.peak_points, self.tmp.peak_rings);
-        let r = f(self);
-        let p = self.work.engine().peaks;
+            (work.engine().peaks, self.tmp.peak_points, self.tmp.peak_rings);
+        let r = f(self, work);
+        let p = work.engine().peaks;
         let used = p.edges.max(p.splits).max(p.pieces).max(self.tmp.peak_points);
         self.stats.thin_pts = self.stats.thin_pts.max(used as u32);
-        (self.work.engine().peaks, self.tmp.peak_points, self.tmp.peak_rings) =
-            (peaks, points, rings);
+        (work.engine().peaks, self.tmp.peak_points, self.tmp.peak_rings) = (peaks, points, rings);
         self.tmp.clear();
         r.ok()
     }
@@ -1209,35 +1213,44 @@ impl<
     /// outwards by half a line with miter joins and returns the doubled area of the result,
     /// the island's morphological opening by half a line width: the island minus its parts
     /// thinner than a line (with square corners: a rectangle comes back whole). Clears `tmp`.
-    fn grow_tmp_area2(&mut self, island: u16) -> Result<i64, Buffer> {
+    fn grow_tmp_area2<const S: usize>(
+        &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
+        island: u16,
+    ) -> Result<i64, Buffer> {
         let half = self.cfg.line_width_um / 2;
         if self.tmp.rings().is_empty() {
             return Ok(0);
         }
-        self.work.engine().begin();
+        work.engine().begin();
         for r in self.tmp.rings() {
-            self.work.engine().add_loop(self.tmp.ring_points(r), -half, Join::Miter)?;
+            work.engine().add_loop(self.tmp.ring_points(r), -half, Join::Miter)?;
         }
         self.tmp.clear();
-        self.work.engine().union_into(&mut self.tmp, island, 0, 1)?;
+        work.engine().union_into(&mut self.tmp, island, 0, 1)?;
         let area2 = self.tmp.rings().iter().map(|r| r.area2).sum();
         self.tmp.clear();
         Ok(area2)
     }
 
     /// Loads the raw offset curves of `island` (distance `d`) into the engine.
-    fn offset_island(&mut self, island: u16, d: i32) -> Result<(), Buffer> {
-        self.work.engine().begin();
+    fn offset_island<const S: usize>(
+        &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
+        island: u16,
+        d: i32,
+    ) -> Result<(), Buffer> {
+        work.engine().begin();
         for r in self.contour.rings() {
             if r.island == island {
-                self.work.engine().add_loop(self.contour.ring_points(r), d, Join::Miter)?;
+                work.engine().add_loop(self.contour.ring_points(r), d, Join::Miter)?;
             }
         }
         Ok(())
     }
 
     /// The skirt: convex hull of the first layer, offset outwards with round joins.
-    fn skirt(&mut self) -> Result<(), Buffer> {
+    fn skirt<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) -> Result<(), Buffer> {
         let cfg = self.cfg;
         // Sort all points (in `tmp`), then Andrew's monotone chain into `fill`.
         self.tmp.clear();
@@ -1276,10 +1289,10 @@ impl<
         let Some(&hull_ring) = self.fill.rings().first() else { return Ok(()) };
         for k in 0..i32::from(cfg.skirt_loops) {
             let d = cfg.skirt_distance_um + cfg.line_width_um / 2 + k * cfg.line_width_um;
-            self.work.engine().begin();
-            self.work.engine().add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
+            work.engine().begin();
+            work.engine().add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
             self.tmp.clear();
-            self.work.engine().union_into(&mut self.tmp, u16::MAX, 0, 1)?;
+            work.engine().union_into(&mut self.tmp, u16::MAX, 0, 1)?;
             for r in self.tmp.rings() {
                 if !r.is_hole() {
                     let pts = self.tmp.ring_points(r);
@@ -1292,14 +1305,15 @@ impl<
     }
 
     /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only).
-    fn infill_pass(
+    fn infill_pass<const S: usize>(
         &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
         l: u32,
         angle: Angle,
         solid: bool,
         progress: &mut dyn FnMut(),
     ) -> Result<(), Buffer> {
-        self.park_engine();
+        self.park_engine(work);
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
         let empty = window::Parts::EMPTY;
@@ -1363,8 +1377,8 @@ impl<
             margin_u: (3 * self.step / 2) as i32,
             end_ext_u: if cfg.perimeters > 0 { (self.step / 2) as i32 } else { 0 },
         };
-        let scratch = self.work.scratch();
-        let mut work = FillWork {
+        let scratch = work.fill();
+        let mut fill_work = FillWork {
             cross: &mut scratch.cross,
             idx: &mut scratch.idx,
             pool: scratch.pool.as_flattened_mut(),
@@ -1377,7 +1391,7 @@ impl<
             view,
             top,
             bottom,
-            &mut work,
+            &mut fill_work,
             &mut self.paths,
             &mut self.fill_use,
             progress,
@@ -1412,12 +1426,13 @@ mod tests {
     fn empty_stage_waits_for_reset() {
         let mut t = Toolpath::<16, 4, 16, 16, 16, 16>::empty();
         assert_eq!(IDLE.stats(), ToolpathStats::EMPTY);
+        let mut work = ToolpathScratch::new();
         let mut sink = |_: &ToolEvent<'_>| {};
-        assert_eq!(t.finish(&mut sink), Err(ToolpathError::Finished));
+        assert_eq!(t.finish(&mut work, &mut sink), Err(ToolpathError::Finished));
         let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
         t.reset(cfg).unwrap();
         assert_eq!(t.config(), &cfg);
-        assert_eq!(t.finish(&mut sink).map(|s| s.layers), Ok(0));
+        assert_eq!(t.finish(&mut work, &mut sink).map(|s| s.layers), Ok(0));
     }
 
     /// Moves of a one-layer job: `squares` (x0, y0, size, hole) in this order, holes
@@ -1463,8 +1478,9 @@ mod tests {
                 moves.push(*m);
             }
         };
-        t.push_layer(&layer, &mut sink).unwrap();
-        t.finish(&mut sink).unwrap();
+        let mut work = Box::new(ToolpathScratch::new());
+        t.push_layer(&layer, &mut *work, &mut sink).unwrap();
+        t.finish(&mut *work, &mut sink).unwrap();
         moves
     }
 
@@ -1482,7 +1498,8 @@ mod tests {
 
     #[test]
     fn memory_per_capacity_unit_is_as_documented() {
-        assert_eq!(ToolpathNeeds::PTS_BYTES, 74);
+        assert_eq!(ToolpathNeeds::PTS_BYTES, 24);
+        assert_eq!(ToolpathNeeds::ENGINE_BYTES, 50);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 22);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
@@ -1499,20 +1516,17 @@ mod tests {
             ring_points: 200,
             spans: 96,
         };
-        let exact = size_of::<Toolpath<64, 8, 128, 256, 200, 96>>();
-        // Alignment padding between arrays only.
-        assert!(
-            exact >= needs.bytes() && exact <= needs.bytes() + 64,
-            "{exact} vs {}",
-            needs.bytes()
-        );
+        // Alignment padding between arrays (and the scratch's tag) only.
+        let close = |exact: usize, want: usize| exact >= want && exact <= want + 64;
+        let stage = size_of::<Toolpath<64, 8, 128, 256, 200, 96>>();
+        assert!(close(stage, needs.stage_bytes()), "{stage} vs {}", needs.stage_bytes());
+        let work = size_of::<ToolpathScratch<64, 128>>();
+        assert!(close(work, needs.work_bytes()), "{work} vs {}", needs.work_bytes());
+        assert_eq!(needs.bytes(), needs.stage_bytes() + needs.work_bytes());
         // The infill scratch larger than the engine it takes turns with.
         let needs = ToolpathNeeds { layer_points: 16, offset_edges: 16, crossings: 512, ..needs };
-        let exact = size_of::<Toolpath<16, 8, 512, 256, 200, 96>>();
-        assert!(
-            exact >= needs.bytes() && exact <= needs.bytes() + 64,
-            "{exact} vs {}",
-            needs.bytes()
-        );
+        let work = size_of::<ToolpathScratch<16, 512>>();
+        assert!(close(work, needs.work_bytes()), "{work} vs {}", needs.work_bytes());
+        assert_eq!(needs.work_bytes(), 512 * ToolpathNeeds::CROSS_BYTES);
     }
 }

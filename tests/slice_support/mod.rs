@@ -8,7 +8,7 @@ use std::path::Path;
 use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
-use strata::slice::{LayerRepairs, SliceConfig, SliceError, SliceStats, Slicer};
+use strata::slice::{LayerRepairs, SliceConfig, SliceError, SliceScratch, SliceStats, Slicer};
 
 /// A triangle in mm, corners counter-clockwise seen from outside.
 pub type TriMm = [[f64; 3]; 3];
@@ -222,8 +222,9 @@ pub fn run<const A: usize, const S: usize, const L: usize>(
             .stack_size(256 << 20)
             .spawn_scoped(scope, || {
                 let mut slicer = Slicer::<A, S, L>::new(config)?;
+                let mut work = Box::new(SliceScratch::new());
                 let mut layers = Vec::new();
-                let mut sink = |l: &strata::slice::Layer<'_>| {
+                let mut sink = |l: &strata::slice::Layer<'_>, _: &mut SliceScratch<S>| {
                     layers.push(OwnedLayer {
                         index: l.index,
                         z_um: l.z_um,
@@ -244,9 +245,9 @@ pub fn run<const A: usize, const S: usize, const L: usize>(
                     })
                 };
                 for t in tris {
-                    slicer.push(t, &mut sink)?;
+                    slicer.push(t, &mut work, &mut sink)?;
                 }
-                let stats = slicer.finish(&mut sink)?;
+                let stats = slicer.finish(&mut work, &mut sink)?;
                 Ok((layers, stats))
             })
             .expect("spawn slicer thread")

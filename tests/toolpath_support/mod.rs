@@ -4,6 +4,7 @@
 
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
+use strata::scratch::Scratch;
 use strata::slice::{Layer, SliceConfig, Slicer};
 use strata::toolpath::{
     Feature, LayerStats, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError,
@@ -14,6 +15,8 @@ use strata::toolpath::{
 pub type TestToolpath = Toolpath<16384, 1024, 32768, 65536, 65536, 65536>;
 /// Slicer capacities for tests.
 pub type TestSlicer = Slicer<16384, 16384, 1024>;
+/// The scratch a [`TestSlicer`] and a toolpath stage of `PTS` and `CROSS` take turns in.
+pub type TestScratch<const PTS: usize, const CROSS: usize> = Scratch<16384, PTS, CROSS>;
 
 /// One layer's output.
 #[derive(Debug, Clone)]
@@ -69,6 +72,7 @@ pub fn run_sized<
                     Toolpath::<PTS, LOOPS, CROSS, PATH, RING, SPANS>::new(cfg)
                         .map_err(|e| e.to_string())?,
                 );
+                let mut work = Box::new(TestScratch::<PTS, CROSS>::new());
                 let mut layers: Vec<TpLayer> = Vec::new();
                 let mut contours: Vec<Vec<(Vec<Point2>, bool)>> = Vec::new();
                 let mut stray = 0usize;
@@ -94,24 +98,24 @@ pub fn run_sized<
                         }
                         ToolEvent::Progress => {}
                     };
-                    let mut sink = |l: &Layer<'_>| {
+                    let mut sink = |l: &Layer<'_>, work: &mut TestScratch<PTS, CROSS>| {
                         contours.push(
                             l.loops.iter().map(|i| (l.loop_points(i).to_vec(), i.hole)).collect(),
                         );
                         if err.is_none() {
-                            if let Err(e) = tp.push_layer(l, &mut events) {
+                            if let Err(e) = tp.push_layer(l, work, &mut events) {
                                 err = Some(e);
                             }
                         }
                     };
                     for t in tris {
-                        slicer.push(t, &mut sink).map_err(|e| e.to_string())?;
+                        slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
                     }
-                    slicer.finish(&mut sink).map_err(|e| e.to_string())?;
+                    slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
                     if let Some(e) = err {
                         return Err(e.to_string());
                     }
-                    let stats = tp.finish(&mut events).map_err(|e| e.to_string())?;
+                    let stats = tp.finish(&mut work, &mut events).map_err(|e| e.to_string())?;
                     for (l, c) in layers.iter_mut().zip(contours) {
                         l.contours = c;
                     }

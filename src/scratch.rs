@@ -1,0 +1,137 @@
+//! The per-layer working memory that the slicer and the toolpath stage take turns in.
+//!
+//! Three tenants never work at once:
+//! - the slicer's cut of a layer (its segments, their links and flags, the endpoint hash:
+//!   [`CUT_BYTES`] per `SEGMENTS`), dead once the layer's loops are written (the loops and
+//!   their points stay in the slicer, and the toolpath stage copies them before it works);
+//! - the toolpath stage's offset engine ([`ToolpathNeeds::ENGINE_BYTES`] per `PTS`), then
+//!   its infill scratch ([`ToolpathNeeds::CROSS_BYTES`] per `CROSS`, reused by the ordering).
+//!
+//! A [`Scratch`] holds whichever works now, so an owner of both stages (the
+//! [`Printer`](crate::printer::Printer)) pays for the largest one only. It is lent with `&mut`
+//! to [`Slicer::push`](crate::slice::Slicer::push) (and its other cutting calls), which hands
+//! it on to its layer sink, where the toolpath stage takes it
+//! ([`Toolpath::push_layer`](crate::toolpath::Toolpath::push_layer)). A turn starts from a
+//! cleared value written in place (in the optimised build: a memset, no stack temporary, no
+//! constant in flash); nothing is kept from one turn to the next, so a stage works the same
+//! whoever had the place before. Each tenant keeps its own capacity: overflowing one is the
+//! same typed error as with a scratch of its own.
+
+use core::mem::size_of;
+
+use crate::slice::CutScratch;
+use crate::toolpath::offset::Offsetter;
+use crate::toolpath::{FillScratch, ToolpathNeeds};
+
+/// Bytes per `SEGMENTS` of the slicer's cut: segment 16, link 4, flags 1, two hash slots 8.
+pub const CUT_BYTES: usize = CutScratch::<0>::BYTES_PER_SEGMENT;
+
+/// The working memory of a slicer with `SEGMENTS` segments per layer and a toolpath stage with
+/// `PTS` offset edges and `CROSS` infill crossings (see the [module docs](self)). A slicer
+/// alone uses a [`SliceScratch`](crate::slice::SliceScratch) (`PTS = CROSS = 0`), a toolpath
+/// stage alone a [`ToolpathScratch`](crate::toolpath::ToolpathScratch) (`SEGMENTS = 0`).
+///
+/// Large capacities make a large value: on the host, build it where the stack is big enough
+/// (or in a `static`/boxed slot).
+pub struct Scratch<const SEGMENTS: usize, const PTS: usize, const CROSS: usize> {
+    tenant: Tenant<SEGMENTS, PTS, CROSS>,
+}
+
+/// Who has the place.
+enum Tenant<const S: usize, const P: usize, const C: usize> {
+    Cut(CutScratch<S>),
+    Offset(Offsetter<P>),
+    Fill(FillScratch<C>),
+}
+
+impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
+    /// An empty scratch (all zero: a `static` of it goes to `.bss`).
+    pub const fn new() -> Self {
+        Self { tenant: Tenant::Cut(CutScratch::EMPTY) }
+    }
+
+    /// The slicer's cut (a cleared one if another tenant had the place).
+    pub(crate) fn cut(&mut self) -> &mut CutScratch<S> {
+        match self.tenant {
+            Tenant::Cut(ref mut c) => c,
+            _ => {
+                self.tenant = Tenant::Cut(CutScratch::EMPTY);
+                self.cut()
+            }
+        }
+    }
+
+    /// The offset engine (a new one if another tenant had the place).
+    pub(crate) fn engine(&mut self) -> &mut Offsetter<P> {
+        match self.tenant {
+            Tenant::Offset(ref mut e) => e,
+            _ => {
+                self.tenant = Tenant::Offset(Offsetter::new());
+                self.engine()
+            }
+        }
+    }
+
+    /// The engine if it has the place (its counters not yet collected), without a switch.
+    pub(crate) fn live_engine(&mut self) -> Option<&mut Offsetter<P>> {
+        match self.tenant {
+            Tenant::Offset(ref mut e) => Some(e),
+            _ => None,
+        }
+    }
+
+    /// The infill scratch (a cleared one if another tenant had the place).
+    pub(crate) fn fill(&mut self) -> &mut FillScratch<C> {
+        match self.tenant {
+            Tenant::Fill(ref mut f) => f,
+            _ => {
+                self.tenant = Tenant::Fill(FillScratch::EMPTY);
+                self.fill()
+            }
+        }
+    }
+}
+
+/// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments, `pts`
+/// offset edges, `cross` infill crossings): the largest tenant, bytes (the value adds at
+/// most a tag and alignment padding).
+pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
+    let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
+    let engine = size_of::<Offsetter<0>>() + pts * ToolpathNeeds::ENGINE_BYTES;
+    let fill = cross * ToolpathNeeds::CROSS_BYTES;
+    cut.max(engine).max(fill)
+}
+
+// The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build
+// checks them for the device).
+const _: () = assert!(CUT_BYTES == 29);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `bytes` of these capacities against the value's size.
+    fn check<const S: usize, const P: usize, const C: usize>() {
+        let (exact, want) = (size_of::<Scratch<S, P, C>>(), bytes(S, P, C));
+        // A tag and alignment padding only.
+        assert!(exact >= want && exact <= want + 16, "{S} {P} {C}: {exact} vs {want}");
+    }
+
+    #[test]
+    fn the_largest_tenant_takes_the_place() {
+        assert_eq!(CUT_BYTES, 29);
+        check::<192, 128, 224>();
+        check::<388, 128, 512>();
+        check::<600, 16, 16>();
+        check::<0, 0, 900>();
+        check::<0, 0, 0>();
+        // The 64 KB board: the cut fits in the engine's place.
+        assert_eq!(bytes(192, 128, 224), bytes(0, 128, 224));
+    }
+}
