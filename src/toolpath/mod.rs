@@ -84,7 +84,7 @@ use crate::slice::Layer;
 
 use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
 use offset::{Join, Offsetter};
-use order::{Ctx, Emitter};
+use order::{Ctx, Emission, Emitter};
 use paths::{PathBuf, PathKind};
 use poly::{LoopBuf, Ring};
 use scan::{Angle, Crossing};
@@ -373,6 +373,12 @@ pub enum ToolpathError {
         /// The index received.
         got: u32,
     },
+    /// [`Toolpath::accept_layer`] or [`Toolpath::build_next`] while a layer is still being
+    /// emitted ([`Toolpath::emit_next`] first).
+    Emitting {
+        /// The layer being emitted.
+        layer: u32,
+    },
     /// `push_layer` or `finish` after `finish`, or on a [`Toolpath::empty`] stage never
     /// [`reset`](Toolpath::reset) (call `reset`).
     Finished,
@@ -390,11 +396,29 @@ impl fmt::Display for ToolpathError {
             Self::OutOfOrder { expected, got } => {
                 write!(f, "layer {got} arrived, layer {expected} expected")
             }
+            Self::Emitting { layer } => {
+                write!(f, "layer {layer} is still being emitted; emit it before the next layer")
+            }
             Self::Finished => {
                 f.write_str("the toolpath stage has finished; reset it to start again")
             }
         }
     }
+}
+
+/// What [`Toolpath::emit_next`] left.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Emitted {
+    /// No layer is being emitted: the last one is complete (its `LayerEnd` went out).
+    Complete,
+    /// The next unit of layer `layer` needs room for `moves` moves.
+    NeedsRoom {
+        /// Moves of the unit, exactly.
+        moves: u32,
+        /// The layer being emitted.
+        layer: u32,
+    },
 }
 
 /// One move of the print head.
@@ -466,6 +490,10 @@ pub struct LayerStats {
     pub travel_um: u64,
     /// Filament fed by extruding moves, um.
     pub filament_um: i64,
+    /// Moves of the layer's largest emission unit (a path with the travel, retraction and
+    /// priming before it, see [`Toolpath::emit_next`]): the least room an owner's move
+    /// buffer needs to take the layer path by path.
+    pub max_unit_moves: u32,
 }
 
 impl LayerStats {
@@ -484,6 +512,7 @@ impl LayerStats {
         stops: 0,
         travel_um: 0,
         filament_um: 0,
+        max_unit_moves: 0,
     };
 }
 
@@ -602,6 +631,8 @@ pub struct ToolpathStats {
     pub thin_pts: u32,
     /// Offset boundary chains that could not be closed (should be 0).
     pub open_chains: u32,
+    /// The largest [`LayerStats::max_unit_moves`] of all layers.
+    pub max_unit_moves: u32,
     /// Buffer use.
     pub needs: ToolpathNeeds,
 }
@@ -637,6 +668,7 @@ impl ToolpathStats {
         thin_unmeasured: 0,
         thin_pts: 0,
         open_chains: 0,
+        max_unit_moves: 0,
         needs: ToolpathNeeds::EMPTY,
     };
 }
@@ -749,6 +781,8 @@ pub struct Toolpath<
     island_map: [u16; LOOPS],
     island_stage: [u8; LOOPS],
     em: Emitter,
+    /// Where the built layer's emission stands.
+    emission: Emission,
     next_in: u32,
     next_out: u32,
     fill_use: FillUse,
@@ -793,6 +827,7 @@ impl<
             island_map: [0; LOOPS],
             island_stage: [0; LOOPS],
             em: Emitter::new(),
+            emission: Emission::new(),
             next_in: 0,
             next_out: 0,
             fill_use: FillUse { crossings: 0, segments: 0, spans: 0 },
@@ -808,6 +843,7 @@ impl<
         self.step = scan::line_step(cfg.line_width_um);
         self.ring.clear();
         self.em = Emitter::new();
+        self.emission = Emission::new();
         self.next_in = 0;
         self.next_out = 0;
         self.stats = ToolpathStats::EMPTY;
@@ -912,8 +948,26 @@ impl<
     }
 
     /// Takes the next layer from the slicer; emits every layer whose `top_layers` layers
-    /// above have now arrived.
+    /// above have now arrived (all its moves at once: [`accept_layer`](Self::accept_layer)
+    /// and [`emit_next`](Self::emit_next) emit them as an owner's buffer allows).
     pub fn push_layer(
+        &mut self,
+        layer: &Layer<'_>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), ToolpathError> {
+        self.emit_all(sink)?;
+        self.accept_layer(layer, sink)?;
+        self.emit_all(sink)
+    }
+
+    /// Takes the next layer from the slicer like [`push_layer`](Self::push_layer), but
+    /// only builds the layer that is now complete (its `top_layers` layers above have
+    /// arrived; at most one): its [`ToolEvent::Progress`] points and its
+    /// [`ToolEvent::LayerStart`] go out, its moves wait for [`emit_next`](Self::emit_next).
+    /// Refused with [`ToolpathError::Emitting`] while a layer is being emitted
+    /// ([`emitting`](Self::emitting)): its paths, and the nearest-path grid in the infill
+    /// scratch, are kept until its last move went out.
+    pub fn accept_layer(
         &mut self,
         layer: &Layer<'_>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
@@ -921,11 +975,73 @@ impl<
         if let Some(e) = self.stopped {
             return Err(e);
         }
+        if self.emission.is_active() {
+            return Err(ToolpathError::Emitting { layer: self.next_out });
+        }
         let result = self.push_inner(layer, sink);
         if let Err(e) = result {
             self.stopped = Some(e);
         }
         result
+    }
+
+    /// A layer is built and its moves are not all emitted yet.
+    pub fn emitting(&self) -> bool {
+        self.emission.is_active()
+    }
+
+    /// Emits the built layer's moves unit by unit (a path with the travel, retraction and
+    /// height change before it, or the layer's closing move to its height), each only
+    /// while its moves (known exactly before it starts) fit the `room_moves` left, and the
+    /// layer's [`ToolEvent::LayerEnd`] after its last unit.
+    /// [`Emitted::NeedsRoom`] names the moves of the unit that did not fit: a later call
+    /// with that much room emits it. [`Emitted::Complete`] when no layer is being emitted
+    /// (any more).
+    pub fn emit_next(
+        &mut self,
+        room_moves: usize,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<Emitted, ToolpathError> {
+        if let Some(e) = self.stopped {
+            return Err(e);
+        }
+        if !self.emission.is_active() {
+            return Ok(Emitted::Complete);
+        }
+        let l = self.next_out;
+        let ctx = Ctx {
+            cfg: &self.cfg,
+            points: self.contour.points(),
+            rings: self.contour.rings(),
+            height_um: self.cfg.layer_height_of(l),
+            first_layer: l == FIRST_LAYER,
+        };
+        // The infill pool is free since the layer was built: the nearest-path grid's cells
+        // and entries, untouched until the layer is complete (without it: scans).
+        let (grid_head, grid_next): (&mut [u32], &mut [u32]) = match &mut self.work {
+            Work::Fill(f) => f.pool.as_flattened_mut().split_at_mut(POOL_WORDS * CROSS / 2),
+            Work::Offset(_) => (&mut [], &mut []),
+        };
+        let waiting = self.emission.emit(
+            &mut self.em,
+            &ctx,
+            &mut self.paths,
+            &mut self.island_stage,
+            grid_head,
+            grid_next,
+            room_moves,
+            sink,
+        );
+        if let Some(moves) = waiting {
+            return Ok(Emitted::NeedsRoom { moves, layer: l });
+        }
+        self.end_layer(l, sink);
+        Ok(Emitted::Complete)
+    }
+
+    /// Emits the rest of the layer being emitted, if any, whatever its size.
+    fn emit_all(&mut self, sink: &mut impl FnMut(&ToolEvent<'_>)) -> Result<(), ToolpathError> {
+        self.emit_next(usize::MAX, sink).map(|_| ())
     }
 
     /// After the model's last layer was pushed: processes the next layer still waiting in
@@ -936,14 +1052,31 @@ impl<
         &mut self,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<bool, ToolpathError> {
+        self.emit_all(sink)?;
+        let built = self.build_next(sink)?;
+        self.emit_all(sink)?;
+        Ok(built)
+    }
+
+    /// After the model's last layer was accepted: builds the next layer still waiting in
+    /// the window, leaving its moves to [`emit_next`](Self::emit_next) (as
+    /// [`accept_layer`](Self::accept_layer) does); true when one was built, false when none
+    /// is left. Refused with [`ToolpathError::Emitting`] while a layer is being emitted.
+    pub fn build_next(
+        &mut self,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<bool, ToolpathError> {
         if let Some(e) = self.stopped {
             return Err(e);
+        }
+        if self.emission.is_active() {
+            return Err(ToolpathError::Emitting { layer: self.next_out });
         }
         if self.next_out >= self.next_in {
             return Ok(false);
         }
         let l = self.next_out;
-        match self.process(l, sink).map_err(|w| self.capacity(w, l)) {
+        match self.build(l, sink).map_err(|w| self.capacity(w, l)) {
             Ok(()) => Ok(true),
             Err(e) => {
                 self.stopped = Some(e);
@@ -960,10 +1093,13 @@ impl<
         if let Some(e) = self.stopped {
             return Err(e);
         }
-        let mut result = Ok(());
-        while result.is_ok() && self.next_out < self.next_in {
-            let l = self.next_out;
-            result = self.process(l, sink).map_err(|w| self.capacity(w, l));
+        let mut result = self.emit_all(sink);
+        while result.is_ok() {
+            match self.build_next(sink) {
+                Ok(true) => result = self.emit_all(sink),
+                Ok(false) => break,
+                Err(e) => result = Err(e),
+            }
         }
         self.stopped = Some(result.err().unwrap_or(ToolpathError::Finished));
         result.map(|()| self.stats())
@@ -980,10 +1116,11 @@ impl<
         let index = layer.index;
         self.store(layer).map_err(|w| self.capacity(w, index))?;
         self.next_in += 1;
+        // Each layer taken completes at most one (the one `top_layers` below it).
         let top = u32::from(self.cfg.top_layers);
-        while self.next_out + top < self.next_in {
+        if self.next_out + top < self.next_in {
             let l = self.next_out;
-            self.process(l, sink).map_err(|w| self.capacity(w, l))?;
+            self.build(l, sink).map_err(|w| self.capacity(w, l))?;
         }
         Ok(())
     }
@@ -1046,8 +1183,8 @@ impl<
         Ok(())
     }
 
-    /// Builds and emits layer `l`.
-    fn process(&mut self, l: u32, sink: &mut impl FnMut(&ToolEvent<'_>)) -> Result<(), Buffer> {
+    /// Builds layer `l`'s paths and begins their emission ([`emit_next`](Self::emit_next)).
+    fn build(&mut self, l: u32, sink: &mut impl FnMut(&ToolEvent<'_>)) -> Result<(), Buffer> {
         let cfg = self.cfg;
         let blk = self.ring.find(l).ok_or(Buffer::RingPoints)?;
         decode(self.ring.data(&blk), &mut self.contour)?;
@@ -1139,30 +1276,12 @@ impl<
             height_um: cfg.layer_height_of(l),
         });
         self.park_engine();
-        let ctx = Ctx {
-            cfg: &self.cfg,
-            points: self.contour.points(),
-            rings: self.contour.rings(),
-            height_um: cfg.layer_height_of(l),
-            first_layer: l == FIRST_LAYER,
-        };
-        // The infill pool is free again: the nearest-path grid's cells and entries.
-        let pool = self.work.scratch().pool.as_flattened_mut();
-        let (grid_head, grid_next) = pool.split_at_mut(POOL_WORDS * CROSS / 2);
-        order::emit_layer(
-            &mut self.em,
-            &ctx,
-            &mut self.paths,
-            &mut self.island_stage,
-            grid_head,
-            grid_next,
-            sink,
-        );
-        // A layer without extrusion still moves to its height.
-        if self.em.pending_z.is_some() {
-            let p = self.em.pos;
-            self.em.travel_to(&ctx, p, &|_, _, _| false, sink);
-        }
+        self.emission.begin(&self.cfg, &self.paths, &mut self.island_stage);
+        Ok(())
+    }
+
+    /// Layer `l`'s last unit was emitted: its end event and counters.
+    fn end_layer(&mut self, l: u32, sink: &mut impl FnMut(&ToolEvent<'_>)) {
         let ls = self.em.layer;
         sink(&ToolEvent::LayerEnd(&ls));
         let st = &mut self.stats;
@@ -1180,13 +1299,13 @@ impl<
             st.max_thin_area_um2 = ls.thin_area_um2;
             st.max_thin_area_layer = l;
         }
+        st.max_unit_moves = st.max_unit_moves.max(ls.max_unit_moves);
         // Drop what no later layer needs (the next one looks `bottom` layers down).
-        let bottom = u32::from(cfg.bottom_layers);
+        let bottom = u32::from(self.cfg.bottom_layers);
         while self.ring.block(0).is_some_and(|b| b.layer + bottom <= l) {
             self.ring.pop();
         }
         self.next_out = l + 1;
-        Ok(())
     }
 
     /// Runs a thin-area measurement: its use of the offset engine and of `tmp` is kept out
