@@ -12,14 +12,24 @@
 //! half at the stage's progress points ([`MotionSlot`]), so steps keep being generated
 //! during a long layer.
 //!
-//! Flow control reaches back to the host: the slicer cuts one layer at a time, and only
-//! while the `MOVES` buffer (toolpath moves waiting for the planner) is at most a quarter
-//! full; the toolpath stage turns each cut into at most one layer's moves. A batch whose next
-//! triangle would need a cut that has to wait stays in the endpoint's receive slot (and is
-//! resumed where it stopped), so the device announces fewer credits and the host stops
-//! sending. The slicer thus works about a layer ahead of the motion while the next layer's
-//! triangles stream in. A layer's moves must fit the other three quarters: overflowing them
-//! is a typed error ([`ErrorCode::Moves`]), never a silent drop.
+//! Flow control reaches back to the host. The toolpath stage builds at most one layer per
+//! cut and emits its moves into the `MOVES` buffer (toolpath moves waiting for the planner)
+//! unit by unit, a unit being one path with the retraction, travel and height change
+//! before it: each unit goes in once the buffer has room for all of its moves (the stage
+//! counts them exactly before it starts), and `poll` and `service` emit more as the planner
+//! takes moves. The stage keeps the layer (its paths, the contour combing follows, the
+//! ordering state) until its last unit went in and builds no other meanwhile, so the slicer
+//! cuts the next layer only once the stage has emitted the whole layer before. A batch
+//! whose next triangle would need a cut that has to wait stays in the endpoint's receive
+//! slot (and is resumed where it stopped), so the device announces fewer credits and the
+//! host stops sending. The buffer thus holds the largest unit, not a whole layer: the
+//! paths, stored once in the stage, are not held twice as moves. Cutting as soon as the
+//! stage is free (not when the buffer has drained to some level) starts the next layer's
+//! computation with the most motion buffered: the buffer is about full when a layer's last
+//! unit goes in, and those moves feed the motion half, lent at the computation's progress
+//! points ([`MotionSlot`]), until the new layer's first unit. A unit larger than the whole
+//! buffer could never go in: a typed error ([`ErrorCode::Moves`], detail: the layer), never
+//! a silent drop or a wait forever.
 //!
 //! Planner blocks are released only when the planner queue is full or the model has ended
 //! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
@@ -40,18 +50,18 @@ use crate::protocol::{
 use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
-use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
+use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 
 /// Every capacity of the firmware build (the Creality 4.2.x boards and QEMU's lm3s6965evb,
 /// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
 /// announces [`BOARD_CAPACITIES`].
 ///
 /// RAM on the board = the `Printer` (slicer + toolpath + move buffer + planner + generator,
-/// about 45 KB with these values) + the protocol endpoint, the step queue, the executor and
-/// the UART buffers + the stack: `.data + .bss` 51,964 B, 13.6 KB left for the stack, of
-/// which a job uses about 7.7 KB (QEMU build; the firmware prints both after every job).
-/// Per-unit bytes: slicer 24 per active triangle, 37 per segment, 72 per loop; toolpath see
-/// `ToolpathNeeds`; 24 per queued move.
+/// about 41 KB with these values) + the protocol endpoint, the step queue, the executor and
+/// the UART buffers + the stack: `.data + .bss` 47,492 B, 17.6 KB left for the stack, of
+/// which a job used about 7.7 KB when last measured (QEMU build; the firmware prints both
+/// after every job). Per-unit bytes: slicer 24 per active triangle, 37 per segment, 72 per
+/// loop; toolpath see `ToolpathNeeds`; 24 per queued move.
 pub mod board {
     use super::Printer;
 
@@ -73,9 +83,12 @@ pub mod board {
     pub const RING: usize = 512;
     /// Toolpath: the skin window's crossings with one scanline.
     pub const SPANS: usize = 48;
-    /// Toolpath moves waiting for the planner: the slicer cuts a layer while at most a quarter
-    /// is in use, so a layer's moves must fit the other three quarters.
-    pub const MOVES: usize = 448;
+    /// Toolpath moves waiting for the planner: the largest emission unit (a path with the
+    /// travel before it) must fit, the rest keeps the motion fed while the next layer is
+    /// computed. Largest units at 0.2 mm: embodier_asc 115, xyz_20mm_cube 175 (the larger
+    /// sample models, which need more of the other capacities: embodier_hotend_v2 186,
+    /// embodier_LM8UU_8p2pi 237).
+    pub const MOVES: usize = 256;
     /// Planner lookahead, moves (the host simulation plans with the same).
     pub const P: usize = 32;
 
@@ -577,11 +590,15 @@ impl<
             (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                // Layers are cut one at a time, each only while the move buffer can take
-                // its moves; a batch that has to wait is offered again and resumes here.
+                // Layers are cut one at a time, each only once the toolpath stage has
+                // emitted the layer before into the move buffer; a batch that has to wait is
+                // offered again and resumes here.
                 for (i, t) in batch.iter().enumerate().skip(self.batch_pos as usize) {
                     while self.slicer.would_cut(t.z_min()) {
-                        if !self.room_for_a_layer() {
+                        if !self.emit_moves(motion.as_deref_mut()) {
+                            if !self.is_active() {
+                                break;
+                            }
                             self.batch_pos = i as u32;
                             return Accept::Busy;
                         }
@@ -600,7 +617,10 @@ impl<
                 if !self.model_ended =>
             {
                 while self.is_active() {
-                    if !self.room_for_a_layer() {
+                    if !self.emit_moves(motion.as_deref_mut()) {
+                        if !self.is_active() {
+                            break;
+                        }
                         return Accept::Busy;
                     }
                     if !self.cut_one(motion.as_deref_mut())
@@ -636,8 +656,9 @@ impl<
         self.triangles += 1;
     }
 
-    /// Runs `step` on the slicer with a sink that takes each layer through the toolpath stage
-    /// into the move buffer (lending `motion` the motion half at its progress points), then
+    /// Runs `step` on the slicer with a sink that hands each layer to the toolpath stage,
+    /// which builds the layer it completes (lending `motion` the motion half at its
+    /// progress points; its moves wait for [`emit_moves`](Self::emit_moves)), then
     /// records a slicer, toolpath or move-buffer error (the job fails); the step's result
     /// when it succeeded.
     fn through_slicer<R>(
@@ -653,7 +674,7 @@ impl<
         let r = {
             let mut sink = |l: &Layer<'_>| {
                 if tp_err.is_none() {
-                    tp_err = tp.push_layer(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
+                    tp_err = tp.accept_layer(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
             step(slicer, &mut sink)
@@ -689,29 +710,59 @@ impl<
         self.state == DeviceState::Printing && (self.heated || !self.heaters)
     }
 
-    /// The move buffer can take another layer: at most a quarter of it is in use.
-    fn room_for_a_layer(&self) -> bool {
-        self.moves.len() <= MOVES / 4
+    /// Moves the move buffer can take now.
+    fn move_room(&self) -> usize {
+        MOVES - self.moves.len()
     }
 
-    /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
-    /// emits at most one layer's moves); false when no plane was left or on an error.
-    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
-        let cut = self
-            .through_slicer(motion, |slicer, sink| slicer.cut_one(&mut |l: &Layer<'_>| sink(l)));
+    /// Emits the toolpath stage's built layer into the move buffer, unit by unit (a path
+    /// with the travel before it) while the buffer has room for the next one; true when no
+    /// layer is left to emit (the stage may build the next one). A unit larger than the
+    /// whole buffer could never go: the job fails ([`ErrorCode::Moves`], detail: the layer).
+    fn emit_moves(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
+        if !self.tp.emitting() {
+            return true;
+        }
+        let room = self.move_room();
+        let emitted = self.through_toolpath(motion, |tp, events| {
+            tp.emit_next(room, &mut |e: &ToolEvent<'_>| events(e))
+        });
+        match emitted {
+            Some(Emitted::Complete) => self.is_active(),
+            Some(Emitted::NeedsRoom { moves, layer }) => {
+                if moves as usize > MOVES {
+                    self.fail(ErrorCode::Moves, layer);
+                }
+                false
+            }
+            None => false,
+        }
+    }
+
+    /// Cuts the slicer's next plane and hands its layer to the toolpath stage, then emits
+    /// what the move buffer takes of the layer the stage built; false when no plane was
+    /// left or on an error. Call only when [`emit_moves`](Self::emit_moves) is done.
+    fn cut_one(&mut self, mut motion: MotionHook<'_, '_, MOVES, P>) -> bool {
+        let cut = self.through_slicer(motion.as_deref_mut(), |slicer, sink| {
+            slicer.cut_one(&mut |l: &Layer<'_>| sink(l))
+        });
+        self.emit_moves(motion);
         cut == Some(true) && self.is_active()
     }
 
-    /// After the last plane: the toolpath stage's next waiting layer into moves; false when
-    /// none was left or on an error.
-    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVES, P>) -> bool {
-        let flushed = self.through_toolpath(motion, |tp, events| {
-            tp.flush_one(&mut |e: &ToolEvent<'_>| events(e))
+    /// After the last plane: the toolpath stage builds its next waiting layer, and what the
+    /// move buffer takes of it is emitted; false when none was left or on an error. Call
+    /// only when [`emit_moves`](Self::emit_moves) is done.
+    fn flush_one(&mut self, mut motion: MotionHook<'_, '_, MOVES, P>) -> bool {
+        let built = self.through_toolpath(motion.as_deref_mut(), |tp, events| {
+            tp.build_next(&mut |e: &ToolEvent<'_>| events(e))
         });
-        flushed == Some(true) && self.is_active()
+        self.emit_moves(motion);
+        built == Some(true) && self.is_active()
     }
 
-    /// Ends the model: every plane is cut and every layer flushed (or the job failed).
+    /// Ends the model: every plane is cut and every layer flushed and emitted (or the job
+    /// failed).
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVES, P>) {
         let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, sink| {
             slicer.finish(&mut |l: &Layer<'_>| sink(l))
@@ -757,6 +808,14 @@ impl<
                 return true;
             }
         };
+        // The toolpath stage's next paths, as far as the room the planner made allows.
+        if self.tp.emitting() {
+            let before = self.moves.len();
+            worked |= self.emit_moves(None) || self.moves.len() != before;
+            if !self.is_active() {
+                return true;
+            }
+        }
         let input_done = self.toolpath_done && self.moves.is_empty();
         // Completed layers' hashes; while the reports are full the generator holds at the
         // next layer (its marks fill up), so no hash is ever dropped.
@@ -825,7 +884,7 @@ impl<
         let before = self.state;
         while ep.tx_free() > 1 {
             let Some(p) = ep.peek() else { break };
-            if self.waiting_for_room && self.is_active() && !self.room_for_a_layer() {
+            if self.waiting_for_room && self.is_active() && !self.emit_moves(None) {
                 break;
             }
             self.waiting_for_room = false;

@@ -17,7 +17,8 @@
 //! streamed) runs through a host-sized toolpath stage with the job's settings, exactly as the
 //! device will run it ([`toolpath_peaks`]), and every toolpath need is compared with the
 //! device's toolpath capacities (`PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`) and the
-//! moves of every layer with the part of the move buffer a layer may fill. Simplifying
+//! largest emission unit (a path with the travel before it: the device's toolpath stage emits
+//! a layer unit by unit as its move buffer has room) with the move buffer. Simplifying
 //! the mesh only reduces the slicer's needs, so a toolpath need that does not fit refuses the
 //! model, naming the resource, the layer where it peaks, the need and the capacity.
 
@@ -255,9 +256,10 @@ pub struct ToolpathPeaks {
     pub ring_words: Peak,
     /// `SPANS`: the skin window's crossings with one scanline.
     pub spans: Peak,
-    /// Most moves of one layer (the device cuts one layer at a time, each while its move
-    /// buffer is at most a quarter full: a layer's moves must fit the other three quarters).
-    pub layer_moves: Peak,
+    /// Moves of the largest emission unit (`LayerStats::max_unit_moves`: a path with the
+    /// travel, retraction and priming before it): the device's toolpath stage emits a layer
+    /// unit by unit, each once its move buffer has room for it, so the buffer must hold it.
+    pub unit_moves: Peak,
     /// Layers.
     pub layers: u32,
 }
@@ -270,7 +272,7 @@ type NeedsToolpath =
 
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
-/// the stage's needs, the layers where they peak and the most moves of a layer. A need found growing while the stage takes a layer is attributed to that layer (the
+/// the stage's needs, the layers where they peak and the largest emission unit. A need found growing while the stage takes a layer is attributed to that layer (the
 /// window's stored contours) or to the layer it builds meanwhile (the others: a layer is built
 /// once the layers its top skins wait for have arrived; the last of them when it builds
 /// several at once, as at the end of the model). Runs on a thread with a large stack (the
@@ -303,22 +305,17 @@ fn measure(
     let mut tp = Box::new(NeedsToolpath::new(cfg).map_err(|e| e.to_string())?);
     tp.set_position(Point2::new(0, 0), 0);
     let peaks = Cell::new(ToolpathPeaks::default());
-    // The layer being emitted and its moves.
+    // The layer being emitted.
     let emitting = Cell::new((0u32, 0i32));
-    let layer_moves = Cell::new(0u32);
     let events = &mut |e: &ToolEvent<'_>| match e {
-        ToolEvent::LayerStart { index, z_um, .. } => {
-            emitting.set((*index, *z_um));
-            layer_moves.set(0);
-        }
-        ToolEvent::Move(_) => layer_moves.set(layer_moves.get() + 1),
-        ToolEvent::LayerEnd(_) => {
+        ToolEvent::LayerStart { index, z_um, .. } => emitting.set((*index, *z_um)),
+        ToolEvent::LayerEnd(ls) => {
             let mut p = peaks.get();
-            p.layer_moves.raise(layer_moves.get(), emitting.get());
+            p.unit_moves.raise(ls.max_unit_moves, emitting.get());
             p.layers += 1;
             peaks.set(p);
         }
-        ToolEvent::Progress => {}
+        ToolEvent::Move(_) | ToolEvent::Progress => {}
     };
     let mut failed = None;
     let mut sink = |l: &Layer<'_>| {
@@ -368,22 +365,11 @@ fn measure(
     Ok(p)
 }
 
-/// Moves of one layer a move buffer of `moves` holds: the device cuts a layer only while
-/// the buffer is at most a quarter full (`strata::printer`), so the other three quarters.
-pub fn layer_room(moves: u32) -> u32 {
-    moves - moves / 4
-}
-
-/// The smallest move buffer whose [`layer_room`] holds `layer_moves`.
-pub fn move_buffer_for(layer_moves: u32) -> u32 {
-    (layer_moves..).find(|&m| layer_room(m) >= layer_moves).unwrap_or(u32::MAX)
-}
-
 /// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user
 /// (empty when everything fits). `PTS >= max(layer_points, offset_edges)`,
 /// `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >= path_points`, `RING >= ring_points`,
-/// `SPANS >= spans` (the `ToolpathNeeds` docs), and every layer's moves within
-/// [`layer_room`] of the move buffer.
+/// `SPANS >= spans` (the `ToolpathNeeds` docs), and the move buffer `>=` the largest
+/// emission unit ([`ToolpathPeaks::unit_moves`]).
 /// Paths are not compared with `CROSS`: a layer with more paths than the nearest-path grid
 /// holds is ordered by a scan instead (same order, no error).
 pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<String> {
@@ -408,13 +394,12 @@ pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<Stri
     need(&peaks.path_points, "toolpath path points", caps.path_points, AREA);
     need(&peaks.ring_words, "contour words", caps.window_ring_words, WINDOW);
     need(&peaks.spans, "scanline spans", caps.window_spans, WINDOW);
-    let room = layer_room(caps.layer_moves);
-    let m = &peaks.layer_moves;
-    if m.value > room {
+    let m = &peaks.unit_moves;
+    if m.value > caps.layer_moves {
         out.push(format!(
-            "layer at {:.2} mm needs {} buffered toolpath moves; the printer holds {room} (three \
-             quarters of its move buffer of {}): too many moves in one layer for this printer's \
-             memory",
+            "layer at {:.2} mm needs {} buffered toolpath moves for one path (with the travel \
+             before it); the printer's move buffer holds {}: a path too long for this \
+             printer's memory",
             mm(m.z_um),
             m.value,
             caps.layer_moves

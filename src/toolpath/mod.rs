@@ -47,6 +47,16 @@
 //!    a contour is combed along the island's external perimeter, and retracts only when no
 //!    such route exists (another island) and it is at least 1.5 mm long.
 //!
+//! A built layer's moves go out unit by unit ([`Toolpath::emit_next`]): one path with the
+//! retraction, travel and height change before it (or the layer's closing move to its
+//! height), each once the owner's room covers its moves, which are counted exactly before the
+//! unit starts. The stage keeps the layer (its paths, its contour for combing, the ordering
+//! state, the nearest-path grid in the infill scratch) until its last unit went out and
+//! builds no other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room
+//! for the largest unit ([`LayerStats::max_unit_moves`]), not for a layer.
+//! [`Toolpath::push_layer`], [`flush_one`](Toolpath::flush_one) and
+//! [`finish`](Toolpath::finish) emit whole layers at once.
+//!
 //! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
 //! layers that wait for the layers above them and the `bottom` ones below the layer being
 //! built) and the crossings of all of them with one scanline
