@@ -7,7 +7,8 @@
 //! [`Printer::service`] pumps the protocol [`Endpoint`]: it answers `Hello` with the
 //! capacities, hands job messages to [`Printer::handle`] and sends status reports and
 //! `LayerDone` hashes back. [`Printer::poll`] does a bounded amount of work: moves into the
-//! planner (up to its queue), blocks into the step generator, steps into the queue. While a
+//! planner (up to its queue), the toolpath stage's next paths into the move buffer (up to
+//! its room), blocks into the step generator, steps into the queue. While a
 //! message makes the toolpath stage compute a layer, `service` lends its caller the motion
 //! half at the stage's progress points ([`MotionSlot`]), so steps keep being generated
 //! during a long layer.
@@ -791,9 +792,9 @@ impl<
         self.done.pop_front()
     }
 
-    /// Bounded work: moves into the planner, blocks into the generator, steps into `out`.
-    /// Returns true when something happened (a move planned, a block or a step generated, a
-    /// layer closed).
+    /// Bounded work: moves into the planner, the toolpath stage's next paths into the move
+    /// buffer, blocks into the generator, steps into `out`. Returns true when something
+    /// happened (a move planned or emitted, a block or a step generated, a layer closed).
     pub fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
         if !self.is_active() {
             return false;
