@@ -210,7 +210,8 @@ impl<const MOVES: usize, const P: usize> MotionSlot<'_, MOVES, P> {
 pub enum Accept {
     /// The message was consumed.
     Taken,
-    /// Not now (the previous triangles' moves are not planned yet): offer it again later.
+    /// Not now (the toolpath stage's layer is not all in the move buffer yet, so the next
+    /// layer cannot be cut): offer it again later.
     Busy,
 }
 
@@ -286,7 +287,7 @@ pub struct Printer<
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
     /// The message at the head of the link waits for room in the move buffer (it is not
-    /// decoded again until there is room).
+    /// decoded again until the toolpath stage's layer is all in).
     waiting_for_room: bool,
     /// The job report went out (once the job is done).
     report_sent: bool,

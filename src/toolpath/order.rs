@@ -793,7 +793,7 @@ pub struct Emission {
     phase: Phase,
     /// The nearest-path grid's shape once built (its lists are in the grid buffers).
     grid: Option<GridShape>,
-    /// Some path's entry depends on the nozzle position (see [`Finder`]).
+    /// Some path's entry depends on the nozzle position (nearest-vertex seams).
     loose: bool,
     /// The next unit, planned (it waits for room).
     next: Option<Unit>,
