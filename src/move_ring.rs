@@ -16,16 +16,21 @@
 //! The producer side ([`MoveEncoder`]) codes each move against the last one pushed, the
 //! consumer side against the last one popped; both start at the origin (all zero) after
 //! [`MoveRing::clear`]. The coding is lossless: every `PackedMove` comes out bit for bit as
-//! it went in. The host's admission control runs the same encoder over a job's moves to
-//! measure each layer in bytes ([`MoveEncoder::encode`]).
+//! it went in.
 //!
-//! Flow control ([`crate::printer`]): the slicer cuts a layer only while at most a quarter of
-//! the ring's bytes are in use ([`MoveRing::room_for_a_layer`]), so a layer's records must fit
-//! the other three quarters ([`layer_room`]).
+//! Flow control ([`crate::printer`]): the toolpath stage emits a layer unit by unit (a path
+//! with the travel before it, [`Toolpath::emit_next`](crate::toolpath::Toolpath::emit_next)),
+//! each only once the ring's [`ByteRoom`] ([`MoveRing::room`]) takes it: the room codes the
+//! unit's moves on copies of the [`MoveStream`] and of the ring's [`MoveEncoder`] (a
+//! [`MoveMeter`]), so it knows the unit's bytes exactly before the first of them is pushed,
+//! and takes it only when they fit the free bytes. A unit's bytes depend on the move before
+//! it only, not on what waits in the ring: a unit refused by an empty ring never fits
+//! ([`ByteRoom::refused`] above the capacity). The host's admission control runs the same
+//! meter and room over a job to find its largest unit in bytes.
 
 use crate::machine::{Rate, AXES};
 use crate::plan::{Move, MoveKind};
-use crate::toolpath::ToolMove;
+use crate::toolpath::{Room, ToolEvent, ToolMove};
 
 /// A toolpath move waiting for the planner: the planner's [`Move`] with its feed as U16F16
 /// bits (the toolpath's feeds are whole or simple fractions of mm/s; the same packing runs on
@@ -114,12 +119,6 @@ const NEW_LAYER: u8 = 1 << 2;
 const NEW_FEED: u8 = 1 << 3;
 /// Header bit of the first axis delta (X; Y, Z, E follow).
 const AXIS_DELTA: u8 = 1 << 4;
-
-/// Bytes of a move buffer of `capacity` bytes that one layer's records may take: the slicer
-/// cuts a layer only while at most a quarter is in use, so the other three quarters.
-pub const fn layer_room(capacity: usize) -> usize {
-    capacity - capacity / 4
-}
 
 /// The producer side of the coding: the last move coded.
 #[derive(Debug, Clone, Copy)]
@@ -248,6 +247,119 @@ fn decode(prev: &PackedMove, bytes: &mut impl Iterator<Item = u8>) -> Option<Pac
     Some(mv)
 }
 
+/// Bytes of toolpath events as a move buffer codes them: a [`MoveStream`] and a
+/// [`MoveEncoder`] run on (copies of the ones the moves will go through).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MoveMeter {
+    stream: MoveStream,
+    encoder: MoveEncoder,
+}
+
+impl MoveMeter {
+    /// From `stream` and `encoder`'s state.
+    pub const fn new(stream: MoveStream, encoder: MoveEncoder) -> Self {
+        Self { stream, encoder }
+    }
+
+    /// Takes `e`: a move's record length, bytes (0 for the other events; a layer start
+    /// sets the layer of the next moves, as the printer's stream does).
+    pub fn event(&mut self, e: &ToolEvent<'_>) -> usize {
+        match e {
+            ToolEvent::Move(m) => {
+                let mut record = [0u8; MAX_RECORD];
+                self.encoder.encode(&self.stream.next(m), &mut record)
+            }
+            ToolEvent::LayerStart { index, .. } => {
+                self.stream.start_layer(*index);
+                0
+            }
+            ToolEvent::LayerEnd(_) | ToolEvent::Progress => 0,
+        }
+    }
+}
+
+/// Room in a move buffer for the toolpath stage's units, in exact bytes (see the
+/// [module docs](self)): a unit offered is replayed through a copy of the [`MoveMeter`] and
+/// taken when its bytes fit the bytes left; then the meter and the bytes left move on with it,
+/// so several units in one call are counted as exactly as one.
+#[derive(Debug, Clone, Copy)]
+pub struct ByteRoom {
+    meter: MoveMeter,
+    free: usize,
+    capacity: usize,
+    /// Bytes of the unit refused last.
+    refused: Option<usize>,
+    /// Bytes of the largest unit taken.
+    largest: usize,
+    /// Bytes of all units taken.
+    taken: u64,
+}
+
+impl ByteRoom {
+    /// `free` bytes of a buffer of `capacity`, the moves coded by `meter` from its state.
+    pub const fn new(meter: MoveMeter, free: usize, capacity: usize) -> Self {
+        Self { meter, free, capacity, refused: None, largest: 0, taken: 0 }
+    }
+
+    /// Room without bound, to measure units (the host's admission control).
+    pub const fn unbounded(meter: MoveMeter) -> Self {
+        Self::new(meter, usize::MAX, usize::MAX)
+    }
+
+    /// Bytes of the unit refused last, if one was: it fits once that many are free, and
+    /// never when more than the capacity.
+    pub fn refused(&self) -> Option<usize> {
+        self.refused
+    }
+
+    /// The last unit refused can never go in: its bytes exceed the buffer's capacity.
+    pub fn never_fits(&self) -> bool {
+        self.refused.is_some_and(|b| b > self.capacity)
+    }
+
+    /// Bytes of the largest unit taken.
+    pub fn largest(&self) -> usize {
+        self.largest
+    }
+
+    /// Bytes of all units taken.
+    pub fn taken(&self) -> u64 {
+        self.taken
+    }
+
+    /// Bytes left.
+    pub fn free(&self) -> usize {
+        self.free
+    }
+
+    /// The meter, at the end of the units taken.
+    pub fn meter(&self) -> MoveMeter {
+        self.meter
+    }
+}
+
+impl Room for ByteRoom {
+    fn take(&mut self, moves: u32, replay: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool {
+        let mut meter = self.meter;
+        let (mut bytes, mut seen) = (0usize, 0u32);
+        replay(&mut |e: &ToolEvent<'_>| {
+            bytes += meter.event(e);
+            seen += u32::from(matches!(e, ToolEvent::Move(_)));
+        });
+        debug_assert_eq!(seen, moves, "a unit replays the moves it was planned with");
+        if bytes > self.free {
+            self.refused = Some(bytes);
+            return false;
+        }
+        self.refused = None;
+        self.meter = meter;
+        self.free -= bytes;
+        self.largest = self.largest.max(bytes);
+        self.taken += bytes as u64;
+        true
+    }
+}
+
 /// The move buffer refused a move: its record does not fit the free bytes (nothing changed).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RingFull;
@@ -261,6 +373,8 @@ pub struct MoveRing<const BYTES: usize> {
     head: usize,
     /// Bytes in use.
     len: usize,
+    /// Bytes it may hold (`BYTES` unless [`limit`](Self::limit)ed).
+    limit: usize,
     encoder: MoveEncoder,
     /// The last move popped: the next record is coded relative to it.
     popped: PackedMove,
@@ -279,9 +393,16 @@ impl<const BYTES: usize> MoveRing<BYTES> {
             buf: [0; BYTES],
             head: 0,
             len: 0,
+            limit: BYTES,
             encoder: MoveEncoder::new(),
             popped: PackedMove::ORIGIN,
         }
+    }
+
+    /// Holds at most `bytes` from now on (at most `BYTES`): a buffer posing as a smaller one
+    /// (a host simulation of a board, tests). The moves already in stay.
+    pub fn limit(&mut self, bytes: usize) {
+        self.limit = bytes.min(BYTES);
     }
 
     /// Drops every move; both coder states go back to the origin.
@@ -292,9 +413,9 @@ impl<const BYTES: usize> MoveRing<BYTES> {
         self.popped = PackedMove::ORIGIN;
     }
 
-    /// Capacity, bytes.
+    /// Capacity, bytes (`BYTES`, or less when [`limit`](Self::limit)ed).
     pub const fn capacity(&self) -> usize {
-        BYTES
+        self.limit
     }
 
     /// Bytes in use.
@@ -307,10 +428,16 @@ impl<const BYTES: usize> MoveRing<BYTES> {
         self.len == 0
     }
 
-    /// The slicer may cut another layer: at most a quarter of the bytes are in use, so at
-    /// least [`layer_room`] are free.
-    pub fn room_for_a_layer(&self) -> bool {
-        self.len <= BYTES / 4
+    /// Bytes free.
+    pub fn free_bytes(&self) -> usize {
+        self.limit.saturating_sub(self.len)
+    }
+
+    /// The room for the next toolpath units: the free bytes, measured with the moves coded
+    /// as [`push`](Self::push) will code them after the ones already in (`stream`: the
+    /// stream the moves come from, where it stands now).
+    pub fn room(&self, stream: &MoveStream) -> ByteRoom {
+        ByteRoom::new(MoveMeter::new(*stream, self.encoder), self.free_bytes(), self.limit)
     }
 
     /// Appends `mv`; [`RingFull`] (and the ring unchanged) when its record does not fit.
@@ -318,7 +445,7 @@ impl<const BYTES: usize> MoveRing<BYTES> {
         let mut record = [0u8; MAX_RECORD];
         let mut encoder = self.encoder;
         let n = encoder.encode(mv, &mut record);
-        if n > BYTES - self.len {
+        if n > self.free_bytes() {
             return Err(RingFull);
         }
         for (k, &b) in record.iter().take(n).enumerate() {
@@ -564,30 +691,6 @@ mod tests {
         let mut none: MoveRing<0> = MoveRing::new();
         assert_eq!(none.push(&a), Err(RingFull));
         assert_eq!(none.front(), None);
-    }
-
-    #[test]
-    fn a_layer_of_three_quarters_fits_after_a_quarter() {
-        assert_eq!(layer_room(100), 75);
-        assert_eq!(layer_room(10_240), 7_680);
-        assert_eq!(layer_room(3), 3);
-        let mut ring: MoveRing<100> = MoveRing::new();
-        let mv = PackedMove::ORIGIN;
-        // Repeats of the origin take one byte each.
-        for used in 0..25 {
-            assert!(ring.room_for_a_layer(), "{used}");
-            assert_eq!(ring.push(&mv), Ok(()));
-        }
-        assert!(ring.room_for_a_layer());
-        for _ in 0..75 {
-            assert_eq!(ring.push(&mv), Ok(()));
-        }
-        assert_eq!(ring.push(&mv), Err(RingFull));
-        assert!(!ring.room_for_a_layer());
-        assert_eq!(ring.pop_front(), Some(mv));
-        assert_eq!(ring.used_bytes(), 99);
-        ring.clear();
-        assert!(ring.is_empty() && ring.room_for_a_layer());
     }
 
     #[test]

@@ -7,20 +7,33 @@
 //! [`Printer::service`] pumps the protocol [`Endpoint`]: it answers `Hello` with the
 //! capacities, hands job messages to [`Printer::handle`] and sends status reports and
 //! `LayerDone` hashes back. [`Printer::poll`] does a bounded amount of work: moves into the
-//! planner (up to its queue), blocks into the step generator, steps into the queue. While a
+//! planner (up to its queue), the toolpath stage's next paths into the move buffer (up to
+//! its room), blocks into the step generator, steps into the queue. While a
 //! message makes the toolpath stage compute a layer, `service` lends its caller the motion
 //! half at the stage's progress points ([`MotionSlot`]), so steps keep being generated
 //! during a long layer.
 //!
-//! Flow control reaches back to the host: the slicer cuts one layer at a time, and only
-//! while the move buffer (toolpath moves waiting for the planner, delta-coded into
-//! `MOVE_BYTES` bytes, see [`crate::move_ring`]) is at most a quarter full; the toolpath
-//! stage turns each cut into at most one layer's moves. A batch whose next triangle would need
-//! a cut that has to wait stays in the endpoint's receive slot (and is resumed where it
-//! stopped), so the device announces fewer credits and the host stops sending. The slicer
-//! thus works about a layer ahead of the motion while the next layer's triangles stream in.
-//! A layer's coded moves must fit the other three quarters: overflowing them is a typed
-//! error ([`ErrorCode::Moves`]), never a silent drop.
+//! Flow control reaches back to the host. The toolpath stage builds at most one layer per
+//! cut and emits its moves into the move buffer (toolpath moves waiting for the planner,
+//! delta-coded into `MOVE_BYTES` bytes, see [`crate::move_ring`]) unit by unit, a unit
+//! being one path with the retraction, travel and height change before it (or a layer's
+//! closing move to its height). Before a unit goes in, the buffer's room
+//! ([`ByteRoom`](crate::move_ring::ByteRoom)) codes the unit's moves exactly as the buffer
+//! will (on copies of the stream and the coder) and takes the unit only if its bytes fit the
+//! free bytes; `poll` and `service` emit more as the planner takes moves. The stage keeps
+//! the layer (its paths, the contour combing follows, the ordering state, the nearest-path
+//! grid in the shared scratch) until its last unit went in and builds no other meanwhile, so
+//! the slicer cuts the next layer (which reuses the scratch) only once the stage has emitted
+//! the whole layer before. A batch whose next triangle would need a cut that has to wait
+//! stays in the endpoint's receive slot (and is resumed where it stopped), so the device
+//! announces fewer credits and the host stops sending. The buffer thus holds the largest
+//! unit's bytes, not a whole layer's: the paths, stored once in the stage, are not held
+//! twice as moves. Cutting as soon as the stage is free (not when the buffer has drained to
+//! some level) starts the next layer's computation with the most motion buffered: the
+//! buffer is about full when a layer's last unit goes in, and those moves feed the motion
+//! half, lent at the computation's progress points ([`MotionSlot`]), until the new layer's
+//! first unit. A unit whose bytes exceed the whole buffer could never go in: a typed error
+//! ([`ErrorCode::Moves`], detail: the layer), never a silent drop or a wait forever.
 //!
 //! Planner blocks are released only when the planner queue is full or the model has ended
 //! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
@@ -43,7 +56,7 @@ use crate::scratch::Scratch;
 use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
-use crate::toolpath::{Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
+use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
 
 /// Every capacity of the firmware build (the Creality 4.2.x boards and QEMU's lm3s6965evb,
 /// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
@@ -206,7 +219,8 @@ impl<const MOVE_BYTES: usize, const P: usize> MotionSlot<'_, MOVE_BYTES, P> {
 pub enum Accept {
     /// The message was consumed.
     Taken,
-    /// Not now (the previous triangles' moves are not planned yet): offer it again later.
+    /// Not now (the toolpath stage's layer is not all in the move buffer yet, so the next
+    /// layer cannot be cut): offer it again later.
     Busy,
 }
 
@@ -249,8 +263,12 @@ pub struct Printer<
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
     /// The message at the head of the link waits for room in the move buffer (it is not
-    /// decoded again until there is room).
+    /// decoded again until the toolpath stage's layer is all in).
     waiting_for_room: bool,
+    /// Bytes of the toolpath stage's unit the move buffer refused last (0: none waits).
+    unit_waiting: usize,
+    /// Bytes of the largest unit that went into the move buffer in this job.
+    unit_bytes: usize,
     /// The job report went out (once the job is done).
     report_sent: bool,
     /// The board reports heaters ([`Printer::set_thermal`] was called): jobs wait for them.
@@ -318,6 +336,8 @@ impl<
             triangles: 0,
             batch_pos: 0,
             waiting_for_room: false,
+            unit_waiting: 0,
+            unit_bytes: 0,
             report_sent: false,
             heaters: false,
             heated: false,
@@ -416,6 +436,19 @@ impl<
         self.moves.used_bytes()
     }
 
+    /// Bytes of the largest toolpath unit (a path with the travel before it) that went into
+    /// the move buffer in this job: the least buffer the job's units needed.
+    pub fn largest_unit_bytes(&self) -> usize {
+        self.unit_bytes
+    }
+
+    /// Uses at most `bytes` of the move buffer from now on (at most `MOVE_BYTES`): a printer
+    /// posing as a board with a smaller one, flow control included (the host's tests). The
+    /// announced capacities are [`set_capacities`](Self::set_capacities)'.
+    pub fn limit_move_buffer(&mut self, bytes: usize) {
+        self.moves.limit(bytes);
+    }
+
     /// True when the job's last block went to the step generator and it sent every step.
     pub fn motion_finished(&self) -> bool {
         self.state == DeviceState::Done
@@ -510,6 +543,8 @@ impl<
         self.stream = MoveStream::new();
         self.triangles = 0;
         self.batch_pos = 0;
+        self.unit_waiting = 0;
+        self.unit_bytes = 0;
         self.report_sent = false;
         self.heated = false;
         self.heat_wait_since_ms = None;
@@ -560,11 +595,15 @@ impl<
             (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                // Layers are cut one at a time, each only while the move buffer can take
-                // its moves; a batch that has to wait is offered again and resumes here.
+                // Layers are cut one at a time, each only once the toolpath stage has
+                // emitted the layer before into the move buffer; a batch that has to wait is
+                // offered again and resumes here.
                 for (i, t) in batch.iter().enumerate().skip(self.batch_pos as usize) {
                     while self.slicer.would_cut(t.z_min()) {
-                        if !self.room_for_a_layer() {
+                        if !self.emit_moves(motion.as_deref_mut()) {
+                            if !self.is_active() {
+                                break;
+                            }
                             self.batch_pos = i as u32;
                             return Accept::Busy;
                         }
@@ -583,7 +622,10 @@ impl<
                 if !self.model_ended =>
             {
                 while self.is_active() {
-                    if !self.room_for_a_layer() {
+                    if !self.emit_moves(motion.as_deref_mut()) {
+                        if !self.is_active() {
+                            break;
+                        }
                         return Accept::Busy;
                     }
                     if !self.cut_one(motion.as_deref_mut())
@@ -621,10 +663,11 @@ impl<
         self.triangles += 1;
     }
 
-    /// Runs `step` on the slicer and the scratch with a sink that takes each layer through
-    /// the toolpath stage into the move buffer (lending `motion` the motion half at its
-    /// progress points), then records a slicer, toolpath or move-buffer error (the job
-    /// fails); the step's result when it succeeded.
+    /// Runs `step` on the slicer with a sink that hands each layer to the toolpath stage,
+    /// which builds the layer it completes (lending `motion` the motion half at its
+    /// progress points; its moves wait for [`emit_moves`](Self::emit_moves)), then
+    /// records a slicer, toolpath or move-buffer error (the job fails); the step's result
+    /// when it succeeded.
     fn through_slicer<R>(
         &mut self,
         motion: MotionHook<'_, '_, MOVE_BYTES, P>,
@@ -642,7 +685,8 @@ impl<
         let r = {
             let mut sink = |l: &Layer<'_>, work: &mut Scratch<S, PTS, CROSS>| {
                 if tp_err.is_none() {
-                    tp_err = tp.push_layer(l, work, &mut |e: &ToolEvent<'_>| events.event(e)).err();
+                    tp_err =
+                        tp.accept_layer(l, work, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
             step(slicer, scratch, &mut sink)
@@ -679,29 +723,63 @@ impl<
         self.state == DeviceState::Printing && (self.heated || !self.heaters)
     }
 
-    /// The move buffer can take another layer: at most a quarter of it is in use.
-    fn room_for_a_layer(&self) -> bool {
-        self.moves.room_for_a_layer()
+    /// Emits the toolpath stage's built layer into the move buffer, unit by unit (a path
+    /// with the travel before it) while the buffer's free bytes hold the next one's coded
+    /// moves, counted exactly ([`MoveRing::room`]); true when no layer is left to emit (the
+    /// stage may build the next one). A unit whose bytes exceed the whole buffer could never
+    /// go: the job fails ([`ErrorCode::Moves`], detail: the layer).
+    fn emit_moves(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+        if !self.tp.emitting() {
+            return true;
+        }
+        // The unit refused last is offered first again, and its bytes stay what they were
+        // (the coding state moves only when a unit goes in): no use offering it before the
+        // buffer has that much free.
+        if self.moves.free_bytes() < self.unit_waiting {
+            return false;
+        }
+        let mut room = self.moves.room(&self.stream);
+        let emitted = self.through_toolpath(motion, |tp, work, events| {
+            tp.emit_next(work, &mut room, &mut |e: &ToolEvent<'_>| events(e))
+        });
+        self.unit_waiting = room.refused().unwrap_or(0);
+        self.unit_bytes = self.unit_bytes.max(room.largest());
+        match emitted {
+            Some(Emitted::Complete) => self.is_active(),
+            Some(Emitted::NeedsRoom { layer, .. }) => {
+                if room.never_fits() {
+                    self.fail(ErrorCode::Moves, layer);
+                }
+                false
+            }
+            None => false,
+        }
     }
 
-    /// Cuts the slicer's next plane and runs its layer through the toolpath stage (which
-    /// emits at most one layer's moves); false when no plane was left or on an error.
-    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let cut = self.through_slicer(motion, |slicer, work, sink| {
+    /// Cuts the slicer's next plane and hands its layer to the toolpath stage, then emits
+    /// what the move buffer takes of the layer the stage built; false when no plane was
+    /// left or on an error. Call only when [`emit_moves`](Self::emit_moves) is done.
+    fn cut_one(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+        let cut = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
             slicer.cut_one(work, &mut |l, w| sink(l, w))
         });
+        self.emit_moves(motion);
         cut == Some(true) && self.is_active()
     }
 
-    /// After the last plane: the toolpath stage's next waiting layer into moves; false when
-    /// none was left or on an error.
-    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let flushed = self
-            .through_toolpath(motion, |tp, work, events| tp.flush_one(work, &mut |e| events(e)));
-        flushed == Some(true) && self.is_active()
+    /// After the last plane: the toolpath stage builds its next waiting layer, and what the
+    /// move buffer takes of it is emitted; false when none was left or on an error. Call
+    /// only when [`emit_moves`](Self::emit_moves) is done.
+    fn flush_one(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+        let built = self.through_toolpath(motion.as_deref_mut(), |tp, work, events| {
+            tp.build_next(work, &mut |e| events(e))
+        });
+        self.emit_moves(motion);
+        built == Some(true) && self.is_active()
     }
 
-    /// Ends the model: every plane is cut and every layer flushed (or the job failed).
+    /// Ends the model: every plane is cut and every layer flushed and emitted (or the job
+    /// failed).
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
             slicer.finish(work, &mut |l, w| sink(l, w))
@@ -728,9 +806,9 @@ impl<
         self.done.pop_front()
     }
 
-    /// Bounded work: moves into the planner, blocks into the generator, steps into `out`.
-    /// Returns true when something happened (a move planned, a block or a step generated, a
-    /// layer closed).
+    /// Bounded work: moves into the planner, the toolpath stage's next paths into the move
+    /// buffer, blocks into the generator, steps into `out`. Returns true when something
+    /// happened (a move planned or emitted, a block or a step generated, a layer closed).
     pub fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
         if !self.is_active() {
             return false;
@@ -745,6 +823,14 @@ impl<
                 return true;
             }
         };
+        // The toolpath stage's next paths, as far as the room the planner made allows.
+        if self.tp.emitting() {
+            let before = self.moves.used_bytes();
+            worked |= self.emit_moves(None) || self.moves.used_bytes() != before;
+            if !self.is_active() {
+                return true;
+            }
+        }
         let input_done = self.toolpath_done && self.moves.is_empty();
         // Completed layers' hashes; while the reports are full the generator holds at the
         // next layer (its marks fill up), so no hash is ever dropped.
@@ -785,7 +871,7 @@ impl<
                 / self.plan_cfg.timer_hz.max(1) as u64) as u32,
             done_ms,
             triangles: self.triangles,
-            queue_fill_pct: (self.moves.used_bytes() * 100 / MOVE_BYTES.max(1)) as u8,
+            queue_fill_pct: (self.moves.used_bytes() * 100 / self.moves.capacity().max(1)) as u8,
             error: self.error,
             detail: self.detail,
             hotend_c_x10: self.temps_c_x10.0,
@@ -813,7 +899,7 @@ impl<
         let before = self.state;
         while ep.tx_free() > 1 {
             let Some(p) = ep.peek() else { break };
-            if self.waiting_for_room && self.is_active() && !self.room_for_a_layer() {
+            if self.waiting_for_room && self.is_active() && !self.emit_moves(None) {
                 break;
             }
             self.waiting_for_room = false;

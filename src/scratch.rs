@@ -86,6 +86,16 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
         }
     }
 
+    /// The infill scratch if it has the place, without a switch: where the toolpath stage
+    /// keeps the nearest-path grid of the layer it is emitting
+    /// ([`Toolpath::emit_next`](crate::toolpath::Toolpath::emit_next)).
+    pub(crate) fn live_fill(&mut self) -> Option<&mut FillScratch<C>> {
+        match self.tenant {
+            Tenant::Fill(ref mut f) => Some(f),
+            _ => None,
+        }
+    }
+
     /// The infill scratch (a cleared one if another tenant had the place).
     pub(crate) fn fill(&mut self) -> &mut FillScratch<C> {
         match self.tenant {

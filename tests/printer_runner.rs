@@ -474,14 +474,19 @@ struct Streamed {
     cmds: Vec<Vec<StepCmd>>,
     lends: u32,
     lends_with_steps: u32,
+    /// The toolpath stage's largest emission unit, moves.
+    largest_unit: u32,
+    /// Turns after which a received message was still held (waiting for room).
+    held: u32,
 }
 
 /// Streams a 48-sided prism of 10 mm radius, 1.2 mm tall (six layers, one triangle per
 /// batch) through the link into
 /// `service`; with `generate`, the lent motion half generates steps (and the executor drains
-/// them) at every progress point, as the firmware does.
-fn stream_through_service(generate: bool) -> Streamed {
-    let mut p = new_printer();
+/// them) at every progress point, as the firmware does. The printer's move buffer holds `M`
+/// moves.
+fn stream_through_service<const M: usize>(generate: bool) -> Streamed {
+    let mut p: Box<Buffered<M>> = Box::new(Buffered::<M>::new(&MachineConfig::default()));
     let tris = prism(10_000.0, 1_200, 48);
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
@@ -501,6 +506,8 @@ fn stream_through_service(generate: bool) -> Streamed {
         cmds: vec![Vec::new(); AXES],
         lends: 0,
         lends_with_steps: 0,
+        largest_unit: 0,
+        held: 0,
     };
     let drain = |cons: &mut strata::step::StepConsumer<'_, 32>, cmds: &mut Vec<Vec<StepCmd>>| {
         for (axis, out) in cmds.iter_mut().enumerate() {
@@ -526,6 +533,7 @@ fn stream_through_service(generate: bool) -> Streamed {
                 drain(&mut cons, &mut s.cmds);
             }
         });
+        s.held += u32::from(dev.rx_len() > 0);
         while p.poll(&mut prod) {}
         drain(&mut cons, &mut s.cmds);
         while let Some(h) = p.take_layer_done() {
@@ -542,13 +550,14 @@ fn stream_through_service(generate: bool) -> Streamed {
         }
     }
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
+    s.largest_unit = p.toolpath().stats().max_unit_moves;
     s
 }
 
 #[test]
 fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same() {
-    let lent = stream_through_service(true);
-    let kept = stream_through_service(false);
+    let lent = stream_through_service::<2048>(true);
+    let kept = stream_through_service::<2048>(false);
     assert_eq!(lent.hashes.len(), 6, "{:?}", lent.hashes);
     // The toolpath stage offered the motion half inside its layers, and the generator made
     // steps there (the earlier layers' moves were waiting).
@@ -558,4 +567,112 @@ fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same(
     // The same commands and hashes either way.
     assert_eq!(lent.cmds, kept.cmds, "the command streams differ");
     assert_eq!(lent.hashes, kept.hashes);
+    // A move buffer of about one path: batches wait in the endpoint's slot for the layer
+    // before to be emitted, and the commands stay the same.
+    // (104 moves: the first layer's 48-gon loops, with the travel before them.)
+    assert!(lent.largest_unit <= 112 && lent.largest_unit > 80, "{}", lent.largest_unit);
+    let narrow = stream_through_service::<112>(true);
+    assert_eq!(lent.held, 0);
+    assert!(narrow.held > 10, "{}", narrow.held);
+    assert_eq!(narrow.cmds, lent.cmds, "the command streams differ");
+    assert_eq!(narrow.hashes, lent.hashes);
+}
+
+/// A printer whose move buffer holds `M` moves.
+type Buffered<const M: usize> = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, M, 16>;
+
+/// What [`run_buffered`] saw.
+struct BufferedRun {
+    hashes: Vec<(u32, u64)>,
+    state: DeviceState,
+    error: (ErrorCode, u32),
+    /// The toolpath stage's largest emission unit, moves.
+    largest_unit: u32,
+    /// Moves of the job.
+    moves: u64,
+    /// Times the batch or the end of the model had to wait.
+    busy: u32,
+}
+
+/// Runs `tris` (one batch) as `spec` through a printer with an `M`-move buffer, offering the
+/// batch and the end of the model again while the printer is busy, draining the steps.
+fn run_buffered<const M: usize>(tris: &[Triangle], spec: JobSpec) -> BufferedRun {
+    let mut p: Box<Buffered<M>> = Box::new(Buffered::<M>::new(&MachineConfig::default()));
+    assert_eq!(p.handle(&Message::JobStart(spec)), Accept::Taken);
+    let bytes = batch(tris);
+    let mut q: StepQueue<32> = StepQueue::new();
+    let (mut prod, mut cons) = q.split();
+    let (mut batch_done, mut end_done, mut busy, mut hashes) = (false, false, 0, Vec::new());
+    for _ in 0..50_000_000u64 {
+        let msg = if !batch_done {
+            Some(Message::decode(&bytes).unwrap())
+        } else if !end_done {
+            Some(Message::EndOfModel)
+        } else {
+            None
+        };
+        if let Some(m) = msg {
+            match p.handle(&m) {
+                Accept::Taken if batch_done => end_done = true,
+                Accept::Taken => batch_done = true,
+                Accept::Busy => busy += 1,
+            }
+        }
+        p.poll(&mut prod);
+        for axis in 0..AXES {
+            while cons.dequeue(axis).is_some() {}
+        }
+        while let Some(h) = p.take_layer_done() {
+            hashes.push(h);
+        }
+        if !p.is_active() {
+            break;
+        }
+    }
+    let s = p.toolpath().stats();
+    BufferedRun {
+        hashes,
+        state: p.state(),
+        error: p.error(),
+        largest_unit: s.max_unit_moves,
+        moves: s.extrusion_moves + s.travel_moves + 2 * s.retractions,
+        busy,
+    }
+}
+
+#[test]
+fn a_move_buffer_of_one_path_gives_the_hashes_of_a_large_one() {
+    // A 20 x 20 x 4 mm box: its top skins' zigzag runs are its largest units (114 moves),
+    // about a tenth of its 1,100 moves.
+    let h = 4_000;
+    let tris = box_at(90_000, 20_000, h);
+    let mut spec = job(&tris);
+    spec.model_height_um = h;
+    spec.settings.top_layers = 3;
+    spec.options.skirt_loops = 1;
+    let large = run_buffered::<8192>(&tris, spec);
+    assert_eq!(large.state, DeviceState::Done, "{:?}", large.error);
+    assert_eq!(large.hashes.len(), 20);
+    assert_eq!(large.busy, 0);
+    const NARROW: usize = 120;
+    let unit = large.largest_unit as usize;
+    assert!(unit <= NARROW && unit > NARROW * 3 / 4, "{unit}");
+    assert!(large.moves > 8 * NARROW as u64, "{}", large.moves);
+    // A buffer just above the largest unit: the same step commands, with waits.
+    let narrow = run_buffered::<NARROW>(&tris, spec);
+    assert_eq!(narrow.state, DeviceState::Done, "{:?}", narrow.error);
+    assert_eq!(narrow.hashes, large.hashes);
+    assert_eq!(narrow.largest_unit, large.largest_unit);
+    assert!(narrow.busy > 10, "{}", narrow.busy);
+    // A buffer smaller than a unit fails the job with a typed error naming the layer,
+    // at the first such unit, with the hashes of the layers before it.
+    let small = run_buffered::<64>(&tris, spec);
+    assert_eq!(small.state, DeviceState::Failed);
+    let (code, layer) = small.error;
+    assert_eq!(code, ErrorCode::Moves);
+    assert!(layer < 20, "{layer}");
+    assert!(small.largest_unit <= 64, "{}", small.largest_unit);
+    let done = small.hashes.len();
+    assert!(done <= layer as usize, "{done} layers reported before layer {layer} failed");
+    assert_eq!(small.hashes[..], large.hashes[..done]);
 }

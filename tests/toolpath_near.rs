@@ -1,8 +1,8 @@
 //! The nearest-path grid ([`strata::toolpath::near`]) returns exactly what a brute-force
 //! scan returns (same item, same squared distance, lowest id among equals) on random point
 //! sets, with items absent, filtered out and removed, queries inside and far outside the
-//! grid, heavy duplicates and every cell budget, over the whole grid and within a box; and
-//! refuses item buffers that are too short.
+//! grid, heavy duplicates and every cell budget, over the whole grid and within a box, also
+//! when taken up again from its shape; and refuses item buffers that are too short.
 
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
@@ -52,6 +52,11 @@ fn grid_nearest_equals_brute_force() {
                     p.is_some()
                 })
                 .collect();
+            // Taken up again over the same buffers (as a layer's emission does between
+            // calls): the same grid.
+            let shape = grid.shape();
+            let grid = NearGrid::resume(shape, &mut head, &mut next).expect("the same buffers");
+            prop_assert_eq!(grid.dims(), (nx, ny));
             let live = |id: u32| if removed[id as usize] { None } else { pos(id) };
             for (k, &(x, y)) in queries.iter().enumerate() {
                 let q = Point2::new(x, y);
@@ -77,6 +82,18 @@ fn grid_nearest_equals_brute_force() {
             Ok(())
         })
         .unwrap();
+}
+
+#[test]
+fn a_grid_is_not_resumed_over_buffers_too_short_for_it() {
+    let pts = [Point2::new(0, 0), Point2::new(5_000, 5_000), Point2::new(9_000, 1_000)];
+    let pos = |i: u32| pts.get(i as usize).copied();
+    let (mut head, mut next) = ([0u32; 4], [0u32; 3]);
+    let shape = NearGrid::build(3, pos, &mut head, &mut next).unwrap().shape();
+    assert!(NearGrid::resume(shape, &mut head[..1], &mut next).is_none());
+    assert!(NearGrid::resume(shape, &mut head, &mut next[..2]).is_none());
+    let g = NearGrid::resume(shape, &mut head, &mut next).unwrap();
+    assert_eq!(g.nearest(Point2::new(8_000, 0), pos, |_| true), Some((2_000_000, 2)));
 }
 
 #[test]

@@ -10,9 +10,10 @@
 //! `strata::printer::board`. `embodier_asc.stl` and `xyz_20mm_cube.stl` print end to end on
 //! QEMU (host/tests/hil_qemu.rs). What the larger sample models need beyond them (host `cargo
 //! run --release --example toolpath_report`): embodier_hotend_v2 373 active triangles, CROSS
-//! 512, PATH 1010, RING 2090 and 1,047 moves (6,153 B in the move buffer, an 8,203 B buffer)
-//! in its largest layer; embodier_LM8UU_8p2pi 283 active triangles, PTS 690 (1,740 for its
-//! thin-wall measurement), RING 1654, 736 moves (3,685 B) in its largest layer.
+//! 512, PATH 1010, RING 2090; embodier_LM8UU_8p2pi 283 active triangles, PTS 690 (1,740 for
+//! its thin-wall measurement), RING 1654. The move buffer holds the largest emission unit (a
+//! path with the travel before it: the toolpath stage emits a layer unit by unit as the
+//! buffer has room), not a layer: 175 moves for the cube, 186 and 237 for these two.
 //!
 //! The planner lookahead `P` must stay 32: the host simulation (`strata simulate`, the HIL
 //! test) plans with 32 moves of lookahead, and the per-layer hashes compare step commands.
@@ -28,8 +29,7 @@ pub use strata::printer::board::BoardPrinter as FwPrinter;
 
 /// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
 /// default 0.02 mm (embodier_LM8UU_8p2pi: 742 active triangles, 1,740 loop points;
-/// embodier_hotend_v2: 6,153 B of coded moves in a layer, a quarter of what three quarters
-/// of the 32 KB move buffer hold), so that they run on the Cortex-M3 instruction set for
+/// embodier_hotend_v2: PATH 1010), so that they run on the Cortex-M3 instruction set for
 /// their cost figures and the bit-exact comparison with the host.
 #[cfg(feature = "qemu-mps2")]
 pub type FwPrinter =

@@ -22,7 +22,9 @@
 //!   toolpaths: the toolpath stage runs inside the slicer's layer sink).
 //!
 //! A `service` call that moved nothing through the pipeline (no triangle taken, no layer cut,
-//! no toolpath layer emitted) waited: for room in the move buffer, or for the heaters. The
+//! no toolpath layer completed) waited: for room in the move buffer, or for the heaters (the
+//! paths it emitted meanwhile are few; most of a layer's paths go into the move buffer in
+//! `poll` calls, counted with planning). The
 //! message stays at the head of the link and the printer looks at it again on the next turn,
 //! so such a call is left out of both figures: it is waiting, not work (a board could sleep
 //! there until the next interrupt).

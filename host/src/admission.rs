@@ -17,8 +17,10 @@
 //! streamed) runs through a host-sized toolpath stage with the job's settings, exactly as the
 //! device will run it ([`toolpath_peaks`]), and every toolpath need is compared with the
 //! device's toolpath capacities (`PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`) and the
-//! bytes of every layer's moves (coded by the device's own `strata::move_ring` encoder) with
-//! the part of the move buffer a layer may fill. Simplifying
+//! largest emission unit's bytes (a path with the travel before it: the device's toolpath
+//! stage emits a layer unit by unit, each once its move buffer has room for the unit's coded
+//! moves; measured with the device's own `strata::move_ring` room and coder) with the move
+//! buffer. Simplifying
 //! the mesh only reduces the slicer's needs, so a toolpath need that does not fit refuses the
 //! model, naming the resource, the layer where it peaks, the need and the capacity.
 
@@ -30,11 +32,11 @@ use meshopt::{simplify_decoder, SimplifyOptions};
 use rstar::{PointDistance, RTree, RTreeObject, AABB};
 use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::MachineConfig;
-use strata::move_ring::{self, MoveEncoder, MoveStream, MAX_RECORD};
+use strata::move_ring::{ByteRoom, MoveMeter};
 use strata::protocol::{Capacities, JobSpec};
 use strata::scratch::Scratch;
 use strata::slice::{peak_needs, Layer, PeakNeeds, SliceConfig, Slicer};
-use strata::toolpath::{ToolEvent, Toolpath, ToolpathConfig, ToolpathNeeds};
+use strata::toolpath::{ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
 /// What a model needs against what the device has.
 #[derive(Debug, Clone, Copy)]
@@ -258,11 +260,12 @@ pub struct ToolpathPeaks {
     pub ring_words: Peak,
     /// `SPANS`: the skin window's crossings with one scanline.
     pub spans: Peak,
-    /// Most bytes of one layer's moves in the move buffer, coded as the device codes them
-    /// (`strata::move_ring`, the coding's state running on across layers). The device cuts
-    /// one layer at a time, each while its move buffer is at most a quarter full: a layer's
-    /// bytes must fit the other three quarters.
-    pub layer_move_bytes: Peak,
+    /// Bytes of the largest emission unit (a path with the travel, retraction and priming
+    /// before it) in the move buffer, coded as the device codes them (`strata::move_ring`'s
+    /// `ByteRoom`, the coding's state running on across units and layers): the device's
+    /// toolpath stage emits a layer unit by unit, each once its move buffer has that many
+    /// bytes free, so the buffer must hold it.
+    pub unit_bytes: Peak,
     /// Bytes of all the job's moves, coded (what the move buffer would hold if nothing were
     /// planned).
     pub move_bytes: u64,
@@ -280,7 +283,7 @@ type NeedsScratch = Scratch<{ 1 << 17 }, { 1 << 16 }, { 1 << 16 }>;
 
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
-/// the stage's needs, the layers where they peak and the most move-buffer bytes of a layer.
+/// the stage's needs, the layers where they peak and the largest emission unit's bytes.
 /// A need found growing while the stage takes a layer is attributed to that layer (the
 /// window's stored contours) or to the layer it builds meanwhile (the others: a layer is built
 /// once the layers its top skins wait for have arrived; the last of them when it builds
@@ -315,45 +318,27 @@ fn measure(
     let mut work = Box::new(NeedsScratch::new());
     tp.set_position(Point2::new(0, 0), 0);
     let peaks = Cell::new(ToolpathPeaks::default());
-    // The layer being emitted and its moves' bytes, coded as the device's move buffer codes
-    // them.
+    // The layer being built or emitted, and the moves coded as the device's move buffer
+    // codes them (from the origin, as after the device's `JobStart`).
     let emitting = Cell::new((0u32, 0i32));
-    let mut layer_bytes = 0u32;
-    let mut stream = MoveStream::new();
-    let mut encoder = MoveEncoder::new();
-    let mut record = [0u8; MAX_RECORD];
-    let events = &mut |e: &ToolEvent<'_>| match e {
-        ToolEvent::LayerStart { index, z_um, .. } => {
-            emitting.set((*index, *z_um));
-            stream.start_layer(*index);
-            layer_bytes = 0;
+    let meter = Cell::new(MoveMeter::default());
+    let coded = Cell::new(0u64);
+    let events = &mut |e: &ToolEvent<'_>| {
+        let mut m = meter.get();
+        coded.set(coded.get() + m.event(e) as u64);
+        meter.set(m);
+        match e {
+            ToolEvent::LayerStart { index, z_um, .. } => emitting.set((*index, *z_um)),
+            ToolEvent::LayerEnd(_) => {
+                let mut p = peaks.get();
+                p.layers += 1;
+                peaks.set(p);
+            }
+            ToolEvent::Move(_) | ToolEvent::Progress => {}
         }
-        ToolEvent::Move(m) => {
-            layer_bytes += encoder.encode(&stream.next(m), &mut record) as u32;
-        }
-        ToolEvent::LayerEnd(_) => {
-            let mut p = peaks.get();
-            p.layer_move_bytes.raise(layer_bytes, emitting.get());
-            p.move_bytes += u64::from(layer_bytes);
-            p.layers += 1;
-            peaks.set(p);
-        }
-        ToolEvent::Progress => {}
     };
-    let mut failed = None;
-    let mut sink = |l: &Layer<'_>, work: &mut NeedsScratch| {
-        if failed.is_some() {
-            return;
-        }
-        let before = tp.stats().needs;
-        // Heights as the nozzle's (the top of the layer), as `LayerStart` gives them.
-        let pushed = (l.index, cfg.layer_z_um(l.index));
-        emitting.set(pushed);
-        if let Err(e) = tp.push_layer(l, work, events) {
-            failed = Some(e);
-            return;
-        }
-        let n = tp.stats().needs;
+    // Needs that grew while the stage took or built a layer (`pushed`: the layer taken).
+    let raise = |before: ToolpathNeeds, n: ToolpathNeeds, pushed: (u32, i32)| {
         let emitted = emitting.get();
         let mut p = peaks.get();
         if n != before {
@@ -366,6 +351,37 @@ fn measure(
         }
         peaks.set(p);
     };
+    // The built layer's units into a room without bound, as the device's move buffer
+    // measures them (`strata::move_ring::ByteRoom`): the largest unit's bytes.
+    let emit = |tp: &mut NeedsToolpath,
+                work: &mut NeedsScratch,
+                events: &mut dyn FnMut(&ToolEvent<'_>)|
+     -> Result<(), ToolpathError> {
+        while tp.emitting() {
+            let mut room = ByteRoom::unbounded(meter.get());
+            tp.emit_next(work, &mut room, &mut |e| events(e))?;
+            let mut p = peaks.get();
+            p.unit_bytes.raise(room.largest() as u32, emitting.get());
+            p.move_bytes += room.taken();
+            peaks.set(p);
+        }
+        Ok(())
+    };
+    let mut failed = None;
+    let mut sink = |l: &Layer<'_>, work: &mut NeedsScratch| {
+        if failed.is_some() {
+            return;
+        }
+        let before = tp.stats().needs;
+        // Heights as the nozzle's (the top of the layer), as `LayerStart` gives them.
+        let pushed = (l.index, cfg.layer_z_um(l.index));
+        emitting.set(pushed);
+        let taken = tp.accept_layer(l, work, &mut *events);
+        raise(before, tp.stats().needs, pushed);
+        if let Err(e) = taken.and_then(|()| emit(&mut tp, work, &mut *events)) {
+            failed = Some(e);
+        }
+    };
     for t in tris {
         slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
     }
@@ -373,38 +389,36 @@ fn measure(
     if let Some(e) = failed {
         return Err(format!("the toolpath stage cannot measure this model: {e}"));
     }
+    // The layers the last ones' top skins waited for, one at a time as the device builds them.
+    let flushed = (|| loop {
+        let before = tp.stats().needs;
+        let pushed = emitting.get();
+        if !tp.build_next(&mut work, &mut *events)? {
+            return Ok(());
+        }
+        raise(before, tp.stats().needs, pushed);
+        emit(&mut tp, &mut work, &mut *events)?;
+    })();
+    flushed.map_err(|e: ToolpathError| e.to_string())?;
     let stats = tp.finish(&mut work, events).map_err(|e| e.to_string())?;
     let mut p = peaks.get();
     p.needs = stats.needs;
-    // Needs that grew in the end-of-model flush belong to its last layer.
-    let last = (stats.layers.saturating_sub(1), emitting.get().1);
-    let n = stats.needs;
-    p.points.raise(n.layer_points.max(n.offset_edges), last);
-    p.loops.raise(n.layer_loops, last);
-    p.ring_words.raise(n.ring_points, last);
-    p.crossings.raise(n.crossings, last);
-    p.path_points.raise(n.path_points, last);
-    p.spans.raise(n.spans, last);
+    // Every move is in a unit: the rooms counted every byte the moves take.
+    if p.move_bytes != coded.get() {
+        return Err(format!(
+            "the move buffer's room counted {} bytes of units, the moves take {}",
+            p.move_bytes,
+            coded.get()
+        ));
+    }
     Ok(p)
-}
-
-/// Bytes of one layer's moves a move buffer of `bytes` holds: the device cuts a layer only
-/// while the buffer is at most a quarter full (`strata::move_ring::layer_room`), so the other
-/// three quarters.
-pub fn layer_room(bytes: u32) -> u32 {
-    move_ring::layer_room(bytes as usize) as u32
-}
-
-/// The smallest move buffer, bytes, whose [`layer_room`] holds `layer_bytes`.
-pub fn move_buffer_for(layer_bytes: u32) -> u32 {
-    (layer_bytes..).find(|&m| layer_room(m) >= layer_bytes).unwrap_or(u32::MAX)
 }
 
 /// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user
 /// (empty when everything fits). `PTS >= max(layer_points, offset_edges)`,
 /// `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >= path_points`, `RING >= ring_points`,
-/// `SPANS >= spans` (the `ToolpathNeeds` docs), and every layer's move bytes within
-/// [`layer_room`] of the move buffer.
+/// `SPANS >= spans` (the `ToolpathNeeds` docs), and the move buffer's bytes `>=` the largest
+/// emission unit's ([`ToolpathPeaks::unit_bytes`]).
 /// Paths are not compared with `CROSS`: a layer with more paths than the nearest-path grid
 /// holds is ordered by a scan instead (same order, no error).
 pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<String> {
@@ -429,13 +443,12 @@ pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<Stri
     need(&peaks.path_points, "toolpath path points", caps.path_points, AREA);
     need(&peaks.ring_words, "contour words", caps.window_ring_words, WINDOW);
     need(&peaks.spans, "scanline spans", caps.window_spans, WINDOW);
-    let room = layer_room(caps.move_buffer_bytes);
-    let m = &peaks.layer_move_bytes;
-    if m.value > room {
+    let m = &peaks.unit_bytes;
+    if m.value > caps.move_buffer_bytes {
         out.push(format!(
-            "layer at {:.2} mm needs {} bytes of buffered toolpath moves; the printer holds \
-             {room} (three quarters of its move buffer of {} bytes): too many moves in one \
-             layer for this printer's memory",
+            "layer at {:.2} mm needs {} bytes of buffered toolpath moves for one path (with the \
+             travel before it); the printer's move buffer holds {} bytes: a path too long for \
+             this printer's memory",
             mm(m.z_um),
             m.value,
             caps.move_buffer_bytes

@@ -230,7 +230,11 @@ pub fn describe_failure(s: &Status) -> String {
         ErrorCode::BadMessage => {
             format!("the printer got an undecodable message 0x{:02x}", s.detail)
         }
-        ErrorCode::Moves => format!("the printer's move buffer overflowed at layer {}", s.detail),
+        ErrorCode::Moves => format!(
+            "a path of layer {} (with the travel before it) needs more moves than the printer's \
+             move buffer holds",
+            s.detail
+        ),
         ErrorCode::LinkDead => {
             format!("the printer lost the link after {} ms of silence", s.detail)
         }

@@ -67,8 +67,8 @@ struct Simplified {
 struct DeviceNeeds {
     active_triangles: u32,
     contour_points: u32,
-    /// Move buffer, bytes: the smallest whose three quarters hold the largest layer's coded
-    /// moves (the device cuts a layer only while its buffer is at most a quarter full).
+    /// Move buffer, bytes: the largest emission unit's coded moves (a path with the travel
+    /// before it; the device emits a layer unit by unit as its buffer has room).
     move_buffer_bytes: u32,
     toolpath_points: u32,
     toolpath_loops: u32,
@@ -168,7 +168,7 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
     let needs = DeviceNeeds {
         active_triangles: slicer.active_triangles,
         contour_points: slicer.contour_points,
-        move_buffer_bytes: admission::move_buffer_for(peaks.layer_move_bytes.value),
+        move_buffer_bytes: peaks.unit_bytes.value,
         toolpath_points: n.layer_points.max(n.offset_edges),
         toolpath_loops: n.layer_loops,
         scan_crossings: n.crossings,

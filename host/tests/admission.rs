@@ -218,8 +218,8 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
         "the skin window at 1.00 mm needs",
         "contour words; the printer holds 2",
         "scanline spans; the printer holds 0",
-        "bytes of buffered toolpath moves; the printer holds 6 (three quarters of its move \
-         buffer of 8 bytes)",
+        "bytes of buffered toolpath moves for one path (with the travel before it); the \
+         printer's move buffer holds 8 bytes",
     ] {
         assert!(e.contains(what), "{what}: {e}");
     }
@@ -237,7 +237,7 @@ fn a_small_model_that_fits_is_streamed_unchanged() {
     assert!(needs.active_triangles <= 12);
     let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
     assert_eq!(peaks.layers, 3);
-    assert!(peaks.layer_move_bytes.value > 0);
+    assert!(peaks.unit_bytes.value > 0);
     let opts = SimOptions { capacities: caps, ..SimOptions::default() };
     let rep = simulate(&tris, &machine, job, &opts).unwrap_or_else(|(e, _)| panic!("{e}"));
     assert_eq!(rep.triangles, tris.len());

@@ -146,7 +146,8 @@ pub enum ErrorCode {
     Unexpected = 5,
     /// A message that does not decode (detail: message type).
     BadMessage = 6,
-    /// The move buffer overflowed (detail: layer).
+    /// A path (with the travel before it) needs more moves than the whole move buffer holds,
+    /// or the buffer overflowed (detail: layer).
     Moves = 7,
     /// The link went silent (detail: ms).
     LinkDead = 8,

@@ -47,6 +47,16 @@
 //!    a contour is combed along the island's external perimeter, and retracts only when no
 //!    such route exists (another island) and it is at least 1.5 mm long.
 //!
+//! A built layer's moves go out unit by unit ([`Toolpath::emit_next`]): one path with the
+//! retraction, travel and height change before it (or the layer's closing move to its
+//! height), each once the owner's room covers its moves, which are counted exactly before the
+//! unit starts. The stage keeps the layer (its paths, its contour for combing, the ordering
+//! state, the nearest-path grid in the infill scratch) until its last unit went out and
+//! builds no other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room
+//! for the largest unit ([`LayerStats::max_unit_moves`]), not for a layer.
+//! [`Toolpath::push_layer`], [`flush_one`](Toolpath::flush_one) and
+//! [`finish`](Toolpath::finish) emit whole layers at once.
+//!
 //! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
 //! layers that wait for the layers above them and the `bottom` ones below the layer being
 //! built) and the crossings of all of them with one scanline
@@ -89,7 +99,7 @@ use crate::slice::Layer;
 
 use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
 use offset::Join;
-use order::{Ctx, Emitter};
+use order::{Ctx, Emission, Emitter};
 use paths::{PathBuf, PathKind};
 use poly::{LoopBuf, Ring};
 use scan::{Angle, Crossing};
@@ -378,6 +388,12 @@ pub enum ToolpathError {
         /// The index received.
         got: u32,
     },
+    /// [`Toolpath::accept_layer`] or [`Toolpath::build_next`] while a layer is still being
+    /// emitted ([`Toolpath::emit_next`] first).
+    Emitting {
+        /// The layer being emitted.
+        layer: u32,
+    },
     /// `push_layer` or `finish` after `finish`, or on a [`Toolpath::empty`] stage never
     /// [`reset`](Toolpath::reset) (call `reset`).
     Finished,
@@ -395,10 +411,57 @@ impl fmt::Display for ToolpathError {
             Self::OutOfOrder { expected, got } => {
                 write!(f, "layer {got} arrived, layer {expected} expected")
             }
+            Self::Emitting { layer } => {
+                write!(f, "layer {layer} is still being emitted; emit it before the next layer")
+            }
             Self::Finished => {
                 f.write_str("the toolpath stage has finished; reset it to start again")
             }
         }
+    }
+}
+
+/// What [`Toolpath::emit_next`] left.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Emitted {
+    /// No layer is being emitted: the last one is complete (its `LayerEnd` went out).
+    Complete,
+    /// The next unit of layer `layer` needs room for `moves` moves.
+    NeedsRoom {
+        /// Moves of the unit, exactly.
+        moves: u32,
+        /// The layer being emitted.
+        layer: u32,
+    },
+}
+
+/// Room for a layer's emission units ([`Toolpath::emit_next`]): decides, before a unit goes
+/// out, whether it is taken.
+///
+/// `usize` counts moves (the unit's `moves` against the moves left, decremented when it is
+/// taken); an owner whose buffer holds coded moves of varying size (the printer's byte ring,
+/// [`crate::move_ring::ByteRoom`]) runs `replay` to see the unit's events exactly.
+pub trait Room {
+    /// Offered the next unit: `moves` moves exactly, and `replay`, which sends the unit's
+    /// events (its [`ToolEvent::Move`]s, the same as the emission will send) to the sink it is
+    /// given, as often as called, without changing the stage. True takes the unit (it is
+    /// emitted next, then the next unit is offered), false refuses it (it waits; the
+    /// emission stops with [`Emitted::NeedsRoom`]).
+    fn take(&mut self, moves: u32, replay: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool;
+}
+
+impl Room for usize {
+    fn take(&mut self, moves: u32, _: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool {
+        let Some(left) = self.checked_sub(moves as usize) else { return false };
+        *self = left;
+        true
+    }
+}
+
+impl<R: Room + ?Sized> Room for &mut R {
+    fn take(&mut self, moves: u32, replay: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool {
+        (**self).take(moves, replay)
     }
 }
 
@@ -471,6 +534,10 @@ pub struct LayerStats {
     pub travel_um: u64,
     /// Filament fed by extruding moves, um.
     pub filament_um: i64,
+    /// Moves of the layer's largest emission unit (a path with the travel, retraction and
+    /// priming before it, see [`Toolpath::emit_next`]): the least room an owner's move
+    /// buffer needs to take the layer path by path.
+    pub max_unit_moves: u32,
 }
 
 impl LayerStats {
@@ -489,6 +556,7 @@ impl LayerStats {
         stops: 0,
         travel_um: 0,
         filament_um: 0,
+        max_unit_moves: 0,
     };
 }
 
@@ -616,6 +684,8 @@ pub struct ToolpathStats {
     pub thin_pts: u32,
     /// Offset boundary chains that could not be closed (should be 0).
     pub open_chains: u32,
+    /// The largest [`LayerStats::max_unit_moves`] of all layers.
+    pub max_unit_moves: u32,
     /// Buffer use.
     pub needs: ToolpathNeeds,
 }
@@ -651,6 +721,7 @@ impl ToolpathStats {
         thin_unmeasured: 0,
         thin_pts: 0,
         open_chains: 0,
+        max_unit_moves: 0,
         needs: ToolpathNeeds::EMPTY,
     };
 }
@@ -732,6 +803,8 @@ pub struct Toolpath<
     island_map: [u16; LOOPS],
     island_stage: [u8; LOOPS],
     em: Emitter,
+    /// Where the built layer's emission stands.
+    emission: Emission,
     next_in: u32,
     next_out: u32,
     fill_use: FillUse,
@@ -775,6 +848,7 @@ impl<
             island_map: [0; LOOPS],
             island_stage: [0; LOOPS],
             em: Emitter::new(),
+            emission: Emission::new(),
             next_in: 0,
             next_out: 0,
             fill_use: FillUse { crossings: 0, segments: 0, spans: 0 },
@@ -790,6 +864,7 @@ impl<
         self.step = scan::line_step(cfg.line_width_um);
         self.ring.clear();
         self.em = Emitter::new();
+        self.emission = Emission::new();
         self.next_in = 0;
         self.next_out = 0;
         self.stats = ToolpathStats::EMPTY;
@@ -890,8 +965,28 @@ impl<
 
     /// Takes the next layer from the slicer; emits every layer whose `top_layers` layers
     /// above have now arrived, computing them in `work` (the [`Scratch`] the slicer hands
-    /// its sink).
+    /// its sink), all its moves at once ([`accept_layer`](Self::accept_layer) and
+    /// [`emit_next`](Self::emit_next) emit them as an owner's buffer allows).
     pub fn push_layer<const S: usize>(
+        &mut self,
+        layer: &Layer<'_>,
+        work: &mut Scratch<S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), ToolpathError> {
+        self.emit_all(work, sink)?;
+        self.accept_layer(layer, work, sink)?;
+        self.emit_all(work, sink)
+    }
+
+    /// Takes the next layer from the slicer like [`push_layer`](Self::push_layer), but
+    /// only builds the layer that is now complete (its `top_layers` layers above have
+    /// arrived; at most one) in `work`: its [`ToolEvent::Progress`] points and its
+    /// [`ToolEvent::LayerStart`] go out, its moves wait for [`emit_next`](Self::emit_next).
+    /// Refused with [`ToolpathError::Emitting`] while a layer is being emitted
+    /// ([`emitting`](Self::emitting)): its paths, and the nearest-path grid in `work`'s
+    /// infill scratch, are kept until its last move went out (an owner lends `work` to no
+    /// one else meanwhile; if it does, the paths are found by scanning: the same order).
+    pub fn accept_layer<const S: usize>(
         &mut self,
         layer: &Layer<'_>,
         work: &mut Scratch<S, PTS, CROSS>,
@@ -900,11 +995,82 @@ impl<
         if let Some(e) = self.stopped {
             return Err(e);
         }
+        if self.emission.is_active() {
+            return Err(ToolpathError::Emitting { layer: self.next_out });
+        }
         let result = self.push_inner(layer, work, sink);
         if let Err(e) = result {
             self.stopped = Some(e);
         }
         result
+    }
+
+    /// A layer is built and its moves are not all emitted yet.
+    pub fn emitting(&self) -> bool {
+        self.emission.is_active()
+    }
+
+    /// Emits the built layer's moves unit by unit (a path with the travel, retraction and
+    /// height change before it, or the layer's closing move to its height), each only once
+    /// `room` takes it ([`Room::take`]: offered the unit's exact move count and a replay of
+    /// its events, it decides before anything goes out), and the layer's
+    /// [`ToolEvent::LayerEnd`] after its last unit. Every [`ToolEvent::Move`] of a layer is in
+    /// one of its units. `work` is the scratch the layer was built in (its infill pool holds
+    /// the nearest-path grid).
+    /// [`Emitted::NeedsRoom`] names the moves of the unit `room` refused: a later call
+    /// offers it again first. [`Emitted::Complete`] when no layer is being emitted (any
+    /// more).
+    pub fn emit_next<const S: usize, R: Room + ?Sized>(
+        &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
+        room: &mut R,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<Emitted, ToolpathError> {
+        if let Some(e) = self.stopped {
+            return Err(e);
+        }
+        if !self.emission.is_active() {
+            return Ok(Emitted::Complete);
+        }
+        let l = self.next_out;
+        let ctx = Ctx {
+            cfg: &self.cfg,
+            points: self.contour.points(),
+            rings: self.contour.rings(),
+            height_um: self.cfg.layer_height_of(l),
+            first_layer: l == FIRST_LAYER,
+        };
+        // The infill pool is free since the layer was built: the nearest-path grid's cells
+        // and entries, untouched until the layer is complete (without it: scans).
+        let (grid_head, grid_next): (&mut [u32], &mut [u32]) = match work.live_fill() {
+            Some(f) => f.pool.as_flattened_mut().split_at_mut(POOL_WORDS * CROSS / 2),
+            None => (&mut [], &mut []),
+        };
+        let waiting = self.emission.emit(
+            &mut self.em,
+            &ctx,
+            &mut self.paths,
+            &mut self.island_stage,
+            grid_head,
+            grid_next,
+            room,
+            sink,
+        );
+        if let Some(moves) = waiting {
+            return Ok(Emitted::NeedsRoom { moves, layer: l });
+        }
+        self.end_layer(l, sink);
+        Ok(Emitted::Complete)
+    }
+
+    /// Emits the rest of the layer being emitted, if any, whatever its size.
+    fn emit_all<const S: usize>(
+        &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), ToolpathError> {
+        let mut unbounded = usize::MAX;
+        self.emit_next(work, &mut unbounded, sink).map(|_| ())
     }
 
     /// After the model's last layer was pushed: processes the next layer still waiting in
@@ -916,8 +1082,26 @@ impl<
         work: &mut Scratch<S, PTS, CROSS>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<bool, ToolpathError> {
+        self.emit_all(work, sink)?;
+        let built = self.build_next(work, sink)?;
+        self.emit_all(work, sink)?;
+        Ok(built)
+    }
+
+    /// After the model's last layer was accepted: builds the next layer still waiting in
+    /// the window (in `work`), leaving its moves to [`emit_next`](Self::emit_next) (as
+    /// [`accept_layer`](Self::accept_layer) does); true when one was built, false when none
+    /// is left. Refused with [`ToolpathError::Emitting`] while a layer is being emitted.
+    pub fn build_next<const S: usize>(
+        &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<bool, ToolpathError> {
         if let Some(e) = self.stopped {
             return Err(e);
+        }
+        if self.emission.is_active() {
+            return Err(ToolpathError::Emitting { layer: self.next_out });
         }
         if self.next_out >= self.next_in {
             return Ok(false);
@@ -942,10 +1126,13 @@ impl<
         if let Some(e) = self.stopped {
             return Err(e);
         }
-        let mut result = Ok(());
-        while result.is_ok() && self.next_out < self.next_in {
-            let l = self.next_out;
-            result = self.process(l, work, sink).map_err(|w| self.capacity(w, l));
+        let mut result = self.emit_all(work, sink);
+        while result.is_ok() {
+            match self.build_next(work, sink) {
+                Ok(true) => result = self.emit_all(work, sink),
+                Ok(false) => break,
+                Err(e) => result = Err(e),
+            }
         }
         self.stopped = Some(result.err().unwrap_or(ToolpathError::Finished));
         result.map(|()| self.stats())
@@ -963,8 +1150,9 @@ impl<
         let index = layer.index;
         self.store(layer).map_err(|w| self.capacity(w, index))?;
         self.next_in += 1;
+        // Each layer taken completes at most one (the one `top_layers` below it).
         let top = u32::from(self.cfg.top_layers);
-        while self.next_out + top < self.next_in {
+        if self.next_out + top < self.next_in {
             let l = self.next_out;
             self.process(l, work, sink).map_err(|w| self.capacity(w, l))?;
         }
@@ -1029,8 +1217,9 @@ impl<
         Ok(())
     }
 
-    /// Builds and emits layer `l` in `work`; the engine's counters are collected whatever
-    /// happens (the slicer may have `work` next).
+    /// Builds layer `l` in `work` and begins its emission ([`emit_next`](Self::emit_next));
+    /// the engine's counters are collected whatever happens (the slicer may have `work`
+    /// next).
     fn process<const S: usize>(
         &mut self,
         l: u32,
@@ -1042,7 +1231,8 @@ impl<
         built
     }
 
-    /// Builds and emits layer `l` in `work`.
+    /// Builds layer `l`'s paths in `work` and begins their emission
+    /// ([`emit_next`](Self::emit_next)).
     fn build<const S: usize>(
         &mut self,
         l: u32,
@@ -1139,31 +1329,14 @@ impl<
             z_um: layer.z_um,
             height_um: cfg.layer_height_of(l),
         });
+        // The infill scratch keeps the place (the nearest-path grid goes into its pool).
         self.park_engine(work);
-        let ctx = Ctx {
-            cfg: &self.cfg,
-            points: self.contour.points(),
-            rings: self.contour.rings(),
-            height_um: cfg.layer_height_of(l),
-            first_layer: l == FIRST_LAYER,
-        };
-        // The infill pool is free again: the nearest-path grid's cells and entries.
-        let pool = work.fill().pool.as_flattened_mut();
-        let (grid_head, grid_next) = pool.split_at_mut(POOL_WORDS * CROSS / 2);
-        order::emit_layer(
-            &mut self.em,
-            &ctx,
-            &mut self.paths,
-            &mut self.island_stage,
-            grid_head,
-            grid_next,
-            sink,
-        );
-        // A layer without extrusion still moves to its height.
-        if self.em.pending_z.is_some() {
-            let p = self.em.pos;
-            self.em.travel_to(&ctx, p, &|_, _, _| false, sink);
-        }
+        self.emission.begin(&self.cfg, &self.paths, &mut self.island_stage);
+        Ok(())
+    }
+
+    /// Layer `l`'s last unit was emitted: its end event and counters.
+    fn end_layer(&mut self, l: u32, sink: &mut impl FnMut(&ToolEvent<'_>)) {
         let ls = self.em.layer;
         sink(&ToolEvent::LayerEnd(&ls));
         let st = &mut self.stats;
@@ -1181,13 +1354,13 @@ impl<
             st.max_thin_area_um2 = ls.thin_area_um2;
             st.max_thin_area_layer = l;
         }
+        st.max_unit_moves = st.max_unit_moves.max(ls.max_unit_moves);
         // Drop what no later layer needs (the next one looks `bottom` layers down).
-        let bottom = u32::from(cfg.bottom_layers);
+        let bottom = u32::from(self.cfg.bottom_layers);
         while self.ring.block(0).is_some_and(|b| b.layer + bottom <= l) {
             self.ring.pop();
         }
         self.next_out = l + 1;
-        Ok(())
     }
 
     /// Runs a thin-area measurement: its use of the offset engine and of `tmp` is kept out

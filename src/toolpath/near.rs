@@ -35,6 +35,20 @@ pub struct NearGrid<'a> {
     cell: i64,
     nx: i64,
     ny: i64,
+    /// Items indexed.
+    items: usize,
+}
+
+/// Where a [`NearGrid`]'s cells lie, without its buffers: an owner that keeps the buffers
+/// untouched between calls takes the grid up again with [`NearGrid::resume`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GridShape {
+    origin: Point2,
+    cell: i64,
+    nx: i64,
+    ny: i64,
+    /// Items indexed (entries of the item buffer in use).
+    items: usize,
 }
 
 impl<'a> NearGrid<'a> {
@@ -78,7 +92,7 @@ impl<'a> NearGrid<'a> {
             cell += cell / 8 + 1;
         }
         let (nx, ny) = dims(cell);
-        let g = Self { head, next, origin: lo, cell, nx, ny };
+        let g = Self { head, next, origin: lo, cell, nx, ny, items: n };
         for c in g.head.iter_mut() {
             *c = NONE;
         }
@@ -91,6 +105,23 @@ impl<'a> NearGrid<'a> {
             }
         }
         Ok(g)
+    }
+
+    /// The grid's shape, to [`resume`](Self::resume) it later.
+    pub fn shape(&self) -> GridShape {
+        let (origin, cell, nx, ny, items) = (self.origin, self.cell, self.nx, self.ny, self.items);
+        GridShape { origin, cell, nx, ny, items }
+    }
+
+    /// The grid of `shape` over the buffers it was built in (and only changed by
+    /// [`remove`](Self::remove) since); `None` when they are too short for it.
+    pub fn resume(shape: GridShape, head: &'a mut [u32], next: &'a mut [u32]) -> Option<Self> {
+        let cells = usize::try_from(shape.nx * shape.ny).ok()?;
+        if head.len() < cells || next.len() < shape.items || shape.cell < 1 {
+            return None;
+        }
+        let GridShape { origin, cell, nx, ny, items } = shape;
+        Some(Self { head, next, origin, cell, nx, ny, items })
     }
 
     /// Cells along x and y.

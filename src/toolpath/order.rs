@@ -24,11 +24,11 @@ use core::ops::Range;
 use crate::geom::Point2;
 use crate::machine::Rate;
 
-use super::near::NearGrid;
+use super::near::{GridShape, NearGrid};
 use super::paths;
 use super::paths::{PathBuf, PathKind, PathRec};
 use super::poly::{dist, dist2, orient, segment_touches_rings, segments_touch, Ring};
-use super::{Feature, LayerStats, Seam, ToolEvent, ToolMove, ToolpathConfig};
+use super::{Feature, LayerStats, Room, Seam, ToolEvent, ToolMove, ToolpathConfig};
 
 /// A comb router: waypoints from the first point to the second, `false` if none.
 pub type CombFn<'a> = dyn Fn(Point2, Point2, &mut dyn FnMut(Point2)) -> bool + 'a;
@@ -124,6 +124,17 @@ impl Ctx<'_> {
     }
 }
 
+/// A travel planned by [`Emitter::plan_travel`].
+#[derive(Debug, Clone, Copy)]
+struct Travel {
+    /// Retract first (unless already retracted).
+    retract: bool,
+    /// Follow the comb route.
+    routed: bool,
+    /// Moves it emits: retraction, height change and the legs that move.
+    moves: u32,
+}
+
 impl Emitter {
     fn send(&mut self, sink: &mut impl FnMut(&ToolEvent<'_>), m: ToolMove) {
         sink(&ToolEvent::Move(m));
@@ -140,31 +151,62 @@ impl Emitter {
         comb: &CombFn<'_>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) {
+        let plan = self.plan_travel(ctx, to, comb);
+        self.travel(ctx, to, plan, comb, sink);
+    }
+
+    /// What [`travel_to`](Self::travel_to) would do from here, nothing emitted: whether it
+    /// retracts, whether it takes the comb route, and its moves exactly.
+    fn plan_travel(&self, ctx: &Ctx<'_>, to: Point2, comb: &CombFn<'_>) -> Travel {
         if to == self.pos && self.pending_z.is_none() {
-            return;
+            return Travel { retract: false, routed: false, moves: 0 };
         }
         let from = self.pos;
         let d = dist(from, to);
         let mut routed = false;
+        // Legs that move (a waypoint equal to the one before makes no move).
+        let mut legs = u32::from(to != from);
         let leaves = d > 0 && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
         // Short hops go straight: they retract neither way.
         let short = d < i64::from(ctx.cfg.min_retract_travel_um);
         if leaves && ctx.cfg.comb && !short {
             // Check the detour leg by leg, then take it.
-            let (mut prev, mut ok, mut len, mut legs) = (from, true, 0i64, 0u32);
+            let (mut prev, mut ok, mut len, mut waypoints, mut moving) =
+                (from, true, 0i64, 0u32, 0u32);
             let found = comb(from, to, &mut |w| {
                 ok &= !ctx.crosses_contour(prev, w);
                 len += dist(prev, w);
-                legs += 1;
+                waypoints += 1;
+                moving += u32::from(w != prev);
                 prev = w;
             });
-            routed = found && ok && legs > 1 && len <= 2 * d + COMB_EXTRA_UM;
+            routed = found && ok && waypoints > 1 && len <= 2 * d + COMB_EXTRA_UM;
+            if routed {
+                legs = moving;
+            }
         }
         let retract = leaves
             && !routed
             && d >= i64::from(ctx.cfg.min_retract_travel_um)
             && ctx.cfg.retract_length_um > 0;
-        if retract && !self.retracted {
+        let moves = u32::from(retract && !self.retracted) + u32::from(self.pending_z.is_some());
+        Travel { retract, routed, moves: moves + legs }
+    }
+
+    /// Carries out `plan` (made by [`plan_travel`](Self::plan_travel) from this state).
+    fn travel(
+        &mut self,
+        ctx: &Ctx<'_>,
+        to: Point2,
+        plan: Travel,
+        comb: &CombFn<'_>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) {
+        if to == self.pos && self.pending_z.is_none() {
+            return;
+        }
+        let from = self.pos;
+        if plan.retract && !self.retracted {
             self.retracted = true;
             self.layer.retractions += 1;
             let m = ToolMove {
@@ -188,7 +230,7 @@ impl Emitter {
             };
             self.send(sink, m);
         }
-        if routed {
+        if plan.routed {
             comb(from, to, &mut |w| self.travel_leg(ctx, w, sink));
         } else {
             self.travel_leg(ctx, to, sink);
@@ -456,6 +498,79 @@ fn comb_route<const N: usize>(
     true
 }
 
+/// The points path `r` extrudes to from its start point `start` (`reversed`: an open path
+/// from its last point): (point index, index of the feature of the move reaching it).
+fn path_order(r: &PathRec, start: usize, reversed: bool) -> impl Iterator<Item = (usize, usize)> {
+    let n = r.len as usize;
+    let (closed, count) = if r.closed { (true, n) } else { (false, n.saturating_sub(1)) };
+    (0..count).map(move |k| {
+        if closed {
+            let i = (start + k + 1) % n;
+            (i, i)
+        } else if reversed {
+            let i = n - 2 - k;
+            (i, i + 1)
+        } else {
+            (k + 1, k + 1)
+        }
+    })
+}
+
+/// The comb router of `island`'s paths.
+fn comber<const N: usize>(
+    paths: &PathBuf<N>,
+    island: u16,
+) -> impl Fn(Point2, Point2, &mut dyn FnMut(Point2)) -> bool + '_ {
+    move |a, b, visit| comb_route(paths, island, a, b, visit)
+}
+
+/// Plans printing path `r` from `start` (`reversed`: from its last point): the travel to
+/// its start and the moves of the whole unit (travel, priming, extrusions), exactly.
+fn plan_path<const N: usize>(
+    em: &Emitter,
+    ctx: &Ctx<'_>,
+    paths: &PathBuf<N>,
+    r: &PathRec,
+    start: usize,
+    reversed: bool,
+) -> (Travel, u32) {
+    let pts = paths.points(r);
+    let travel = em.plan_travel(ctx, pts[start], &comber(paths, r.island));
+    // Extrusions: the points that differ from the one before (the nozzle is at the start).
+    let mut prev = pts[start];
+    let mut extrusions = 0u32;
+    for (i, _) in path_order(r, start, reversed) {
+        extrusions += u32::from(pts[i] != prev);
+        prev = pts[i];
+    }
+    let primes = (em.retracted || travel.retract) && extrusions > 0;
+    (travel, travel.moves + u32::from(primes) + extrusions)
+}
+
+/// Emits `unit`'s moves from `em`'s state: the travel (and retraction, height change,
+/// priming) and the path, or the closing move. The emission and the replay a [`Room`] is
+/// offered both run this, so the room sees exactly the moves that go out.
+fn run_unit<const N: usize>(
+    em: &mut Emitter,
+    ctx: &Ctx<'_>,
+    paths: &PathBuf<N>,
+    unit: &Unit,
+    sink: &mut impl FnMut(&ToolEvent<'_>),
+) {
+    match unit.path {
+        Some(p) => {
+            let r = paths.rec(p.index);
+            print_path(em, ctx, paths, &r, p.start, p.reversed, unit.travel, sink);
+        }
+        None => {
+            let here = em.pos;
+            em.travel(ctx, here, unit.travel, &|_, _, _| false, sink);
+        }
+    }
+}
+
+/// Prints path `r` from `start` after the `travel` planned for it ([`plan_path`]).
+#[allow(clippy::too_many_arguments)]
 fn print_path<const N: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
@@ -463,29 +578,14 @@ fn print_path<const N: usize>(
     r: &PathRec,
     start: usize,
     reversed: bool,
+    travel: Travel,
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     let pts = paths.points(r);
     let feat = paths.features(r);
-    let n = pts.len();
-    let island = r.island;
-    let comb = |a: Point2, b: Point2, visit: &mut dyn FnMut(Point2)| {
-        comb_route(paths, island, a, b, visit)
-    };
-    em.travel_to(ctx, pts[start], &comb, sink);
-    if r.closed {
-        for k in 1..=n {
-            let i = (start + k) % n;
-            em.extrude_to(ctx, pts[i], feat[i], sink);
-        }
-    } else if reversed {
-        for i in (0..n - 1).rev() {
-            em.extrude_to(ctx, pts[i], feat[i + 1], sink);
-        }
-    } else {
-        for i in 1..n {
-            em.extrude_to(ctx, pts[i], feat[i], sink);
-        }
+    em.travel(ctx, pts[start], travel, &comber(paths, r.island), sink);
+    for (i, f) in path_order(r, start, reversed) {
+        em.extrude_to(ctx, pts[i], feat[f], sink);
     }
 }
 
@@ -527,7 +627,7 @@ struct Finder<'g> {
 }
 
 /// The paths one search looks at: indices `range`, entries inside `window` if given.
-#[derive(Clone)]
+#[derive(Debug, Clone)]
 struct Scope {
     range: Range<usize>,
     window: Option<(Point2, Point2)>,
@@ -554,6 +654,17 @@ impl<'g> Finder<'g> {
         });
         let grid = NearGrid::build(2 * n, pos, head, next).ok();
         Self { grid, loose }
+    }
+
+    /// The search of a layer whose grid (of `shape`, if one was built) is in `head` and
+    /// `next`; without it (or when they do not hold it) paths are found by scanning.
+    fn resume(
+        shape: Option<GridShape>,
+        loose: bool,
+        head: &'g mut [u32],
+        next: &'g mut [u32],
+    ) -> Self {
+        Self { grid: shape.and_then(|s| NearGrid::resume(s, head, next)), loose }
     }
 
     /// The scope of paths `range`: with the bounding box of their fixed entries.
@@ -644,109 +755,276 @@ impl<'g> Finder<'g> {
     }
 }
 
-/// Emits every path of the layer in order. `island_stage` is scratch (one entry per island);
-/// `grid_head` and `grid_next` are scratch for the nearest-path grid (cells and two entries
-/// per path; when `grid_next` holds fewer, paths are found by scanning them). The path
-/// records are sorted by island (stable) first, so each island's paths are a range.
-pub fn emit_layer<const N: usize>(
-    em: &mut Emitter,
-    ctx: &Ctx<'_>,
-    paths: &mut PathBuf<N>,
-    island_stage: &mut [u8],
-    grid_head: &mut [u32],
-    grid_next: &mut [u32],
-    sink: &mut impl FnMut(&ToolEvent<'_>),
-) {
-    let cfg = ctx.cfg;
-    let seam = cfg.seam;
-    for s in island_stage.iter_mut() {
-        *s = u8::MAX;
+/// One unit of a layer's emission, planned: a path with the travel before it, or the
+/// layer's closing move to its height.
+#[derive(Debug, Clone, Copy)]
+struct Unit {
+    /// The path, or `None` for the closing move.
+    path: Option<PathUnit>,
+    /// The travel to the path's start (to where the nozzle is, for the closing move).
+    travel: Travel,
+    /// Moves the unit emits, exactly.
+    moves: u32,
+}
+
+/// A path to print: its index, start point, direction and ordering stage.
+#[derive(Debug, Clone, Copy)]
+struct PathUnit {
+    index: usize,
+    start: usize,
+    reversed: bool,
+    stage: u8,
+}
+
+/// The island being printed: its paths (`range`, searched within `scope`) and, after a
+/// perimeter loop, the next perimeter stage, tried first (the loops around one hole go
+/// together).
+#[derive(Debug, Clone)]
+struct IslandCursor {
+    island: u16,
+    range: Range<usize>,
+    scope: Scope,
+    chain: Option<u8>,
+}
+
+/// Where a layer's emission stands.
+#[derive(Debug, Clone)]
+enum Phase {
+    /// No layer is being emitted.
+    Idle,
+    /// The skirt loops, in path order, from path `from` on.
+    Skirt { from: usize },
+    /// The islands, nearest first (`None`: between two islands).
+    Islands(Option<IslandCursor>),
+    /// The closing move is next.
+    Closing,
+    /// Every unit was emitted.
+    Closed,
+}
+
+/// The emission of one layer's paths, resumable between units: the skirt first (in order),
+/// then the islands nearest first, in each the stages in order and the nearest path first
+/// (see the [module docs](self)), then a move to the layer's height if none went there.
+/// Each [`emit`](Self::emit) call emits whole units while the next one's moves (known
+/// exactly before it starts) fit the room it was given; the state between calls is this
+/// value, the [`Emitter`], the layer's paths (their done flags, the rear seams rotated, the
+/// records grouped by island), `island_stage` and the nearest-path grid's buffers, which the
+/// owner keeps untouched until the layer is complete.
+#[derive(Debug, Clone)]
+pub struct Emission {
+    phase: Phase,
+    /// The nearest-path grid's shape once built (its lists are in the grid buffers).
+    grid: Option<GridShape>,
+    /// Some path's entry depends on the nozzle position (nearest-vertex seams).
+    loose: bool,
+    /// The next unit, planned (it waits for room).
+    next: Option<Unit>,
+}
+
+impl Default for Emission {
+    fn default() -> Self {
+        Self::new()
     }
-    for i in 0..paths.len() {
-        let r = paths.rec(i);
-        if let Some(s) = island_stage.get_mut(r.island as usize) {
-            *s = (*s).min(stage(&r, cfg));
+}
+
+impl Emission {
+    /// Nothing to emit.
+    pub const fn new() -> Self {
+        Self { phase: Phase::Idle, grid: None, loose: false, next: None }
+    }
+
+    /// A layer's emission has begun and is not complete.
+    pub fn is_active(&self) -> bool {
+        !matches!(self.phase, Phase::Idle)
+    }
+
+    /// Begins emitting a layer whose paths are all in `paths`; `island_stage` (one entry
+    /// per island) gets each island's first stage.
+    pub fn begin<const N: usize>(
+        &mut self,
+        cfg: &ToolpathConfig,
+        paths: &PathBuf<N>,
+        island_stage: &mut [u8],
+    ) {
+        for s in island_stage.iter_mut() {
+            *s = u8::MAX;
         }
-    }
-    // The skirt first.
-    let n = paths.len();
-    for i in 0..n {
-        let r = paths.rec(i);
-        if r.kind == PathKind::Skirt {
-            let (start, rev, _) = entry(paths, &r, seam, em.pos);
-            print_path(em, ctx, paths, &r, start, rev, sink);
-            paths.set_done(i);
-        }
-    }
-    // Rear seams: every perimeter loop starts at its rear-most vertex.
-    if seam == Seam::Rear {
-        for i in 0..n {
+        for i in 0..paths.len() {
             let r = paths.rec(i);
-            if r.closed && !r.done && matches!(r.kind, PathKind::Perimeter(_)) {
-                let k = rear(paths.points(&r));
-                paths.rotate_loop(i, k);
+            if let Some(s) = island_stage.get_mut(r.island as usize) {
+                *s = (*s).min(stage(&r, cfg));
             }
         }
+        *self = Self { phase: Phase::Skirt { from: 0 }, ..Self::new() };
     }
-    paths.sort_by_island();
-    let mut finder = Finder::new(paths, seam, grid_head, grid_next);
-    let everything = Scope { range: 0..n, window: None };
-    let infill_stage = stage(&PathRec { kind: PathKind::Infill, ..paths::EMPTY_REC }, cfg);
-    loop {
-        // Next island: the nearest path among each island's first stage.
-        let first = {
-            let stages = &*island_stage;
-            let first_stage =
-                |r: &PathRec| stages.get(r.island as usize).copied() == Some(stage(r, cfg));
-            finder.find(paths, seam, em.pos, &everything, &first_stage)
-        };
-        let Some((_, first, _, _)) = first else { break };
-        let island = paths.rec(first).island;
-        let range = paths.partition_point(|r| r.island < island)
-            ..paths.partition_point(|r| r.island <= island);
-        let scope = if range.len() > SCAN_MAX {
-            Finder::scope(paths, seam, range.clone())
-        } else {
-            Scope { range: range.clone(), window: None }
-        };
-        // Stages of this island in order, nearest first within each; after a perimeter
-        // loop, the nearest loop of the next perimeter stage if any (the loops around one
-        // hole go together).
-        let mut chain: Option<u8> = None;
-        while let Some(&min_stage) = island_stage.get(island as usize) {
-            let in_stage = |st: u8| move |r: &PathRec| stage(r, cfg) == st;
-            let mut st = min_stage;
-            let mut pick = None;
-            if let Some(c) = chain {
-                pick = finder.find(paths, seam, em.pos, &scope, &in_stage(c));
-                if pick.is_some() {
-                    st = c;
-                }
+
+    /// Emits the layer's next units in order while `room` takes each (offered its moves and
+    /// a replay of its events on a copy of `em`: nothing changes until it is taken). Returns
+    /// the moves of the unit refused (it is offered first by a later call), or `None` when
+    /// the layer's last unit was emitted (or none was being emitted). `grid_head` and
+    /// `grid_next` are scratch for the nearest-path grid (cells, and two entries per path;
+    /// when `grid_next` holds fewer, paths are found by scanning: the same order), kept
+    /// between the calls of one layer.
+    #[allow(clippy::too_many_arguments)]
+    pub fn emit<const N: usize, R: Room + ?Sized>(
+        &mut self,
+        em: &mut Emitter,
+        ctx: &Ctx<'_>,
+        paths: &mut PathBuf<N>,
+        island_stage: &mut [u8],
+        grid_head: &mut [u32],
+        grid_next: &mut [u32],
+        room: &mut R,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Option<u32> {
+        let seam = ctx.cfg.seam;
+        loop {
+            let unit = match self.next {
+                Some(u) => u,
+                None => match self.plan_next(em, ctx, paths, island_stage, grid_head, grid_next) {
+                    Some(u) => u,
+                    None => {
+                        self.phase = Phase::Idle;
+                        return None;
+                    }
+                },
+            };
+            let taken = {
+                let (before, shown) = (*em, &*paths);
+                room.take(unit.moves, &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
+                    let mut copy = before;
+                    run_unit(&mut copy, ctx, shown, &unit, &mut |e: &ToolEvent<'_>| out(e));
+                })
+            };
+            if !taken {
+                self.next = Some(unit);
+                return Some(unit.moves);
             }
-            if pick.is_none() {
-                pick = finder.find(paths, seam, em.pos, &scope, &in_stage(min_stage));
+            self.next = None;
+            em.layer.max_unit_moves = em.layer.max_unit_moves.max(unit.moves);
+            run_unit(em, ctx, paths, &unit, sink);
+            let Some(p) = unit.path else { continue };
+            if let Phase::Islands(Some(c)) = &mut self.phase {
+                let mut finder = Finder::resume(self.grid, self.loose, grid_head, grid_next);
+                finder.done(paths, seam, p.index);
+                let infill_stage =
+                    stage(&PathRec { kind: PathKind::Infill, ..paths::EMPTY_REC }, ctx.cfg);
+                c.chain = (p.stage + 1 < infill_stage).then_some(p.stage + 1);
             }
-            match pick {
-                Some((_, i, start, rev)) => {
-                    let r = paths.rec(i);
-                    print_path(em, ctx, paths, &r, start, rev, sink);
-                    finder.done(paths, seam, i);
-                    paths.set_done(i);
-                    chain = (st + 1 < infill_stage).then_some(st + 1);
+            paths.set_done(p.index);
+        }
+    }
+
+    /// Finds and plans the next unit from where the nozzle is, advancing through the
+    /// phases; `None` when every unit was emitted.
+    fn plan_next<const N: usize>(
+        &mut self,
+        em: &Emitter,
+        ctx: &Ctx<'_>,
+        paths: &mut PathBuf<N>,
+        island_stage: &mut [u8],
+        grid_head: &mut [u32],
+        grid_next: &mut [u32],
+    ) -> Option<Unit> {
+        let cfg = ctx.cfg;
+        let seam = cfg.seam;
+        let n = paths.len();
+        let plan = |paths: &PathBuf<N>, index: usize, start: usize, reversed: bool, stage: u8| {
+            let r = paths.rec(index);
+            let (travel, moves) = plan_path(em, ctx, paths, &r, start, reversed);
+            Some(Unit { path: Some(PathUnit { index, start, reversed, stage }), travel, moves })
+        };
+        loop {
+            match &mut self.phase {
+                Phase::Idle | Phase::Closed => return None,
+                Phase::Skirt { from } => {
+                    if let Some(i) = (*from..n).find(|&i| paths.rec(i).kind == PathKind::Skirt) {
+                        *from = i + 1;
+                        let (start, rev, _) = entry(paths, &paths.rec(i), seam, em.pos);
+                        return plan(paths, i, start, rev, 0);
+                    }
+                    // Rear seams: every perimeter loop starts at its rear-most vertex.
+                    if seam == Seam::Rear {
+                        for i in 0..n {
+                            let r = paths.rec(i);
+                            if r.closed && !r.done && matches!(r.kind, PathKind::Perimeter(_)) {
+                                let k = rear(paths.points(&r));
+                                paths.rotate_loop(i, k);
+                            }
+                        }
+                    }
+                    paths.sort_by_island();
+                    let finder = Finder::new(paths, seam, grid_head, grid_next);
+                    (self.grid, self.loose) =
+                        (finder.grid.as_ref().map(NearGrid::shape), finder.loose);
+                    self.phase = Phase::Islands(None);
                 }
-                None => {
-                    chain = None;
+                Phase::Islands(None) => {
+                    // Next island: the nearest path among each island's first stage.
+                    let stages = &*island_stage;
+                    let first_stage =
+                        |r: &PathRec| stages.get(r.island as usize).copied() == Some(stage(r, cfg));
+                    let everything = Scope { range: 0..n, window: None };
+                    let finder = Finder::resume(self.grid, self.loose, grid_head, grid_next);
+                    let Some((_, first, _, _)) =
+                        finder.find(paths, seam, em.pos, &everything, &first_stage)
+                    else {
+                        self.phase = Phase::Closing;
+                        continue;
+                    };
+                    let island = paths.rec(first).island;
+                    let range = paths.partition_point(|r| r.island < island)
+                        ..paths.partition_point(|r| r.island <= island);
+                    let scope = if range.len() > SCAN_MAX {
+                        Finder::scope(paths, seam, range.clone())
+                    } else {
+                        Scope { range: range.clone(), window: None }
+                    };
+                    self.phase =
+                        Phase::Islands(Some(IslandCursor { island, range, scope, chain: None }));
+                }
+                Phase::Islands(Some(c)) => {
+                    // Stages of this island in order, nearest first within each; after a
+                    // perimeter loop, the nearest loop of the next perimeter stage if any.
+                    let Some(&min_stage) = island_stage.get(c.island as usize) else {
+                        self.phase = Phase::Islands(None);
+                        continue;
+                    };
+                    let in_stage = |st: u8| move |r: &PathRec| stage(r, cfg) == st;
+                    let finder = Finder::resume(self.grid, self.loose, grid_head, grid_next);
+                    let mut st = min_stage;
+                    let mut pick = None;
+                    if let Some(ch) = c.chain {
+                        pick = finder.find(paths, seam, em.pos, &c.scope, &in_stage(ch));
+                        if pick.is_some() {
+                            st = ch;
+                        }
+                    }
+                    if pick.is_none() {
+                        pick = finder.find(paths, seam, em.pos, &c.scope, &in_stage(min_stage));
+                    }
+                    if let Some((_, i, start, rev)) = pick {
+                        return plan(paths, i, start, rev, st);
+                    }
+                    c.chain = None;
                     // Stage done: the next one present in this island.
-                    let next = range
+                    let next = c
+                        .range
                         .clone()
                         .map(|i| paths.rec(i))
                         .filter(|r| !r.done)
                         .map(|r| stage(&r, cfg))
                         .min();
-                    match (next, island_stage.get_mut(island as usize)) {
+                    match (next, island_stage.get_mut(c.island as usize)) {
                         (Some(s), Some(slot)) => *slot = s,
-                        _ => break,
+                        _ => self.phase = Phase::Islands(None),
                     }
+                }
+                Phase::Closing => {
+                    // A layer without extrusion still moves to its height.
+                    self.phase = Phase::Closed;
+                    let travel = em.plan_travel(ctx, em.pos, &|_, _, _| false);
+                    return Some(Unit { path: None, travel, moves: travel.moves });
                 }
             }
         }
