@@ -207,23 +207,37 @@ fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     assert!(busy > 10, "{busy}");
 }
 
-/// A move buffer smaller than the block's first layer.
+/// A move buffer smaller than the block's first layer's infill.
 type Cramped = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 96, 16>;
 
 #[test]
-fn a_layer_that_overflows_the_move_buffer_fails_the_job_naming_it() {
+fn a_unit_that_overflows_the_move_buffer_fails_the_job_naming_its_layer() {
     let tris = block();
     let mut p: Box<Cramped> = Box::new(Cramped::new(&MachineConfig::default()));
     assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
     let bytes = batch(&tris);
-    assert_eq!(p.handle(&Message::decode(&bytes).unwrap()), Accept::Taken);
-    assert_eq!(p.handle(&Message::EndOfModel), Accept::Taken);
-    // The first layer (a 6 mm square: perimeters and infill, dozens of moves) cannot fit
-    // 96 bytes: a typed failure at layer 0, not a dropped move.
+    let mut q: StepQueue<32> = StepQueue::new();
+    let (mut prod, mut cons) = q.split();
+    let (mut batch_done, mut turns) = (false, 0);
+    while p.is_active() && turns < 1_000_000 {
+        turns += 1;
+        let m = if batch_done { Message::EndOfModel } else { Message::decode(&bytes).unwrap() };
+        if p.handle(&m) == Accept::Taken {
+            batch_done = true;
+        }
+        p.poll(&mut prod);
+        for axis in 0..AXES {
+            while cons.dequeue(axis).is_some() {}
+        }
+        // What was accepted stays within the buffer.
+        assert!(p.move_buffer_used() <= 96, "{}", p.move_buffer_used());
+    }
+    // The first layer's solid infill (a 6 mm square: one zigzag of 15 lines, some 30 moves
+    // of at least 2 bytes each) cannot fit 96 bytes even in an empty buffer: a typed failure
+    // at layer 0 (not a dropped move, not a wait forever).
     assert_eq!(p.state(), DeviceState::Failed);
     assert_eq!(p.error(), (ErrorCode::Moves, 0));
-    // What was accepted stays within the buffer.
-    assert!(p.move_buffer_used() <= 96, "{}", p.move_buffer_used());
+    assert!(p.largest_unit_bytes() <= 96, "{}", p.largest_unit_bytes());
 }
 
 #[test]
@@ -474,8 +488,8 @@ struct Streamed {
     cmds: Vec<Vec<StepCmd>>,
     lends: u32,
     lends_with_steps: u32,
-    /// The toolpath stage's largest emission unit, moves.
-    largest_unit: u32,
+    /// Bytes of the largest toolpath unit that went into the move buffer.
+    largest_unit: usize,
     /// Turns after which a received message was still held (waiting for room).
     held: u32,
 }
@@ -483,10 +497,11 @@ struct Streamed {
 /// Streams a 48-sided prism of 10 mm radius, 1.2 mm tall (six layers, one triangle per
 /// batch) through the link into
 /// `service`; with `generate`, the lent motion half generates steps (and the executor drains
-/// them) at every progress point, as the firmware does. The printer's move buffer holds `M`
-/// moves.
-fn stream_through_service<const M: usize>(generate: bool) -> Streamed {
-    let mut p: Box<Buffered<M>> = Box::new(Buffered::<M>::new(&MachineConfig::default()));
+/// them) at every progress point, as the firmware does. The printer uses `limit` bytes of
+/// its move buffer.
+fn stream_through_service(generate: bool, limit: usize) -> Streamed {
+    let mut p: Box<Buffered> = Box::new(Buffered::new(&MachineConfig::default()));
+    p.limit_move_buffer(limit);
     let tris = prism(10_000.0, 1_200, 48);
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
@@ -550,14 +565,14 @@ fn stream_through_service<const M: usize>(generate: bool) -> Streamed {
         }
     }
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
-    s.largest_unit = p.toolpath().stats().max_unit_moves;
+    s.largest_unit = p.largest_unit_bytes();
     s
 }
 
 #[test]
 fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same() {
-    let lent = stream_through_service::<2048>(true);
-    let kept = stream_through_service::<2048>(false);
+    let lent = stream_through_service(true, BUFFERED);
+    let kept = stream_through_service(false, BUFFERED);
     assert_eq!(lent.hashes.len(), 6, "{:?}", lent.hashes);
     // The toolpath stage offered the motion half inside its layers, and the generator made
     // steps there (the earlier layers' moves were waiting).
@@ -567,19 +582,24 @@ fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same(
     // The same commands and hashes either way.
     assert_eq!(lent.cmds, kept.cmds, "the command streams differ");
     assert_eq!(lent.hashes, kept.hashes);
-    // A move buffer of about one path: batches wait in the endpoint's slot for the layer
-    // before to be emitted, and the commands stay the same.
-    // (104 moves: the first layer's 48-gon loops, with the travel before them.)
-    assert!(lent.largest_unit <= 112 && lent.largest_unit > 80, "{}", lent.largest_unit);
-    let narrow = stream_through_service::<112>(true);
+    // A move buffer of exactly the largest path's bytes (with the travel before it):
+    // batches wait in the endpoint's slot for the layer before to be emitted, and the
+    // commands stay the same.
+    assert_eq!(kept.largest_unit, lent.largest_unit);
+    assert!(lent.largest_unit > 0 && lent.largest_unit < BUFFERED, "{}", lent.largest_unit);
+    let narrow = stream_through_service(true, lent.largest_unit);
     assert_eq!(lent.held, 0);
     assert!(narrow.held > 10, "{}", narrow.held);
+    assert_eq!(narrow.largest_unit, lent.largest_unit);
     assert_eq!(narrow.cmds, lent.cmds, "the command streams differ");
     assert_eq!(narrow.hashes, lent.hashes);
 }
 
-/// A printer whose move buffer holds `M` moves.
-type Buffered<const M: usize> = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, M, 16>;
+/// A printer whose move buffer holds [`BUFFERED`] bytes, of which its tests use a part
+/// ([`Printer::limit_move_buffer`]).
+type Buffered = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, BUFFERED, 16>;
+/// Bytes of a [`Buffered`] printer's move buffer.
+const BUFFERED: usize = 32_768;
 
 /// What [`run_buffered`] saw.
 struct BufferedRun {
@@ -587,17 +607,21 @@ struct BufferedRun {
     state: DeviceState,
     error: (ErrorCode, u32),
     /// The toolpath stage's largest emission unit, moves.
-    largest_unit: u32,
+    largest_unit_moves: u32,
+    /// Bytes of the largest unit that went into the move buffer.
+    largest_unit: usize,
     /// Moves of the job.
     moves: u64,
     /// Times the batch or the end of the model had to wait.
     busy: u32,
 }
 
-/// Runs `tris` (one batch) as `spec` through a printer with an `M`-move buffer, offering the
-/// batch and the end of the model again while the printer is busy, draining the steps.
-fn run_buffered<const M: usize>(tris: &[Triangle], spec: JobSpec) -> BufferedRun {
-    let mut p: Box<Buffered<M>> = Box::new(Buffered::<M>::new(&MachineConfig::default()));
+/// Runs `tris` (one batch) as `spec` through a printer using `limit` bytes of its move
+/// buffer, offering the batch and the end of the model again while the printer is busy,
+/// draining the steps.
+fn run_buffered(tris: &[Triangle], spec: JobSpec, limit: usize) -> BufferedRun {
+    let mut p: Box<Buffered> = Box::new(Buffered::new(&MachineConfig::default()));
+    p.limit_move_buffer(limit);
     assert_eq!(p.handle(&Message::JobStart(spec)), Accept::Taken);
     let bytes = batch(tris);
     let mut q: StepQueue<32> = StepQueue::new();
@@ -634,7 +658,8 @@ fn run_buffered<const M: usize>(tris: &[Triangle], spec: JobSpec) -> BufferedRun
         hashes,
         state: p.state(),
         error: p.error(),
-        largest_unit: s.max_unit_moves,
+        largest_unit_moves: s.max_unit_moves,
+        largest_unit: p.largest_unit_bytes(),
         moves: s.extrusion_moves + s.travel_moves + 2 * s.retractions,
         busy,
     }
@@ -650,28 +675,29 @@ fn a_move_buffer_of_one_path_gives_the_hashes_of_a_large_one() {
     spec.model_height_um = h;
     spec.settings.top_layers = 3;
     spec.options.skirt_loops = 1;
-    let large = run_buffered::<8192>(&tris, spec);
+    let large = run_buffered(&tris, spec, BUFFERED);
     assert_eq!(large.state, DeviceState::Done, "{:?}", large.error);
     assert_eq!(large.hashes.len(), 20);
     assert_eq!(large.busy, 0);
-    const NARROW: usize = 120;
-    let unit = large.largest_unit as usize;
-    assert!(unit <= NARROW && unit > NARROW * 3 / 4, "{unit}");
-    assert!(large.moves > 8 * NARROW as u64, "{}", large.moves);
-    // A buffer just above the largest unit: the same step commands, with waits.
-    let narrow = run_buffered::<NARROW>(&tris, spec);
+    let unit = large.largest_unit;
+    assert!(u64::from(large.largest_unit_moves) * 8 < large.moves, "{}", large.moves);
+    // A unit's moves take at least a header byte each, at most a whole record.
+    let moves = large.largest_unit_moves as usize;
+    assert!(unit >= moves && unit <= moves * strata::move_ring::MAX_RECORD, "{unit}");
+    // A buffer of exactly the largest unit's bytes: the same step commands, with waits.
+    let narrow = run_buffered(&tris, spec, unit);
     assert_eq!(narrow.state, DeviceState::Done, "{:?}", narrow.error);
     assert_eq!(narrow.hashes, large.hashes);
-    assert_eq!(narrow.largest_unit, large.largest_unit);
+    assert_eq!(narrow.largest_unit, unit);
     assert!(narrow.busy > 10, "{}", narrow.busy);
-    // A buffer smaller than a unit fails the job with a typed error naming the layer,
-    // at the first such unit, with the hashes of the layers before it.
-    let small = run_buffered::<64>(&tris, spec);
+    // One byte less fails the job with a typed error naming the layer, at the first such
+    // unit, with the hashes of the layers before it (and does not wait forever).
+    let small = run_buffered(&tris, spec, unit - 1);
     assert_eq!(small.state, DeviceState::Failed);
     let (code, layer) = small.error;
     assert_eq!(code, ErrorCode::Moves);
     assert!(layer < 20, "{layer}");
-    assert!(small.largest_unit <= 64, "{}", small.largest_unit);
+    assert!(small.largest_unit < unit, "{}", small.largest_unit);
     let done = small.hashes.len();
     assert!(done <= layer as usize, "{done} layers reported before layer {layer} failed");
     assert_eq!(small.hashes[..], large.hashes[..done]);
