@@ -6,12 +6,13 @@
 use std::collections::HashSet;
 
 use strata::geom::{Point3, Triangle};
-use strata::machine::{MachineConfig, PrintSettings};
+use strata::machine::{MachineConfig, PrintSettings, AXES};
 use strata::printer::{Accept, Printer, CREALITY_CAPACITIES};
 use strata::protocol::{
     BatchBuilder, Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message,
 };
 use strata::slice::{SliceConfig, SliceScratch, Slicer};
+use strata::step::StepQueue;
 use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
 use strata_host::model;
 use strata_host::simjob::{device_ram, simulate, SimOptions};
@@ -350,7 +351,7 @@ fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, Err
 
 /// Admission codes the job's moves as the device's move buffer codes them (the coding's
 /// state running on across layers): a printer that plans nothing holds, after the whole
-/// model, exactly the bytes admission counted, and more than the largest layer's.
+/// model, exactly the bytes admission counted, and more than the largest unit's.
 #[test]
 fn admission_counts_the_bytes_the_move_buffer_holds() {
     let machine = MachineConfig::default();
@@ -365,6 +366,93 @@ fn admission_counts_the_bytes_the_move_buffer_holds() {
         assert_eq!((state, error), (DeviceState::Printing, ErrorCode::None));
         assert!(peaks.layers >= 5, "{}", peaks.layers);
         assert_eq!(held as u64, peaks.move_bytes);
-        assert!(u64::from(peaks.layer_move_bytes.value) < peaks.move_bytes);
+        assert!(u64::from(peaks.unit_bytes.value) < peaks.move_bytes);
+    }
+}
+
+/// What a job did on a [`Roomy`] printer using `limit` bytes of its move buffer, fed and
+/// drained as a device is: the end state, the error, the layer hashes, the largest unit's
+/// bytes.
+fn run_limited(
+    tris: &[Triangle],
+    job: JobSpec,
+    limit: usize,
+) -> (DeviceState, (ErrorCode, u32), Vec<(u32, u64)>, usize) {
+    let mut batch = BatchBuilder::new();
+    for t in tris {
+        batch.push(t).unwrap();
+    }
+    let payload = batch.payload().to_vec();
+    std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(move || {
+            let mut p = Box::new(Roomy::new(&MachineConfig::default()));
+            p.limit_move_buffer(limit);
+            assert_eq!(p.handle(&Message::JobStart(job)), Accept::Taken);
+            let mut q: StepQueue<32> = StepQueue::new();
+            let (mut prod, mut cons) = q.split();
+            let (mut sent, mut hashes) = (0, Vec::new());
+            for _ in 0..50_000_000u64 {
+                let m = match sent {
+                    0 => Some(Message::decode(&payload).unwrap()),
+                    1 => Some(Message::EndOfModel),
+                    _ => None,
+                };
+                if m.is_some_and(|m| p.handle(&m) == Accept::Taken) {
+                    sent += 1;
+                }
+                p.poll(&mut prod);
+                for axis in 0..AXES {
+                    while cons.dequeue(axis).is_some() {}
+                }
+                while let Some(h) = p.take_layer_done() {
+                    hashes.push(h);
+                }
+                if !p.is_active() {
+                    break;
+                }
+            }
+            (p.state(), p.error(), hashes, p.largest_unit_bytes())
+        })
+        .unwrap()
+        .join()
+        .unwrap()
+}
+
+/// The largest unit's bytes admission reports are what a device needs: a printer whose move
+/// buffer holds exactly them prints the job (the hashes of a roomy one), one byte less fails
+/// it with `ErrorCode::Moves` at the layer admission named, and admission refuses a printer
+/// announcing one byte less.
+#[test]
+fn the_largest_unit_admission_reports_is_the_buffer_a_printer_needs() {
+    let machine = MachineConfig::default();
+    for (tris, skirt_loops) in [
+        (cuboid(100_000, 112_000, 100_000, 109_000, 1_000), 1),
+        (cuboid(60_000, 61_500, 150_000, 190_000, 2_200), 0),
+    ] {
+        let spec =
+            JobSpec { options: JobOptions { skirt_loops, ..JobOptions::default() }, ..job(&tris) };
+        let peaks = toolpath_peaks(&tris, &machine, &spec).unwrap();
+        let unit = peaks.unit_bytes.value as usize;
+        let (state, error, roomy, largest) = run_limited(&tris, spec, 1 << 16);
+        assert_eq!(state, DeviceState::Done, "{error:?}");
+        assert_eq!(largest, unit);
+        let (state, error, exact, largest) = run_limited(&tris, spec, unit);
+        assert_eq!(state, DeviceState::Done, "{error:?}");
+        assert_eq!(exact, roomy);
+        assert_eq!(largest, unit);
+        let (state, error, before, _) = run_limited(&tris, spec, unit - 1);
+        assert_eq!(state, DeviceState::Failed);
+        assert_eq!(error, (ErrorCode::Moves, peaks.unit_bytes.layer));
+        assert_eq!(before[..], roomy[..before.len()]);
+        let caps = Capacities { move_buffer_bytes: peaks.unit_bytes.value, ..CREALITY_CAPACITIES };
+        assert!(admit_job(&tris, &machine, &spec, &caps, 0.02).is_ok());
+        let less = Capacities { move_buffer_bytes: peaks.unit_bytes.value - 1, ..caps };
+        let e = admit_job(&tris, &machine, &spec, &less, 0.02).unwrap_err();
+        let want = format!(
+            "layer at {:.2} mm needs {unit} bytes of buffered toolpath moves for one path",
+            peaks.unit_bytes.z_um as f64 / 1000.0
+        );
+        assert!(e.contains(&want), "{e}\nwant {want}");
     }
 }
