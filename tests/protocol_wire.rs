@@ -33,31 +33,32 @@ fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
 
 #[test]
 fn golden_ack_frame() {
-    // [0x31 (v3, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
-    assert_eq!(VERSION, 3);
+    // [0x41 (v4, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    assert_eq!(VERSION, 4);
     let w = wire(FrameType::Ack, 0, 3, 4, &[]);
-    let crc = crc32(&[0x31, 0x00, 0x03, 0x04]);
-    let mut raw = vec![0x31, 0x00, 0x03, 0x04];
+    let crc = crc32(&[0x41, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x41, 0x00, 0x03, 0x04];
     raw.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(w, cobs(&raw));
     assert_eq!(w, GOLDEN_ACK.to_vec());
 }
 
 // Derived with Python's zlib.crc32 (CRC-32/ISO-HDLC) and a hand COBS.
-const GOLDEN_ACK: [u8; 10] = [2, 49, 7, 3, 4, 2, 215, 147, 69, 0];
+// CRC 0x2eac779e; COBS: [0x41] then the five non-zero bytes after the zero seq byte.
+const GOLDEN_ACK: [u8; 10] = [2, 65, 7, 3, 4, 158, 119, 172, 46, 0];
 
 #[test]
 fn golden_hello_frame() {
     let mut buf = [0u8; 8];
     let n = Message::Hello { version: VERSION }.encode(&mut buf).unwrap();
-    assert_eq!(&buf[..n], &[0x01, 0x03]);
+    assert_eq!(&buf[..n], &[0x01, 0x04]);
     let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
     assert_eq!(w, GOLDEN_HELLO.to_vec());
 }
 
-// [0x30 (v3, data), seq 7, ack 0, credits 8, 0x01 Hello, version 3, CRC] COBS: the zero ack
-// byte becomes a code byte.
-const GOLDEN_HELLO: [u8; 12] = [3, 48, 7, 8, 8, 1, 3, 93, 75, 153, 137, 0];
+// [0x40 (v4, data), seq 7, ack 0, credits 8, 0x01 Hello, version 4, CRC 0x1cdfd33f] COBS: the
+// zero ack byte becomes a code byte.
+const GOLDEN_HELLO: [u8; 12] = [3, 64, 7, 8, 8, 1, 4, 63, 211, 223, 28, 0];
 
 /// Capacities used by the golden and round-trip tests.
 const SAMPLE_CAPS: Capacities = Capacities {
@@ -82,15 +83,15 @@ fn golden_capabilities() {
     let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
     assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
     let back = Message::decode(&GOLDEN_CAPABILITIES).unwrap();
-    assert_eq!(back, Message::Capabilities { version: 3, capacities: caps });
+    assert_eq!(back, Message::Capabilities { version: 4, capacities: caps });
 }
 
-// Type 0x02, version 3, then little-endian: active triangles 1024, contour points 768, loops 48,
-// layer moves 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
+// Type 0x02, version 4, then little-endian: active triangles 1024, contour points 768, loops 48,
+// move buffer bytes 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
 // PTS 80, LOOPS 4, CROSS 128, PATH 320, RING 192, SPANS 64 (u32 each): 48 bytes.
 #[rustfmt::skip]
 const GOLDEN_CAPABILITIES: [u8; 48] = [
-    0x02, 3,
+    0x02, 4,
     0x00, 0x04, 0, 0,  0x00, 0x03, 0, 0,  48, 0, 0, 0,  0x00, 0x10, 0, 0,
     4, 0,
     0x00, 0x00, 0x01, 0,

@@ -231,8 +231,8 @@ pub fn describe_failure(s: &Status) -> String {
             format!("the printer got an undecodable message 0x{:02x}", s.detail)
         }
         ErrorCode::Moves => format!(
-            "a path of layer {} (with the travel before it) needs more moves than the printer's \
-             move buffer holds",
+            "a path of layer {} (with the travel before it) needs more bytes of moves than the \
+             printer's move buffer holds",
             s.detail
         ),
         ErrorCode::LinkDead => {

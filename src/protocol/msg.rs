@@ -48,7 +48,8 @@ pub struct Capacities {
     /// Loops of one layer (`Slicer` `LOOPS`).
     pub contour_loops: u32,
     /// Bytes of the move buffer between the toolpath stage and the planner (delta-coded
-    /// records, `strata::move_ring`): a layer's records must fit three quarters of it.
+    /// records, `strata::move_ring`): the toolpath stage fills it a path (with the travel
+    /// before it) at a time, so the job's largest such unit, coded, must fit it whole.
     pub move_buffer_bytes: u32,
     /// Layers the skin window holds (top solid layers the toolpath stage can wait for).
     pub layer_window: u16,
@@ -146,8 +147,8 @@ pub enum ErrorCode {
     Unexpected = 5,
     /// A message that does not decode (detail: message type).
     BadMessage = 6,
-    /// A path (with the travel before it) needs more moves than the whole move buffer holds,
-    /// or the buffer overflowed (detail: layer).
+    /// A path (with the travel before it) needs more bytes of coded moves than the whole move
+    /// buffer holds, or the buffer overflowed (detail: layer).
     Moves = 7,
     /// The link went silent (detail: ms).
     LinkDead = 8,
