@@ -27,6 +27,13 @@
 //! it only, not on what waits in the ring: a unit refused by an empty ring never fits
 //! ([`ByteRoom::refused`] above the capacity). The host's admission control runs the same
 //! meter and room over a job to find its largest unit in bytes.
+//!
+//! Every move of a layer is in one of its units (the height change, retraction and priming
+//! with the travel they belong to, a layer without extrusion closed by a unit of its own), so
+//! the rooms count every byte the ring takes. The other events are outside the units and
+//! take no bytes: a layer's `LayerStart` goes out when the layer is built, before its first
+//! unit is offered (it sets the stream's layer, which the room's copy then starts from), and
+//! its `LayerEnd` after its last unit.
 
 use crate::machine::{Rate, AXES};
 use crate::plan::{Move, MoveKind};

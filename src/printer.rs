@@ -63,15 +63,16 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// announces [`BOARD_CAPACITIES`].
 ///
 /// RAM on the board = the `Printer` (slicer + toolpath + their scratch + move buffer +
-/// planner + generator, about 40 KB with these values) + the protocol endpoint, the step
-/// queue, the executor and the UART buffers + the stack: `.data + .bss` 46,396 B, 19.1 KB
+/// planner + generator, about 32 KB with these values) + the protocol endpoint, the step
+/// queue, the executor and the UART buffers + the stack: `.data + .bss` 38,908 B, 26.0 KB
 /// left for the stack, of which a job used about 7.7 KB when last measured (QEMU build; the
 /// firmware prints both after every job).
 /// Per-unit bytes: slicer 24 per active triangle, 8 per segment, 72 per loop; the scratch
 /// the slicer and the toolpath stage take turns in holds the largest of the cut (29 per
 /// segment), the offset engine (50 per `PTS`) and the infill scratch (22 per `CROSS`): here
-/// the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`; move buffer `MOVE_BYTES` + 56 (Cortex-M3), about 6 bytes per
-/// queued move (5.0 to 6.3 on average over the sample models, at most 29).
+/// the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`; move buffer
+/// `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on average over
+/// the sample models, at most 29), holding the largest path with its travel (a unit) whole.
 pub mod board {
     use super::Printer;
 
@@ -93,12 +94,19 @@ pub mod board {
     pub const RING: usize = 512;
     /// Toolpath: the skin window's crossings with one scanline.
     pub const SPANS: usize = 48;
-    /// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded): the
-    /// slicer cuts a layer while at most a quarter is in use, so a layer's moves must fit the
-    /// other three quarters (7,680 B; the largest layers of the sample models at the default
-    /// settings: embodier_asc 1,167 B, xyz_20mm_cube 1,568 B, embodier_LM8UU_8p2pi 3,685 B,
-    /// embodier_hotend_v2 6,153 B).
-    pub const MOVE_BYTES: usize = 10_240;
+    /// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded). The
+    /// toolpath stage fills it a unit (a path with the travel before it) at a time, each once
+    /// its coded bytes fit, so the largest unit must fit whole: at the default settings
+    /// embodier_asc 693 B, xyz_20mm_cube 1,051 B (the larger sample models, which need more of
+    /// the other capacities: embodier_hotend_v2 1,059 B, embodier_LM8UU_8p2pi 1,089 B), about
+    /// 6 B a move. 3 KB is 2.8 times the largest, or a path of all `PATH` points at 8 B a
+    /// move. The rest keeps the motion fed while the next layer is computed: the stage refills
+    /// the buffer as the planner takes moves, so it is about full when a layer's last unit
+    /// goes in (within 8 B of 3,072 for every layer of asc and the cube), and those ~500 moves
+    /// (seconds of printing, still ~1 s of 2 ms segments) carry the motion through the next
+    /// layer's cut and build (about 0.5 s for a large layer on the Cortex-M3), lent the motion
+    /// half at its progress points.
+    pub const MOVE_BYTES: usize = 3_072;
     /// Planner lookahead, moves (the host simulation plans with the same).
     pub const P: usize = 32;
 

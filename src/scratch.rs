@@ -5,7 +5,11 @@
 //!   [`CUT_BYTES`] per `SEGMENTS`), dead once the layer's loops are written (the loops and
 //!   their points stay in the slicer, and the toolpath stage copies them before it works);
 //! - the toolpath stage's offset engine ([`ToolpathNeeds::ENGINE_BYTES`] per `PTS`), then
-//!   its infill scratch ([`ToolpathNeeds::CROSS_BYTES`] per `CROSS`, reused by the ordering).
+//!   its infill scratch ([`ToolpathNeeds::CROSS_BYTES`] per `CROSS`, reused by the ordering:
+//!   the nearest-path grid stays in its pool while the layer's paths are emitted unit by
+//!   unit, so an owner cuts the next layer only once the stage is no longer
+//!   [`emitting`](crate::toolpath::Toolpath::emitting); a grid lost anyway is replaced by
+//!   scans, in the same order).
 //!
 //! A [`Scratch`] holds whichever works now, so an owner of both stages (the
 //! [`Printer`](crate::printer::Printer)) pays for the largest one only. It is lent with `&mut`

@@ -11,9 +11,11 @@
 //! QEMU (host/tests/hil_qemu.rs). What the larger sample models need beyond them (host `cargo
 //! run --release --example toolpath_report`): embodier_hotend_v2 373 active triangles, CROSS
 //! 512, PATH 1010, RING 2090; embodier_LM8UU_8p2pi 283 active triangles, PTS 690 (1,740 for
-//! its thin-wall measurement), RING 1654. The move buffer holds the largest emission unit (a
-//! path with the travel before it: the toolpath stage emits a layer unit by unit as the
-//! buffer has room), not a layer: 175 moves for the cube, 186 and 237 for these two.
+//! its thin-wall measurement), RING 1654. The move buffer (bytes of delta-coded moves) holds
+//! the largest emission unit whole (a path with the travel before it: the toolpath stage
+//! emits a layer unit by unit, each once its coded bytes fit), not a layer: 693 B for
+//! embodier_asc, 1,051 B for the cube, 1,059 B and 1,089 B for these two, against the
+//! board's 3,072 B (see `MOVE_BYTES` there for the margin).
 //!
 //! The planner lookahead `P` must stay 32: the host simulation (`strata simulate`, the HIL
 //! test) plans with 32 moves of lookahead, and the per-layer hashes compare step commands.
@@ -29,8 +31,9 @@ pub use strata::printer::board::BoardPrinter as FwPrinter;
 
 /// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
 /// default 0.02 mm (embodier_LM8UU_8p2pi: 742 active triangles, 1,740 loop points;
-/// embodier_hotend_v2: PATH 1010), so that they run on the Cortex-M3 instruction set for
-/// their cost figures and the bit-exact comparison with the host.
+/// embodier_hotend_v2: PATH 1010; the largest unit of any sample model 1,089 B against a 32 KB
+/// move buffer), so that they run on the Cortex-M3 instruction set for their cost figures and
+/// the bit-exact comparison with the host.
 #[cfg(feature = "qemu-mps2")]
 pub type FwPrinter =
     strata::printer::Printer<1024, 1024, 48, 2048, 64, 1024, 2048, 4096, 256, 32_768, 32>;

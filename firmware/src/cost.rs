@@ -24,8 +24,11 @@
 //! A `service` call that moved nothing through the pipeline (no triangle taken, no layer cut,
 //! no toolpath layer completed) waited: for room in the move buffer, or for the heaters (the
 //! paths it emitted meanwhile are few; most of a layer's paths go into the move buffer in
-//! `poll` calls, counted with planning). The
-//! message stays at the head of the link and the printer looks at it again on the next turn,
+//! `poll` calls, counted with planning, each unit's moves made twice: once replayed for the
+//! buffer's byte room, which codes them to count the unit's bytes exactly, once into the
+//! buffer; a unit the room refused is not replayed again before the buffer has that many
+//! bytes free). The message stays at the head of the link and the printer looks at it again
+//! on the next turn,
 //! so such a call is left out of both figures: it is waiting, not work (a board could sleep
 //! there until the next interrupt).
 

@@ -49,11 +49,14 @@
 //!
 //! A built layer's moves go out unit by unit ([`Toolpath::emit_next`]): one path with the
 //! retraction, travel and height change before it (or the layer's closing move to its
-//! height), each once the owner's room covers its moves, which are counted exactly before the
-//! unit starts. The stage keeps the layer (its paths, its contour for combing, the ordering
-//! state, the nearest-path grid in the infill scratch) until its last unit went out and
-//! builds no other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room
-//! for the largest unit ([`LayerStats::max_unit_moves`]), not for a layer.
+//! height), each once the owner's [`Room`] takes it: offered the unit's exact move count and
+//! a replay of its moves (run on a copy of the nozzle state, nothing changes before the room
+//! decides), so a room counting moves (`usize`) and one measuring their coded bytes (the
+//! printer's [`ByteRoom`](crate::move_ring::ByteRoom)) are both exact. The stage keeps the
+//! layer (its paths, its contour for combing, the ordering state, the nearest-path grid in
+//! the infill scratch of the owner's [`Scratch`]) until its last unit went out and builds no
+//! other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room for the
+//! largest unit ([`LayerStats::max_unit_moves`] moves), not for a layer.
 //! [`Toolpath::push_layer`], [`flush_one`](Toolpath::flush_one) and
 //! [`finish`](Toolpath::finish) emit whole layers at once.
 //!
