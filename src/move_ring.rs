@@ -37,7 +37,7 @@
 
 use crate::machine::{Rate, AXES};
 use crate::plan::{Move, MoveKind};
-use crate::toolpath::{Room, ToolEvent, ToolMove};
+use crate::toolpath::{Replay, Room, ToolEvent, ToolMove};
 
 /// A toolpath move waiting for the planner: the planner's [`Move`] with its feed as U16F16
 /// bits (the toolpath's feeds are whole or simple fractions of mm/s; the same packing runs on
@@ -346,7 +346,7 @@ impl ByteRoom {
 }
 
 impl Room for ByteRoom {
-    fn take(&mut self, moves: u32, replay: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool {
+    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool {
         let mut meter = self.meter;
         let (mut bytes, mut seen) = (0usize, 0u32);
         replay(&mut |e: &ToolEvent<'_>| {

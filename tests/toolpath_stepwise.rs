@@ -14,7 +14,8 @@ use strata::machine::{MachineConfig, PrintSettings};
 use strata::move_ring::{ByteRoom, MoveRing, MoveStream};
 use strata::slice::{Layer, SliceConfig};
 use strata::toolpath::{
-    Emitted, LayerStats, Room, Seam, ToolEvent, ToolpathConfig, ToolpathError, ToolpathStats,
+    Emitted, LayerStats, Replay, Room, Seam, ToolEvent, ToolpathConfig, ToolpathError,
+    ToolpathStats,
 };
 use toolpath_support::{run_cfg, TestScratch, TestSlicer, TestToolpath, TpLayer, TpRun};
 
@@ -290,7 +291,7 @@ struct Logged {
 }
 
 impl Room for Logged {
-    fn take(&mut self, moves: u32, replay: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool {
+    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool {
         let before = self.room.taken();
         let taken = self.room.take(moves, replay);
         if taken {

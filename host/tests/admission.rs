@@ -370,14 +370,18 @@ fn admission_counts_the_bytes_the_move_buffer_holds() {
     }
 }
 
+/// What a job did on a printer: the end state, the error, the layer hashes, the largest
+/// unit's bytes.
+struct Limited {
+    state: DeviceState,
+    error: (ErrorCode, u32),
+    hashes: Vec<(u32, u64)>,
+    largest: usize,
+}
+
 /// What a job did on a [`Roomy`] printer using `limit` bytes of its move buffer, fed and
-/// drained as a device is: the end state, the error, the layer hashes, the largest unit's
-/// bytes.
-fn run_limited(
-    tris: &[Triangle],
-    job: JobSpec,
-    limit: usize,
-) -> (DeviceState, (ErrorCode, u32), Vec<(u32, u64)>, usize) {
+/// drained as a device is.
+fn run_limited(tris: &[Triangle], job: JobSpec, limit: usize) -> Limited {
     let mut batch = BatchBuilder::new();
     for t in tris {
         batch.push(t).unwrap();
@@ -412,7 +416,7 @@ fn run_limited(
                     break;
                 }
             }
-            (p.state(), p.error(), hashes, p.largest_unit_bytes())
+            Limited { state: p.state(), error: p.error(), hashes, largest: p.largest_unit_bytes() }
         })
         .unwrap()
         .join()
@@ -434,17 +438,17 @@ fn the_largest_unit_admission_reports_is_the_buffer_a_printer_needs() {
             JobSpec { options: JobOptions { skirt_loops, ..JobOptions::default() }, ..job(&tris) };
         let peaks = toolpath_peaks(&tris, &machine, &spec).unwrap();
         let unit = peaks.unit_bytes.value as usize;
-        let (state, error, roomy, largest) = run_limited(&tris, spec, 1 << 16);
-        assert_eq!(state, DeviceState::Done, "{error:?}");
-        assert_eq!(largest, unit);
-        let (state, error, exact, largest) = run_limited(&tris, spec, unit);
-        assert_eq!(state, DeviceState::Done, "{error:?}");
-        assert_eq!(exact, roomy);
-        assert_eq!(largest, unit);
-        let (state, error, before, _) = run_limited(&tris, spec, unit - 1);
-        assert_eq!(state, DeviceState::Failed);
-        assert_eq!(error, (ErrorCode::Moves, peaks.unit_bytes.layer));
-        assert_eq!(before[..], roomy[..before.len()]);
+        let roomy = run_limited(&tris, spec, 1 << 16);
+        assert_eq!(roomy.state, DeviceState::Done, "{:?}", roomy.error);
+        assert_eq!(roomy.largest, unit);
+        let exact = run_limited(&tris, spec, unit);
+        assert_eq!(exact.state, DeviceState::Done, "{:?}", exact.error);
+        assert_eq!(exact.hashes, roomy.hashes);
+        assert_eq!(exact.largest, unit);
+        let short = run_limited(&tris, spec, unit - 1);
+        assert_eq!(short.state, DeviceState::Failed);
+        assert_eq!(short.error, (ErrorCode::Moves, peaks.unit_bytes.layer));
+        assert_eq!(short.hashes[..], roomy.hashes[..short.hashes.len()]);
         let caps = Capacities { move_buffer_bytes: peaks.unit_bytes.value, ..CREALITY_CAPACITIES };
         assert!(admit_job(&tris, &machine, &spec, &caps, 0.02).is_ok());
         let less = Capacities { move_buffer_bytes: peaks.unit_bytes.value - 1, ..caps };

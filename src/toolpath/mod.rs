@@ -439,6 +439,10 @@ pub enum Emitted {
     },
 }
 
+/// The replay a [`Room`] is offered with a unit: it sends the unit's events to the sink it is
+/// given.
+pub type Replay<'a> = dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>)) + 'a;
+
 /// Room for a layer's emission units ([`Toolpath::emit_next`]): decides, before a unit goes
 /// out, whether it is taken.
 ///
@@ -451,11 +455,11 @@ pub trait Room {
     /// given, as often as called, without changing the stage. True takes the unit (it is
     /// emitted next, then the next unit is offered), false refuses it (it waits; the
     /// emission stops with [`Emitted::NeedsRoom`]).
-    fn take(&mut self, moves: u32, replay: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool;
+    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool;
 }
 
 impl Room for usize {
-    fn take(&mut self, moves: u32, _: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool {
+    fn take(&mut self, moves: u32, _: &mut Replay<'_>) -> bool {
         let Some(left) = self.checked_sub(moves as usize) else { return false };
         *self = left;
         true
@@ -463,7 +467,7 @@ impl Room for usize {
 }
 
 impl<R: Room + ?Sized> Room for &mut R {
-    fn take(&mut self, moves: u32, replay: &mut dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>))) -> bool {
+    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool {
         (**self).take(moves, replay)
     }
 }
