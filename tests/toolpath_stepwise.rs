@@ -386,13 +386,26 @@ fn through_ring<const B: usize>(
     }
 }
 
+/// The byte rings of the test: room for every shape's whole job.
+type Ring = MoveRing<{ 1 << 18 }>;
+
 #[test]
 fn a_byte_room_takes_a_unit_exactly_when_its_coded_moves_fit() {
+    // The rings are large values: built on a thread with a big stack (debug builds copy them).
+    std::thread::Builder::new()
+        .stack_size(64 << 20)
+        .spawn(byte_room_checks)
+        .unwrap()
+        .join()
+        .unwrap();
+}
+
+fn byte_room_checks() {
     let settings = PrintSettings::default();
     for (what, tris, cfg) in shapes() {
         let whole = run_cfg(&tris, &settings, cfg).unwrap();
         // Unbounded: every unit in one call per layer; its bytes are those of its moves.
-        let mut big: Box<MoveRing<{ 1 << 20 }>> = Box::new(MoveRing::new());
+        let mut big: Box<Ring> = Box::new(MoveRing::new());
         let (mut stream, mut free) = (MoveStream::new(), RingRun::default());
         let run = run_with(&tris, &settings, cfg, |tp, work, layers| {
             through_ring(tp, work, layers, &mut big, &mut stream, &mut free, &mut |_| 0)
@@ -405,7 +418,7 @@ fn a_byte_room_takes_a_unit_exactly_when_its_coded_moves_fit() {
         assert!(largest > 0 && largest * 4 < total, "{what}: {largest} of {total}");
         // A ring of exactly the largest unit's bytes, drained a few moves at a time: the same
         // moves, the same unit bytes (the coding does not depend on what waits), many waits.
-        let mut exact: Box<MoveRing<{ 1 << 20 }>> = Box::new(MoveRing::new());
+        let mut exact: Box<Ring> = Box::new(MoveRing::new());
         exact.limit(largest);
         let (mut stream, mut tight) = (MoveStream::new(), RingRun::default());
         let mut rng = 0x2545_f491_4f6c_dd1du64;
@@ -423,7 +436,7 @@ fn a_byte_room_takes_a_unit_exactly_when_its_coded_moves_fit() {
         assert_eq!(tight.never, 0, "{what}");
         assert!(tight.refused > whole.layers.len(), "{what}: {} waits", tight.refused);
         // One byte less: the largest unit never fits, and it is refused as such.
-        let mut short: Box<MoveRing<{ 1 << 20 }>> = Box::new(MoveRing::new());
+        let mut short: Box<Ring> = Box::new(MoveRing::new());
         short.limit(largest - 1);
         let (mut stream, mut cut) = (MoveStream::new(), RingRun::default());
         let mut stopped = false;
