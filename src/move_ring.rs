@@ -701,6 +701,68 @@ mod tests {
     }
 
     #[test]
+    fn a_byte_room_takes_units_by_their_coded_bytes() {
+        let feed = Rate::from_num(40);
+        let at = |x: i32, e_um| ToolMove {
+            to: Point2::new(x, 0),
+            z_um: 200,
+            e_um,
+            feed_mm_s: feed,
+            feature: Feature::InternalInfill,
+        };
+        // A unit of three moves of layer 1 (travel, print, retract), and its bytes from the
+        // origin by the encoder (whose records are checked above).
+        let unit = [at(1_000, 0), at(2_000, 30), at(2_000, -500)];
+        let mut stream = stream_at(1);
+        let (mut enc, mut out, mut bytes) = (MoveEncoder::new(), [0u8; MAX_RECORD], 0);
+        for m in &unit {
+            bytes += enc.encode(&stream.next(m), &mut out);
+        }
+        let mut s = stream_at(1);
+        let mut ring: MoveRing<64> = MoveRing::new();
+        let replay = &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
+            for m in &unit {
+                out(&ToolEvent::Move(*m));
+            }
+        };
+        // Free bytes one short: refused, nothing moves on; then taken twice in one room, the
+        // second time coded after the first (fewer bytes: only the deltas change).
+        let mut short = ByteRoom::new(MoveMeter::new(s, MoveEncoder::new()), bytes - 1, 64);
+        assert!(!short.take(3, replay));
+        assert_eq!((short.refused(), short.never_fits(), short.taken()), (Some(bytes), false, 0));
+        let mut room = ring.room(&s);
+        assert_eq!(room.free(), 64);
+        assert!(room.take(3, replay));
+        assert_eq!((room.largest(), room.taken(), room.free()), (bytes, bytes as u64, 64 - bytes));
+        assert!(room.take(3, replay));
+        let second = room.taken() as usize - bytes;
+        assert!(second < bytes, "{second} {bytes}");
+        // The ring takes the same bytes.
+        for _ in 0..2 {
+            for m in &unit {
+                ring.push(&s.next(m)).unwrap();
+            }
+        }
+        assert_eq!(ring.used_bytes(), bytes + second);
+        // A ring limited below the unit's bytes can never take it.
+        let mut small: MoveRing<64> = MoveRing::new();
+        small.limit(bytes - 1);
+        let mut never = small.room(&stream_at(1));
+        assert!(!never.take(3, replay));
+        assert!(never.never_fits());
+        // A `usize` room counts moves.
+        let mut moves = 5usize;
+        assert!(moves.take(3, replay) && moves == 2);
+        assert!(!moves.take(3, replay) && moves == 2);
+    }
+
+    fn stream_at(layer: u32) -> MoveStream {
+        let mut s = MoveStream::new();
+        s.start_layer(layer);
+        s
+    }
+
+    #[test]
     fn malformed_records_decode_to_none() {
         let o = PackedMove::ORIGIN;
         // Kind 3 does not exist.
