@@ -284,11 +284,13 @@ type NeedsScratch = Scratch<{ 1 << 17 }, { 1 << 16 }, { 1 << 16 }>;
 /// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
 /// slicer and toolpath stage with the settings the device derives from `job`, and reports
 /// the stage's needs, the layers where they peak and the largest emission unit's bytes.
-/// A need found growing while the stage takes a layer is attributed to that layer (the
-/// window's stored contours) or to the layer it builds meanwhile (the others: a layer is built
-/// once the layers its top skins wait for have arrived; the last of them when it builds
-/// several at once, as at the end of the model). Runs on a thread with a large stack (the
-/// stages are large values).
+/// The stage is driven as the device drives it: each layer taken (`accept_layer`) builds at
+/// most one, whose units are then emitted (`emit_next`) into the device's byte room, without
+/// bound here, which measures each unit's coded bytes; after the last layer the waiting ones
+/// are built and emitted one at a time (`build_next`). A need found growing while the stage
+/// takes a layer is attributed to that layer (the window's stored contours) or to the layer
+/// it builds meanwhile (the others: a layer is built once the layers its top skins wait for
+/// have arrived). Runs on a thread with a large stack (the stages are large values).
 pub fn toolpath_peaks(
     tris: &[Triangle],
     machine: &MachineConfig,
