@@ -53,7 +53,7 @@ use crate::protocol::{
     VERSION,
 };
 use crate::scratch::Scratch;
-use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
+use crate::slice::{SliceConfig, SliceError, SlicedLayer, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
@@ -657,9 +657,7 @@ impl<
     }
 
     fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
-        self.through_slicer(motion, |slicer, work, sink| {
-            slicer.push(t, work, &mut |l, w| sink(l, w))
-        });
+        self.through_slicer(motion, |slicer, work, sink| slicer.push(t, work, &mut |l| sink(l)));
         self.triangles += 1;
     }
 
@@ -674,7 +672,7 @@ impl<
         step: impl FnOnce(
             &mut Slicer<A, S, L>,
             &mut Scratch<S, PTS, CROSS>,
-            &mut dyn FnMut(&Layer<'_>, &mut Scratch<S, PTS, CROSS>),
+            &mut dyn FnMut(SlicedLayer<'_, S, PTS, CROSS>),
         ) -> Result<R, SliceError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
@@ -683,10 +681,9 @@ impl<
         let mut events = EventSink { slot, stream, motion, failed: None };
         let mut tp_err = None;
         let r = {
-            let mut sink = |l: &Layer<'_>, work: &mut Scratch<S, PTS, CROSS>| {
+            let mut sink = |l: SlicedLayer<'_, S, PTS, CROSS>| {
                 if tp_err.is_none() {
-                    tp_err =
-                        tp.accept_layer(l, work, &mut |e: &ToolEvent<'_>| events.event(e)).err();
+                    tp_err = tp.accept_sliced(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
             step(slicer, scratch, &mut sink)
@@ -761,7 +758,7 @@ impl<
     /// left or on an error. Call only when [`emit_moves`](Self::emit_moves) is done.
     fn cut_one(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
         let cut = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
-            slicer.cut_one(work, &mut |l, w| sink(l, w))
+            slicer.cut_one(work, &mut |l| sink(l))
         });
         self.emit_moves(motion);
         cut == Some(true) && self.is_active()
@@ -782,7 +779,7 @@ impl<
     /// failed).
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
-            slicer.finish(work, &mut |l, w| sink(l, w))
+            slicer.finish(work, &mut |l| sink(l))
         });
         if sliced.is_some() && self.is_active() {
             self.through_toolpath(motion, |tp, work, events| tp.finish(work, &mut |e| events(e)));
