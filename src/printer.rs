@@ -63,15 +63,17 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// announces [`BOARD_CAPACITIES`].
 ///
 /// RAM on the board = the `Printer` (slicer + toolpath + their scratch + move buffer +
-/// planner + generator, about 40 KB with these values) + the protocol endpoint, the step
-/// queue, the executor and the UART buffers + the stack: `.data + .bss` 46,396 B, 19.1 KB
+/// planner + generator, about 38 KB with these values) + the protocol endpoint, the step
+/// queue, the executor and the UART buffers + the stack: `.data + .bss` 44,532 B, 20.5 KB
 /// left for the stack, of which a job used about 7.7 KB when last measured (QEMU build; the
 /// firmware prints both after every job).
-/// Per-unit bytes: slicer 24 per active triangle, 8 per segment, 72 per loop; the scratch
-/// the slicer and the toolpath stage take turns in holds the largest of the cut (29 per
-/// segment), the offset engine (50 per `PTS`) and the infill scratch (22 per `CROSS`): here
-/// the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`; move buffer `MOVE_BYTES` + 56 (Cortex-M3), about 6 bytes per
-/// queued move (5.0 to 6.3 on average over the sample models, at most 29).
+/// Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
+/// the toolpath stage take turns in holds the largest of the cut (29 per segment: the
+/// segment, its link and flags, and the endpoint hash whose place the layer's loop points
+/// take once it is dead), the offset engine (50 per `PTS`) and the infill scratch (22 per
+/// `CROSS`): here the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`;
+/// move buffer `MOVE_BYTES` + 56 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on
+/// average over the sample models, at most 29).
 pub mod board {
     use super::Printer;
 

@@ -121,9 +121,9 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     }
 }
 
-/// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments, `pts`
-/// offset edges, `cross` infill crossings): the largest tenant, bytes (the value adds at
-/// most a tag and alignment padding).
+/// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments and
+/// loop points, `pts` offset edges, `cross` infill crossings): the largest tenant, bytes (the
+/// value adds at most a tag and alignment padding).
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
     let engine = size_of::<Offsetter<0>>() + pts * ToolpathNeeds::ENGINE_BYTES;

@@ -1,11 +1,12 @@
 //! Toolpaths: perimeters, infill, skins, skirt, ordering and retraction, as a stream of moves.
 //!
-//! [`Toolpath`] takes the slicer's layers in order ([`Toolpath::push_layer`] from the slicer's
-//! sink) and emits, per layer, a [`ToolEvent::LayerStart`], the [`ToolMove`]s (absolute XY and
-//! Z in um, an extrusion delta in um of filament, a feed rate and the [`Feature`]) and a
-//! [`ToolEvent::LayerEnd`] with the layer's counters. Everything is integer (um, `i64`
-//! products) or fixed point; nothing allocates; every buffer has a capacity given as a const
-//! generic and overflowing one is a [`ToolpathError::Capacity`] naming it and the layer.
+//! [`Toolpath`] takes the slicer's layers in order ([`Toolpath::push_sliced`] from the
+//! slicer's sink, [`Toolpath::push_layer`] for a layer held elsewhere) and emits, per layer,
+//! a [`ToolEvent::LayerStart`], the [`ToolMove`]s (absolute XY and Z in um, an extrusion
+//! delta in um of filament, a feed rate and the [`Feature`]) and a [`ToolEvent::LayerEnd`]
+//! with the layer's counters. Everything is integer (um, `i64` products) or fixed point;
+//! nothing allocates; every buffer has a capacity given as a const generic and overflowing
+//! one is a [`ToolpathError::Capacity`] naming it and the layer.
 //!
 //! Per layer:
 //! 1. contours are simplified ([`simplify`], 10 um) and grouped into islands (an outer loop
@@ -54,8 +55,9 @@
 //! state, the nearest-path grid in the infill scratch) until its last unit went out and
 //! builds no other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room
 //! for the largest unit ([`LayerStats::max_unit_moves`]), not for a layer.
-//! [`Toolpath::push_layer`], [`flush_one`](Toolpath::flush_one) and
-//! [`finish`](Toolpath::finish) emit whole layers at once.
+//! [`Toolpath::push_layer`] (and [`push_sliced`](Toolpath::push_sliced)),
+//! [`flush_one`](Toolpath::flush_one) and [`finish`](Toolpath::finish) emit whole layers at
+//! once.
 //!
 //! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
 //! layers that wait for the layers above them and the `bottom` ones below the layer being
