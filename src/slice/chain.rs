@@ -342,3 +342,23 @@ impl<const S: usize, const L: usize> Chaining<'_, S, L> {
         Ok(true)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hash_slots_keep_every_u32_in_the_point_fields() {
+        let mut slots = [Point2::new(0, 0); 3];
+        let values = [NONE, 0, 1, i32::MAX as u32, i32::MAX as u32 + 1, 0xDEAD_BEEF];
+        for (k, &v) in values.iter().enumerate() {
+            set_hash_slot(&mut slots, k, v);
+        }
+        for (k, &v) in values.iter().enumerate() {
+            assert_eq!(hash_slot(&slots, k), v, "slot {k}");
+        }
+        // Slots 2 i and 2 i + 1 share entry i, as in a flat `[u32; 2 n]`.
+        assert_eq!(slots[0], Point2::new(-1, 0));
+        assert_eq!(slots[2].y, 0xDEAD_BEEF_u32 as i32);
+    }
+}
