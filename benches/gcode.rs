@@ -22,7 +22,7 @@ use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
 use strata::scratch::Scratch;
-use strata::slice::{Layer, LayerRepairs, LoopInfo, SliceConfig, Slicer};
+use strata::slice::{Layer, LayerRepairs, LoopInfo, SliceConfig, SlicedLayer, Slicer};
 use strata::toolpath::{ToolEvent, ToolMove, Toolpath, ToolpathConfig};
 
 /// Capacities comfortably above 3DBenchy's needs (see `examples/toolpath_report.rs`).
@@ -96,9 +96,7 @@ fn file_to_gcode(bytes: &[u8], job: &Job, st: &mut Stages) -> String {
     st.toolpath.set_position(pos, z);
     let tp = &mut st.toolpath;
     let mut events = |e: &ToolEvent<'_>| gw.event(e).expect("write");
-    let mut sink = |l: &Layer<'_>, work: &mut BenchScratch| {
-        tp.push_layer(l, work, &mut events).expect("toolpaths")
-    };
+    let mut sink = |l: SlicedLayer<'_, _, _, _>| tp.push_sliced(l, &mut events).expect("toolpaths");
     for t in &tris {
         st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
     }
@@ -111,7 +109,8 @@ fn file_to_gcode(bytes: &[u8], job: &Job, st: &mut Stages) -> String {
 fn slice_layers(tris: &[Triangle], st: &mut Stages, slice: SliceConfig) -> Vec<OwnedLayer> {
     st.slicer.reset(slice).expect("slice config");
     let mut out = Vec::new();
-    let mut sink = |l: &Layer<'_>, _: &mut BenchScratch| {
+    let mut sink = |l: SlicedLayer<'_, _, _, _>| {
+        let l = l.layer();
         out.push(OwnedLayer {
             index: l.index,
             z_um: l.z_um,
@@ -228,7 +227,7 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             st.slicer.reset(slice).expect("slice config");
             let mut n = 0usize;
-            let mut sink = |l: &Layer<'_>, _: &mut BenchScratch| n += black_box(l.points.len());
+            let mut sink = |l: SlicedLayer<'_, _, _, _>| n += black_box(l.layer().points.len());
             for t in &tris {
                 st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
             }

@@ -13,7 +13,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
-use strata::slice::{peak_needs, Layer, SliceConfig, SliceScratch, Slicer};
+use strata::slice::{peak_needs, SliceConfig, SliceScratch, SlicedLayer, Slicer};
 
 /// Bench capacities: comfortably above 3DBenchy's peaks (4,685 active, 4,681 segments).
 type BenchSlicer = Slicer<8192, 8192, 256>;
@@ -42,7 +42,7 @@ fn slice_all(
 ) -> usize {
     slicer.reset(config).expect("valid config");
     let mut points = 0usize;
-    let mut sink = |l: &Layer<'_>, _: &mut BenchScratch| points += black_box(l.points.len());
+    let mut sink = |l: SlicedLayer<'_, _, _, _>| points += black_box(l.layer().points.len());
     for t in tris {
         slicer.push(t, work, &mut sink).expect("slices");
     }

@@ -49,9 +49,9 @@ fn peak_loops(tris: &[Triangle], config: SliceConfig) -> u32 {
                 let mut slicer = Box::new(Slicer::<65536, 65536, 4096>::new(config).unwrap());
                 let mut work = Box::new(SliceScratch::new());
                 for t in tris {
-                    slicer.push(t, &mut work, &mut |_, _| {}).unwrap();
+                    slicer.push(t, &mut work, &mut |_| {}).unwrap();
                 }
-                slicer.finish(&mut work, &mut |_, _| {}).unwrap().peak_loops
+                slicer.finish(&mut work, &mut |_| {}).unwrap().peak_loops
             })
             .unwrap()
             .join()
@@ -83,8 +83,7 @@ fn main() {
         let loops = peak_loops(&tris, config);
         let (active, points) = (n.active_triangles as usize, n.contour_points as usize);
         // The slicer and the cut in its scratch.
-        let ram =
-            slicer_bytes(active, points, loops as usize) + strata::scratch::bytes(points, 0, 0);
+        let ram = slicer_bytes(active, loops as usize) + strata::scratch::bytes(points, 0, 0);
         let idle = tris.len() as u32 - n.spanning_triangles;
         println!(
             "| {name} | {} | {} | {:.0} % | {} ({}) | {} ({}) | {loops} | {:.1} KB |",

@@ -15,7 +15,7 @@ use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
 use strata::scratch::Scratch;
-use strata::slice::{Layer, SliceConfig, Slicer};
+use strata::slice::{SliceConfig, SlicedLayer, Slicer};
 use strata::toolpath::{LayerStats, ToolEvent, Toolpath, ToolpathConfig, ToolpathStats};
 
 type HostSlicer = Slicer<{ 1 << 16 }, { 1 << 16 }, 4096>;
@@ -76,9 +76,9 @@ fn run(bytes: &[u8], machine: &MachineConfig, st: &mut Stages) -> Option<Row> {
         let _ = gw.event(e);
     };
     let mut failed = None;
-    let mut sink = |l: &Layer<'_>, work: &mut HostScratch| {
+    let mut sink = |l: SlicedLayer<'_, _, _, _>| {
         if failed.is_none() {
-            failed = tp.push_layer(l, work, &mut events).err();
+            failed = tp.push_sliced(l, &mut events).err();
         }
     };
     for t in &tris {

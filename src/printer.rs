@@ -53,7 +53,7 @@ use crate::protocol::{
     VERSION,
 };
 use crate::scratch::Scratch;
-use crate::slice::{Layer, SliceConfig, SliceError, Slicer};
+use crate::slice::{SliceConfig, SliceError, SlicedLayer, Slicer};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
@@ -63,16 +63,18 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// announces [`BOARD_CAPACITIES`].
 ///
 /// RAM on the board = the `Printer` (slicer + toolpath + their scratch + move buffer +
-/// planner + generator, about 32 KB with these values) + the protocol endpoint, the step
-/// queue, the executor and the UART buffers + the stack: `.data + .bss` 38,908 B, 26.0 KB
+/// planner + generator, about 38 KB with these values) + the protocol endpoint, the step
+/// queue, the executor and the UART buffers + the stack: `.data + .bss` 44,532 B, 20.5 KB
 /// left for the stack, of which a job used about 7.7 KB when last measured (QEMU build; the
 /// firmware prints both after every job).
-/// Per-unit bytes: slicer 24 per active triangle, 8 per segment, 72 per loop; the scratch
-/// the slicer and the toolpath stage take turns in holds the largest of the cut (29 per
-/// segment), the offset engine (50 per `PTS`) and the infill scratch (22 per `CROSS`): here
-/// the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`; move buffer
-/// `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on average over
-/// the sample models, at most 29), holding the largest path with its travel (a unit) whole.
+/// Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
+/// the toolpath stage take turns in holds the largest of the cut (29 per segment: the
+/// segment, its link and flags, and the endpoint hash whose place the layer's loop points
+/// take once it is dead), the offset engine (50 per `PTS`) and the infill scratch (22 per
+/// `CROSS`): here the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`;
+/// move buffer `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on
+/// average over the sample models, at most 29), holding the largest path with its travel
+/// (a unit) whole.
 pub mod board {
     use super::Printer;
 
@@ -665,9 +667,7 @@ impl<
     }
 
     fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
-        self.through_slicer(motion, |slicer, work, sink| {
-            slicer.push(t, work, &mut |l, w| sink(l, w))
-        });
+        self.through_slicer(motion, |slicer, work, sink| slicer.push(t, work, &mut |l| sink(l)));
         self.triangles += 1;
     }
 
@@ -682,7 +682,7 @@ impl<
         step: impl FnOnce(
             &mut Slicer<A, S, L>,
             &mut Scratch<S, PTS, CROSS>,
-            &mut dyn FnMut(&Layer<'_>, &mut Scratch<S, PTS, CROSS>),
+            &mut dyn FnMut(SlicedLayer<'_, S, PTS, CROSS>),
         ) -> Result<R, SliceError>,
     ) -> Option<R> {
         let allowed = self.motion_allowed();
@@ -691,10 +691,9 @@ impl<
         let mut events = EventSink { slot, stream, motion, failed: None };
         let mut tp_err = None;
         let r = {
-            let mut sink = |l: &Layer<'_>, work: &mut Scratch<S, PTS, CROSS>| {
+            let mut sink = |l: SlicedLayer<'_, S, PTS, CROSS>| {
                 if tp_err.is_none() {
-                    tp_err =
-                        tp.accept_layer(l, work, &mut |e: &ToolEvent<'_>| events.event(e)).err();
+                    tp_err = tp.accept_sliced(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
             step(slicer, scratch, &mut sink)
@@ -769,7 +768,7 @@ impl<
     /// left or on an error. Call only when [`emit_moves`](Self::emit_moves) is done.
     fn cut_one(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
         let cut = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
-            slicer.cut_one(work, &mut |l, w| sink(l, w))
+            slicer.cut_one(work, &mut |l| sink(l))
         });
         self.emit_moves(motion);
         cut == Some(true) && self.is_active()
@@ -790,7 +789,7 @@ impl<
     /// failed).
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
-            slicer.finish(work, &mut |l, w| sink(l, w))
+            slicer.finish(work, &mut |l| sink(l))
         });
         if sliced.is_some() && self.is_active() {
             self.through_toolpath(motion, |tp, work, events| tp.finish(work, &mut |e| events(e)));

@@ -2,8 +2,10 @@
 //!
 //! Three tenants never work at once:
 //! - the slicer's cut of a layer (its segments, their links and flags, the endpoint hash:
-//!   [`CUT_BYTES`] per `SEGMENTS`), dead once the layer's loops are written (the loops and
-//!   their points stay in the slicer, and the toolpath stage copies them before it works);
+//!   [`CUT_BYTES`] per `SEGMENTS`) and, in the place of the hash once the segments are
+//!   linked, the layer's loop points: the slicer's output, handed on in the scratch
+//!   ([`SlicedLayer`](crate::slice::SlicedLayer); the loop records stay in the slicer). The
+//!   toolpath stage copies the layer before it takes the place;
 //! - the toolpath stage's offset engine ([`ToolpathNeeds::ENGINE_BYTES`] per `PTS`), then
 //!   its infill scratch ([`ToolpathNeeds::CROSS_BYTES`] per `CROSS`, reused by the ordering:
 //!   the nearest-path grid stays in its pool while the layer's paths are emitted unit by
@@ -14,8 +16,8 @@
 //! A [`Scratch`] holds whichever works now, so an owner of both stages (the
 //! [`Printer`](crate::printer::Printer)) pays for the largest one only. It is lent with `&mut`
 //! to [`Slicer::push`](crate::slice::Slicer::push) (and its other cutting calls), which hands
-//! it on to its layer sink, where the toolpath stage takes it
-//! ([`Toolpath::push_layer`](crate::toolpath::Toolpath::push_layer)). A turn starts from a
+//! it on to its layer sink with the layer in it, where the toolpath stage takes both
+//! ([`Toolpath::push_sliced`](crate::toolpath::Toolpath::push_sliced)). A turn starts from a
 //! cleared value written in place (in the optimised build: a memset, no stack temporary, no
 //! constant in flash); nothing is kept from one turn to the next, so a stage works the same
 //! whoever had the place before. Each tenant keeps its own capacity: overflowing one is the
@@ -23,11 +25,13 @@
 
 use core::mem::size_of;
 
+use crate::geom::Point2;
 use crate::slice::CutScratch;
 use crate::toolpath::offset::Offsetter;
 use crate::toolpath::{FillScratch, ToolpathNeeds};
 
-/// Bytes per `SEGMENTS` of the slicer's cut: segment 16, link 4, flags 1, two hash slots 8.
+/// Bytes per `SEGMENTS` of the slicer's cut: segment 16, link 4, flags 1, and 8 for two hash
+/// slots, then an output point.
 pub const CUT_BYTES: usize = CutScratch::<0>::BYTES_PER_SEGMENT;
 
 /// The working memory of a slicer with `SEGMENTS` segments per layer and a toolpath stage with
@@ -68,6 +72,15 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
                 self.tenant = Tenant::Cut(CutScratch::EMPTY);
                 self.cut()
             }
+        }
+    }
+
+    /// The loop points of the layer the slicer wrote last, while the cut has the place (empty
+    /// otherwise).
+    pub(crate) fn contour_points(&self) -> &[Point2] {
+        match self.tenant {
+            Tenant::Cut(ref c) => c.points(),
+            _ => &[],
         }
     }
 
@@ -112,9 +125,9 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     }
 }
 
-/// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments, `pts`
-/// offset edges, `cross` infill crossings): the largest tenant, bytes (the value adds at
-/// most a tag and alignment padding).
+/// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments and
+/// loop points, `pts` offset edges, `cross` infill crossings): the largest tenant, bytes (the
+/// value adds at most a tag and alignment padding).
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
     let engine = size_of::<Offsetter<0>>() + pts * ToolpathNeeds::ENGINE_BYTES;

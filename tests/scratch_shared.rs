@@ -13,7 +13,8 @@ use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::scratch::Scratch;
 use strata::slice::{
-    Layer, LayerRepairs, LoopInfo, Resource, SliceConfig, SliceError, SliceScratch, Slicer,
+    Layer, LayerRepairs, LoopInfo, Resource, SliceConfig, SliceError, SliceScratch, SlicedLayer,
+    Slicer,
 };
 use strata::toolpath::{
     Buffer, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError, ToolpathScratch,
@@ -95,11 +96,11 @@ fn shared<const S: usize, const CROSS: usize>(tris: &[Triangle], slice_cfg: Slic
         _ => {}
     };
     let (mut layers, mut finished_before_cut, mut failed) = (Vec::new(), Vec::new(), None);
-    let mut sink = |l: &Layer<'_>, work: &mut Scratch<S, PTS, CROSS>| {
-        layers.push(RawLayer::copy(l));
+    let mut sink = |l: SlicedLayer<'_, S, PTS, CROSS>| {
+        layers.push(RawLayer::copy(&l.layer()));
         finished_before_cut.push(finished.get());
         if failed.is_none() {
-            failed = tp.push_layer(l, work, &mut events).err();
+            failed = tp.push_sliced(l, &mut events).err();
         }
     };
     let sliced = tris
@@ -122,7 +123,7 @@ fn slice_alone<const S: usize>(
     let mut slicer = Box::new(Slicer::<A, S, L>::new(slice_cfg).unwrap());
     let mut work = Box::new(SliceScratch::<S>::new());
     let mut layers = Vec::new();
-    let mut sink = |l: &Layer<'_>, _: &mut SliceScratch<S>| layers.push(RawLayer::copy(l));
+    let mut sink = |l: SlicedLayer<'_, S, 0, 0>| layers.push(RawLayer::copy(&l.layer()));
     let sliced = tris
         .iter()
         .try_for_each(|t| slicer.push(t, &mut work, &mut sink))

@@ -8,7 +8,7 @@ use std::f64::consts::PI;
 
 use slice_support::*;
 use strata::geom::{Point3, Triangle};
-use strata::slice::{LayerRepairs, Resource, SliceError, SliceScratch, Slicer};
+use strata::slice::{LayerRepairs, Resource, SliceError, SliceScratch, SlicedLayer, Slicer};
 
 const C: f64 = 110.0; // bed centre, mm
 
@@ -278,7 +278,7 @@ fn every_plane_gives_one_sink_call_and_finish_is_final() {
     let mut slicer = Box::new(Slicer::<64, 64, 8>::new(cfg).unwrap());
     let mut work = SliceScratch::new();
     let mut seen = Vec::new();
-    let mut sink = |l: &strata::slice::Layer<'_>, _: &mut _| seen.push(l.index);
+    let mut sink = |l: SlicedLayer<'_, _, _, _>| seen.push(l.layer().index);
     for t in &tris {
         slicer.push(t, &mut work, &mut sink).unwrap();
     }
@@ -287,9 +287,9 @@ fn every_plane_gives_one_sink_call_and_finish_is_final() {
     assert_eq!(stats.layers, 100);
     // 16 triangles (fan caps of 4 each): the 8 horizontal ones span no plane.
     assert_eq!((stats.triangles, stats.dropped_triangles, stats.peak_active), (16, 8, 8));
-    assert_eq!(slicer.push(&tris[0], &mut work, &mut |_, _| {}), Err(SliceError::Finished));
+    assert_eq!(slicer.push(&tris[0], &mut work, &mut |_| {}), Err(SliceError::Finished));
     slicer.reset(cfg).unwrap();
-    assert_eq!(slicer.finish(&mut work, &mut |_, _| {}).map(|s| s.layers), Ok(100));
+    assert_eq!(slicer.finish(&mut work, &mut |_| {}).map(|s| s.layers), Ok(100));
 }
 
 #[test]

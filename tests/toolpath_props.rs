@@ -10,7 +10,7 @@ use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRu
 use slice_support::{cuboid, to_um};
 use strata::geom::Point2;
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::slice::{Layer, LayerRepairs, LoopInfo};
+use strata::slice::{Layer, LayerRepairs, LoopInfo, SlicedLayer};
 use strata::toolpath::scan::{line_spans, Angle, Span};
 use strata::toolpath::window::{Encoder, Fifo, StoredRings};
 use strata::toolpath::{
@@ -147,9 +147,9 @@ fn run_cfg_small(
     let mut work = Box::new(TestScratch::<256, 8>::new());
     let mut first = None;
     let mut events = |_: &ToolEvent<'_>| {};
-    let mut sink = |l: &Layer<'_>, work: &mut TestScratch<256, 8>| {
+    let mut sink = |l: SlicedLayer<'_, _, 256, 8>| {
         if first.is_none() {
-            first = tp.push_layer(l, work, &mut events).err();
+            first = tp.push_sliced(l, &mut events).err();
         }
     };
     for t in tris {

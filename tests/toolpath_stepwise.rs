@@ -12,7 +12,7 @@ use slice_support::{cuboid, holed_prism, load_placed, ngon, to_um};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::move_ring::{ByteRoom, MoveRing, MoveStream};
-use strata::slice::{Layer, SliceConfig};
+use strata::slice::{Layer, SliceConfig, SlicedLayer};
 use strata::toolpath::{
     Emitted, LayerStats, Replay, Room, Seam, ToolEvent, ToolpathConfig, ToolpathError,
     ToolpathStats,
@@ -21,6 +21,8 @@ use toolpath_support::{run_cfg, TestScratch, TestSlicer, TestToolpath, TpLayer, 
 
 /// The scratch of the stepwise runs (the test stage's PTS and CROSS).
 type Work = TestScratch<16384, 32768>;
+/// A layer the test slicer cut into a [`Work`].
+type Sliced<'a> = SlicedLayer<'a, 16384, 16384, 32768>;
 
 /// One `emit_next` call: the room given, the moves emitted, what it returned.
 #[derive(Debug, Clone, Copy)]
@@ -118,15 +120,14 @@ fn run_with(
                 let mut tp = Box::new(TestToolpath::new(cfg).unwrap());
                 let mut work = Box::new(Work::new());
                 let mut layers = Vec::new();
-                let accept =
-                    |tp: &mut TestToolpath, layers: &mut Vec<TpLayer>, l: &Layer, w: &mut Work| {
-                        assert!(!tp.emitting());
-                        tp.accept_layer(l, w, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
-                    };
+                let accept = |tp: &mut TestToolpath, layers: &mut Vec<TpLayer>, l: Sliced<'_>| {
+                    assert!(!tp.emitting());
+                    tp.accept_sliced(l, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
+                };
                 for t in tris {
                     while slicer.would_cut(t.z_min()) {
                         slicer
-                            .cut_one(&mut work, &mut |l, w| accept(&mut tp, &mut layers, l, w))
+                            .cut_one(&mut work, &mut |l| accept(&mut tp, &mut layers, l))
                             .unwrap();
                         if tp.emitting() {
                             // Neither another layer nor a flush while this one is emitted.
@@ -138,15 +139,12 @@ fn run_with(
                         }
                         emit(&mut tp, &mut work, &mut layers);
                     }
-                    slicer.push(t, &mut work, &mut |_, _| panic!("push cut a layer")).unwrap();
+                    slicer.push(t, &mut work, &mut |_| panic!("push cut a layer")).unwrap();
                 }
-                while slicer
-                    .cut_one(&mut work, &mut |l, w| accept(&mut tp, &mut layers, l, w))
-                    .unwrap()
-                {
+                while slicer.cut_one(&mut work, &mut |l| accept(&mut tp, &mut layers, l)).unwrap() {
                     emit(&mut tp, &mut work, &mut layers);
                 }
-                slicer.finish(&mut work, &mut |_, _| panic!("finish cut a layer")).unwrap();
+                slicer.finish(&mut work, &mut |_| panic!("finish cut a layer")).unwrap();
                 while tp
                     .build_next(&mut work, &mut |e: &ToolEvent<'_>| record(&mut layers, e))
                     .unwrap()

@@ -1,7 +1,8 @@
 //! Every capacity of the firmware build in one place (64 KB of RAM on every board: the
 //! Creality boards' STM32F103RET6 and QEMU's lm3s6965evb).
 //!
-//! RAM = the `Printer` (slicer + toolpath + the scratch they take turns in + move buffer +
+//! RAM = the `Printer` (slicer + toolpath + the scratch they take turns in, where the slicer
+//! also leaves each layer's loop points for the toolpath stage to copy + move buffer +
 //! planner + generator) + the protocol endpoint + the step queue + the executor + the stack.
 //! `.data + .bss` and the stack's high-water mark are printed at the end of each job (`MEM
 //! ...`, see `stack.rs`), and `scripts/build_firmware.sh` prints the static part.

@@ -35,7 +35,7 @@ use strata::machine::MachineConfig;
 use strata::move_ring::{ByteRoom, MoveMeter};
 use strata::protocol::{Capacities, JobSpec};
 use strata::scratch::Scratch;
-use strata::slice::{peak_needs, Layer, PeakNeeds, SliceConfig, Slicer};
+use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer, Slicer};
 use strata::toolpath::{ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
 /// What a model needs against what the device has.
@@ -370,17 +370,18 @@ fn measure(
         Ok(())
     };
     let mut failed = None;
-    let mut sink = |l: &Layer<'_>, work: &mut NeedsScratch| {
+    let mut sink = |l: SlicedLayer<'_, _, _, _>| {
         if failed.is_some() {
             return;
         }
         let before = tp.stats().needs;
         // Heights as the nozzle's (the top of the layer), as `LayerStart` gives them.
-        let pushed = (l.index, cfg.layer_z_um(l.index));
+        let index = l.layer().index;
+        let pushed = (index, cfg.layer_z_um(index));
         emitting.set(pushed);
-        let taken = tp.accept_layer(l, work, &mut *events);
+        let taken = tp.accept_sliced(l, &mut *events);
         raise(before, tp.stats().needs, pushed);
-        if let Err(e) = taken.and_then(|()| emit(&mut tp, work, &mut *events)) {
+        if let Err(e) = taken.and_then(|work| emit(&mut tp, work, &mut *events)) {
             failed = Some(e);
         }
     };

@@ -496,15 +496,13 @@ pub(crate) fn device_turn<const N: usize>(
 }
 
 /// RAM of a device pipeline sized exactly to this job's needs: slicer, toolpath stage and
-/// the scratch they take turns in (the slicer's cut or the toolpath stage's engine and infill
-/// scratch, the largest), planner and step generator and queues (12 KB, the motion test's
-/// bound).
+/// the scratch they take turns in (the slicer's cut and the layer's points, or the toolpath
+/// stage's engine and infill scratch, the largest), planner and step generator and queues
+/// (12 KB, the motion test's bound).
 pub fn device_ram(slice: &strata::slice::SliceStats, needs: &ToolpathNeeds) -> u64 {
-    let slicer = strata::slice::slicer_bytes(
-        slice.peak_active as usize,
-        slice.peak_segments as usize,
-        slice.peak_loops as usize,
-    );
-    let cut = strata::scratch::bytes(slice.peak_segments as usize, 0, 0);
+    let slicer = strata::slice::slicer_bytes(slice.peak_active as usize, slice.peak_loops as usize);
+    // `SEGMENTS` bounds a layer's segments and its points (repairs may add points).
+    let segments = slice.peak_segments.max(slice.peak_points) as usize;
+    let cut = strata::scratch::bytes(segments, 0, 0);
     (slicer + needs.stage_bytes() + cut.max(needs.work_bytes())) as u64 + 12 * 1024
 }

@@ -18,7 +18,8 @@ use strata::geom::{Point2, Triangle};
 use strata::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
 use strata::scratch::Scratch;
 use strata::slice::{
-    peak_needs, Layer, LayerRepairs, PeakNeeds, SliceConfig, SliceScratch, SliceStats, Slicer,
+    peak_needs, Layer, LayerRepairs, PeakNeeds, SliceConfig, SliceScratch, SliceStats, SlicedLayer,
+    Slicer,
 };
 use strata::toolpath::{
     LayerStats, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds,
@@ -274,7 +275,7 @@ fn run_slicer(
                 let mut slicer = HostSlicer::new(config).map_err(|e| e.to_string())?;
                 let mut work = Box::new(SliceScratch::new());
                 let mut layers = Vec::with_capacity(slicer.layer_count() as usize);
-                let mut sink = |l: &Layer<'_>, _: &mut _| layers.push(layer_out(l));
+                let mut sink = |l: SlicedLayer<'_, _, _, _>| layers.push(layer_out(&l.layer()));
                 for t in tris {
                     slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
                 }
@@ -485,9 +486,9 @@ fn run_toolpaths(
                     write_error |= gw.event(e).is_err();
                 };
                 let mut failed: Option<ToolpathError> = None;
-                let mut sink = |l: &Layer<'_>, work: &mut HostScratch| {
+                let mut sink = |l: SlicedLayer<'_, _, _, _>| {
                     if failed.is_none() {
-                        failed = tp.push_layer(l, work, &mut events).err();
+                        failed = tp.push_sliced(l, &mut events).err();
                     }
                 };
                 for t in tris {

@@ -6,6 +6,11 @@
 //! consistently wound mesh every cut point has as many segments ending as starting there, so
 //! the links form cycles only, whatever is chosen at points where loops touch. Segments left
 //! without predecessor start open chains, which `repair` joins or drops.
+//!
+//! The table is dead once every segment is linked (repair and emission follow links only),
+//! so it shares its place with the layer's output points: [`CutScratch::slots`] holds one
+//! [`Point2`] (8 bytes) per segment, read as two `u32` hash slots while linking and written
+//! with the loops' points afterwards.
 
 use core::mem::size_of;
 
@@ -57,34 +62,56 @@ pub(super) struct LayerOutcome {
     pub dropped_small_loops: u32,
 }
 
-/// A layer's cut: its segments, their links and flags, and the endpoint hash table. It lives
-/// in the shared [`Scratch`](crate::scratch::Scratch) and is dead once the layer's loops are
-/// written: 29 bytes per segment (16 segment + 4 link + 1 flags + 8 hash slots).
+/// A layer's cut: its segments, their links and flags, the endpoint hash table and then, in
+/// the table's place, the layer's loop points (the slicer's output, read through
+/// [`SlicedLayer`](super::SlicedLayer)). It lives in the shared
+/// [`Scratch`](crate::scratch::Scratch) and is dead once the toolpath stage has copied the
+/// layer: 29 bytes per segment (16 segment + 4 link + 1 flags + 8 hash slots or a point).
 pub(crate) struct CutScratch<const S: usize> {
     pub(super) segs: [Segment; S],
     pub(super) next: [u32; S],
     flags: [u8; S],
-    table: [[u32; 2]; S],
+    /// While linking: the endpoint hash, two `u32` slots per entry ([`hash_slot`]); then the
+    /// layer's loop points, `slots[..points_len]`.
+    slots: [Point2; S],
     len: usize,
+    points_len: usize,
 }
 
-/// A layer's loops and loop points (the slicer's output, read through
-/// [`Layer`](super::Layer)) and the open chains of its repair. Memory per unit of capacity:
-/// 8 bytes per segment (an output point) and `size_of::<LoopInfo>() + size_of::<Chain>()`
-/// per loop.
-pub(super) struct Contours<const S: usize, const L: usize> {
-    pub points: [Point2; S],
+/// Hash slot `k` of the table kept in `slots` while linking: slot `2 i` is `slots[i].x`,
+/// slot `2 i + 1` is `slots[i].y`, a segment index (or [`NONE`]) stored as the bit pattern of
+/// the `i32` field (`as` casts both ways: no value is lost). The same layout as a flat
+/// `[u32; 2 S]`, so probing visits the same slots in the same order.
+fn hash_slot(slots: &[Point2], k: usize) -> u32 {
+    let entry = slots[k / 2];
+    (if k % 2 == 0 { entry.x } else { entry.y }) as u32
+}
+
+/// Writes hash slot `k` (see [`hash_slot`]).
+fn set_hash_slot(slots: &mut [Point2], k: usize, segment: u32) {
+    let entry = &mut slots[k / 2];
+    if k % 2 == 0 {
+        entry.x = segment as i32;
+    } else {
+        entry.y = segment as i32;
+    }
+}
+
+/// A layer's loops (read through [`Layer`](super::Layer), their points are in the
+/// [`CutScratch`]) and the open chains of its repair. Memory per unit of capacity:
+/// `size_of::<LoopInfo>() + size_of::<Chain>()` per loop.
+pub(super) struct Contours<const L: usize> {
     pub loops: [LoopInfo; L],
     pub chains: [Chain; L],
-    pub points_len: usize,
     pub loops_len: usize,
     pub chains_len: usize,
 }
 
-/// The chaining of one layer: reads and links the cut, writes the contours.
+/// The chaining of one layer: reads and links the cut, writes the loop points into the cut
+/// (over its dead hash table) and the loops into `out`.
 pub(super) struct Chaining<'a, const S: usize, const L: usize> {
     pub cut: &'a mut CutScratch<S>,
-    pub out: &'a mut Contours<S, L>,
+    pub out: &'a mut Contours<L>,
 }
 
 /// Slot of `p` in a table of `slots` entries: multiplicative hash, then a multiply-shift
@@ -96,22 +123,29 @@ fn slot_of(p: Point2, slots: usize) -> usize {
 }
 
 impl<const S: usize> CutScratch<S> {
-    /// Bytes per segment: the segment, its link, its flags and two hash slots.
+    /// Bytes per segment: the segment, its link, its flags and two hash slots (or a point).
     pub(crate) const BYTES_PER_SEGMENT: usize =
-        size_of::<Segment>() + size_of::<u32>() + size_of::<u8>() + size_of::<[u32; 2]>();
+        size_of::<Segment>() + size_of::<u32>() + size_of::<u8>() + size_of::<Point2>();
 
     /// No segments. All zero: written in place by a memset (no constant in flash).
     pub(crate) const EMPTY: Self = Self {
         segs: [Segment { start: Point2::new(0, 0), end: Point2::new(0, 0) }; S],
         next: [0; S],
         flags: [0; S],
-        table: [[0; 2]; S],
+        slots: [Point2::new(0, 0); S],
         len: 0,
+        points_len: 0,
     };
 
-    /// Forgets the previous layer's segments.
+    /// Forgets the previous layer's segments and points.
     pub fn clear(&mut self) {
         self.len = 0;
+        self.points_len = 0;
+    }
+
+    /// The loop points written by the last [`Chaining::build`] (until the next `clear`).
+    pub fn points(&self) -> &[Point2] {
+        &self.slots[..self.points_len]
     }
 
     /// Segments of the layer.
@@ -128,20 +162,17 @@ impl<const S: usize> CutScratch<S> {
     }
 }
 
-impl<const S: usize, const L: usize> Contours<S, L> {
+impl<const L: usize> Contours<L> {
     /// Empty buffers.
     pub const EMPTY: Self = Self {
-        points: [Point2::new(0, 0); S],
         loops: [LoopInfo::EMPTY; L],
         chains: [Chain { head: 0, tail: 0, segments: 0, length_um: 0, state: ChainState::Open }; L],
-        points_len: 0,
         loops_len: 0,
         chains_len: 0,
     };
 
     /// Forgets the previous layer.
     pub fn clear(&mut self) {
-        self.points_len = 0;
         self.loops_len = 0;
         self.chains_len = 0;
     }
@@ -156,6 +187,9 @@ impl<const S: usize, const L: usize> Chaining<'_, S, L> {
         max_gap_um: i32,
     ) -> Result<LayerOutcome, Resource> {
         self.out.clear();
+        self.cut.points_len = 0;
+        // The hash table is used here only: repair and emission follow the links, and the
+        // points emitted below overwrite the table.
         self.link();
         self.collect_open_chains()?;
         let repairs = self.repair(join_tolerance_um, max_gap_um);
@@ -174,35 +208,36 @@ impl<const S: usize, const L: usize> Chaining<'_, S, L> {
                 outcome.dropped_small_loops += 1;
             }
         }
-        let out = &mut *self.out;
+        let (cut, out) = (&mut *self.cut, &mut *self.out);
         super::nest::orient_and_nest(
-            &mut out.points[..out.points_len],
+            &mut cut.slots[..cut.points_len],
             &mut out.loops[..out.loops_len],
         );
         Ok(outcome)
     }
 
-    /// Links each segment to an unclaimed segment starting at its end point.
+    /// Links each segment to an unclaimed segment starting at its end point, through the
+    /// endpoint hash in `slots` (`2 n` slots for `n` segments: [`hash_slot`]).
     fn link(&mut self) {
-        let CutScratch { segs, next, flags, table, len } = &mut *self.cut;
+        let CutScratch { segs, next, flags, slots, len, .. } = &mut *self.cut;
         let n = *len;
-        let slots = 2 * n;
-        let table = &mut table.as_flattened_mut()[..slots];
-        table.fill(NONE);
+        let table_len = 2 * n;
+        let table = &mut slots[..n];
+        table.fill(Point2::new(NONE as i32, NONE as i32));
         for (i, seg) in segs[..n].iter().enumerate() {
-            let mut s = slot_of(seg.start, slots);
-            while table[s] != NONE {
-                s = if s + 1 == slots { 0 } else { s + 1 };
+            let mut s = slot_of(seg.start, table_len);
+            while hash_slot(table, s) != NONE {
+                s = if s + 1 == table_len { 0 } else { s + 1 };
             }
-            table[s] = i as u32;
+            set_hash_slot(table, s, i as u32);
         }
         next[..n].fill(NONE);
         flags[..n].fill(0);
         for i in 0..n {
             let end = segs[i].end;
-            let mut s = slot_of(end, slots);
+            let mut s = slot_of(end, table_len);
             loop {
-                let j = table[s] as usize;
+                let j = hash_slot(table, s) as usize;
                 if j == NONE as usize {
                     break;
                 }
@@ -211,7 +246,7 @@ impl<const S: usize, const L: usize> Chaining<'_, S, L> {
                     flags[j] |= HAS_PRED;
                     break;
                 }
-                s = if s + 1 == slots { 0 } else { s + 1 };
+                s = if s + 1 == table_len { 0 } else { s + 1 };
             }
         }
     }
@@ -248,18 +283,20 @@ impl<const S: usize, const L: usize> Chaining<'_, S, L> {
         Ok(())
     }
 
+    /// Appends a loop point in the table's place (dead since `link`). A repaired gap adds a
+    /// point, so a layer may have more points than segments: the capacity is still `S`.
     fn push_point(&mut self, p: Point2) -> Result<(), Resource> {
-        let out = &mut *self.out;
-        let slot = out.points.get_mut(out.points_len).ok_or(Resource::ContourPoints)?;
+        let cut = &mut *self.cut;
+        let slot = cut.slots.get_mut(cut.points_len).ok_or(Resource::ContourPoints)?;
         *slot = p;
-        out.points_len += 1;
+        cut.points_len += 1;
         Ok(())
     }
 
     /// Writes the cycle through segment `head` as a loop; `Ok(false)` when it is dropped
     /// for its area (below `min_doubled / 2` or zero).
     fn emit(&mut self, head: usize, min_doubled: i64) -> Result<bool, Resource> {
-        let start = self.out.points_len;
+        let start = self.cut.points_len;
         let mut cur = head;
         // A cycle visits each segment once: the bound only guards against a broken link.
         for _ in 0..self.cut.len {
@@ -277,11 +314,11 @@ impl<const S: usize, const L: usize> Chaining<'_, S, L> {
                 break;
             }
         }
-        let out = &mut *self.out;
-        let points = &out.points[start..out.points_len];
+        let (cut, out) = (&mut *self.cut, &mut *self.out);
+        let points = &cut.slots[start..cut.points_len];
         let doubled = doubled_signed_area(points);
         if doubled == 0 || doubled.abs() < min_doubled {
-            out.points_len = start;
+            cut.points_len = start;
             return Ok(false);
         }
         let (mut min, mut max) = (points[0], points[0]);
@@ -303,5 +340,25 @@ impl<const S: usize, const L: usize> Chaining<'_, S, L> {
         *slot = info;
         out.loops_len += 1;
         Ok(true)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hash_slots_keep_every_u32_in_the_point_fields() {
+        let mut slots = [Point2::new(0, 0); 3];
+        let values = [NONE, 0, 1, i32::MAX as u32, i32::MAX as u32 + 1, 0xDEAD_BEEF];
+        for (k, &v) in values.iter().enumerate() {
+            set_hash_slot(&mut slots, k, v);
+        }
+        for (k, &v) in values.iter().enumerate() {
+            assert_eq!(hash_slot(&slots, k), v, "slot {k}");
+        }
+        // Slots 2 i and 2 i + 1 share entry i, as in a flat `[u32; 2 n]`.
+        assert_eq!(slots[0], Point2::new(-1, 0));
+        assert_eq!(slots[2].y, 0xDEAD_BEEF_u32 as i32);
     }
 }

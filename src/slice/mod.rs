@@ -22,16 +22,20 @@
 //!
 //! A [`Slicer<ACTIVE, SEGMENTS, LOOPS>`](Slicer) holds its buffers inline:
 //! - 24 bytes per `ACTIVE` (three corners packed as 21-bit fields in three `u64`);
-//! - 8 bytes per `SEGMENTS` (an output point);
 //! - 72 bytes per `LOOPS` (a [`LoopInfo`] of 48 and an open-chain record of 24);
 //! - about 200 bytes of state.
 //!
-//! The cut of a layer (29 bytes per `SEGMENTS`: segment 16, link 4, flags 1, two hash slots
-//! 8) is only needed while the layer is chained: it lives in a [`Scratch`] the caller lends
-//! to every call that may cut ([`Slicer::push`], [`Slicer::cut_one`], [`Slicer::finish`]) and
-//! that the toolpath stage reuses (a [`SliceScratch`] when slicing alone).
+//! The cut of a layer (29 bytes per `SEGMENTS`: segment 16, link 4, flags 1, and 8 for two
+//! endpoint hash slots, then an output point) lives in a [`Scratch`] the caller lends to
+//! every call that may cut ([`Slicer::push`], [`Slicer::cut_one`], [`Slicer::finish`]) and
+//! that the toolpath stage reuses (a [`SliceScratch`] when slicing alone). The hash table is
+//! dead once the segments are linked, so the layer's loop points are written in its place:
+//! the layer is handed to the sink in the scratch, as a [`SlicedLayer`] (its
+//! [`layer`](SlicedLayer::layer) to read it, or the whole to
+//! [`Toolpath::push_sliced`](crate::toolpath::Toolpath::push_sliced), which copies it before
+//! it takes the scratch).
 //!
-//! For example `Slicer<1024, 512, 32>` takes about 30 KB and its cut about 15 KB.
+//! For example `Slicer<1024, 512, 32>` takes about 26 KB and its cut about 15 KB.
 //! [`peak_needs`] tells the host which capacities a model needs.
 
 mod chain;
@@ -59,13 +63,12 @@ pub use peak::{peak_needs, PeakNeeds};
 /// The [`Scratch`] of a slicer used alone (no toolpath stage shares it).
 pub type SliceScratch<const SEGMENTS: usize> = Scratch<SEGMENTS, 0, 0>;
 
-/// RAM of a [`Slicer`] with these capacities (`ACTIVE`, `SEGMENTS`, `LOOPS`), without the
-/// cut in its [`Scratch`] ([`scratch::bytes`](crate::scratch::bytes)), bytes: 24 per active
-/// triangle, 8 per segment, 72 per loop and the fixed state.
-pub fn slicer_bytes(active: usize, segments: usize, loops: usize) -> usize {
+/// RAM of a [`Slicer`] with these capacities (`ACTIVE`, `LOOPS`), without the cut and the
+/// loop points in its [`Scratch`] ([`scratch::bytes`](crate::scratch::bytes), per
+/// `SEGMENTS`), bytes: 24 per active triangle, 72 per loop and the fixed state.
+pub fn slicer_bytes(active: usize, loops: usize) -> usize {
     core::mem::size_of::<Slicer<0, 0, 0>>()
         + active * core::mem::size_of::<PackedTriangle>()
-        + segments * core::mem::size_of::<Point2>()
         + loops * (core::mem::size_of::<LoopInfo>() + core::mem::size_of::<chain::Chain>())
 }
 
@@ -284,7 +287,9 @@ impl LayerRepairs {
     }
 }
 
-/// One sliced layer, borrowing the slicer's buffers until the sink returns.
+/// One sliced layer: from the slicer, its points borrowed from the [`Scratch`] and its loops
+/// from the slicer while the sink has the [`SlicedLayer`] (or a layer of the caller's own,
+/// for [`Toolpath::push_layer`](crate::toolpath::Toolpath::push_layer)).
 #[derive(Debug, Clone, Copy)]
 pub struct Layer<'a> {
     /// Layer index from 0 (the first layer).
@@ -309,6 +314,43 @@ impl<'a> Layer<'a> {
     /// The points of `l` (empty if `l` is not one of this layer's loops).
     pub fn loop_points(&self, l: &LoopInfo) -> &'a [Point2] {
         self.points.get(l.start as usize..l.start as usize + l.len as usize).unwrap_or(&[])
+    }
+}
+
+/// The layer the slicer has just cut, lent to its sink together with the [`Scratch`] it was
+/// cut in: its points are in the scratch (in the place of the cut's dead hash table), its
+/// loops in the slicer. Read it with [`layer`](Self::layer), or hand the whole to the
+/// toolpath stage ([`Toolpath::push_sliced`](crate::toolpath::Toolpath::push_sliced),
+/// [`accept_sliced`](crate::toolpath::Toolpath::accept_sliced)), which copies the layer
+/// before it uses the scratch.
+pub struct SlicedLayer<'a, const SEGMENTS: usize, const P: usize, const C: usize> {
+    /// The layer but its points (`points` is empty: they are in `work`'s cut).
+    head: Layer<'a>,
+    work: &'a mut Scratch<SEGMENTS, P, C>,
+}
+
+impl<'a, const SEGMENTS: usize, const P: usize, const C: usize> SlicedLayer<'a, SEGMENTS, P, C> {
+    /// The layer (its points in the scratch).
+    pub fn layer(&self) -> Layer<'_> {
+        Layer { points: self.work.contour_points(), ..self.head }
+    }
+
+    /// The scratch, for what leaves the cut in place (the layer stays readable).
+    pub(crate) fn scratch_keeping_layer(&mut self) -> &mut Scratch<SEGMENTS, P, C> {
+        self.work
+    }
+
+    /// The scratch, the layer given up (copy it first).
+    pub(crate) fn into_scratch(self) -> &'a mut Scratch<SEGMENTS, P, C> {
+        self.work
+    }
+}
+
+impl<const SEGMENTS: usize, const P: usize, const C: usize> fmt::Debug
+    for SlicedLayer<'_, SEGMENTS, P, C>
+{
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_tuple("SlicedLayer").field(&self.layer()).finish()
     }
 }
 
@@ -355,7 +397,8 @@ impl SliceStats {
 
 /// The streaming slicer. Capacities: `ACTIVE` triangles in the active set, `SEGMENTS` cut
 /// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer. It cuts
-/// each layer in a [`Scratch`] lent to the calls that may cut (see the [module docs](self)).
+/// each layer in a [`Scratch`] lent to the calls that may cut, and leaves the layer's points
+/// there (see the [module docs](self)).
 ///
 /// Large capacities make a large value: on the host, build it where the stack is big enough
 /// (or in a `static`/boxed slot and call [`Slicer::reset`]).
@@ -367,7 +410,7 @@ pub struct Slicer<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize
     next_plane: i32,
     active: [PackedTriangle; ACTIVE],
     active_len: usize,
-    contours: Contours<SEGMENTS, LOOPS>,
+    contours: Contours<LOOPS>,
     last_z_min: i32,
     stats: SliceStats,
     /// Set by `finish` or by an error: later calls fail.
@@ -452,13 +495,13 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     }
 
     /// Takes the next triangle (sorted by lowest z). Cuts every plane at or below its lowest
-    /// z first in `scratch`, calling `sink` once per layer in order with the layer and
-    /// `scratch` (free again: the layer's loops are in the slicer).
+    /// z first in `scratch`, calling `sink` once per layer in order with the layer, which
+    /// lives in `scratch` until the sink returns or hands the scratch on ([`SlicedLayer`]).
     pub fn push<const P: usize, const C: usize>(
         &mut self,
         tri: &Triangle,
         scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
     ) -> Result<(), SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
@@ -484,7 +527,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     pub fn cut_one<const P: usize, const C: usize>(
         &mut self,
         scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
     ) -> Result<bool, SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
@@ -506,7 +549,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     pub fn finish<const P: usize, const C: usize>(
         &mut self,
         scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
     ) -> Result<SliceStats, SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
@@ -523,7 +566,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         &mut self,
         tri: &Triangle,
         scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
     ) -> Result<(), SliceError> {
         let index = self.stats.triangles;
         let (z_min, z_max) = (tri.z_min(), tri.z_max());
@@ -561,7 +604,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     fn cut_next<const P: usize, const C: usize>(
         &mut self,
         scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(&Layer<'_>, &mut Scratch<SEGMENTS, P, C>),
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
     ) -> Result<(), SliceError> {
         let layer = self.next_layer;
         let plane = self.next_plane;
@@ -587,7 +630,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         }
         let segments = cut.len() as u32;
         let c = &mut self.contours;
-        let outcome = Chaining { cut, out: &mut *c }
+        let outcome = Chaining { cut: &mut *cut, out: &mut *c }
             .build(
                 self.config.min_loop_area_um2,
                 self.config.join_tolerance_um,
@@ -603,10 +646,11 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
                     },
                 )
             })?;
-        let out = Layer {
+        let points = cut.points().len() as u32;
+        let head = Layer {
             index: layer,
             z_um: plane,
-            points: &c.points[..c.points_len],
+            points: &[],
             loops: &c.loops[..c.loops_len],
             repairs: outcome.repairs,
             dropped_small_loops: outcome.dropped_small_loops,
@@ -616,13 +660,13 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         let st = &mut self.stats;
         st.layers += 1;
         st.peak_active = st.peak_active.max(active_triangles);
-        st.peak_segments = st.peak_segments.max(out.segments);
-        st.peak_points = st.peak_points.max(out.points.len() as u32);
-        st.peak_loops = st.peak_loops.max(out.loops.len() as u32);
-        st.loops = st.loops.saturating_add(out.loops.len() as u32);
-        st.dropped_small_loops = st.dropped_small_loops.saturating_add(out.dropped_small_loops);
-        st.repairs.add(&out.repairs);
-        sink(&out, scratch);
+        st.peak_segments = st.peak_segments.max(head.segments);
+        st.peak_points = st.peak_points.max(points);
+        st.peak_loops = st.peak_loops.max(head.loops.len() as u32);
+        st.loops = st.loops.saturating_add(head.loops.len() as u32);
+        st.dropped_small_loops = st.dropped_small_loops.saturating_add(head.dropped_small_loops);
+        st.repairs.add(&head.repairs);
+        sink(SlicedLayer { head, work: scratch });
         self.next_layer += 1;
         self.next_plane = after as i32;
         Ok(())
@@ -641,11 +685,11 @@ mod tests {
         let fixed = size_of::<Slicer<0, 0, 0>>();
         assert!(fixed <= 200, "{fixed}");
         let device = size_of::<Slicer<1024, 512, 32>>();
-        assert_eq!(device, fixed + 1024 * 24 + 512 * 8 + 32 * 72);
-        assert_eq!(device, slicer_bytes(1024, 512, 32));
-        assert!(device < 31 * 1024, "{device}");
-        // The cut, in the scratch.
-        assert_eq!(size_of::<intersect::Segment>() + 4 + 1 + 8, 29);
+        assert_eq!(device, fixed + 1024 * 24 + 32 * 72);
+        assert_eq!(device, slicer_bytes(1024, 32));
+        assert!(device < 27 * 1024, "{device}");
+        // The cut and the loop points, in the scratch.
+        assert_eq!(size_of::<intersect::Segment>() + 4 + 1 + size_of::<Point2>(), 29);
         assert_eq!(CutScratch::<0>::BYTES_PER_SEGMENT, 29);
     }
 }

@@ -1,11 +1,12 @@
 //! Toolpaths: perimeters, infill, skins, skirt, ordering and retraction, as a stream of moves.
 //!
-//! [`Toolpath`] takes the slicer's layers in order ([`Toolpath::push_layer`] from the slicer's
-//! sink) and emits, per layer, a [`ToolEvent::LayerStart`], the [`ToolMove`]s (absolute XY and
-//! Z in um, an extrusion delta in um of filament, a feed rate and the [`Feature`]) and a
-//! [`ToolEvent::LayerEnd`] with the layer's counters. Everything is integer (um, `i64`
-//! products) or fixed point; nothing allocates; every buffer has a capacity given as a const
-//! generic and overflowing one is a [`ToolpathError::Capacity`] naming it and the layer.
+//! [`Toolpath`] takes the slicer's layers in order ([`Toolpath::push_sliced`] from the
+//! slicer's sink, [`Toolpath::push_layer`] for a layer held elsewhere) and emits, per layer,
+//! a [`ToolEvent::LayerStart`], the [`ToolMove`]s (absolute XY and Z in um, an extrusion
+//! delta in um of filament, a feed rate and the [`Feature`]) and a [`ToolEvent::LayerEnd`]
+//! with the layer's counters. Everything is integer (um, `i64` products) or fixed point;
+//! nothing allocates; every buffer has a capacity given as a const generic and overflowing
+//! one is a [`ToolpathError::Capacity`] naming it and the layer.
 //!
 //! Per layer:
 //! 1. contours are simplified ([`simplify`], 10 um) and grouped into islands (an outer loop
@@ -57,8 +58,9 @@
 //! the infill scratch of the owner's [`Scratch`]) until its last unit went out and builds no
 //! other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room for the
 //! largest unit ([`LayerStats::max_unit_moves`] moves), not for a layer.
-//! [`Toolpath::push_layer`], [`flush_one`](Toolpath::flush_one) and
-//! [`finish`](Toolpath::finish) emit whole layers at once.
+//! [`Toolpath::push_layer`] (and [`push_sliced`](Toolpath::push_sliced)),
+//! [`flush_one`](Toolpath::flush_one) and [`finish`](Toolpath::finish) emit whole layers at
+//! once.
 //!
 //! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
 //! layers that wait for the layers above them and the `bottom` ones below the layer being
@@ -80,9 +82,10 @@
 //! - about 1 KB of fixed state (settings, counters, the window's block table).
 //!
 //! It works in a [`Scratch`] lent to every call that computes layers (the slicer's sink hands
-//! on the slicer's; a [`ToolpathScratch`] when used alone), where two tenants take turns per
-//! layer (offsets, then infill and ordering) with the slicer's cut, the largest of the three
-//! counting:
+//! on the slicer's, with the layer in it: [`Toolpath::push_sliced`]; a [`ToolpathScratch`]
+//! when used alone), where two tenants take turns per layer (offsets, then infill and
+//! ordering) with the slicer's cut and output points, which the stage copies first
+//! ([`Toolpath::push_layer`]'s store), the largest of the three counting:
 //! - the offset engine (`PTS` edges, splits and pieces): 50 bytes per `PTS` (edge 16, split
 //!   12, piece 20, active entry 2);
 //! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
@@ -98,7 +101,7 @@ use core::fmt;
 use crate::geom::Point2;
 use crate::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
 use crate::scratch::Scratch;
-use crate::slice::Layer;
+use crate::slice::{Layer, SlicedLayer};
 
 use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
 use offset::Join;
@@ -970,10 +973,12 @@ impl<
         ToolpathError::Capacity { what, capacity: capacity as u32, layer }
     }
 
-    /// Takes the next layer from the slicer; emits every layer whose `top_layers` layers
-    /// above have now arrived, computing them in `work` (the [`Scratch`] the slicer hands
-    /// its sink), all its moves at once ([`accept_layer`](Self::accept_layer) and
-    /// [`emit_next`](Self::emit_next) emit them as an owner's buffer allows).
+    /// Takes the next layer; emits every layer whose `top_layers` layers above have now
+    /// arrived, computing them in `work`, all its moves at once
+    /// ([`accept_layer`](Self::accept_layer) and [`emit_next`](Self::emit_next) emit them as
+    /// an owner's buffer allows). The layer is copied (simplified, into the skin window)
+    /// before anything else. For the layer the slicer has just cut, in the scratch it hands
+    /// its sink: [`push_sliced`](Self::push_sliced).
     pub fn push_layer<const S: usize>(
         &mut self,
         layer: &Layer<'_>,
@@ -985,31 +990,87 @@ impl<
         self.emit_all(work, sink)
     }
 
-    /// Takes the next layer from the slicer like [`push_layer`](Self::push_layer), but
-    /// only builds the layer that is now complete (its `top_layers` layers above have
-    /// arrived; at most one) in `work`: its [`ToolEvent::Progress`] points and its
-    /// [`ToolEvent::LayerStart`] go out, its moves wait for [`emit_next`](Self::emit_next).
+    /// [`push_layer`](Self::push_layer) of the layer the slicer has just cut in `layer`'s
+    /// scratch (its points are there): the layer is copied before the scratch is used.
+    pub fn push_sliced<const S: usize>(
+        &mut self,
+        mut layer: SlicedLayer<'_, S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), ToolpathError> {
+        // Emitting leaves the cut in place (no infill scratch to find the paths in: scans).
+        self.emit_all(layer.scratch_keeping_layer(), sink)?;
+        let work = self.accept_sliced(layer, sink)?;
+        self.emit_all(work, sink)
+    }
+
+    /// Takes the next layer like [`push_layer`](Self::push_layer), but only builds the
+    /// layer that is now complete (its `top_layers` layers above have arrived; at most one)
+    /// in `work`: its [`ToolEvent::Progress`] points and its [`ToolEvent::LayerStart`] go
+    /// out, its moves wait for [`emit_next`](Self::emit_next).
     /// Refused with [`ToolpathError::Emitting`] while a layer is being emitted
     /// ([`emitting`](Self::emitting)): its paths, and the nearest-path grid in `work`'s
     /// infill scratch, are kept until its last move went out (an owner lends `work` to no
     /// one else meanwhile; if it does, the paths are found by scanning: the same order).
+    /// For the layer the slicer has just cut: [`accept_sliced`](Self::accept_sliced).
     pub fn accept_layer<const S: usize>(
         &mut self,
         layer: &Layer<'_>,
         work: &mut Scratch<S, PTS, CROSS>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
+        self.take(layer)?;
+        self.complete(work, sink)
+    }
+
+    /// [`accept_layer`](Self::accept_layer) of the layer the slicer has just cut in
+    /// `layer`'s scratch (its points are there): the layer is copied before the scratch is
+    /// used. Gives the scratch back (the layer given up) for [`emit_next`](Self::emit_next).
+    pub fn accept_sliced<'w, const S: usize>(
+        &mut self,
+        layer: SlicedLayer<'w, S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<&'w mut Scratch<S, PTS, CROSS>, ToolpathError> {
+        self.take(&layer.layer())?;
+        // Copied: the scratch may go to the offset engine.
+        let work = layer.into_scratch();
+        self.complete(work, sink)?;
+        Ok(work)
+    }
+
+    /// First half of [`accept_layer`](Self::accept_layer): checks and stores the layer (in
+    /// the [`StoredRings`] layout; `layer` is not read afterwards).
+    fn take(&mut self, layer: &Layer<'_>) -> Result<(), ToolpathError> {
         if let Some(e) = self.stopped {
             return Err(e);
         }
         if self.emission.is_active() {
             return Err(ToolpathError::Emitting { layer: self.next_out });
         }
-        let result = self.push_inner(layer, work, sink);
+        let result = self.store_next(layer);
         if let Err(e) = result {
             self.stopped = Some(e);
         }
         result
+    }
+
+    /// Second half of [`accept_layer`](Self::accept_layer): builds the layer the one just
+    /// taken completes (the one `top_layers` below it), if any, in `work`.
+    fn complete<const S: usize>(
+        &mut self,
+        work: &mut Scratch<S, PTS, CROSS>,
+        sink: &mut impl FnMut(&ToolEvent<'_>),
+    ) -> Result<(), ToolpathError> {
+        // Each layer taken completes at most one.
+        let top = u32::from(self.cfg.top_layers);
+        if self.next_out + top < self.next_in {
+            let l = self.next_out;
+            let result = self.process(l, work, sink).map_err(|w| self.capacity(w, l));
+            if let Err(e) = result {
+                self.stopped = Some(e);
+            }
+            return result;
+        }
+        Ok(())
     }
 
     /// A layer is built and its moves are not all emitted yet.
@@ -1145,24 +1206,14 @@ impl<
         result.map(|()| self.stats())
     }
 
-    fn push_inner<const S: usize>(
-        &mut self,
-        layer: &Layer<'_>,
-        work: &mut Scratch<S, PTS, CROSS>,
-        sink: &mut impl FnMut(&ToolEvent<'_>),
-    ) -> Result<(), ToolpathError> {
+    /// Stores `layer` if it is the next one.
+    fn store_next(&mut self, layer: &Layer<'_>) -> Result<(), ToolpathError> {
         if layer.index != self.next_in {
             return Err(ToolpathError::OutOfOrder { expected: self.next_in, got: layer.index });
         }
         let index = layer.index;
         self.store(layer).map_err(|w| self.capacity(w, index))?;
         self.next_in += 1;
-        // Each layer taken completes at most one (the one `top_layers` below it).
-        let top = u32::from(self.cfg.top_layers);
-        if self.next_out + top < self.next_in {
-            let l = self.next_out;
-            self.process(l, work, sink).map_err(|w| self.capacity(w, l))?;
-        }
         Ok(())
     }
 

@@ -8,7 +8,9 @@ use std::path::Path;
 use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::place::{Bounds, Placement};
-use strata::slice::{LayerRepairs, SliceConfig, SliceError, SliceScratch, SliceStats, Slicer};
+use strata::slice::{
+    LayerRepairs, SliceConfig, SliceError, SliceScratch, SliceStats, SlicedLayer, Slicer,
+};
 
 /// A triangle in mm, corners counter-clockwise seen from outside.
 pub type TriMm = [[f64; 3]; 3];
@@ -224,7 +226,8 @@ pub fn run<const A: usize, const S: usize, const L: usize>(
                 let mut slicer = Slicer::<A, S, L>::new(config)?;
                 let mut work = Box::new(SliceScratch::new());
                 let mut layers = Vec::new();
-                let mut sink = |l: &strata::slice::Layer<'_>, _: &mut SliceScratch<S>| {
+                let mut sink = |l: SlicedLayer<'_, S, 0, 0>| {
+                    let l = l.layer();
                     layers.push(OwnedLayer {
                         index: l.index,
                         z_um: l.z_um,

@@ -5,7 +5,7 @@
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::scratch::Scratch;
-use strata::slice::{Layer, SliceConfig, Slicer};
+use strata::slice::{SliceConfig, SlicedLayer, Slicer};
 use strata::toolpath::{
     Feature, LayerStats, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError,
     ToolpathStats,
@@ -98,12 +98,13 @@ pub fn run_sized<
                         }
                         ToolEvent::Progress => {}
                     };
-                    let mut sink = |l: &Layer<'_>, work: &mut TestScratch<PTS, CROSS>| {
+                    let mut sink = |sliced: SlicedLayer<'_, _, PTS, CROSS>| {
+                        let l = sliced.layer();
                         contours.push(
                             l.loops.iter().map(|i| (l.loop_points(i).to_vec(), i.hole)).collect(),
                         );
                         if err.is_none() {
-                            if let Err(e) = tp.push_layer(l, work, &mut events) {
+                            if let Err(e) = tp.push_sliced(sliced, &mut events) {
                                 err = Some(e);
                             }
                         }
