@@ -300,12 +300,63 @@ pub struct ByteRoom {
     largest: usize,
     /// Bytes of all units taken.
     taken: u64,
+    /// Moves of all units taken.
+    taken_moves: u64,
+    /// The exact bytes of the first unit offered, known from an earlier refusal (the coding
+    /// state has not moved since): taken without a replay.
+    known_first: Option<usize>,
+    /// The meter is behind the units taken (one went in on its known bytes): no more units
+    /// in this call.
+    stale: bool,
+    /// Expected bytes per move, 1/16 B (0: none): a unit whose expected bytes exceed the
+    /// free ones is refused without a replay while the buffer is not empty.
+    per_move_q4: usize,
+    /// The bytes to wait for after such a refusal (an estimate, at most the capacity).
+    hint: Option<usize>,
 }
 
 impl ByteRoom {
     /// `free` bytes of a buffer of `capacity`, the moves coded by `meter` from its state.
     pub const fn new(meter: MoveMeter, free: usize, capacity: usize) -> Self {
-        Self { meter, free, capacity, refused: None, largest: 0, taken: 0 }
+        Self {
+            meter,
+            free,
+            capacity,
+            refused: None,
+            largest: 0,
+            taken: 0,
+            taken_moves: 0,
+            known_first: None,
+            stale: false,
+            per_move_q4: 0,
+            hint: None,
+        }
+    }
+
+    /// The first unit offered has `bytes` (exact: it was refused with them and the coding
+    /// state has not moved since), so it is taken or refused without a replay.
+    pub const fn with_known_first(mut self, bytes: Option<usize>) -> Self {
+        self.known_first = bytes;
+        self
+    }
+
+    /// Units are expected to take `per_move_q4` / 16 bytes a move: one whose expected bytes
+    /// exceed the free ones is refused without a replay (unless the buffer is empty), and
+    /// [`wait_hint`](Self::wait_hint) says how many to wait for.
+    pub const fn with_estimate(mut self, per_move_q4: usize) -> Self {
+        self.per_move_q4 = per_move_q4;
+        self
+    }
+
+    /// Bytes to wait for before offering again: the exact bytes of the unit refused last,
+    /// or the estimate of one refused without a replay.
+    pub fn wait_hint(&self) -> Option<usize> {
+        self.refused.or(self.hint)
+    }
+
+    /// Moves of all units taken.
+    pub fn taken_moves(&self) -> u64 {
+        self.taken_moves
     }
 
     /// Room without bound, to measure units (the host's admission control).
@@ -347,6 +398,24 @@ impl ByteRoom {
 
 impl Room for ByteRoom {
     fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool {
+        if self.stale {
+            return false;
+        }
+        if let Some(bytes) = self.known_first.take() {
+            if bytes > self.free {
+                self.refused = Some(bytes);
+                return false;
+            }
+            // The meter cannot follow without the replay: this call takes no more units.
+            self.stale = true;
+            self.commit(bytes, moves);
+            return true;
+        }
+        let expected = (moves as usize).saturating_mul(self.per_move_q4) >> 4;
+        if expected > self.free && self.free < self.capacity {
+            self.hint = Some(expected.min(self.capacity));
+            return false;
+        }
         let mut meter = self.meter;
         let (mut bytes, mut seen) = (0usize, 0u32);
         replay(&mut |e: &ToolEvent<'_>| {
@@ -358,12 +427,21 @@ impl Room for ByteRoom {
             self.refused = Some(bytes);
             return false;
         }
-        self.refused = None;
         self.meter = meter;
+        self.commit(bytes, moves);
+        true
+    }
+}
+
+impl ByteRoom {
+    /// A unit of `bytes` and `moves` went in.
+    fn commit(&mut self, bytes: usize, moves: u32) {
+        self.refused = None;
+        self.hint = None;
         self.free -= bytes;
         self.largest = self.largest.max(bytes);
         self.taken += bytes as u64;
-        true
+        self.taken_moves += u64::from(moves);
     }
 }
 
@@ -754,6 +832,58 @@ mod tests {
         let mut moves = 5usize;
         assert!(moves.take(3, replay) && moves == 2);
         assert!(!moves.take(3, replay) && moves == 2);
+    }
+
+    #[test]
+    fn known_bytes_and_the_estimate_spare_replays_without_changing_what_is_taken() {
+        let feed = Rate::from_num(40);
+        let at = |x: i32, e_um| ToolMove {
+            to: Point2::new(x, 0),
+            z_um: 200,
+            e_um,
+            feed_mm_s: feed,
+            feature: Feature::InternalInfill,
+        };
+        let unit = [at(1_000, 0), at(2_000, 30), at(2_000, -500)];
+        let replays = core::cell::Cell::new(0);
+        let replay = &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
+            replays.set(replays.get() + 1);
+            for m in &unit {
+                out(&ToolEvent::Move(*m));
+            }
+        };
+        let meter = MoveMeter::new(stream_at(1), MoveEncoder::new());
+        // The exact bytes, from a refusal.
+        let mut first = ByteRoom::new(meter, 0, 64);
+        assert!(!first.take(3, replay));
+        let bytes = first.refused().unwrap();
+        assert_eq!((first.wait_hint(), replays.get()), (Some(bytes), 1));
+        // Known bytes: refused below them and taken at them, neither time replayed; after a
+        // unit taken on its bytes the room takes no other (its meter did not follow).
+        let mut below = ByteRoom::new(meter, bytes - 1, 64).with_known_first(Some(bytes));
+        assert!(!below.take(3, replay));
+        assert_eq!((below.refused(), replays.get()), (Some(bytes), 1));
+        let mut exact = ByteRoom::new(meter, 64, 64).with_known_first(Some(bytes));
+        assert!(exact.take(3, replay));
+        assert_eq!(
+            (exact.taken(), exact.taken_moves(), exact.free()),
+            (bytes as u64, 3, 64 - bytes)
+        );
+        assert!(!exact.take(3, replay));
+        assert_eq!((exact.refused(), exact.wait_hint(), replays.get()), (None, None, 1));
+        // An estimate above the free bytes refuses without a replay and says what to wait
+        // for (at most the capacity), unless the buffer is empty: then the unit is replayed
+        // and taken on its real bytes.
+        let per_move_q4 = 16 * 20;
+        let mut busy = ByteRoom::new(meter, 59, 64).with_estimate(per_move_q4);
+        assert!(!busy.take(3, replay));
+        assert_eq!((busy.refused(), busy.wait_hint(), replays.get()), (None, Some(60), 1));
+        let mut capped = ByteRoom::new(meter, 10, 32).with_estimate(per_move_q4);
+        assert!(!capped.take(3, replay));
+        assert_eq!(capped.wait_hint(), Some(32));
+        let mut empty = ByteRoom::new(meter, 32, 32).with_estimate(per_move_q4);
+        assert!(empty.take(3, replay));
+        assert_eq!((empty.taken(), replays.get()), (bytes as u64, 2));
     }
 
     fn stream_at(layer: u32) -> MoveStream {

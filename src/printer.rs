@@ -47,7 +47,7 @@ use heapless::Deque;
 use crate::geom::{Point2, Triangle};
 use crate::machine::{MachineConfig, AXES};
 use crate::move_ring::{MoveRing, MoveStream};
-use crate::plan::{PlanConfig, PlanError, Planner};
+use crate::plan::{PlanConfig, Planner};
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
     VERSION,
@@ -192,20 +192,18 @@ impl<const MOVE_BYTES: usize, const P: usize> MotionSlot<'_, MOVE_BYTES, P> {
         out: &mut StepProducer<'_, Q>,
     ) -> Result<bool, u32> {
         let mut worked = false;
-        while let Some(t) = self.moves.front() {
+        // Each record is decoded once, when the planner has room for it (it is full most of
+        // the time: peeking at the head first would decode it on every call).
+        while !self.planner.is_full() {
+            let Some(t) = self.moves.pop_front() else { break };
             let before = self.planner.position_um();
             let mv = t.unpack();
-            match self.planner.push(mv) {
-                Ok(()) => {
-                    self.moves.pop_front();
-                    worked = true;
-                    // A move that goes nowhere makes no block and has no tag.
-                    if mv.target_um != before {
-                        let _ = self.tags.push_back(u32::from(t.layer));
-                    }
-                }
-                Err(PlanError::QueueFull) => break,
-                Err(_) => return Err(u32::from(t.layer)),
+            // The planner had room: any refusal is the move's fault and fails the job.
+            self.planner.push(mv).map_err(|_| u32::from(t.layer))?;
+            worked = true;
+            // A move that goes nowhere makes no block and has no tag.
+            if mv.target_um != before {
+                let _ = self.tags.push_back(u32::from(t.layer));
             }
         }
         let input_done = toolpath_done && self.moves.is_empty();
@@ -277,6 +275,11 @@ pub struct Printer<
     waiting_for_room: bool,
     /// Bytes of the toolpath stage's unit the move buffer refused last (0: none waits).
     unit_waiting: usize,
+    /// `unit_waiting` is the unit's exact size (it was replayed), not an estimate.
+    unit_known: bool,
+    /// Bytes and moves of the units that went into the move buffer in this job (their
+    /// ratio, with a margin, is the estimate that spares replays of units that cannot fit).
+    units_coded: (u64, u64),
     /// Bytes of the largest unit that went into the move buffer in this job.
     unit_bytes: usize,
     /// The job report went out (once the job is done).
@@ -347,6 +350,8 @@ impl<
             batch_pos: 0,
             waiting_for_room: false,
             unit_waiting: 0,
+            unit_known: false,
+            units_coded: (0, 0),
             unit_bytes: 0,
             report_sent: false,
             heaters: false,
@@ -554,6 +559,8 @@ impl<
         self.triangles = 0;
         self.batch_pos = 0;
         self.unit_waiting = 0;
+        self.unit_known = false;
+        self.units_coded = (0, 0);
         self.unit_bytes = 0;
         self.report_sent = false;
         self.heated = false;
@@ -745,11 +752,20 @@ impl<
         if self.moves.free_bytes() < self.unit_waiting {
             return false;
         }
-        let mut room = self.moves.room(&self.stream);
+        // Replays are spared where the size is known: a unit refused before goes in on its
+        // exact bytes, and a new one is first offered when its moves at the job's bytes per
+        // move so far (plus a quarter) fit.
+        let (bytes, moves) = self.units_coded;
+        let per_move_q4 = (bytes * 20).checked_div(moves).unwrap_or(0) as usize;
+        let known = self.unit_known.then_some(self.unit_waiting);
+        let mut room =
+            self.moves.room(&self.stream).with_known_first(known).with_estimate(per_move_q4);
         let emitted = self.through_toolpath(motion, |tp, work, events| {
             tp.emit_next(work, &mut room, &mut |e: &ToolEvent<'_>| events(e))
         });
-        self.unit_waiting = room.refused().unwrap_or(0);
+        self.unit_waiting = room.wait_hint().unwrap_or(0);
+        self.unit_known = room.refused().is_some();
+        self.units_coded = (bytes + room.taken(), moves + room.taken_moves());
         self.unit_bytes = self.unit_bytes.max(room.largest());
         match emitted {
             Some(Emitted::Complete) => self.is_active(),

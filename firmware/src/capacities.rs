@@ -32,12 +32,25 @@ pub use strata::printer::board::BoardPrinter as FwPrinter;
 
 /// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
 /// default 0.02 mm (embodier_LM8UU_8p2pi: 742 active triangles, 1,740 loop points;
-/// embodier_hotend_v2: PATH 1010; the largest unit of any sample model 1,089 B against a 32 KB
-/// move buffer), so that they run on the Cortex-M3 instruction set for their cost figures and
-/// the bit-exact comparison with the host.
+/// embodier_hotend_v2: PATH 1010), so that they run on the Cortex-M3 instruction set for their
+/// cost figures and the bit-exact comparison with the host. The move buffer is the 64 KB
+/// board's (`MOVE_BYTES`; the largest unit of any sample model is 1,089 B): the slicer cuts a
+/// layer once the previous one is all in the buffer, so a larger buffer would let the
+/// pipeline run layers ahead of the motion and the per-layer costs would not be the board's.
 #[cfg(feature = "qemu-mps2")]
-pub type FwPrinter =
-    strata::printer::Printer<1024, 1024, 48, 2048, 64, 1024, 2048, 4096, 256, 32_768, 32>;
+pub type FwPrinter = strata::printer::Printer<
+    1024,
+    1024,
+    48,
+    2048,
+    64,
+    1024,
+    2048,
+    4096,
+    256,
+    { strata::printer::board::MOVE_BYTES },
+    32,
+>;
 
 /// Commands per axis in the step queue (a power of two; 12 B each, 4 axes; the host
 /// simulation's).

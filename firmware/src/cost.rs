@@ -26,11 +26,11 @@
 //! paths it emitted meanwhile are few; most of a layer's paths go into the move buffer in
 //! `poll` calls, counted with planning, each unit's moves made twice: once replayed for the
 //! buffer's byte room, which codes them to count the unit's bytes exactly, once into the
-//! buffer; a unit the room refused is not replayed again before the buffer has that many
-//! bytes free). The message stays at the head of the link and the printer looks at it again
-//! on the next turn,
-//! so such a call is left out of both figures: it is waiting, not work (a board could sleep
-//! there until the next interrupt).
+//! buffer; a unit is first offered once the job's bytes per move so far, plus a quarter, fit,
+//! and one the room refused goes in on its known bytes, without a second replay). The message
+//! stays at the head of the link and the printer looks at it again on the next turn, so such
+//! a call is left out of both figures: it is waiting, not work (a board could sleep there
+//! until the next interrupt).
 
 use crate::board;
 use crate::capacities::FwPrinter;
