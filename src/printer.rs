@@ -63,10 +63,10 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// announces [`BOARD_CAPACITIES`].
 ///
 /// RAM on the board = the `Printer` (slicer + toolpath + their scratch + move buffer +
-/// planner + generator, about 38 KB with these values) + the protocol endpoint, the step
-/// queue, the executor and the UART buffers + the stack: `.data + .bss` 44,532 B, 20.5 KB
-/// left for the stack, of which a job used about 7.7 KB when last measured (QEMU build; the
-/// firmware prints both after every job).
+/// planner + generator, about 31 KB with these values) + the protocol endpoint, the step
+/// queue, the executor and the UART buffers + the stack: `.data + .bss` 37,388 B, 27.5 KB
+/// left for the stack, of which a job uses about 7.7 KB (QEMU build; the firmware prints
+/// both after every job).
 /// Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
 /// the toolpath stage take turns in holds the largest of the cut (29 per segment: the
 /// segment, its link and flags, and the endpoint hash whose place the layer's loop points
