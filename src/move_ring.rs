@@ -780,17 +780,9 @@ mod tests {
 
     #[test]
     fn a_byte_room_takes_units_by_their_coded_bytes() {
-        let feed = Rate::from_num(40);
-        let at = |x: i32, e_um| ToolMove {
-            to: Point2::new(x, 0),
-            z_um: 200,
-            e_um,
-            feed_mm_s: feed,
-            feature: Feature::InternalInfill,
-        };
         // A unit of three moves of layer 1 (travel, print, retract), and its bytes from the
         // origin by the encoder (whose records are checked above).
-        let unit = [at(1_000, 0), at(2_000, 30), at(2_000, -500)];
+        let unit = three_move_unit();
         let mut stream = stream_at(1);
         let (mut enc, mut out, mut bytes) = (MoveEncoder::new(), [0u8; MAX_RECORD], 0);
         for m in &unit {
@@ -836,15 +828,7 @@ mod tests {
 
     #[test]
     fn known_bytes_and_the_estimate_spare_replays_without_changing_what_is_taken() {
-        let feed = Rate::from_num(40);
-        let at = |x: i32, e_um| ToolMove {
-            to: Point2::new(x, 0),
-            z_um: 200,
-            e_um,
-            feed_mm_s: feed,
-            feature: Feature::InternalInfill,
-        };
-        let unit = [at(1_000, 0), at(2_000, 30), at(2_000, -500)];
+        let unit = three_move_unit();
         let replays = core::cell::Cell::new(0);
         let replay = &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
             replays.set(replays.get() + 1);
@@ -884,6 +868,18 @@ mod tests {
         let mut empty = ByteRoom::new(meter, 32, 32).with_estimate(per_move_q4);
         assert!(empty.take(3, replay));
         assert_eq!((empty.taken(), replays.get()), (bytes as u64, 2));
+    }
+
+    /// A travel, a print and a retraction along X at z 0.2 mm, 40 mm/s.
+    fn three_move_unit() -> [ToolMove; 3] {
+        let at = |x: i32, e_um| ToolMove {
+            to: Point2::new(x, 0),
+            z_um: 200,
+            e_um,
+            feed_mm_s: Rate::from_num(40),
+            feature: Feature::InternalInfill,
+        };
+        [at(1_000, 0), at(2_000, 30), at(2_000, -500)]
     }
 
     fn stream_at(layer: u32) -> MoveStream {

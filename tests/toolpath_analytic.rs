@@ -7,7 +7,7 @@ mod toolpath_support;
 
 use std::f64::consts::PI;
 
-use slice_support::{cuboid, holed_prism, ngon, to_um, TriMm};
+use slice_support::{cuboid, four_holed_discs, holed_prism, ngon, to_um, TriMm};
 use strata::geom::Point2;
 use strata::machine::{InfillPattern, MachineConfig, PrintSettings};
 use strata::toolpath::{Feature, ToolpathConfig};
@@ -473,16 +473,7 @@ fn crosses(loops: &[(Vec<Point2>, bool)], a: (f64, f64), b: (f64, f64)) -> bool 
 fn travels_inside_the_part_need_no_retraction_and_leaving_it_retracts() {
     // Four separate holed discs (24-gons, 11.8 mm across, 2 mm holes), 12 mm apart.
     let c = 110.0;
-    let mut plate = Vec::new();
-    for (dx, dy) in [(-6.0, -6.0), (6.0, -6.0), (-6.0, 6.0), (6.0, 6.0)] {
-        let (hx, hy) = (c + dx, c + dy);
-        plate.extend(holed_prism(
-            &ngon(24, hx, hy, 5.9, 0.0),
-            &ngon(24, hx, hy, 2.0, 0.0),
-            0.0,
-            2.0,
-        ));
-    }
+    let plate = four_holed_discs(c, 2.0);
     let r = default_run(&plate);
     // Four separate rings (tiles do not touch): one island each per layer.
     assert_eq!(r.layers[3].stats.islands, 4);

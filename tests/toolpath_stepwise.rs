@@ -8,14 +8,13 @@ mod toolpath_support;
 
 use std::path::Path;
 
-use slice_support::{cuboid, holed_prism, load_placed, ngon, to_um};
+use slice_support::{cuboid, four_holed_discs, holed_prism, load_placed, ngon, to_um};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::move_ring::{ByteRoom, MoveRing, MoveStream};
 use strata::slice::{Layer, SliceConfig, SlicedLayer};
 use strata::toolpath::{
-    Emitted, LayerStats, Replay, Room, Seam, ToolEvent, ToolpathConfig, ToolpathError,
-    ToolpathStats,
+    Emitted, Replay, Room, Seam, ToolEvent, ToolpathConfig, ToolpathError, ToolpathStats,
 };
 use toolpath_support::{run_cfg, TestScratch, TestSlicer, TestToolpath, TpLayer, TpRun};
 
@@ -32,21 +31,9 @@ struct Call {
     got: Emitted,
 }
 
-/// Records the stage's events into layers (as `toolpath_support` does).
+/// Records the stage's events into layers; a move or layer end before any layer fails.
 fn record(layers: &mut Vec<TpLayer>, e: &ToolEvent<'_>) {
-    match e {
-        ToolEvent::LayerStart { index, z_um, height_um } => layers.push(TpLayer {
-            index: *index,
-            z_um: *z_um,
-            height_um: *height_um,
-            moves: Vec::new(),
-            stats: LayerStats::default(),
-            contours: Vec::new(),
-        }),
-        ToolEvent::Move(m) => layers.last_mut().expect("a move before any layer").moves.push(*m),
-        ToolEvent::LayerEnd(s) => layers.last_mut().expect("an end before any layer").stats = **s,
-        ToolEvent::Progress => {}
-    }
+    assert!(toolpath_support::record(layers, e), "an event before any layer: {e:?}");
 }
 
 /// Emits the built layer, each call with `room(needed)` moves of room (`needed`: what the
@@ -193,16 +180,7 @@ fn shapes() -> Vec<(&'static str, Vec<Triangle>, ToolpathConfig)> {
     let machine = MachineConfig::default();
     let default = ToolpathConfig::new(&machine, &settings);
     let c = 110.0;
-    let mut plate = Vec::new();
-    for (dx, dy) in [(-6.0, -6.0), (6.0, -6.0), (-6.0, 6.0), (6.0, 6.0)] {
-        let (hx, hy) = (c + dx, c + dy);
-        plate.extend(holed_prism(
-            &ngon(24, hx, hy, 5.9, 0.0),
-            &ngon(24, hx, hy, 2.0, 0.0),
-            0.0,
-            1.6,
-        ));
-    }
+    let plate = four_holed_discs(c, 1.6);
     let mut nearest = default;
     nearest.seam = Seam::Nearest;
     nearest.outer_perimeter_last = false;

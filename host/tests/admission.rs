@@ -349,18 +349,29 @@ fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, Err
         .unwrap()
 }
 
+/// Two small jobs for the move buffer's checks: a box with a skirt, and a tall thin wall
+/// without one.
+fn unit_cases() -> Vec<(Vec<Triangle>, JobSpec)> {
+    [
+        (cuboid(100_000, 112_000, 100_000, 109_000, 1_000), 1),
+        (cuboid(60_000, 61_500, 150_000, 190_000, 2_200), 0),
+    ]
+    .into_iter()
+    .map(|(tris, skirt_loops)| {
+        let options = JobOptions { skirt_loops, ..JobOptions::default() };
+        let spec = JobSpec { options, ..job(&tris) };
+        (tris, spec)
+    })
+    .collect()
+}
+
 /// Admission codes the job's moves as the device's move buffer codes them (the coding's
 /// state running on across layers): a printer that plans nothing holds, after the whole
 /// model, exactly the bytes admission counted, and more than the largest unit's.
 #[test]
 fn admission_counts_the_bytes_the_move_buffer_holds() {
     let machine = MachineConfig::default();
-    for (tris, skirt_loops) in [
-        (cuboid(100_000, 112_000, 100_000, 109_000, 1_000), 1),
-        (cuboid(60_000, 61_500, 150_000, 190_000, 2_200), 0),
-    ] {
-        let spec =
-            JobSpec { options: JobOptions { skirt_loops, ..JobOptions::default() }, ..job(&tris) };
+    for (tris, spec) in unit_cases() {
         let peaks = toolpath_peaks(&tris, &machine, &spec).unwrap();
         let (held, state, error) = buffer_unplanned(&tris, spec);
         assert_eq!((state, error), (DeviceState::Printing, ErrorCode::None));
@@ -430,12 +441,7 @@ fn run_limited(tris: &[Triangle], job: JobSpec, limit: usize) -> Limited {
 #[test]
 fn the_largest_unit_admission_reports_is_the_buffer_a_printer_needs() {
     let machine = MachineConfig::default();
-    for (tris, skirt_loops) in [
-        (cuboid(100_000, 112_000, 100_000, 109_000, 1_000), 1),
-        (cuboid(60_000, 61_500, 150_000, 190_000, 2_200), 0),
-    ] {
-        let spec =
-            JobSpec { options: JobOptions { skirt_loops, ..JobOptions::default() }, ..job(&tris) };
+    for (tris, spec) in unit_cases() {
         let peaks = toolpath_peaks(&tris, &machine, &spec).unwrap();
         let unit = peaks.unit_bytes.value as usize;
         let roomy = run_limited(&tris, spec, 1 << 16);

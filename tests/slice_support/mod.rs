@@ -61,6 +61,22 @@ pub fn cuboid(min: [f64; 3], max: [f64; 3]) -> Vec<TriMm> {
     loft(&[(min[2], ring.clone()), (max[2], ring)])
 }
 
+/// Four separate holed discs (24-gons 11.8 mm across with 2 mm holes, 12 mm apart) around
+/// (`c`, `c`) mm, from z 0 to `height` mm: several islands, holes and travels between them.
+pub fn four_holed_discs(c: f64, height: f64) -> Vec<TriMm> {
+    let mut plate = Vec::new();
+    for (dx, dy) in [(-6.0, -6.0), (6.0, -6.0), (-6.0, 6.0), (6.0, 6.0)] {
+        let (hx, hy) = (c + dx, c + dy);
+        plate.extend(holed_prism(
+            &ngon(24, hx, hy, 5.9, 0.0),
+            &ngon(24, hx, hy, 2.0, 0.0),
+            0.0,
+            height,
+        ));
+    }
+    plate
+}
+
 /// Prism over a polygon ring with a same-sized polygon hole (both counter-clockwise, points
 /// matched by index) between `z0` and `z1`.
 pub fn holed_prism(outer: &[[f64; 2]], inner: &[[f64; 2]], z0: f64, z1: f64) -> Vec<TriMm> {

@@ -18,6 +18,31 @@ pub type TestSlicer = Slicer<16384, 16384, 1024>;
 /// The scratch a [`TestSlicer`] and a toolpath stage of `PTS` and `CROSS` take turns in.
 pub type TestScratch<const PTS: usize, const CROSS: usize> = Scratch<16384, PTS, CROSS>;
 
+/// Records one of the stage's events into `layers` (a layer per `LayerStart`, its moves and
+/// its counters); false for a move or a layer end that came before any layer.
+pub fn record(layers: &mut Vec<TpLayer>, e: &ToolEvent<'_>) -> bool {
+    match e {
+        ToolEvent::LayerStart { index, z_um, height_um } => layers.push(TpLayer {
+            index: *index,
+            z_um: *z_um,
+            height_um: *height_um,
+            moves: Vec::new(),
+            stats: LayerStats::default(),
+            contours: Vec::new(),
+        }),
+        ToolEvent::Move(m) => match layers.last_mut() {
+            Some(l) => l.moves.push(*m),
+            None => return false,
+        },
+        ToolEvent::LayerEnd(s) => match layers.last_mut() {
+            Some(l) => l.stats = **s,
+            None => return false,
+        },
+        ToolEvent::Progress => {}
+    }
+    true
+}
+
 /// One layer's output.
 #[derive(Debug, Clone)]
 pub struct TpLayer {
@@ -78,25 +103,10 @@ pub fn run_sized<
                 let mut stray = 0usize;
                 let mut err: Option<ToolpathError> = None;
                 {
-                    let mut events = |e: &ToolEvent<'_>| match e {
-                        ToolEvent::LayerStart { index, z_um, height_um } => layers.push(TpLayer {
-                            index: *index,
-                            z_um: *z_um,
-                            height_um: *height_um,
-                            moves: Vec::new(),
-                            stats: LayerStats::default(),
-                            contours: Vec::new(),
-                        }),
-                        ToolEvent::Move(m) => match layers.last_mut() {
-                            Some(l) => l.moves.push(*m),
-                            None => stray += 1,
-                        },
-                        ToolEvent::LayerEnd(s) => {
-                            if let Some(l) = layers.last_mut() {
-                                l.stats = **s;
-                            }
+                    let mut events = |e: &ToolEvent<'_>| {
+                        if !record(&mut layers, e) {
+                            stray += 1;
                         }
-                        ToolEvent::Progress => {}
                     };
                     let mut sink = |sliced: SlicedLayer<'_, _, PTS, CROSS>| {
                         let l = sliced.layer();
