@@ -45,7 +45,9 @@ pub struct Scratch<const SEGMENTS: usize, const PTS: usize, const CROSS: usize> 
     tenant: Tenant<SEGMENTS, PTS, CROSS>,
 }
 
-/// Who has the place.
+/// Who has the place. `repr(u8)`: a tag byte with `Cut` = 0 (the niche layout would not
+/// store it as 0), so that a new scratch is all zero bytes.
+#[repr(u8)]
 enum Tenant<const S: usize, const P: usize, const C: usize> {
     Cut(CutScratch<S>),
     Offset(Offsetter<P>),
