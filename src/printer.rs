@@ -331,7 +331,8 @@ impl<
     /// An unconfigured runner with empty buffers, built at compile time: a board keeps it in
     /// a `static` (no stack temporary of the whole pipeline) and calls
     /// [`Printer::configure`] once at start-up, before anything else. Its configurations
-    /// are [`MachineConfig::UNSET`] and the like, so that more of it is zero bytes.
+    /// are [`MachineConfig::UNSET`] and the like: the whole value is zero bytes, so a
+    /// `static` holding it is in `.bss` (no flash image).
     pub const fn empty() -> Self {
         Self {
             machine: MachineConfig::UNSET,
