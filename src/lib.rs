@@ -44,6 +44,7 @@ pub mod protocol;
 pub mod scratch;
 pub mod sim;
 pub mod slice;
+pub mod slot;
 pub mod step;
 pub mod stl;
 pub mod thermal;

@@ -54,6 +54,22 @@ impl Default for MachineConfig {
 }
 
 impl MachineConfig {
+    /// No machine: every field zero, a placeholder until a real configuration replaces it
+    /// (a `static` built from it stays all zero bytes, in `.bss`).
+    pub const UNSET: Self = Self {
+        steps_per_mm: [Rate::ZERO; AXES],
+        build_volume_um: [0; 3],
+        max_feed_mm_s: [Rate::ZERO; AXES],
+        max_accel_mm_s2: [Rate::ZERO; AXES],
+        print_accel_mm_s2: Rate::ZERO,
+        travel_accel_mm_s2: Rate::ZERO,
+        square_corner_velocity_mm_s: Rate::ZERO,
+        nozzle_diameter_um: 0,
+        filament_diameter_um: 0,
+        max_hotend_temp_c: 0,
+        max_bed_temp_c: 0,
+    };
+
     /// The stock Ender-3: 16 microsteps, 220 x 220 x 250 mm, Marlin's limits.
     pub const ENDER3: Self = Self {
         steps_per_mm: [rate(80), rate(80), rate(400), rate(93)],

@@ -458,8 +458,9 @@ pub struct MoveRing<const BYTES: usize> {
     head: usize,
     /// Bytes in use.
     len: usize,
-    /// Bytes it may hold (`BYTES` unless [`limit`](Self::limit)ed).
-    limit: usize,
+    /// Bytes of `BYTES` it may not use (0 unless [`limit`](Self::limit)ed): stored rather
+    /// than the limit itself so that a new ring is all zero bytes.
+    withheld: usize,
     encoder: MoveEncoder,
     /// The last move popped: the next record is coded relative to it.
     popped: PackedMove,
@@ -478,7 +479,7 @@ impl<const BYTES: usize> MoveRing<BYTES> {
             buf: [0; BYTES],
             head: 0,
             len: 0,
-            limit: BYTES,
+            withheld: 0,
             encoder: MoveEncoder::new(),
             popped: PackedMove::ORIGIN,
         }
@@ -487,7 +488,7 @@ impl<const BYTES: usize> MoveRing<BYTES> {
     /// Holds at most `bytes` from now on (at most `BYTES`): a buffer posing as a smaller one
     /// (a host simulation of a board, tests). The moves already in stay.
     pub fn limit(&mut self, bytes: usize) {
-        self.limit = bytes.min(BYTES);
+        self.withheld = BYTES - bytes.min(BYTES);
     }
 
     /// Drops every move; both coder states go back to the origin.
@@ -500,7 +501,7 @@ impl<const BYTES: usize> MoveRing<BYTES> {
 
     /// Capacity, bytes (`BYTES`, or less when [`limit`](Self::limit)ed).
     pub const fn capacity(&self) -> usize {
-        self.limit
+        BYTES - self.withheld
     }
 
     /// Bytes in use.
@@ -515,14 +516,14 @@ impl<const BYTES: usize> MoveRing<BYTES> {
 
     /// Bytes free.
     pub fn free_bytes(&self) -> usize {
-        self.limit.saturating_sub(self.len)
+        self.capacity().saturating_sub(self.len)
     }
 
     /// The room for the next toolpath units: the free bytes, measured with the moves coded
     /// as [`push`](Self::push) will code them after the ones already in (`stream`: the
     /// stream the moves come from, where it stands now).
     pub fn room(&self, stream: &MoveStream) -> ByteRoom {
-        ByteRoom::new(MoveMeter::new(*stream, self.encoder), self.free_bytes(), self.limit)
+        ByteRoom::new(MoveMeter::new(*stream, self.encoder), self.free_bytes(), self.capacity())
     }
 
     /// Appends `mv`; [`RingFull`] (and the ring unchanged) when its record does not fit.

@@ -54,6 +54,7 @@ use crate::protocol::{
 };
 use crate::scratch::Scratch;
 use crate::slice::{SliceConfig, SliceError, SlicedLayer, Slicer};
+use crate::slot::Slot;
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, ToolpathError};
@@ -264,7 +265,7 @@ pub struct Printer<
     state: DeviceState,
     error: ErrorCode,
     detail: u32,
-    job: Option<JobSpec>,
+    job: Slot<JobSpec>,
     /// The toolpath stream's layer, absolute E and position (moves for the buffer).
     stream: MoveStream,
     triangles: u32,
@@ -299,7 +300,9 @@ pub struct Printer<
     done: Deque<(u32, u64), 8>,
     layers_planned: u32,
     status_due_ms: u32,
-    capacities: Capacities,
+    /// The announced capacities when [`set_capacities`](Self::set_capacities) overrode them
+    /// (`None`: [`Self::CAPACITIES`]).
+    capacities: Option<Capacities>,
 }
 
 impl<
@@ -325,15 +328,16 @@ impl<
         p
     }
 
-    /// An idle runner for the stock Ender-3 with empty buffers, built at compile time: a
-    /// board keeps it in a `static` (no stack temporary of the whole pipeline) and calls
-    /// [`Printer::configure`] once at start-up.
+    /// An unconfigured runner with empty buffers, built at compile time: a board keeps it in
+    /// a `static` (no stack temporary of the whole pipeline) and calls
+    /// [`Printer::configure`] once at start-up, before anything else. Its configurations
+    /// are [`MachineConfig::UNSET`] and the like: the whole value is zero bytes, so a
+    /// `static` holding it is in `.bss` (no flash image).
     pub const fn empty() -> Self {
-        let machine = MachineConfig::ENDER3;
         Self {
-            machine,
-            plan_cfg: PlanConfig::from_machine(&machine),
-            step_cfg: StepConfig::from_machine(&machine),
+            machine: MachineConfig::UNSET,
+            plan_cfg: PlanConfig::UNSET,
+            step_cfg: StepConfig::UNSET,
             slicer: Slicer::empty(),
             tp: Toolpath::empty(),
             scratch: Scratch::new(),
@@ -344,7 +348,7 @@ impl<
             state: DeviceState::Idle,
             error: ErrorCode::None,
             detail: 0,
-            job: None,
+            job: Slot::Empty,
             stream: MoveStream::new(),
             triangles: 0,
             batch_pos: 0,
@@ -364,7 +368,7 @@ impl<
             done: Deque::new(),
             layers_planned: 0,
             status_due_ms: 0,
-            capacities: Self::CAPACITIES,
+            capacities: None,
         }
     }
 
@@ -393,17 +397,17 @@ impl<
         self.planner.reset(&self.plan_cfg, [0; AXES]);
         self.gen.reset(&self.step_cfg, [0; AXES]);
         self.state = DeviceState::Idle;
-        self.job = None;
+        self.job = Slot::Empty;
     }
 
     /// What this runner holds (announced to the host).
     pub fn capacities(&self) -> Capacities {
-        self.capacities
+        self.capacities.unwrap_or(Self::CAPACITIES)
     }
 
     /// Overrides the announced capacities (a simulated printer posing as a smaller board).
     pub fn set_capacities(&mut self, capacities: Capacities) {
-        self.capacities = capacities;
+        self.capacities = Some(capacities);
     }
 
     /// State.
@@ -486,7 +490,7 @@ impl<
     /// it prints or is paused, 0 otherwise (idle, done, failed, aborted, stopped), so a board
     /// that applies them every update turns the heaters off when a job ends.
     pub fn heater_targets(&self) -> (i16, i16) {
-        match (&self.job, self.is_active()) {
+        match (self.job.get(), self.is_active()) {
             (Some(j), true) => (j.settings.hotend_temp_c, j.settings.bed_temp_c),
             _ => (0, 0),
         }
@@ -569,7 +573,7 @@ impl<
         self.toolpath_done = false;
         self.done.clear();
         self.layers_planned = 0;
-        self.job = Some(*job);
+        self.job = Slot::Full(*job);
         Ok(())
     }
 
@@ -928,7 +932,7 @@ impl<
             self.waiting_for_room = false;
             match Message::decode(p) {
                 Ok(Message::Hello { .. }) => {
-                    let caps = self.capacities;
+                    let caps = self.capacities();
                     let m = Message::Capabilities { version: VERSION, capacities: caps };
                     send(ep, &m);
                 }

@@ -45,7 +45,9 @@ pub struct Scratch<const SEGMENTS: usize, const PTS: usize, const CROSS: usize> 
     tenant: Tenant<SEGMENTS, PTS, CROSS>,
 }
 
-/// Who has the place.
+/// Who has the place. No `repr`: the largest tenant is stored without a tag (a niche in it
+/// tells the others apart), and switching tenants writes the cleared value in place (with
+/// `repr(u8)` the optimised build copies it through a stack temporary of several KB).
 enum Tenant<const S: usize, const P: usize, const C: usize> {
     Cut(CutScratch<S>),
     Offset(Offsetter<P>),
@@ -59,9 +61,22 @@ impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C
 }
 
 impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
-    /// An empty scratch (all zero: a `static` of it goes to `.bss`).
+    /// An empty scratch, all zero bytes (a `static` of it goes to `.bss`): the largest
+    /// tenant, cleared, has the place, as it is the one stored without a tag (the others
+    /// would be a non-zero niche value). Whoever has the place first, every accessor
+    /// starts its turn from a cleared value, so which one it is does not matter.
     pub const fn new() -> Self {
-        Self { tenant: Tenant::Cut(CutScratch::EMPTY) }
+        let cut = size_of::<CutScratch<S>>();
+        let engine = size_of::<Offsetter<P>>();
+        let fill = size_of::<FillScratch<C>>();
+        let tenant = if fill >= cut && fill >= engine {
+            Tenant::Fill(FillScratch::EMPTY)
+        } else if engine >= cut {
+            Tenant::Offset(Offsetter::new())
+        } else {
+            Tenant::Cut(CutScratch::EMPTY)
+        };
+        Self { tenant }
     }
 
     /// The slicer's cut (a cleared one if another tenant had the place).

@@ -374,7 +374,7 @@ fn window_line_spans_skipping_loops_match_every_edge_of_every_loop() {
     runner
         .run(&strategy, |(loops, skip, step, (d45, pick, line))| {
             // The loops stored as the window stores a layer, from anywhere in its storage.
-            let mut fifo = Fifo::<u32, 2048>::new(0, Buffer::RingPoints);
+            let mut fifo = Fifo::<u32, 2048>::new(0);
             fifo.reserve(skip).unwrap();
             fifo.commit(0, skip);
             fifo.pop();

@@ -48,8 +48,6 @@ fn soft_limit(machine: &MachineConfig, motor: [i64; AXES]) -> Option<(usize, i64
 
 /// Runs the printer forever.
 pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut FwEndpoint) -> ! {
-    // `Printer::empty()` is built for the stock Ender-3 already (`MACHINE`); `configure` would
-    // only rebuild the planner and generator through large stack temporaries.
     let cfg = board::executor_config(printer.step_config());
     let mut prod: Option<Producer> = None;
     reset_motion(&mut prod, &cfg);

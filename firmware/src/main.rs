@@ -34,7 +34,9 @@ use static_cell::{ConstStaticCell, StaticCell};
 use capacities::{FwEndpoint, FwPrinter};
 use strata::protocol::{Endpoint, LinkConfig};
 
-/// The whole pipeline, built at compile time in place (no stack temporary).
+/// The whole pipeline, built at compile time in place (no stack temporary). `Printer::empty`
+/// is all zero bytes, so it lives in `.bss` (zeroed at boot, no flash image);
+/// `scripts/build_firmware.sh` fails the build if it lands in `.data`.
 static PRINTER: ConstStaticCell<FwPrinter> = ConstStaticCell::new(FwPrinter::empty());
 /// The protocol endpoint (3.3 KB; `LinkConfig::default()` is not const, so it is built at
 /// start-up, in place where the optimiser manages).
@@ -44,8 +46,10 @@ static ENDPOINT: StaticCell<FwEndpoint> = StaticCell::new();
 fn main() -> ! {
     stack::paint();
     let printer = PRINTER.take();
+    // `Printer::empty` is unconfigured (zero limits and steps/mm): configure it in place
+    // before anything reads its step configuration.
+    printer.configure(&app::MACHINE);
     let ep = ENDPOINT.init_with(|| Endpoint::new(LinkConfig::default()));
-    // `Printer::empty` is the stock Ender-3 already; `app::run` configures it again.
     let board = board::init(printer.step_config());
     app::run(board, printer, ep)
 }

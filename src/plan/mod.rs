@@ -129,6 +129,18 @@ pub struct PlanConfig {
 }
 
 impl PlanConfig {
+    /// No configuration: every field zero, a placeholder until
+    /// [`from_machine`](Self::from_machine)'s value replaces it.
+    pub const UNSET: Self = Self {
+        timer_hz: 0,
+        max_feed_mm_s: [Rate::ZERO; AXES],
+        max_accel_mm_s2: [Rate::ZERO; AXES],
+        print_accel_mm_s2: Rate::ZERO,
+        travel_accel_mm_s2: Rate::ZERO,
+        square_corner_velocity_mm_s: Rate::ZERO,
+        extruder_corner_velocity_mm_s: Rate::ZERO,
+    };
+
     /// The planner limits of `machine`, a 72 MHz timer and a 1 mm/s extruder corner velocity.
     pub const fn from_machine(machine: &MachineConfig) -> Self {
         Self {
@@ -249,8 +261,15 @@ pub(crate) struct Geom {
     cruise_v2: u64,
     /// E distance per path distance, q62.
     e_ratio_q62: i128,
-    /// Moves X, Y or Z.
-    kinematic: bool,
+}
+
+impl Geom {
+    /// Moves X, Y or Z: its direction is not zero (a normalised `unit` has a component of at
+    /// least 2^62 / sqrt(3)). Derived rather than stored, so that `Option<Geom>` has no niche
+    /// and `None` is zero bytes.
+    fn kinematic(&self) -> bool {
+        self.unit != [0; 3]
+    }
 }
 
 /// A queued move and its current plan.
@@ -258,7 +277,6 @@ pub(crate) struct Geom {
 struct Entry {
     start_um: [i32; AXES],
     end_um: [i32; AXES],
-    kind: MoveKind,
     len_q32: u64,
     accel_q16: u64,
     cruise_v2: u64,
@@ -276,7 +294,6 @@ impl Entry {
     const EMPTY: Self = Self {
         start_um: [0; AXES],
         end_um: [0; AXES],
-        kind: MoveKind::Travel,
         len_q32: 0,
         accel_q16: 0,
         cruise_v2: 0,
@@ -293,7 +310,6 @@ impl Entry {
 pub struct Block {
     start_um: [i32; AXES],
     end_um: [i32; AXES],
-    kind: MoveKind,
     len_q32: u64,
     accel_q16: u64,
     /// Start, cruise and end speed squared, um^2/s^2 q16.
@@ -365,7 +381,6 @@ impl Block {
         Self {
             start_um: e.start_um,
             end_um: e.end_um,
-            kind: e.kind,
             len_q32: len,
             accel_q16: e.accel_q16,
             v2: [s2, c2, e2],
@@ -393,11 +408,6 @@ impl Block {
     /// End position X, Y, Z, E in um.
     pub fn end_um(&self) -> [i32; AXES] {
         self.end_um
-    }
-
-    /// The kind of the move.
-    pub fn kind(&self) -> MoveKind {
-        self.kind
     }
 
     /// Path length in um, q32.
@@ -679,7 +689,7 @@ impl<const N: usize> Planner<N> {
         }
         let g = self.geometry(&d, &mv);
         let max_start_v2 = match self.last {
-            Some(prev) if prev.kinematic && g.kinematic => {
+            Some(prev) if prev.kinematic() && g.kinematic() => {
                 junction::junction_v2(&prev, &g, &self.lim)
             }
             _ => 0,
@@ -687,7 +697,6 @@ impl<const N: usize> Planner<N> {
         let entry = Entry {
             start_um: self.position_um,
             end_um: mv.target_um,
-            kind: mv.kind,
             len_q32: g.len_q32,
             accel_q16: g.accel_q16,
             cruise_v2: g.cruise_v2,
@@ -833,7 +842,6 @@ impl<const N: usize> Planner<N> {
             accel_q16: accel_q16.max(1),
             cruise_v2: cruise_v2.max(1),
             e_ratio_q62: ratio(d[3]),
-            kinematic,
         }
     }
 }

@@ -159,6 +159,10 @@ impl fmt::Display for Resource {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum SliceError {
+    /// `push` or `finish` after `finish`, or on a [`Slicer::empty`] one never
+    /// [`reset`](Slicer::reset) (call `reset` to slice again). First, so that it is the zero
+    /// tag and an empty slicer's `Some(Finished)` is zero bytes.
+    Finished,
     /// A [`SliceConfig`] field is out of range.
     InvalidConfig {
         /// The field.
@@ -187,8 +191,6 @@ pub enum SliceError {
         /// The layer being filled.
         layer: u32,
     },
-    /// `push` or `finish` after `finish` (call `reset` to slice again).
-    Finished,
 }
 
 impl fmt::Display for SliceError {
@@ -439,16 +441,17 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         Ok(s)
     }
 
-    /// An empty slicer with no layers (a model of height 0), to be configured by
-    /// [`Slicer::reset`]. Lets a large owner be built in a `static` without a stack temporary.
+    /// An unconfigured slicer, every byte zero: no layers, and `push` and `finish` fail with
+    /// [`SliceError::Finished`] until [`Slicer::reset`] configures it. Lets a large owner be
+    /// built in a `static` in `.bss` without a stack temporary.
     pub const fn empty() -> Self {
         const UNSET: SliceConfig = SliceConfig {
-            first_layer_height_um: 200,
-            layer_height_um: 200,
+            first_layer_height_um: 0,
+            layer_height_um: 0,
             model_height_um: 0,
             min_loop_area_um2: 0,
-            join_tolerance_um: DEFAULT_JOIN_TOLERANCE_UM,
-            max_gap_um: DEFAULT_MAX_GAP_UM,
+            join_tolerance_um: 0,
+            max_gap_um: 0,
         };
         Self {
             config: UNSET,
@@ -458,9 +461,10 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
             active: [PackedTriangle::ZERO; ACTIVE],
             active_len: 0,
             contours: Contours::EMPTY,
-            last_z_min: i32::MIN,
+            // `reset` sets it to i32::MIN (no triangle yet).
+            last_z_min: 0,
             stats: SliceStats::ZERO,
-            stopped: None,
+            stopped: Some(SliceError::Finished),
         }
     }
 

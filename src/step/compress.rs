@@ -108,6 +108,29 @@ impl Wrapping for i64 {
     }
 }
 
+/// The DIR command an axis queued last: a fieldless enum with `None` first, so that a new
+/// compressor is all zero bytes (an `Option<bool>` would store `None` as 2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum QueuedDir {
+    /// No DIR command yet.
+    None,
+    /// `StepCmd::Dir(false)`: negative..
+    Negative,
+    /// `StepCmd::Dir(true)`: positive..
+    Positive,
+}
+
+impl QueuedDir {
+    /// The DIR command for the level `dir`.
+    const fn of(dir: bool) -> Self {
+        if dir {
+            Self::Positive
+        } else {
+            Self::Negative
+        }
+    }
+}
+
 /// One axis' pending steps and its committed reference time.
 #[derive(Debug, Clone)]
 pub(crate) struct Compressor<const B: usize> {
@@ -118,7 +141,7 @@ pub(crate) struct Compressor<const B: usize> {
     /// Time of the last committed step (or the end of the last wait).
     last: u64,
     /// Direction of the pending steps (the DIR command already queued).
-    dir: Option<bool>,
+    dir: QueuedDir,
     /// The next sequence is the first after a DIR command.
     after_dir: bool,
     /// The last accepted step (its direction is `dir`).
@@ -141,7 +164,7 @@ impl<const B: usize> Compressor<B> {
             head: 0,
             len: 0,
             last: 0,
-            dir: None,
+            dir: QueuedDir::None,
             after_dir: false,
             prev_tick: 0,
             clamped: 0,
@@ -188,13 +211,13 @@ impl<const B: usize> Compressor<B> {
     ) -> Result<(), Full> {
         // The last accepted step went the same way exactly when the pending direction is
         // `dir` (both change together, below).
-        let same_dir = self.dir == Some(dir);
+        let same_dir = self.dir == QueuedDir::of(dir);
         if !same_dir {
             while !self.is_empty() {
                 self.emit(axis, out, tune)?;
             }
             out.enqueue(axis, StepCmd::Dir(dir)).map_err(|_| Full)?;
-            self.dir = Some(dir);
+            self.dir = QueuedDir::of(dir);
             self.after_dir = true;
         }
         if self.len == B {

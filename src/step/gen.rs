@@ -70,6 +70,11 @@ impl AxisRun {
         next_tick: u64::MAX,
     };
 
+    /// Every field zero: the state of an unconfigured generator ([`StepGenerator::empty`]),
+    /// which [`StepGenerator::reset`] replaces with [`AxisRun::STILL`].
+    const UNSET: Self =
+        Self { remaining: 0, dir: false, s_q32: 0, s_frac: 0, ds_q32: 0, ds_frac: 0, next_tick: 0 };
+
     /// One step of the block `b` (which starts at `start_q16`) is generated: on to the next.
     fn advance(&mut self, start_q16: u64, b: &Block) {
         self.remaining -= 1;
@@ -178,8 +183,8 @@ impl<const B: usize> StepGenerator<B> {
         self.steps = [0; AXES];
     }
 
-    /// An unconfigured generator at the origin (to be replaced by [`StepGenerator::new`]
-    /// before use). Lets a large owner be built in a `static`.
+    /// An unconfigured generator, every byte zero (to be [`reset`](Self::reset) before use).
+    /// Lets a large owner be built in a `static` in `.bss`.
     pub const fn empty() -> Self {
         let () = Self::CAPACITY_OK;
         Self {
@@ -187,7 +192,7 @@ impl<const B: usize> StepGenerator<B> {
             pending_ticks: 0,
             steps_per_mm: [Rate::ZERO; AXES],
             comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
-            axes: [AxisRun::STILL; AXES],
+            axes: [AxisRun::UNSET; AXES],
             block: None,
             next: None,
             tag: None,
@@ -199,7 +204,8 @@ impl<const B: usize> StepGenerator<B> {
             block_start_q16: 0,
             motor: [0; AXES],
             end_position: [(0, 0); AXES],
-            at_rest: true,
+            // `reset` sets it (and `axes`): zero here keeps the value all zero bytes.
+            at_rest: false,
             queue_blocked: false,
             blocks: 0,
             steps: [0; AXES],

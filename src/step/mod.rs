@@ -105,6 +105,20 @@ pub struct StepConfig {
 }
 
 impl StepConfig {
+    /// No configuration: every field zero, a placeholder until
+    /// [`from_machine`](Self::from_machine)'s value replaces it.
+    pub const UNSET: Self = Self {
+        timer_hz: 0,
+        steps_per_mm: [Rate::ZERO; AXES],
+        driver: DriverTiming { step_high_ns: 0, step_low_ns: 0, dir_setup_ns: 0 },
+        max_error_ticks: 0,
+        max_pending_ticks: 0,
+        invert_dir: [false; AXES],
+        enable_active_low: false,
+        start_lead_ticks: 0,
+        stall_poll_ticks: 0,
+    };
+
     /// The steps/mm of `machine`, a 72 MHz timer, A4988 timing, 0.5 us compression error.
     pub const fn from_machine(machine: &MachineConfig) -> Self {
         Self {

@@ -373,6 +373,10 @@ impl ToolpathConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ToolpathError {
+    /// `push_layer` or `finish` after `finish`, or on a [`Toolpath::empty`] stage never
+    /// [`reset`](Toolpath::reset) (call `reset`). First, so that it is the zero tag and an
+    /// empty stage's `Some(Finished)` is zero bytes.
+    Finished,
     /// A [`ToolpathConfig`] field is out of range.
     InvalidConfig {
         /// The field.
@@ -400,9 +404,6 @@ pub enum ToolpathError {
         /// The layer being emitted.
         layer: u32,
     },
-    /// `push_layer` or `finish` after `finish`, or on a [`Toolpath::empty`] stage never
-    /// [`reset`](Toolpath::reset) (call `reset`).
-    Finished,
 }
 
 impl fmt::Display for ToolpathError {
@@ -737,24 +738,25 @@ impl ToolpathStats {
 }
 
 /// The configuration of a [`Toolpath::empty`] stage until its [`reset`](Toolpath::reset):
-/// never used to build a layer.
+/// never used to build a layer. Every field is zero (the first variant of the enums), so
+/// that an empty stage is all zero bytes.
 const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
-    line_width_um: 450,
-    first_layer_height_um: 200,
-    layer_height_um: 200,
+    line_width_um: 0,
+    first_layer_height_um: 0,
+    layer_height_um: 0,
     perimeters: 0,
     infill_percent: 0,
     infill_pattern: InfillPattern::Lines,
     top_layers: 0,
     bottom_layers: 0,
-    perimeter_speed_mm_s: Rate::ONE,
-    infill_speed_mm_s: Rate::ONE,
-    travel_speed_mm_s: Rate::ONE,
-    first_layer_speed_mm_s: Rate::ONE,
+    perimeter_speed_mm_s: Rate::ZERO,
+    infill_speed_mm_s: Rate::ZERO,
+    travel_speed_mm_s: Rate::ZERO,
+    first_layer_speed_mm_s: Rate::ZERO,
     retract_length_um: 0,
-    retract_speed_mm_s: Rate::ONE,
-    filament_diameter_um: 1_750,
-    outer_perimeter_last: true,
+    retract_speed_mm_s: Rate::ZERO,
+    filament_diameter_um: 0,
+    outer_perimeter_last: false,
     infill_overlap_um: 0,
     skirt_distance_um: 0,
     skirt_loops: 0,
@@ -846,8 +848,9 @@ impl<
     pub const fn empty() -> Self {
         Self {
             cfg: IDLE_CONFIG,
-            step: 1,
-            ring: Fifo::new(0, Buffer::RingPoints),
+            // The scanline step of IDLE_CONFIG's zero line width (never used: `reset` sets it).
+            step: 0,
+            ring: Fifo::new(0),
             contour: LoopBuf::new(),
             tmp: LoopBuf::new(),
             fill: LoopBuf::new(),

@@ -23,6 +23,7 @@ use core::ops::Range;
 
 use crate::geom::Point2;
 use crate::machine::Rate;
+use crate::slot::Slot;
 
 use super::near::{GridShape, NearGrid};
 use super::paths;
@@ -787,8 +788,10 @@ struct IslandCursor {
     chain: Option<u8>,
 }
 
-/// Where a layer's emission stands.
+/// Where a layer's emission stands. `repr(u8)`: a tag byte with `Idle` = 0 (the niche
+/// layout would store `Idle` as 3), so that an idle emission is all zero bytes.
 #[derive(Debug, Clone)]
+#[repr(u8)]
 enum Phase {
     /// No layer is being emitted.
     Idle,
@@ -818,7 +821,7 @@ pub struct Emission {
     /// Some path's entry depends on the nozzle position (nearest-vertex seams).
     loose: bool,
     /// The next unit, planned (it waits for room).
-    next: Option<Unit>,
+    next: Slot<Unit>,
 }
 
 impl Default for Emission {
@@ -830,7 +833,7 @@ impl Default for Emission {
 impl Emission {
     /// Nothing to emit.
     pub const fn new() -> Self {
-        Self { phase: Phase::Idle, grid: None, loose: false, next: None }
+        Self { phase: Phase::Idle, grid: None, loose: false, next: Slot::Empty }
     }
 
     /// A layer's emission has begun and is not complete.
@@ -880,14 +883,16 @@ impl Emission {
         let seam = ctx.cfg.seam;
         loop {
             let unit = match self.next {
-                Some(u) => u,
-                None => match self.plan_next(em, ctx, paths, island_stage, grid_head, grid_next) {
-                    Some(u) => u,
-                    None => {
-                        self.phase = Phase::Idle;
-                        return None;
+                Slot::Full(u) => u,
+                Slot::Empty => {
+                    match self.plan_next(em, ctx, paths, island_stage, grid_head, grid_next) {
+                        Some(u) => u,
+                        None => {
+                            self.phase = Phase::Idle;
+                            return None;
+                        }
                     }
-                },
+                }
             };
             let taken = {
                 let (before, shown) = (*em, &*paths);
@@ -897,10 +902,10 @@ impl Emission {
                 })
             };
             if !taken {
-                self.next = Some(unit);
+                self.next = Slot::Full(unit);
                 return Some(unit.moves);
             }
-            self.next = None;
+            self.next = Slot::Empty;
             em.layer.max_unit_moves = em.layer.max_unit_moves.max(unit.moves);
             run_unit(em, ctx, paths, &unit, sink);
             let Some(p) = unit.path else { continue };

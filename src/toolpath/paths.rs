@@ -103,7 +103,9 @@ impl<const N: usize> PathBuf<N> {
     pub const fn new() -> Self {
         Self {
             pts: [Point2::new(0, 0); N],
-            feat: [Feature::Travel; N],
+            // Slots past `n` are never read; the zero discriminant keeps an empty buffer
+            // all zero bytes (a `static` holding it lands in `.bss`).
+            feat: [Feature::ExternalPerimeter; N],
             n: 0,
             nr: 0,
             open: 0,

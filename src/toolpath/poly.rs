@@ -107,7 +107,9 @@ impl<const P: usize, const L: usize> LoopBuf<P, L> {
                 max: Point2::new(0, 0),
                 island: 0,
                 depth: 0,
-                parent: Ring::NO_PARENT,
+                // Slots past `n_rings` are never read (`close` sets a ring's parent): zero,
+                // so that an empty buffer is all zero bytes.
+                parent: 0,
             }; L],
             n_rings: 0,
             open: 0,

@@ -84,7 +84,8 @@ impl<T> PartsMut<'_, T> {
     }
 }
 
-/// Circular FIFO of blocks in `N` elements of `T`.
+/// Circular FIFO of blocks in `N` elements of `T` (the skin window's ring: a full one is
+/// [`Buffer::RingPoints`]).
 pub struct Fifo<T: Copy, const N: usize> {
     data: [T; N],
     blocks: [Block; MAX_BLOCKS],
@@ -95,12 +96,11 @@ pub struct Fifo<T: Copy, const N: usize> {
     open: Option<(usize, usize)>,
     /// Most elements in use at once, a reserved block counted whole: the capacity needed.
     pub peak: usize,
-    what: Buffer,
 }
 
 impl<T: Copy, const N: usize> Fifo<T, N> {
-    /// Empty storage filled with `fill`; `what` names it in errors.
-    pub const fn new(fill: T, what: Buffer) -> Self {
+    /// Empty storage filled with `fill`.
+    pub const fn new(fill: T) -> Self {
         Self {
             data: [fill; N],
             blocks: [Block { layer: 0, start: 0, len: 0 }; MAX_BLOCKS],
@@ -108,7 +108,6 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
             count: 0,
             open: None,
             peak: 0,
-            what,
         }
     }
 
@@ -175,7 +174,7 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
         }
         let used = self.in_use();
         if used + max > N {
-            return Err(self.what);
+            return Err(Buffer::RingPoints);
         }
         let start = match self.block(self.count.wrapping_sub(1)) {
             Some(last) => (last.start as usize + last.len as usize).checked_rem(N).unwrap_or(0),
@@ -566,7 +565,7 @@ mod tests {
         let a = [Point2::new(100_000, 5), Point2::new(100_010, -7), Point2::new(40_000, 9)];
         let b = [Point2::new(-3, 4), Point2::new(i32::MAX, i32::MIN), Point2::new(0, 0)];
         // A block wrapping past the end of the storage.
-        let mut f = Fifo::<u32, 40>::new(0, Buffer::RingPoints);
+        let mut f = Fifo::<u32, 40>::new(0);
         f.reserve(14).unwrap();
         f.commit(0, 14);
         f.pop();
@@ -592,7 +591,7 @@ mod tests {
         let got: std::vec::Vec<(u16, std::vec::Vec<Point2>)> =
             StoredRings::new(data).map(|(i, p)| (i, p.collect())).collect();
         assert_eq!(got, [(0, a.to_vec()), (1, b.to_vec())]);
-        let mut small = Fifo::<u32, 3>::new(0, Buffer::RingPoints);
+        let mut small = Fifo::<u32, 3>::new(0);
         assert_eq!(Encoder::new(small.reserve(3).unwrap()).begin(0), Err(Buffer::RingPoints));
     }
 
@@ -621,7 +620,7 @@ mod tests {
                     .collect();
                 loops.push((rand(&mut seed, 5) as u16, pts, rand(&mut seed, 4) != 0));
             }
-            let mut f = Fifo::<u32, 512>::new(0, Buffer::RingPoints);
+            let mut f = Fifo::<u32, 512>::new(0);
             // Start anywhere: blocks wrap.
             let skip = rand(&mut seed, 512) as usize;
             f.reserve(skip).unwrap();
@@ -678,7 +677,7 @@ mod tests {
 
     #[test]
     fn blocks_wrap_around_the_end() {
-        let mut f = Fifo::<u8, 10>::new(0, Buffer::RingPoints);
+        let mut f = Fifo::<u8, 10>::new(0);
         let fill = |f: &mut Fifo<u8, 10>, layer: u32, n: usize| {
             let mut w = f.reserve(n).unwrap();
             for i in 0..n {
