@@ -9,11 +9,13 @@
 # qemu-mps2 is QEMU's mps2-an385 (Cortex-M3, 4 MB of RAM) with capacities for the models that
 # do not fit 64 KB: cost figures and HIL comparison only, not a board.
 #
-# Release build with LTO, one codegen unit and opt-level 2 (the root Cargo.toml's release
+# Release build with LTO, one codegen unit and opt-level "s" (the root Cargo.toml's release
 # profile, tightened through cargo's environment overrides so that only this build is
-# affected): about 11% fewer instructions than "s" for slicing and planning. It fits
-# lm3s6965evb's 256 KB of flash because the Printer static is all zero bytes (`.bss`, no
-# flash image; checked below). STRATA_FW_OPT_LEVEL overrides it.
+# affected). STRATA_FW_OPT_LEVEL overrides it: opt-level 2 makes slicing and planning about
+# 7% cheaper but the step interrupt about 12 instructions a step dearer (the 64 KB build:
+# 146 to 152 per step against the 150 budget, "s" 133 to 140), so "s" stays the default. Every
+# image fits its flash at either level because the Printer static is all zero bytes (`.bss`,
+# no flash image; checked below).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 board="${1:-}"
@@ -26,7 +28,7 @@ rustup component list --installed 2>/dev/null | grep -q '^llvm-tools' || rustup 
 export CARGO_PROFILE_RELEASE_LTO=true
 export CARGO_PROFILE_RELEASE_CODEGEN_UNITS=1
 export CARGO_PROFILE_RELEASE_DEBUG=2
-export CARGO_PROFILE_RELEASE_OPT_LEVEL="${STRATA_FW_OPT_LEVEL:-2}"
+export CARGO_PROFILE_RELEASE_OPT_LEVEL="${STRATA_FW_OPT_LEVEL:-s}"
 # defmt's RTT buffer (Creality boards): a few lines per job, 256 bytes leave RAM to the stack.
 export DEFMT_RTT_BUFFER_SIZE="${DEFMT_RTT_BUFFER_SIZE:-256}"
 cargo build -p strata-firmware --target thumbv7m-none-eabi --release --features "$board"

@@ -11,8 +11,8 @@
 # (`on_timer_with` an emulated 72 MHz cycle counter at 1.5 cycles per instruction: pulses
 # end in the call, any wait for the driver's high time counted; an emulated read costs
 # about 5 instructions where the board's is one load). The generator is kept ahead of the
-# executor (no run into an unrested horizon), as in a print. `M3_COST_OPT=2` builds with
-# the firmware's opt-level (2) instead of 3.
+# executor (no run into an unrested horizon), as in a print. `M3_COST_OPT=s` builds with
+# the firmware's opt-level ("s") instead of 3.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}/m3_cost"
