@@ -285,6 +285,37 @@ impl MoveMeter {
     }
 }
 
+/// What an owner's rooms learn from one call to the next ([`ByteRoom::remembering`],
+/// [`ByteRoom::memory`]): the bytes the waiting unit needs (exact when it was replayed, an
+/// estimate otherwise), and the bytes and moves of the units taken so far, whose ratio with a
+/// quarter added is the estimate that spares the replay of a unit that cannot fit.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RoomMemory {
+    /// Bytes to wait for before offering again (0: none waits).
+    wait: usize,
+    /// `wait` is the waiting unit's exact bytes.
+    exact: bool,
+    /// Bytes and moves of the units taken.
+    coded: (u64, u64),
+    /// Bytes of the largest unit taken.
+    largest: usize,
+}
+
+impl RoomMemory {
+    /// Nothing learnt yet (a new job).
+    pub const NEW: Self = Self { wait: 0, exact: false, coded: (0, 0), largest: 0 };
+
+    /// Free bytes below which offering the waiting unit is no use.
+    pub fn waits_for(&self) -> usize {
+        self.wait
+    }
+
+    /// Bytes of the largest unit taken.
+    pub fn largest(&self) -> usize {
+        self.largest
+    }
+}
+
 /// Room in a move buffer for the toolpath stage's units, in exact bytes (see the
 /// [module docs](self)): a unit offered is replayed through a copy of the [`MoveMeter`] and
 /// taken when its bytes fit the bytes left; then the meter and the bytes left move on with it,
@@ -346,6 +377,25 @@ impl ByteRoom {
     pub const fn with_estimate(mut self, per_move_q4: usize) -> Self {
         self.per_move_q4 = per_move_q4;
         self
+    }
+
+    /// This room with what earlier rooms learnt: the waiting unit's exact bytes, if known,
+    /// and the job's bytes per move so far plus a quarter as the estimate.
+    pub fn remembering(self, memory: &RoomMemory) -> Self {
+        let (bytes, moves) = memory.coded;
+        let per_move_q4 = (bytes * 20).checked_div(moves).unwrap_or(0) as usize;
+        self.with_known_first(memory.exact.then_some(memory.wait)).with_estimate(per_move_q4)
+    }
+
+    /// `before` with what this room learnt.
+    pub fn memory(&self, before: &RoomMemory) -> RoomMemory {
+        let (bytes, moves) = before.coded;
+        RoomMemory {
+            wait: self.wait_hint().unwrap_or(0),
+            exact: self.refused.is_some(),
+            coded: (bytes + self.taken, moves + self.taken_moves),
+            largest: before.largest.max(self.largest),
+        }
     }
 
     /// Bytes to wait for before offering again: the exact bytes of the unit refused last,
@@ -843,6 +893,15 @@ mod tests {
         assert!(!first.take(3, replay));
         let bytes = first.refused().unwrap();
         assert_eq!((first.wait_hint(), replays.get()), (Some(bytes), 1));
+        // What the next call's room is told: wait for those bytes, then take the unit on
+        // them (no replay), and remember it as taken.
+        let memory = first.memory(&RoomMemory::NEW);
+        assert_eq!((memory.waits_for(), memory.largest()), (bytes, 0));
+        let mut next = ByteRoom::new(meter, bytes, 64).remembering(&memory);
+        assert!(next.take(3, replay));
+        assert_eq!(replays.get(), 1);
+        let after = next.memory(&memory);
+        assert_eq!((after.waits_for(), after.largest()), (0, bytes));
         // Known bytes: refused below them and taken at them, neither time replayed; after a
         // unit taken on its bytes the room takes no other (its meter did not follow).
         let mut below = ByteRoom::new(meter, bytes - 1, 64).with_known_first(Some(bytes));

@@ -46,7 +46,7 @@ use heapless::Deque;
 
 use crate::geom::{Point2, Triangle};
 use crate::machine::{MachineConfig, AXES};
-use crate::move_ring::{MoveRing, MoveStream};
+use crate::move_ring::{MoveRing, MoveStream, RoomMemory};
 use crate::plan::{PlanConfig, Planner};
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
@@ -274,15 +274,9 @@ pub struct Printer<
     /// The message at the head of the link waits for room in the move buffer (it is not
     /// decoded again until the toolpath stage's layer is all in).
     waiting_for_room: bool,
-    /// Bytes of the toolpath stage's unit the move buffer refused last (0: none waits).
-    unit_waiting: usize,
-    /// `unit_waiting` is the unit's exact size (it was replayed), not an estimate.
-    unit_known: bool,
-    /// Bytes and moves of the units that went into the move buffer in this job (their
-    /// ratio, with a margin, is the estimate that spares replays of units that cannot fit).
-    units_coded: (u64, u64),
-    /// Bytes of the largest unit that went into the move buffer in this job.
-    unit_bytes: usize,
+    /// What the move buffer's rooms learnt about the toolpath stage's units (the waiting
+    /// unit's bytes, the job's bytes per move, the largest unit).
+    room_memory: RoomMemory,
     /// The job report went out (once the job is done).
     report_sent: bool,
     /// The board reports heaters ([`Printer::set_thermal`] was called): jobs wait for them.
@@ -353,10 +347,7 @@ impl<
             triangles: 0,
             batch_pos: 0,
             waiting_for_room: false,
-            unit_waiting: 0,
-            unit_known: false,
-            units_coded: (0, 0),
-            unit_bytes: 0,
+            room_memory: RoomMemory::NEW,
             report_sent: false,
             heaters: false,
             heated: false,
@@ -458,7 +449,7 @@ impl<
     /// Bytes of the largest toolpath unit (a path with the travel before it) that went into
     /// the move buffer in this job: the least buffer the job's units needed.
     pub fn largest_unit_bytes(&self) -> usize {
-        self.unit_bytes
+        self.room_memory.largest()
     }
 
     /// Uses at most `bytes` of the move buffer from now on (at most `MOVE_BYTES`): a printer
@@ -562,10 +553,7 @@ impl<
         self.stream = MoveStream::new();
         self.triangles = 0;
         self.batch_pos = 0;
-        self.unit_waiting = 0;
-        self.unit_known = false;
-        self.units_coded = (0, 0);
-        self.unit_bytes = 0;
+        self.room_memory = RoomMemory::NEW;
         self.report_sent = false;
         self.heated = false;
         self.heat_wait_since_ms = None;
@@ -752,25 +740,15 @@ impl<
         }
         // The unit refused last is offered first again, and its bytes stay what they were
         // (the coding state moves only when a unit goes in): no use offering it before the
-        // buffer has that much free.
-        if self.moves.free_bytes() < self.unit_waiting {
+        // buffer has that much free. The room spares replays where it can (`remembering`).
+        if self.moves.free_bytes() < self.room_memory.waits_for() {
             return false;
         }
-        // Replays are spared where the size is known: a unit refused before goes in on its
-        // exact bytes, and a new one is first offered when its moves at the job's bytes per
-        // move so far (plus a quarter) fit.
-        let (bytes, moves) = self.units_coded;
-        let per_move_q4 = (bytes * 20).checked_div(moves).unwrap_or(0) as usize;
-        let known = self.unit_known.then_some(self.unit_waiting);
-        let mut room =
-            self.moves.room(&self.stream).with_known_first(known).with_estimate(per_move_q4);
+        let mut room = self.moves.room(&self.stream).remembering(&self.room_memory);
         let emitted = self.through_toolpath(motion, |tp, work, events| {
             tp.emit_next(work, &mut room, &mut |e: &ToolEvent<'_>| events(e))
         });
-        self.unit_waiting = room.wait_hint().unwrap_or(0);
-        self.unit_known = room.refused().is_some();
-        self.units_coded = (bytes + room.taken(), moves + room.taken_moves());
-        self.unit_bytes = self.unit_bytes.max(room.largest());
+        self.room_memory = room.memory(&self.room_memory);
         match emitted {
             Some(Emitted::Complete) => self.is_active(),
             Some(Emitted::NeedsRoom { layer, .. }) => {
