@@ -366,7 +366,7 @@ impl ByteRoom {
 
     /// The first unit offered has `bytes` (exact: it was refused with them and the coding
     /// state has not moved since), so it is taken or refused without a replay.
-    pub const fn with_known_first(mut self, bytes: Option<usize>) -> Self {
+    const fn with_known_first(mut self, bytes: Option<usize>) -> Self {
         self.known_first = bytes;
         self
     }
@@ -374,7 +374,7 @@ impl ByteRoom {
     /// Units are expected to take `per_move_q4` / 16 bytes a move: one whose expected bytes
     /// exceed the free ones is refused without a replay (unless the buffer is empty), and
     /// [`wait_hint`](Self::wait_hint) says how many to wait for.
-    pub const fn with_estimate(mut self, per_move_q4: usize) -> Self {
+    const fn with_estimate(mut self, per_move_q4: usize) -> Self {
         self.per_move_q4 = per_move_q4;
         self
     }
@@ -400,13 +400,8 @@ impl ByteRoom {
 
     /// Bytes to wait for before offering again: the exact bytes of the unit refused last,
     /// or the estimate of one refused without a replay.
-    pub fn wait_hint(&self) -> Option<usize> {
+    fn wait_hint(&self) -> Option<usize> {
         self.refused.or(self.hint)
-    }
-
-    /// Moves of all units taken.
-    pub fn taken_moves(&self) -> u64 {
-        self.taken_moves
     }
 
     /// Room without bound, to measure units (the host's admission control).
@@ -909,10 +904,7 @@ mod tests {
         assert_eq!((below.refused(), replays.get()), (Some(bytes), 1));
         let mut exact = ByteRoom::new(meter, 64, 64).with_known_first(Some(bytes));
         assert!(exact.take(3, replay));
-        assert_eq!(
-            (exact.taken(), exact.taken_moves(), exact.free()),
-            (bytes as u64, 3, 64 - bytes)
-        );
+        assert_eq!((exact.taken(), exact.taken_moves, exact.free()), (bytes as u64, 3, 64 - bytes));
         assert!(!exact.take(3, replay));
         assert_eq!((exact.refused(), exact.wait_hint(), replays.get()), (None, None, 1));
         // An estimate above the free bytes refuses without a replay and says what to wait
