@@ -26,7 +26,7 @@ use super::scan::{
     crossings, intervals, line_spans, loop_range, next_in, prev_in, sort_by_line, Angle, Crossing,
     Interval, Loops,
 };
-use super::window::{Parts, StoredRings};
+use super::window::{self, StoredRings};
 use super::{Buffer, Feature};
 
 /// No crossing / no segment end (a `u16` index).
@@ -229,17 +229,19 @@ impl<'a> Segs<'a> {
 }
 
 /// The skin window as seen from one layer: the stored contours ([`StoredRings`]) of the
-/// layers around it.
+/// layers around it, as `(start, len)` blocks of the window's storage ([`window::parts`]).
 #[derive(Debug, Clone, Copy)]
 pub struct SkinView<'a> {
+    /// The window's storage.
+    pub ring: &'a [u32],
     /// Layers `L + 1 ..= L + top` (those that exist).
-    pub above: [Parts<'a, u32>; 16],
+    pub above: [(u32, u32); 16],
     /// Number of entries in `above`.
     pub n_above: usize,
     /// All `top` layers above exist (otherwise nothing is covered from above).
     pub above_complete: bool,
     /// Layers `L - 1 ..= L - bottom` (those that exist).
-    pub below: [Parts<'a, u32>; 16],
+    pub below: [(u32, u32); 16],
     /// Number of entries in `below`.
     pub n_below: usize,
     /// All `bottom` layers below exist.
@@ -459,7 +461,7 @@ impl Builder<'_> {
 struct Skin<'a> {
     above: [Cursor; 16],
     below: [Cursor; 16],
-    view: SkinView<'a>,
+    view: &'a SkinView<'a>,
     top: usize,
     bottom: usize,
     /// Spans of every window layer on `line` (the layers' runs one after the other).
@@ -474,7 +476,7 @@ struct Skin<'a> {
 
 impl<'a> Skin<'a> {
     fn new(
-        view: SkinView<'a>,
+        view: &'a SkinView<'a>,
         top: usize,
         bottom: usize,
         p: &FillParams,
@@ -498,7 +500,7 @@ impl<'a> Skin<'a> {
 
     /// Moves to `line`: cuts every window layer with it (once per line) and rewinds.
     fn set_line(&mut self, line: i32) -> Result<(), Buffer> {
-        let v = &self.view;
+        let v = self.view;
         let layers = (self.above.iter_mut().zip(&v.above).take(v.n_above))
             .chain(self.below.iter_mut().zip(&v.below).take(v.n_below));
         if self.line == Some(line) {
@@ -512,7 +514,8 @@ impl<'a> Skin<'a> {
         for (c, data) in layers {
             let out = self.spans.get_mut(at..).unwrap_or(&mut []);
             // Only the loops whose range holds the line are decoded.
-            let rings = StoredRings::new(*data).near_line(self.angle, i64::from(line) * self.step);
+            let data = window::parts(v.ring, data.0, data.1);
+            let rings = StoredRings::new(data).near_line(self.angle, i64::from(line) * self.step);
             let (n, used) = line_spans(rings, self.angle, line, self.step, out)?;
             self.peak = self.peak.max(at + used);
             *c = Cursor { start: at, idx: at, end: at + n };
@@ -616,7 +619,7 @@ pub fn fill<const N: usize>(
     points: &[Point2],
     rings: &[Ring],
     params: FillParams,
-    view: SkinView<'_>,
+    view: &SkinView<'_>,
     top: usize,
     bottom: usize,
     work: &mut FillWork<'_>,

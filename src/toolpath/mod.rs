@@ -1550,18 +1550,18 @@ impl<
         self.park_engine(work);
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
-        let empty = window::Parts::EMPTY;
+        let ring = &self.ring;
         let mut view = SkinView {
-            above: [empty; 16],
+            ring: ring.storage(),
+            above: [(0, 0); 16],
             n_above: 0,
             above_complete: true,
-            below: [empty; 16],
+            below: [(0, 0); 16],
             n_below: 0,
             below_complete: true,
             has_next: false,
         };
-        let ring = &self.ring;
-        let stored = |layer: u32| ring.find(layer).map(|b| ring.data(&b));
+        let stored = |layer: u32| ring.find(layer).map(|b| (b.start, b.len));
         for k in 1..=top as u32 {
             match stored(l + k) {
                 Some(d) => {
@@ -1622,7 +1622,7 @@ impl<
             self.fill.points(),
             self.fill.rings(),
             params,
-            view,
+            &view,
             top,
             bottom,
             &mut fill_work,
