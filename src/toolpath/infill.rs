@@ -303,11 +303,11 @@ pub struct FillUse {
     pub spans: usize,
 }
 
-/// Cursor over one window layer's spans on the current line, `spans[idx..end]` left; every
-/// span counts as grown by `grow` at both ends.
+/// Cursor over one window layer's spans on the current line, `spans[idx..end]` left (its
+/// spans start where the previous layer's `end` is); every span counts as grown by `grow` at
+/// both ends.
 #[derive(Clone, Copy, Default)]
 struct Cursor {
-    start: usize,
     idx: usize,
     end: usize,
 }
@@ -397,7 +397,10 @@ impl Builder<'_> {
         // Stretches of this interval, then the solid ones grown by `margin_u` into their
         // non-solid neighbours (skins overlap the sparse zone instead of ending exactly on
         // the surface's edge).
-        let mut st = [(0i32, 0i32, Kind::None); MAX_STRETCHES];
+        // Stretch `k` is `at[k]..at[k + 1]` of `kinds[k]`: stretches are contiguous, so they
+        // share their ends (5 B a stretch on the stack, not 12).
+        let mut at = [0i32; MAX_STRETCHES + 1];
+        let mut kinds = [Kind::None; MAX_STRETCHES];
         let mut ns = 0;
         let mut pos = iv.u0;
         while pos < iv.u1 {
@@ -415,17 +418,17 @@ impl Builder<'_> {
             } else {
                 Kind::None
             };
-            if ns > 0 && st[ns - 1].2 == kind {
-                st[ns - 1].1 = next;
+            if ns > 0 && kinds[ns - 1] == kind {
+                at[ns] = next;
             } else if ns < MAX_STRETCHES {
-                st[ns] = (pos, next, kind);
+                (at[ns], at[ns + 1], kinds[ns]) = (pos, next, kind);
                 ns += 1;
             } else {
                 // Too fragmented to grow: emit what we have as it is.
-                for &(a, b, k) in &st[..ns] {
-                    self.add_stretch(&iv, a, b, k)?;
+                for k in 0..ns {
+                    self.add_stretch(&iv, at[k], at[k + 1], kinds[k])?;
                 }
-                st[0] = (pos, next, kind);
+                (at[0], at[1], kinds[0]) = (pos, next, kind);
                 ns = 1;
             }
             pos = next;
@@ -433,24 +436,20 @@ impl Builder<'_> {
         let m = p.margin_u;
         if m > 0 && p.solid {
             for i in 0..ns {
-                if st[i].2 < Kind::Solid {
+                if kinds[i] < Kind::Solid {
                     continue;
                 }
-                if i + 1 < ns && st[i + 1].2 < Kind::Solid {
-                    let take = m.min(st[i + 1].1 - st[i + 1].0);
-                    st[i].1 += take;
-                    st[i + 1].0 += take;
+                if i + 1 < ns && kinds[i + 1] < Kind::Solid {
+                    at[i + 1] += m.min(at[i + 2] - at[i + 1]);
                 }
-                if i > 0 && st[i - 1].2 < Kind::Solid {
-                    let take = m.min(st[i - 1].1 - st[i - 1].0);
-                    st[i].0 -= take;
-                    st[i - 1].1 -= take;
+                if i > 0 && kinds[i - 1] < Kind::Solid {
+                    at[i] -= m.min(at[i] - at[i - 1]);
                 }
             }
         }
-        for &(a, b, k) in &st[..ns] {
-            if b > a {
-                self.add_stretch(&iv, a, b, k)?;
+        for k in 0..ns {
+            if at[k + 1] > at[k] {
+                self.add_stretch(&iv, at[k], at[k + 1], kinds[k])?;
             }
         }
         self.close(&iv, iv.u1, iv.c1)
@@ -504,8 +503,9 @@ impl<'a> Skin<'a> {
         let layers = (self.above.iter_mut().zip(&v.above).take(v.n_above))
             .chain(self.below.iter_mut().zip(&v.below).take(v.n_below));
         if self.line == Some(line) {
+            let mut start = 0;
             for (c, _) in layers {
-                c.idx = c.start;
+                (c.idx, start) = (start, c.end);
             }
             return Ok(());
         }
@@ -518,7 +518,7 @@ impl<'a> Skin<'a> {
             let rings = StoredRings::new(data).near_line(self.angle, i64::from(line) * self.step);
             let (n, used) = line_spans(rings, self.angle, line, self.step, out)?;
             self.peak = self.peak.max(at + used);
-            *c = Cursor { start: at, idx: at, end: at + n };
+            *c = Cursor { idx: at, end: at + n };
             at += n;
         }
         self.line = Some(line);
