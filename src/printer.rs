@@ -71,8 +71,9 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
 /// the toolpath stage take turns in holds the largest of the cut (29 per segment: the
 /// segment, its link and flags, and the endpoint hash whose place the layer's loop points
-/// take once it is dead), the offset engine (50 per `PTS`) and the infill scratch (22 per
-/// `CROSS`): here the engine, 6.4 KB ([`crate::scratch`]); toolpath see `ToolpathNeeds`;
+/// take once it is dead), the offset engine with its result's points (58 per `PTS`) and the
+/// infill scratch (22 per `CROSS`): here the engine, 7.3 KB ([`crate::scratch`]); toolpath see
+/// `ToolpathNeeds`;
 /// move buffer `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on
 /// average over the sample models, at most 29), holding the largest path with its travel
 /// (a unit) whole.

@@ -6,7 +6,8 @@
 //!   linked, the layer's loop points: the slicer's output, handed on in the scratch
 //!   ([`SlicedLayer`](crate::slice::SlicedLayer); the loop records stay in the slicer). The
 //!   toolpath stage copies the layer before it takes the place;
-//! - the toolpath stage's offset engine ([`ToolpathNeeds::ENGINE_BYTES`] per `PTS`), then
+//! - the toolpath stage's offset engine and the points of the loops it returns
+//!   ([`ToolpathNeeds::ENGINE_BYTES`] per `PTS`), then
 //!   its infill scratch ([`ToolpathNeeds::CROSS_BYTES`] per `CROSS`, reused by the ordering:
 //!   the nearest-path grid stays in its pool while the layer's paths are emitted unit by
 //!   unit, so an owner cuts the next layer only once the stage is no longer
@@ -50,8 +51,20 @@ pub struct Scratch<const SEGMENTS: usize, const PTS: usize, const CROSS: usize> 
 /// `repr(u8)` the optimised build copies it through a stack temporary of several KB).
 enum Tenant<const S: usize, const P: usize, const C: usize> {
     Cut(CutScratch<S>),
-    Offset(Offsetter<P>),
+    Offset(Engine<P>),
     Fill(FillScratch<C>),
+}
+
+/// The offset engine's tenant: the engine and the points of the loops that the toolpath
+/// stage takes from it and gives back to it (its `tmp` loops, used only while the engine has
+/// the place: 8 B per `P` here instead of in the stage).
+struct Engine<const P: usize> {
+    engine: Offsetter<P>,
+    points: [Point2; P],
+}
+
+impl<const P: usize> Engine<P> {
+    const NEW: Self = Self { engine: Offsetter::new(), points: [Point2::new(0, 0); P] };
 }
 
 impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C> {
@@ -67,12 +80,12 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     /// starts its turn from a cleared value, so which one it is does not matter.
     pub const fn new() -> Self {
         let cut = size_of::<CutScratch<S>>();
-        let engine = size_of::<Offsetter<P>>();
+        let engine = size_of::<Engine<P>>();
         let fill = size_of::<FillScratch<C>>();
         let tenant = if fill >= cut && fill >= engine {
             Tenant::Fill(FillScratch::EMPTY)
         } else if engine >= cut {
-            Tenant::Offset(Offsetter::new())
+            Tenant::Offset(Engine::NEW)
         } else {
             Tenant::Cut(CutScratch::EMPTY)
         };
@@ -101,11 +114,17 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
 
     /// The offset engine (a new one if another tenant had the place).
     pub(crate) fn engine(&mut self) -> &mut Offsetter<P> {
+        self.engine_and_points().0
+    }
+
+    /// The offset engine and the loop points kept beside it (see [`Engine`]; a new engine
+    /// and cleared points if another tenant had the place).
+    pub(crate) fn engine_and_points(&mut self) -> (&mut Offsetter<P>, &mut [Point2; P]) {
         match self.tenant {
-            Tenant::Offset(ref mut e) => e,
+            Tenant::Offset(ref mut e) => (&mut e.engine, &mut e.points),
             _ => {
-                self.tenant = Tenant::Offset(Offsetter::new());
-                self.engine()
+                self.tenant = Tenant::Offset(Engine::NEW);
+                self.engine_and_points()
             }
         }
     }
@@ -113,7 +132,7 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     /// The engine if it has the place (its counters not yet collected), without a switch.
     pub(crate) fn live_engine(&mut self) -> Option<&mut Offsetter<P>> {
         match self.tenant {
-            Tenant::Offset(ref mut e) => Some(e),
+            Tenant::Offset(ref mut e) => Some(&mut e.engine),
             _ => None,
         }
     }
@@ -145,7 +164,7 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
 /// value adds at most a tag and alignment padding).
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
-    let engine = size_of::<Offsetter<0>>() + pts * ToolpathNeeds::ENGINE_BYTES;
+    let engine = size_of::<Engine<0>>() + pts * ToolpathNeeds::ENGINE_BYTES;
     let fill = cross * ToolpathNeeds::CROSS_BYTES;
     cut.max(engine).max(fill)
 }

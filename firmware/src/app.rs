@@ -46,6 +46,29 @@ fn soft_limit(machine: &MachineConfig, motor: [i64; AXES]) -> Option<(usize, i64
     })
 }
 
+/// UART bytes into the endpoint. Not inlined: its buffer is on the stack only here, not
+/// under the printer's deepest calls.
+#[inline(never)]
+fn receive(board: &mut Board, ep: &mut FwEndpoint, now: u32) {
+    let mut rx = [0u8; 64];
+    let n = board.read(&mut rx);
+    ep.receive(&rx[..n], now);
+}
+
+/// The endpoint's frames out on the UART. Not inlined: its `MAX_WIRE` (414 B) buffer is on the
+/// stack only here, not under the printer's deepest calls.
+#[inline(never)]
+fn transmit(board: &mut Board, ep: &mut FwEndpoint, now: u32) {
+    let mut frame = [0u8; MAX_WIRE];
+    loop {
+        let n = ep.poll_transmit(now, &mut frame);
+        if n == 0 {
+            break;
+        }
+        board.write(&frame[..n]);
+    }
+}
+
 /// Runs the printer forever.
 pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut FwEndpoint) -> ! {
     let cfg = board::executor_config(printer.step_config());
@@ -62,8 +85,6 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
     let mut heat = heat::Heat::new(board.now_ms());
     let mut state = printer.state();
     let mut job_open = false;
-    let mut rx = [0u8; 64];
-    let mut frame = [0u8; MAX_WIRE];
     #[cfg(feature = "qemu")]
     let mut cost = crate::cost::Cost::new();
     #[cfg(feature = "qemu")]
@@ -83,8 +104,7 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
                 );
             }
         }
-        let n = board.read(&mut rx);
-        ep.receive(&rx[..n], now);
+        receive(&mut board, ep, now);
         let done_ms = board::print_done_ms();
         #[cfg(feature = "qemu")]
         let t0 = cost.begin(ep.peek().is_some(), printer);
@@ -170,13 +190,7 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
             board::after_poll(p, finished, printer.state() == DeviceState::Paused, gen_blocked);
         }
 
-        loop {
-            let n = ep.poll_transmit(now, &mut frame);
-            if n == 0 {
-                break;
-            }
-            board.write(&frame[..n]);
-        }
+        transmit(&mut board, ep, now);
 
         if job_open {
             let finished = match printer.state() {

@@ -26,7 +26,7 @@ use super::scan::{
     crossings, intervals, line_spans, loop_range, next_in, prev_in, sort_by_line, Angle, Crossing,
     Interval, Loops,
 };
-use super::window::{Parts, StoredRings};
+use super::window::{self, StoredRings};
 use super::{Buffer, Feature};
 
 /// No crossing / no segment end (a `u16` index).
@@ -229,17 +229,19 @@ impl<'a> Segs<'a> {
 }
 
 /// The skin window as seen from one layer: the stored contours ([`StoredRings`]) of the
-/// layers around it.
+/// layers around it, as `(start, len)` blocks of the window's storage ([`window::parts`]).
 #[derive(Debug, Clone, Copy)]
 pub struct SkinView<'a> {
+    /// The window's storage.
+    pub ring: &'a [u32],
     /// Layers `L + 1 ..= L + top` (those that exist).
-    pub above: [Parts<'a, u32>; 16],
+    pub above: [(u32, u32); 16],
     /// Number of entries in `above`.
     pub n_above: usize,
     /// All `top` layers above exist (otherwise nothing is covered from above).
     pub above_complete: bool,
     /// Layers `L - 1 ..= L - bottom` (those that exist).
-    pub below: [Parts<'a, u32>; 16],
+    pub below: [(u32, u32); 16],
     /// Number of entries in `below`.
     pub n_below: usize,
     /// All `bottom` layers below exist.
@@ -301,11 +303,11 @@ pub struct FillUse {
     pub spans: usize,
 }
 
-/// Cursor over one window layer's spans on the current line, `spans[idx..end]` left; every
-/// span counts as grown by `grow` at both ends.
+/// Cursor over one window layer's spans on the current line, `spans[idx..end]` left (its
+/// spans start where the previous layer's `end` is); every span counts as grown by `grow` at
+/// both ends.
 #[derive(Clone, Copy, Default)]
 struct Cursor {
-    start: usize,
     idx: usize,
     end: usize,
 }
@@ -395,7 +397,10 @@ impl Builder<'_> {
         // Stretches of this interval, then the solid ones grown by `margin_u` into their
         // non-solid neighbours (skins overlap the sparse zone instead of ending exactly on
         // the surface's edge).
-        let mut st = [(0i32, 0i32, Kind::None); MAX_STRETCHES];
+        // Stretch `k` is `at[k]..at[k + 1]` of `kinds[k]`: stretches are contiguous, so they
+        // share their ends (5 B a stretch on the stack, not 12).
+        let mut at = [0i32; MAX_STRETCHES + 1];
+        let mut kinds = [Kind::None; MAX_STRETCHES];
         let mut ns = 0;
         let mut pos = iv.u0;
         while pos < iv.u1 {
@@ -413,17 +418,17 @@ impl Builder<'_> {
             } else {
                 Kind::None
             };
-            if ns > 0 && st[ns - 1].2 == kind {
-                st[ns - 1].1 = next;
+            if ns > 0 && kinds[ns - 1] == kind {
+                at[ns] = next;
             } else if ns < MAX_STRETCHES {
-                st[ns] = (pos, next, kind);
+                (at[ns], at[ns + 1], kinds[ns]) = (pos, next, kind);
                 ns += 1;
             } else {
                 // Too fragmented to grow: emit what we have as it is.
-                for &(a, b, k) in &st[..ns] {
-                    self.add_stretch(&iv, a, b, k)?;
+                for k in 0..ns {
+                    self.add_stretch(&iv, at[k], at[k + 1], kinds[k])?;
                 }
-                st[0] = (pos, next, kind);
+                (at[0], at[1], kinds[0]) = (pos, next, kind);
                 ns = 1;
             }
             pos = next;
@@ -431,24 +436,20 @@ impl Builder<'_> {
         let m = p.margin_u;
         if m > 0 && p.solid {
             for i in 0..ns {
-                if st[i].2 < Kind::Solid {
+                if kinds[i] < Kind::Solid {
                     continue;
                 }
-                if i + 1 < ns && st[i + 1].2 < Kind::Solid {
-                    let take = m.min(st[i + 1].1 - st[i + 1].0);
-                    st[i].1 += take;
-                    st[i + 1].0 += take;
+                if i + 1 < ns && kinds[i + 1] < Kind::Solid {
+                    at[i + 1] += m.min(at[i + 2] - at[i + 1]);
                 }
-                if i > 0 && st[i - 1].2 < Kind::Solid {
-                    let take = m.min(st[i - 1].1 - st[i - 1].0);
-                    st[i].0 -= take;
-                    st[i - 1].1 -= take;
+                if i > 0 && kinds[i - 1] < Kind::Solid {
+                    at[i] -= m.min(at[i] - at[i - 1]);
                 }
             }
         }
-        for &(a, b, k) in &st[..ns] {
-            if b > a {
-                self.add_stretch(&iv, a, b, k)?;
+        for k in 0..ns {
+            if at[k + 1] > at[k] {
+                self.add_stretch(&iv, at[k], at[k + 1], kinds[k])?;
             }
         }
         self.close(&iv, iv.u1, iv.c1)
@@ -459,7 +460,7 @@ impl Builder<'_> {
 struct Skin<'a> {
     above: [Cursor; 16],
     below: [Cursor; 16],
-    view: SkinView<'a>,
+    view: &'a SkinView<'a>,
     top: usize,
     bottom: usize,
     /// Spans of every window layer on `line` (the layers' runs one after the other).
@@ -474,7 +475,7 @@ struct Skin<'a> {
 
 impl<'a> Skin<'a> {
     fn new(
-        view: SkinView<'a>,
+        view: &'a SkinView<'a>,
         top: usize,
         bottom: usize,
         p: &FillParams,
@@ -498,12 +499,13 @@ impl<'a> Skin<'a> {
 
     /// Moves to `line`: cuts every window layer with it (once per line) and rewinds.
     fn set_line(&mut self, line: i32) -> Result<(), Buffer> {
-        let v = &self.view;
+        let v = self.view;
         let layers = (self.above.iter_mut().zip(&v.above).take(v.n_above))
             .chain(self.below.iter_mut().zip(&v.below).take(v.n_below));
         if self.line == Some(line) {
+            let mut start = 0;
             for (c, _) in layers {
-                c.idx = c.start;
+                (c.idx, start) = (start, c.end);
             }
             return Ok(());
         }
@@ -512,10 +514,11 @@ impl<'a> Skin<'a> {
         for (c, data) in layers {
             let out = self.spans.get_mut(at..).unwrap_or(&mut []);
             // Only the loops whose range holds the line are decoded.
-            let rings = StoredRings::new(*data).near_line(self.angle, i64::from(line) * self.step);
+            let data = window::parts(v.ring, data.0, data.1);
+            let rings = StoredRings::new(data).near_line(self.angle, i64::from(line) * self.step);
             let (n, used) = line_spans(rings, self.angle, line, self.step, out)?;
             self.peak = self.peak.max(at + used);
-            *c = Cursor { start: at, idx: at, end: at + n };
+            *c = Cursor { idx: at, end: at + n };
             at += n;
         }
         self.line = Some(line);
@@ -616,7 +619,7 @@ pub fn fill<const N: usize>(
     points: &[Point2],
     rings: &[Ring],
     params: FillParams,
-    view: SkinView<'_>,
+    view: &SkinView<'_>,
     top: usize,
     bottom: usize,
     work: &mut FillWork<'_>,

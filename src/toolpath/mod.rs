@@ -71,7 +71,8 @@
 //!
 //! [`Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>`](Toolpath) holds:
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
-//!   infill domain): 24 bytes per `PTS`, 123 bytes per `LOOPS`;
+//!   infill domain): 16 bytes per `PTS` (the offset result's points are in the scratch,
+//!   beside the engine), 123 bytes per `LOOPS`;
 //! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
 //!   two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
@@ -86,8 +87,8 @@
 //! when used alone), where two tenants take turns per layer (offsets, then infill and
 //! ordering) with the slicer's cut and output points, which the stage copies first
 //! ([`Toolpath::push_layer`]'s store), the largest of the three counting:
-//! - the offset engine (`PTS` edges, splits and pieces): 50 bytes per `PTS` (edge 16, split
-//!   12, piece 20, active entry 2);
+//! - the offset engine (`PTS` edges, splits and pieces) and the offset result's points: 58
+//!   bytes per `PTS` (edge 16, split 12, piece 20, active entry 2, point 8);
 //! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
 //!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
 //!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units.
@@ -107,7 +108,7 @@ use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
 use offset::Join;
 use order::{Ctx, Emission, Emitter};
 use paths::{PathBuf, PathKind};
-use poly::{LoopBuf, Ring};
+use poly::{LoopBuf, LoopMeta, Loops, Ring};
 use scan::{Angle, Crossing};
 use window::{Encoder, Fifo, LoopWords, StoredRings};
 
@@ -595,11 +596,13 @@ pub struct ToolpathNeeds {
 }
 
 impl ToolpathNeeds {
-    /// Bytes per `PTS` in the stage: three loop buffers' points.
-    pub const PTS_BYTES: usize = 3 * core::mem::size_of::<Point2>();
-    /// Bytes per `PTS` of the offset engine, in the [`Scratch`] (where it takes turns with
-    /// the infill scratch and the slicer's cut: the largest counts).
-    pub const ENGINE_BYTES: usize = offset::BYTES_PER_EDGE;
+    /// Bytes per `PTS` in the stage: two loop buffers' points (the third's are in the
+    /// [`Scratch`], beside the offset engine).
+    pub const PTS_BYTES: usize = 2 * core::mem::size_of::<Point2>();
+    /// Bytes per `PTS` of the offset engine and the stage's loop points kept beside it, in the
+    /// [`Scratch`] (where they take turns with the infill scratch and the slicer's cut: the
+    /// largest counts).
+    pub const ENGINE_BYTES: usize = offset::BYTES_PER_EDGE + core::mem::size_of::<Point2>();
     /// Bytes per `LOOPS`: three loop buffers' loop records, island map and stage scratch.
     pub const LOOPS_BYTES: usize = 3 * core::mem::size_of::<Ring>() + 2 + 1;
     /// Bytes per `CROSS` of the infill scratch, in the [`Scratch`]: a crossing, its order
@@ -652,8 +655,8 @@ impl ToolpathNeeds {
 // The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build
 // checks them for the device).
 const _: () = assert!(
-    ToolpathNeeds::PTS_BYTES == 24
-        && ToolpathNeeds::ENGINE_BYTES == 50
+    ToolpathNeeds::PTS_BYTES == 16
+        && ToolpathNeeds::ENGINE_BYTES == 58
         && ToolpathNeeds::LOOPS_BYTES == 123
         && ToolpathNeeds::CROSS_BYTES == 22
         && ToolpathNeeds::PATH_BYTES == 9
@@ -805,7 +808,8 @@ pub struct Toolpath<
     step: i64,
     ring: Fifo<u32, RING>,
     contour: LoopBuf<PTS, LOOPS>,
-    tmp: LoopBuf<PTS, LOOPS>,
+    /// Loops between offsets (their points are in the offset engine's place of the scratch).
+    tmp: LoopMeta<LOOPS>,
     fill: LoopBuf<PTS, LOOPS>,
     /// Engine peaks and open chains of the engines that had the scratch so far.
     offset_peaks: offset::OffsetPeaks,
@@ -852,7 +856,7 @@ impl<
             step: 0,
             ring: Fifo::new(0),
             contour: LoopBuf::new(),
-            tmp: LoopBuf::new(),
+            tmp: LoopMeta::new(),
             fill: LoopBuf::new(),
             offset_peaks: offset::OffsetPeaks { edges: 0, splits: 0, pieces: 0 },
             open_chains: 0,
@@ -882,10 +886,8 @@ impl<
         self.next_out = 0;
         self.stats = ToolpathStats::EMPTY;
         self.stopped = None;
-        for b in [&mut self.contour, &mut self.tmp, &mut self.fill] {
-            b.clear();
-            b.peak_points = 0;
-            b.peak_rings = 0;
+        for m in [&mut self.contour.meta, &mut self.tmp, &mut self.fill.meta] {
+            m.reset();
         }
         (self.offset_peaks, self.open_chains) = (offset::OffsetPeaks::default(), 0);
         self.paths.clear();
@@ -921,14 +923,12 @@ impl<
         let p = self.offset_peaks;
         s.open_chains = self.open_chains;
         let n = &mut s.needs;
-        n.layer_points = [self.contour.peak_points, self.tmp.peak_points, self.fill.peak_points]
-            .into_iter()
-            .max()
-            .unwrap_or(0) as u32;
-        n.layer_loops = [self.contour.peak_rings, self.tmp.peak_rings, self.fill.peak_rings]
-            .into_iter()
-            .max()
-            .unwrap_or(0) as u32;
+        let (c, f) = (&self.contour.meta, &self.fill.meta);
+        n.layer_points =
+            [c.peak_points, self.tmp.peak_points, f.peak_points].into_iter().max().unwrap_or(0)
+                as u32;
+        n.layer_loops =
+            [c.peak_rings, self.tmp.peak_rings, f.peak_rings].into_iter().max().unwrap_or(0) as u32;
         n.offset_edges = p.edges.max(p.splits).max(p.pieces) as u32;
         let f = self.fill_use;
         n.crossings = f.crossings.max(f.segments) as u32;
@@ -1322,9 +1322,11 @@ impl<
             for depth in 0..cfg.perimeters {
                 let d = i32::from(depth) * w + w / 2;
                 self.offset_island(work, island, d)?;
-                self.tmp.clear();
-                work.engine().union_into(&mut self.tmp, island, depth, min_width)?;
-                if self.tmp.rings().is_empty() {
+                let (engine, points) = work.engine_and_points();
+                let mut tmp = Loops::new(points, &mut self.tmp);
+                tmp.clear();
+                engine.union_into(&mut tmp, island, depth, min_width)?;
+                if tmp.rings().is_empty() {
                     if depth == 0 {
                         layer.thin_islands += 1;
                         opened2 = Some(Some(0));
@@ -1334,8 +1336,8 @@ impl<
                 sink(&ToolEvent::Progress);
                 let feature =
                     if depth == 0 { Feature::ExternalPerimeter } else { Feature::Perimeter };
-                for r in self.tmp.rings() {
-                    let pts = self.tmp.ring_points(r);
+                for r in tmp.rings() {
+                    let pts = tmp.ring_points(r);
                     self.paths.add_loop(pts, feature, island, PathKind::Perimeter(depth))?;
                 }
                 if depth == 0 && cfg.measure_thin_area {
@@ -1348,8 +1350,10 @@ impl<
                     // No perimeters: the centre lines of an external perimeter all the same.
                     None => self.measure(work, |t, work| {
                         t.offset_island(work, island, w / 2)?;
-                        t.tmp.clear();
-                        work.engine().union_into(&mut t.tmp, island, 0, min_width)?;
+                        let (engine, points) = work.engine_and_points();
+                        let mut tmp = Loops::new(points, &mut t.tmp);
+                        tmp.clear();
+                        engine.union_into(&mut tmp, island, 0, min_width)?;
                         t.grow_tmp_area2(work, island)
                     }),
                 };
@@ -1368,7 +1372,7 @@ impl<
                 }
             }
             self.offset_island(work, island, cfg.infill_inset_um())?;
-            work.engine().union_into(&mut self.fill, island, 0, min_width)?;
+            work.engine().union_into(&mut self.fill.loops(), island, 0, min_width)?;
             sink(&ToolEvent::Progress);
         }
         // Infill.
@@ -1456,14 +1460,16 @@ impl<
         if self.tmp.rings().is_empty() {
             return Ok(0);
         }
-        work.engine().begin();
-        for r in self.tmp.rings() {
-            work.engine().add_loop(self.tmp.ring_points(r), -half, Join::Miter)?;
+        let (engine, points) = work.engine_and_points();
+        let mut tmp = Loops::new(points, &mut self.tmp);
+        engine.begin();
+        for r in tmp.rings() {
+            engine.add_loop(tmp.ring_points(r), -half, Join::Miter)?;
         }
-        self.tmp.clear();
-        work.engine().union_into(&mut self.tmp, island, 0, 1)?;
-        let area2 = self.tmp.rings().iter().map(|r| r.area2).sum();
-        self.tmp.clear();
+        tmp.clear();
+        engine.union_into(&mut tmp, island, 0, 1)?;
+        let area2 = tmp.rings().iter().map(|r| r.area2).sum();
+        tmp.clear();
         Ok(area2)
     }
 
@@ -1487,11 +1493,13 @@ impl<
     fn skirt<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) -> Result<(), Buffer> {
         let cfg = self.cfg;
         // Sort all points (in `tmp`), then Andrew's monotone chain into `fill`.
-        self.tmp.clear();
+        let (engine, points) = work.engine_and_points();
+        let mut tmp = Loops::new(points, &mut self.tmp);
+        tmp.clear();
         for &p in self.contour.points() {
-            self.tmp.push(p)?;
+            tmp.push(p)?;
         }
-        let sorted = self.tmp.open_points_mut();
+        let sorted = tmp.open_points_mut();
         sorted.sort_unstable_by_key(|p| (p.x, p.y));
         self.fill.clear();
         let hull = |buf: &mut LoopBuf<PTS, LOOPS>, p: Point2, floor: usize| -> Result<(), Buffer> {
@@ -1506,30 +1514,30 @@ impl<
             }
             buf.push(p)
         };
-        let n = self.tmp.open_len();
+        let n = tmp.open_len();
         for i in 0..n {
-            let p = self.tmp.open_points_mut()[i];
+            let p = tmp.open_points_mut()[i];
             hull(&mut self.fill, p, 0)?;
         }
         let lower = self.fill.open_len();
         for i in (0..n.saturating_sub(1)).rev() {
-            let p = self.tmp.open_points_mut()[i];
+            let p = tmp.open_points_mut()[i];
             hull(&mut self.fill, p, lower - 1)?;
         }
         let h = self.fill.open_len();
         self.fill.truncate_open(h.saturating_sub(1));
         self.fill.close(u16::MAX, 0, Ring::NO_PARENT)?;
-        self.tmp.clear();
+        tmp.clear();
         let Some(&hull_ring) = self.fill.rings().first() else { return Ok(()) };
         for k in 0..i32::from(cfg.skirt_loops) {
             let d = cfg.skirt_distance_um + cfg.line_width_um / 2 + k * cfg.line_width_um;
-            work.engine().begin();
-            work.engine().add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
-            self.tmp.clear();
-            work.engine().union_into(&mut self.tmp, u16::MAX, 0, 1)?;
-            for r in self.tmp.rings() {
+            engine.begin();
+            engine.add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
+            tmp.clear();
+            engine.union_into(&mut tmp, u16::MAX, 0, 1)?;
+            for r in tmp.rings() {
                 if !r.is_hole() {
-                    let pts = self.tmp.ring_points(r);
+                    let pts = tmp.ring_points(r);
                     self.paths.add_loop(pts, Feature::Skirt, u16::MAX, PathKind::Skirt)?;
                 }
             }
@@ -1550,18 +1558,18 @@ impl<
         self.park_engine(work);
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
-        let empty = window::Parts::EMPTY;
+        let ring = &self.ring;
         let mut view = SkinView {
-            above: [empty; 16],
+            ring: ring.storage(),
+            above: [(0, 0); 16],
             n_above: 0,
             above_complete: true,
-            below: [empty; 16],
+            below: [(0, 0); 16],
             n_below: 0,
             below_complete: true,
             has_next: false,
         };
-        let ring = &self.ring;
-        let stored = |layer: u32| ring.find(layer).map(|b| ring.data(&b));
+        let stored = |layer: u32| ring.find(layer).map(|b| (b.start, b.len));
         for k in 1..=top as u32 {
             match stored(l + k) {
                 Some(d) => {
@@ -1622,7 +1630,7 @@ impl<
             self.fill.points(),
             self.fill.rings(),
             params,
-            view,
+            &view,
             top,
             bottom,
             &mut fill_work,
@@ -1732,8 +1740,8 @@ mod tests {
 
     #[test]
     fn memory_per_capacity_unit_is_as_documented() {
-        assert_eq!(ToolpathNeeds::PTS_BYTES, 24);
-        assert_eq!(ToolpathNeeds::ENGINE_BYTES, 50);
+        assert_eq!(ToolpathNeeds::PTS_BYTES, 16);
+        assert_eq!(ToolpathNeeds::ENGINE_BYTES, 58);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 22);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 9);

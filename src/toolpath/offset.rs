@@ -23,7 +23,7 @@
 
 use crate::geom::Point2;
 
-use super::poly::{div_round, div_round_128, orient, LoopBuf, Ring};
+use super::poly::{div_round, div_round_128, orient, Loops, Ring};
 use super::simplify::simplify_closed;
 use super::Buffer;
 use crate::plan::math::isqrt_u64;
@@ -621,9 +621,9 @@ impl<const E: usize> Offsetter<E> {
     /// Runs the union of everything added since [`begin`](Self::begin) and appends the
     /// boundary loops (um) to `out`, tagged `island`/`depth`. Loops whose mean width
     /// (2 x area / length) is below `min_width_um` are dropped. Returns the loops added.
-    pub fn union_into<const P: usize, const L: usize>(
+    pub fn union_into<const L: usize>(
         &mut self,
-        out: &mut LoopBuf<P, L>,
+        out: &mut Loops<'_, L>,
         island: u16,
         depth: u8,
         min_width_um: i64,
@@ -687,11 +687,11 @@ impl<const E: usize> Offsetter<E> {
 
     /// Follows boundary darts from `start`; writes the loop's points (um) into `out`'s open
     /// loop. Returns false (and discards) on a dead end.
-    fn trace<const P: usize, const L: usize>(
+    fn trace<const L: usize>(
         &mut self,
         start: usize,
         nd: usize,
-        out: &mut LoopBuf<P, L>,
+        out: &mut Loops<'_, L>,
     ) -> Result<bool, Buffer> {
         let darts = &self.segs[..nd];
         let used = &mut self.act[..nd];
@@ -753,9 +753,9 @@ impl<const E: usize> Offsetter<E> {
     }
 
     /// Cleans the loop just traced and keeps it if it is wide enough.
-    fn finish_loop<const P: usize, const L: usize>(
+    fn finish_loop<const L: usize>(
         &mut self,
-        out: &mut LoopBuf<P, L>,
+        out: &mut Loops<'_, L>,
         island: u16,
         depth: u8,
         min_width_um: i64,
@@ -812,6 +812,8 @@ fn cw_before(r: (i64, i64), c1: (i64, i64), c2: (i64, i64)) -> bool {
 mod tests {
     use super::*;
 
+    use crate::toolpath::poly::LoopBuf;
+
     type Out = LoopBuf<4096, 64>;
 
     fn offset_loops(loops: &[&[Point2]], d: i32, join: Join) -> Box<Out> {
@@ -821,7 +823,7 @@ mod tests {
         for l in loops {
             eng.add_loop(l, d, join).unwrap();
         }
-        eng.union_into(&mut out, 0, 0, 1).unwrap();
+        eng.union_into(&mut out.loops(), 0, 0, 1).unwrap();
         assert_eq!(eng.open_chains, 0);
         out
     }

@@ -83,21 +83,28 @@ impl Ring {
 /// Closed loops in bounded storage: `P` points, `L` loops.
 pub struct LoopBuf<const P: usize, const L: usize> {
     points: [Point2; P],
+    /// The loops and counters.
+    pub(crate) meta: LoopMeta<L>,
+}
+
+/// A loop buffer's loops and counters without its points, which are lent to it as a
+/// [`Loops`] (the toolpath stage keeps the points of its loops between offsets in the offset
+/// engine's place in the scratch).
+pub struct LoopMeta<const L: usize> {
     n_points: usize,
     rings: [Ring; L],
     n_rings: usize,
     /// Start of the loop being built.
     open: usize,
-    /// Largest `n_points` and `n_rings` seen since creation.
+    /// Largest `n_points` and `n_rings` seen since creation (or [`reset`](Self::reset)).
     pub(crate) peak_points: usize,
     pub(crate) peak_rings: usize,
 }
 
-impl<const P: usize, const L: usize> LoopBuf<P, L> {
+impl<const L: usize> LoopMeta<L> {
     /// Empty.
     pub const fn new() -> Self {
         Self {
-            points: [Point2::new(0, 0); P],
             n_points: 0,
             rings: [Ring {
                 start: 0,
@@ -125,14 +132,51 @@ impl<const P: usize, const L: usize> LoopBuf<P, L> {
         self.open = 0;
     }
 
+    /// Removes every loop and forgets the peaks.
+    pub fn reset(&mut self) {
+        self.clear();
+        self.peak_points = 0;
+        self.peak_rings = 0;
+    }
+
     /// The loops.
     pub fn rings(&self) -> &[Ring] {
         &self.rings[..self.n_rings]
     }
+}
+
+impl<const L: usize> Default for LoopMeta<L> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// A [`LoopMeta`] with its points: a loop buffer whose points are borrowed (their capacity is
+/// the slice's length).
+pub struct Loops<'a, const L: usize> {
+    points: &'a mut [Point2],
+    meta: &'a mut LoopMeta<L>,
+}
+
+impl<'a, const L: usize> Loops<'a, L> {
+    /// The loops of `meta`, their points in `points`.
+    pub fn new(points: &'a mut [Point2], meta: &'a mut LoopMeta<L>) -> Self {
+        Self { points, meta }
+    }
+
+    /// Removes every loop.
+    pub fn clear(&mut self) {
+        self.meta.clear();
+    }
+
+    /// The loops.
+    pub fn rings(&self) -> &[Ring] {
+        self.meta.rings()
+    }
 
     /// All points, loop after loop.
     pub fn points(&self) -> &[Point2] {
-        &self.points[..self.n_points]
+        self.points.get(..self.meta.n_points).unwrap_or(&[])
     }
 
     /// The points of `r`.
@@ -142,49 +186,51 @@ impl<const P: usize, const L: usize> LoopBuf<P, L> {
 
     /// Number of points of the loop being built.
     pub fn open_len(&self) -> usize {
-        self.n_points - self.open
+        self.meta.n_points - self.meta.open
     }
 
     /// The points of the loop being built.
     pub fn open_points_mut(&mut self) -> &mut [Point2] {
-        &mut self.points[self.open..self.n_points]
+        &mut self.points[self.meta.open..self.meta.n_points]
     }
 
     /// Drops the loop being built.
     pub fn discard_open(&mut self) {
-        self.n_points = self.open;
+        self.meta.n_points = self.meta.open;
     }
 
     /// Keeps only the first `len` points of the loop being built.
     pub fn truncate_open(&mut self, len: usize) {
-        self.n_points = self.open + len.min(self.open_len());
+        self.meta.n_points = self.meta.open + len.min(self.open_len());
     }
 
     /// Appends a point to the loop being built.
     pub fn push(&mut self, p: Point2) -> Result<(), Buffer> {
-        let slot = self.points.get_mut(self.n_points).ok_or(Buffer::LayerPoints)?;
+        let m = &mut *self.meta;
+        let slot = self.points.get_mut(m.n_points).ok_or(Buffer::LayerPoints)?;
         *slot = p;
-        self.n_points += 1;
-        self.peak_points = self.peak_points.max(self.n_points);
+        m.n_points += 1;
+        m.peak_points = m.peak_points.max(m.n_points);
         Ok(())
     }
 
     /// Closes the loop being built (area and bounding box computed here); a loop of fewer than
     /// three points is dropped. Returns its index.
     pub fn close(&mut self, island: u16, depth: u8, parent: u16) -> Result<Option<usize>, Buffer> {
-        let pts = &self.points[self.open..self.n_points];
+        let m = &mut *self.meta;
+        let pts = &self.points[m.open..m.n_points];
         if pts.len() < 3 {
-            self.n_points = self.open;
+            m.n_points = m.open;
             return Ok(None);
         }
-        let slot = self.rings.get_mut(self.n_rings).ok_or(Buffer::LayerLoops)?;
+        let slot = m.rings.get_mut(m.n_rings).ok_or(Buffer::LayerLoops)?;
         let (mut min, mut max) = (pts[0], pts[0]);
         for p in pts {
             min = Point2::new(min.x.min(p.x), min.y.min(p.y));
             max = Point2::new(max.x.max(p.x), max.y.max(p.y));
         }
         *slot = Ring {
-            start: self.open as u32,
+            start: m.open as u32,
             len: pts.len() as u32,
             area2: crate::geom::doubled_signed_area(pts),
             min,
@@ -193,10 +239,73 @@ impl<const P: usize, const L: usize> LoopBuf<P, L> {
             depth,
             parent,
         };
-        self.n_rings += 1;
-        self.peak_rings = self.peak_rings.max(self.n_rings);
-        self.open = self.n_points;
-        Ok(Some(self.n_rings - 1))
+        m.n_rings += 1;
+        m.peak_rings = m.peak_rings.max(m.n_rings);
+        m.open = m.n_points;
+        Ok(Some(m.n_rings - 1))
+    }
+}
+
+impl<const P: usize, const L: usize> LoopBuf<P, L> {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self { points: [Point2::new(0, 0); P], meta: LoopMeta::new() }
+    }
+
+    /// The buffer as a [`Loops`] (what the offset engine writes).
+    pub fn loops(&mut self) -> Loops<'_, L> {
+        Loops::new(&mut self.points, &mut self.meta)
+    }
+
+    /// Removes every loop.
+    pub fn clear(&mut self) {
+        self.meta.clear();
+    }
+
+    /// The loops.
+    pub fn rings(&self) -> &[Ring] {
+        self.meta.rings()
+    }
+
+    /// All points, loop after loop.
+    pub fn points(&self) -> &[Point2] {
+        &self.points[..self.meta.n_points]
+    }
+
+    /// The points of `r`.
+    pub fn ring_points(&self, r: &Ring) -> &[Point2] {
+        self.points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
+    }
+
+    /// Number of points of the loop being built.
+    pub fn open_len(&self) -> usize {
+        self.meta.n_points - self.meta.open
+    }
+
+    /// The points of the loop being built.
+    pub fn open_points_mut(&mut self) -> &mut [Point2] {
+        &mut self.points[self.meta.open..self.meta.n_points]
+    }
+
+    /// Drops the loop being built.
+    pub fn discard_open(&mut self) {
+        self.loops().discard_open();
+    }
+
+    /// Keeps only the first `len` points of the loop being built.
+    pub fn truncate_open(&mut self, len: usize) {
+        self.loops().truncate_open(len);
+    }
+
+    /// Appends a point to the loop being built.
+    pub fn push(&mut self, p: Point2) -> Result<(), Buffer> {
+        self.loops().push(p)
+    }
+
+    /// Closes the loop being built (area and bounding box computed here); a loop of fewer than
+    /// three points is dropped. Returns its index.
+    pub fn close(&mut self, island: u16, depth: u8, parent: u16) -> Result<Option<usize>, Buffer> {
+        self.loops().close(island, depth, parent)
     }
 }
 

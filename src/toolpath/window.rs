@@ -68,6 +68,20 @@ impl<'a, T> Parts<'a, T> {
     }
 }
 
+/// `len` elements from `start` in a circular storage of `n`: (up to the end, from 0).
+fn span(n: usize, start: usize, len: usize) -> (core::ops::Range<usize>, core::ops::Range<usize>) {
+    let start = start.min(n);
+    let first = len.min(n - start);
+    (start..start + first, 0..(len - first).min(start))
+}
+
+/// The `len` elements from `start` of a [`Fifo`]'s `storage` (a block kept as two `u32`s,
+/// 8 bytes, instead of its [`Parts`]' two slices, 16 bytes on the Cortex-M3).
+pub fn parts<T>(storage: &[T], start: u32, len: u32) -> Parts<'_, T> {
+    let (a, w) = span(storage.len(), start as usize, len as usize);
+    Parts { a: &storage[a], b: &storage[w] }
+}
+
 /// A reserved block being written: `a`, then `b` (see [`Parts`]).
 pub struct PartsMut<'a, T> {
     a: &'a mut [T],
@@ -142,15 +156,17 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
 
     /// `len` elements from `start`, wrapping: (up to the end, from 0).
     fn span(start: usize, len: usize) -> (core::ops::Range<usize>, core::ops::Range<usize>) {
-        let start = start.min(N);
-        let first = len.min(N - start);
-        (start..start + first, 0..(len - first).min(start))
+        span(N, start, len)
     }
 
     /// The elements of a block.
     pub fn data(&self, b: &Block) -> Parts<'_, T> {
-        let (a, w) = Self::span(b.start as usize, b.len as usize);
-        Parts { a: &self.data[a], b: &self.data[w] }
+        parts(&self.data, b.start, b.len)
+    }
+
+    /// The whole storage, where [`parts`] finds a block from its start and length.
+    pub fn storage(&self) -> &[T] {
+        &self.data
     }
 
     /// Drops the oldest block.
