@@ -38,6 +38,34 @@ pub type CombFn<'a> = dyn Fn(Point2, Point2, &mut dyn FnMut(Point2)) -> bool + '
 const COMB_EXTRA_UM: i64 = 15_000;
 /// Most loops one combed travel goes around.
 const MAX_COMB_LOOPS: usize = 16;
+/// Most comb waypoints a plan keeps for its travel (the sample models' routes have at most
+/// 57, nearly all at most 32); a longer route is found again when travelled.
+const ROUTE_POINTS: usize = 32;
+
+/// The waypoints of the comb route [`Emitter::plan_travel`] found, for the travel it planned.
+#[derive(Debug, Clone, Copy)]
+pub struct Route {
+    pts: [Point2; ROUTE_POINTS],
+    /// Waypoints of the route (more than [`ROUTE_POINTS`]: only the first are kept).
+    len: usize,
+}
+
+impl Route {
+    /// No waypoints (all zero bytes).
+    pub const EMPTY: Self = Self { pts: [Point2::new(0, 0); ROUTE_POINTS], len: 0 };
+
+    fn push(&mut self, w: Point2) {
+        if let Some(slot) = self.pts.get_mut(self.len) {
+            *slot = w;
+        }
+        self.len = self.len.saturating_add(1);
+    }
+
+    /// The waypoints, when all were kept.
+    fn points(&self) -> Option<&[Point2]> {
+        self.pts.get(..self.len)
+    }
+}
 
 /// Nozzle state and per-layer counters.
 #[derive(Debug, Clone, Copy)]
@@ -152,13 +180,21 @@ impl Emitter {
         comb: &CombFn<'_>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) {
-        let plan = self.plan_travel(ctx, to, comb);
-        self.travel(ctx, to, plan, comb, sink);
+        let mut route = Route::EMPTY;
+        let plan = self.plan_travel(ctx, to, comb, &mut route);
+        self.travel(ctx, to, plan, &route, comb, sink);
     }
 
     /// What [`travel_to`](Self::travel_to) would do from here, nothing emitted: whether it
-    /// retracts, whether it takes the comb route, and its moves exactly.
-    fn plan_travel(&self, ctx: &Ctx<'_>, to: Point2, comb: &CombFn<'_>) -> Travel {
+    /// retracts, whether it takes the comb route (its waypoints into `route`), and its moves
+    /// exactly.
+    fn plan_travel(
+        &self,
+        ctx: &Ctx<'_>,
+        to: Point2,
+        comb: &CombFn<'_>,
+        route: &mut Route,
+    ) -> Travel {
         if to == self.pos && self.pending_z.is_none() {
             return Travel { retract: false, routed: false, moves: 0 };
         }
@@ -174,7 +210,9 @@ impl Emitter {
             // Check the detour leg by leg, then take it.
             let (mut prev, mut ok, mut len, mut waypoints, mut moving) =
                 (from, true, 0i64, 0u32, 0u32);
+            route.len = 0;
             let found = comb(from, to, &mut |w| {
+                route.push(w);
                 ok &= !ctx.crosses_contour(prev, w);
                 len += dist(prev, w);
                 waypoints += 1;
@@ -194,12 +232,14 @@ impl Emitter {
         Travel { retract, routed, moves: moves + legs }
     }
 
-    /// Carries out `plan` (made by [`plan_travel`](Self::plan_travel) from this state).
+    /// Carries out `plan` (made by [`plan_travel`](Self::plan_travel) from this state, with
+    /// `route`; `comb` finds a route too long to be kept again).
     fn travel(
         &mut self,
         ctx: &Ctx<'_>,
         to: Point2,
         plan: Travel,
+        route: &Route,
         comb: &CombFn<'_>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) {
@@ -232,7 +272,12 @@ impl Emitter {
             self.send(sink, m);
         }
         if plan.routed {
-            comb(from, to, &mut |w| self.travel_leg(ctx, w, sink));
+            match route.points() {
+                Some(pts) => pts.iter().for_each(|&w| self.travel_leg(ctx, w, sink)),
+                None => {
+                    comb(from, to, &mut |w| self.travel_leg(ctx, w, sink));
+                }
+            }
         } else {
             self.travel_leg(ctx, to, sink);
         }
@@ -534,9 +579,10 @@ fn plan_path<const N: usize>(
     r: &PathRec,
     start: usize,
     reversed: bool,
+    route: &mut Route,
 ) -> (Travel, u32) {
     let pts = paths.points(r);
-    let travel = em.plan_travel(ctx, pts[start], &comber(paths, r.island));
+    let travel = em.plan_travel(ctx, pts[start], &comber(paths, r.island), route);
     // Extrusions: the points that differ from the one before (the nozzle is at the start).
     let mut prev = pts[start];
     let mut extrusions = 0u32;
@@ -556,16 +602,17 @@ fn run_unit<const N: usize>(
     ctx: &Ctx<'_>,
     paths: &PathBuf<N>,
     unit: &Unit,
+    route: &Route,
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     match unit.path {
         Some(p) => {
             let r = paths.rec(p.index);
-            print_path(em, ctx, paths, &r, p.start, p.reversed, unit.travel, sink);
+            print_path(em, ctx, paths, &r, p.start, p.reversed, unit.travel, route, sink);
         }
         None => {
             let here = em.pos;
-            em.travel(ctx, here, unit.travel, &|_, _, _| false, sink);
+            em.travel(ctx, here, unit.travel, route, &|_, _, _| false, sink);
         }
     }
 }
@@ -580,11 +627,12 @@ fn print_path<const N: usize>(
     start: usize,
     reversed: bool,
     travel: Travel,
+    route: &Route,
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     let pts = paths.points(r);
     let feat = paths.features(r);
-    em.travel(ctx, pts[start], travel, &comber(paths, r.island), sink);
+    em.travel(ctx, pts[start], travel, route, &comber(paths, r.island), sink);
     for (i, f) in path_order(r, start, reversed) {
         em.extrude_to(ctx, pts[i], feat[f], sink);
     }
@@ -822,6 +870,8 @@ pub struct Emission {
     loose: bool,
     /// The next unit, planned (it waits for room).
     next: Slot<Unit>,
+    /// The comb route of the next unit's travel.
+    route: Route,
 }
 
 impl Default for Emission {
@@ -833,7 +883,13 @@ impl Default for Emission {
 impl Emission {
     /// Nothing to emit.
     pub const fn new() -> Self {
-        Self { phase: Phase::Idle, grid: None, loose: false, next: Slot::Empty }
+        Self {
+            phase: Phase::Idle,
+            grid: None,
+            loose: false,
+            next: Slot::Empty,
+            route: Route::EMPTY,
+        }
     }
 
     /// A layer's emission has begun and is not complete.
@@ -895,10 +951,10 @@ impl Emission {
                 }
             };
             let taken = {
-                let (before, shown) = (*em, &*paths);
+                let (before, shown, route) = (*em, &*paths, &self.route);
                 room.take(unit.moves, &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
                     let mut copy = before;
-                    run_unit(&mut copy, ctx, shown, &unit, &mut |e: &ToolEvent<'_>| out(e));
+                    run_unit(&mut copy, ctx, shown, &unit, route, &mut |e: &ToolEvent<'_>| out(e));
                 })
             };
             if !taken {
@@ -907,7 +963,7 @@ impl Emission {
             }
             self.next = Slot::Empty;
             em.layer.max_unit_moves = em.layer.max_unit_moves.max(unit.moves);
-            run_unit(em, ctx, paths, &unit, sink);
+            run_unit(em, ctx, paths, &unit, &self.route, sink);
             let Some(p) = unit.path else { continue };
             if let Phase::Islands(Some(c)) = &mut self.phase {
                 let mut finder = Finder::resume(self.grid, self.loose, grid_head, grid_next);
@@ -934,11 +990,13 @@ impl Emission {
         let cfg = ctx.cfg;
         let seam = cfg.seam;
         let n = paths.len();
-        let plan = |paths: &PathBuf<N>, index: usize, start: usize, reversed: bool, stage: u8| {
-            let r = paths.rec(index);
-            let (travel, moves) = plan_path(em, ctx, paths, &r, start, reversed);
-            Some(Unit { path: Some(PathUnit { index, start, reversed, stage }), travel, moves })
-        };
+        let route = &mut self.route;
+        let mut plan =
+            |paths: &PathBuf<N>, index: usize, start: usize, reversed: bool, stage: u8| {
+                let r = paths.rec(index);
+                let (travel, moves) = plan_path(em, ctx, paths, &r, start, reversed, route);
+                Some(Unit { path: Some(PathUnit { index, start, reversed, stage }), travel, moves })
+            };
         loop {
             match &mut self.phase {
                 Phase::Idle | Phase::Closed => return None,
@@ -1028,7 +1086,7 @@ impl Emission {
                 Phase::Closing => {
                     // A layer without extrusion still moves to its height.
                     self.phase = Phase::Closed;
-                    let travel = em.plan_travel(ctx, em.pos, &|_, _, _| false);
+                    let travel = em.plan_travel(ctx, em.pos, &|_, _, _| false, route);
                     return Some(Unit { path: None, travel, moves: travel.moves });
                 }
             }
