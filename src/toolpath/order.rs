@@ -595,8 +595,7 @@ fn plan_path<const N: usize>(
 }
 
 /// Emits `unit`'s moves from `em`'s state: the travel (and retraction, height change,
-/// priming) and the path, or the closing move. The emission and the replay a [`Room`] is
-/// offered both run this, so the room sees exactly the moves that go out.
+/// priming) and the path, or the closing move.
 fn run_unit<const N: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
@@ -856,11 +855,11 @@ enum Phase {
 /// The emission of one layer's paths, resumable between units: the skirt first (in order),
 /// then the islands nearest first, in each the stages in order and the nearest path first
 /// (see the [module docs](self)), then a move to the layer's height if none went there.
-/// Each [`emit`](Self::emit) call emits whole units while the next one's moves (known
-/// exactly before it starts) fit the room it was given; the state between calls is this
-/// value, the [`Emitter`], the layer's paths (their done flags, the rear seams rotated, the
-/// records grouped by island), `island_stage` and the nearest-path grid's buffers, which the
-/// owner keeps untouched until the layer is complete.
+/// Each [`emit`](Self::emit) call emits whole units while the room it was given takes them
+/// (each opened with its exact moves, kept or undone at its end); the state between calls
+/// is this value, the [`Emitter`], the layer's paths (their done flags, the rear seams
+/// rotated, the records grouped by island), `island_stage` and the nearest-path grid's
+/// buffers, which the owner keeps untouched until the layer is complete.
 #[derive(Debug, Clone)]
 pub struct Emission {
     phase: Phase,
@@ -917,9 +916,10 @@ impl Emission {
         *self = Self { phase: Phase::Skirt { from: 0 }, ..Self::new() };
     }
 
-    /// Emits the layer's next units in order while `room` takes each (offered its moves and
-    /// a replay of its events on a copy of `em`: nothing changes until it is taken). Returns
-    /// the moves of the unit refused (it is offered first by a later call), or `None` when
+    /// Emits the layer's next units in order into `room` while it takes each (opened with
+    /// its moves; when the room undoes it at its close, `em` goes back to its state before
+    /// the unit, which nothing else changed). Returns the moves of the unit refused or
+    /// undone (it is offered first by a later call), or `None` when
     /// the layer's last unit was emitted (or none was being emitted). `grid_head` and
     /// `grid_next` are scratch for the nearest-path grid (cells, and two entries per path;
     /// when `grid_next` holds fewer, paths are found by scanning: the same order), kept
@@ -934,7 +934,6 @@ impl Emission {
         grid_head: &mut [u32],
         grid_next: &mut [u32],
         room: &mut R,
-        sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Option<u32> {
         let seam = ctx.cfg.seam;
         loop {
@@ -950,12 +949,15 @@ impl Emission {
                     }
                 }
             };
-            let taken = {
-                let (before, shown, route) = (*em, &*paths, &self.route);
-                room.take(unit.moves, &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
-                    let mut copy = before;
-                    run_unit(&mut copy, ctx, shown, &unit, route, &mut |e: &ToolEvent<'_>| out(e));
-                })
+            let taken = room.open(unit.moves) && {
+                let before = *em;
+                run_unit(em, ctx, paths, &unit, &self.route, &mut |e: &ToolEvent<'_>| {
+                    room.event(e)
+                });
+                room.close() || {
+                    *em = before;
+                    false
+                }
             };
             if !taken {
                 self.next = Slot::Full(unit);
@@ -963,7 +965,6 @@ impl Emission {
             }
             self.next = Slot::Empty;
             em.layer.max_unit_moves = em.layer.max_unit_moves.max(unit.moves);
-            run_unit(em, ctx, paths, &unit, &self.route, sink);
             let Some(p) = unit.path else { continue };
             if let Phase::Islands(Some(c)) = &mut self.phase {
                 let mut finder = Finder::resume(self.grid, self.loose, grid_head, grid_next);
