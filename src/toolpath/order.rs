@@ -210,16 +210,18 @@ impl Emitter {
             // Check the detour leg by leg, then take it.
             let (mut prev, mut ok, mut len, mut waypoints, mut moving) =
                 (from, true, 0i64, 0u32, 0u32);
+            let longest = 2 * d + COMB_EXTRA_UM;
             route.len = 0;
             let found = comb(from, to, &mut |w| {
                 route.push(w);
-                ok &= !ctx.crosses_contour(prev, w);
                 len += dist(prev, w);
+                // A route already refused (too long, or a leg leaves) needs no more checks.
+                ok = ok && len <= longest && !ctx.crosses_contour(prev, w);
                 waypoints += 1;
                 moving += u32::from(w != prev);
                 prev = w;
             });
-            routed = found && ok && waypoints > 1 && len <= 2 * d + COMB_EXTRA_UM;
+            routed = found && ok && waypoints > 1;
             if routed {
                 legs = moving;
             }
