@@ -203,10 +203,11 @@ impl Emitter {
         let mut routed = false;
         // Legs that move (a waypoint equal to the one before makes no move).
         let mut legs = u32::from(to != from);
-        let leaves = d > 0 && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
-        // Short hops go straight: they retract neither way.
+        // Short hops go straight and retract neither way: whether they cross a contour is
+        // not asked.
         let short = d < i64::from(ctx.cfg.min_retract_travel_um);
-        if leaves && ctx.cfg.comb && !short {
+        let leaves = d > 0 && !short && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
+        if leaves && ctx.cfg.comb {
             // Check the detour leg by leg, then take it.
             let (mut prev, mut ok, mut len, mut waypoints, mut moving) =
                 (from, true, 0i64, 0u32, 0u32);
@@ -226,10 +227,7 @@ impl Emitter {
                 legs = moving;
             }
         }
-        let retract = leaves
-            && !routed
-            && d >= i64::from(ctx.cfg.min_retract_travel_um)
-            && ctx.cfg.retract_length_um > 0;
+        let retract = leaves && !routed && ctx.cfg.retract_length_um > 0;
         let moves = u32::from(retract && !self.retracted) + u32::from(self.pending_z.is_some());
         Travel { retract, routed, moves: moves + legs }
     }
