@@ -370,7 +370,8 @@ fn nearest(pts: &[Point2], from: Point2) -> usize {
     best
 }
 
-/// Where path `r` would start from `from`: (point index, reversed, squared distance).
+/// Where path `r` would start from `from`: (point index, reversed, squared distance). Rear
+/// seams are rotated to the front of their loop before any perimeter is entered.
 fn entry<const N: usize>(
     paths: &PathBuf<N>,
     r: &PathRec,
@@ -380,7 +381,7 @@ fn entry<const N: usize>(
     let pts = paths.points(r);
     if r.closed {
         let i = match (seam, r.kind) {
-            (Seam::Rear, PathKind::Perimeter(_)) => rear(pts),
+            (Seam::Rear, PathKind::Perimeter(_)) => 0,
             _ => nearest(pts, from),
         };
         return (i, false, dist2(from, pts[i]));
