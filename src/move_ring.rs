@@ -549,18 +549,30 @@ impl<const BYTES: usize> MoveRing<BYTES> {
 
     /// The first move (`None` when empty).
     pub fn front(&self) -> Option<PackedMove> {
-        decode(&self.popped, &mut self.bytes())
+        self.decode_front().map(|(mv, _)| mv)
     }
 
     /// Removes and returns the first move (`None` when empty).
     pub fn pop_front(&mut self) -> Option<PackedMove> {
-        let mut bytes = self.bytes();
-        let mv = decode(&self.popped, &mut bytes)?;
-        let read = self.len - bytes.len();
+        let (mv, read) = self.decode_front()?;
         self.head = self.wrap(read);
         self.len -= read;
         self.popped = mv;
         Some(mv)
+    }
+
+    /// The first move and its record's length, bytes. A record ends within [`MAX_RECORD`]
+    /// bytes: when those do not wrap, they are read as one slice (fewer checks a byte).
+    fn decode_front(&self) -> Option<(PackedMove, usize)> {
+        let end = self.head + self.len.min(MAX_RECORD);
+        if let Some(run) = self.buf.get(self.head..end) {
+            let mut bytes = run.iter().copied();
+            let mv = decode(&self.popped, &mut bytes)?;
+            return Some((mv, run.len() - bytes.len()));
+        }
+        let mut bytes = self.bytes();
+        let mv = decode(&self.popped, &mut bytes)?;
+        Some((mv, self.len - bytes.len()))
     }
 
     /// The bytes in use, oldest first.
