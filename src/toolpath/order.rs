@@ -44,7 +44,7 @@ const ROUTE_POINTS: usize = 32;
 
 /// The waypoints of the comb route [`Emitter::plan_travel`] found, for the travel it planned.
 #[derive(Debug, Clone, Copy)]
-pub struct Route {
+struct Route {
     pts: [Point2; ROUTE_POINTS],
     /// Waypoints of the route (more than [`ROUTE_POINTS`]: only the first are kept).
     len: usize,
@@ -52,7 +52,7 @@ pub struct Route {
 
 impl Route {
     /// No waypoints (all zero bytes).
-    pub const EMPTY: Self = Self { pts: [Point2::new(0, 0); ROUTE_POINTS], len: 0 };
+    const EMPTY: Self = Self { pts: [Point2::new(0, 0); ROUTE_POINTS], len: 0 };
 
     fn push(&mut self, w: Point2) {
         if let Some(slot) = self.pts.get_mut(self.len) {
