@@ -1095,3 +1095,63 @@ impl Emission {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::machine::{MachineConfig, PrintSettings};
+    use core::cell::Cell;
+
+    /// A travel across a wall follows the comb route found for it, whether its waypoints
+    /// were kept by the plan (routed once) or not (routed again when travelled).
+    #[test]
+    fn a_combed_travel_follows_its_route_kept_or_found_again() {
+        let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+        assert!(cfg.comb && cfg.min_retract_travel_um < 20_000);
+        // A wall the straight travel from the origin to (20, 0) mm crosses.
+        let points = [
+            Point2::new(10_000, -1_000),
+            Point2::new(11_000, -1_000),
+            Point2::new(11_000, 1_000),
+            Point2::new(10_000, 1_000),
+        ];
+        let wall = Ring {
+            start: 0,
+            len: 4,
+            area2: 4_000_000,
+            min: points[0],
+            max: points[2],
+            island: 0,
+            depth: 0,
+            parent: Ring::NO_PARENT,
+        };
+        let ctx =
+            Ctx { cfg: &cfg, points: &points, rings: &[wall], height_um: 200, first_layer: false };
+        let to = Point2::new(20_000, 0);
+        for n in [3, ROUTE_POINTS, ROUTE_POINTS + 1, 2 * ROUTE_POINTS] {
+            // Up 5 mm, along above the wall in `n - 2` steps, down to `to`.
+            let route: Vec<Point2> = (0..n - 1)
+                .map(|i| Point2::new((20_000 * i / (n - 2)) as i32, 5_000))
+                .chain([to])
+                .collect();
+            let calls = Cell::new(0);
+            let comb = |_: Point2, _: Point2, visit: &mut dyn FnMut(Point2)| {
+                calls.set(calls.get() + 1);
+                route.iter().for_each(|&w| visit(w));
+                true
+            };
+            let mut em = Emitter::new();
+            let mut moves = Vec::new();
+            em.travel_to(&ctx, to, &comb, &mut |e: &ToolEvent<'_>| {
+                if let ToolEvent::Move(m) = e {
+                    moves.push(*m);
+                }
+            });
+            let ends: Vec<Point2> = moves.iter().map(|m| m.to).collect();
+            assert_eq!(ends, route, "{n} waypoints");
+            assert!(moves.iter().all(|m| m.feature == Feature::Travel && m.e_um == 0));
+            assert_eq!((em.pos, em.retracted), (to, false));
+            assert_eq!(calls.get(), if n <= ROUTE_POINTS { 1 } else { 2 }, "{n} waypoints");
+        }
+    }
+}
