@@ -19,25 +19,25 @@
 //! it went in.
 //!
 //! Flow control ([`crate::printer`]): the toolpath stage emits a layer unit by unit (a path
-//! with the travel before it, [`Toolpath::emit_next`](crate::toolpath::Toolpath::emit_next)),
-//! each only once the ring's [`ByteRoom`] ([`MoveRing::room`]) takes it: the room codes the
-//! unit's moves on copies of the [`MoveStream`] and of the ring's [`MoveEncoder`] (a
-//! [`MoveMeter`]), so it knows the unit's bytes exactly before the first of them is pushed,
-//! and takes it only when they fit the free bytes. A unit's bytes depend on the move before
+//! with the travel before it, [`Toolpath::emit_next`](crate::toolpath::Toolpath::emit_next))
+//! into the ring's [`RingRoom`] ([`MoveRing::room`]), each unit generated once: its moves are
+//! pushed as they come; when one does not fit, the rest are only coded to count the unit's
+//! bytes, and at the unit's end the ring (bytes in use, coder) and the [`MoveStream`] go back
+//! to where the unit began and the stage undoes it too. The unit waits, and is offered again
+//! once its exact bytes are free ([`RoomMemory`]). A unit's bytes depend on the move before
 //! it only, not on what waits in the ring: a unit refused by an empty ring never fits
-//! ([`ByteRoom::refused`] above the capacity). The host's admission control runs the same
-//! meter and room over a job to find its largest unit in bytes.
+//! ([`RingRoom::never_fits`]). The host's admission control codes a job's moves with a
+//! [`MoveMeter`] to find its largest unit in bytes.
 //!
 //! Every move of a layer is in one of its units (the height change, retraction and priming
 //! with the travel they belong to, a layer without extrusion closed by a unit of its own), so
 //! the rooms count every byte the ring takes. The other events are outside the units and
 //! take no bytes: a layer's `LayerStart` goes out when the layer is built, before its first
-//! unit is offered (it sets the stream's layer, which the room's copy then starts from), and
-//! its `LayerEnd` after its last unit.
+//! unit is offered (it sets the stream's layer), and its `LayerEnd` after its last unit.
 
 use crate::machine::{Rate, AXES};
 use crate::plan::{Move, MoveKind};
-use crate::toolpath::{Replay, Room, ToolEvent, ToolMove};
+use crate::toolpath::{Room, ToolEvent, ToolMove};
 
 /// A toolpath move waiting for the planner: the planner's [`Move`] with its feed as U16F16
 /// bits (the toolpath's feeds are whole or simple fractions of mm/s; the same packing runs on
@@ -285,10 +285,10 @@ impl MoveMeter {
     }
 }
 
-/// What an owner's rooms learn from one call to the next ([`ByteRoom::remembering`],
-/// [`ByteRoom::memory`]): the bytes the waiting unit needs (exact when it was replayed, an
-/// estimate otherwise), and the bytes and moves of the units taken so far, whose ratio with a
-/// quarter added is the estimate that spares the replay of a unit that cannot fit.
+/// What an owner's rooms learn from one call to the next ([`MoveRing::room`]): the bytes the
+/// waiting unit needs (exact when it was coded, an estimate otherwise), and the bytes and
+/// moves of the units taken so far, whose ratio with a quarter added is the estimate that
+/// spares coding a unit that cannot fit.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RoomMemory {
     /// Bytes to wait for before offering again (0: none waits).
@@ -314,179 +314,116 @@ impl RoomMemory {
     pub fn largest(&self) -> usize {
         self.largest
     }
+
+    /// Bytes and moves of the units taken.
+    pub fn coded(&self) -> (u64, u64) {
+        self.coded
+    }
+
+    /// Expected bytes of a unit of `moves` moves: the bytes per move so far plus a quarter
+    /// (0 before any unit was taken).
+    fn expected(&self, moves: u32) -> usize {
+        let (bytes, taken) = self.coded;
+        let per_move_q4 = (bytes * 20).checked_div(taken).unwrap_or(0) as usize;
+        (moves as usize).saturating_mul(per_move_q4) >> 4
+    }
 }
 
-/// Room in a move buffer for the toolpath stage's units, in exact bytes (see the
-/// [module docs](self)): a unit offered is replayed through a copy of the [`MoveMeter`] and
-/// taken when its bytes fit the bytes left; then the meter and the bytes left move on with it,
-/// so several units in one call are counted as exactly as one.
-#[derive(Debug, Clone, Copy)]
-pub struct ByteRoom {
-    meter: MoveMeter,
-    free: usize,
-    capacity: usize,
-    /// Bytes of the unit refused last.
+/// The move ring as the toolpath stage's [`Room`] (see the [module docs](self)): each move of
+/// a unit is coded into the ring as it comes (through the [`MoveStream`]); when one does not
+/// fit, the unit's other moves are only counted, and at its close the ring and the stream go
+/// back to where the unit began and its exact bytes are remembered. A unit whose expected
+/// bytes ([`RoomMemory`]) exceed the free ones is refused before it runs while the ring holds
+/// moves; the waiting unit's exact bytes, once known, spare that estimate.
+#[derive(Debug)]
+pub struct RingRoom<'a, const BYTES: usize> {
+    ring: &'a mut MoveRing<BYTES>,
+    stream: &'a mut MoveStream,
+    memory: &'a mut RoomMemory,
+    /// Where the open unit began: the ring's bytes in use and coder, and the stream.
+    mark: (usize, MoveEncoder, MoveStream),
+    /// Moves of the open unit (as opened) and its bytes coded so far.
+    unit: (u32, usize),
+    /// The coder counting the open unit's moves once one did not fit (nothing written).
+    over: Option<MoveEncoder>,
+    /// The first unit offered is the waiting one, of these exact bytes.
+    known: Option<usize>,
+    /// Bytes of the unit refused last, when known exactly.
     refused: Option<usize>,
-    /// Bytes of the largest unit taken.
-    largest: usize,
-    /// Bytes of all units taken.
-    taken: u64,
-    /// Moves of all units taken.
-    taken_moves: u64,
-    /// The exact bytes of the first unit offered, known from an earlier refusal (the coding
-    /// state has not moved since): taken without a replay.
-    known_first: Option<usize>,
-    /// The meter is behind the units taken (one went in on its known bytes): no more units
-    /// in this call.
-    stale: bool,
-    /// Expected bytes per move, 1/16 B (0: none): a unit whose expected bytes exceed the
-    /// free ones is refused without a replay while the buffer is not empty.
-    per_move_q4: usize,
-    /// The bytes to wait for after such a refusal (an estimate, at most the capacity).
-    hint: Option<usize>,
 }
 
-impl ByteRoom {
-    /// `free` bytes of a buffer of `capacity`, the moves coded by `meter` from its state.
-    pub const fn new(meter: MoveMeter, free: usize, capacity: usize) -> Self {
-        Self {
-            meter,
-            free,
-            capacity,
-            refused: None,
-            largest: 0,
-            taken: 0,
-            taken_moves: 0,
-            known_first: None,
-            stale: false,
-            per_move_q4: 0,
-            hint: None,
-        }
-    }
-
-    /// The first unit offered has `bytes` (exact: it was refused with them and the coding
-    /// state has not moved since), so it is taken or refused without a replay.
-    const fn with_known_first(mut self, bytes: Option<usize>) -> Self {
-        self.known_first = bytes;
-        self
-    }
-
-    /// Units are expected to take `per_move_q4` / 16 bytes a move: one whose expected bytes
-    /// exceed the free ones is refused without a replay (unless the buffer is empty), and
-    /// [`wait_hint`](Self::wait_hint) says how many to wait for.
-    const fn with_estimate(mut self, per_move_q4: usize) -> Self {
-        self.per_move_q4 = per_move_q4;
-        self
-    }
-
-    /// This room with what earlier rooms learnt: the waiting unit's exact bytes, if known,
-    /// and the job's bytes per move so far plus a quarter as the estimate.
-    pub fn remembering(self, memory: &RoomMemory) -> Self {
-        let (bytes, moves) = memory.coded;
-        let per_move_q4 = (bytes * 20).checked_div(moves).unwrap_or(0) as usize;
-        self.with_known_first(memory.exact.then_some(memory.wait)).with_estimate(per_move_q4)
-    }
-
-    /// `before` with what this room learnt.
-    pub fn memory(&self, before: &RoomMemory) -> RoomMemory {
-        let (bytes, moves) = before.coded;
-        RoomMemory {
-            wait: self.wait_hint().unwrap_or(0),
-            exact: self.refused.is_some(),
-            coded: (bytes + self.taken, moves + self.taken_moves),
-            largest: before.largest.max(self.largest),
-        }
-    }
-
-    /// Bytes to wait for before offering again: the exact bytes of the unit refused last,
-    /// or the estimate of one refused without a replay.
-    fn wait_hint(&self) -> Option<usize> {
-        self.refused.or(self.hint)
-    }
-
-    /// Room without bound, to measure units (the host's admission control).
-    pub const fn unbounded(meter: MoveMeter) -> Self {
-        Self::new(meter, usize::MAX, usize::MAX)
-    }
-
-    /// Bytes of the unit refused last, if one was: it fits once that many are free, and
-    /// never when more than the capacity.
+impl<const BYTES: usize> RingRoom<'_, BYTES> {
+    /// Bytes of the unit refused last, if they are known exactly: it fits once that many are
+    /// free, and never when more than the capacity.
     pub fn refused(&self) -> Option<usize> {
         self.refused
     }
 
-    /// The last unit refused can never go in: its bytes exceed the buffer's capacity.
+    /// The last unit refused can never go in: its bytes exceed the ring's capacity.
     pub fn never_fits(&self) -> bool {
-        self.refused.is_some_and(|b| b > self.capacity)
+        self.refused.is_some_and(|b| b > self.ring.capacity())
     }
 
-    /// Bytes of the largest unit taken.
-    pub fn largest(&self) -> usize {
-        self.largest
-    }
-
-    /// Bytes of all units taken.
-    pub fn taken(&self) -> u64 {
-        self.taken
-    }
-
-    /// Bytes left.
-    pub fn free(&self) -> usize {
-        self.free
-    }
-
-    /// The meter, at the end of the units taken.
-    pub fn meter(&self) -> MoveMeter {
-        self.meter
+    /// Refuses the unit: `bytes` to wait for, `exact` or an estimate.
+    fn refuse(&mut self, bytes: usize, exact: bool) -> bool {
+        self.refused = exact.then_some(bytes);
+        self.memory.wait = bytes;
+        self.memory.exact = exact;
+        false
     }
 }
 
-impl Room for ByteRoom {
-    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool {
-        if self.stale {
-            return false;
-        }
-        if let Some(bytes) = self.known_first.take() {
-            if bytes > self.free {
-                self.refused = Some(bytes);
-                return false;
+impl<const BYTES: usize> Room for RingRoom<'_, BYTES> {
+    fn open(&mut self, moves: u32) -> bool {
+        let free = self.ring.free_bytes();
+        match self.known.take() {
+            Some(bytes) if bytes > free => return self.refuse(bytes, true),
+            Some(_) => {}
+            None => {
+                let expected = self.memory.expected(moves);
+                let capacity = self.ring.capacity();
+                if expected > free && free < capacity {
+                    return self.refuse(expected.min(capacity), false);
+                }
             }
-            // The meter cannot follow without the replay: this call takes no more units.
-            self.stale = true;
-            self.commit(bytes, moves);
-            return true;
         }
-        let expected = (moves as usize).saturating_mul(self.per_move_q4) >> 4;
-        if expected > self.free && self.free < self.capacity {
-            self.hint = Some(expected.min(self.capacity));
-            return false;
-        }
-        let mut meter = self.meter;
-        let (mut bytes, mut seen) = (0usize, 0u32);
-        replay(&mut |e: &ToolEvent<'_>| {
-            bytes += meter.event(e);
-            seen += u32::from(matches!(e, ToolEvent::Move(_)));
-        });
-        debug_assert_eq!(seen, moves, "a unit replays the moves it was planned with");
-        if bytes > self.free {
-            self.refused = Some(bytes);
-            return false;
-        }
-        self.meter = meter;
-        self.commit(bytes, moves);
+        self.mark = (self.ring.len, self.ring.encoder, *self.stream);
+        self.unit = (moves, 0);
+        self.over = None;
         true
     }
-}
 
-impl ByteRoom {
-    /// A unit of `bytes` and `moves` went in.
-    fn commit(&mut self, bytes: usize, moves: u32) {
+    fn event(&mut self, e: &ToolEvent<'_>) {
+        let ToolEvent::Move(m) = e else { return };
+        let mv = self.stream.next(m);
+        let bytes = match &mut self.over {
+            None => match self.ring.code(&mv) {
+                Ok(n) => n,
+                Err(RingFull) => {
+                    let mut counting = self.ring.encoder;
+                    let n = counting.encode(&mv, &mut [0; MAX_RECORD]);
+                    self.over = Some(counting);
+                    n
+                }
+            },
+            Some(counting) => counting.encode(&mv, &mut [0; MAX_RECORD]),
+        };
+        self.unit.1 += bytes;
+    }
+
+    fn close(&mut self) -> bool {
+        let (moves, bytes) = self.unit;
+        if self.over.is_some() {
+            (self.ring.len, self.ring.encoder, *self.stream) = self.mark;
+            return self.refuse(bytes, true);
+        }
         self.refused = None;
-        self.hint = None;
-        self.free -= bytes;
-        self.largest = self.largest.max(bytes);
-        self.taken += bytes as u64;
-        self.taken_moves += u64::from(moves);
+        let m = &mut *self.memory;
+        m.wait = 0;
+        m.exact = false;
+        m.coded = (m.coded.0 + bytes as u64, m.coded.1 + u64::from(moves));
+        m.largest = m.largest.max(bytes);
+        true
     }
 }
 
@@ -564,15 +501,35 @@ impl<const BYTES: usize> MoveRing<BYTES> {
         self.capacity().saturating_sub(self.len)
     }
 
-    /// The room for the next toolpath units: the free bytes, measured with the moves coded
-    /// as [`push`](Self::push) will code them after the ones already in (`stream`: the
-    /// stream the moves come from, where it stands now).
-    pub fn room(&self, stream: &MoveStream) -> ByteRoom {
-        ByteRoom::new(MoveMeter::new(*stream, self.encoder), self.free_bytes(), self.capacity())
+    /// The ring as the room for the toolpath stage's next units ([`RingRoom`]): their moves
+    /// go through `stream` into the ring; `memory` is what earlier rooms learnt, and learns
+    /// what this one does.
+    pub fn room<'a>(
+        &'a mut self,
+        stream: &'a mut MoveStream,
+        memory: &'a mut RoomMemory,
+    ) -> RingRoom<'a, BYTES> {
+        let known = memory.exact.then_some(memory.wait);
+        let mark = (self.len, self.encoder, *stream);
+        RingRoom {
+            ring: self,
+            stream,
+            memory,
+            mark,
+            unit: (0, 0),
+            over: None,
+            known,
+            refused: None,
+        }
     }
 
     /// Appends `mv`; [`RingFull`] (and the ring unchanged) when its record does not fit.
     pub fn push(&mut self, mv: &PackedMove) -> Result<(), RingFull> {
+        self.code(mv).map(|_| ())
+    }
+
+    /// [`push`](Self::push), giving the record's bytes.
+    fn code(&mut self, mv: &PackedMove) -> Result<usize, RingFull> {
         let mut record = [0u8; MAX_RECORD];
         let mut encoder = self.encoder;
         let n = encoder.encode(mv, &mut record);
@@ -587,23 +544,35 @@ impl<const BYTES: usize> MoveRing<BYTES> {
         }
         self.len += n;
         self.encoder = encoder;
-        Ok(())
+        Ok(n)
     }
 
     /// The first move (`None` when empty).
     pub fn front(&self) -> Option<PackedMove> {
-        decode(&self.popped, &mut self.bytes())
+        self.decode_front().map(|(mv, _)| mv)
     }
 
     /// Removes and returns the first move (`None` when empty).
     pub fn pop_front(&mut self) -> Option<PackedMove> {
-        let mut bytes = self.bytes();
-        let mv = decode(&self.popped, &mut bytes)?;
-        let read = self.len - bytes.len();
+        let (mv, read) = self.decode_front()?;
         self.head = self.wrap(read);
         self.len -= read;
         self.popped = mv;
         Some(mv)
+    }
+
+    /// The first move and its record's length, bytes. A record ends within [`MAX_RECORD`]
+    /// bytes: when those do not wrap, they are read as one slice (fewer checks a byte).
+    fn decode_front(&self) -> Option<(PackedMove, usize)> {
+        let end = self.head + self.len.min(MAX_RECORD);
+        if let Some(run) = self.buf.get(self.head..end) {
+            let mut bytes = run.iter().copied();
+            let mv = decode(&self.popped, &mut bytes)?;
+            return Some((mv, run.len() - bytes.len()));
+        }
+        let mut bytes = self.bytes();
+        let mv = decode(&self.popped, &mut bytes)?;
+        Some((mv, self.len - bytes.len()))
     }
 
     /// The bytes in use, oldest first.
@@ -824,102 +793,120 @@ mod tests {
         assert_eq!(none.front(), None);
     }
 
-    #[test]
-    fn a_byte_room_takes_units_by_their_coded_bytes() {
-        // A unit of three moves of layer 1 (travel, print, retract), and its bytes from the
-        // origin by the encoder (whose records are checked above).
-        let unit = three_move_unit();
-        let mut stream = stream_at(1);
-        let (mut enc, mut out, mut bytes) = (MoveEncoder::new(), [0u8; MAX_RECORD], 0);
-        for m in &unit {
-            bytes += enc.encode(&stream.next(m), &mut out);
-        }
-        let mut s = stream_at(1);
-        let mut ring: MoveRing<64> = MoveRing::new();
-        let replay = &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
-            for m in &unit {
-                out(&ToolEvent::Move(*m));
+    /// Offers `unit` to `room` as the toolpath stage does: true when it was kept.
+    fn offer(room: &mut impl Room, unit: &[ToolMove]) -> bool {
+        room.open(unit.len() as u32) && {
+            for m in unit {
+                room.event(&ToolEvent::Move(*m));
             }
-        };
-        // Free bytes one short: refused, nothing moves on; then taken twice in one room, the
-        // second time coded after the first (fewer bytes: only the deltas change).
-        let mut short = ByteRoom::new(MoveMeter::new(s, MoveEncoder::new()), bytes - 1, 64);
-        assert!(!short.take(3, replay));
-        assert_eq!((short.refused(), short.never_fits(), short.taken()), (Some(bytes), false, 0));
-        let mut room = ring.room(&s);
-        assert_eq!(room.free(), 64);
-        assert!(room.take(3, replay));
-        assert_eq!((room.largest(), room.taken(), room.free()), (bytes, bytes as u64, 64 - bytes));
-        assert!(room.take(3, replay));
-        let second = room.taken() as usize - bytes;
-        assert!(second < bytes, "{second} {bytes}");
-        // The ring takes the same bytes.
-        for _ in 0..2 {
-            for m in &unit {
-                ring.push(&s.next(m)).unwrap();
-            }
+            room.close()
         }
-        assert_eq!(ring.used_bytes(), bytes + second);
-        // A ring limited below the unit's bytes can never take it.
-        let mut small: MoveRing<64> = MoveRing::new();
-        small.limit(bytes - 1);
-        let mut never = small.room(&stream_at(1));
-        assert!(!never.take(3, replay));
-        assert!(never.never_fits());
-        // A `usize` room counts moves.
-        let mut moves = 5usize;
-        assert!(moves.take(3, replay) && moves == 2);
-        assert!(!moves.take(3, replay) && moves == 2);
+    }
+
+    /// `unit`'s moves packed from `stream` and their bytes coded from `coder`.
+    fn coded(
+        mut stream: MoveStream,
+        mut coder: MoveEncoder,
+        unit: &[ToolMove],
+    ) -> (Vec<PackedMove>, usize) {
+        let mut bytes = 0;
+        let moves = unit
+            .iter()
+            .map(|m| {
+                let mv = stream.next(m);
+                bytes += coder.encode(&mv, &mut [0; MAX_RECORD]);
+                mv
+            })
+            .collect();
+        (moves, bytes)
     }
 
     #[test]
-    fn known_bytes_and_the_estimate_spare_replays_without_changing_what_is_taken() {
+    fn a_ring_room_keeps_a_unit_that_fits_and_undoes_one_that_does_not() {
         let unit = three_move_unit();
-        let replays = core::cell::Cell::new(0);
-        let replay = &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
-            replays.set(replays.get() + 1);
-            for m in &unit {
-                out(&ToolEvent::Move(*m));
-            }
-        };
-        let meter = MoveMeter::new(stream_at(1), MoveEncoder::new());
-        // The exact bytes, from a refusal.
-        let mut first = ByteRoom::new(meter, 0, 64);
-        assert!(!first.take(3, replay));
-        let bytes = first.refused().unwrap();
-        assert_eq!((first.wait_hint(), replays.get()), (Some(bytes), 1));
-        // What the next call's room is told: wait for those bytes, then take the unit on
-        // them (no replay), and remember it as taken.
-        let memory = first.memory(&RoomMemory::NEW);
-        assert_eq!((memory.waits_for(), memory.largest()), (bytes, 0));
-        let mut next = ByteRoom::new(meter, bytes, 64).remembering(&memory);
-        assert!(next.take(3, replay));
-        assert_eq!(replays.get(), 1);
-        let after = next.memory(&memory);
-        assert_eq!((after.waits_for(), after.largest()), (0, bytes));
-        // Known bytes: refused below them and taken at them, neither time replayed; after a
-        // unit taken on its bytes the room takes no other (its meter did not follow).
-        let mut below = ByteRoom::new(meter, bytes - 1, 64).with_known_first(Some(bytes));
-        assert!(!below.take(3, replay));
-        assert_eq!((below.refused(), replays.get()), (Some(bytes), 1));
-        let mut exact = ByteRoom::new(meter, 64, 64).with_known_first(Some(bytes));
-        assert!(exact.take(3, replay));
-        assert_eq!((exact.taken(), exact.taken_moves, exact.free()), (bytes as u64, 3, 64 - bytes));
-        assert!(!exact.take(3, replay));
-        assert_eq!((exact.refused(), exact.wait_hint(), replays.get()), (None, None, 1));
-        // An estimate above the free bytes refuses without a replay and says what to wait
-        // for (at most the capacity), unless the buffer is empty: then the unit is replayed
-        // and taken on its real bytes.
-        let per_move_q4 = 16 * 20;
-        let mut busy = ByteRoom::new(meter, 59, 64).with_estimate(per_move_q4);
-        assert!(!busy.take(3, replay));
-        assert_eq!((busy.refused(), busy.wait_hint(), replays.get()), (None, Some(60), 1));
-        let mut capped = ByteRoom::new(meter, 10, 32).with_estimate(per_move_q4);
-        assert!(!capped.take(3, replay));
-        assert_eq!(capped.wait_hint(), Some(32));
-        let mut empty = ByteRoom::new(meter, 32, 32).with_estimate(per_move_q4);
-        assert!(empty.take(3, replay));
-        assert_eq!((empty.taken(), replays.get()), (bytes as u64, 2));
+        let first = PackedMove { target_um: [5_000, 0, 0, 0], ..PackedMove::ORIGIN };
+        let mut ring: MoveRing<64> = MoveRing::new();
+        ring.push(&first).unwrap();
+        let used = ring.used_bytes();
+        let mut stream = stream_at(1);
+        // The unit after `first`, coded independently of the ring.
+        let (moves, bytes) = coded(stream, MoveEncoder { prev: first }, &unit);
+        assert!(bytes > 3 && used + bytes <= 64);
+        // One byte short: the unit runs out of bytes, is undone (the ring, its coder and the
+        // stream as before) and its exact bytes are known, all of them.
+        ring.limit(used + bytes - 1);
+        let mut memory = RoomMemory::NEW;
+        let mut room = ring.room(&mut stream, &mut memory);
+        assert!(!offer(&mut room, &unit));
+        assert_eq!((room.refused(), room.never_fits()), (Some(bytes), false));
+        assert_eq!((ring.used_bytes(), ring.front()), (used, Some(first)));
+        assert_eq!(memory.waits_for(), bytes);
+        assert_eq!(coded(stream, MoveEncoder { prev: first }, &unit), (moves.clone(), bytes));
+        // Refused on its known bytes while they do not fit, then kept when they do.
+        assert!(!offer(&mut ring.room(&mut stream, &mut memory), &unit));
+        assert_eq!((ring.used_bytes(), memory.waits_for()), (used, bytes));
+        ring.limit(used + bytes);
+        let mut room = ring.room(&mut stream, &mut memory);
+        assert!(offer(&mut room, &unit));
+        assert_eq!(room.refused(), None);
+        assert_eq!(ring.used_bytes(), used + bytes);
+        assert_eq!(
+            (memory.waits_for(), memory.largest(), memory.coded()),
+            (0, bytes, (bytes as u64, 3))
+        );
+        // The ring holds `first` and the unit's moves, coded after it (not after the undone
+        // attempt).
+        assert_eq!(ring.pop_front(), Some(first));
+        for mv in moves {
+            assert_eq!(ring.pop_front(), Some(mv));
+        }
+        assert_eq!(ring.pop_front(), None);
+        // An empty ring below the unit's bytes can never take it.
+        let mut small: MoveRing<64> = MoveRing::new();
+        let (_, alone) = coded(stream_at(1), MoveEncoder::new(), &unit);
+        small.limit(alone - 1);
+        let (mut s, mut m) = (stream_at(1), RoomMemory::NEW);
+        let mut never = small.room(&mut s, &mut m);
+        assert!(!offer(&mut never, &unit));
+        assert!(never.never_fits());
+        assert!(small.is_empty());
+    }
+
+    #[test]
+    fn the_estimate_refuses_a_unit_before_it_runs_while_moves_wait() {
+        let unit = three_move_unit();
+        let (_, bytes) = coded(stream_at(1), MoveEncoder::new(), &unit);
+        // A room that learnt `bytes` for 3 moves expects (bytes / 3 + a quarter) a move.
+        let mut ring: MoveRing<64> = MoveRing::new();
+        let (mut stream, mut memory) = (stream_at(1), RoomMemory::NEW);
+        assert!(offer(&mut ring.room(&mut stream, &mut memory), &unit));
+        let expected = 3 * (bytes * 20 / 3) / 16;
+        assert!(expected > bytes);
+        // Free bytes below the estimate with moves waiting: refused before it runs, the
+        // estimate (at most the capacity) to wait for.
+        let used = ring.used_bytes();
+        ring.limit(used + expected - 1);
+        let mut room = ring.room(&mut stream, &mut memory);
+        assert!(!room.open(3));
+        assert_eq!(room.refused(), None);
+        assert_eq!(memory.waits_for(), expected.min(used + expected - 1));
+        assert_eq!(ring.used_bytes(), used);
+        // An empty ring runs the unit whatever the estimate.
+        while ring.pop_front().is_some() {}
+        ring.limit(bytes + 1);
+        assert!(offer(&mut ring.room(&mut stream, &mut memory), &unit));
+    }
+
+    #[test]
+    fn counted_and_unbounded_rooms_take_units_by_moves() {
+        let unit = three_move_unit();
+        let mut sent = 0;
+        let mut moves = crate::toolpath::Moves { left: 5, sink: |_: &ToolEvent<'_>| sent += 1 };
+        assert!(offer(&mut moves, &unit) && moves.left == 2);
+        assert!(!offer(&mut moves, &unit) && moves.left == 2);
+        let mut all = |_: &ToolEvent<'_>| sent += 1;
+        assert!(offer(&mut all, &unit));
+        assert_eq!(sent, 6);
     }
 
     /// A travel, a print and a retraction along X at z 0.2 mm, 40 mm/s.

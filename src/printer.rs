@@ -17,10 +17,10 @@
 //! cut and emits its moves into the move buffer (toolpath moves waiting for the planner,
 //! delta-coded into `MOVE_BYTES` bytes, see [`crate::move_ring`]) unit by unit, a unit
 //! being one path with the retraction, travel and height change before it (or a layer's
-//! closing move to its height). Before a unit goes in, the buffer's room
-//! ([`ByteRoom`](crate::move_ring::ByteRoom)) codes the unit's moves exactly as the buffer
-//! will (on copies of the stream and the coder) and takes the unit only if its bytes fit the
-//! free bytes; `poll` and `service` emit more as the planner takes moves. The stage keeps
+//! closing move to its height). The buffer's room ([`RingRoom`](crate::move_ring::RingRoom))
+//! codes each unit's moves into the buffer as they are generated and undoes a unit whose
+//! bytes do not fit the free bytes (it waits until its exact bytes are free); `poll` and
+//! `service` emit more as the planner takes moves. The stage keeps
 //! the layer (its paths, the contour combing follows, the ordering state, the nearest-path
 //! grid in the shared scratch) until its last unit went in and builds no other meanwhile, so
 //! the slicer cuts the next layer (which reuses the scratch) only once the stage has emitted
@@ -610,7 +610,7 @@ impl<
                 // offered again and resumes here.
                 for (i, t) in batch.iter().enumerate().skip(self.batch_pos as usize) {
                     while self.slicer.would_cut(t.z_min()) {
-                        if !self.emit_moves(motion.as_deref_mut()) {
+                        if !self.emit_moves() {
                             if !self.is_active() {
                                 break;
                             }
@@ -632,7 +632,7 @@ impl<
                 if !self.model_ended =>
             {
                 while self.is_active() {
-                    if !self.emit_moves(motion.as_deref_mut()) {
+                    if !self.emit_moves() {
                         if !self.is_active() {
                             break;
                         }
@@ -731,56 +731,56 @@ impl<
     }
 
     /// Emits the toolpath stage's built layer into the move buffer, unit by unit (a path
-    /// with the travel before it) while the buffer's free bytes hold the next one's coded
-    /// moves, counted exactly ([`MoveRing::room`]); true when no layer is left to emit (the
-    /// stage may build the next one). A unit whose bytes exceed the whole buffer could never
-    /// go: the job fails ([`ErrorCode::Moves`], detail: the layer).
-    fn emit_moves(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+    /// with the travel before it), each coded into the buffer as it is generated and undone
+    /// when its bytes do not fit the free ones ([`MoveRing::room`]); true when no layer is
+    /// left to emit (the stage may build the next one). A unit whose bytes exceed the whole
+    /// buffer could never go: the job fails ([`ErrorCode::Moves`], detail: the layer).
+    fn emit_moves(&mut self) -> bool {
         if !self.tp.emitting() {
             return true;
         }
         // The unit refused last is offered first again, and its bytes stay what they were
         // (the coding state moves only when a unit goes in): no use offering it before the
-        // buffer has that much free. The room spares replays where it can (`remembering`).
+        // buffer has that much free.
         if self.moves.free_bytes() < self.room_memory.waits_for() {
             return false;
         }
-        let mut room = self.moves.room(&self.stream).remembering(&self.room_memory);
-        let emitted = self.through_toolpath(motion, |tp, work, events| {
-            tp.emit_next(work, &mut room, &mut |e: &ToolEvent<'_>| events(e))
-        });
-        self.room_memory = room.memory(&self.room_memory);
+        let Self { tp, scratch, moves, stream, room_memory, .. } = self;
+        let mut room = moves.room(stream, room_memory);
+        let emitted = tp.emit_next(scratch, &mut room);
+        let never_fits = room.never_fits();
         match emitted {
-            Some(Emitted::Complete) => self.is_active(),
-            Some(Emitted::NeedsRoom { layer, .. }) => {
-                if room.never_fits() {
+            Ok(Emitted::Complete) => self.is_active(),
+            Ok(Emitted::NeedsRoom { layer, .. }) => {
+                if never_fits {
                     self.fail(ErrorCode::Moves, layer);
                 }
                 false
             }
-            None => false,
+            Err(_) => {
+                self.check(false, true, None);
+                false
+            }
         }
     }
 
     /// Cuts the slicer's next plane and hands its layer to the toolpath stage, then emits
     /// what the move buffer takes of the layer the stage built; false when no plane was
     /// left or on an error. Call only when [`emit_moves`](Self::emit_moves) is done.
-    fn cut_one(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let cut = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
-            slicer.cut_one(work, &mut |l| sink(l))
-        });
-        self.emit_moves(motion);
+    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+        let cut = self
+            .through_slicer(motion, |slicer, work, sink| slicer.cut_one(work, &mut |l| sink(l)));
+        self.emit_moves();
         cut == Some(true) && self.is_active()
     }
 
     /// After the last plane: the toolpath stage builds its next waiting layer, and what the
     /// move buffer takes of it is emitted; false when none was left or on an error. Call
     /// only when [`emit_moves`](Self::emit_moves) is done.
-    fn flush_one(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let built = self.through_toolpath(motion.as_deref_mut(), |tp, work, events| {
-            tp.build_next(work, &mut |e| events(e))
-        });
-        self.emit_moves(motion);
+    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+        let built = self
+            .through_toolpath(motion, |tp, work, events| tp.build_next(work, &mut |e| events(e)));
+        self.emit_moves();
         built == Some(true) && self.is_active()
     }
 
@@ -832,7 +832,7 @@ impl<
         // The toolpath stage's next paths, as far as the room the planner made allows.
         if self.tp.emitting() {
             let before = self.moves.used_bytes();
-            worked |= self.emit_moves(None) || self.moves.used_bytes() != before;
+            worked |= self.emit_moves() || self.moves.used_bytes() != before;
             if !self.is_active() {
                 return true;
             }
@@ -905,7 +905,7 @@ impl<
         let before = self.state;
         while ep.tx_free() > 1 {
             let Some(p) = ep.peek() else { break };
-            if self.waiting_for_room && self.is_active() && !self.emit_moves(None) {
+            if self.waiting_for_room && self.is_active() && !self.emit_moves() {
                 break;
             }
             self.waiting_for_room = false;

@@ -1,7 +1,8 @@
 //! Stepwise emission: a layer's moves emitted unit by unit (`accept_layer`, `build_next`,
 //! `emit_next`) as a small room allows are exactly the moves `push_layer` emits at once, each
 //! unit's move count is exact, and the stage takes no layer while one is being emitted; the
-//! move ring's byte room counts each unit's coded bytes exactly.
+//! move ring's room takes a unit exactly when its coded moves fit, and a unit it undoes
+//! leaves the ring as it was.
 
 mod slice_support;
 mod toolpath_support;
@@ -9,12 +10,14 @@ mod toolpath_support;
 use std::path::Path;
 
 use slice_support::{cuboid, four_holed_discs, holed_prism, load_placed, ngon, to_um};
+use std::collections::VecDeque;
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::move_ring::{ByteRoom, MoveRing, MoveStream};
+
+use strata::move_ring::{MoveEncoder, MoveRing, MoveStream, PackedMove, RingRoom, RoomMemory};
 use strata::slice::{Layer, SliceConfig, SlicedLayer};
 use strata::toolpath::{
-    Emitted, Replay, Room, Seam, ToolEvent, ToolpathConfig, ToolpathError, ToolpathStats,
+    Emitted, Moves, Room, Seam, ToolEvent, ToolMove, ToolpathConfig, ToolpathError, ToolpathStats,
 };
 use toolpath_support::{run_cfg, TestScratch, TestSlicer, TestToolpath, TpLayer, TpRun};
 
@@ -48,13 +51,16 @@ fn drain(
     let mut needed = 0;
     loop {
         let r = room(needed);
-        let (mut moves, mut left) = (0, r);
-        let got = tp
-            .emit_next(work, &mut left, &mut |e: &ToolEvent<'_>| {
+        let mut moves = 0;
+        let mut counted = Moves {
+            left: r,
+            sink: |e: &ToolEvent<'_>| {
                 moves += usize::from(matches!(e, ToolEvent::Move(_)));
                 record(layers, e);
-            })
-            .expect("emit_next");
+            },
+        };
+        let got = tp.emit_next(work, &mut counted).expect("emit_next");
+        let left = counted.left;
         calls.push(Call { room: r, moves, got });
         assert!(moves <= r, "{moves} moves emitted into a room of {r}");
         assert_eq!(left, r - moves, "the room counts down by the moves emitted");
@@ -260,38 +266,102 @@ fn a_layer_waits_whole_for_room_and_nothing_is_lost_meanwhile() {
     assert!(run.layers.iter().all(|l| l.stats.index == l.index));
 }
 
-/// A [`ByteRoom`] that logs the bytes of every unit it takes.
-struct Logged {
-    room: ByteRoom,
-    units: Vec<usize>,
+/// The ring's room, checked against an independent coding of the moves: logs the bytes of
+/// every unit kept and of the unit undone, and records the kept units' events.
+struct Logged<'a, 'r, const B: usize> {
+    room: RingRoom<'r, B>,
+    run: &'a mut RingRun,
+    layers: &'a mut Vec<TpLayer>,
+    /// The open unit: the coding after its moves, its moves (as sent and packed), its bytes.
+    open: (MoveStream, MoveEncoder, Vec<ToolMove>, Vec<PackedMove>, usize),
+    /// Bytes of the unit undone in this call, as the independent coding counts them.
+    undone: Option<usize>,
+    /// Bytes of the units kept in this call.
+    kept: Vec<usize>,
 }
 
-impl Room for Logged {
-    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool {
-        let before = self.room.taken();
-        let taken = self.room.take(moves, replay);
+impl<const B: usize> Room for Logged<'_, '_, B> {
+    fn open(&mut self, moves: u32) -> bool {
+        let taken = self.room.open(moves);
         if taken {
-            self.units.push((self.room.taken() - before) as usize);
+            self.open = (self.run.stream, self.run.coder, Vec::new(), Vec::new(), 0);
         }
         taken
     }
+
+    fn event(&mut self, e: &ToolEvent<'_>) {
+        self.room.event(e);
+        match e {
+            ToolEvent::Move(m) => {
+                let (stream, coder, sent, packed, bytes) = &mut self.open;
+                let mv = stream.next(m);
+                *bytes += coder.encode(&mv, &mut [0; strata::move_ring::MAX_RECORD]);
+                sent.push(*m);
+                packed.push(mv);
+            }
+            _ => record(self.layers, e),
+        }
+    }
+
+    fn close(&mut self) -> bool {
+        let kept = self.room.close();
+        let (stream, coder, sent, packed, bytes) = core::mem::take(&mut self.open);
+        if kept {
+            (self.run.stream, self.run.coder) = (stream, coder);
+            for m in sent {
+                record(self.layers, &ToolEvent::Move(m));
+            }
+            self.run.queued.extend(packed);
+            self.kept.push(bytes);
+        } else {
+            self.undone = Some(bytes);
+        }
+        kept
+    }
 }
 
-/// What [`through_ring`] saw.
-#[derive(Default)]
+/// What [`through_ring`] saw, and the independent coding it checks the ring against.
 struct RingRun {
     /// Bytes of every unit taken, in order.
     units: Vec<usize>,
     /// Calls refused for room.
     refused: usize,
+    /// Units undone at their close (they ran out of bytes).
+    undone: usize,
     /// Refusals of a unit whose bytes exceed the whole ring.
     never: usize,
+    /// What the ring's rooms learnt.
+    memory: RoomMemory,
+    /// Each room starts from nothing learnt (no estimate, no known bytes).
+    forget: bool,
+    /// The stream and coder of the moves kept, run independently of the ring's.
+    stream: MoveStream,
+    coder: MoveEncoder,
+    /// The moves kept and not popped yet: what the ring must hold.
+    queued: VecDeque<PackedMove>,
+}
+
+impl RingRun {
+    fn new() -> Self {
+        Self {
+            units: Vec::new(),
+            refused: 0,
+            undone: 0,
+            never: 0,
+            memory: RoomMemory::NEW,
+            forget: false,
+            stream: MoveStream::new(),
+            coder: MoveEncoder::new(),
+            queued: VecDeque::new(),
+        }
+    }
 }
 
 /// Emits the built layer into `ring` as the printer does (each `emit_next` with the ring's
-/// room, the moves pushed through `stream`), popping `pop(refusals)` moves after each
-/// refusal (the planner taking moves): checks that every unit's bytes are the bytes its moves
-/// take in the ring, and that a refused unit's bytes stay the same until it goes in.
+/// room, the moves going through `stream`), popping `pop(refusals)` moves after each
+/// refusal (the planner taking moves): checks that every unit kept took the bytes its moves
+/// take, that a unit undone left the ring holding exactly the moves kept before it, and
+/// that a refused unit's bytes are exact and stay the same until it goes in.
 fn through_ring<const B: usize>(
     tp: &mut TestToolpath,
     work: &mut Work,
@@ -304,58 +374,75 @@ fn through_ring<const B: usize>(
     if !tp.emitting() {
         return;
     }
-    // The layer's start went by outside the units: the stream is at its layer.
-    stream.start_layer(layers.last().expect("a layer is being emitted").index);
+    // The layer's start went by outside the units: the streams are at its layer.
+    let layer = layers.last().expect("a layer is being emitted").index;
+    stream.start_layer(layer);
+    seen.stream.start_layer(layer);
     let mut waiting: Option<usize> = None;
     loop {
-        let mut room = Logged { room: ring.room(stream), units: Vec::new() };
-        let mut pushed = Vec::new();
-        let got = tp
-            .emit_next(work, &mut room, &mut |e: &ToolEvent<'_>| {
-                if let ToolEvent::Move(m) = e {
-                    let used = ring.used_bytes();
-                    ring.push(&stream.next(m)).expect("a unit taken fits the ring");
-                    pushed.push(ring.used_bytes() - used);
-                }
-                record(layers, e);
-            })
-            .expect("emit_next");
-        // The bytes the room counted are the bytes the moves took, unit by unit.
-        assert_eq!(room.units.iter().sum::<usize>(), pushed.iter().sum::<usize>());
-        assert_eq!(room.room.taken(), pushed.iter().sum::<usize>() as u64);
-        if let (Some(w), Some(&first)) = (waiting, room.units.first()) {
+        let used = ring.used_bytes();
+        let mut memory = if seen.forget { RoomMemory::NEW } else { seen.memory };
+        let mut room = Logged {
+            room: ring.room(stream, &mut memory),
+            run: &mut *seen,
+            layers: &mut *layers,
+            open: Default::default(),
+            undone: None,
+            kept: Vec::new(),
+        };
+        let got = tp.emit_next(work, &mut room).expect("emit_next");
+        let (refused, never) = (room.room.refused(), room.room.never_fits());
+        let (undone, kept) = (room.undone, room.kept);
+        seen.memory = memory;
+        // The ring took the bytes of the units kept, and holds exactly their moves.
+        assert_eq!(ring.used_bytes() - used, kept.iter().sum::<usize>());
+        if let (Some(w), Some(&first)) = (waiting, kept.first()) {
             assert_eq!(first, w, "the unit refused took the bytes it was refused for");
         }
-        seen.units.extend(&room.units);
+        if !kept.is_empty() {
+            waiting = None;
+        }
+        seen.units.extend(&kept);
         match got {
             Emitted::Complete => {
-                assert_eq!(room.room.refused(), None);
+                assert_eq!((refused, undone), (None, None));
                 return;
             }
             Emitted::NeedsRoom { .. } => {
                 seen.refused += 1;
-                let bytes = room.room.refused().expect("a refusal names the unit's bytes");
-                assert!(
-                    bytes > ring.free_bytes(),
-                    "{bytes} refused with {} free",
-                    ring.free_bytes()
-                );
-                if room.units.is_empty() {
-                    if let Some(w) = waiting {
-                        assert_eq!(bytes, w, "a waiting unit's bytes do not change");
+                let free = ring.free_bytes();
+                match refused {
+                    Some(bytes) => {
+                        assert!(bytes > free, "{bytes} refused with {free} free");
+                        // Undone at its close, or refused on its bytes known from that.
+                        match (undone, waiting) {
+                            (Some(u), _) => {
+                                seen.undone += 1;
+                                assert_eq!(bytes, u, "a unit undone names its exact bytes");
+                            }
+                            (None, w) => assert!(kept.is_empty() && w == Some(bytes)),
+                        }
+                        if let Some(w) = waiting {
+                            assert_eq!(bytes, w, "a waiting unit's bytes do not change");
+                        }
+                        assert_eq!(memory.waits_for(), bytes);
+                        waiting = Some(bytes);
+                        if never {
+                            assert!(bytes > ring.capacity());
+                            seen.never += 1;
+                            return;
+                        }
                     }
-                }
-                waiting = Some(bytes);
-                if room.room.never_fits() {
-                    assert!(bytes > ring.capacity());
-                    seen.never += 1;
-                    return;
+                    None => {
+                        // Refused on the estimate: not run, and only while moves wait.
+                        assert_eq!(undone, None);
+                        assert!(memory.waits_for() > free && !ring.is_empty());
+                    }
                 }
                 assert!(!ring.is_empty(), "an empty ring refused a unit that fits it");
                 for _ in 0..pop(seen.refused).max(1) {
-                    if ring.pop_front().is_none() {
-                        break;
-                    }
+                    let Some(mv) = ring.pop_front() else { break };
+                    assert_eq!(Some(mv), seen.queued.pop_front());
                 }
             }
         }
@@ -382,7 +469,7 @@ fn byte_room_checks() {
         let whole = run_cfg(&tris, &settings, cfg).unwrap();
         // Unbounded: every unit in one call per layer; its bytes are those of its moves.
         let mut big: Box<Ring> = Box::new(MoveRing::new());
-        let (mut stream, mut free) = (MoveStream::new(), RingRun::default());
+        let (mut stream, mut free) = (MoveStream::new(), RingRun::new());
         let run = run_with(&tris, &settings, cfg, |tp, work, layers| {
             through_ring(tp, work, layers, &mut big, &mut stream, &mut free, &mut |_| 0)
         });
@@ -392,46 +479,62 @@ fn byte_room_checks() {
         let total: usize = free.units.iter().sum();
         assert_eq!(big.used_bytes(), total, "{what}: every move is in a unit");
         assert!(largest > 0 && largest * 4 < total, "{what}: {largest} of {total}");
+        assert_rings_hold(&mut big, &mut free, what);
         // A ring of exactly the largest unit's bytes, drained a few moves at a time: the same
-        // moves, the same unit bytes (the coding does not depend on what waits), many waits.
-        let mut exact: Box<Ring> = Box::new(MoveRing::new());
-        exact.limit(largest);
-        let (mut stream, mut tight) = (MoveStream::new(), RingRun::default());
-        let mut rng = 0x2545_f491_4f6c_dd1du64;
-        let run = run_with(&tris, &settings, cfg, |tp, work, layers| {
-            let pop = &mut |_| {
-                rng ^= rng << 13;
-                rng ^= rng >> 7;
-                rng ^= rng << 17;
-                (rng % 8) as usize
-            };
-            through_ring(tp, work, layers, &mut exact, &mut stream, &mut tight, pop)
-        });
-        assert_same(&whole, &run, what);
-        assert_eq!(tight.units, free.units, "{what}");
-        assert_eq!(tight.never, 0, "{what}");
-        assert!(tight.refused > whole.layers.len(), "{what}: {} waits", tight.refused);
+        // moves, the same unit bytes (the coding does not depend on what waits), many waits;
+        // rooms that forget what the ones before learnt run the first unit they are offered
+        // (no known bytes, no estimate), so units run out of bytes and are undone.
+        for forget in [false, true] {
+            let mut exact: Box<Ring> = Box::new(MoveRing::new());
+            exact.limit(largest);
+            let (mut stream, mut tight) = (MoveStream::new(), RingRun::new());
+            tight.forget = forget;
+            let mut rng = 0x2545_f491_4f6c_dd1du64;
+            let run = run_with(&tris, &settings, cfg, |tp, work, layers| {
+                let pop = &mut |_| {
+                    rng ^= rng << 13;
+                    rng ^= rng >> 7;
+                    rng ^= rng << 17;
+                    (rng % 8) as usize
+                };
+                through_ring(tp, work, layers, &mut exact, &mut stream, &mut tight, pop)
+            });
+            assert_same(&whole, &run, what);
+            assert_eq!(tight.units, free.units, "{what}");
+            assert_eq!(tight.never, 0, "{what}");
+            assert!(tight.refused > whole.layers.len(), "{what}: {} waits", tight.refused);
+            if forget {
+                assert!(tight.undone * 2 > tight.refused, "{what}: {}", tight.undone);
+            }
+            assert_rings_hold(&mut exact, &mut tight, what);
+        }
         // One byte less: the largest unit never fits, and it is refused as such.
         let mut short: Box<Ring> = Box::new(MoveRing::new());
         short.limit(largest - 1);
-        let (mut stream, mut cut) = (MoveStream::new(), RingRun::default());
+        let (mut stream, mut cut) = (MoveStream::new(), RingRun::new());
         let mut stopped = false;
         run_with(&tris, &settings, cfg, |tp, work, layers| {
             if stopped {
                 // The owner fails the job; here the rest is emitted without the ring.
-                let mut all = usize::MAX;
-                tp.emit_next(work, &mut all, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
+                tp.emit_next(work, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
                 return;
             }
             through_ring(tp, work, layers, &mut short, &mut stream, &mut cut, &mut |_| usize::MAX);
             if cut.never > 0 {
                 stopped = true;
-                let mut all = usize::MAX;
-                tp.emit_next(work, &mut all, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
+                tp.emit_next(work, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
             }
         });
         assert_eq!(cut.never, 1, "{what}");
         let first_largest = free.units.iter().position(|&b| b == largest).unwrap();
         assert_eq!(cut.units[..], free.units[..first_largest], "{what}");
     }
+}
+
+/// `ring` holds exactly the moves `run` kept and did not pop, in order.
+fn assert_rings_hold<const B: usize>(ring: &mut MoveRing<B>, run: &mut RingRun, what: &str) {
+    while let Some(mv) = ring.pop_front() {
+        assert_eq!(Some(mv), run.queued.pop_front(), "{what}");
+    }
+    assert!(run.queued.is_empty(), "{what}: {} moves missing", run.queued.len());
 }

@@ -32,11 +32,11 @@ use meshopt::{simplify_decoder, SimplifyOptions};
 use rstar::{PointDistance, RTree, RTreeObject, AABB};
 use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::MachineConfig;
-use strata::move_ring::{ByteRoom, MoveMeter};
+use strata::move_ring::MoveMeter;
 use strata::protocol::{Capacities, JobSpec};
 use strata::scratch::Scratch;
 use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer, Slicer};
-use strata::toolpath::{ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds};
+use strata::toolpath::{Room, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
 /// What a model needs against what the device has.
 #[derive(Debug, Clone, Copy)]
@@ -262,7 +262,7 @@ pub struct ToolpathPeaks {
     pub spans: Peak,
     /// Bytes of the largest emission unit (a path with the travel, retraction and priming
     /// before it) in the move buffer, coded as the device codes them (`strata::move_ring`'s
-    /// `ByteRoom`, the coding's state running on across units and layers): the device's
+    /// `MoveMeter`, the coding's state running on across units and layers): the device's
     /// toolpath stage emits a layer unit by unit, each once its move buffer has that many
     /// bytes free, so the buffer must hold it.
     pub unit_bytes: Peak,
@@ -353,18 +353,20 @@ fn measure(
         }
         peaks.set(p);
     };
-    // The built layer's units into a room without bound, as the device's move buffer
-    // measures them (`strata::move_ring::ByteRoom`): the largest unit's bytes.
+    // The built layer's units into a room without bound, each unit's bytes those the
+    // events' meter (the device's coding) counts from its open to its close.
     let emit = |tp: &mut NeedsToolpath,
                 work: &mut NeedsScratch,
                 events: &mut dyn FnMut(&ToolEvent<'_>)|
      -> Result<(), ToolpathError> {
         while tp.emitting() {
-            let mut room = ByteRoom::unbounded(meter.get());
-            tp.emit_next(work, &mut room, &mut |e| events(e))?;
+            let mut room =
+                UnitBytes { events: &mut *events, coded: &coded, opened: 0, units: (0, 0) };
+            tp.emit_next(work, &mut room)?;
+            let (largest, total) = room.units;
             let mut p = peaks.get();
-            p.unit_bytes.raise(room.largest() as u32, emitting.get());
-            p.move_bytes += room.taken();
+            p.unit_bytes.raise(largest as u32, emitting.get());
+            p.move_bytes += total;
             peaks.set(p);
         }
         Ok(())
@@ -415,6 +417,34 @@ fn measure(
         ));
     }
     Ok(p)
+}
+
+/// A room without bound that passes the events on to `events` and measures each unit by
+/// `coded` (the bytes `events` counted so far).
+struct UnitBytes<'a, 'e> {
+    events: &'a mut (dyn FnMut(&ToolEvent<'_>) + 'e),
+    coded: &'a Cell<u64>,
+    /// `coded` when the open unit began.
+    opened: u64,
+    /// Bytes of the largest unit and of all units.
+    units: (u64, u64),
+}
+
+impl Room for UnitBytes<'_, '_> {
+    fn open(&mut self, _: u32) -> bool {
+        self.opened = self.coded.get();
+        true
+    }
+
+    fn event(&mut self, e: &ToolEvent<'_>) {
+        (self.events)(e)
+    }
+
+    fn close(&mut self) -> bool {
+        let bytes = self.coded.get() - self.opened;
+        self.units = (self.units.0.max(bytes), self.units.1 + bytes);
+        true
+    }
 }
 
 /// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user

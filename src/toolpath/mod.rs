@@ -50,10 +50,12 @@
 //!
 //! A built layer's moves go out unit by unit ([`Toolpath::emit_next`]): one path with the
 //! retraction, travel and height change before it (or the layer's closing move to its
-//! height), each once the owner's [`Room`] takes it: offered the unit's exact move count and
-//! a replay of its moves (run on a copy of the nozzle state, nothing changes before the room
-//! decides), so a room counting moves (`usize`) and one measuring their coded bytes (the
-//! printer's [`ByteRoom`](crate::move_ring::ByteRoom)) are both exact. The stage keeps the
+//! height), each generated once into the owner's [`Room`], whole or not at all: opened with
+//! the unit's exact move count (a room counting moves, [`Moves`], decides there), its moves
+//! sent as they are generated and then closed, when the room keeps or undoes it (the
+//! printer's [`RingRoom`](crate::move_ring::RingRoom) codes the moves into its byte ring as
+//! they come and undoes a unit that ran out of bytes; the stage then restores the nozzle
+//! state from before the unit, which waits). The stage keeps the
 //! layer (its paths, its contour for combing, the ordering state, the nearest-path grid in
 //! the infill scratch of the owner's [`Scratch`]) until its last unit went out and builds no
 //! other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room for the
@@ -444,36 +446,61 @@ pub enum Emitted {
     },
 }
 
-/// The replay a [`Room`] is offered with a unit: it sends the unit's events to the sink it is
-/// given.
-pub type Replay<'a> = dyn FnMut(&mut dyn FnMut(&ToolEvent<'_>)) + 'a;
-
-/// Room for a layer's emission units ([`Toolpath::emit_next`]): decides, before a unit goes
-/// out, whether it is taken.
+/// Where a layer's emission units go ([`Toolpath::emit_next`]), each whole or not at all:
+/// a unit is opened with its exact move count, its moves are sent, and it is closed, kept or
+/// undone by the room (then the stage undoes it too and the unit waits).
 ///
-/// `usize` counts moves (the unit's `moves` against the moves left, decremented when it is
-/// taken); an owner whose buffer holds coded moves of varying size (the printer's byte ring,
-/// [`crate::move_ring::ByteRoom`]) runs `replay` to see the unit's events exactly.
+/// A closure is a room without bound; [`Moves`] counts moves; the printer's move ring
+/// ([`crate::move_ring::RingRoom`]) codes each move into its bytes as it comes and undoes a
+/// unit that runs out of them (its exact bytes counted to its end).
 pub trait Room {
-    /// Offered the next unit: `moves` moves exactly, and `replay`, which sends the unit's
-    /// events (its [`ToolEvent::Move`]s, the same as the emission will send) to the sink it is
-    /// given, as often as called, without changing the stage. True takes the unit (it is
-    /// emitted next, then the next unit is offered), false refuses it (it waits; the
-    /// emission stops with [`Emitted::NeedsRoom`]).
-    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool;
+    /// The next unit has `moves` moves: false refuses it before any goes out (it waits;
+    /// the emission stops with [`Emitted::NeedsRoom`]).
+    fn open(&mut self, moves: u32) -> bool;
+    /// An event: a [`ToolEvent::Move`] of the open unit, or a layer's
+    /// [`ToolEvent::LayerEnd`] (between units).
+    fn event(&mut self, e: &ToolEvent<'_>);
+    /// The open unit's last move was sent: true when the room keeps the unit, false when it
+    /// undid it (it waits, as if refused by [`open`](Self::open)).
+    fn close(&mut self) -> bool;
 }
 
-impl Room for usize {
-    fn take(&mut self, moves: u32, _: &mut Replay<'_>) -> bool {
-        let Some(left) = self.checked_sub(moves as usize) else { return false };
-        *self = left;
+impl<F: FnMut(&ToolEvent<'_>) + ?Sized> Room for F {
+    fn open(&mut self, _: u32) -> bool {
+        true
+    }
+
+    fn event(&mut self, e: &ToolEvent<'_>) {
+        self(e)
+    }
+
+    fn close(&mut self) -> bool {
         true
     }
 }
 
-impl<R: Room + ?Sized> Room for &mut R {
-    fn take(&mut self, moves: u32, replay: &mut Replay<'_>) -> bool {
-        (**self).take(moves, replay)
+/// A room of `left` moves (counted down as units go in) sending the events to `sink`.
+#[derive(Debug)]
+pub struct Moves<F> {
+    /// Moves left.
+    pub left: usize,
+    /// Where the events go.
+    pub sink: F,
+}
+
+impl<F: FnMut(&ToolEvent<'_>)> Room for Moves<F> {
+    fn open(&mut self, moves: u32) -> bool {
+        let Some(left) = self.left.checked_sub(moves as usize) else { return false };
+        self.left = left;
+        true
+    }
+
+    fn event(&mut self, e: &ToolEvent<'_>) {
+        (self.sink)(e)
+    }
+
+    fn close(&mut self) -> bool {
+        true
     }
 }
 
@@ -1081,21 +1108,19 @@ impl<
         self.emission.is_active()
     }
 
-    /// Emits the built layer's moves unit by unit (a path with the travel, retraction and
-    /// height change before it, or the layer's closing move to its height), each only once
-    /// `room` takes it ([`Room::take`]: offered the unit's exact move count and a replay of
-    /// its events, it decides before anything goes out), and the layer's
-    /// [`ToolEvent::LayerEnd`] after its last unit. Every [`ToolEvent::Move`] of a layer is in
-    /// one of its units. `work` is the scratch the layer was built in (its infill pool holds
-    /// the nearest-path grid).
-    /// [`Emitted::NeedsRoom`] names the moves of the unit `room` refused: a later call
-    /// offers it again first. [`Emitted::Complete`] when no layer is being emitted (any
+    /// Emits the built layer's moves into `room` unit by unit (a path with the travel,
+    /// retraction and height change before it, or the layer's closing move to its height),
+    /// each generated once, whole or not at all ([`Room`]: opened with its exact move count,
+    /// kept or undone when closed), and the layer's [`ToolEvent::LayerEnd`] after its last
+    /// unit. Every [`ToolEvent::Move`] of a layer is in one of its units. `work` is the
+    /// scratch the layer was built in (its infill pool holds the nearest-path grid).
+    /// [`Emitted::NeedsRoom`] names the moves of the unit `room` refused or undid: a later
+    /// call offers it again first. [`Emitted::Complete`] when no layer is being emitted (any
     /// more).
     pub fn emit_next<const S: usize, R: Room + ?Sized>(
         &mut self,
         work: &mut Scratch<S, PTS, CROSS>,
         room: &mut R,
-        sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<Emitted, ToolpathError> {
         if let Some(e) = self.stopped {
             return Err(e);
@@ -1125,12 +1150,11 @@ impl<
             grid_head,
             grid_next,
             room,
-            sink,
         );
         if let Some(moves) = waiting {
             return Ok(Emitted::NeedsRoom { moves, layer: l });
         }
-        self.end_layer(l, sink);
+        self.end_layer(l, &mut |e: &ToolEvent<'_>| room.event(e));
         Ok(Emitted::Complete)
     }
 
@@ -1140,8 +1164,7 @@ impl<
         work: &mut Scratch<S, PTS, CROSS>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
-        let mut unbounded = usize::MAX;
-        self.emit_next(work, &mut unbounded, sink).map(|_| ())
+        self.emit_next(work, sink).map(|_| ())
     }
 
     /// After the model's last layer was pushed: processes the next layer still waiting in

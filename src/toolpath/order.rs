@@ -38,6 +38,34 @@ pub type CombFn<'a> = dyn Fn(Point2, Point2, &mut dyn FnMut(Point2)) -> bool + '
 const COMB_EXTRA_UM: i64 = 15_000;
 /// Most loops one combed travel goes around.
 const MAX_COMB_LOOPS: usize = 16;
+/// Most comb waypoints a plan keeps for its travel (the sample models' routes have at most
+/// 57, nearly all at most 32); a longer route is found again when travelled.
+const ROUTE_POINTS: usize = 32;
+
+/// The waypoints of the comb route [`Emitter::plan_travel`] found, for the travel it planned.
+#[derive(Debug, Clone, Copy)]
+struct Route {
+    pts: [Point2; ROUTE_POINTS],
+    /// Waypoints of the route (more than [`ROUTE_POINTS`]: only the first are kept).
+    len: usize,
+}
+
+impl Route {
+    /// No waypoints (all zero bytes).
+    const EMPTY: Self = Self { pts: [Point2::new(0, 0); ROUTE_POINTS], len: 0 };
+
+    fn push(&mut self, w: Point2) {
+        if let Some(slot) = self.pts.get_mut(self.len) {
+            *slot = w;
+        }
+        self.len = self.len.saturating_add(1);
+    }
+
+    /// The waypoints, when all were kept.
+    fn points(&self) -> Option<&[Point2]> {
+        self.pts.get(..self.len)
+    }
+}
 
 /// Nozzle state and per-layer counters.
 #[derive(Debug, Clone, Copy)]
@@ -152,13 +180,21 @@ impl Emitter {
         comb: &CombFn<'_>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) {
-        let plan = self.plan_travel(ctx, to, comb);
-        self.travel(ctx, to, plan, comb, sink);
+        let mut route = Route::EMPTY;
+        let plan = self.plan_travel(ctx, to, comb, &mut route);
+        self.travel(ctx, to, plan, &route, comb, sink);
     }
 
     /// What [`travel_to`](Self::travel_to) would do from here, nothing emitted: whether it
-    /// retracts, whether it takes the comb route, and its moves exactly.
-    fn plan_travel(&self, ctx: &Ctx<'_>, to: Point2, comb: &CombFn<'_>) -> Travel {
+    /// retracts, whether it takes the comb route (its waypoints into `route`), and its moves
+    /// exactly.
+    fn plan_travel(
+        &self,
+        ctx: &Ctx<'_>,
+        to: Point2,
+        comb: &CombFn<'_>,
+        route: &mut Route,
+    ) -> Travel {
         if to == self.pos && self.pending_z.is_none() {
             return Travel { retract: false, routed: false, moves: 0 };
         }
@@ -167,39 +203,43 @@ impl Emitter {
         let mut routed = false;
         // Legs that move (a waypoint equal to the one before makes no move).
         let mut legs = u32::from(to != from);
-        let leaves = d > 0 && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
-        // Short hops go straight: they retract neither way.
+        // Short hops go straight and retract neither way: whether they cross a contour is
+        // not asked.
         let short = d < i64::from(ctx.cfg.min_retract_travel_um);
-        if leaves && ctx.cfg.comb && !short {
+        let leaves = d > 0 && !short && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
+        if leaves && ctx.cfg.comb {
             // Check the detour leg by leg, then take it.
             let (mut prev, mut ok, mut len, mut waypoints, mut moving) =
                 (from, true, 0i64, 0u32, 0u32);
+            let longest = 2 * d + COMB_EXTRA_UM;
+            route.len = 0;
             let found = comb(from, to, &mut |w| {
-                ok &= !ctx.crosses_contour(prev, w);
+                route.push(w);
                 len += dist(prev, w);
+                // A route already refused (too long, or a leg leaves) needs no more checks.
+                ok = ok && len <= longest && !ctx.crosses_contour(prev, w);
                 waypoints += 1;
                 moving += u32::from(w != prev);
                 prev = w;
             });
-            routed = found && ok && waypoints > 1 && len <= 2 * d + COMB_EXTRA_UM;
+            routed = found && ok && waypoints > 1;
             if routed {
                 legs = moving;
             }
         }
-        let retract = leaves
-            && !routed
-            && d >= i64::from(ctx.cfg.min_retract_travel_um)
-            && ctx.cfg.retract_length_um > 0;
+        let retract = leaves && !routed && ctx.cfg.retract_length_um > 0;
         let moves = u32::from(retract && !self.retracted) + u32::from(self.pending_z.is_some());
         Travel { retract, routed, moves: moves + legs }
     }
 
-    /// Carries out `plan` (made by [`plan_travel`](Self::plan_travel) from this state).
+    /// Carries out `plan` (made by [`plan_travel`](Self::plan_travel) from this state, with
+    /// `route`; `comb` finds a route too long to be kept again).
     fn travel(
         &mut self,
         ctx: &Ctx<'_>,
         to: Point2,
         plan: Travel,
+        route: &Route,
         comb: &CombFn<'_>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) {
@@ -232,7 +272,12 @@ impl Emitter {
             self.send(sink, m);
         }
         if plan.routed {
-            comb(from, to, &mut |w| self.travel_leg(ctx, w, sink));
+            match route.points() {
+                Some(pts) => pts.iter().for_each(|&w| self.travel_leg(ctx, w, sink)),
+                None => {
+                    comb(from, to, &mut |w| self.travel_leg(ctx, w, sink));
+                }
+            }
         } else {
             self.travel_leg(ctx, to, sink);
         }
@@ -325,7 +370,8 @@ fn nearest(pts: &[Point2], from: Point2) -> usize {
     best
 }
 
-/// Where path `r` would start from `from`: (point index, reversed, squared distance).
+/// Where path `r` would start from `from`: (point index, reversed, squared distance). Rear
+/// seams are rotated to the front of their loop before any perimeter is entered.
 fn entry<const N: usize>(
     paths: &PathBuf<N>,
     r: &PathRec,
@@ -335,7 +381,7 @@ fn entry<const N: usize>(
     let pts = paths.points(r);
     if r.closed {
         let i = match (seam, r.kind) {
-            (Seam::Rear, PathKind::Perimeter(_)) => rear(pts),
+            (Seam::Rear, PathKind::Perimeter(_)) => 0,
             _ => nearest(pts, from),
         };
         return (i, false, dist2(from, pts[i]));
@@ -534,9 +580,10 @@ fn plan_path<const N: usize>(
     r: &PathRec,
     start: usize,
     reversed: bool,
+    route: &mut Route,
 ) -> (Travel, u32) {
     let pts = paths.points(r);
-    let travel = em.plan_travel(ctx, pts[start], &comber(paths, r.island));
+    let travel = em.plan_travel(ctx, pts[start], &comber(paths, r.island), route);
     // Extrusions: the points that differ from the one before (the nozzle is at the start).
     let mut prev = pts[start];
     let mut extrusions = 0u32;
@@ -549,23 +596,23 @@ fn plan_path<const N: usize>(
 }
 
 /// Emits `unit`'s moves from `em`'s state: the travel (and retraction, height change,
-/// priming) and the path, or the closing move. The emission and the replay a [`Room`] is
-/// offered both run this, so the room sees exactly the moves that go out.
+/// priming) and the path, or the closing move.
 fn run_unit<const N: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
     paths: &PathBuf<N>,
     unit: &Unit,
+    route: &Route,
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     match unit.path {
         Some(p) => {
             let r = paths.rec(p.index);
-            print_path(em, ctx, paths, &r, p.start, p.reversed, unit.travel, sink);
+            print_path(em, ctx, paths, &r, p.start, p.reversed, unit.travel, route, sink);
         }
         None => {
             let here = em.pos;
-            em.travel(ctx, here, unit.travel, &|_, _, _| false, sink);
+            em.travel(ctx, here, unit.travel, route, &|_, _, _| false, sink);
         }
     }
 }
@@ -580,11 +627,12 @@ fn print_path<const N: usize>(
     start: usize,
     reversed: bool,
     travel: Travel,
+    route: &Route,
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     let pts = paths.points(r);
     let feat = paths.features(r);
-    em.travel(ctx, pts[start], travel, &comber(paths, r.island), sink);
+    em.travel(ctx, pts[start], travel, route, &comber(paths, r.island), sink);
     for (i, f) in path_order(r, start, reversed) {
         em.extrude_to(ctx, pts[i], feat[f], sink);
     }
@@ -808,11 +856,11 @@ enum Phase {
 /// The emission of one layer's paths, resumable between units: the skirt first (in order),
 /// then the islands nearest first, in each the stages in order and the nearest path first
 /// (see the [module docs](self)), then a move to the layer's height if none went there.
-/// Each [`emit`](Self::emit) call emits whole units while the next one's moves (known
-/// exactly before it starts) fit the room it was given; the state between calls is this
-/// value, the [`Emitter`], the layer's paths (their done flags, the rear seams rotated, the
-/// records grouped by island), `island_stage` and the nearest-path grid's buffers, which the
-/// owner keeps untouched until the layer is complete.
+/// Each [`emit`](Self::emit) call emits whole units while the room it was given takes them
+/// (each opened with its exact moves, kept or undone at its end); the state between calls
+/// is this value, the [`Emitter`], the layer's paths (their done flags, the rear seams
+/// rotated, the records grouped by island), `island_stage` and the nearest-path grid's
+/// buffers, which the owner keeps untouched until the layer is complete.
 #[derive(Debug, Clone)]
 pub struct Emission {
     phase: Phase,
@@ -822,6 +870,8 @@ pub struct Emission {
     loose: bool,
     /// The next unit, planned (it waits for room).
     next: Slot<Unit>,
+    /// The comb route of the next unit's travel.
+    route: Route,
 }
 
 impl Default for Emission {
@@ -833,7 +883,13 @@ impl Default for Emission {
 impl Emission {
     /// Nothing to emit.
     pub const fn new() -> Self {
-        Self { phase: Phase::Idle, grid: None, loose: false, next: Slot::Empty }
+        Self {
+            phase: Phase::Idle,
+            grid: None,
+            loose: false,
+            next: Slot::Empty,
+            route: Route::EMPTY,
+        }
     }
 
     /// A layer's emission has begun and is not complete.
@@ -861,9 +917,10 @@ impl Emission {
         *self = Self { phase: Phase::Skirt { from: 0 }, ..Self::new() };
     }
 
-    /// Emits the layer's next units in order while `room` takes each (offered its moves and
-    /// a replay of its events on a copy of `em`: nothing changes until it is taken). Returns
-    /// the moves of the unit refused (it is offered first by a later call), or `None` when
+    /// Emits the layer's next units in order into `room` while it takes each (opened with
+    /// its moves; when the room undoes it at its close, `em` goes back to its state before
+    /// the unit, which nothing else changed). Returns the moves of the unit refused or
+    /// undone (it is offered first by a later call), or `None` when
     /// the layer's last unit was emitted (or none was being emitted). `grid_head` and
     /// `grid_next` are scratch for the nearest-path grid (cells, and two entries per path;
     /// when `grid_next` holds fewer, paths are found by scanning: the same order), kept
@@ -878,7 +935,6 @@ impl Emission {
         grid_head: &mut [u32],
         grid_next: &mut [u32],
         room: &mut R,
-        sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Option<u32> {
         let seam = ctx.cfg.seam;
         loop {
@@ -894,12 +950,15 @@ impl Emission {
                     }
                 }
             };
-            let taken = {
-                let (before, shown) = (*em, &*paths);
-                room.take(unit.moves, &mut |out: &mut dyn FnMut(&ToolEvent<'_>)| {
-                    let mut copy = before;
-                    run_unit(&mut copy, ctx, shown, &unit, &mut |e: &ToolEvent<'_>| out(e));
-                })
+            let taken = room.open(unit.moves) && {
+                let before = *em;
+                run_unit(em, ctx, paths, &unit, &self.route, &mut |e: &ToolEvent<'_>| {
+                    room.event(e)
+                });
+                room.close() || {
+                    *em = before;
+                    false
+                }
             };
             if !taken {
                 self.next = Slot::Full(unit);
@@ -907,7 +966,6 @@ impl Emission {
             }
             self.next = Slot::Empty;
             em.layer.max_unit_moves = em.layer.max_unit_moves.max(unit.moves);
-            run_unit(em, ctx, paths, &unit, sink);
             let Some(p) = unit.path else { continue };
             if let Phase::Islands(Some(c)) = &mut self.phase {
                 let mut finder = Finder::resume(self.grid, self.loose, grid_head, grid_next);
@@ -934,11 +992,13 @@ impl Emission {
         let cfg = ctx.cfg;
         let seam = cfg.seam;
         let n = paths.len();
-        let plan = |paths: &PathBuf<N>, index: usize, start: usize, reversed: bool, stage: u8| {
-            let r = paths.rec(index);
-            let (travel, moves) = plan_path(em, ctx, paths, &r, start, reversed);
-            Some(Unit { path: Some(PathUnit { index, start, reversed, stage }), travel, moves })
-        };
+        let route = &mut self.route;
+        let mut plan =
+            |paths: &PathBuf<N>, index: usize, start: usize, reversed: bool, stage: u8| {
+                let r = paths.rec(index);
+                let (travel, moves) = plan_path(em, ctx, paths, &r, start, reversed, route);
+                Some(Unit { path: Some(PathUnit { index, start, reversed, stage }), travel, moves })
+            };
         loop {
             match &mut self.phase {
                 Phase::Idle | Phase::Closed => return None,
@@ -1028,10 +1088,70 @@ impl Emission {
                 Phase::Closing => {
                     // A layer without extrusion still moves to its height.
                     self.phase = Phase::Closed;
-                    let travel = em.plan_travel(ctx, em.pos, &|_, _, _| false);
+                    let travel = em.plan_travel(ctx, em.pos, &|_, _, _| false, route);
                     return Some(Unit { path: None, travel, moves: travel.moves });
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::machine::{MachineConfig, PrintSettings};
+    use core::cell::Cell;
+
+    /// A travel across a wall follows the comb route found for it, whether its waypoints
+    /// were kept by the plan (routed once) or not (routed again when travelled).
+    #[test]
+    fn a_combed_travel_follows_its_route_kept_or_found_again() {
+        let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+        assert!(cfg.comb && cfg.min_retract_travel_um < 20_000);
+        // A wall the straight travel from the origin to (20, 0) mm crosses.
+        let points = [
+            Point2::new(10_000, -1_000),
+            Point2::new(11_000, -1_000),
+            Point2::new(11_000, 1_000),
+            Point2::new(10_000, 1_000),
+        ];
+        let wall = Ring {
+            start: 0,
+            len: 4,
+            area2: 4_000_000,
+            min: points[0],
+            max: points[2],
+            island: 0,
+            depth: 0,
+            parent: Ring::NO_PARENT,
+        };
+        let ctx =
+            Ctx { cfg: &cfg, points: &points, rings: &[wall], height_um: 200, first_layer: false };
+        let to = Point2::new(20_000, 0);
+        for n in [3, ROUTE_POINTS, ROUTE_POINTS + 1, 2 * ROUTE_POINTS] {
+            // Up 5 mm, along above the wall in `n - 2` steps, down to `to`.
+            let route: Vec<Point2> = (0..n - 1)
+                .map(|i| Point2::new((20_000 * i / (n - 2)) as i32, 5_000))
+                .chain([to])
+                .collect();
+            let calls = Cell::new(0);
+            let comb = |_: Point2, _: Point2, visit: &mut dyn FnMut(Point2)| {
+                calls.set(calls.get() + 1);
+                route.iter().for_each(|&w| visit(w));
+                true
+            };
+            let mut em = Emitter::new();
+            let mut moves = Vec::new();
+            em.travel_to(&ctx, to, &comb, &mut |e: &ToolEvent<'_>| {
+                if let ToolEvent::Move(m) = e {
+                    moves.push(*m);
+                }
+            });
+            let ends: Vec<Point2> = moves.iter().map(|m| m.to).collect();
+            assert_eq!(ends, route, "{n} waypoints");
+            assert!(moves.iter().all(|m| m.feature == Feature::Travel && m.e_um == 0));
+            assert_eq!((em.pos, em.retracted), (to, false));
+            assert_eq!(calls.get(), if n <= ROUTE_POINTS { 1 } else { 2 }, "{n} waypoints");
         }
     }
 }
