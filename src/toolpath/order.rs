@@ -409,24 +409,24 @@ fn stage(r: &PathRec, cfg: &ToolpathConfig) -> u8 {
     }
 }
 
-/// A crossing of the travel `a`-`b` with a loop: `t = num / den` along the travel.
+/// A loop the travel `a`-`b` crosses: record `rec`, first met at `t_in = num / den` along
+/// the travel on edge `e_in`, last met on edge `e_out` (edge `k` runs from point `k` to the
+/// next). Crossing points are computed again from the edges when the route is walked.
 #[derive(Clone, Copy)]
 struct Hit {
-    t_in: (i128, i128),
-    t_out: (i128, i128),
-    rec: usize,
-    e_in: usize,
-    e_out: usize,
-    p_in: Point2,
-    p_out: Point2,
+    t_in: (i64, i64),
+    rec: u32,
+    e_in: u32,
+    e_out: u32,
 }
 
-fn frac_lt(x: (i128, i128), y: (i128, i128)) -> bool {
-    x.0 * y.1 < y.0 * x.1
+fn frac_lt(x: (i64, i64), y: (i64, i64)) -> bool {
+    i128::from(x.0) * i128::from(y.1) < i128::from(y.0) * i128::from(x.1)
 }
 
-/// Parameter of the intersection of `a`-`b` with `p`-`q` (they touch), and the point.
-fn cut(a: Point2, b: Point2, p: Point2, q: Point2) -> ((i128, i128), Point2) {
+/// Parameter `num / den` (`den > 0`) of the intersection of `a`-`b` with `p`-`q` (they
+/// touch); `None` past i64 (coordinates far beyond the print volume).
+fn cut_t(a: Point2, b: Point2, p: Point2, q: Point2) -> Option<(i64, i64)> {
     let (da, db) = (i128::from(orient(p, q, a)), i128::from(orient(p, q, b)));
     let (num, den) = if da != db {
         (da, da - db)
@@ -440,11 +440,17 @@ fn cut(a: Point2, b: Point2, p: Point2, q: Point2) -> ((i128, i128), Point2) {
         (along(p).min(along(q)).max(0), len2)
     };
     let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+    Some((i64::try_from(num).ok()?, i64::try_from(den).ok()?))
+}
+
+/// The point at parameter `t` along `a`-`b` (rounded to the nearest unit).
+fn point_at(a: Point2, b: Point2, t: (i64, i64)) -> Point2 {
+    let (num, den) = (i128::from(t.0), i128::from(t.1).max(1));
     let at = |o: i32, e: i32| {
-        let v = i128::from(o) + super::poly::div_round_128(i128::from(e - o) * num, den.max(1));
+        let v = i128::from(o) + super::poly::div_round_128(i128::from(e - o) * num, den);
         v as i32
     };
-    ((num, den), Point2::new(at(a.x, b.x), at(a.y, b.y)))
+    Point2::new(at(a.x, b.x), at(a.y, b.y))
 }
 
 /// The comb route from `a` to `b` around the external perimeter loops of `island` that the
@@ -458,9 +464,7 @@ fn comb_route<const N: usize>(
     b: Point2,
     visit: &mut dyn FnMut(Point2),
 ) -> bool {
-    let mut hits =
-        [Hit { t_in: (0, 1), t_out: (0, 1), rec: 0, e_in: 0, e_out: 0, p_in: a, p_out: a };
-            MAX_COMB_LOOPS];
+    let mut hits = [Hit { t_in: (0, 1), rec: 0, e_in: 0, e_out: 0 }; MAX_COMB_LOOPS];
     let mut nh = 0;
     let (lo, hi) =
         (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
@@ -471,7 +475,8 @@ fn comb_route<const N: usize>(
         }
         let pts = paths.points(r);
         let n = pts.len();
-        let mut hit: Option<Hit> = None;
+        // (t_in, e_in, t_out, e_out) of the loop so far.
+        let mut hit: Option<((i64, i64), usize, (i64, i64), usize)> = None;
         for k in 0..n {
             let (p, q) = (pts[k], pts[(k + 1) % n]);
             if p.x.max(q.x) < lo.x
@@ -484,62 +489,61 @@ fn comb_route<const N: usize>(
             if !segments_touch(a, b, p, q) {
                 continue;
             }
-            let (t, at) = cut(a, b, p, q);
-            let h = hit.get_or_insert(Hit {
-                t_in: t,
-                t_out: t,
-                rec: ri,
-                e_in: k,
-                e_out: k,
-                p_in: at,
-                p_out: at,
-            });
-            if frac_lt(t, h.t_in) {
-                (h.t_in, h.e_in, h.p_in) = (t, k, at);
+            let Some(t) = cut_t(a, b, p, q) else { return false };
+            let h = hit.get_or_insert((t, k, t, k));
+            if frac_lt(t, h.0) {
+                (h.0, h.1) = (t, k);
             }
-            if frac_lt(h.t_out, t) {
-                (h.t_out, h.e_out, h.p_out) = (t, k, at);
+            if frac_lt(h.2, t) {
+                (h.2, h.3) = (t, k);
             }
         }
-        if let Some(h) = hit {
+        if let Some((t_in, e_in, _, e_out)) = hit {
             if nh == MAX_COMB_LOOPS {
                 return false;
             }
-            hits[nh] = h;
+            hits[nh] = Hit { t_in, rec: ri as u32, e_in: e_in as u32, e_out: e_out as u32 };
             nh += 1;
         }
     }
     let hits = &mut hits[..nh];
-    hits.sort_unstable_by(|x, y| (x.t_in.0 * y.t_in.1).cmp(&(y.t_in.0 * x.t_in.1)));
-    let mut done_to: (i128, i128) = (0, 1);
+    hits.sort_unstable_by(|x, y| {
+        (i128::from(x.t_in.0) * i128::from(y.t_in.1))
+            .cmp(&(i128::from(y.t_in.0) * i128::from(x.t_in.1)))
+    });
+    let mut done_to: (i64, i64) = (0, 1);
     for h in hits.iter() {
         if frac_lt(h.t_in, done_to) {
             continue;
         }
-        let r = paths.rec(h.rec);
+        let r = paths.rec(h.rec as usize);
         let pts = paths.points(&r);
         let n = pts.len();
+        let (e_in, e_out) = (h.e_in as usize, h.e_out as usize);
+        let edge_t = |e: usize| cut_t(a, b, pts[e], pts[(e + 1) % n]).unwrap_or((0, 1));
+        let t_out = edge_t(e_out);
+        let (p_in, p_out) = (point_at(a, b, h.t_in), point_at(a, b, t_out));
         // Forward: vertices e_in+1 ..= e_out; backward: e_in, e_in-1, ..., e_out+1.
-        let fwd_count = (h.e_out + n - h.e_in) % n;
-        let back_count = (h.e_in + n - h.e_out) % n;
+        let fwd_count = (e_out + n - e_in) % n;
+        let back_count = (e_in + n - e_out) % n;
         let walk_len = |count: usize, fwd: bool| {
             let mut len = 0i64;
-            let mut prev = h.p_in;
+            let mut prev = p_in;
             for s in 0..count {
-                let v = if fwd { pts[(h.e_in + 1 + s) % n] } else { pts[(h.e_in + n - s) % n] };
+                let v = if fwd { pts[(e_in + 1 + s) % n] } else { pts[(e_in + n - s) % n] };
                 len += dist(prev, v);
                 prev = v;
             }
-            len + dist(prev, h.p_out)
+            len + dist(prev, p_out)
         };
         let fwd = walk_len(fwd_count, true) <= walk_len(back_count, false);
-        visit(h.p_in);
+        visit(p_in);
         let count = if fwd { fwd_count } else { back_count };
         for s in 0..count {
-            visit(if fwd { pts[(h.e_in + 1 + s) % n] } else { pts[(h.e_in + n - s) % n] });
+            visit(if fwd { pts[(e_in + 1 + s) % n] } else { pts[(e_in + n - s) % n] });
         }
-        visit(h.p_out);
-        done_to = h.t_out;
+        visit(p_out);
+        done_to = t_out;
     }
     visit(b);
     true
