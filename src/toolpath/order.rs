@@ -27,7 +27,7 @@ use crate::slot::Slot;
 
 use super::near::{GridShape, NearGrid};
 use super::paths;
-use super::paths::{PathBuf, PathKind, PathRec};
+use super::paths::{PathBuf, PathKind, PathPoints, PathRec};
 use super::poly::{dist, dist2, orient, segment_touches_rings, segments_touch, Ring};
 use super::{Feature, LayerStats, Room, Seam, ToolEvent, ToolMove, ToolpathConfig};
 
@@ -346,10 +346,10 @@ impl Emitter {
 }
 
 /// Rear-most vertex (largest y, then smallest x).
-fn rear(pts: &[Point2]) -> usize {
+fn rear(pts: PathPoints<'_>) -> usize {
     let mut best = 0;
     for (i, p) in pts.iter().enumerate() {
-        let b = pts[best];
+        let b = pts.at(best);
         if p.y > b.y || (p.y == b.y && p.x < b.x) {
             best = i;
         }
@@ -357,10 +357,10 @@ fn rear(pts: &[Point2]) -> usize {
     best
 }
 
-fn nearest(pts: &[Point2], from: Point2) -> usize {
+fn nearest(pts: PathPoints<'_>, from: Point2) -> usize {
     let mut best = 0;
     let mut bd = i64::MAX;
-    for (i, &p) in pts.iter().enumerate() {
+    for (i, p) in pts.iter().enumerate() {
         let d = dist2(from, p);
         if d < bd {
             bd = d;
@@ -384,9 +384,9 @@ fn entry<const N: usize>(
             (Seam::Rear, PathKind::Perimeter(_)) => 0,
             _ => nearest(pts, from),
         };
-        return (i, false, dist2(from, pts[i]));
+        return (i, false, dist2(from, pts.at(i)));
     }
-    let (d0, d1) = (dist2(from, pts[0]), dist2(from, pts[pts.len() - 1]));
+    let (d0, d1) = (dist2(from, pts.at(0)), dist2(from, pts.at(pts.len() - 1)));
     if r.reversible && d1 < d0 {
         (pts.len() - 1, true, d1)
     } else {
@@ -414,19 +414,22 @@ fn stage(r: &PathRec, cfg: &ToolpathConfig) -> u8 {
 /// next). Crossing points are computed again from the edges when the route is walked.
 #[derive(Clone, Copy)]
 struct Hit {
-    t_in: (i64, i64),
+    t_in: Frac,
     rec: u32,
     e_in: u32,
     e_out: u32,
 }
 
-fn frac_lt(x: (i64, i64), y: (i64, i64)) -> bool {
+/// A parameter along a travel: `num / den`, `den > 0`.
+type Frac = (i64, i64);
+
+fn frac_lt(x: Frac, y: Frac) -> bool {
     i128::from(x.0) * i128::from(y.1) < i128::from(y.0) * i128::from(x.1)
 }
 
 /// Parameter `num / den` (`den > 0`) of the intersection of `a`-`b` with `p`-`q` (they
 /// touch); `None` past i64 (coordinates far beyond the print volume).
-fn cut_t(a: Point2, b: Point2, p: Point2, q: Point2) -> Option<(i64, i64)> {
+fn cut_t(a: Point2, b: Point2, p: Point2, q: Point2) -> Option<Frac> {
     let (da, db) = (i128::from(orient(p, q, a)), i128::from(orient(p, q, b)));
     let (num, den) = if da != db {
         (da, da - db)
@@ -444,7 +447,7 @@ fn cut_t(a: Point2, b: Point2, p: Point2, q: Point2) -> Option<(i64, i64)> {
 }
 
 /// The point at parameter `t` along `a`-`b` (rounded to the nearest unit).
-fn point_at(a: Point2, b: Point2, t: (i64, i64)) -> Point2 {
+fn point_at(a: Point2, b: Point2, t: Frac) -> Point2 {
     let (num, den) = (i128::from(t.0), i128::from(t.1).max(1));
     let at = |o: i32, e: i32| {
         let v = i128::from(o) + super::poly::div_round_128(i128::from(e - o) * num, den);
@@ -476,9 +479,9 @@ fn comb_route<const N: usize>(
         let pts = paths.points(r);
         let n = pts.len();
         // (t_in, e_in, t_out, e_out) of the loop so far.
-        let mut hit: Option<((i64, i64), usize, (i64, i64), usize)> = None;
+        let mut hit: Option<(Frac, usize, Frac, usize)> = None;
         for k in 0..n {
-            let (p, q) = (pts[k], pts[(k + 1) % n]);
+            let (p, q) = (pts.at(k), pts.at((k + 1) % n));
             if p.x.max(q.x) < lo.x
                 || p.x.min(q.x) > hi.x
                 || p.y.max(q.y) < lo.y
@@ -511,7 +514,7 @@ fn comb_route<const N: usize>(
         (i128::from(x.t_in.0) * i128::from(y.t_in.1))
             .cmp(&(i128::from(y.t_in.0) * i128::from(x.t_in.1)))
     });
-    let mut done_to: (i64, i64) = (0, 1);
+    let mut done_to: Frac = (0, 1);
     for h in hits.iter() {
         if frac_lt(h.t_in, done_to) {
             continue;
@@ -520,7 +523,7 @@ fn comb_route<const N: usize>(
         let pts = paths.points(&r);
         let n = pts.len();
         let (e_in, e_out) = (h.e_in as usize, h.e_out as usize);
-        let edge_t = |e: usize| cut_t(a, b, pts[e], pts[(e + 1) % n]).unwrap_or((0, 1));
+        let edge_t = |e: usize| cut_t(a, b, pts.at(e), pts.at((e + 1) % n)).unwrap_or((0, 1));
         let t_out = edge_t(e_out);
         let (p_in, p_out) = (point_at(a, b, h.t_in), point_at(a, b, t_out));
         // Forward: vertices e_in+1 ..= e_out; backward: e_in, e_in-1, ..., e_out+1.
@@ -530,7 +533,7 @@ fn comb_route<const N: usize>(
             let mut len = 0i64;
             let mut prev = p_in;
             for s in 0..count {
-                let v = if fwd { pts[(e_in + 1 + s) % n] } else { pts[(e_in + n - s) % n] };
+                let v = if fwd { pts.at((e_in + 1 + s) % n) } else { pts.at((e_in + n - s) % n) };
                 len += dist(prev, v);
                 prev = v;
             }
@@ -540,7 +543,7 @@ fn comb_route<const N: usize>(
         visit(p_in);
         let count = if fwd { fwd_count } else { back_count };
         for s in 0..count {
-            visit(if fwd { pts[(e_in + 1 + s) % n] } else { pts[(e_in + n - s) % n] });
+            visit(if fwd { pts.at((e_in + 1 + s) % n) } else { pts.at((e_in + n - s) % n) });
         }
         visit(p_out);
         done_to = t_out;
@@ -587,13 +590,13 @@ fn plan_path<const N: usize>(
     route: &mut Route,
 ) -> (Travel, u32) {
     let pts = paths.points(r);
-    let travel = em.plan_travel(ctx, pts[start], &comber(paths, r.island), route);
+    let travel = em.plan_travel(ctx, pts.at(start), &comber(paths, r.island), route);
     // Extrusions: the points that differ from the one before (the nozzle is at the start).
-    let mut prev = pts[start];
+    let mut prev = pts.at(start);
     let mut extrusions = 0u32;
     for (i, _) in path_order(r, start, reversed) {
-        extrusions += u32::from(pts[i] != prev);
-        prev = pts[i];
+        extrusions += u32::from(pts.at(i) != prev);
+        prev = pts.at(i);
     }
     let primes = (em.retracted || travel.retract) && extrusions > 0;
     (travel, travel.moves + u32::from(primes) + extrusions)
@@ -635,10 +638,9 @@ fn print_path<const N: usize>(
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     let pts = paths.points(r);
-    let feat = paths.features(r);
-    em.travel(ctx, pts[start], travel, route, &comber(paths, r.island), sink);
+    em.travel(ctx, pts.at(start), travel, route, &comber(paths, r.island), sink);
     for (i, f) in path_order(r, start, reversed) {
-        em.extrude_to(ctx, pts[i], feat[f], sink);
+        em.extrude_to(ctx, pts.at(i), pts.feature(f), sink);
     }
 }
 
@@ -656,11 +658,11 @@ fn fixed_entry<const N: usize>(
     if r.closed {
         // Rear seams are rotated to the front of the loop before ordering.
         let rear_seam = seam == Seam::Rear && matches!(r.kind, PathKind::Perimeter(_));
-        return if rear_seam && end == 0 { pts.first().copied() } else { None };
+        return if rear_seam && end == 0 { pts.first() } else { None };
     }
     match end {
-        0 => pts.first().copied(),
-        _ if r.reversible => pts.last().copied(),
+        0 => pts.first(),
+        _ if r.reversible => pts.last(),
         _ => None,
     }
 }
