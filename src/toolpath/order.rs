@@ -409,12 +409,11 @@ fn stage(r: &PathRec, cfg: &ToolpathConfig) -> u8 {
     }
 }
 
-/// A loop the travel `a`-`b` crosses: record `rec`, first met at `t_in = num / den` along
-/// the travel on edge `e_in`, last met on edge `e_out` (edge `k` runs from point `k` to the
-/// next). Crossing points are computed again from the edges when the route is walked.
+/// A loop the travel `a`-`b` crosses: record `rec`, first met on edge `e_in`, last met on
+/// edge `e_out` (edge `k` runs from point `k` to the next). The crossings' parameters and
+/// points are computed again from the edges (12 bytes a hit on the stack).
 #[derive(Clone, Copy)]
 struct Hit {
-    t_in: Frac,
     rec: u32,
     e_in: u32,
     e_out: u32,
@@ -467,7 +466,7 @@ fn comb_route<const N: usize>(
     b: Point2,
     visit: &mut dyn FnMut(Point2),
 ) -> bool {
-    let mut hits = [Hit { t_in: (0, 1), rec: 0, e_in: 0, e_out: 0 }; MAX_COMB_LOOPS];
+    let mut hits = [Hit { rec: 0, e_in: 0, e_out: 0 }; MAX_COMB_LOOPS];
     let mut nh = 0;
     let (lo, hi) =
         (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
@@ -501,31 +500,37 @@ fn comb_route<const N: usize>(
                 (h.2, h.3) = (t, k);
             }
         }
-        if let Some((t_in, e_in, _, e_out)) = hit {
+        if let Some((_, e_in, _, e_out)) = hit {
             if nh == MAX_COMB_LOOPS {
                 return false;
             }
-            hits[nh] = Hit { t_in, rec: ri as u32, e_in: e_in as u32, e_out: e_out as u32 };
+            hits[nh] = Hit { rec: ri as u32, e_in: e_in as u32, e_out: e_out as u32 };
             nh += 1;
         }
     }
+    // Where the travel meets edge `e` of record `rec` (found touching above).
+    let edge_t = |rec: u32, e: u32| {
+        let pts = paths.points(&paths.rec(rec as usize));
+        let (e, n) = (e as usize, pts.len());
+        cut_t(a, b, pts.at(e), pts.at((e + 1) % n)).unwrap_or((0, 1))
+    };
     let hits = &mut hits[..nh];
     hits.sort_unstable_by(|x, y| {
-        (i128::from(x.t_in.0) * i128::from(y.t_in.1))
-            .cmp(&(i128::from(y.t_in.0) * i128::from(x.t_in.1)))
+        let (tx, ty) = (edge_t(x.rec, x.e_in), edge_t(y.rec, y.e_in));
+        (i128::from(tx.0) * i128::from(ty.1)).cmp(&(i128::from(ty.0) * i128::from(tx.1)))
     });
     let mut done_to: Frac = (0, 1);
     for h in hits.iter() {
-        if frac_lt(h.t_in, done_to) {
+        let t_in = edge_t(h.rec, h.e_in);
+        if frac_lt(t_in, done_to) {
             continue;
         }
         let r = paths.rec(h.rec as usize);
         let pts = paths.points(&r);
         let n = pts.len();
         let (e_in, e_out) = (h.e_in as usize, h.e_out as usize);
-        let edge_t = |e: usize| cut_t(a, b, pts.at(e), pts.at((e + 1) % n)).unwrap_or((0, 1));
-        let t_out = edge_t(e_out);
-        let (p_in, p_out) = (point_at(a, b, h.t_in), point_at(a, b, t_out));
+        let t_out = edge_t(h.rec, h.e_out);
+        let (p_in, p_out) = (point_at(a, b, t_in), point_at(a, b, t_out));
         // Forward: vertices e_in+1 ..= e_out; backward: e_in, e_in-1, ..., e_out+1.
         let fwd_count = (e_out + n - e_in) % n;
         let back_count = (e_in + n - e_out) % n;
@@ -604,6 +609,7 @@ fn plan_path<const N: usize>(
 
 /// Emits `unit`'s moves from `em`'s state: the travel (and retraction, height change,
 /// priming) and the path, or the closing move.
+#[inline(never)]
 fn run_unit<const N: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
