@@ -538,6 +538,7 @@ impl<
         self.fail(ErrorCode::LinkDead, silent_ms);
     }
 
+    #[inline(never)]
     fn start(&mut self, job: &JobSpec) -> Result<(), ErrorCode> {
         job.settings.validate(&self.machine).map_err(|_| ErrorCode::BadJob)?;
         let slice_cfg =
