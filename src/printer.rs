@@ -667,6 +667,7 @@ impl<
         Accept::Taken
     }
 
+    #[inline(never)]
     fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         self.through_slicer(motion, |slicer, work, sink| slicer.push(t, work, &mut |l| sink(l)));
         self.triangles += 1;
@@ -787,6 +788,7 @@ impl<
 
     /// Ends the model: every plane is cut and every layer flushed and emitted (or the job
     /// failed).
+    #[inline(never)]
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
             slicer.finish(work, &mut |l| sink(l))
