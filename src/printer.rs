@@ -538,6 +538,7 @@ impl<
         self.fail(ErrorCode::LinkDead, silent_ms);
     }
 
+    #[inline(never)]
     fn start(&mut self, job: &JobSpec) -> Result<(), ErrorCode> {
         job.settings.validate(&self.machine).map_err(|_| ErrorCode::BadJob)?;
         let slice_cfg =
@@ -666,6 +667,7 @@ impl<
         Accept::Taken
     }
 
+    #[inline(never)]
     fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         self.through_slicer(motion, |slicer, work, sink| slicer.push(t, work, &mut |l| sink(l)));
         self.triangles += 1;
@@ -786,6 +788,7 @@ impl<
 
     /// Ends the model: every plane is cut and every layer flushed and emitted (or the job
     /// failed).
+    #[inline(never)]
     fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
         let sliced = self.through_slicer(motion.as_deref_mut(), |slicer, work, sink| {
             slicer.finish(work, &mut |l| sink(l))

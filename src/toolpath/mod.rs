@@ -75,8 +75,8 @@
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
 //!   infill domain): 16 bytes per `PTS` (the offset result's points are in the scratch,
 //!   beside the engine), 123 bytes per `LOOPS`;
-//! - the layer's paths: 9 bytes per `PATH` (a point and its feature; a path's record takes
-//!   two);
+//! - the layer's paths: 8 bytes per `PATH` (a point, its feature in y's low bits; a path's
+//!   record takes two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
 //!   `bottom + top + 2` layers, about a word a point and five a loop:
 //!   [`window::StoredRings`]) and
@@ -148,6 +148,8 @@ pub enum Buffer {
     PathPoints,
     /// Paths of one layer (2 `PATH` entries each).
     Paths,
+    /// Path points whose y lies beyond the packed range (+-2^27 um, see [`paths`]).
+    PathRange,
     /// Stored contours of the skin window's layers, in words (`RING`).
     RingPoints,
     /// Crossings of the skin window's layers with one scanline (`SPANS`).
@@ -168,6 +170,7 @@ impl fmt::Display for Buffer {
             Self::LineSegments => "infill line segments per layer",
             Self::LineIntervals => "infill intervals per scanline",
             Self::PathPoints => "path points per layer",
+            Self::PathRange => "path points beyond the packed y range (um)",
             Self::Paths => "paths per layer",
             Self::RingPoints => "stored contour words of the skin window",
             Self::WindowSpans => "skin window crossings on one scanline",
@@ -636,8 +639,8 @@ impl ToolpathNeeds {
     /// (then segment-end) entry and its share of the segment and piece pool.
     pub const CROSS_BYTES: usize =
         core::mem::size_of::<Crossing>() + core::mem::size_of::<u16>() + POOL_WORDS * 4;
-    /// Bytes per `PATH`: a point and its feature (a path record takes two).
-    pub const PATH_BYTES: usize = core::mem::size_of::<Point2>() + core::mem::size_of::<Feature>();
+    /// Bytes per `PATH`: a point, its feature packed in (a path record takes two).
+    pub const PATH_BYTES: usize = core::mem::size_of::<Point2>();
     /// Bytes per `RING` word (a stored point takes one, see [`window::StoredRings`]).
     pub const RING_BYTES: usize = core::mem::size_of::<u32>();
     /// Bytes per `SPANS` entry (a crossing, then a span, of one scanline).
@@ -686,7 +689,7 @@ const _: () = assert!(
         && ToolpathNeeds::ENGINE_BYTES == 58
         && ToolpathNeeds::LOOPS_BYTES == 123
         && ToolpathNeeds::CROSS_BYTES == 22
-        && ToolpathNeeds::PATH_BYTES == 9
+        && ToolpathNeeds::PATH_BYTES == 8
         && ToolpathNeeds::RING_BYTES == 4
         && ToolpathNeeds::SPAN_BYTES == 8
 );
@@ -996,6 +999,7 @@ impl<
             Buffer::Crossings | Buffer::LineSegments => CROSS,
             Buffer::LineIntervals => 64,
             Buffer::PathPoints | Buffer::Paths => PATH,
+            Buffer::PathRange => 1 << 27,
             Buffer::RingPoints => RING,
             Buffer::WindowSpans => SPANS,
             Buffer::WindowLayers => window::MAX_BLOCKS,
@@ -1767,7 +1771,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::ENGINE_BYTES, 58);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 22);
-        assert_eq!(ToolpathNeeds::PATH_BYTES, 9);
+        assert_eq!(ToolpathNeeds::PATH_BYTES, 8);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
         assert!(fixed < 1536, "{fixed}");

@@ -27,7 +27,7 @@ use crate::slot::Slot;
 
 use super::near::{GridShape, NearGrid};
 use super::paths;
-use super::paths::{PathBuf, PathKind, PathRec};
+use super::paths::{PathBuf, PathKind, PathPoints, PathRec};
 use super::poly::{dist, dist2, orient, segment_touches_rings, segments_touch, Ring};
 use super::{Feature, LayerStats, Room, Seam, ToolEvent, ToolMove, ToolpathConfig};
 
@@ -346,10 +346,10 @@ impl Emitter {
 }
 
 /// Rear-most vertex (largest y, then smallest x).
-fn rear(pts: &[Point2]) -> usize {
+fn rear(pts: PathPoints<'_>) -> usize {
     let mut best = 0;
     for (i, p) in pts.iter().enumerate() {
-        let b = pts[best];
+        let b = pts.at(best);
         if p.y > b.y || (p.y == b.y && p.x < b.x) {
             best = i;
         }
@@ -357,10 +357,10 @@ fn rear(pts: &[Point2]) -> usize {
     best
 }
 
-fn nearest(pts: &[Point2], from: Point2) -> usize {
+fn nearest(pts: PathPoints<'_>, from: Point2) -> usize {
     let mut best = 0;
     let mut bd = i64::MAX;
-    for (i, &p) in pts.iter().enumerate() {
+    for (i, p) in pts.iter().enumerate() {
         let d = dist2(from, p);
         if d < bd {
             bd = d;
@@ -384,9 +384,9 @@ fn entry<const N: usize>(
             (Seam::Rear, PathKind::Perimeter(_)) => 0,
             _ => nearest(pts, from),
         };
-        return (i, false, dist2(from, pts[i]));
+        return (i, false, dist2(from, pts.at(i)));
     }
-    let (d0, d1) = (dist2(from, pts[0]), dist2(from, pts[pts.len() - 1]));
+    let (d0, d1) = (dist2(from, pts.at(0)), dist2(from, pts.at(pts.len() - 1)));
     if r.reversible && d1 < d0 {
         (pts.len() - 1, true, d1)
     } else {
@@ -409,24 +409,26 @@ fn stage(r: &PathRec, cfg: &ToolpathConfig) -> u8 {
     }
 }
 
-/// A crossing of the travel `a`-`b` with a loop: `t = num / den` along the travel.
+/// A loop the travel `a`-`b` crosses: record `rec`, first met on edge `e_in`, last met on
+/// edge `e_out` (edge `k` runs from point `k` to the next). The crossings' parameters and
+/// points are computed again from the edges (12 bytes a hit on the stack).
 #[derive(Clone, Copy)]
 struct Hit {
-    t_in: (i128, i128),
-    t_out: (i128, i128),
-    rec: usize,
-    e_in: usize,
-    e_out: usize,
-    p_in: Point2,
-    p_out: Point2,
+    rec: u32,
+    e_in: u32,
+    e_out: u32,
 }
 
-fn frac_lt(x: (i128, i128), y: (i128, i128)) -> bool {
-    x.0 * y.1 < y.0 * x.1
+/// A parameter along a travel: `num / den`, `den > 0`.
+type Frac = (i64, i64);
+
+fn frac_lt(x: Frac, y: Frac) -> bool {
+    i128::from(x.0) * i128::from(y.1) < i128::from(y.0) * i128::from(x.1)
 }
 
-/// Parameter of the intersection of `a`-`b` with `p`-`q` (they touch), and the point.
-fn cut(a: Point2, b: Point2, p: Point2, q: Point2) -> ((i128, i128), Point2) {
+/// Parameter `num / den` (`den > 0`) of the intersection of `a`-`b` with `p`-`q` (they
+/// touch); `None` past i64 (coordinates far beyond the print volume).
+fn cut_t(a: Point2, b: Point2, p: Point2, q: Point2) -> Option<Frac> {
     let (da, db) = (i128::from(orient(p, q, a)), i128::from(orient(p, q, b)));
     let (num, den) = if da != db {
         (da, da - db)
@@ -440,11 +442,17 @@ fn cut(a: Point2, b: Point2, p: Point2, q: Point2) -> ((i128, i128), Point2) {
         (along(p).min(along(q)).max(0), len2)
     };
     let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+    Some((i64::try_from(num).ok()?, i64::try_from(den).ok()?))
+}
+
+/// The point at parameter `t` along `a`-`b` (rounded to the nearest unit).
+fn point_at(a: Point2, b: Point2, t: Frac) -> Point2 {
+    let (num, den) = (i128::from(t.0), i128::from(t.1).max(1));
     let at = |o: i32, e: i32| {
-        let v = i128::from(o) + super::poly::div_round_128(i128::from(e - o) * num, den.max(1));
+        let v = i128::from(o) + super::poly::div_round_128(i128::from(e - o) * num, den);
         v as i32
     };
-    ((num, den), Point2::new(at(a.x, b.x), at(a.y, b.y)))
+    Point2::new(at(a.x, b.x), at(a.y, b.y))
 }
 
 /// The comb route from `a` to `b` around the external perimeter loops of `island` that the
@@ -458,9 +466,7 @@ fn comb_route<const N: usize>(
     b: Point2,
     visit: &mut dyn FnMut(Point2),
 ) -> bool {
-    let mut hits =
-        [Hit { t_in: (0, 1), t_out: (0, 1), rec: 0, e_in: 0, e_out: 0, p_in: a, p_out: a };
-            MAX_COMB_LOOPS];
+    let mut hits = [Hit { rec: 0, e_in: 0, e_out: 0 }; MAX_COMB_LOOPS];
     let mut nh = 0;
     let (lo, hi) =
         (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
@@ -471,9 +477,10 @@ fn comb_route<const N: usize>(
         }
         let pts = paths.points(r);
         let n = pts.len();
-        let mut hit: Option<Hit> = None;
+        // (t_in, e_in, t_out, e_out) of the loop so far.
+        let mut hit: Option<(Frac, usize, Frac, usize)> = None;
         for k in 0..n {
-            let (p, q) = (pts[k], pts[(k + 1) % n]);
+            let (p, q) = (pts.at(k), pts.at((k + 1) % n));
             if p.x.max(q.x) < lo.x
                 || p.x.min(q.x) > hi.x
                 || p.y.max(q.y) < lo.y
@@ -484,62 +491,67 @@ fn comb_route<const N: usize>(
             if !segments_touch(a, b, p, q) {
                 continue;
             }
-            let (t, at) = cut(a, b, p, q);
-            let h = hit.get_or_insert(Hit {
-                t_in: t,
-                t_out: t,
-                rec: ri,
-                e_in: k,
-                e_out: k,
-                p_in: at,
-                p_out: at,
-            });
-            if frac_lt(t, h.t_in) {
-                (h.t_in, h.e_in, h.p_in) = (t, k, at);
+            let Some(t) = cut_t(a, b, p, q) else { return false };
+            let h = hit.get_or_insert((t, k, t, k));
+            if frac_lt(t, h.0) {
+                (h.0, h.1) = (t, k);
             }
-            if frac_lt(h.t_out, t) {
-                (h.t_out, h.e_out, h.p_out) = (t, k, at);
+            if frac_lt(h.2, t) {
+                (h.2, h.3) = (t, k);
             }
         }
-        if let Some(h) = hit {
+        if let Some((_, e_in, _, e_out)) = hit {
             if nh == MAX_COMB_LOOPS {
                 return false;
             }
-            hits[nh] = h;
+            hits[nh] = Hit { rec: ri as u32, e_in: e_in as u32, e_out: e_out as u32 };
             nh += 1;
         }
     }
+    // Where the travel meets edge `e` of record `rec` (found touching above).
+    let edge_t = |rec: u32, e: u32| {
+        let pts = paths.points(&paths.rec(rec as usize));
+        let (e, n) = (e as usize, pts.len());
+        cut_t(a, b, pts.at(e), pts.at((e + 1) % n)).unwrap_or((0, 1))
+    };
     let hits = &mut hits[..nh];
-    hits.sort_unstable_by(|x, y| (x.t_in.0 * y.t_in.1).cmp(&(y.t_in.0 * x.t_in.1)));
-    let mut done_to: (i128, i128) = (0, 1);
+    hits.sort_unstable_by(|x, y| {
+        let (tx, ty) = (edge_t(x.rec, x.e_in), edge_t(y.rec, y.e_in));
+        (i128::from(tx.0) * i128::from(ty.1)).cmp(&(i128::from(ty.0) * i128::from(tx.1)))
+    });
+    let mut done_to: Frac = (0, 1);
     for h in hits.iter() {
-        if frac_lt(h.t_in, done_to) {
+        let t_in = edge_t(h.rec, h.e_in);
+        if frac_lt(t_in, done_to) {
             continue;
         }
-        let r = paths.rec(h.rec);
+        let r = paths.rec(h.rec as usize);
         let pts = paths.points(&r);
         let n = pts.len();
+        let (e_in, e_out) = (h.e_in as usize, h.e_out as usize);
+        let t_out = edge_t(h.rec, h.e_out);
+        let (p_in, p_out) = (point_at(a, b, t_in), point_at(a, b, t_out));
         // Forward: vertices e_in+1 ..= e_out; backward: e_in, e_in-1, ..., e_out+1.
-        let fwd_count = (h.e_out + n - h.e_in) % n;
-        let back_count = (h.e_in + n - h.e_out) % n;
+        let fwd_count = (e_out + n - e_in) % n;
+        let back_count = (e_in + n - e_out) % n;
         let walk_len = |count: usize, fwd: bool| {
             let mut len = 0i64;
-            let mut prev = h.p_in;
+            let mut prev = p_in;
             for s in 0..count {
-                let v = if fwd { pts[(h.e_in + 1 + s) % n] } else { pts[(h.e_in + n - s) % n] };
+                let v = if fwd { pts.at((e_in + 1 + s) % n) } else { pts.at((e_in + n - s) % n) };
                 len += dist(prev, v);
                 prev = v;
             }
-            len + dist(prev, h.p_out)
+            len + dist(prev, p_out)
         };
         let fwd = walk_len(fwd_count, true) <= walk_len(back_count, false);
-        visit(h.p_in);
+        visit(p_in);
         let count = if fwd { fwd_count } else { back_count };
         for s in 0..count {
-            visit(if fwd { pts[(h.e_in + 1 + s) % n] } else { pts[(h.e_in + n - s) % n] });
+            visit(if fwd { pts.at((e_in + 1 + s) % n) } else { pts.at((e_in + n - s) % n) });
         }
-        visit(h.p_out);
-        done_to = h.t_out;
+        visit(p_out);
+        done_to = t_out;
     }
     visit(b);
     true
@@ -583,13 +595,13 @@ fn plan_path<const N: usize>(
     route: &mut Route,
 ) -> (Travel, u32) {
     let pts = paths.points(r);
-    let travel = em.plan_travel(ctx, pts[start], &comber(paths, r.island), route);
+    let travel = em.plan_travel(ctx, pts.at(start), &comber(paths, r.island), route);
     // Extrusions: the points that differ from the one before (the nozzle is at the start).
-    let mut prev = pts[start];
+    let mut prev = pts.at(start);
     let mut extrusions = 0u32;
     for (i, _) in path_order(r, start, reversed) {
-        extrusions += u32::from(pts[i] != prev);
-        prev = pts[i];
+        extrusions += u32::from(pts.at(i) != prev);
+        prev = pts.at(i);
     }
     let primes = (em.retracted || travel.retract) && extrusions > 0;
     (travel, travel.moves + u32::from(primes) + extrusions)
@@ -597,6 +609,7 @@ fn plan_path<const N: usize>(
 
 /// Emits `unit`'s moves from `em`'s state: the travel (and retraction, height change,
 /// priming) and the path, or the closing move.
+#[inline(never)]
 fn run_unit<const N: usize>(
     em: &mut Emitter,
     ctx: &Ctx<'_>,
@@ -631,10 +644,9 @@ fn print_path<const N: usize>(
     sink: &mut impl FnMut(&ToolEvent<'_>),
 ) {
     let pts = paths.points(r);
-    let feat = paths.features(r);
-    em.travel(ctx, pts[start], travel, route, &comber(paths, r.island), sink);
+    em.travel(ctx, pts.at(start), travel, route, &comber(paths, r.island), sink);
     for (i, f) in path_order(r, start, reversed) {
-        em.extrude_to(ctx, pts[i], feat[f], sink);
+        em.extrude_to(ctx, pts.at(i), pts.feature(f), sink);
     }
 }
 
@@ -652,11 +664,11 @@ fn fixed_entry<const N: usize>(
     if r.closed {
         // Rear seams are rotated to the front of the loop before ordering.
         let rear_seam = seam == Seam::Rear && matches!(r.kind, PathKind::Perimeter(_));
-        return if rear_seam && end == 0 { pts.first().copied() } else { None };
+        return if rear_seam && end == 0 { pts.first() } else { None };
     }
     match end {
-        0 => pts.first().copied(),
-        _ if r.reversible => pts.last().copied(),
+        0 => pts.first(),
+        _ if r.reversible => pts.last(),
         _ => None,
     }
 }

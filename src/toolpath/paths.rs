@@ -3,7 +3,8 @@
 //!
 //! Points fill the point array from the front and the path records its end, two points'
 //! room each (`(start, len)`, `(island, kind + flags x 2^16)`), so a layer of many short
-//! runs and one of a few long loops share one capacity.
+//! runs and one of a few long loops share one capacity. A path point keeps its feature in the
+//! low 4 bits of its stored y (`y x 16 + feature`): 8 bytes a point, y within +-2^27 um.
 
 use crate::geom::Point2;
 
@@ -58,10 +59,11 @@ impl PathRec {
 /// Bounded path storage: `N` points, path records included (2 each).
 pub struct PathBuf<const N: usize> {
     pts: [Point2; N],
-    feat: [Feature; N],
     n: usize,
     nr: usize,
     open: usize,
+    /// A point of the path being built was moved out of the packed range: its end fails.
+    out_of_range: bool,
     /// Largest use of the points (records included).
     pub peak_points: usize,
     /// Largest path count seen.
@@ -78,6 +80,84 @@ impl<const N: usize> Default for PathBuf<N> {
 const CLOSED: i32 = 1 << 16;
 const REVERSIBLE: i32 = 2 << 16;
 const DONE: i32 = 4 << 16;
+
+/// Bits of a stored path point's y holding its feature.
+const FEATURE_BITS: u32 = 4;
+/// Path point y range that packs with its feature, um.
+const Y_RANGE: core::ops::RangeInclusive<i32> = -(1 << 27)..=(1 << 27) - 1;
+
+/// `p` with `feature` in its y's low bits; `None` outside [`Y_RANGE`].
+fn pack(p: Point2, feature: Feature) -> Option<Point2> {
+    Y_RANGE.contains(&p.y).then(|| Point2::new(p.x, p.y << FEATURE_BITS | feature as i32))
+}
+
+/// The point of a stored path point.
+fn unpack(s: Point2) -> Point2 {
+    Point2::new(s.x, s.y >> FEATURE_BITS)
+}
+
+/// The feature of a stored path point.
+fn unpack_feature(s: Point2) -> Feature {
+    const ALL: [Feature; 9] = [
+        Feature::ExternalPerimeter,
+        Feature::Perimeter,
+        Feature::InternalInfill,
+        Feature::SolidInfill,
+        Feature::TopSolidInfill,
+        Feature::Skirt,
+        Feature::Travel,
+        Feature::Retract,
+        Feature::Unretract,
+    ];
+    ALL.get((s.y & ((1 << FEATURE_BITS) - 1)) as usize).copied().unwrap_or(Feature::Travel)
+}
+
+// Every feature's code fits the bits.
+const _: () = assert!((Feature::Unretract as u32) < 1 << FEATURE_BITS);
+
+/// The points of one path, unpacked on access.
+#[derive(Clone, Copy)]
+pub struct PathPoints<'a>(&'a [Point2]);
+
+impl PathPoints<'_> {
+    /// Number of points.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// True without points.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Point `i` (panics past the end, like a slice).
+    #[inline]
+    pub fn at(&self, i: usize) -> Point2 {
+        unpack(self.0[i])
+    }
+
+    /// The feature of the move reaching point `i`.
+    #[inline]
+    pub fn feature(&self, i: usize) -> Feature {
+        unpack_feature(self.0[i])
+    }
+
+    /// The first point.
+    pub fn first(&self) -> Option<Point2> {
+        self.0.first().map(|&s| unpack(s))
+    }
+
+    /// The last point.
+    pub fn last(&self) -> Option<Point2> {
+        self.0.last().map(|&s| unpack(s))
+    }
+
+    /// The points in order.
+    pub fn iter(&self) -> impl Iterator<Item = Point2> + '_ {
+        self.0.iter().map(|&s| unpack(s))
+    }
+}
 
 impl PathKind {
     /// 0 skirt, 1 infill, `2 + depth` perimeter.
@@ -103,12 +183,10 @@ impl<const N: usize> PathBuf<N> {
     pub const fn new() -> Self {
         Self {
             pts: [Point2::new(0, 0); N],
-            // Slots past `n` are never read; the zero discriminant keeps an empty buffer
-            // all zero bytes (a `static` holding it lands in `.bss`).
-            feat: [Feature::ExternalPerimeter; N],
             n: 0,
             nr: 0,
             open: 0,
+            out_of_range: false,
             peak_points: 0,
             peak_paths: 0,
         }
@@ -182,19 +260,19 @@ impl<const N: usize> PathBuf<N> {
         self.n = 0;
         self.nr = 0;
         self.open = 0;
+        self.out_of_range = false;
     }
 
     /// Appends a point reached by a move of `feature` to the path being built (a repeat of
-    /// the previous point is skipped).
+    /// the previous point is skipped). Fails when full or with `p.y` outside +-2^27 um.
     pub fn push(&mut self, p: Point2, feature: Feature) -> Result<(), Buffer> {
-        if self.n > self.open && self.pts[self.n - 1] == p {
+        if self.n > self.open && unpack(self.pts[self.n - 1]) == p {
             return Ok(());
         }
         if self.room() == 0 {
             return Err(Buffer::PathPoints);
         }
-        self.pts[self.n] = p;
-        self.feat[self.n] = feature;
+        self.pts[self.n] = pack(p, feature).ok_or(Buffer::PathRange)?;
         self.n += 1;
         self.peak_points = self.peak_points.max(self.n + 2 * self.nr);
         Ok(())
@@ -202,15 +280,19 @@ impl<const N: usize> PathBuf<N> {
 
     /// The `k`-th point of the path being built, counted from its end (0 = last).
     pub fn open_point_from_end(&self, k: usize) -> Option<Point2> {
-        (k < self.n - self.open).then(|| self.pts[self.n - 1 - k])
+        (k < self.n - self.open).then(|| unpack(self.pts[self.n - 1 - k]))
     }
 
     /// Moves the `k`-th point from the end of the path being built (0 = last) or, with
-    /// `from_start`, from its start.
+    /// `from_start`, from its start (keeping its feature). Outside the packed range the
+    /// point stays and the path's [`end`](Self::end) fails.
     pub fn set_open_point(&mut self, k: usize, from_start: bool, p: Point2) {
         if k < self.n - self.open {
             let i = if from_start { self.open + k } else { self.n - 1 - k };
-            self.pts[i] = p;
+            match pack(p, unpack_feature(self.pts[i])) {
+                Some(s) => self.pts[i] = s,
+                None => self.out_of_range = true,
+            }
         }
     }
 
@@ -227,6 +309,10 @@ impl<const N: usize> PathBuf<N> {
         closed: bool,
         reversible: bool,
     ) -> Result<(), Buffer> {
+        if core::mem::take(&mut self.out_of_range) {
+            self.n = self.open;
+            return Err(Buffer::PathRange);
+        }
         let len = self.n - self.open;
         if len < if closed { 3 } else { 2 } {
             self.n = self.open;
@@ -298,20 +384,14 @@ impl<const N: usize> PathBuf<N> {
         if !r.closed || k == 0 || k >= r.len as usize {
             return;
         }
-        if let (Some(p), Some(f)) = (self.pts.get_mut(range.clone()), self.feat.get_mut(range)) {
+        if let Some(p) = self.pts.get_mut(range) {
             p.rotate_left(k);
-            f.rotate_left(k);
         }
     }
 
-    /// Points of `r`.
-    pub fn points(&self, r: &PathRec) -> &[Point2] {
-        self.pts.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
-    }
-
-    /// Features of `r`'s points.
-    pub fn features(&self, r: &PathRec) -> &[Feature] {
-        self.feat.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
+    /// Points of `r`, with their features.
+    pub fn points(&self, r: &PathRec) -> PathPoints<'_> {
+        PathPoints(self.pts.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]))
     }
 }
 
@@ -338,7 +418,9 @@ mod tests {
             (r1.island, r1.kind, r1.closed, r1.done),
             (2, PathKind::Perimeter(1), true, false)
         );
-        assert_eq!(b.points(&r1), &pts);
+        assert!(b.points(&r1).iter().eq(pts));
+        assert_eq!(b.points(&r1).feature(2), Feature::Perimeter);
+        assert_eq!(b.points(&r0).feature(1), Feature::SolidInfill);
         assert_eq!(b.partition_point(|r| r.island < 2), 1);
         // Full: a path needs its points and two more for its record.
         for k in 0..6 {
@@ -347,5 +429,26 @@ mod tests {
         assert_eq!(b.end(0, PathKind::Infill, false, false), Err(Buffer::Paths));
         assert_eq!(b.push(Point2::new(9, 9), Feature::InternalInfill), Ok(()));
         assert_eq!(b.push(Point2::new(9, 8), Feature::InternalInfill), Err(Buffer::PathPoints));
+    }
+
+    #[test]
+    fn points_beyond_the_packed_y_range_are_refused() {
+        let mut b = PathBuf::<16>::new();
+        let far = Point2::new(0, 1 << 27);
+        assert_eq!(b.push(far, Feature::Skirt), Err(Buffer::PathRange));
+        let edge = Point2::new(-5, -(1 << 27));
+        b.push(edge, Feature::TopSolidInfill).unwrap();
+        b.push(Point2::new(7, (1 << 27) - 1), Feature::Unretract).unwrap();
+        assert_eq!(b.open_point_from_end(1), Some(edge));
+        // A moved point out of range fails the path's end, which drops it.
+        b.set_open_point(0, true, far);
+        assert_eq!(b.end(0, PathKind::Infill, false, true), Err(Buffer::PathRange));
+        assert_eq!((b.len(), b.open_len()), (0, 0));
+        b.push(edge, Feature::TopSolidInfill).unwrap();
+        b.push(Point2::new(1, 2), Feature::Unretract).unwrap();
+        b.end(0, PathKind::Infill, false, true).unwrap();
+        let pts = b.points(&b.rec(0));
+        assert_eq!((pts.at(0), pts.feature(0)), (edge, Feature::TopSolidInfill));
+        assert_eq!((pts.last(), pts.feature(1)), (Some(Point2::new(1, 2)), Feature::Unretract));
     }
 }
