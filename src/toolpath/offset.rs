@@ -338,23 +338,29 @@ impl<const E: usize> Offsetter<E> {
             let e = self.segs[i];
             let y0 = e.a.y.min(e.b.y);
             let (ex0, ex1) = (e.a.x.min(e.b.x), e.a.x.max(e.b.x));
-            // One pass: drop the active segments that end below `e`, test the others whose
-            // x ranges overlap `e`'s (`intersect` records splits only, `act` stays).
+            // Drop the active segments that end below `e` (a loop without calls: its values
+            // stay in registers), then test the others whose x ranges overlap `e`'s, in the
+            // same order (`intersect` records splits only, `act` and `segs` stay).
+            let (segs, act) = (&self.segs[..n], &mut self.act[..n_act]);
             let mut k = 0;
-            for m in 0..n_act {
-                let fi = self.act[m];
-                let f = self.segs[fi as usize];
-                if f.a.y.max(f.b.y) < y0 {
+            for m in 0..act.len() {
+                let fi = act[m];
+                let Some(f) = segs.get(fi as usize) else { continue };
+                if f.a.y < y0 && f.b.y < y0 {
                     continue;
                 }
-                self.act[k] = fi;
+                act[k] = fi;
                 k += 1;
-                if f.a.x.max(f.b.x) < ex0 || f.a.x.min(f.b.x) > ex1 {
-                    continue;
-                }
-                overlap |= self.intersect(i, e, fi as usize, f)?;
             }
             n_act = k;
+            for m in 0..n_act {
+                let fi = self.act[m] as usize;
+                let f = self.segs[fi];
+                if (f.a.x < ex0 && f.b.x < ex0) || (f.a.x > ex1 && f.b.x > ex1) {
+                    continue;
+                }
+                overlap |= self.intersect(i, e, fi, f)?;
+            }
             // `act` holds at most `n` entries.
             self.act[n_act] = i as u16;
             n_act += 1;
