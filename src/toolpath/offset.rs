@@ -582,6 +582,16 @@ impl<const E: usize> Offsetter<E> {
                 let mut pos = n_act;
                 for m in 0..n_act {
                     let f = &pieces[act[m] as usize];
+                    // An active piece spans y (f.a.y <= y < f.b.y), so its x there lies
+                    // between its ends' x: outside that range the sign of `x_cmp` is known.
+                    let (fx0, fx1) = (f.a.x.min(f.b.x), f.a.x.max(f.b.x));
+                    if e.a.x < fx0 {
+                        pos = m;
+                        break;
+                    }
+                    if e.a.x > fx1 {
+                        continue;
+                    }
                     let c = x_cmp(f, yl, i64::from(e.a.x), false);
                     let right = if c != 0 {
                         c > 0
@@ -610,6 +620,16 @@ impl<const E: usize> Offsetter<E> {
                 let mut above = 0;
                 for m in 0..n_act {
                     let f = &pieces[act[m] as usize];
+                    // As above, with twice the x: right of the midpoint ends the walk, left
+                    // of it goes on.
+                    let (fx0, fx1) = (f.a.x.min(f.b.x), f.a.x.max(f.b.x));
+                    if 2 * i64::from(fx0) > x2 {
+                        break;
+                    }
+                    if 2 * i64::from(fx1) < x2 {
+                        above = f.wr;
+                        continue;
+                    }
                     let c = x_cmp(f, yl, x2, true);
                     let left = c < 0 || (c == 0 && f.b.x < f.a.x);
                     if !left {
