@@ -381,23 +381,29 @@ impl<const B: usize> StepGenerator<B> {
         let full_check = self.overdue == (1 << AXES) - 1;
         // A first pending step `f` is overdue when `f + pending_ticks < last_tick`.
         let overdue_below = self.last_tick.saturating_sub(self.pending_ticks);
+        // The earliest first pending step after the check (`u64::MAX`: none), gathered in the
+        // same pass: an axis' first step changes only by its own emit.
+        let mut soonest = u64::MAX;
+        let mut overdue = self.overdue;
         for c in 0..AXES {
-            if self.overdue & (1 << c) == 0 {
-                continue;
+            if overdue & (1 << c) != 0 {
+                if self.comp[c].first_pending().is_some_and(|f| f < overdue_below) {
+                    if let Err(e) = self.comp[c].emit(c, out, &self.tune) {
+                        self.overdue = overdue;
+                        return Err(e);
+                    }
+                    self.publish(out);
+                }
+                overdue &= !(1 << c);
             }
-            if self.comp[c].first_pending().is_some_and(|f| f < overdue_below) {
-                self.comp[c].emit(c, out, &self.tune)?;
-                self.publish(out);
+            if let Some(f) = self.comp[c].first_pending() {
+                soonest = soonest.min(f);
             }
-            self.overdue &= !(1 << c);
         }
+        self.overdue = overdue;
         if full_check {
-            self.settle_at = self
-                .comp
-                .iter()
-                .filter_map(|c| c.first_pending())
-                .min()
-                .map_or(u64::MAX, |f| f + self.pending_ticks);
+            self.settle_at =
+                if soonest == u64::MAX { u64::MAX } else { soonest + self.pending_ticks };
         }
         Ok(())
     }
@@ -502,20 +508,11 @@ impl<const B: usize> StepGenerator<B> {
 #[inline(always)]
 fn earliest(axes: &[AxisRun; AXES]) -> (usize, u64) {
     const { assert!(AXES == 4) };
-    let (mut axis, mut best) = (0, axes[0].next_tick);
-    let t = axes[1].next_tick;
-    if t < best {
-        (axis, best) = (1, t);
-    }
-    let t = axes[2].next_tick;
-    if t < best {
-        (axis, best) = (2, t);
-    }
-    let t = axes[3].next_tick;
-    if t < best {
-        (axis, best) = (3, t);
-    }
-    (axis, best)
+    // A tournament of pairs: on a tie the lower axis wins every round.
+    let pick = |a: (usize, u64), b: (usize, u64)| if b.1 < a.1 { b } else { a };
+    let low = pick((0, axes[0].next_tick), (1, axes[1].next_tick));
+    let high = pick((2, axes[2].next_tick), (3, axes[3].next_tick));
+    pick(low, high)
 }
 
 /// [`step_position_q32`] (the same value) with the 128-bit division by 1000 done by
