@@ -5,7 +5,7 @@
 use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
 use crate::machine::{Rate, AXES};
-use crate::plan::math::{div_u128, sat_u64};
+use crate::plan::math::{div_u128, sat_u64, Divisor};
 use crate::plan::Block;
 use heapless::Deque;
 
@@ -486,12 +486,13 @@ impl<const B: usize> StepGenerator<B> {
                 (false, p0 - ((m << 32) - half), p0 - p1)
             };
             // 0 <= delta0 < dp; the first crossing is delta0 / dp of the way along.
-            let dp = dp.max(1) as u128;
+            // Both quotients divide by dp (below 2^63): its reciprocal is prepared once.
+            let by_dp = Divisor::new(dp.max(1) as u64);
             run.remaining = m1.abs_diff(m) as u32;
             self.steps[axis] += run.remaining as u64;
             run.dir = dir;
-            let s_q48 = div_u128((delta0.max(0) as u128 * len) << 16, dp);
-            let ds_q48 = div_u128(len << 48, dp);
+            let s_q48 = by_dp.div((delta0.max(0) as u128 * len) << 16);
+            let ds_q48 = by_dp.div(len << 48);
             (run.s_q32, run.s_frac) = (sat_u64(s_q48 >> 16), s_q48 as u32 & 0xffff);
             (run.ds_q32, run.ds_frac) = (sat_u64(ds_q48 >> 16), ds_q48 as u32 & 0xffff);
         }
