@@ -54,8 +54,10 @@ struct AxisRun {
     /// Path distance per step, the same split.
     ds_q32: u64,
     ds_frac: u32,
-    /// Exact time of the next step, generator ticks (`u64::MAX` with no step left).
-    next_tick: u64,
+    /// Exact time of the next step (generator ticks, below 2^48) times 4 plus the axis: the
+    /// smallest key is the earliest step, the lower axis first on a tie (`u64::MAX` with no
+    /// step left).
+    next_key: u64,
 }
 
 impl AxisRun {
@@ -67,22 +69,23 @@ impl AxisRun {
         s_frac: 0,
         ds_q32: 0,
         ds_frac: 0,
-        next_tick: u64::MAX,
+        next_key: u64::MAX,
     };
 
     /// Every field zero: the state of an unconfigured generator ([`StepGenerator::empty`]),
     /// which [`StepGenerator::reset`] replaces with [`AxisRun::STILL`].
     const UNSET: Self =
-        Self { remaining: 0, dir: false, s_q32: 0, s_frac: 0, ds_q32: 0, ds_frac: 0, next_tick: 0 };
+        Self { remaining: 0, dir: false, s_q32: 0, s_frac: 0, ds_q32: 0, ds_frac: 0, next_key: 0 };
 
-    /// One step of the block `b` (which starts at `start_q16`) is generated: on to the next.
-    fn advance(&mut self, start_q16: u64, b: &Block) {
+    /// One step of the block `b` (which starts at `start_q16`) is generated on `axis`: on to
+    /// the next.
+    fn advance(&mut self, axis: usize, start_q16: u64, b: &Block) {
         self.remaining -= 1;
         if self.remaining > 0 {
             self.step_distance();
-            self.next_tick = tick_at(start_q16, b, self.s_q32);
+            self.next_key = step_key(tick_at(start_q16, b, self.s_q32), axis);
         } else {
-            self.next_tick = u64::MAX;
+            self.next_key = u64::MAX;
         }
     }
 
@@ -317,8 +320,8 @@ impl<const B: usize> StepGenerator<B> {
             };
             // The axis with the earliest next step (the first of equals; an axis without
             // steps left waits at `u64::MAX`).
-            let (axis, next_tick) = earliest(&self.axes);
-            if next_tick == u64::MAX {
+            let key = earliest(&self.axes);
+            if key == u64::MAX {
                 let (duration, at_rest) = (block.duration_ticks_q16(), block.ends_at_rest());
                 self.block_start_q16 = self.block_start_q16.saturating_add(duration);
                 self.at_rest = at_rest;
@@ -328,7 +331,8 @@ impl<const B: usize> StepGenerator<B> {
                 self.blocks += 1;
                 continue;
             }
-            let (tick, dir) = (next_tick, self.axes[axis].dir);
+            let (axis, tick) = ((key & 3) as usize, key >> 2);
+            let dir = self.axes[axis].dir;
             if self.comp[axis].push_step(axis, tick, dir, out, &self.tune).is_err() {
                 // Only a deadlock (the executor waits at the horizon and this queue is still
                 // full) sends other axes' steps early; a merely full queue waits.
@@ -338,7 +342,7 @@ impl<const B: usize> StepGenerator<B> {
                 self.queue_blocked = true;
                 return GenStatus::QueueFull;
             }
-            self.axes[axis].advance(self.block_start_q16, block);
+            self.axes[axis].advance(axis, self.block_start_q16, block);
             self.last_tick = tick;
             // The axis' first pending step changed only if it is this one (an emit inside
             // `push_step` moves it later, which leaves `settle_at` a valid lower bound).
@@ -455,7 +459,7 @@ impl<const B: usize> StepGenerator<B> {
             if let Some(f) = self.comp[axis].first_pending() {
                 h = h.min(f);
             } else if self.block.is_some() && self.axes[axis].remaining > 0 {
-                h = h.min(self.axes[axis].next_tick);
+                h = h.min(self.axes[axis].next_key >> 2);
             }
         }
         // A compressed step may run up to `tol` before its exact time.
@@ -496,24 +500,30 @@ impl<const B: usize> StepGenerator<B> {
             (run.s_q32, run.s_frac) = (sat_u64(s_q48 >> 16), s_q48 as u32 & 0xffff);
             (run.ds_q32, run.ds_frac) = (sat_u64(ds_q48 >> 16), ds_q48 as u32 & 0xffff);
         }
-        for run in self.axes.iter_mut().filter(|r| r.remaining > 0) {
-            run.next_tick = tick_at(self.block_start_q16, &b, run.s_q32);
+        for (axis, run) in self.axes.iter_mut().enumerate().filter(|(_, r)| r.remaining > 0) {
+            run.next_key = step_key(tick_at(self.block_start_q16, &b, run.s_q32), axis);
         }
         self.block = Some(b);
     }
 }
 
-/// The axis with the earliest `next_tick` (the first of equals) and that tick. Written out
-/// for the four axes: at opt-level "s" a loop is not unrolled and reloads the running minimum
-/// (about 30 instructions a step); straight-line compares keep it in registers.
+/// The smallest `next_key` of the four axes: the earliest step, the first of equals
+/// (`u64::MAX`: no step left). Three 64-bit minimums (the axis rides in the key's low bits,
+/// no index to select alongside), written out: at opt-level "s" a loop is not unrolled.
 #[inline(always)]
-fn earliest(axes: &[AxisRun; AXES]) -> (usize, u64) {
+fn earliest(axes: &[AxisRun; AXES]) -> u64 {
     const { assert!(AXES == 4) };
-    // A tournament of pairs: on a tie the lower axis wins every round.
-    let pick = |a: (usize, u64), b: (usize, u64)| if b.1 < a.1 { b } else { a };
-    let low = pick((0, axes[0].next_tick), (1, axes[1].next_tick));
-    let high = pick((2, axes[2].next_tick), (3, axes[3].next_tick));
-    pick(low, high)
+    let low = axes[0].next_key.min(axes[1].next_key);
+    let high = axes[2].next_key.min(axes[3].next_key);
+    low.min(high)
+}
+
+/// The key of a step at `tick` (below 2^48: generator ticks are q16 ticks shifted down by
+/// 16) on `axis`.
+#[inline(always)]
+fn step_key(tick: u64, axis: usize) -> u64 {
+    const { assert!(AXES <= 4) };
+    (tick << 2) | axis as u64
 }
 
 /// [`step_position_q32`] (the same value) with the 128-bit division by 1000 done by
