@@ -388,23 +388,25 @@ impl<const B: usize> StepGenerator<B> {
         // The earliest first pending step after the check (`u64::MAX`: none), gathered in the
         // same pass: an axis' first step changes only by its own emit.
         let mut soonest = u64::MAX;
-        let mut overdue = self.overdue;
         for c in 0..AXES {
-            if overdue & (1 << c) != 0 {
-                if self.comp[c].first_pending().is_some_and(|f| f < overdue_below) {
-                    if let Err(e) = self.comp[c].emit(c, out, &self.tune) {
-                        self.overdue = overdue;
-                        return Err(e);
-                    }
-                    self.publish(out);
+            let Some(mut f) = self.comp[c].first_pending() else {
+                continue;
+            };
+            if self.overdue & (1 << c) != 0 && f < overdue_below {
+                if let Err(e) = self.comp[c].emit(c, out, &self.tune) {
+                    // The axes before `c` are checked.
+                    self.overdue &= !((1 << c) - 1);
+                    return Err(e);
                 }
-                overdue &= !(1 << c);
+                self.publish(out);
+                match self.comp[c].first_pending() {
+                    Some(g) => f = g,
+                    None => continue,
+                }
             }
-            if let Some(f) = self.comp[c].first_pending() {
-                soonest = soonest.min(f);
-            }
+            soonest = soonest.min(f);
         }
-        self.overdue = overdue;
+        self.overdue = 0;
         if full_check {
             self.settle_at =
                 if soonest == u64::MAX { u64::MAX } else { soonest + self.pending_ticks };
