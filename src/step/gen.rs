@@ -126,6 +126,9 @@ pub struct StepGenerator<const B: usize = 64> {
     flush_all: bool,
     /// Generator time at the start of the current block (or the end of the last), ticks q16.
     block_start_q16: u64,
+    /// Where the queued commands can reach, ticks: the current block's end (or the last's),
+    /// kept for [`StepGenerator::publish`].
+    reach: u64,
     /// Motor position per axis after every step generated or being generated.
     motor: [i64; AXES],
     /// The last block's end per axis (um) and its step position (steps q32): the next
@@ -174,6 +177,7 @@ impl<const B: usize> StepGenerator<B> {
         self.settle_at = 0;
         self.flush_all = false;
         self.block_start_q16 = 0;
+        self.reach = 0;
         for (axis, e) in self.end_position.iter_mut().enumerate() {
             *e = (position_um[axis], step_position(position_um[axis], spm[axis]));
         }
@@ -205,6 +209,7 @@ impl<const B: usize> StepGenerator<B> {
             settle_at: 0,
             flush_all: false,
             block_start_q16: 0,
+            reach: 0,
             motor: [0; AXES],
             end_position: [(0, 0); AXES],
             // `reset` sets it (and `axes`): zero here keeps the value all zero bytes.
@@ -324,6 +329,7 @@ impl<const B: usize> StepGenerator<B> {
             if key == u64::MAX {
                 let (duration, at_rest) = (block.duration_ticks_q16(), block.ends_at_rest());
                 self.block_start_q16 = self.block_start_q16.saturating_add(duration);
+                self.reach = self.block_start_q16 >> 16;
                 self.at_rest = at_rest;
                 // A stop sends everything before it, whether or not more blocks follow.
                 self.flush_all = self.at_rest;
@@ -441,10 +447,7 @@ impl<const B: usize> StepGenerator<B> {
 
     /// Publishes how far the queued commands reach and whether the motion rests there.
     fn publish<const N: usize>(&self, out: &mut StepProducer<'_, N>) {
-        let end = match &self.block {
-            Some(b) => self.block_start_q16.saturating_add(b.duration_ticks_q16()),
-            None => self.block_start_q16,
-        } >> 16;
+        let end = self.reach;
         let complete = self.block.is_none()
             && self.next.is_none()
             && self.at_rest
@@ -505,6 +508,7 @@ impl<const B: usize> StepGenerator<B> {
         for (axis, run) in self.axes.iter_mut().enumerate().filter(|(_, r)| r.remaining > 0) {
             run.next_key = step_key(tick_at(self.block_start_q16, &b, run.s_q32), axis);
         }
+        self.reach = self.block_start_q16.saturating_add(b.duration_ticks_q16()) >> 16;
         self.block = Some(b);
     }
 }
