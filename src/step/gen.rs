@@ -5,7 +5,7 @@
 use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
 use crate::machine::{Rate, AXES};
-use crate::plan::math::{div_u128, sat_u64};
+use crate::plan::math::{div_u128, sat_u64, Divisor};
 use crate::plan::Block;
 use heapless::Deque;
 
@@ -54,8 +54,10 @@ struct AxisRun {
     /// Path distance per step, the same split.
     ds_q32: u64,
     ds_frac: u32,
-    /// Exact time of the next step, generator ticks (`u64::MAX` with no step left).
-    next_tick: u64,
+    /// Exact time of the next step (generator ticks, below 2^48) times 4 plus the axis: the
+    /// smallest key is the earliest step, the lower axis first on a tie (`u64::MAX` with no
+    /// step left).
+    next_key: u64,
 }
 
 impl AxisRun {
@@ -67,22 +69,23 @@ impl AxisRun {
         s_frac: 0,
         ds_q32: 0,
         ds_frac: 0,
-        next_tick: u64::MAX,
+        next_key: u64::MAX,
     };
 
     /// Every field zero: the state of an unconfigured generator ([`StepGenerator::empty`]),
     /// which [`StepGenerator::reset`] replaces with [`AxisRun::STILL`].
     const UNSET: Self =
-        Self { remaining: 0, dir: false, s_q32: 0, s_frac: 0, ds_q32: 0, ds_frac: 0, next_tick: 0 };
+        Self { remaining: 0, dir: false, s_q32: 0, s_frac: 0, ds_q32: 0, ds_frac: 0, next_key: 0 };
 
-    /// One step of the block `b` (which starts at `start_q16`) is generated: on to the next.
-    fn advance(&mut self, start_q16: u64, b: &Block) {
+    /// One step of the block `b` (which starts at `start_q16`) is generated on `axis`: on to
+    /// the next.
+    fn advance(&mut self, axis: usize, start_q16: u64, b: &Block) {
         self.remaining -= 1;
         if self.remaining > 0 {
             self.step_distance();
-            self.next_tick = tick_at(start_q16, b, self.s_q32);
+            self.next_key = step_key(tick_at(start_q16, b, self.s_q32), axis);
         } else {
-            self.next_tick = u64::MAX;
+            self.next_key = u64::MAX;
         }
     }
 
@@ -123,6 +126,9 @@ pub struct StepGenerator<const B: usize = 64> {
     flush_all: bool,
     /// Generator time at the start of the current block (or the end of the last), ticks q16.
     block_start_q16: u64,
+    /// Where the queued commands can reach, ticks: the current block's end (or the last's),
+    /// kept for [`StepGenerator::publish`].
+    reach: u64,
     /// Motor position per axis after every step generated or being generated.
     motor: [i64; AXES],
     /// The last block's end per axis (um) and its step position (steps q32): the next
@@ -171,6 +177,7 @@ impl<const B: usize> StepGenerator<B> {
         self.settle_at = 0;
         self.flush_all = false;
         self.block_start_q16 = 0;
+        self.reach = 0;
         for (axis, e) in self.end_position.iter_mut().enumerate() {
             *e = (position_um[axis], step_position(position_um[axis], spm[axis]));
         }
@@ -202,6 +209,7 @@ impl<const B: usize> StepGenerator<B> {
             settle_at: 0,
             flush_all: false,
             block_start_q16: 0,
+            reach: 0,
             motor: [0; AXES],
             end_position: [(0, 0); AXES],
             // `reset` sets it (and `axes`): zero here keeps the value all zero bytes.
@@ -317,10 +325,11 @@ impl<const B: usize> StepGenerator<B> {
             };
             // The axis with the earliest next step (the first of equals; an axis without
             // steps left waits at `u64::MAX`).
-            let (axis, next_tick) = earliest(&self.axes);
-            if next_tick == u64::MAX {
+            let key = earliest(&self.axes);
+            if key == u64::MAX {
                 let (duration, at_rest) = (block.duration_ticks_q16(), block.ends_at_rest());
                 self.block_start_q16 = self.block_start_q16.saturating_add(duration);
+                self.reach = self.block_start_q16 >> 16;
                 self.at_rest = at_rest;
                 // A stop sends everything before it, whether or not more blocks follow.
                 self.flush_all = self.at_rest;
@@ -328,7 +337,8 @@ impl<const B: usize> StepGenerator<B> {
                 self.blocks += 1;
                 continue;
             }
-            let (tick, dir) = (next_tick, self.axes[axis].dir);
+            let (axis, tick) = ((key & 3) as usize, key >> 2);
+            let dir = self.axes[axis].dir;
             if self.comp[axis].push_step(axis, tick, dir, out, &self.tune).is_err() {
                 // Only a deadlock (the executor waits at the horizon and this queue is still
                 // full) sends other axes' steps early; a merely full queue waits.
@@ -338,7 +348,7 @@ impl<const B: usize> StepGenerator<B> {
                 self.queue_blocked = true;
                 return GenStatus::QueueFull;
             }
-            self.axes[axis].advance(self.block_start_q16, block);
+            self.axes[axis].advance(axis, self.block_start_q16, block);
             self.last_tick = tick;
             // The axis' first pending step changed only if it is this one (an emit inside
             // `push_step` moves it later, which leaves `settle_at` a valid lower bound).
@@ -381,23 +391,31 @@ impl<const B: usize> StepGenerator<B> {
         let full_check = self.overdue == (1 << AXES) - 1;
         // A first pending step `f` is overdue when `f + pending_ticks < last_tick`.
         let overdue_below = self.last_tick.saturating_sub(self.pending_ticks);
+        // The earliest first pending step after the check (`u64::MAX`: none), gathered in the
+        // same pass: an axis' first step changes only by its own emit.
+        let mut soonest = u64::MAX;
         for c in 0..AXES {
-            if self.overdue & (1 << c) == 0 {
+            let Some(mut f) = self.comp[c].first_pending() else {
                 continue;
-            }
-            if self.comp[c].first_pending().is_some_and(|f| f < overdue_below) {
-                self.comp[c].emit(c, out, &self.tune)?;
+            };
+            if self.overdue & (1 << c) != 0 && f < overdue_below {
+                if let Err(e) = self.comp[c].emit(c, out, &self.tune) {
+                    // The axes before `c` are checked.
+                    self.overdue &= !((1 << c) - 1);
+                    return Err(e);
+                }
                 self.publish(out);
+                match self.comp[c].first_pending() {
+                    Some(g) => f = g,
+                    None => continue,
+                }
             }
-            self.overdue &= !(1 << c);
+            soonest = soonest.min(f);
         }
+        self.overdue = 0;
         if full_check {
-            self.settle_at = self
-                .comp
-                .iter()
-                .filter_map(|c| c.first_pending())
-                .min()
-                .map_or(u64::MAX, |f| f + self.pending_ticks);
+            self.settle_at =
+                if soonest == u64::MAX { u64::MAX } else { soonest + self.pending_ticks };
         }
         Ok(())
     }
@@ -429,10 +447,7 @@ impl<const B: usize> StepGenerator<B> {
 
     /// Publishes how far the queued commands reach and whether the motion rests there.
     fn publish<const N: usize>(&self, out: &mut StepProducer<'_, N>) {
-        let end = match &self.block {
-            Some(b) => self.block_start_q16.saturating_add(b.duration_ticks_q16()),
-            None => self.block_start_q16,
-        } >> 16;
+        let end = self.reach;
         let complete = self.block.is_none()
             && self.next.is_none()
             && self.at_rest
@@ -449,7 +464,7 @@ impl<const B: usize> StepGenerator<B> {
             if let Some(f) = self.comp[axis].first_pending() {
                 h = h.min(f);
             } else if self.block.is_some() && self.axes[axis].remaining > 0 {
-                h = h.min(self.axes[axis].next_tick);
+                h = h.min(self.axes[axis].next_key >> 2);
             }
         }
         // A compressed step may run up to `tol` before its exact time.
@@ -480,42 +495,41 @@ impl<const B: usize> StepGenerator<B> {
                 (false, p0 - ((m << 32) - half), p0 - p1)
             };
             // 0 <= delta0 < dp; the first crossing is delta0 / dp of the way along.
-            let dp = dp.max(1) as u128;
+            // Both quotients divide by dp (below 2^63): its reciprocal is prepared once.
+            let by_dp = Divisor::new(dp.max(1) as u64);
             run.remaining = m1.abs_diff(m) as u32;
             self.steps[axis] += run.remaining as u64;
             run.dir = dir;
-            let s_q48 = div_u128((delta0.max(0) as u128 * len) << 16, dp);
-            let ds_q48 = div_u128(len << 48, dp);
+            let s_q48 = by_dp.div((delta0.max(0) as u128 * len) << 16);
+            let ds_q48 = by_dp.div(len << 48);
             (run.s_q32, run.s_frac) = (sat_u64(s_q48 >> 16), s_q48 as u32 & 0xffff);
             (run.ds_q32, run.ds_frac) = (sat_u64(ds_q48 >> 16), ds_q48 as u32 & 0xffff);
         }
-        for run in self.axes.iter_mut().filter(|r| r.remaining > 0) {
-            run.next_tick = tick_at(self.block_start_q16, &b, run.s_q32);
+        for (axis, run) in self.axes.iter_mut().enumerate().filter(|(_, r)| r.remaining > 0) {
+            run.next_key = step_key(tick_at(self.block_start_q16, &b, run.s_q32), axis);
         }
+        self.reach = self.block_start_q16.saturating_add(b.duration_ticks_q16()) >> 16;
         self.block = Some(b);
     }
 }
 
-/// The axis with the earliest `next_tick` (the first of equals) and that tick. Written out
-/// for the four axes: at opt-level "s" a loop is not unrolled and reloads the running minimum
-/// (about 30 instructions a step); straight-line compares keep it in registers.
+/// The smallest `next_key` of the four axes: the earliest step, the first of equals
+/// (`u64::MAX`: no step left). Three 64-bit minimums (the axis rides in the key's low bits,
+/// no index to select alongside), written out: at opt-level "s" a loop is not unrolled.
 #[inline(always)]
-fn earliest(axes: &[AxisRun; AXES]) -> (usize, u64) {
+fn earliest(axes: &[AxisRun; AXES]) -> u64 {
     const { assert!(AXES == 4) };
-    let (mut axis, mut best) = (0, axes[0].next_tick);
-    let t = axes[1].next_tick;
-    if t < best {
-        (axis, best) = (1, t);
-    }
-    let t = axes[2].next_tick;
-    if t < best {
-        (axis, best) = (2, t);
-    }
-    let t = axes[3].next_tick;
-    if t < best {
-        (axis, best) = (3, t);
-    }
-    (axis, best)
+    let low = axes[0].next_key.min(axes[1].next_key);
+    let high = axes[2].next_key.min(axes[3].next_key);
+    low.min(high)
+}
+
+/// The key of a step at `tick` (below 2^48: generator ticks are q16 ticks shifted down by
+/// 16) on `axis`.
+#[inline(always)]
+fn step_key(tick: u64, axis: usize) -> u64 {
+    const { assert!(AXES <= 4) };
+    (tick << 2) | axis as u64
 }
 
 /// [`step_position_q32`] (the same value) with the 128-bit division by 1000 done by
