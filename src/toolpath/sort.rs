@@ -1,9 +1,9 @@
 //! In-place unstable sort with a small, fixed stack frame: an iterative quicksort (pivot the
 //! median of three, Hoare partition that stops on equal keys, insertion sort below
 //! [`SMALL`] elements) that pushes the larger part and loops on the smaller, so at most
-//! log2(n) ranges wait (8 B each). Core's `sort_unstable` recurses, and its small-sort
-//! scratch scales with the element: about 1 KB of stack per level for the offset engine's
-//! 12–20 B items on the M3.
+//! log2(n / 16) ranges wait, in a fixed 128 B array. Core's `sort_unstable` recurses, and its
+//! small-sort scratch scales with the element: about 1 KB of stack per level for the offset
+//! engine's 12–20 B items on the M3.
 //!
 //! Worst case O(n log n): after more than log2(n) unbalanced partitions (the smaller part
 //! under 1/8 of its range) every remaining range is heapsorted. Equal elements may end in
@@ -11,9 +11,10 @@
 
 /// Ranges up to this many elements are insertion-sorted.
 const SMALL: usize = 16;
-/// Waiting ranges: enough for any slice below 2^32 elements (each waiting range is at
-/// least as long as the one sorted before it); a deeper one is heapsorted.
-const STACK: usize = 28;
+/// Waiting ranges (8 B each): enough for any slice below 2^20 elements (a range is only
+/// split above [`SMALL`] and each waiting one is at least as long as the one sorted before
+/// it); a range that finds the stack full is heapsorted.
+const STACK: usize = 16;
 
 /// Sorts `v` ascending by `key` (unstable).
 pub fn sort_by_key<T: Copy, K: Ord>(v: &mut [T], mut key: impl FnMut(&T) -> K) {
@@ -220,6 +221,14 @@ mod tests {
                 assert!(cmps < bound, "n {n}: {cmps} comparisons");
             }
         }
+    }
+
+    /// Beyond 2^20 elements the waiting ranges can fill the stack: the fallback sorts too.
+    #[test]
+    fn deep_slices() {
+        let mut rng = xorshift(777);
+        let v: Vec<(u32, u32)> = tagged((0..1 << 21).map(|_| rng() as u32));
+        check(&v, u32::MAX);
     }
 
     /// An inconsistent comparison neither panics nor loses elements.
