@@ -317,13 +317,8 @@ impl<const B: usize> StepGenerator<B> {
             };
             // The axis with the earliest next step (the first of equals; an axis without
             // steps left waits at `u64::MAX`).
-            let mut axis = 0;
-            for a in 1..AXES {
-                if self.axes[a].next_tick < self.axes[axis].next_tick {
-                    axis = a;
-                }
-            }
-            if self.axes[axis].next_tick == u64::MAX {
+            let (axis, next_tick) = earliest(&self.axes);
+            if next_tick == u64::MAX {
                 let (duration, at_rest) = (block.duration_ticks_q16(), block.ends_at_rest());
                 self.block_start_q16 = self.block_start_q16.saturating_add(duration);
                 self.at_rest = at_rest;
@@ -333,7 +328,7 @@ impl<const B: usize> StepGenerator<B> {
                 self.blocks += 1;
                 continue;
             }
-            let (tick, dir) = (self.axes[axis].next_tick, self.axes[axis].dir);
+            let (tick, dir) = (next_tick, self.axes[axis].dir);
             if self.comp[axis].push_step(axis, tick, dir, out, &self.tune).is_err() {
                 // Only a deadlock (the executor waits at the horizon and this queue is still
                 // full) sends other axes' steps early; a merely full queue waits.
@@ -499,6 +494,28 @@ impl<const B: usize> StepGenerator<B> {
         }
         self.block = Some(b);
     }
+}
+
+/// The axis with the earliest `next_tick` (the first of equals) and that tick. Written out
+/// for the four axes: at opt-level "s" a loop is not unrolled and reloads the running minimum
+/// (about 30 instructions a step); straight-line compares keep it in registers.
+#[inline(always)]
+fn earliest(axes: &[AxisRun; AXES]) -> (usize, u64) {
+    const { assert!(AXES == 4) };
+    let (mut axis, mut best) = (0, axes[0].next_tick);
+    let t = axes[1].next_tick;
+    if t < best {
+        (axis, best) = (1, t);
+    }
+    let t = axes[2].next_tick;
+    if t < best {
+        (axis, best) = (2, t);
+    }
+    let t = axes[3].next_tick;
+    if t < best {
+        (axis, best) = (3, t);
+    }
+    (axis, best)
 }
 
 /// [`step_position_q32`] (the same value) with the 128-bit division by 1000 done by

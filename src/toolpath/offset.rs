@@ -338,23 +338,29 @@ impl<const E: usize> Offsetter<E> {
             let e = self.segs[i];
             let y0 = e.a.y.min(e.b.y);
             let (ex0, ex1) = (e.a.x.min(e.b.x), e.a.x.max(e.b.x));
-            // One pass: drop the active segments that end below `e`, test the others whose
-            // x ranges overlap `e`'s (`intersect` records splits only, `act` stays).
+            // Drop the active segments that end below `e` (a loop without calls: its values
+            // stay in registers), then test the others whose x ranges overlap `e`'s, in the
+            // same order (`intersect` records splits only, `act` and `segs` stay).
+            let (segs, act) = (&self.segs[..n], &mut self.act[..n_act]);
             let mut k = 0;
-            for m in 0..n_act {
-                let fi = self.act[m];
-                let f = self.segs[fi as usize];
-                if f.a.y.max(f.b.y) < y0 {
+            for m in 0..act.len() {
+                let fi = act[m];
+                let Some(f) = segs.get(fi as usize) else { continue };
+                if f.a.y < y0 && f.b.y < y0 {
                     continue;
                 }
-                self.act[k] = fi;
+                act[k] = fi;
                 k += 1;
-                if f.a.x.max(f.b.x) < ex0 || f.a.x.min(f.b.x) > ex1 {
-                    continue;
-                }
-                overlap |= self.intersect(i, e, fi as usize, f)?;
             }
             n_act = k;
+            for m in 0..n_act {
+                let fi = self.act[m] as usize;
+                let f = self.segs[fi];
+                if (f.a.x < ex0 && f.b.x < ex0) || (f.a.x > ex1 && f.b.x > ex1) {
+                    continue;
+                }
+                overlap |= self.intersect(i, e, fi, f)?;
+            }
             // `act` holds at most `n` entries.
             self.act[n_act] = i as u16;
             n_act += 1;
@@ -576,6 +582,16 @@ impl<const E: usize> Offsetter<E> {
                 let mut pos = n_act;
                 for m in 0..n_act {
                     let f = &pieces[act[m] as usize];
+                    // An active piece spans y (f.a.y <= y < f.b.y), so its x there lies
+                    // between its ends' x: outside that range the sign of `x_cmp` is known.
+                    let (fx0, fx1) = (f.a.x.min(f.b.x), f.a.x.max(f.b.x));
+                    if e.a.x < fx0 {
+                        pos = m;
+                        break;
+                    }
+                    if e.a.x > fx1 {
+                        continue;
+                    }
                     let c = x_cmp(f, yl, i64::from(e.a.x), false);
                     let right = if c != 0 {
                         c > 0
@@ -604,6 +620,16 @@ impl<const E: usize> Offsetter<E> {
                 let mut above = 0;
                 for m in 0..n_act {
                     let f = &pieces[act[m] as usize];
+                    // As above, with twice the x: right of the midpoint ends the walk, left
+                    // of it goes on.
+                    let (fx0, fx1) = (f.a.x.min(f.b.x), f.a.x.max(f.b.x));
+                    if 2 * i64::from(fx0) > x2 {
+                        break;
+                    }
+                    if 2 * i64::from(fx1) < x2 {
+                        above = f.wr;
+                        continue;
+                    }
                     let c = x_cmp(f, yl, x2, true);
                     let left = c < 0 || (c == 0 && f.b.x < f.a.x);
                     if !left {

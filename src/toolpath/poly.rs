@@ -366,17 +366,20 @@ pub fn segment_touches_rings(points: &[Point2], rings: &[Ring], a: Point2, b: Po
         }
         let pts = points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[]);
         let Some(&last) = pts.last() else { continue };
-        let mut p = last;
+        // Outcodes: one per corner; an edge whose corners share an outside side misses the box.
+        let code = |q: Point2| {
+            u8::from(q.x < lo.x)
+                | u8::from(q.x > hi.x) << 1
+                | u8::from(q.y < lo.y) << 2
+                | u8::from(q.y > hi.y) << 3
+        };
+        let (mut p, mut cp) = (last, code(last));
         for &q in pts {
-            if !(p.x.max(q.x) < lo.x
-                || p.x.min(q.x) > hi.x
-                || p.y.max(q.y) < lo.y
-                || p.y.min(q.y) > hi.y)
-                && segments_touch(a, b, p, q)
-            {
+            let cq = code(q);
+            if cp & cq == 0 && segments_touch(a, b, p, q) {
                 return true;
             }
-            p = q;
+            (p, cp) = (q, cq);
         }
     }
     false
