@@ -122,6 +122,7 @@ pub mod paths;
 pub mod poly;
 pub mod scan;
 pub mod simplify;
+pub mod sort;
 pub mod window;
 
 /// A bounded buffer of the toolpath stage.

@@ -25,6 +25,7 @@ use crate::geom::Point2;
 
 use super::poly::{div_round, div_round_128, orient, Loops, Ring};
 use super::simplify::simplify_closed;
+use super::sort;
 use super::Buffer;
 use crate::plan::math::isqrt_u64;
 
@@ -331,7 +332,7 @@ impl<const E: usize> Offsetter<E> {
     /// Intersection sweep: records split points; returns true if collinear overlaps exist.
     fn find_splits(&mut self) -> Result<bool, Buffer> {
         let n = self.n_segs;
-        self.segs[..n].sort_unstable_by_key(|s| s.a.y.min(s.b.y));
+        sort::sort_by_key(&mut self.segs[..n], |s| s.a.y.min(s.b.y));
         let mut overlap = false;
         let mut n_act = 0usize;
         for i in 0..n {
@@ -481,7 +482,7 @@ impl<const E: usize> Offsetter<E> {
             (i64::from(s.p.x) - i64::from(e.a.x)) * (i64::from(e.b.x) - i64::from(e.a.x))
                 + (i64::from(s.p.y) - i64::from(e.a.y)) * (i64::from(e.b.y) - i64::from(e.a.y))
         };
-        self.splits[..self.n_splits].sort_unstable_by_key(|s| (s.edge, along(s)));
+        sort::sort_by_key(&mut self.splits[..self.n_splits], |s| (s.edge, along(s)));
         let mut k = 0;
         for i in 0..self.n_segs {
             let e = self.segs[i];
@@ -503,7 +504,7 @@ impl<const E: usize> Offsetter<E> {
     /// `i16::MAX` of them on one piece is [`Buffer::OffsetPieces`].
     fn merge_pieces(&mut self) -> Result<(), Buffer> {
         let n = self.n_pieces;
-        self.pieces[..n].sort_unstable_by_key(|p| (p.a.y, p.a.x, p.b.y, p.b.x));
+        sort::sort_by_key(&mut self.pieces[..n], |p| (p.a.y, p.a.x, p.b.y, p.b.x));
         let mut out = 0;
         let mut i = 0;
         while i < n {
@@ -528,7 +529,7 @@ impl<const E: usize> Offsetter<E> {
     fn classify(&mut self) -> Result<(), Buffer> {
         let n = self.n_pieces;
         let pieces = &mut self.pieces[..n];
-        pieces.sort_unstable_by(|p, q| {
+        sort::sort_by(pieces, |p, q| {
             (p.a.y, p.a.x).cmp(&(q.a.y, q.a.x)).then_with(|| {
                 let (dpx, dpy) = (i64::from(p.b.x - p.a.x), i64::from(p.b.y - p.a.y));
                 let (dqx, dqy) = (i64::from(q.b.x - q.a.x), i64::from(q.b.y - q.a.y));
@@ -539,7 +540,7 @@ impl<const E: usize> Offsetter<E> {
                     (false, true) => core::cmp::Ordering::Less,
                     (false, false) => (dpx * dqy).cmp(&(dqx * dpy)),
                 }
-            })
+            }) == core::cmp::Ordering::Less
         });
         let act = &mut self.act;
         let mut n_act = 0usize;
@@ -695,7 +696,7 @@ impl<const E: usize> Offsetter<E> {
             nd += 1;
         }
         let darts = &mut self.segs[..nd];
-        darts.sort_unstable_by_key(|s| (s.a.y, s.a.x));
+        sort::sort_by_key(darts, |s| (s.a.y, s.a.x));
         for u in self.act[..nd].iter_mut() {
             *u = 0;
         }
