@@ -1528,7 +1528,7 @@ impl<
             tmp.push(p)?;
         }
         let sorted = tmp.open_points_mut();
-        sorted.sort_unstable_by_key(|p| (p.x, p.y));
+        sort::sort_by_key(sorted, |p| (p.x, p.y));
         self.fill.clear();
         let hull = |buf: &mut LoopBuf<PTS, LOOPS>, p: Point2, floor: usize| -> Result<(), Buffer> {
             while buf.open_len() >= floor + 2 {

@@ -224,7 +224,9 @@ pub fn sort_by_line(cross: &[Crossing], loops: &Loops<'_>, order: &mut [u16]) {
     for (i, o) in order.iter_mut().enumerate() {
         *o = i as u16;
     }
-    order.sort_unstable_by_key(|&i| {
+    // The key is total (the index last): any sort gives this order. This one keeps a fixed
+    // small stack (see `super::sort`).
+    super::sort::sort_by_key(order, |&i| {
         let c = &cross[usize::from(i)];
         (c.line, loops.u(c), c.dir(), i)
     });
@@ -394,7 +396,8 @@ pub fn line_spans<L: ScanLoop>(
         })?;
     }
     let out = &mut out[..n];
-    out.sort_unstable_by_key(|c| (c.u0, c.u1));
+    // Equal keys are equal spans: any sort gives this order.
+    super::sort::sort_by_key(out, |c| (c.u0, c.u1));
     // Winding along the line; span k is written over crossing k, already read.
     let (mut w, mut start, mut k) = (0, 0, 0);
     for i in 0..n {
