@@ -18,6 +18,10 @@
 # no flash image; checked below).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Stack bytes the statics must leave free: the deepest stack use of the sample jobs on the
+# 64 KB build (`MEM ... stack_hwm` after each job: 5,008 B, xyz_20mm_cube; embodier_hotend_v2
+# 4,976 B) plus the 256 B of headroom the HIL test requires of every job.
+STACK_RESERVE=5264
 board="${1:-}"
 case "$board" in
   creality-v422|creality-v427|qemu|qemu-mps2) ;;
@@ -48,9 +52,21 @@ case "$printer_type" in
        "Printer::empty() has a non-zero byte; see src/slot.rs for the usual cause" >&2; exit 1 ;;
 esac
 "$objcopy" -O binary "$out/strata-firmware.elf" "$out/firmware.bin"
-"$size" -A "$out/strata-firmware.elf" | awk '
+read -r flash ram < <("$size" -A "$out/strata-firmware.elf" | awk '
   $1 == ".text" || $1 == ".rodata" || $1 == ".vector_table" { flash += $2 }
   $1 == ".data" { flash += $2; ram += $2 }
   $1 == ".bss" || $1 == ".uninit" { ram += $2 }
-  END { printf "%s: flash %d bytes, static RAM (.data + .bss) %d bytes\n", "'"$board"'", flash, ram }'
+  END { print flash, ram }')
+echo "$board: flash $flash bytes, static RAM (.data + .bss) $ram bytes"
+# The stack takes the RAM the statics leave: at least STACK_RESERVE, so that a change that
+# grows the statics into the stack's room fails here, before any job runs.
+case "$board" in
+  qemu-mps2) ram_size=$((4 << 20)) ;;
+  *) ram_size=$((64 << 10)) ;;
+esac
+if [ $((ram_size - ram)) -lt "$STACK_RESERVE" ]; then
+  echo "error: $board: the statics leave $((ram_size - ram)) B of RAM for the stack, under the" \
+    "STACK_RESERVE of $STACK_RESERVE B in $0" >&2
+  exit 1
+fi
 echo "wrote $out/strata-firmware.elf and $out/firmware.bin ($(stat -c %s "$out/firmware.bin") bytes)"

@@ -8,9 +8,9 @@
 #
 #   scripts/m3_hil_cost.sh [--board qemu|qemu-mps2] [--echo] [MODEL.stl...]
 #
-# Default: embodier_asc, xyz_20mm_cube and a generated banded cylinder (cylinder:R:H:SIDES:BAND
-# in mm) on the 64 KB build (`qemu`, lm3s6965evb), then embodier_hotend_v2 and
-# embodier_LM8UU_8p2pi, which do not fit 64 KB, on the same firmware built for mps2-an385
+# Default: embodier_asc, xyz_20mm_cube, embodier_hotend_v2 and a generated banded cylinder
+# (cylinder:R:H:SIDES:BAND in mm) on the 64 KB build (`qemu`, lm3s6965evb), then
+# embodier_LM8UU_8p2pi, which does not fit 64 KB, on the same firmware built for mps2-an385
 # (`qemu-mps2`: the same Cortex-M3 instruction set with 4 MB of RAM). A job that fails is
 # reported and the script exits 1 after the table of the others.
 #
@@ -37,8 +37,9 @@ run() { # board, m3_cost arguments...
 args=("$@")
 if [ "${#args[@]}" -eq 0 ] || { [ "${#args[@]}" -eq 1 ] && [ "${args[0]}" = "--echo" ]; }; then
   status=0
-  run qemu "${args[@]}" embodier_asc.stl xyz_20mm_cube.stl cylinder:4:3:16:0.2 || status=1
-  run qemu-mps2 "${args[@]}" embodier_hotend_v2.stl embodier_LM8UU_8p2pi.stl || status=1
+  run qemu "${args[@]}" embodier_asc.stl xyz_20mm_cube.stl embodier_hotend_v2.stl \
+    cylinder:4:3:16:0.2 || status=1
+  run qemu-mps2 "${args[@]}" embodier_LM8UU_8p2pi.stl || status=1
   exit $status
 fi
 run "$board" "${args[@]}"

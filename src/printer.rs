@@ -63,54 +63,55 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
 /// announces [`BOARD_CAPACITIES`].
 ///
-/// RAM on the board = the `Printer` (slicer + toolpath + their scratch + move buffer +
-/// planner + generator, about 31 KB with these values) + the protocol endpoint, the step
-/// queue, the executor and the UART buffers + the stack: `.data + .bss` 37,388 B, 27.5 KB
-/// left for the stack, of which a job uses about 7.7 KB (QEMU build; the firmware prints
-/// both after every job).
+/// The capacities are those embodier_hotend_v2 needs at the default settings (the largest
+/// sample model that fits 64 KB; embodier_asc and xyz_20mm_cube need far less of each), so
+/// it prints unsimplified. RAM on the board = the `Printer` (slicer + toolpath + their
+/// scratch + move buffer + planner + generator) + the protocol endpoint, the step queue, the
+/// executor and the UART buffers + the stack; the firmware prints `.data + .bss` and the
+/// stack's high-water mark after every job, and `scripts/build_firmware.sh` fails when the
+/// static part leaves less than the stack reserve (see there).
 /// Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
 /// the toolpath stage take turns in holds the largest of the cut (29 per segment: the
 /// segment, its link and flags, and the endpoint hash whose place the layer's loop points
 /// take once it is dead), the offset engine with its result's points (58 per `PTS`) and the
-/// infill scratch (22 per `CROSS`): here the engine, 7.3 KB ([`crate::scratch`]); toolpath see
-/// `ToolpathNeeds`;
+/// infill scratch (22 per `CROSS`) ([`crate::scratch`]); toolpath see `ToolpathNeeds`;
 /// move buffer `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on
 /// average over the sample models, at most 29), holding the largest path with its travel
 /// (a unit) whole.
 pub mod board {
     use super::Printer;
 
-    /// Slicer: active triangles.
-    pub const A: usize = 128;
-    /// Slicer: segments and contour points per layer.
-    pub const S: usize = 192;
+    /// Slicer: active triangles (embodier_hotend_v2: 388).
+    pub const A: usize = 388;
+    /// Slicer: segments and contour points per layer (hotend: 388).
+    pub const S: usize = 388;
     /// Slicer: loops per layer.
     pub const L: usize = 8;
-    /// Toolpath: loop points per layer and offset edges per island.
-    pub const PTS: usize = 128;
-    /// Toolpath: loops per layer.
-    pub const LOOPS: usize = 4;
-    /// Toolpath: scanline crossings, infill segments and paths per layer.
-    pub const CROSS: usize = 224;
-    /// Toolpath: path points per layer.
-    pub const PATH: usize = 384;
-    /// Toolpath: words of the skin window's stored contours.
-    pub const RING: usize = 512;
-    /// Toolpath: the skin window's crossings with one scanline.
+    /// Toolpath: loop points per layer and offset edges per island (hotend: 207 edges).
+    pub const PTS: usize = 207;
+    /// Toolpath: loops per layer (hotend: 6).
+    pub const LOOPS: usize = 6;
+    /// Toolpath: scanline crossings, infill segments and paths per layer (hotend: 512).
+    pub const CROSS: usize = 512;
+    /// Toolpath: path points per layer (hotend: 1,010).
+    pub const PATH: usize = 1_010;
+    /// Toolpath: words of the skin window's stored contours (hotend: 2,090).
+    pub const RING: usize = 2_090;
+    /// Toolpath: the skin window's crossings with one scanline (hotend 27; the banded
+    /// cylinders of the HIL test more).
     pub const SPANS: usize = 48;
     /// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded). The
     /// toolpath stage fills it a unit (a path with the travel before it) at a time, each once
     /// its coded bytes fit, so the largest unit must fit whole: at the default settings
-    /// embodier_asc 693 B, xyz_20mm_cube 1,051 B (the larger sample models, which need more of
-    /// the other capacities: embodier_hotend_v2 1,059 B, embodier_LM8UU_8p2pi 1,089 B), about
-    /// 6 B a move. 3 KB is 2.8 times the largest, or a path of all `PATH` points at 8 B a
-    /// move. The rest keeps the motion fed while the next layer is computed: the stage refills
-    /// the buffer as the planner takes moves, so it is about full when a layer's last unit
-    /// goes in (within 8 B of 3,072 for every layer of asc and the cube), and those ~500 moves
-    /// (seconds of printing, still ~1 s of 2 ms segments) carry the motion through the next
-    /// layer's cut and build (about 0.5 s for a large layer on the Cortex-M3), lent the motion
-    /// half at its progress points.
-    pub const MOVE_BYTES: usize = 3_072;
+    /// embodier_asc 693 B, xyz_20mm_cube 1,051 B, embodier_hotend_v2 1,059 B (and
+    /// embodier_LM8UU_8p2pi, which does not fit 64 KB, 1,089 B), about 6 B a move. 2.5 KB is
+    /// 2.4 times the largest. The rest keeps the motion fed while the next layer is computed:
+    /// the stage refills the buffer as the planner takes moves, so it is about full when a
+    /// layer's last unit goes in, and those ~400 moves (seconds of printing, still ~0.8 s of
+    /// 2 ms segments) carry the motion through the next layer's cut and build (about 0.5 s
+    /// for a large layer on the Cortex-M3), lent the motion half at its progress points.
+    /// (3 KB left the hotend's stack 84 B short of the room it needs.)
+    pub const MOVE_BYTES: usize = 2_560;
     /// Planner lookahead, moves (the host simulation plans with the same).
     pub const P: usize = 32;
 

@@ -8,15 +8,14 @@
 //! ...`, see `stack.rs`), and `scripts/build_firmware.sh` prints the static part.
 //!
 //! The pipeline's capacities (and the measured RAM they lead to) are documented in
-//! `strata::printer::board`. `embodier_asc.stl` and `xyz_20mm_cube.stl` print end to end on
-//! QEMU (host/tests/hil_qemu.rs). What the larger sample models need beyond them (host `cargo
-//! run --release --example toolpath_report`): embodier_hotend_v2 373 active triangles, CROSS
-//! 512, PATH 1010, RING 2090; embodier_LM8UU_8p2pi 283 active triangles, PTS 690 (1,740 for
-//! its thin-wall measurement), RING 1654. The move buffer (bytes of delta-coded moves) holds
-//! the largest emission unit whole (a path with the travel before it: the toolpath stage
-//! emits a layer unit by unit, each once its coded bytes fit), not a layer: 693 B for
-//! embodier_asc, 1,051 B for the cube, 1,059 B and 1,089 B for these two, against the
-//! board's 3,072 B (see `MOVE_BYTES` there for the margin).
+//! `strata::printer::board`: they are what `embodier_hotend_v2.stl` needs at the default
+//! settings, so it prints end to end on QEMU with `embodier_asc.stl` and `xyz_20mm_cube.stl`
+//! (host/tests/hil_qemu.rs). `embodier_LM8UU_8p2pi` needs more than 64 KB: 742 active
+//! triangles and 690 offset edges for one island (about 89 KB of `Printer`). The move buffer
+//! (bytes of delta-coded moves) holds the largest emission unit whole (a path with the travel
+//! before it: the toolpath stage emits a layer unit by unit, each once its coded bytes fit),
+//! not a layer: 693 B for embodier_asc, 1,051 B for the cube, 1,059 B for the hotend and
+//! 1,089 B for LM8UU, against the board's 2,560 B (see `MOVE_BYTES` there for the margin).
 //!
 //! The planner lookahead `P` must stay 32: the host simulation (`strata simulate`, the HIL
 //! test) plans with 32 moves of lookahead, and the per-layer hashes compare step commands.
@@ -31,9 +30,9 @@ use strata::protocol::Endpoint;
 pub use strata::printer::board::BoardPrinter as FwPrinter;
 
 /// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
-/// default 0.02 mm (embodier_LM8UU_8p2pi: 742 active triangles, 1,740 loop points;
-/// embodier_hotend_v2: PATH 1010), so that they run on the Cortex-M3 instruction set for their
-/// cost figures and the bit-exact comparison with the host. The move buffer is the 64 KB
+/// default 0.02 mm (embodier_LM8UU_8p2pi: 742 active triangles, 1,740 loop points), so that
+/// the one that does not fit 64 KB runs on the Cortex-M3 instruction set for its cost figures
+/// and the bit-exact comparison with the host. The move buffer is the 64 KB
 /// board's (`MOVE_BYTES`; the largest unit of any sample model is 1,089 B): the slicer cuts a
 /// layer once the previous one is all in the buffer, so a larger buffer would let the
 /// pipeline run layers ahead of the motion and the per-layer costs would not be the board's.

@@ -16,15 +16,17 @@
 //! ```text
 //! apt-get install qemu-system-arm             # once
 //! scripts/build_firmware.sh qemu               # target/firmware/qemu/strata-firmware.elf (release)
-//! scripts/build_firmware.sh qemu-mps2          # the hotend and LM8UU runs (4 MB of RAM)
+//! scripts/build_firmware.sh qemu-mps2          # the LM8UU run (4 MB of RAM)
 //! cargo test -p strata-host --test hil_qemu -- --nocapture
 //! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored qemu_   # + models
 //! ```
 //!
-//! The hotend and LM8UU are `#[ignore]`d on the 64 KB build while they do not fit its
-//! capacities (see the note above `qemu_embodier_hotend_v2`); they run on the same firmware
-//! built for QEMU's mps2-an385 (Cortex-M3, 4 MB of RAM; `scripts/build_firmware.sh
-//! qemu-mps2`), unsimplified, with the same comparison.
+//! embodier_asc, the cube and embodier_hotend_v2 print on the 64 KB build, unsimplified (its
+//! capacities are the hotend's needs). LM8UU is `#[ignore]`d there while it does not fit 64 KB
+//! (see the note above `qemu_embodier_lm8uu`); it runs on the same firmware built for QEMU's
+//! mps2-an385 (Cortex-M3, 4 MB of RAM; `scripts/build_firmware.sh qemu-mps2`), unsimplified,
+//! with the same comparison. Every job's stack must stay [`STACK_HEADROOM`] clear of the
+//! statics.
 //!
 //! `STRATA_QEMU` and `STRATA_FIRMWARE_ELF` override where QEMU and the image are looked for;
 //! `STRATA_HIL_ECHO=1` copies QEMU's output (the firmware's `COST`/`MEM` lines) to stderr as
@@ -58,6 +60,9 @@ const BAUD: u32 = 250_000;
 /// Wall-clock budget of one QEMU job (debug host build, 2 shared cores; the mps2 prints of
 /// the hotend and LM8UU take about 3 minutes side by side).
 const QEMU_JOB: Duration = Duration::from_secs(420);
+/// Stack bytes a job must leave untouched (painted) below its deepest use: the statics and the
+/// stack share the board's RAM, and a stack that reaches the statics corrupts them silently.
+const STACK_HEADROOM: u64 = 256;
 /// The sample models of the end-to-end test.
 const MODELS: [&str; 4] =
     ["embodier_asc.stl", "xyz_20mm_cube.stl", "embodier_hotend_v2.stl", "embodier_LM8UU_8p2pi.stl"];
@@ -261,6 +266,15 @@ fn qemu_job_on(board: Option<&str>, name: &str, tris: &[Triangle], job: JobSpec,
         q.wait_for(Duration::from_secs(30), |l| l.iter().any(|l| l.starts_with("MEM ")));
         let lines = q.lines();
         let costs = Costs::parse(&lines);
+        let (used, size) = (costs.get("MEM", &["stack_hwm"]), costs.get("MEM", &["stack_size"]));
+        let (Some(used), Some(size)) = (used, size) else {
+            panic!("{label}: no `MEM ... stack_hwm ... stack_size` line after the job")
+        };
+        assert!(
+            used + STACK_HEADROOM <= size,
+            "{label}: the stack used {used} of its {size} B, less than {STACK_HEADROOM} B from the \
+             statics"
+        );
         // The heaters (QEMU's simulated plant) reached the job's targets before the first
         // step, and nothing tripped.
         let heat = lines.iter().find(|l| l.starts_with("HEAT at_target")).unwrap_or_else(|| {
@@ -342,38 +356,28 @@ fn qemu_xyz_20mm_cube() {
     qemu_model("xyz_20mm_cube.stl", true);
 }
 
-// embodier_hotend_v2 and embodier_LM8UU do not fit the firmware's 64 KB capacities yet
-// (strata::printer board capacities at 12:05 UTC: 128 active triangles, 192 contour points):
-// admission control refuses them even simplified to 0.02 mm (388 and 742 active triangles
-// needed; simplified until they fit the slicer, 0.57 and 0.66 mm, both still fail with
-// `ErrorCode::Toolpath` at layer 5). Run them with `-- --ignored qemu_`; remove an `ignore`
-// as soon as its model fits.
-
 #[test]
-#[ignore = "capacity: needs 388 active triangles, the 64 KB firmware holds 128 (admission refuses)"]
 fn qemu_embodier_hotend_v2() {
     // The two long prints run clean only (about 2 and 1.5 minutes of QEMU each): the whole
     // test stays near 5 minutes on 2 cores. STRATA_HIL_LOSSY_ALL=1 adds their lossy runs.
     qemu_model("embodier_hotend_v2.stl", false);
 }
 
+// embodier_LM8UU does not fit the firmware's 64 KB (its offset engine needs 690 edges for an
+// island: about 89 KB of `Printer`): admission refuses it on the 64 KB build. Run it there
+// with `-- --ignored qemu_`; remove the `ignore` as soon as it fits.
+
 #[test]
-#[ignore = "capacity: needs 742 active triangles, the 64 KB firmware holds 128 (admission refuses)"]
+#[ignore = "capacity: needs 742 active triangles and 690 offset edges, the 64 KB firmware holds 388 and 207 (admission refuses)"]
 fn qemu_embodier_lm8uu() {
     qemu_model("embodier_LM8UU_8p2pi.stl", false);
 }
 
-// Until they fit 64 KB, the two models print on the same firmware built for QEMU's
-// mps2-an385 (`scripts/build_firmware.sh qemu-mps2`: the same Cortex-M3 instruction set with
-// 4 MB of RAM and capacities to match), unsimplified at the default 0.02 mm: the pipeline on
-// the device's instruction set equals the host simulation for them too. Clean runs only
-// (about 1.5 minutes of QEMU each).
-
-#[test]
-fn qemu_mps2_embodier_hotend_v2() {
-    let (tris, job) = load("embodier_hotend_v2.stl");
-    qemu_job_on(Some("qemu-mps2"), "embodier_hotend_v2.stl on mps2-an385", &tris, job, false);
-}
+// Until it fits 64 KB, LM8UU prints on the same firmware built for QEMU's mps2-an385
+// (`scripts/build_firmware.sh qemu-mps2`: the same Cortex-M3 instruction set with 4 MB of RAM
+// and capacities to match), unsimplified at the default 0.02 mm: the pipeline on the device's
+// instruction set equals the host simulation for it too. Clean run only (about 1.5 minutes
+// of QEMU).
 
 #[test]
 fn qemu_mps2_embodier_lm8uu() {
