@@ -3,8 +3,8 @@
 //! Skins need to know, for layer `L`, the regions of the `bottom` layers below and the `top`
 //! layers above. The slicer emits layers in order, so the toolpath of layer `L` is built when
 //! layer `L + top` arrives; until then `L`'s simplified contours wait here (a [`Fifo`] of
-//! words, one block per layer in the [`StoredRings`] layout: about one word a point and five
-//! a loop), and they stay for `bottom` more layers: the skin detection cuts them with each
+//! words, one block per layer in the [`StoredRings`] layout: mostly 3 or 4 bytes a point and
+//! four words a loop), and they stay for `bottom` more layers: the skin detection cuts them with each
 //! scanline when it needs them ([`scan::line_spans`](super::scan::line_spans)), so no
 //! per-line data of the window is stored. A loop's header holds the range of its points'
 //! line keys `t` for both line directions and its length in words, so a scanline skips the
@@ -809,6 +809,118 @@ mod tests {
         assert_eq!(unpack_range(pack_range(-lim - 100, lim + 100)), (i64::MIN, i64::MAX));
         assert_eq!(unpack_range(pack_range(lim + 100, lim + 200)), (lim, i64::MAX));
         assert_eq!(unpack_range(pack_range(-lim - 200, -lim - 100)).0, i64::MIN);
+    }
+
+    /// Stores `pts` as one loop at `skip` words into a ring of 256 (wrapping) and checks the
+    /// words against [`LoopWords`]; returns the ring and the block.
+    fn store_loop(pts: &[Point2], skip: usize) -> (Fifo<u32, 256>, Block) {
+        let mut f = Fifo::<u32, 256>::new(0);
+        f.reserve(skip).unwrap();
+        f.commit(0, skip);
+        f.pop();
+        let mut w = LoopWords::default();
+        pts.iter().for_each(|&p| w.add(p));
+        let mut e = Encoder::new(f.reserve(2 + w.words).unwrap());
+        e.begin(0x1234).unwrap();
+        pts.iter().for_each(|&p| e.push(p).unwrap());
+        e.end(true);
+        assert_eq!(e.finish(1, 1), 2 + w.words);
+        f.commit(1, 2 + w.words);
+        let b = f.find(1).unwrap();
+        (f, b)
+    }
+
+    #[test]
+    fn point_codes_round_trip_at_every_tag_boundary() {
+        let o = Point2::new(0, 0);
+        let size = |x, y| Code::of(Some(o), Point2::new(x, y)).bytes();
+        assert_eq!((size(1023, -1024), size(-1024, 1023), size(0, 0)), (3, 3, 3));
+        assert_eq!((size(1024, 0), size(0, -1025), size(16383, -16384)), (4, 4, 4));
+        assert_eq!((size(16384, 0), size(0, -16385), size(i32::MAX, i32::MIN)), (9, 9, 9));
+        assert_eq!(Code::of(None, o).bytes(), 8);
+        let ds: std::vec::Vec<i64> = [0, 1, 1022, 1023, 1024, 1025, 16382, 16383, 16384, 16385]
+            .into_iter()
+            .flat_map(|d| [d, -d, -d - 1])
+            .chain([i64::from(i32::MAX), i64::from(i32::MIN), 1 << 31, -(1 << 32) + 1])
+            .collect();
+        let starts = [o, Point2::new(i32::MAX, i32::MIN), Point2::new(i32::MIN, i32::MAX)];
+        let mut seed = 0x0dd_c0de_u64;
+        for (k, &start) in starts.iter().enumerate() {
+            for &dx in &ds {
+                // Each `dx` with every `dy`, from `start` (wrapping as `i32`).
+                let mut pts = std::vec![start];
+                for &dy in &ds {
+                    let p = *pts.last().unwrap();
+                    pts.push(Point2::new(
+                        (i64::from(p.x) + dx) as i32,
+                        (i64::from(p.y) + dy) as i32,
+                    ));
+                }
+                let (f, b) = store_loop(&pts, rand(&mut seed, 256) as usize);
+                let got: std::vec::Vec<_> = StoredRings::new(f.data(&b)).collect();
+                assert_eq!(got.len(), 1);
+                assert_eq!(got[0].0, 0x1234);
+                assert_eq!(got[0].1.clone().collect::<std::vec::Vec<_>>(), pts, "{k} {dx}");
+            }
+        }
+        // Random points and deltas of every size, checked against the cut's edges too.
+        for case in 0..500 {
+            let n = 3 + rand(&mut seed, 10) as usize;
+            let mut pts = std::vec![Point2::new(rand(&mut seed, 1 << 32) as i32, 7)];
+            for _ in 1..n {
+                let bits = [11, 15, 16, 32][rand(&mut seed, 4) as usize];
+                let mut d = || (rand(&mut seed, 1 << bits) as i64 - (1 << (bits - 1))) as i32;
+                let p = *pts.last().unwrap();
+                pts.push(Point2::new(p.x.wrapping_add(d()), p.y.wrapping_add(d())));
+            }
+            let (f, b) = store_loop(&pts, rand(&mut seed, 256) as usize);
+            let (_, got) = StoredRings::new(f.data(&b)).next().unwrap();
+            assert_eq!(got.collect::<std::vec::Vec<_>>(), pts, "case {case}");
+        }
+    }
+
+    #[test]
+    fn malformed_or_truncated_blocks_do_not_panic() {
+        let mut seed = 0xbad_da7a_u64;
+        let pts: std::vec::Vec<Point2> =
+            (0..12).map(|i| Point2::new(i * 5_000 - 20_000, (i * i * 900) % 70_000)).collect();
+        let (f, b) = store_loop(&pts, 250);
+        let good = f.data(&b);
+        let walk = |data: Parts<'_, u32>| {
+            let mut n = 0usize;
+            for (_, p) in StoredRings::new(data).take(100) {
+                n += p.take(1000).count();
+            }
+            for angle in [Angle::D45, Angle::D135] {
+                for t in [i64::MIN, -70_000, 0, 70_000, i64::MAX] {
+                    for cut in StoredRings::new(data).near_line(angle, t).take(100) {
+                        let _ = cut.crossing_edges(angle, t, |_, _| {
+                            n += 1;
+                            Ok(())
+                        });
+                    }
+                }
+            }
+            n
+        };
+        assert!(walk(good) > 0);
+        // Every truncation, and every word of the block replaced by a random or extreme one.
+        for len in 0..b.len as usize {
+            walk(good.sub(0, len));
+        }
+        for i in 0..b.len as usize {
+            for _ in 0..20 {
+                let mut words: std::vec::Vec<u32> = good.a.iter().chain(good.b).copied().collect();
+                words[i] = [0, u32::MAX, 0x00FF_FFFF, rand(&mut seed, 1 << 32) as u32]
+                    [rand(&mut seed, 4) as usize];
+                walk(Parts { a: &words, b: &[] });
+            }
+        }
+        for _ in 0..200 {
+            let words: std::vec::Vec<u32> =
+                (0..rand(&mut seed, 40)).map(|_| rand(&mut seed, 1 << 32) as u32).collect();
+            walk(Parts { a: &words, b: &[] });
+        }
     }
 
     #[test]
