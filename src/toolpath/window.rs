@@ -432,7 +432,7 @@ impl<'a> Encoder<'a> {
 }
 
 /// Counts the words a loop takes in the [`StoredRings`] layout, point by point: its header
-/// and its points' bytes ([`Code`]) rounded up to whole words.
+/// and its points' bytes rounded up to whole words.
 pub struct LoopWords {
     prev: Option<Point2>,
     bytes: usize,
@@ -458,9 +458,11 @@ impl LoopWords {
 
 /// The loops of one stored layer, in words: `(loops, islands)`, then every loop is a
 /// [`LOOP_HEADER`] (`points + (island & 0xFF) x 2^24`, `words of its points + (island >> 8) x
-/// 2^24`, t range at 45 degrees, t range at 135 degrees) and its points' bytes ([`Code`]:
-/// the first point in 8, then mostly 3 or 4 a point; simplified points are under 33 mm
-/// apart) in little-endian words, the last one padded with zeros. Yields `(island, points)`
+/// 2^24`, t range at 45 degrees, t range at 135 degrees) and its points' bytes in
+/// little-endian words, the last one padded with zeros: the first point's x, y in 8, then each
+/// point after the previous one in 3 (11-bit offsets), 4 (15-bit offsets) or 9 bytes (tag
+/// byte, x, y), the tag in the low bits of the first byte (on a typical loop most simplified
+/// points are under 1 mm apart). Yields `(island, points)`
 /// for the loops of at least three points; the next loop is found from the words, without
 /// walking the points.
 pub struct StoredRings<'a> {
