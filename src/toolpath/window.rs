@@ -3,8 +3,8 @@
 //! Skins need to know, for layer `L`, the regions of the `bottom` layers below and the `top`
 //! layers above. The slicer emits layers in order, so the toolpath of layer `L` is built when
 //! layer `L + top` arrives; until then `L`'s simplified contours wait here (a [`Fifo`] of
-//! words, one block per layer in the [`StoredRings`] layout: about one word a point and five
-//! a loop), and they stay for `bottom` more layers: the skin detection cuts them with each
+//! words, one block per layer in the [`StoredRings`] layout: mostly 3 or 4 bytes a point and
+//! four words a loop), and they stay for `bottom` more layers: the skin detection cuts them with each
 //! scanline when it needs them ([`scan::line_spans`](super::scan::line_spans)), so no
 //! per-line data of the window is stored. A loop's header holds the range of its points'
 //! line keys `t` for both line directions and its length in words, so a scanline skips the
@@ -213,30 +213,63 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
     }
 }
 
-/// Escape word of [`StoredRings`]: an absolute point follows in two words.
-const FAR: u32 = 0x8000_8000;
+/// A stored loop's point as bytes (little-endian, tag in the low bits of the first byte),
+/// after the previous point: `Short` (bit 0 clear) 3 bytes, `dx` and `dy` as 11-bit two's
+/// complement in bits 1..12 and 12..23; `Mid` (bits 0..2 = `01`) 4 bytes, 15-bit `dx`, `dy` in
+/// bits 2..17 and 17..32; `Far` (tag byte `0x03`) 9 bytes, then `x`, `y`. A loop's first point
+/// is `Abs`: `x`, `y` in 8 bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Code {
+    Abs(Point2),
+    Short(u32),
+    Mid(u32),
+    Far(Point2),
+}
 
-/// Words a point takes after `prev` in a stored loop: 1 for an offset of `i16`s (not
-/// `i16::MIN`), 3 otherwise.
-fn point_words(prev: Point2, p: Point2) -> usize {
-    if delta(prev, p).is_some() {
-        1
-    } else {
-        3
+impl Code {
+    /// The code of `p` after `prev` (`None`: the loop's first point). The one coding function
+    /// of the layout: [`Encoder`] writes it and [`LoopWords`] counts it.
+    fn of(prev: Option<Point2>, p: Point2) -> Self {
+        let Some(prev) = prev else { return Self::Abs(p) };
+        let (dx, dy) = (i64::from(p.x) - i64::from(prev.x), i64::from(p.y) - i64::from(prev.y));
+        let fits = |bits: u32| {
+            let m = 1i64 << (bits - 1);
+            (-m..m).contains(&dx) && (-m..m).contains(&dy)
+        };
+        let field = |d: i64, bits: u32| (d as u32) & ((1 << bits) - 1);
+        if fits(11) {
+            Self::Short(field(dx, 11) << 1 | field(dy, 11) << 12)
+        } else if fits(15) {
+            Self::Mid(1 | field(dx, 15) << 2 | field(dy, 15) << 17)
+        } else {
+            Self::Far(p)
+        }
+    }
+
+    /// Bytes of the code.
+    fn bytes(self) -> usize {
+        match self {
+            Self::Abs(_) => 8,
+            Self::Short(_) => 3,
+            Self::Mid(_) => 4,
+            Self::Far(_) => 9,
+        }
     }
 }
 
-/// `p - prev` packed in one word, if both components fit.
-fn delta(prev: Point2, p: Point2) -> Option<u32> {
-    let d =
-        |a: i32, b: i32| i16::try_from(i64::from(b) - i64::from(a)).ok().filter(|&v| v != i16::MIN);
-    Some(u32::from(d(prev.x, p.x)? as u16) | u32::from(d(prev.y, p.y)? as u16) << 16)
+/// `v`'s low `bits` bits as two's complement.
+#[inline]
+fn sext(v: u32, bits: u32) -> i32 {
+    ((v << (32 - bits)) as i32) >> (32 - bits)
 }
 
-/// Words of a stored loop's header: its points, island, words of its points and the
+/// Words of a stored loop's header: its points and island, words of its points and the
 /// packed `t` range of its points for [`Angle::D45`] and [`Angle::D135`] (in 32 `t` units,
 /// see [`LoopPoints::t_range`]).
-pub const LOOP_HEADER: usize = 5;
+pub const LOOP_HEADER: usize = 4;
+
+/// Largest count of points, or words of points, of a stored loop (24 bits of a header word).
+const LOOP_MAX: usize = (1 << 24) - 1;
 
 /// `t` ranges in loop headers are in units of `2^T_SHIFT` `t` (32 `t`, 23 um), rounded
 /// outwards.
@@ -262,19 +295,29 @@ fn unpack_range(w: u32) -> (i64, i64) {
 /// Index of `angle`'s range word in a loop header.
 fn range_word(angle: Angle) -> usize {
     match angle {
-        Angle::D45 => 3,
-        Angle::D135 => 4,
+        Angle::D45 => 2,
+        Angle::D135 => 3,
     }
+}
+
+/// A loop header's first two words: `(points, island, words of its points)`.
+fn unpack_head(w0: u32, w1: u32) -> (u32, u16, usize) {
+    let island = (w0 >> 24 | (w1 >> 24) << 8) as u16;
+    (w0 & LOOP_MAX as u32, island, (w1 & LOOP_MAX as u32) as usize)
 }
 
 /// Writes one stored layer in the [`StoredRings`] layout into a reserved block.
 pub struct Encoder<'a> {
     out: PartsMut<'a, u32>,
     at: usize,
-    /// Start of the loop being written, its points and the last one.
+    /// Start of the loop being written, its island, its points and the last one.
     ring: usize,
+    island: u16,
     n: u32,
     last: Point2,
+    /// Bytes not yet in a whole word: `bits` bits of `acc` (also written to word `at`).
+    acc: u64,
+    bits: u32,
     /// Smallest and largest `t` of the loop's points, [`Angle::D45`] then [`Angle::D135`].
     t: [(i64, i64); 2],
 }
@@ -282,7 +325,17 @@ pub struct Encoder<'a> {
 impl<'a> Encoder<'a> {
     /// A layer in `out` (its header first).
     pub fn new(out: PartsMut<'a, u32>) -> Self {
-        Self { out, at: 2, ring: 2, n: 0, last: Point2::new(0, 0), t: [(0, 0); 2] }
+        Self {
+            out,
+            at: 2,
+            ring: 2,
+            island: 0,
+            n: 0,
+            last: Point2::new(0, 0),
+            acc: 0,
+            bits: 0,
+            t: [(0, 0); 2],
+        }
     }
 
     fn word(&mut self, w: u32) -> Result<(), Buffer> {
@@ -291,27 +344,46 @@ impl<'a> Encoder<'a> {
         Ok(())
     }
 
+    /// Appends the low `bytes` (1..=4) bytes of `v` to the loop's bytes.
+    fn put(&mut self, v: u32, bytes: u32) -> Result<(), Buffer> {
+        self.acc |= u64::from(v) << self.bits;
+        self.bits += 8 * bytes;
+        if self.bits >= 32 {
+            self.word(self.acc as u32)?;
+            (self.acc, self.bits) = (self.acc >> 32, self.bits - 32);
+        }
+        if self.bits > 0 {
+            // The partial word, so that `end` cannot run out of room.
+            *self.out.get_mut(self.at).ok_or(Buffer::RingPoints)? = self.acc as u32;
+        }
+        Ok(())
+    }
+
     /// Starts a loop of `island`.
     pub fn begin(&mut self, island: u16) -> Result<(), Buffer> {
-        (self.ring, self.n) = (self.at, 0);
+        (self.ring, self.island, self.n, self.acc, self.bits) = (self.at, island, 0, 0, 0);
         self.t = [(i64::MAX, i64::MIN); 2];
-        // Points, words and ranges are written by `end`.
-        for w in [0, u32::from(island), 0, 0, 0] {
-            self.word(w)?;
+        // Written by `end`.
+        for _ in 0..LOOP_HEADER {
+            self.word(0)?;
         }
         Ok(())
     }
 
     /// Appends a point to the loop.
     pub fn push(&mut self, p: Point2) -> Result<(), Buffer> {
-        match delta(self.last, p).filter(|_| self.n > 0) {
-            Some(w) => self.word(w)?,
-            None => {
-                if self.n > 0 {
-                    self.word(FAR)?;
+        if self.n as usize >= LOOP_MAX || self.at - self.ring >= LOOP_MAX {
+            return Err(Buffer::RingPoints);
+        }
+        match Code::of((self.n > 0).then_some(self.last), p) {
+            Code::Short(v) => self.put(v, 3)?,
+            Code::Mid(v) => self.put(v, 4)?,
+            c @ (Code::Abs(q) | Code::Far(q)) => {
+                if matches!(c, Code::Far(_)) {
+                    self.put(3, 1)?;
                 }
-                self.word(p.x as u32)?;
-                self.word(p.y as u32)?;
+                self.put(q.x as u32, 4)?;
+                self.put(q.y as u32, 4)?;
             }
         }
         for (r, a) in self.t.iter_mut().zip([Angle::D45, Angle::D135]) {
@@ -326,10 +398,18 @@ impl<'a> Encoder<'a> {
     /// Ends the loop: kept with its points if `keep`, else removed.
     pub fn end(&mut self, keep: bool) {
         if keep {
+            // The partial word, already written by `put`.
+            self.at += usize::from(self.bits > 0);
             let words = (self.at - self.ring - LOOP_HEADER) as u32;
             let [(l45, h45), (l135, h135)] = self.t;
-            let head = [self.n, words, pack_range(l45, h45), pack_range(l135, h135)];
-            for (i, w) in [0, 2, 3, 4].into_iter().zip(head) {
+            let island = u32::from(self.island);
+            let head = [
+                self.n | (island & 0xFF) << 24,
+                words | (island >> 8) << 24,
+                pack_range(l45, h45),
+                pack_range(l135, h135),
+            ];
+            for (i, w) in head.into_iter().enumerate() {
                 if let Some(h) = self.out.get_mut(self.ring + i) {
                     *h = w;
                 }
@@ -337,6 +417,7 @@ impl<'a> Encoder<'a> {
         } else {
             self.at = self.ring;
         }
+        (self.acc, self.bits) = (0, 0);
     }
 
     /// Writes the layer header (`loops` kept, `islands`) and returns the words used.
@@ -350,10 +431,11 @@ impl<'a> Encoder<'a> {
     }
 }
 
-/// Counts the words a loop takes in the [`StoredRings`] layout, point by point: its header,
-/// its first point in two and every later one in one (an offset) or three (escaped).
+/// Counts the words a loop takes in the [`StoredRings`] layout, point by point: its header
+/// and its points' bytes rounded up to whole words.
 pub struct LoopWords {
     prev: Option<Point2>,
+    bytes: usize,
     /// Words so far.
     pub words: usize,
 }
@@ -361,26 +443,28 @@ pub struct LoopWords {
 impl Default for LoopWords {
     /// A loop without points: its header.
     fn default() -> Self {
-        Self { prev: None, words: LOOP_HEADER }
+        Self { prev: None, bytes: 0, words: LOOP_HEADER }
     }
 }
 
 impl LoopWords {
     /// Adds the loop's next point.
     pub fn add(&mut self, p: Point2) {
-        self.words += self.prev.map_or(2, |q| point_words(q, p));
+        self.bytes += Code::of(self.prev, p).bytes();
+        self.words = LOOP_HEADER + self.bytes.div_ceil(4);
         self.prev = Some(p);
     }
 }
 
 /// The loops of one stored layer, in words: `(loops, islands)`, then every loop is a
-/// [`LOOP_HEADER`] `(points, island, words of its points, t range at 45 degrees, t range at
-/// 135 degrees)`, its first point (x, y) and every later point as its offset from the
-/// previous one (`dx + dy x 2^16`, both `i16`) or, when an offset does not fit, the escape
-/// word `0x8000_8000` and the point (x, y): one word a point on a typical loop (simplified
-/// points are under 33 mm apart) and five a loop. Yields `(island, points)` for the loops of
-/// at least three points; the next loop is found from the words, without walking the
-/// points.
+/// [`LOOP_HEADER`] (`points + (island & 0xFF) x 2^24`, `words of its points + (island >> 8) x
+/// 2^24`, t range at 45 degrees, t range at 135 degrees) and its points' bytes in
+/// little-endian words, the last one padded with zeros: the first point's x, y in 8, then each
+/// point after the previous one in 3 (11-bit offsets), 4 (15-bit offsets) or 9 bytes (tag
+/// byte, x, y), the tag in the low bits of the first byte (on a typical loop most simplified
+/// points are under 1 mm apart). Yields `(island, points)`
+/// for the loops of at least three points; the next loop is found from the words, without
+/// walking the points.
 pub struct StoredRings<'a> {
     data: Parts<'a, u32>,
     at: usize,
@@ -425,16 +509,15 @@ impl<'a> Iterator for NearLine<'a> {
             r.left -= 1;
             let head = r.at;
             let h = |i: usize| r.data.get(head + i).copied();
-            let (n, words, range) = (h(0)?, h(2)? as usize, h(self.word)?);
+            let (n, _, words) = unpack_head(h(0)?, h(1)?);
+            let range = h(self.word)?;
             r.at = head.checked_add(LOOP_HEADER + words)?;
             // An edge crosses `t` when `min <= t < max` of its ends' `t`.
             let (lo, hi) = (range as u16 as i16, (range >> 16) as u16 as i16);
             if n >= 3 && lo <= self.tq && (self.tq < hi || hi == i16::MAX) {
                 let range = [h(range_word(Angle::D45))?, h(range_word(Angle::D135))?];
                 let words = r.data.sub(head + LOOP_HEADER, words);
-                let pts =
-                    LoopPoints { words, range, left: n, first: true, last: Point2::new(0, 0) };
-                return Some(LoopCut(pts));
+                return Some(LoopCut(LoopPoints::new(words, range, n)));
             }
         }
         None
@@ -449,14 +532,12 @@ impl<'a> Iterator for StoredRings<'a> {
             self.left -= 1;
             let head = self.at;
             let h = |i: usize| self.data.get(head + i).copied();
-            let (n, island, words) = (h(0)?, h(1)?, h(2)? as usize);
+            let (n, island, words) = unpack_head(h(0)?, h(1)?);
             let range = [h(range_word(Angle::D45))?, h(range_word(Angle::D135))?];
             self.at = head.checked_add(LOOP_HEADER + words)?;
             if n >= 3 {
                 let words = self.data.sub(head + LOOP_HEADER, words);
-                let pts =
-                    LoopPoints { words, range, left: n, first: true, last: Point2::new(0, 0) };
-                return Some((island as u16, pts));
+                return Some((island, LoopPoints::new(words, range, n)));
             }
         }
         None
@@ -491,15 +572,7 @@ impl LoopCut<'_> {
         // The later points, as `LoopPoints::next` reads them (a truncated loop ends early).
         while pts.left > 0 {
             pts.left -= 1;
-            let Some(w) = pts.word() else { break };
-            let q = if w != FAR {
-                let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
-                let p = walk.last();
-                Point2::new(p.x.wrapping_add(dx), p.y.wrapping_add(dy))
-            } else {
-                let (Some(x), Some(y)) = (pts.word(), pts.word()) else { break };
-                Point2::new(x as i32, y as i32)
-            };
+            let Some(q) = pts.bits.point(walk.last()) else { break };
             walk.to(q, key(q) <= t, &mut f)?;
         }
         walk.close(&mut f)
@@ -520,11 +593,68 @@ impl ScanLoop for LoopCut<'_> {
     }
 }
 
+/// Reads the bytes of a stored loop's points ([`Code`]).
+#[derive(Clone)]
+struct Bits<'a> {
+    /// The words not yet read (`a`, then `b` after the end of the storage).
+    words: Parts<'a, u32>,
+    /// Bytes read ahead: the low `bits` bits of `buf`.
+    buf: u64,
+    bits: u32,
+}
+
+impl Bits<'_> {
+    /// Reads ahead a word if 32 bits or fewer are, and one is left.
+    #[inline]
+    fn fill(&mut self) {
+        if self.bits <= 32 {
+            if self.words.a.is_empty() {
+                self.words.a = core::mem::take(&mut self.words.b);
+            }
+            if let Some((&w, rest)) = self.words.a.split_first() {
+                self.words.a = rest;
+                self.buf |= u64::from(w) << self.bits;
+                self.bits += 32;
+            }
+        }
+    }
+
+    /// The next `n` (1..=32) bits, if there are.
+    #[inline]
+    fn take(&mut self, n: u32) -> Option<u32> {
+        self.fill();
+        if self.bits < n {
+            return None;
+        }
+        let v = (self.buf & ((1u64 << n) - 1)) as u32;
+        (self.buf, self.bits) = (self.buf >> n, self.bits - n);
+        Some(v)
+    }
+
+    /// The next point after `prev` (a [`Code`] other than `Abs`), if the bytes hold one.
+    #[inline]
+    fn point(&mut self, prev: Point2) -> Option<Point2> {
+        self.fill();
+        let (dx, dy) = if self.buf & 1 == 0 {
+            let v = self.take(24)?;
+            (sext(v >> 1, 11), sext(v >> 12, 11))
+        } else if self.buf & 2 == 0 {
+            let v = self.take(32)?;
+            (sext(v >> 2, 15), sext(v >> 17, 15))
+        } else {
+            self.take(8)?;
+            let (x, y) = (self.take(32)?, self.take(32)?);
+            return Some(Point2::new(x as i32, y as i32));
+        };
+        Some(Point2::new(prev.x.wrapping_add(dx), prev.y.wrapping_add(dy)))
+    }
+}
+
 /// The points of one stored loop.
 #[derive(Clone)]
 pub struct LoopPoints<'a> {
-    /// The words not yet read (`a`, then `b` after the end of the storage).
-    words: Parts<'a, u32>,
+    /// The bytes not yet read.
+    bits: Bits<'a>,
     /// The header's packed `t` ranges.
     range: [u32; 2],
     /// Points not yet read, whether none was, and the last one read.
@@ -533,22 +663,17 @@ pub struct LoopPoints<'a> {
     last: Point2,
 }
 
-impl LoopPoints<'_> {
+impl<'a> LoopPoints<'a> {
+    /// The `n` points coded in `words`, with the header's `range` words.
+    fn new(words: Parts<'a, u32>, range: [u32; 2], n: u32) -> Self {
+        let bits = Bits { words, buf: 0, bits: 0 };
+        Self { bits, range, left: n, first: true, last: Point2::new(0, 0) }
+    }
+
     /// Bounds `(lo, hi)` of the loop's points' `t` for `angle` (from its header): every
     /// point has `lo <= t <= hi`.
     pub fn t_range(&self, angle: Angle) -> (i64, i64) {
         unpack_range(self.range[range_word(angle) - range_word(Angle::D45)])
-    }
-
-    /// The next word.
-    #[inline]
-    fn word(&mut self) -> Option<u32> {
-        if self.words.a.is_empty() {
-            self.words.a = core::mem::take(&mut self.words.b);
-        }
-        let (&w, rest) = self.words.a.split_first()?;
-        self.words.a = rest;
-        Some(w)
     }
 }
 
@@ -558,14 +683,11 @@ impl Iterator for LoopPoints<'_> {
     #[inline]
     fn next(&mut self) -> Option<Point2> {
         self.left = self.left.checked_sub(1)?;
-        let w = self.word()?;
-        let p = if w != FAR && !self.first {
-            let (dx, dy) = (i32::from(w as u16 as i16), i32::from((w >> 16) as u16 as i16));
-            Point2::new(self.last.x.wrapping_add(dx), self.last.y.wrapping_add(dy))
+        let p = if self.first {
+            let x = self.bits.take(32)?;
+            Point2::new(x as i32, self.bits.take(32)? as i32)
         } else {
-            // The first point, or an escaped one: (x, y).
-            let x = if self.first { w } else { self.word()? };
-            Point2::new(x as i32, self.word()? as i32)
+            self.bits.point(self.last)?
         };
         (self.first, self.last) = (false, p);
         Some(p)
@@ -598,11 +720,11 @@ mod tests {
             w.words
         };
         assert_eq!(words, 2 + count(&a) + count(&b));
-        // a: 5 + 2 + 3 (60 mm jump) + 1; b: 5 + 2 + 3 + 3.
-        assert_eq!(words, 2 + 11 + 13);
+        // a: 4 + (8 + 3 + 9 (60 mm jump) bytes: 5 words); b: 4 + (8 + 9 + 9 bytes: 7 words).
+        assert_eq!(words, 2 + 9 + 11);
         f.commit(1, words);
         let data = f.data(&f.find(1).unwrap());
-        assert_eq!((data.a.len(), data.b.len()), (26, 0));
+        assert_eq!((data.a.len(), data.b.len()), (22, 0));
         assert_eq!(StoredRings::islands(data), 2);
         let got: std::vec::Vec<(u16, std::vec::Vec<Point2>)> =
             StoredRings::new(data).map(|(i, p)| (i, p.collect())).collect();
@@ -689,6 +811,118 @@ mod tests {
         assert_eq!(unpack_range(pack_range(-lim - 100, lim + 100)), (i64::MIN, i64::MAX));
         assert_eq!(unpack_range(pack_range(lim + 100, lim + 200)), (lim, i64::MAX));
         assert_eq!(unpack_range(pack_range(-lim - 200, -lim - 100)).0, i64::MIN);
+    }
+
+    /// Stores `pts` as one loop at `skip` words into a ring of 256 (wrapping) and checks the
+    /// words against [`LoopWords`]; returns the ring and the block.
+    fn store_loop(pts: &[Point2], skip: usize) -> (Fifo<u32, 256>, Block) {
+        let mut f = Fifo::<u32, 256>::new(0);
+        f.reserve(skip).unwrap();
+        f.commit(0, skip);
+        f.pop();
+        let mut w = LoopWords::default();
+        pts.iter().for_each(|&p| w.add(p));
+        let mut e = Encoder::new(f.reserve(2 + w.words).unwrap());
+        e.begin(0x1234).unwrap();
+        pts.iter().for_each(|&p| e.push(p).unwrap());
+        e.end(true);
+        assert_eq!(e.finish(1, 1), 2 + w.words);
+        f.commit(1, 2 + w.words);
+        let b = f.find(1).unwrap();
+        (f, b)
+    }
+
+    #[test]
+    fn point_codes_round_trip_at_every_tag_boundary() {
+        let o = Point2::new(0, 0);
+        let size = |x, y| Code::of(Some(o), Point2::new(x, y)).bytes();
+        assert_eq!((size(1023, -1024), size(-1024, 1023), size(0, 0)), (3, 3, 3));
+        assert_eq!((size(1024, 0), size(0, -1025), size(16383, -16384)), (4, 4, 4));
+        assert_eq!((size(16384, 0), size(0, -16385), size(i32::MAX, i32::MIN)), (9, 9, 9));
+        assert_eq!(Code::of(None, o).bytes(), 8);
+        let ds: std::vec::Vec<i64> = [0, 1, 1022, 1023, 1024, 1025, 16382, 16383, 16384, 16385]
+            .into_iter()
+            .flat_map(|d| [d, -d, -d - 1])
+            .chain([i64::from(i32::MAX), i64::from(i32::MIN), 1 << 31, -(1 << 32) + 1])
+            .collect();
+        let starts = [o, Point2::new(i32::MAX, i32::MIN), Point2::new(i32::MIN, i32::MAX)];
+        let mut seed = 0x0dd_c0de_u64;
+        for (k, &start) in starts.iter().enumerate() {
+            for &dx in &ds {
+                // Each `dx` with every `dy`, from `start` (wrapping as `i32`).
+                let mut pts = std::vec![start];
+                for &dy in &ds {
+                    let p = *pts.last().unwrap();
+                    pts.push(Point2::new(
+                        (i64::from(p.x) + dx) as i32,
+                        (i64::from(p.y) + dy) as i32,
+                    ));
+                }
+                let (f, b) = store_loop(&pts, rand(&mut seed, 256) as usize);
+                let got: std::vec::Vec<_> = StoredRings::new(f.data(&b)).collect();
+                assert_eq!(got.len(), 1);
+                assert_eq!(got[0].0, 0x1234);
+                assert_eq!(got[0].1.clone().collect::<std::vec::Vec<_>>(), pts, "{k} {dx}");
+            }
+        }
+        // Random points and deltas of every size, checked against the cut's edges too.
+        for case in 0..500 {
+            let n = 3 + rand(&mut seed, 10) as usize;
+            let mut pts = std::vec![Point2::new(rand(&mut seed, 1 << 32) as i32, 7)];
+            for _ in 1..n {
+                let bits = [11, 15, 16, 32][rand(&mut seed, 4) as usize];
+                let mut d = || (rand(&mut seed, 1 << bits) as i64 - (1 << (bits - 1))) as i32;
+                let p = *pts.last().unwrap();
+                pts.push(Point2::new(p.x.wrapping_add(d()), p.y.wrapping_add(d())));
+            }
+            let (f, b) = store_loop(&pts, rand(&mut seed, 256) as usize);
+            let (_, got) = StoredRings::new(f.data(&b)).next().unwrap();
+            assert_eq!(got.collect::<std::vec::Vec<_>>(), pts, "case {case}");
+        }
+    }
+
+    #[test]
+    fn malformed_or_truncated_blocks_do_not_panic() {
+        let mut seed = 0xbad_da7a_u64;
+        let pts: std::vec::Vec<Point2> =
+            (0..12).map(|i| Point2::new(i * 5_000 - 20_000, (i * i * 900) % 70_000)).collect();
+        let (f, b) = store_loop(&pts, 250);
+        let good = f.data(&b);
+        let walk = |data: Parts<'_, u32>| {
+            let mut n = 0usize;
+            for (_, p) in StoredRings::new(data).take(100) {
+                n += p.take(1000).count();
+            }
+            for angle in [Angle::D45, Angle::D135] {
+                for t in [i64::MIN, -70_000, 0, 70_000, i64::MAX] {
+                    for cut in StoredRings::new(data).near_line(angle, t).take(100) {
+                        let _ = cut.crossing_edges(angle, t, |_, _| {
+                            n += 1;
+                            Ok(())
+                        });
+                    }
+                }
+            }
+            n
+        };
+        assert!(walk(good) > 0);
+        // Every truncation, and every word of the block replaced by a random or extreme one.
+        for len in 0..b.len as usize {
+            walk(good.sub(0, len));
+        }
+        for i in 0..b.len as usize {
+            for _ in 0..20 {
+                let mut words: std::vec::Vec<u32> = good.a.iter().chain(good.b).copied().collect();
+                words[i] = [0, u32::MAX, 0x00FF_FFFF, rand(&mut seed, 1 << 32) as u32]
+                    [rand(&mut seed, 4) as usize];
+                walk(Parts { a: &words, b: &[] });
+            }
+        }
+        for _ in 0..200 {
+            let words: std::vec::Vec<u32> =
+                (0..rand(&mut seed, 40)).map(|_| rand(&mut seed, 1 << 32) as u32).collect();
+            walk(Parts { a: &words, b: &[] });
+        }
     }
 
     #[test]
