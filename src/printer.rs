@@ -95,8 +95,8 @@ pub mod board {
     pub const CROSS: usize = 512;
     /// Toolpath: path points per layer (hotend: 1,010).
     pub const PATH: usize = 1_010;
-    /// Toolpath: words of the skin window's stored contours (hotend: 2,090).
-    pub const RING: usize = 2_090;
+    /// Toolpath: words of the skin window's stored contours (hotend: 1,755).
+    pub const RING: usize = 1_755;
     /// Toolpath: the skin window's crossings with one scanline (hotend 27; the banded
     /// cylinders of the HIL test more).
     pub const SPANS: usize = 48;
@@ -110,7 +110,6 @@ pub mod board {
     /// layer's last unit goes in, and those ~400 moves (seconds of printing, still ~0.8 s of
     /// 2 ms segments) carry the motion through the next layer's cut and build (about 0.5 s
     /// for a large layer on the Cortex-M3), lent the motion half at its progress points.
-    /// (3 KB left the hotend's stack 84 B short of the room it needs.)
     pub const MOVE_BYTES: usize = 2_560;
     /// Planner lookahead, moves (the host simulation plans with the same).
     pub const P: usize = 32;

@@ -78,7 +78,7 @@
 //! - the layer's paths: 8 bytes per `PATH` (a point, its feature in y's low bits; a path's
 //!   record takes two);
 //! - the window: 4 bytes per `RING` word (the simplified contours of up to
-//!   `bottom + top + 2` layers, about a word a point and five a loop:
+//!   `bottom + top + 2` layers, 3 to 4 bytes a point (9 for a far jump) and four words a loop:
 //!   [`window::StoredRings`]) and
 //!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
 //!   filled);
@@ -620,7 +620,8 @@ pub struct ToolpathNeeds {
     pub path_points: u32,
     /// Paths of one layer (their records are in `path_points`).
     pub paths: u32,
-    /// Words of the contours stored in the window (about one a point, five a loop): `RING`.
+    /// Words of the contours stored in the window (3 to 4 bytes a point packed into words,
+    /// four words a loop): `RING`.
     pub ring_points: u32,
     /// Crossings of the window's layers with one scanline (their spans): `SPANS`.
     pub spans: u32,
@@ -642,7 +643,8 @@ impl ToolpathNeeds {
         core::mem::size_of::<Crossing>() + core::mem::size_of::<u16>() + POOL_WORDS * 4;
     /// Bytes per `PATH`: a point, its feature packed in (a path record takes two).
     pub const PATH_BYTES: usize = core::mem::size_of::<Point2>();
-    /// Bytes per `RING` word (a stored point takes one, see [`window::StoredRings`]).
+    /// Bytes per `RING` word (a stored point takes 3 to 9 bytes of them, see
+    /// [`window::StoredRings`]).
     pub const RING_BYTES: usize = core::mem::size_of::<u32>();
     /// Bytes per `SPANS` entry (a crossing, then a span, of one scanline).
     pub const SPAN_BYTES: usize = core::mem::size_of::<Span>();
