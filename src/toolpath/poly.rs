@@ -143,6 +143,26 @@ impl<const L: usize> LoopMeta<L> {
     pub fn rings(&self) -> &[Ring] {
         &self.rings[..self.n_rings]
     }
+
+    /// Number of points of the loop being built.
+    pub fn open_len(&self) -> usize {
+        self.n_points - self.open
+    }
+
+    /// All points in use of `pts` (where these loops' points are), loop after loop.
+    fn used<'p>(&self, pts: &'p [Point2]) -> &'p [Point2] {
+        pts.get(..self.n_points).unwrap_or(&[])
+    }
+
+    /// The points of `r` in `pts`.
+    fn ring_in<'p>(r: &Ring, pts: &'p [Point2]) -> &'p [Point2] {
+        pts.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
+    }
+
+    /// The points of the loop being built in `pts`.
+    fn open_in<'p>(&self, pts: &'p mut [Point2]) -> &'p mut [Point2] {
+        &mut pts[self.open..self.n_points]
+    }
 }
 
 impl<const L: usize> Default for LoopMeta<L> {
@@ -176,22 +196,22 @@ impl<'a, const L: usize> Loops<'a, L> {
 
     /// All points, loop after loop.
     pub fn points(&self) -> &[Point2] {
-        self.points.get(..self.meta.n_points).unwrap_or(&[])
+        self.meta.used(self.points)
     }
 
     /// The points of `r`.
     pub fn ring_points(&self, r: &Ring) -> &[Point2] {
-        self.points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
+        LoopMeta::<L>::ring_in(r, self.points)
     }
 
     /// Number of points of the loop being built.
     pub fn open_len(&self) -> usize {
-        self.meta.n_points - self.meta.open
+        self.meta.open_len()
     }
 
     /// The points of the loop being built.
     pub fn open_points_mut(&mut self) -> &mut [Point2] {
-        &mut self.points[self.meta.open..self.meta.n_points]
+        self.meta.open_in(self.points)
     }
 
     /// Drops the loop being built.
@@ -269,22 +289,22 @@ impl<const P: usize, const L: usize> LoopBuf<P, L> {
 
     /// All points, loop after loop.
     pub fn points(&self) -> &[Point2] {
-        &self.points[..self.meta.n_points]
+        self.meta.used(&self.points)
     }
 
     /// The points of `r`.
     pub fn ring_points(&self, r: &Ring) -> &[Point2] {
-        self.points.get(r.start as usize..(r.start + r.len) as usize).unwrap_or(&[])
+        LoopMeta::<L>::ring_in(r, &self.points)
     }
 
     /// Number of points of the loop being built.
     pub fn open_len(&self) -> usize {
-        self.meta.n_points - self.meta.open
+        self.meta.open_len()
     }
 
     /// The points of the loop being built.
     pub fn open_points_mut(&mut self) -> &mut [Point2] {
-        &mut self.points[self.meta.open..self.meta.n_points]
+        self.meta.open_in(&mut self.points)
     }
 
     /// Drops the loop being built.
