@@ -328,6 +328,21 @@ type Roomy = Printer<1024, 768, 48, 2048, 64, 4096, 8192, 8192, 4096, { 1 << 16 
 /// Takes the job and the whole model without planning a move (no `poll`): every layer's
 /// moves stay in the move buffer. Returns the bytes in use and the state and error.
 fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, ErrorCode) {
+    with_batch_on_big_stack(tris, move |payload| {
+        let mut p = Box::new(Roomy::new(&MachineConfig::default()));
+        for m in [Message::JobStart(job), Message::decode(&payload).unwrap(), Message::EndOfModel] {
+            assert_eq!(p.handle(&m), Accept::Taken);
+        }
+        (p.move_buffer_used(), p.state(), p.error().0)
+    })
+}
+
+/// `run` with the triangle batch message of `tris`, on a thread with room for a
+/// host-sized printer on its stack.
+fn with_batch_on_big_stack<R: Send + 'static>(
+    tris: &[Triangle],
+    run: impl FnOnce(Vec<u8>) -> R + Send + 'static,
+) -> R {
     let mut batch = BatchBuilder::new();
     for t in tris {
         batch.push(t).unwrap();
@@ -335,15 +350,7 @@ fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, Err
     let payload = batch.payload().to_vec();
     std::thread::Builder::new()
         .stack_size(256 << 20)
-        .spawn(move || {
-            let mut p = Box::new(Roomy::new(&MachineConfig::default()));
-            for m in
-                [Message::JobStart(job), Message::decode(&payload).unwrap(), Message::EndOfModel]
-            {
-                assert_eq!(p.handle(&m), Accept::Taken);
-            }
-            (p.move_buffer_used(), p.state(), p.error().0)
-        })
+        .spawn(move || run(payload))
         .unwrap()
         .join()
         .unwrap()
@@ -393,45 +400,35 @@ struct Limited {
 /// What a job did on a [`Roomy`] printer using `limit` bytes of its move buffer, fed and
 /// drained as a device is.
 fn run_limited(tris: &[Triangle], job: JobSpec, limit: usize) -> Limited {
-    let mut batch = BatchBuilder::new();
-    for t in tris {
-        batch.push(t).unwrap();
-    }
-    let payload = batch.payload().to_vec();
-    std::thread::Builder::new()
-        .stack_size(256 << 20)
-        .spawn(move || {
-            let mut p = Box::new(Roomy::new(&MachineConfig::default()));
-            p.limit_move_buffer(limit);
-            assert_eq!(p.handle(&Message::JobStart(job)), Accept::Taken);
-            let mut q: StepQueue<32> = StepQueue::new();
-            let (mut prod, mut cons) = q.split();
-            let (mut sent, mut hashes) = (0, Vec::new());
-            for _ in 0..50_000_000u64 {
-                let m = match sent {
-                    0 => Some(Message::decode(&payload).unwrap()),
-                    1 => Some(Message::EndOfModel),
-                    _ => None,
-                };
-                if m.is_some_and(|m| p.handle(&m) == Accept::Taken) {
-                    sent += 1;
-                }
-                p.poll(&mut prod);
-                for axis in 0..AXES {
-                    while cons.dequeue(axis).is_some() {}
-                }
-                while let Some(h) = p.take_layer_done() {
-                    hashes.push(h);
-                }
-                if !p.is_active() {
-                    break;
-                }
+    with_batch_on_big_stack(tris, move |payload| {
+        let mut p = Box::new(Roomy::new(&MachineConfig::default()));
+        p.limit_move_buffer(limit);
+        assert_eq!(p.handle(&Message::JobStart(job)), Accept::Taken);
+        let mut q: StepQueue<32> = StepQueue::new();
+        let (mut prod, mut cons) = q.split();
+        let (mut sent, mut hashes) = (0, Vec::new());
+        for _ in 0..50_000_000u64 {
+            let m = match sent {
+                0 => Some(Message::decode(&payload).unwrap()),
+                1 => Some(Message::EndOfModel),
+                _ => None,
+            };
+            if m.is_some_and(|m| p.handle(&m) == Accept::Taken) {
+                sent += 1;
             }
-            Limited { state: p.state(), error: p.error(), hashes, largest: p.largest_unit_bytes() }
-        })
-        .unwrap()
-        .join()
-        .unwrap()
+            p.poll(&mut prod);
+            for axis in 0..AXES {
+                while cons.dequeue(axis).is_some() {}
+            }
+            while let Some(h) = p.take_layer_done() {
+                hashes.push(h);
+            }
+            if !p.is_active() {
+                break;
+            }
+        }
+        Limited { state: p.state(), error: p.error(), hashes, largest: p.largest_unit_bytes() }
+    })
 }
 
 /// The largest unit's bytes admission reports are what a device needs: a printer whose move
