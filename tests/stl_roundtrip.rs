@@ -6,7 +6,7 @@ mod stl_support;
 
 use proptest::prelude::*;
 use stl_support::{bits, parse_chunked, parse_split, write_ascii, write_binary, AsciiStyle};
-use strata::stl::{RawTriangle, StlErrorKind, StlFormat, MAX_COORDINATE};
+use strata::stl::{RawTriangle, StlError, StlErrorKind, StlFormat, StlSummary, MAX_COORDINATE};
 
 /// Coordinates: anything finite within 10 m, biased towards the values that make collinear or
 /// repeated corners (and so degenerate facets) likely, plus -0.0 and subnormals.
@@ -51,6 +51,12 @@ fn ascii_style() -> impl Strategy<Value = AsciiStyle> {
 }
 
 /// Increasing cut positions inside `0..=len`.
+/// A parse as bit patterns and its result: a damaged file can carry NaN normals, which `==`
+/// on the floats would call different from themselves.
+fn exact(p: stl_support::Parsed) -> (Vec<[u32; 12]>, Result<StlSummary, StlError>) {
+    (p.bits(), p.result)
+}
+
 fn cuts(len: usize) -> impl Strategy<Value = Vec<usize>> {
     prop::collection::vec(0..=len, 0..20).prop_map(|mut c| {
         c.sort_unstable();
@@ -109,7 +115,7 @@ proptest! {
     #[test]
     fn arbitrary_bytes_parse_the_same_in_any_split(bytes in prop::collection::vec(any::<u8>(), 0..600), cut in cuts(600)) {
         let whole = parse_chunked(&bytes, usize::MAX);
-        prop_assert_eq!(parse_split(&bytes, &cut), whole.clone());
+        prop_assert_eq!(exact(parse_split(&bytes, &cut)), exact(whole.clone()));
         if let Err(e) = whole.result {
             prop_assert!(e.offset <= bytes.len() as u64);
         }
@@ -134,8 +140,8 @@ proptest! {
         }
         file.truncate(truncate.index(file.len() + 1));
         let whole = parse_chunked(&file, usize::MAX);
-        prop_assert_eq!(parse_split(&file, &cut), whole.clone());
-        prop_assert_eq!(parse_chunked(&file, 1), whole);
+        prop_assert_eq!(exact(parse_split(&file, &cut)), exact(whole.clone()));
+        prop_assert_eq!(exact(parse_chunked(&file, 1)), exact(whole));
     }
 }
 
