@@ -400,6 +400,8 @@ impl<
     /// Overrides the announced capacities (a simulated printer posing as a smaller board).
     pub fn set_capacities(&mut self, capacities: Capacities) {
         self.capacities = Some(capacities);
+        // The device's offset engine holds `toolpath_points` edges: offset as it does.
+        self.tp.set_offset_limit(capacities.toolpath_points as usize);
     }
 
     /// State.

@@ -76,13 +76,19 @@ impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C
 impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     /// An empty scratch, all zero bytes (a `static` of it goes to `.bss`): the largest
     /// tenant, cleared, has the place, as it is the one stored without a tag (the others
-    /// would be a non-zero niche value). Whoever has the place first, every accessor
-    /// starts its turn from a cleared value, so which one it is does not matter.
+    /// would be a non-zero niche value); when the tenants are too close in size for a niche
+    /// and the enum has a tag, the first tenant (tag zero) has it. Whoever has the place
+    /// first, every accessor starts its turn from a cleared value, so which one it is does
+    /// not matter. (`scripts/build_firmware.sh` checks that the device's is in `.bss`.)
     pub const fn new() -> Self {
         let cut = size_of::<CutScratch<S>>();
         let engine = size_of::<Engine<P>>();
         let fill = size_of::<FillScratch<C>>();
-        let tenant = if fill >= cut && fill >= engine {
+        let largest = if cut > engine { cut } else { engine };
+        let largest = if fill > largest { fill } else { largest };
+        let tenant = if size_of::<Tenant<S, P, C>>() > largest {
+            Tenant::Cut(CutScratch::EMPTY)
+        } else if fill >= cut && fill >= engine {
             Tenant::Fill(FillScratch::EMPTY)
         } else if engine >= cut {
             Tenant::Offset(Engine::NEW)

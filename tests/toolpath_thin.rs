@@ -130,11 +130,12 @@ fn an_isolated_thin_wall_is_counted_as_an_island_and_by_area() {
 }
 
 #[test]
-fn a_stage_sized_to_the_printing_needs_prints_the_same_and_flags_unmeasured_islands() {
+fn a_stage_sized_to_the_printing_needs_prints_the_same_and_measures_in_bands() {
     // embodier_LM8UU_8p2pi: thin spiral fins. Printing needs PTS 690; growing the fins'
     // slivers back for the measurement needs 1,740. A stage with PTS 700 (the other
-    // capacities well above the model's needs) prints exactly the same moves and counts
-    // the islands it could not measure instead of failing.
+    // capacities well above the model's needs) prints exactly the same moves and measures
+    // the fins in bands: the thin area is that of the host-sized run up to the output
+    // loops' clean-up tolerance (2 um along the outlines: a few thousand um^2 a layer).
     let Some(dir) = common::shared_models() else { return };
     let machine = MachineConfig::default();
     let tris = load_placed(&dir.join("embodier_LM8UU_8p2pi.stl"), &machine);
@@ -147,19 +148,21 @@ fn a_stage_sized_to_the_printing_needs_prints_the_same_and_flags_unmeasured_isla
     let small = run_sized::<700, 64, 1024, 4096, 8192, 8192>(&tris, &settings, cfg)
         .expect("a stage sized to the printing needs prints the model");
     assert_eq!(small.layers.len(), big.layers.len());
+    let mut banded = 0;
     for (a, b) in small.layers.iter().zip(&big.layers) {
         assert_eq!(a.moves, b.moves, "layer {}", a.index);
-        if a.stats.thin_unmeasured == 0 {
-            assert_eq!(a.stats.thin_area_um2, b.stats.thin_area_um2, "layer {}", a.index);
-        } else {
-            assert!(a.stats.thin_area_um2 <= b.stats.thin_area_um2, "layer {}", a.index);
-        }
+        assert_eq!(a.stats.thin_unmeasured, 0, "layer {}", a.index);
+        let (ta, tb) = (a.stats.thin_area_um2 as f64, b.stats.thin_area_um2 as f64);
+        assert!((ta - tb).abs() <= 5_000.0 + 0.005 * tb, "layer {}: {ta} vs {tb}", a.index);
+        banded += usize::from(ta != tb);
     }
-    assert!(small.stats.thin_unmeasured > 0);
+    assert_eq!(small.stats.thin_unmeasured, 0);
+    assert!(small.stats.thin_pts <= 700, "{}", small.stats.thin_pts);
     assert_eq!(small.stats.needs, big.stats.needs);
     eprintln!(
-        "LM8UU: thin area {} um^2 (host), {} um^2 with {} islands unmeasured (PTS 700)",
-        big.stats.thin_area_um2, small.stats.thin_area_um2, small.stats.thin_unmeasured
+        "LM8UU: thin area {} um^2 (host), {} um^2 with PTS 700 ({banded} layers measured in \
+         bands)",
+        big.stats.thin_area_um2, small.stats.thin_area_um2
     );
 }
 

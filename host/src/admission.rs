@@ -107,8 +107,23 @@ pub fn admit_job_peaks(
         Admission::Unchanged(_) => tris,
         Admission::Simplified(s) => &s.triangles,
     };
-    let peaks = toolpath_peaks(streamed, machine, job)?;
-    let short = toolpath_shortfalls(&peaks, caps);
+    // Offsets as the device does them: in bands where its engine holds less than one needs.
+    // If even that fails, the needs of offsets done whole say what does not fit.
+    let limit = caps.toolpath_points as usize;
+    let (peaks, short) = match toolpath_peaks_limited(streamed, machine, job, Some(limit)) {
+        Ok(peaks) => {
+            let short = toolpath_shortfalls(&peaks, caps);
+            (peaks, short)
+        }
+        Err(banded) => {
+            let peaks = toolpath_peaks(streamed, machine, job)?;
+            let mut short = toolpath_shortfalls(&peaks, caps);
+            if short.is_empty() {
+                short.push(banded);
+            }
+            (peaks, short)
+        }
+    };
     if !short.is_empty() {
         let simplified = match &admission {
             Admission::Unchanged(_) => String::new(),
@@ -296,6 +311,19 @@ pub fn toolpath_peaks(
     machine: &MachineConfig,
     job: &JobSpec,
 ) -> Result<ToolpathPeaks, String> {
+    toolpath_peaks_limited(tris, machine, job, None)
+}
+
+/// [`toolpath_peaks`] with the offset engine limited to `offset_limit` edges (as a device
+/// with that `PTS` has it: offsets that need more are done in bands, which may change them
+/// within the output's tolerance). An offset that does not fit even in the thinnest bands
+/// is the error.
+pub fn toolpath_peaks_limited(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+    offset_limit: Option<usize>,
+) -> Result<ToolpathPeaks, String> {
     let slice_cfg =
         SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
     let cfg = strata::printer::job_toolpath_config(machine, job);
@@ -303,7 +331,7 @@ pub fn toolpath_peaks(
         std::thread::Builder::new()
             .name("admission".into())
             .stack_size(256 << 20)
-            .spawn_scoped(scope, || measure(tris, slice_cfg, cfg))
+            .spawn_scoped(scope, || measure(tris, slice_cfg, cfg, offset_limit))
             .map_err(|e| format!("cannot start the admission thread: {e}"))?
             .join()
             .map_err(|_| "the admission thread panicked".to_string())?
@@ -314,9 +342,13 @@ fn measure(
     tris: &[Triangle],
     slice_cfg: SliceConfig,
     cfg: ToolpathConfig,
+    offset_limit: Option<usize>,
 ) -> Result<ToolpathPeaks, String> {
     let mut slicer = Box::new(NeedsSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
     let mut tp = Box::new(NeedsToolpath::new(cfg).map_err(|e| e.to_string())?);
+    if let Some(limit) = offset_limit {
+        tp.set_offset_limit(limit);
+    }
     let mut work = Box::new(NeedsScratch::new());
     tp.set_position(Point2::new(0, 0), 0);
     let peaks = Cell::new(ToolpathPeaks::default());

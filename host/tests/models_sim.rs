@@ -115,8 +115,11 @@ fn every_model_streams_ahead_of_printing() {
             model_height_um: top,
             triangles: tris.len() as u32,
         };
-        let rep = simulate(&tris, &machine, job, &SimOptions::default())
-            .unwrap_or_else(|(e, _)| panic!("{name}: {e}"));
+        // The device announces what admission held the model to (and offsets as such a
+        // device does).
+        let opts = SimOptions { capacities: CREALITY_CAPACITIES, ..SimOptions::default() };
+        let rep =
+            simulate(&tris, &machine, job, &opts).unwrap_or_else(|(e, _)| panic!("{name}: {e}"));
         eprintln!(
             "{name}: {note}; whole model {} triangles = {bytes} bytes = {:.1} s at 250000 baud \
              ({:.2} B/triangle); streamed {} triangles ({:.1} s of wire time), first step at \

@@ -689,7 +689,7 @@ impl ToolpathNeeds {
 // checks them for the device).
 const _: () = assert!(
     ToolpathNeeds::PTS_BYTES == 16
-        && ToolpathNeeds::ENGINE_BYTES == 58
+        && ToolpathNeeds::ENGINE_BYTES == 46
         && ToolpathNeeds::LOOPS_BYTES == 123
         && ToolpathNeeds::CROSS_BYTES == 22
         && ToolpathNeeds::PATH_BYTES == 8
@@ -847,6 +847,9 @@ pub struct Toolpath<
     /// Engine peaks and open chains of the engines that had the scratch so far.
     offset_peaks: offset::OffsetPeaks,
     open_chains: u32,
+    /// `PTS` less the edge slots and pieces an offset may use before it is done in bands
+    /// (zero in a new stage: all of them).
+    offset_shortfall: usize,
     spans: [Span; SPANS],
     paths: PathBuf<PATH>,
     island_map: [u16; LOOPS],
@@ -891,7 +894,14 @@ impl<
             contour: LoopBuf::new(),
             tmp: LoopMeta::new(),
             fill: LoopBuf::new(),
-            offset_peaks: offset::OffsetPeaks { edges: 0, splits: 0, pieces: 0 },
+            offset_peaks: offset::OffsetPeaks {
+                edges: 0,
+                splits: 0,
+                pieces: 0,
+                darts: 0,
+                bands: 0,
+            },
+            offset_shortfall: 0,
             open_chains: 0,
             spans: [Span { u0: 0, u1: 0 }; SPANS],
             paths: PathBuf::new(),
@@ -905,6 +915,18 @@ impl<
             stats: ToolpathStats::EMPTY,
             stopped: Some(ToolpathError::Finished),
         }
+    }
+
+    /// Lets an offset use at most `edges` edge slots and pieces of the engine (`PTS` at
+    /// most) before it is done in bands: a stage posing as a device with a smaller `PTS`
+    /// offsets exactly as that device does. Kept across [`reset`](Self::reset).
+    pub fn set_offset_limit(&mut self, edges: usize) {
+        self.offset_shortfall = PTS - edges.min(PTS);
+    }
+
+    /// Edge slots and pieces an offset may use before it is done in bands.
+    fn offset_limit(&self) -> usize {
+        PTS - self.offset_shortfall
     }
 
     /// Starts over with `cfg` (buffers kept). The nozzle is assumed at the bed origin.
@@ -994,10 +1016,10 @@ impl<
 
     fn capacity(&self, what: Buffer, layer: u32) -> ToolpathError {
         let capacity = match what {
-            Buffer::LayerPoints
-            | Buffer::OffsetEdges
-            | Buffer::OffsetSplits
-            | Buffer::OffsetPieces => PTS,
+            Buffer::LayerPoints => PTS,
+            Buffer::OffsetEdges | Buffer::OffsetSplits | Buffer::OffsetPieces => {
+                self.offset_limit()
+            }
             Buffer::LayerLoops => LOOPS,
             Buffer::Crossings | Buffer::LineSegments => CROSS,
             Buffer::LineIntervals => 64,
@@ -1345,17 +1367,18 @@ impl<
         }
         // Perimeters and the infill domain, island by island.
         let min_width = i64::from(w / 8);
+        let limit = self.offset_limit();
         for island in 0..islands {
             // Doubled area of the island's opening by half a line (what lines can cover):
             // `Some(None)` when the measurement did not fit the offset buffers.
             let mut opened2: Option<Option<i64>> = None;
             for depth in 0..cfg.perimeters {
                 let d = i32::from(depth) * w + w / 2;
-                self.offset_island(work, island, d)?;
                 let (engine, points) = work.engine_and_points();
                 let mut tmp = Loops::new(points, &mut self.tmp);
                 tmp.clear();
-                engine.union_into(&mut tmp, island, depth, min_width)?;
+                let curves = island_curves(&self.contour, island, d);
+                engine.union_into(&mut tmp, island, depth, min_width, limit, curves)?;
                 if tmp.rings().is_empty() {
                     if depth == 0 {
                         layer.thin_islands += 1;
@@ -1379,11 +1402,11 @@ impl<
                     Some(a) => a,
                     // No perimeters: the centre lines of an external perimeter all the same.
                     None => self.measure(work, |t, work| {
-                        t.offset_island(work, island, w / 2)?;
                         let (engine, points) = work.engine_and_points();
                         let mut tmp = Loops::new(points, &mut t.tmp);
                         tmp.clear();
-                        engine.union_into(&mut tmp, island, 0, min_width)?;
+                        let curves = island_curves(&t.contour, island, w / 2);
+                        engine.union_into(&mut tmp, island, 0, min_width, limit, curves)?;
                         t.grow_tmp_area2(work, island)
                     }),
                 };
@@ -1401,8 +1424,9 @@ impl<
                     None => layer.thin_unmeasured += 1,
                 }
             }
-            self.offset_island(work, island, cfg.infill_inset_um())?;
-            work.engine().union_into(&mut self.fill.loops(), island, 0, min_width)?;
+            let curves = island_curves(&self.contour, island, cfg.infill_inset_um());
+            let out = &mut self.fill.loops();
+            work.engine().union_into(out, island, 0, min_width, limit, curves)?;
             sink(&ToolEvent::Progress);
         }
         // Infill.
@@ -1490,38 +1514,25 @@ impl<
         if self.tmp.rings().is_empty() {
             return Ok(0);
         }
+        let limit = self.offset_limit();
         let (engine, points) = work.engine_and_points();
         let mut tmp = Loops::new(points, &mut self.tmp);
-        engine.begin();
-        for r in tmp.rings() {
-            engine.add_loop(tmp.ring_points(r), -half, Join::Miter)?;
-        }
+        engine.collect(limit, |engine| {
+            for r in tmp.rings() {
+                engine.add_loop(tmp.ring_points(r), -half, Join::Miter)?;
+            }
+            Ok(())
+        })?;
         tmp.clear();
-        engine.union_into(&mut tmp, island, 0, 1)?;
+        engine.trace_into(&mut tmp, island, 0, 1)?;
         let area2 = tmp.rings().iter().map(|r| r.area2).sum();
         tmp.clear();
         Ok(area2)
     }
 
-    /// Loads the raw offset curves of `island` (distance `d`) into the engine.
-    fn offset_island<const S: usize>(
-        &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
-        island: u16,
-        d: i32,
-    ) -> Result<(), Buffer> {
-        work.engine().begin();
-        for r in self.contour.rings() {
-            if r.island == island {
-                work.engine().add_loop(self.contour.ring_points(r), d, Join::Miter)?;
-            }
-        }
-        Ok(())
-    }
-
     /// The skirt: convex hull of the first layer, offset outwards with round joins.
     fn skirt<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) -> Result<(), Buffer> {
-        let cfg = self.cfg;
+        let (cfg, limit) = (self.cfg, self.offset_limit());
         // Sort all points (in `tmp`), then Andrew's monotone chain into `fill`.
         let (engine, points) = work.engine_and_points();
         let mut tmp = Loops::new(points, &mut self.tmp);
@@ -1561,10 +1572,11 @@ impl<
         let Some(&hull_ring) = self.fill.rings().first() else { return Ok(()) };
         for k in 0..i32::from(cfg.skirt_loops) {
             let d = cfg.skirt_distance_um + cfg.line_width_um / 2 + k * cfg.line_width_um;
-            engine.begin();
-            engine.add_loop(self.fill.ring_points(&hull_ring), -d, Join::Round)?;
+            let hull = self.fill.ring_points(&hull_ring);
             tmp.clear();
-            engine.union_into(&mut tmp, u16::MAX, 0, 1)?;
+            engine.union_into(&mut tmp, u16::MAX, 0, 1, limit, |engine| {
+                engine.add_loop(hull, -d, Join::Round)
+            })?;
             for r in tmp.rings() {
                 if !r.is_hole() {
                     let pts = tmp.ring_points(r);
@@ -1671,6 +1683,21 @@ impl<
     }
 }
 
+/// The source of an island's raw offset curves for [`Offsetter::union_into`]: every loop of
+/// `island` in `contour`, shifted `d` um into the material (miter joins).
+fn island_curves<'a, const P: usize, const L: usize>(
+    contour: &'a LoopBuf<P, L>,
+    island: u16,
+    d: i32,
+) -> impl FnMut(&mut offset::Offsetter<P>) -> Result<(), Buffer> + 'a {
+    move |engine| {
+        for r in contour.rings().iter().filter(|r| r.island == island) {
+            engine.add_loop(contour.ring_points(r), d, Join::Miter)?;
+        }
+        Ok(())
+    }
+}
+
 /// Decodes a stored layer ([`StoredRings`]) into `out`.
 fn decode<const P: usize, const L: usize>(
     data: window::Parts<'_, u32>,
@@ -1771,7 +1798,7 @@ mod tests {
     #[test]
     fn memory_per_capacity_unit_is_as_documented() {
         assert_eq!(ToolpathNeeds::PTS_BYTES, 16);
-        assert_eq!(ToolpathNeeds::ENGINE_BYTES, 58);
+        assert_eq!(ToolpathNeeds::ENGINE_BYTES, 46);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 22);
         assert_eq!(ToolpathNeeds::PATH_BYTES, 8);

@@ -29,12 +29,10 @@ use super::sort;
 use super::Buffer;
 use crate::plan::math::isqrt_u64;
 
-/// Bytes of engine state per unit of its capacity `E` (an edge, a split point, a piece and
-/// an active-list entry).
-pub const BYTES_PER_EDGE: usize = core::mem::size_of::<Seg>()
-    + core::mem::size_of::<Split>()
-    + core::mem::size_of::<Piece>()
-    + core::mem::size_of::<u16>();
+/// Bytes of engine state per unit of its capacity `E` (an edge, a split point or a finished
+/// dart, a piece and an active-list entry).
+pub const BYTES_PER_EDGE: usize =
+    core::mem::size_of::<Seg>() + core::mem::size_of::<Piece>() + core::mem::size_of::<u16>();
 /// Most edges or pieces of one union: their indices fit the `u16` active list.
 const MAX_ITEMS: usize = 1 << 16;
 
@@ -44,6 +42,9 @@ pub const SCALE: i32 = 16;
 const ARC_TOL: i64 = 4 * SCALE as i64;
 /// Tolerance of the clean-up pass on output loops, in um.
 const OUT_TOL: i64 = 2;
+/// Thinnest band a union is split into, engine units (1 um): a line with more work than the
+/// engine holds is a capacity error.
+const MIN_BAND: i64 = SCALE as i64;
 
 /// How the gap at a vertex on the growing side is closed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -60,10 +61,9 @@ struct Seg {
     b: Point2,
 }
 
-#[derive(Debug, Clone, Copy, Default)]
-struct Split {
-    edge: u32,
-    p: Point2,
+/// A split point, kept in an edge slot: `a.x` is the edge's index, `b` the point.
+fn split_slot(edge: usize, p: Point2) -> Seg {
+    Seg { a: Point2::new(edge as i32, 0), b: p }
 }
 
 /// A piece of the arrangement, stored lower end first (`a` before `b` in (y, x) order).
@@ -101,24 +101,61 @@ fn less_yx(p: Point2, q: Point2) -> bool {
 /// Usage counters of the engine (largest values seen).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct OffsetPeaks {
-    /// Raw offset edges of one island and distance.
+    /// Edge slots in use at once: raw offset edges of one island (or band) and distance,
+    /// with their split points and the finished darts of the bands before.
     pub edges: usize,
     /// Split points.
     pub splits: usize,
     /// Arrangement pieces.
     pub pieces: usize,
+    /// Boundary darts of one union (the bands' together), which stay until it is traced.
+    pub darts: usize,
+    /// Bands a union was split into (1: the union was done whole).
+    pub bands: usize,
 }
 
-/// The offsetting engine: `E` edges (and `E` split points, `E` pieces) of one island.
+/// A horizontal band of the plane, engine units: edges are clipped to `lo <= y <= hi`,
+/// horizontal ones kept if `lo <= y < hi`. An empty band (`lo == hi`) stands for the whole
+/// plane (so a new engine is all zero bytes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Band {
+    lo: i32,
+    hi: i32,
+}
+
+impl Band {
+    /// The whole plane: nothing is clipped.
+    const ALL: Self = Self { lo: 0, hi: 0 };
+}
+
+/// The offsetting engine: `E` edge slots and `E` pieces for one island.
+///
+/// The edge slots hold the raw edges from the front, then their split points and, in the
+/// last slots, the boundary darts of the bands already done. When a union does not fit
+/// (edges, splits or pieces), it is done in horizontal bands: the raw curves are generated
+/// again for each band and clipped to it, each band's boundary darts are kept, and the loops
+/// are traced from all of them at the end. A band that does not fit is halved; after one
+/// that fits, the next is twice as tall. Clipped edges of two bands meet at the same rounded
+/// point on their shared line, so the bands' boundaries join there exactly.
 pub struct Offsetter<const E: usize> {
     segs: [Seg; E],
     n_segs: usize,
-    splits: [Split; E],
+    /// Split points, in the edge slots after the edges.
     n_splits: usize,
+    /// Boundary darts of the finished bands, in the last edge slots.
+    n_darts: usize,
     pieces: [Piece; E],
     n_pieces: usize,
     /// Active list of the sweeps (indices), then the darts' used flags.
     act: [u16; E],
+    /// Edge slots and pieces this union may use (at most `E`).
+    cap: usize,
+    /// The band the raw edges are clipped to.
+    band: Band,
+    /// Lowest and highest y of the raw edges generated (unclipped), engine units.
+    y_span: (i32, i32),
+    /// A raw edge in the band did not fit.
+    overflow: bool,
     /// A split point was rounded (or snapped) in the last intersection pass.
     rounded: bool,
     /// Usage high-water marks.
@@ -131,6 +168,35 @@ impl<const E: usize> Default for Offsetter<E> {
     fn default() -> Self {
         Self::new()
     }
+}
+
+/// The part of the edge `a -> b` in `band` (direction kept), or `None`. A clipped end is
+/// the edge's point on the band's line, rounded: the same for both bands that share it.
+fn clip_to(a: Point2, b: Point2, band: Band) -> Option<(Point2, Point2)> {
+    if band == Band::ALL {
+        return Some((a, b));
+    }
+    if a.y == b.y {
+        return (band.lo <= a.y && a.y < band.hi).then_some((a, b));
+    }
+    let (lo, hi) = if a.y < b.y { (a, b) } else { (b, a) };
+    if hi.y <= band.lo || lo.y >= band.hi {
+        return None;
+    }
+    let at = |y: i32| {
+        if y == lo.y {
+            lo
+        } else if y == hi.y {
+            hi
+        } else {
+            let dx = i64::from(hi.x) - i64::from(lo.x);
+            let t = i64::from(y) - i64::from(lo.y);
+            let x = i64::from(lo.x) + div_round(dx * t, i64::from(hi.y) - i64::from(lo.y));
+            Point2::new(x as i32, y)
+        }
+    };
+    let (p, q) = (at(lo.y.max(band.lo)), at(hi.y.min(band.hi)));
+    Some(if a.y < b.y { (p, q) } else { (q, p) })
 }
 
 /// Left normal of `(dx, dy)` scaled to length `d` (engine units; `d` may be negative).
@@ -153,33 +219,59 @@ impl<const E: usize> Offsetter<E> {
         Self {
             segs: [Seg { a: Point2::new(0, 0), b: Point2::new(0, 0) }; E],
             n_segs: 0,
-            splits: [Split { edge: 0, p: Point2::new(0, 0) }; E],
             n_splits: 0,
+            n_darts: 0,
             pieces: [Piece { a: Point2::new(0, 0), b: Point2::new(0, 0), w: 0, wr: 0 }; E],
             n_pieces: 0,
             act: [0; E],
+            cap: 0,
+            band: Band::ALL,
+            y_span: (0, 0),
+            overflow: false,
             rounded: false,
-            peaks: OffsetPeaks { edges: 0, splits: 0, pieces: 0 },
+            peaks: OffsetPeaks { edges: 0, splits: 0, pieces: 0, darts: 0, bands: 0 },
             open_chains: 0,
         }
     }
 
-    /// Starts a new island.
-    pub fn begin(&mut self) {
+    /// Starts a band: no edges, splits or pieces (the darts of the bands before stay).
+    fn begin_band(&mut self, band: Band) {
+        self.band = band;
         self.n_segs = 0;
         self.n_splits = 0;
         self.n_pieces = 0;
+        self.y_span = (i32::MAX, i32::MIN);
+        self.overflow = false;
     }
 
+    /// Edge slots in use (edges, split points, darts).
+    fn slots_used(&self) -> usize {
+        self.n_segs + self.n_splits + self.n_darts
+    }
+
+    /// Stores an edge as it is (no clipping), or a capacity error.
+    fn store_seg(&mut self, a: Point2, b: Point2) -> Result<(), Buffer> {
+        if a == b {
+            return Ok(());
+        }
+        if self.slots_used() >= self.cap {
+            return Err(Buffer::OffsetEdges);
+        }
+        self.segs[self.n_segs] = Seg { a, b };
+        self.n_segs += 1;
+        self.peaks.edges = self.peaks.edges.max(self.slots_used());
+        Ok(())
+    }
+
+    /// Takes a raw edge: its part in the band is stored; one that does not fit is only
+    /// noted (the band is too tall), so a raw curve is always generated whole.
     fn push_seg(&mut self, a: Point2, b: Point2) -> Result<(), Buffer> {
         if a == b {
             return Ok(());
         }
-        let slot = self.segs.get_mut(self.n_segs).filter(|_| self.n_segs < MAX_ITEMS);
-        let slot = slot.ok_or(Buffer::OffsetEdges)?;
-        *slot = Seg { a, b };
-        self.n_segs += 1;
-        self.peaks.edges = self.peaks.edges.max(self.n_segs);
+        self.y_span = (self.y_span.0.min(a.y).min(b.y), self.y_span.1.max(a.y).max(b.y));
+        let Some((a, b)) = clip_to(a, b, self.band) else { return Ok(()) };
+        self.overflow |= self.store_seg(a, b).is_err();
         Ok(())
     }
 
@@ -322,10 +414,13 @@ impl<const E: usize> Offsetter<E> {
     }
 
     fn add_split(&mut self, edge: usize, p: Point2) -> Result<(), Buffer> {
-        let slot = self.splits.get_mut(self.n_splits).ok_or(Buffer::OffsetSplits)?;
-        *slot = Split { edge: edge as u32, p };
+        if self.slots_used() >= self.cap {
+            return Err(Buffer::OffsetSplits);
+        }
+        self.segs[self.n_segs + self.n_splits] = split_slot(edge, p);
         self.n_splits += 1;
         self.peaks.splits = self.peaks.splits.max(self.n_splits);
+        self.peaks.edges = self.peaks.edges.max(self.slots_used());
         Ok(())
     }
 
@@ -467,7 +562,7 @@ impl<const E: usize> Offsetter<E> {
             return Ok(());
         }
         let (a, b, w) = if less_yx(a, b) { (a, b, 1) } else { (b, a, -1) };
-        let slot = self.pieces.get_mut(self.n_pieces).filter(|_| self.n_pieces < MAX_ITEMS);
+        let slot = self.pieces.get_mut(self.n_pieces).filter(|_| self.n_pieces < self.cap);
         *slot.ok_or(Buffer::OffsetPieces)? = Piece { a, b, w, wr: 0 };
         self.n_pieces += 1;
         self.peaks.pieces = self.peaks.pieces.max(self.n_pieces);
@@ -476,19 +571,20 @@ impl<const E: usize> Offsetter<E> {
 
     /// Cuts the edges at their split points into pieces.
     fn build_pieces(&mut self) -> Result<(), Buffer> {
-        let segs = &self.segs;
-        let along = |s: &Split| {
-            let e = segs[s.edge as usize];
-            (i64::from(s.p.x) - i64::from(e.a.x)) * (i64::from(e.b.x) - i64::from(e.a.x))
-                + (i64::from(s.p.y) - i64::from(e.a.y)) * (i64::from(e.b.y) - i64::from(e.a.y))
+        let (start, end) = (self.n_segs, self.n_segs + self.n_splits);
+        let (edges, rest) = self.segs.split_at_mut(start);
+        let along = |s: &Seg| {
+            let (e, p) = (edges[s.a.x as usize], s.b);
+            (i64::from(p.x) - i64::from(e.a.x)) * (i64::from(e.b.x) - i64::from(e.a.x))
+                + (i64::from(p.y) - i64::from(e.a.y)) * (i64::from(e.b.y) - i64::from(e.a.y))
         };
-        sort::sort_by_key(&mut self.splits[..self.n_splits], |s| (s.edge, along(s)));
-        let mut k = 0;
+        sort::sort_by_key(&mut rest[..end - start], |s| (s.a.x, along(s)));
+        let mut k = start;
         for i in 0..self.n_segs {
             let e = self.segs[i];
             let mut prev = e.a;
-            while k < self.n_splits && self.splits[k].edge as usize == i {
-                let p = self.splits[k].p;
+            while k < end && self.segs[k].a.x as usize == i {
+                let p = self.segs[k].b;
                 k += 1;
                 if p != prev && p != e.b {
                     self.push_piece(prev, p)?;
@@ -645,16 +741,75 @@ impl<const E: usize> Offsetter<E> {
         Ok(())
     }
 
-    /// Runs the union of everything added since [`begin`](Self::begin) and appends the
-    /// boundary loops (um) to `out`, tagged `island`/`depth`. Loops whose mean width
-    /// (2 x area / length) is below `min_width_um` are dropped. Returns the loops added.
+    /// Runs the union of the raw curves that `source` adds (with [`add_loop`](Self::add_loop))
+    /// and appends the boundary loops (um) to `out`, tagged `island`/`depth`: [`collect`]
+    /// (Self::collect) with `limit`, then [`trace_into`](Self::trace_into). Returns the
+    /// loops added.
     pub fn union_into<const L: usize>(
         &mut self,
         out: &mut Loops<'_, L>,
         island: u16,
         depth: u8,
         min_width_um: i64,
+        limit: usize,
+        source: impl FnMut(&mut Self) -> Result<(), Buffer>,
     ) -> Result<usize, Buffer> {
+        self.collect(limit, source)?;
+        self.trace_into(out, island, depth, min_width_um)
+    }
+
+    /// Collects the boundary darts of the union of the raw curves that `source` adds (with
+    /// [`add_loop`](Self::add_loop)), using at most `limit` (and `E`) edge slots and pieces:
+    /// whole if that fits, else band by band (see [`Offsetter`]). `source` is called once per
+    /// attempt and must add the same curves every time. A band of [`MIN_BAND`] that does not
+    /// fit is the capacity error.
+    pub fn collect(
+        &mut self,
+        limit: usize,
+        mut source: impl FnMut(&mut Self) -> Result<(), Buffer>,
+    ) -> Result<(), Buffer> {
+        self.cap = limit.min(E).min(MAX_ITEMS);
+        self.n_darts = 0;
+        let mut band = Band::ALL;
+        // Height of the next band once the union is split, engine units.
+        let mut height = 0i64;
+        let mut bands = 0;
+        loop {
+            self.begin_band(band);
+            source(self)?;
+            let done = if self.overflow { Err(Buffer::OffsetEdges) } else { self.band_darts() };
+            let top = i64::from(self.y_span.1) + 1;
+            match done {
+                Ok(()) => {
+                    bands += 1;
+                    if band == Band::ALL || i64::from(band.hi) >= top {
+                        break;
+                    }
+                    height *= 2;
+                    let hi = (i64::from(band.hi) + height).min(top);
+                    band = Band { lo: band.hi, hi: hi as i32 };
+                }
+                Err(e @ (Buffer::OffsetEdges | Buffer::OffsetSplits | Buffer::OffsetPieces)) => {
+                    if band == Band::ALL {
+                        let lo = self.y_span.0;
+                        height = top - i64::from(lo);
+                        band.lo = lo;
+                    }
+                    height /= 2;
+                    if height < MIN_BAND {
+                        return Err(e);
+                    }
+                    band.hi = (i64::from(band.lo) + height) as i32;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        self.peaks.bands = self.peaks.bands.max(bands);
+        Ok(())
+    }
+
+    /// The union of the band's edges: its boundary darts go below the stored ones.
+    fn band_darts(&mut self) -> Result<(), Buffer> {
         self.rounded = false;
         let mut overlap = self.find_splits()?;
         self.build_pieces()?;
@@ -666,13 +821,12 @@ impl<const E: usize> Offsetter<E> {
                 break;
             }
             self.rounded = false;
-            self.n_segs = 0;
+            (self.n_segs, self.n_splits) = (0, 0);
             for i in 0..self.n_pieces {
                 let p = self.pieces[i];
                 let (a, b) = if p.w > 0 { (p.a, p.b) } else { (p.b, p.a) };
-                self.push_seg(a, b)?;
+                self.store_seg(a, b)?;
             }
-            self.n_splits = 0;
             self.n_pieces = 0;
             overlap |= self.find_splits()?;
             self.build_pieces()?;
@@ -681,20 +835,42 @@ impl<const E: usize> Offsetter<E> {
             self.merge_pieces()?;
         }
         self.classify()?;
-        // Darts (directed boundary pieces) into `segs`, sorted by their start.
-        let mut nd = 0;
-        for i in 0..self.n_pieces {
-            let p = self.pieces[i];
+        // Darts (directed boundary pieces), in piece order, into the slots below the stored
+        // darts (the band's edges and splits are no longer needed).
+        let pieces = &self.pieces[..self.n_pieces];
+        let k = pieces.iter().filter(|p| p.keep() != 0).count();
+        if self.n_darts + k > self.cap {
+            return Err(Buffer::OffsetEdges);
+        }
+        let mut slot = self.cap - self.n_darts - k;
+        for p in pieces {
             let (a, b) = match p.keep() {
                 1 => (p.a, p.b),
                 -1 => (p.b, p.a),
                 _ => continue,
             };
-            // `nd <= n_pieces`, but `segs` may be shorter than `pieces` holds: check.
-            let slot = self.segs.get_mut(nd).ok_or(Buffer::OffsetEdges)?;
-            *slot = Seg { a, b };
-            nd += 1;
+            self.segs[slot] = Seg { a, b };
+            slot += 1;
         }
+        self.n_darts += k;
+        self.peaks.edges = self.peaks.edges.max(self.n_darts);
+        self.peaks.darts = self.peaks.darts.max(self.n_darts);
+        Ok(())
+    }
+
+    /// Traces the darts [`collect`](Self::collect) kept into loops and appends them (um) to
+    /// `out`, tagged `island`/`depth`. Loops whose mean width (2 x area / length) is below
+    /// `min_width_um` are dropped. Returns the loops added.
+    pub fn trace_into<const L: usize>(
+        &mut self,
+        out: &mut Loops<'_, L>,
+        island: u16,
+        depth: u8,
+        min_width_um: i64,
+    ) -> Result<usize, Buffer> {
+        let nd = self.n_darts;
+        self.segs.copy_within(self.cap - nd..self.cap, 0);
+        self.n_darts = 0;
         let darts = &mut self.segs[..nd];
         sort::sort_by_key(darts, |s| (s.a.y, s.a.x));
         for u in self.act[..nd].iter_mut() {
@@ -844,15 +1020,26 @@ mod tests {
     type Out = LoopBuf<4096, 64>;
 
     fn offset_loops(loops: &[&[Point2]], d: i32, join: Join) -> Box<Out> {
+        let (out, peaks) = offset_limited(loops, d, join, usize::MAX).unwrap();
+        assert_eq!(peaks.bands, 1);
+        out
+    }
+
+    /// The union with at most `limit` edge slots and pieces, and the engine's peaks.
+    fn offset_limited(
+        loops: &[&[Point2]],
+        d: i32,
+        join: Join,
+        limit: usize,
+    ) -> Result<(Box<Out>, OffsetPeaks), Buffer> {
         let mut eng = Box::new(Offsetter::<8192>::new());
         let mut out = Box::new(Out::new());
-        eng.begin();
-        for l in loops {
-            eng.add_loop(l, d, join).unwrap();
-        }
-        eng.union_into(&mut out.loops(), 0, 0, 1).unwrap();
+        let curves =
+            |e: &mut Offsetter<8192>| loops.iter().try_for_each(|l| e.add_loop(l, d, join));
+        eng.union_into(&mut out.loops(), 0, 0, 1, limit, curves)?;
         assert_eq!(eng.open_chains, 0);
-        out
+        assert!(eng.peaks.edges.max(eng.peaks.pieces) <= limit);
+        Ok((out, eng.peaks))
     }
 
     fn rect(x0: i32, y0: i32, x1: i32, y1: i32) -> [Point2; 4] {
@@ -1054,7 +1241,21 @@ mod tests {
             let refs: Vec<&[Point2]> = loops.iter().map(|l| l.as_slice()).collect();
             let mut last_area = f64::INFINITY;
             for d in [150, 400, 900, 1_700] {
-                let out = offset_loops(&refs, d, Join::Round);
+                // Odd cases in bands: the engine holds a third of what the union needs.
+                let out = if case % 2 == 1 {
+                    // The darts stay; half of the rest of the work (32 slots at least).
+                    let (_, whole) = offset_limited(&refs, d, Join::Round, usize::MAX).unwrap();
+                    let need = whole.edges.max(whole.pieces);
+                    let limit = whole.darts + ((need - whole.darts) / 2).max(32);
+                    let (out, peaks) =
+                        offset_limited(&refs, d, Join::Round, limit).unwrap_or_else(|e| {
+                            panic!("case {case} d {d} limit {limit} {whole:?}: {e:?}")
+                        });
+                    assert!(peaks.bands > 1 || limit >= need, "case {case} d {d}: {peaks:?}");
+                    out
+                } else {
+                    offset_loops(&refs, d, Join::Round)
+                };
                 let got: Vec<Vec<Point2>> =
                     out.rings().iter().map(|r| out.ring_points(r).to_vec()).collect();
                 let area = area_mm2(&out);
@@ -1271,5 +1472,77 @@ mod tests {
         for d in [225, 675, 900] {
             offset_loops(&refs, d, Join::Miter);
         }
+    }
+
+    /// The LM8UU layer in bands of every size down to the thinnest: the same loops (count,
+    /// area within the seams' rounding) as the union done whole.
+    #[test]
+    fn bands_give_the_whole_union() {
+        let loops: Vec<Vec<Point2>> = LM8UU_LAYER
+            .iter()
+            .map(|l| l.iter().map(|&(x, y)| Point2::new(x, y)).collect())
+            .collect();
+        let refs: Vec<&[Point2]> = loops.iter().map(|l| l.as_slice()).collect();
+        for d in [225, 675, 900] {
+            let (whole, peaks) = offset_limited(&refs, d, Join::Miter, usize::MAX).unwrap();
+            let need = peaks.edges.max(peaks.pieces);
+            let mut fits = Vec::new();
+            for limit in (peaks.darts / 2..need).step_by(3) {
+                let (banded, p) = match offset_limited(&refs, d, Join::Miter, limit) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        let capacity =
+                            [Buffer::OffsetEdges, Buffer::OffsetSplits, Buffer::OffsetPieces];
+                        assert!(capacity.contains(&e), "d {d} limit {limit}: {e:?}");
+                        continue;
+                    }
+                };
+                fits.push((limit, p.bands));
+                assert!(p.bands > 1, "d {d} limit {limit}: {p:?}");
+                assert_eq!(banded.rings().len(), whole.rings().len(), "d {d} limit {limit}");
+                // Each seam moves a loop's crossing point by under 1/16 um before the output's
+                // rounding to um: a few um2 per crossing at most.
+                let (a, b) = (area_mm2(&whole), area_mm2(&banded));
+                assert!(
+                    (a - b).abs() < 1e-4 * whole.rings().len() as f64 * p.bands as f64,
+                    "d {d} limit {limit}: {a} vs {b}"
+                );
+                for (r, s) in whole.rings().iter().zip(banded.rings()) {
+                    assert!((r.min.x - s.min.x).abs() <= 1 && (r.max.y - s.max.y).abs() <= 1);
+                }
+            }
+            // Every limit from the darts and a third of the rest of the work up fits.
+            let floor = peaks.darts + (need - peaks.darts) / 3;
+            let first = fits.first().map_or(need, |f| f.0);
+            assert!(first <= floor, "d {d} {peaks:?}: fits from {first}");
+            assert_eq!(fits.len(), (first..need).step_by(3).count(), "d {d}: {fits:?}");
+        }
+    }
+
+    /// An engine too small for one line of the union refuses it with the capacity error
+    /// (after halving its bands down to the thinnest), and works again afterwards.
+    #[test]
+    fn too_small_for_one_band_is_a_capacity_error() {
+        let comb: Vec<Point2> = (0..40)
+            .flat_map(|k| {
+                let x = k * 1_000;
+                [
+                    Point2::new(x, 0),
+                    Point2::new(x + 500, 0),
+                    Point2::new(x + 500, 5_000),
+                    Point2::new(x + 100, 5_000),
+                ]
+            })
+            .rev()
+            .collect();
+        let square = rect(0, 0, 10_000, 10_000);
+        for limit in [0, 1, 3, 8, 30] {
+            let err = offset_limited(&[&comb], 50, Join::Miter, limit).err();
+            let capacity = [Buffer::OffsetEdges, Buffer::OffsetSplits, Buffer::OffsetPieces];
+            assert!(err.is_some_and(|e| capacity.contains(&e)), "limit {limit}: {err:?}");
+        }
+        let (out, _) = offset_limited(&[&square], 225, Join::Miter, 8).unwrap();
+        assert_eq!(out.rings().len(), 1);
+        assert_eq!(out.rings()[0].area2, 2 * 9_550i64 * 9_550);
     }
 }
