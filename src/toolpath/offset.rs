@@ -142,8 +142,13 @@ pub struct Offsetter<const E: usize> {
     n_segs: usize,
     /// Split points, in the edge slots after the edges.
     n_splits: usize,
-    /// Boundary darts of the finished bands, in the last edge slots.
+    /// Boundary darts of the finished bands, in the last edge slots (in bands: the slots of
+    /// the chain store).
     n_darts: usize,
+    /// The union is done in bands: the darts are kept as chains of points.
+    banded: bool,
+    /// Points in the chain store (chain headers included).
+    chain_points: usize,
     pieces: [Piece; E],
     n_pieces: usize,
     /// Active list of the sweeps (indices), then the darts' used flags.
@@ -221,6 +226,8 @@ impl<const E: usize> Offsetter<E> {
             n_segs: 0,
             n_splits: 0,
             n_darts: 0,
+            banded: false,
+            chain_points: 0,
             pieces: [Piece { a: Point2::new(0, 0), b: Point2::new(0, 0), w: 0, wr: 0 }; E],
             n_pieces: 0,
             act: [0; E],
@@ -769,7 +776,7 @@ impl<const E: usize> Offsetter<E> {
         mut source: impl FnMut(&mut Self) -> Result<(), Buffer>,
     ) -> Result<(), Buffer> {
         self.cap = limit.min(E).min(MAX_ITEMS);
-        self.n_darts = 0;
+        (self.n_darts, self.banded, self.chain_points) = (0, false, 0);
         let mut band = Band::ALL;
         // Height of the next band once the union is split, engine units.
         let mut height = 0i64;
@@ -794,6 +801,7 @@ impl<const E: usize> Offsetter<E> {
                         let lo = self.y_span.0;
                         height = top - i64::from(lo);
                         band.lo = lo;
+                        self.banded = true;
                     }
                     height /= 2;
                     if height < MIN_BAND {
@@ -835,15 +843,16 @@ impl<const E: usize> Offsetter<E> {
             self.merge_pieces()?;
         }
         self.classify()?;
-        // Darts (directed boundary pieces), in piece order, into the slots below the stored
-        // darts (the band's edges and splits are no longer needed).
-        let pieces = &self.pieces[..self.n_pieces];
-        let k = pieces.iter().filter(|p| p.keep() != 0).count();
+        // Darts (directed boundary pieces), in piece order: whole, below the stored darts;
+        // in bands, at the bottom, to be traced into chains (the band's edges and splits are
+        // no longer needed).
+        let k = self.pieces[..self.n_pieces].iter().filter(|p| p.keep() != 0).count();
         if self.n_darts + k > self.cap {
             return Err(Buffer::OffsetEdges);
         }
-        let mut slot = self.cap - self.n_darts - k;
-        for p in pieces {
+        let mut slot = if self.banded { 0 } else { self.cap - self.n_darts - k };
+        for i in 0..self.n_pieces {
+            let p = self.pieces[i];
             let (a, b) = match p.keep() {
                 1 => (p.a, p.b),
                 -1 => (p.b, p.a),
@@ -852,9 +861,108 @@ impl<const E: usize> Offsetter<E> {
             self.segs[slot] = Seg { a, b };
             slot += 1;
         }
-        self.n_darts += k;
-        self.peaks.edges = self.peaks.edges.max(self.n_darts);
+        let used = if self.banded {
+            self.store_chains(k)?;
+            self.n_darts + k
+        } else {
+            self.n_darts += k;
+            self.n_darts
+        };
+        self.peaks.edges = self.peaks.edges.max(used);
         self.peaks.darts = self.peaks.darts.max(self.n_darts);
+        Ok(())
+    }
+
+    /// Point `q` of the chain store: two points an edge slot, from the last slot down.
+    fn chain_point(&self, q: usize) -> Point2 {
+        let s = &self.segs[self.cap - 1 - q / 2];
+        if q % 2 == 0 {
+            s.a
+        } else {
+            s.b
+        }
+    }
+
+    fn set_chain_point(&mut self, q: usize, p: Point2) {
+        let s = &mut self.segs[self.cap - 1 - q / 2];
+        if q % 2 == 0 {
+            s.a = p;
+        } else {
+            s.b = p;
+        }
+    }
+
+    /// Appends a point to the chain store, which must leave the first `floor` slots free.
+    fn push_chain_point(&mut self, p: Point2, floor: usize) -> Result<(), Buffer> {
+        if (self.chain_points + 1).div_ceil(2) + floor > self.cap {
+            return Err(Buffer::OffsetEdges);
+        }
+        self.set_chain_point(self.chain_points, p);
+        self.chain_points += 1;
+        Ok(())
+    }
+
+    /// Traces the band's `k` darts (in the first `k` slots) into chains, stored as points: a
+    /// header (`x` the chain's number of points, `y` 1 once traced into a loop), then the
+    /// points from the chain's start to its end (a chain that closes ends at its start). A
+    /// chain ends where no unused dart goes on (on the band's lines, mostly), and begins
+    /// where none comes in, as far as can be (then the closed ones). On error the band's
+    /// chains are dropped.
+    fn store_chains(&mut self, k: usize) -> Result<(), Buffer> {
+        sort::sort_by_key(&mut self.segs[..k], |s| (s.a.y, s.a.x));
+        // `act`: bit 0 used, bit 1 some dart goes on to this one.
+        self.act[..k].fill(0);
+        for i in 0..k {
+            if let Some(next) = next_dart(&self.segs[..k], &self.act[..k], self.segs[i]) {
+                self.act[next] |= 2;
+            }
+        }
+        let kept = self.chain_points;
+        let mut stored = Ok(());
+        for heads in [true, false] {
+            for start in 0..k {
+                let flags = self.act[start];
+                if flags & 1 == 0 && (!heads || flags & 2 == 0) && stored.is_ok() {
+                    stored = self.store_chain(start, k);
+                }
+            }
+        }
+        if stored.is_err() {
+            self.chain_points = kept;
+        }
+        self.n_darts = self.chain_points.div_ceil(2);
+        stored
+    }
+
+    /// Chains end on the band's lines and where more than one of the band's `k` darts
+    /// leaves: there the loops are linked as darts are ([`next_dart`]'s turn), and a loop
+    /// closes at its first return to where it began.
+    fn chain_stop(&self, v: Point2, k: usize) -> bool {
+        let darts = &self.segs[..k];
+        let lo = darts.partition_point(|d| (d.a.y, d.a.x) < (v.y, v.x));
+        v.y == self.band.lo || v.y == self.band.hi || darts.get(lo + 1).is_some_and(|d| d.a == v)
+    }
+
+    /// Stores the chain of unused darts from dart `start` on (of the first `k`).
+    fn store_chain(&mut self, start: usize, k: usize) -> Result<(), Buffer> {
+        let header = self.chain_points;
+        let origin = self.segs[start].a;
+        self.push_chain_point(Point2::new(0, 0), k)?;
+        self.push_chain_point(origin, k)?;
+        let mut cur = start;
+        let mut len = 1;
+        for _ in 0..k {
+            self.act[cur] |= 1;
+            let d = self.segs[cur];
+            self.push_chain_point(d.b, k)?;
+            len += 1;
+            if d.b == origin || self.chain_stop(d.b, k) {
+                break;
+            }
+            let Some(next) = next_dart(&self.segs[..k], &self.act[..k], d) else { break };
+            cur = next;
+        }
+        self.set_chain_point(header, Point2::new(len, 0));
         Ok(())
     }
 
@@ -868,6 +976,9 @@ impl<const E: usize> Offsetter<E> {
         depth: u8,
         min_width_um: i64,
     ) -> Result<usize, Buffer> {
+        if self.banded {
+            return self.trace_chains(out, island, depth, min_width_um);
+        }
         let nd = self.n_darts;
         self.segs.copy_within(self.cap - nd..self.cap, 0);
         self.n_darts = 0;
@@ -888,6 +999,87 @@ impl<const E: usize> Offsetter<E> {
         Ok(added)
     }
 
+    /// [`trace_into`](Self::trace_into) for a union done in bands: its chains are linked
+    /// into loops, each chain going on with the unused one that starts where it ends and
+    /// turns first clockwise (as darts are linked).
+    fn trace_chains<const L: usize>(
+        &mut self,
+        out: &mut Loops<'_, L>,
+        island: u16,
+        depth: u8,
+        min_width_um: i64,
+    ) -> Result<usize, Buffer> {
+        let mut added = 0;
+        let mut chain = 0;
+        while chain < self.chain_points {
+            let header = self.chain_point(chain);
+            if header.y == 0
+                && self.trace_chain_loop(chain, out)?
+                && self.finish_loop(out, island, depth, min_width_um)?
+            {
+                added += 1;
+            }
+            chain += 1 + header.x as usize;
+        }
+        (self.n_darts, self.banded, self.chain_points) = (0, false, 0);
+        Ok(added)
+    }
+
+    /// Follows the chains from the one at `first`; writes the loop's points (um) into
+    /// `out`'s open loop. Returns false (and discards) on a dead end.
+    fn trace_chain_loop<const L: usize>(
+        &mut self,
+        first: usize,
+        out: &mut Loops<'_, L>,
+    ) -> Result<bool, Buffer> {
+        let origin = self.chain_point(first + 1);
+        let mut last_um = to_um(origin);
+        out.push(last_um)?;
+        let mut chain = first;
+        loop {
+            let len = self.chain_point(chain).x as usize;
+            self.set_chain_point(chain, Point2::new(len as i32, 1));
+            let end = chain + len;
+            for q in chain + 2..=end {
+                let v = self.chain_point(q);
+                if q == end && v == origin {
+                    return Ok(true);
+                }
+                let um = to_um(v);
+                if um != last_um {
+                    out.push(um)?;
+                    last_um = um;
+                }
+            }
+            let (v, prev) = (self.chain_point(end), self.chain_point(end - 1));
+            match self.next_chain(Seg { a: prev, b: v }) {
+                Some(next) => chain = next,
+                None => {
+                    self.open_chains += 1;
+                    out.discard_open();
+                    return Ok(false);
+                }
+            }
+        }
+    }
+
+    /// The unused chain that goes on from the end of `from` (a chain's last dart).
+    fn next_chain(&self, from: Seg) -> Option<usize> {
+        let mut chain = 0;
+        let mut candidates = core::iter::from_fn(|| {
+            while chain < self.chain_points {
+                let (at, header) = (chain, self.chain_point(chain));
+                chain += 1 + header.x as usize;
+                let start = self.chain_point(at + 1);
+                if header.y == 0 && start == from.b {
+                    return Some((at, dir(Seg { a: start, b: self.chain_point(at + 2) })));
+                }
+            }
+            None
+        });
+        first_clockwise(dir(Seg { a: from.b, b: from.a }), &mut candidates)
+    }
+
     /// Follows boundary darts from `start`; writes the loop's points (um) into `out`'s open
     /// loop. Returns false (and discards) on a dead end.
     fn trace<const L: usize>(
@@ -901,12 +1093,6 @@ impl<const E: usize> Offsetter<E> {
         let origin = darts[start].a;
         let mut cur = start;
         used[cur] = 1;
-        let to_um = |p: Point2| {
-            Point2::new(
-                div_round(i64::from(p.x), i64::from(SCALE)) as i32,
-                div_round(i64::from(p.y), i64::from(SCALE)) as i32,
-            )
-        };
         let mut last_um = to_um(origin);
         out.push(last_um)?;
         for _ in 0..nd {
@@ -919,30 +1105,7 @@ impl<const E: usize> Offsetter<E> {
                 out.push(um)?;
                 last_um = um;
             }
-            // Outgoing darts from v.
-            let lo = darts.partition_point(|d| (d.a.y, d.a.x) < (v.y, v.x));
-            let back = (
-                i64::from(darts[cur].a.x) - i64::from(v.x),
-                i64::from(darts[cur].a.y) - i64::from(v.y),
-            );
-            let mut best: Option<usize> = None;
-            let mut m = lo;
-            while m < nd && darts[m].a == v {
-                if used[m] == 0 {
-                    best = Some(match best {
-                        None => m,
-                        Some(b) => {
-                            if cw_before(back, dir(darts[m]), dir(darts[b])) {
-                                m
-                            } else {
-                                b
-                            }
-                        }
-                    });
-                }
-                m += 1;
-            }
-            let Some(next) = best else {
+            let Some(next) = next_dart(darts, used, darts[cur]) else {
                 self.open_chains += 1;
                 out.discard_open();
                 return Ok(false);
@@ -987,8 +1150,42 @@ impl<const E: usize> Offsetter<E> {
     }
 }
 
+/// An engine point in um (rounded).
+fn to_um(p: Point2) -> Point2 {
+    Point2::new(
+        div_round(i64::from(p.x), i64::from(SCALE)) as i32,
+        div_round(i64::from(p.y), i64::from(SCALE)) as i32,
+    )
+}
+
 fn dir(s: Seg) -> (i64, i64) {
     (i64::from(s.b.x) - i64::from(s.a.x), i64::from(s.b.y) - i64::from(s.a.y))
+}
+
+/// The unused dart (of `darts`, sorted by start; `used` bit 0) that goes on from the end of
+/// `from`: the first one turning clockwise from the way back, so that faces stay simple.
+fn next_dart(darts: &[Seg], used: &[u16], from: Seg) -> Option<usize> {
+    let v = from.b;
+    let lo = darts.partition_point(|d| (d.a.y, d.a.x) < (v.y, v.x));
+    let outgoing = (lo..darts.len()).take_while(|&m| darts[m].a == v);
+    let candidates = outgoing.filter(|&m| used[m] & 1 == 0).map(|m| (m, dir(darts[m])));
+    first_clockwise(dir(Seg { a: v, b: from.a }), candidates)
+}
+
+/// The candidate (index, direction) reached first turning clockwise from `back` (the first
+/// listed of equal ones).
+fn first_clockwise(
+    back: (i64, i64),
+    candidates: impl Iterator<Item = (usize, (i64, i64))>,
+) -> Option<usize> {
+    let mut best: Option<(usize, (i64, i64))> = None;
+    for (m, c) in candidates {
+        best = match best {
+            Some((_, b)) if !cw_before(back, c, b) => best,
+            _ => Some((m, c)),
+        };
+    }
+    best.map(|(m, _)| m)
 }
 
 /// Is `c1` reached before `c2` turning clockwise from `r` (a direction equal to `r` last)?
@@ -1474,8 +1671,9 @@ mod tests {
         }
     }
 
-    /// The LM8UU layer in bands of every size down to the thinnest: the same loops (count,
-    /// area within the seams' rounding) as the union done whole.
+    /// The LM8UU layer with every engine size from half its darts to what the whole union
+    /// needs: either the capacity error or the same loops as the union done whole (area
+    /// within the seams' rounding), in more bands the smaller the engine.
     #[test]
     fn bands_give_the_whole_union() {
         let loops: Vec<Vec<Point2>> = LM8UU_LAYER
@@ -1499,23 +1697,32 @@ mod tests {
                 };
                 fits.push((limit, p.bands));
                 assert!(p.bands > 1, "d {d} limit {limit}: {p:?}");
-                assert_eq!(banded.rings().len(), whole.rings().len(), "d {d} limit {limit}");
                 // Each seam moves a loop's crossing point by under 1/16 um before the output's
-                // rounding to um: a few um2 per crossing at most.
+                // rounding to um and clean-up (2 um): every loop but slivers (under 1,000 um2,
+                // which the clean-up may keep or drop) is there, with its bounds within 2 um.
+                for (x, y) in [(&whole, &banded), (&banded, &whole)] {
+                    for r in x.rings().iter().filter(|r| r.area2.abs() >= 2_000) {
+                        let near = |s: &Ring| {
+                            let dist =
+                                |p: Point2, q: Point2| (p.x - q.x).abs().max((p.y - q.y).abs());
+                            dist(r.min, s.min) <= 2 && dist(r.max, s.max) <= 2
+                        };
+                        assert!(y.rings().iter().any(near), "d {d} limit {limit}: {r:?}");
+                    }
+                }
                 let (a, b) = (area_mm2(&whole), area_mm2(&banded));
                 assert!(
                     (a - b).abs() < 1e-4 * whole.rings().len() as f64 * p.bands as f64,
                     "d {d} limit {limit}: {a} vs {b}"
                 );
-                for (r, s) in whole.rings().iter().zip(banded.rings()) {
-                    assert!((r.min.x - s.min.x).abs() <= 1 && (r.max.y - s.max.y).abs() <= 1);
-                }
             }
-            // Every limit from the darts and a third of the rest of the work up fits.
-            let floor = peaks.darts + (need - peaks.darts) / 3;
+            // The darts are kept as chains of points (8 B a dart, not 16): every limit from
+            // 5/6 of them and 24 slots for a band's work up fits.
+            let floor = peaks.darts * 5 / 6 + 24;
             let first = fits.first().map_or(need, |f| f.0);
             assert!(first <= floor, "d {d} {peaks:?}: fits from {first}");
             assert_eq!(fits.len(), (first..need).step_by(3).count(), "d {d}: {fits:?}");
+            assert!(fits.windows(2).all(|w| w[1].1 <= w[0].1), "d {d}: {fits:?}");
         }
     }
 
