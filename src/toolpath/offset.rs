@@ -1036,6 +1036,7 @@ impl<const E: usize> Offsetter<E> {
         let mut last_um = to_um(origin);
         out.push(last_um)?;
         let mut chain = first;
+        let mut seam = false;
         loop {
             let len = self.chain_point(chain).x as usize;
             self.set_chain_point(chain, Point2::new(len as i32, 1));
@@ -1047,10 +1048,14 @@ impl<const E: usize> Offsetter<E> {
                 }
                 let um = to_um(v);
                 if um != last_um {
+                    if core::mem::take(&mut seam) {
+                        drop_seam_point(out, um);
+                    }
                     out.push(um)?;
                     last_um = um;
                 }
             }
+            seam = true;
             let (v, prev) = (self.chain_point(end), self.chain_point(end - 1));
             match self.next_chain(Seg { a: prev, b: v }) {
                 Some(next) => chain = next,
@@ -1147,6 +1152,27 @@ impl<const E: usize> Offsetter<E> {
         }
         out.truncate_open(n);
         Ok(out.close(island, depth, Ring::NO_PARENT)?.is_some())
+    }
+}
+
+/// Drops the open loop's last point (where two chains meet) if it lies on the segment from
+/// the point before it to `next` within 1 um: a band's line cut an edge there, it is not a
+/// vertex of the union (the output's clean-up would drop it; the loop buffer need not
+/// hold it meanwhile).
+fn drop_seam_point<const L: usize>(out: &mut Loops<'_, L>, next: Point2) {
+    let n = out.open_len();
+    if n < 2 {
+        return;
+    }
+    let pts = out.open_points_mut();
+    let (a, s) = (pts[n - 2], pts[n - 1]);
+    let dot = |u: Point2, v: Point2, w: Point2| {
+        (i64::from(v.x) - i64::from(u.x)) * (i64::from(w.x) - i64::from(u.x))
+            + (i64::from(v.y) - i64::from(u.y)) * (i64::from(w.y) - i64::from(u.y))
+    };
+    let len = isqrt_u64(super::poly::dist2(a, next) as u64) as i64;
+    if orient(a, next, s).abs() <= len && dot(a, s, next) >= 0 && dot(next, s, a) >= 0 {
+        out.truncate_open(n - 1);
     }
 }
 
