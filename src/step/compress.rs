@@ -134,8 +134,10 @@ impl QueuedDir {
 /// One axis' pending steps and its committed reference time.
 #[derive(Debug, Clone)]
 pub(crate) struct Compressor<const B: usize> {
-    /// Pending exact step times (generator ticks), ring buffer.
-    buf: [u64; B],
+    /// Pending exact step times (generator ticks), ring buffer: the low 32 bits of each. The
+    /// newest, `prev_tick`, is less than 2^32 ticks after every other pending one (see
+    /// [`Compressor::push_step`]), which restores them ([`Compressor::tick_at`]).
+    buf: [u32; B],
     head: usize,
     len: usize,
     /// Time of the last committed step (or the end of the last wait).
@@ -144,7 +146,7 @@ pub(crate) struct Compressor<const B: usize> {
     dir: QueuedDir,
     /// The next sequence is the first after a DIR command.
     after_dir: bool,
-    /// The last accepted step (its direction is `dir`).
+    /// The last accepted step (its direction is `dir`): the newest pending one, if any.
     prev_tick: u64,
     /// Steps moved later to respect the driver's minimum intervals.
     pub clamped: u32,
@@ -190,8 +192,16 @@ impl<const B: usize> Compressor<B> {
     }
 
     pub(crate) fn first_pending(&self) -> Option<u64> {
-        // (`head` is always below B: the `% B` only spares the bounds check.)
-        (self.len > 0).then(|| self.buf[self.head % B])
+        (self.len > 0).then(|| self.tick_at(self.head))
+    }
+
+    /// The exact tick of the pending step at ring position `j % B`: `prev_tick` less the
+    /// 32-bit distance back to it (exact, as no pending step lies 2^32 ticks or more before
+    /// `prev_tick`).
+    #[inline(always)]
+    fn tick_at(&self, j: usize) -> u64 {
+        // (`% B` spares the bounds check, a mask for the usual powers of two.)
+        self.prev_tick - (self.prev_tick as u32).wrapping_sub(self.buf[j % B]) as u64
     }
 
     /// Time of the last committed step.
@@ -230,7 +240,16 @@ impl<const B: usize> Compressor<B> {
         } else {
             tick
         };
-        self.buf[(self.head + self.len) % B] = tick;
+        // The ring keeps the low 32 bits of each tick: pending steps 2^32 ticks (59.6 s at
+        // 72 MHz) or more before this one go out first. Never taken in the generator: it
+        // sends a pending step before the next step once any axis steps more than
+        // `pending_ticks` (20 ms) after it, so this needs a pause of 2^32 - `pending_ticks`
+        // between two consecutive steps of the machine within a motion (a stop sends
+        // everything).
+        while self.first_pending().is_some_and(|first| tick - first > u32::MAX as u64) {
+            self.emit(axis, out, tune)?;
+        }
+        self.buf[(self.head + self.len) % B] = tick as u32;
         self.len += 1;
         self.prev_tick = tick;
         Ok(())
@@ -329,13 +348,13 @@ impl<const B: usize> Compressor<B> {
         let add_t = T::of(add);
         let mut iv = T::of(interval);
         let mut t = T::low(self.last).add(iv);
-        if t.sub(T::low(self.buf[self.head % B])).wide().abs() > tune.tol {
+        if t.sub(T::low(self.tick_at(self.head))).wide().abs() > tune.tol {
             return false;
         }
         for j in self.head + 1..self.head + count {
             iv = iv.add(add_t);
             t = t.add(iv);
-            if t.sub(T::low(self.buf[j % B])).wide().abs() > tune.tol {
+            if t.sub(T::low(self.tick_at(j))).wide().abs() > tune.tol {
                 return false;
             }
         }
@@ -347,13 +366,17 @@ impl<const B: usize> Compressor<B> {
     /// near half the previous sequence's length (the curvature around the middle of a
     /// sequence as long as the last). Exact for steps on one quadratic; the rounding of the
     /// exact times errs by at most `2 / m^2`.
+    ///
+    /// Differences of pending steps are taken in 32 bits (exact: below 2^32 and
+    /// non-negative).
     fn guess_add(&self, n: usize) -> i64 {
         if n < 3 {
             // Second difference with the first interval counted from `last`.
             return if n == 2 {
-                let t0 = self.buf[self.head];
+                let t0 = self.buf[self.head % B];
                 let t1 = self.buf[(self.head + 1) % B];
-                (t1.wrapping_sub(t0) as i64).wrapping_sub(t0.wrapping_sub(self.last) as i64)
+                let d0 = self.tick_at(self.head).wrapping_sub(self.last);
+                (t1.wrapping_sub(t0) as i64).wrapping_sub(d0 as i64)
             } else {
                 0
             };
@@ -362,7 +385,7 @@ impl<const B: usize> Compressor<B> {
         let span = (n - 1).min(self.prev_count.max(2)) as u32;
         let shift = span.ilog2() - 1;
         let m = 1usize << shift;
-        let t0 = self.buf[self.head];
+        let t0 = self.buf[self.head % B];
         let t1 = self.buf[(self.head + m) % B];
         let t2 = self.buf[(self.head + 2 * m) % B];
         let dd = (t2.wrapping_sub(t1) as i64).wrapping_sub(t1.wrapping_sub(t0) as i64);
@@ -498,8 +521,8 @@ impl<const B: usize> Compressor<B> {
         if n == 0 || n >= 1 << 12 {
             return 0;
         }
-        let first = self.buf[self.head] as i64 - self.last as i64;
-        let end = self.buf[(self.head + n - 1) % B] as i64 - self.last as i64;
+        let first = self.tick_at(self.head) as i64 - self.last as i64;
+        let end = self.tick_at(self.head + n - 1) as i64 - self.last as i64;
         // (end + tol + 1) n < 2^29, that is end + tol + 1 <= floor((2^29 - 1) / n), compared
         // as a quotient (no 64-bit product).
         let span_max = (((1u32 << 29) - 1) / n as u32) as i64;
@@ -523,7 +546,7 @@ impl<const B: usize> Compressor<B> {
         let last = self.last as i64;
         for i in 0..n {
             let ii = i as i64;
-            let d = self.buf[(self.head + i) % B] as i64 - last;
+            let d = self.tick_at(self.head + i) as i64 - last;
             let k = ii + 1;
             let at = add * (ii * k / 2);
             let mut lo = -(-(d - tune.tol - at)).div_euclid(k);
@@ -576,7 +599,7 @@ impl<const B: usize> Compressor<B> {
             miss,
             over: over as u32,
         };
-        let d = (self.buf[self.head % B] as u32).wrapping_sub(last) as i32;
+        let d = self.buf[self.head % B].wrapping_sub(last) as i32;
         let (imin, imax) = ((d - tol).max(self.first_min(tune) as i32), d + tol);
         if imin > imax {
             return Fit {
@@ -602,7 +625,7 @@ impl<const B: usize> Compressor<B> {
             hi_iv += add32;
             up = up.wrapping_add(lo_iv as u32);
             down = down.wrapping_add(hi_iv as u32);
-            let t = self.buf[j % B] as u32;
+            let t = self.buf[j % B];
             let (above, below) = (up.wrapping_sub(t) as i32, t.wrapping_sub(down) as i32);
             // Inside both edges, and the interval at imin (the shortest) not below the
             // minimum: nothing narrows.
@@ -730,7 +753,8 @@ mod tests {
             let mut iv = 144 + rnd(20_000) as i64;
             let acc = rnd(400) as i64 - 200;
             for i in 0..c.len {
-                c.buf[(c.head + i) % 64] = t;
+                c.buf[(c.head + i) % 64] = t as u32;
+                c.prev_tick = t;
                 iv = (iv + acc + rnd(80) as i64 - 40).max(144);
                 t += iv as u64;
             }
@@ -773,6 +797,115 @@ mod tests {
             }
         }
         assert!(reached > 20_000, "{reached} bounds checked");
+    }
+
+    /// Steps whose ticks cross multiples of 2^32, an idle of two minutes between bursts,
+    /// and pending steps 59 s apart (within 2^32 ticks of each other); commands of axis 0.
+    fn steps_across_32_bit_ticks() -> (Vec<StepCmd>, Vec<u64>, Compressor<8>) {
+        let mut exact = Vec::new();
+        // Accelerating through 2^32, then everything sent (as the generator does at a stop).
+        let mut t = (1u64 << 32) - 15_000;
+        for i in 0..24 {
+            exact.push((t, true, i == 23));
+            t += 1500 - 20 * i;
+        }
+        // Two minutes later, through 3 2^32, then a step 59 s after the burst's first one
+        // while the burst is still pending, a few more and a reversal.
+        let start = (3u64 << 32) - 5000;
+        for i in 0..12 {
+            exact.push((start + 700 * i, true, false));
+        }
+        let late = start + (1 << 32) - 50_000;
+        for i in 0..6 {
+            exact.push((late + 1000 * i, true, false));
+        }
+        for i in 0..5 {
+            exact.push((late + 9000 + 800 * i, false, i == 4));
+        }
+        let mut q = StepQueue::<256>::new();
+        let mut c = Compressor::<8>::new();
+        {
+            let (mut p, _) = q.split();
+            for &(tick, dir, flush) in &exact {
+                c.push_step(0, tick, dir, &mut p, &tune()).unwrap();
+                while flush && !c.is_empty() {
+                    c.emit(0, &mut p, &tune()).unwrap();
+                }
+            }
+        }
+        let (_, mut cons) = q.split();
+        let cmds = core::iter::from_fn(|| cons.dequeue(0)).collect();
+        (cmds, exact.iter().map(|e| e.0).collect(), c)
+    }
+
+    #[test]
+    fn ticks_past_32_bits_compress_as_before() {
+        let (cmds, exact, c) = steps_across_32_bit_ticks();
+        assert_eq!(c.check_failures, 0);
+        let waits = |n: usize| vec![StepCmd::Wait(MAX_INTERVAL_TICKS / 2); n];
+        let steps = |interval, count, add| StepCmd::Steps { interval, count, add };
+        // The commands of the compressor that kept whole 64-bit ticks.
+        let expected = [
+            vec![StepCmd::Dir(true)],
+            waits(6),
+            vec![
+                steps(1_073_726_788, 2, -1_073_725_216),
+                steps(1475, 8, -20),
+                steps(1320, 8, -20),
+                steps(1160, 6, -20),
+            ],
+            waits(14),
+            vec![steps(1_073_722_352, 2, -1_073_721_580), steps(695, 8, 0), steps(740, 2, -112)],
+            waits(6),
+            vec![
+                steps(1_073_684_124, 2, -1_073_683_052),
+                steps(991, 4, 0),
+                StepCmd::Dir(false),
+                steps(3964, 2, -3092),
+                steps(788, 3, 0),
+            ],
+        ]
+        .concat();
+        assert_eq!(cmds, expected);
+        // Replayed, every step is within the tolerance of its exact time.
+        let mut q = StepQueue::<256>::new();
+        {
+            let (mut p, _) = q.split();
+            for &cmd in &cmds {
+                p.enqueue(0, cmd).unwrap();
+            }
+        }
+        let got = replay(&mut q);
+        assert_eq!(got.len(), exact.len());
+        for (g, e) in got.iter().zip(&exact) {
+            assert!((g - *e as i64).abs() <= tune().tol, "{g} vs {e}");
+        }
+    }
+
+    #[test]
+    fn steps_2_pow_32_ticks_apart_never_share_the_ring() {
+        // Steps 0.95 s apart with nothing sent in between: 64 of them would span more than
+        // 2^32 ticks, so the oldest go out before a step that far after them comes in.
+        let exact: Vec<u64> = (0..200u64).map(|i| 10_000 + i * 68_500_000 + i * i).collect();
+        let mut q = StepQueue::<256>::new();
+        let mut c = Compressor::<64>::new();
+        {
+            let (mut p, _) = q.split();
+            for &t in &exact {
+                c.push_step(0, t, true, &mut p, &tune()).unwrap();
+                let first = c.first_pending().unwrap();
+                assert!(t - first < 1 << 32, "{first} pending at {t}");
+            }
+            while !c.is_empty() {
+                c.emit(0, &mut p, &tune()).unwrap();
+            }
+        }
+        assert_eq!(c.check_failures, 0);
+        let got = replay(&mut q);
+        assert_eq!(got.len(), exact.len());
+        for (g, e) in got.iter().zip(&exact) {
+            assert!((g - *e as i64).abs() <= tune().tol, "{g} vs {e}");
+        }
     }
 
     #[test]
