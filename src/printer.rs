@@ -63,9 +63,11 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
 /// announces [`BOARD_CAPACITIES`].
 ///
-/// The capacities are those embodier_hotend_v2 needs at the default settings (the largest
-/// sample model that fits 64 KB; embodier_asc and xyz_20mm_cube need far less of each), so
-/// it prints unsimplified. RAM on the board = the `Printer` (slicer + toolpath + their
+/// The capacities are the largest of what embodier_hotend_v2 needs at the default settings
+/// (it prints unsimplified) and what embodier_LM8UU_8p2pi needs simplified for the slicer
+/// (742 active triangles unsimplified; admission simplifies it to 388 with a measured
+/// deviation of 0.0135 mm, under the default 0.02 mm) with its offsets done in bands;
+/// embodier_asc and xyz_20mm_cube need far less of each. RAM on the board = the `Printer` (slicer + toolpath + their
 /// scratch + move buffer + planner + generator) + the protocol endpoint, the step queue, the
 /// executor and the UART buffers + the stack; the firmware prints `.data + .bss` and the
 /// stack's high-water mark after every job, and `scripts/build_firmware.sh` fails when the
@@ -73,7 +75,7 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
 /// the toolpath stage take turns in holds the largest of the cut (29 per segment: the
 /// segment, its link and flags, and the endpoint hash whose place the layer's loop points
-/// take once it is dead), the offset engine with its result's points (58 per `PTS`) and the
+/// take once it is dead), the offset engine with its result's points (54 per `PTS`) and the
 /// infill scratch (22 per `CROSS`) ([`crate::scratch`]); toolpath see `ToolpathNeeds`;
 /// move buffer `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on
 /// average over the sample models, at most 29), holding the largest path with its travel
@@ -87,10 +89,12 @@ pub mod board {
     pub const S: usize = 388;
     /// Slicer: loops per layer.
     pub const L: usize = 8;
-    /// Toolpath: loop points per layer and offset edges per island (hotend: 207 edges).
-    pub const PTS: usize = 207;
-    /// Toolpath: loops per layer (hotend: 6).
-    pub const LOOPS: usize = 6;
+    /// Toolpath: loop points per layer and offset edges per island (embodier_LM8UU_8p2pi
+    /// simplified for the slicer's capacities: 269 loop points; an island's offset that
+    /// needs more edges, 710 there, is done in bands; hotend: 207 edges, whole).
+    pub const PTS: usize = 271;
+    /// Toolpath: loops per layer (LM8UU: 14; hotend: 6).
+    pub const LOOPS: usize = 14;
     /// Toolpath: scanline crossings, infill segments and paths per layer (hotend: 512).
     pub const CROSS: usize = 512;
     /// Toolpath: path points per layer (hotend: 1,010).
@@ -103,14 +107,14 @@ pub mod board {
     /// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded). The
     /// toolpath stage fills it a unit (a path with the travel before it) at a time, each once
     /// its coded bytes fit, so the largest unit must fit whole: at the default settings
-    /// embodier_asc 693 B, xyz_20mm_cube 1,051 B, embodier_hotend_v2 1,059 B (and
-    /// embodier_LM8UU_8p2pi, which does not fit 64 KB, 1,089 B), about 6 B a move. 2.5 KB is
-    /// 2.4 times the largest. The rest keeps the motion fed while the next layer is computed:
-    /// the stage refills the buffer as the planner takes moves, so it is about full when a
-    /// layer's last unit goes in, and those ~400 moves (seconds of printing, still ~0.8 s of
-    /// 2 ms segments) carry the motion through the next layer's cut and build (about 0.5 s
-    /// for a large layer on the Cortex-M3), lent the motion half at its progress points.
-    pub const MOVE_BYTES: usize = 2_560;
+    /// embodier_asc 693 B, xyz_20mm_cube 1,051 B, embodier_hotend_v2 1,059 B,
+    /// embodier_LM8UU_8p2pi 1,089 B, about 6 B a move. 2.25 KB is 2.1 times the largest. The
+    /// rest keeps the motion fed while the next layer is computed: the stage refills the
+    /// buffer as the planner takes moves, so it is about full when a layer's last unit goes
+    /// in, and those ~370 moves (seconds of printing, still ~0.7 s of 2 ms segments) carry
+    /// the motion through the next layer's cut and build (about 0.5 s for a large layer on
+    /// the Cortex-M3), lent the motion half at its progress points.
+    pub const MOVE_BYTES: usize = 2_304;
     /// Planner lookahead, moves (the host simulation plans with the same).
     pub const P: usize = 32;
 

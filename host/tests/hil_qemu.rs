@@ -21,12 +21,12 @@
 //! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored qemu_   # + models
 //! ```
 //!
-//! embodier_asc, the cube and embodier_hotend_v2 print on the 64 KB build, unsimplified (its
-//! capacities are the hotend's needs). LM8UU is `#[ignore]`d there while it does not fit 64 KB
-//! (see the note above `qemu_embodier_lm8uu`); it runs on the same firmware built for QEMU's
-//! mps2-an385 (Cortex-M3, 4 MB of RAM; `scripts/build_firmware.sh qemu-mps2`), unsimplified,
-//! with the same comparison. Every job's stack must stay [`STACK_HEADROOM`] clear of the
-//! statics.
+//! All four models print on the 64 KB build: embodier_asc, the cube and embodier_hotend_v2
+//! unsimplified, embodier_LM8UU_8p2pi simplified by admission for the slicer with its offsets
+//! done in bands (see the note above `qemu_embodier_lm8uu`). LM8UU also runs unsimplified on
+//! the same firmware built for QEMU's mps2-an385 (Cortex-M3, 4 MB of RAM;
+//! `scripts/build_firmware.sh qemu-mps2`), with the same comparison. Every job's stack must
+//! stay [`STACK_HEADROOM`] clear of the statics.
 //!
 //! `STRATA_QEMU` and `STRATA_FIRMWARE_ELF` override where QEMU and the image are looked for;
 //! `STRATA_HIL_ECHO=1` copies QEMU's output (the firmware's `COST`/`MEM` lines) to stderr as
@@ -363,21 +363,19 @@ fn qemu_embodier_hotend_v2() {
     qemu_model("embodier_hotend_v2.stl", false);
 }
 
-// embodier_LM8UU does not fit the firmware's 64 KB (its offset engine needs 690 edges for an
-// island: about 89 KB of `Printer`): admission refuses it on the 64 KB build. Run it there
-// with `-- --ignored qemu_`; remove the `ignore` as soon as it fits.
+// embodier_LM8UU on the 64 KB build: admission simplifies it for the slicer (742 active
+// triangles to 388, measured deviation 0.0135 mm, under the default 0.02 mm), and the
+// device offsets its fins in bands (710 edges for an island, the engine holds 271).
 
 #[test]
-#[ignore = "capacity: needs 742 active triangles and 690 offset edges, the 64 KB firmware holds 388 and 207 (admission refuses)"]
 fn qemu_embodier_lm8uu() {
     qemu_model("embodier_LM8UU_8p2pi.stl", false);
 }
 
-// Until it fits 64 KB, LM8UU prints on the same firmware built for QEMU's mps2-an385
-// (`scripts/build_firmware.sh qemu-mps2`: the same Cortex-M3 instruction set with 4 MB of RAM
-// and capacities to match), unsimplified at the default 0.02 mm: the pipeline on the device's
-// instruction set equals the host simulation for it too. Clean run only (about 1.5 minutes
-// of QEMU).
+// LM8UU also prints unsimplified, its offsets whole, on the same firmware built for QEMU's
+// mps2-an385 (`scripts/build_firmware.sh qemu-mps2`: the same Cortex-M3 instruction set with
+// 4 MB of RAM and capacities to match): the pipeline on the device's instruction set equals
+// the host simulation for it too. Clean run only (about 1.5 minutes of QEMU).
 
 #[test]
 fn qemu_mps2_embodier_lm8uu() {
