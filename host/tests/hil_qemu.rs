@@ -150,12 +150,12 @@ fn run_job(
             conn.caps
         )
     });
+    // The simulated printer poses as the device: it offsets in bands where the device's
+    // engine is too small for an island.
+    let opts = SimOptions { capacities: conn.caps, ..SimOptions::default() };
     std::thread::scope(|s| {
         let reference = want_reference.then(|| {
-            s.spawn(|| {
-                simulate(&tris, &MachineConfig::default(), job, &SimOptions::default())
-                    .map_err(|(e, _)| e)
-            })
+            s.spawn(|| simulate(&tris, &MachineConfig::default(), job, &opts).map_err(|(e, _)| e))
         });
         let mut next_report = Duration::from_secs(30);
         let result = hil::print_job(port, &mut conn, &tris, job, timeout, |p| {
