@@ -6,8 +6,8 @@
 #
 #   scripts/build_firmware.sh creality-v422|creality-v427|qemu|qemu-mps2
 #
-# qemu-mps2 is QEMU's mps2-an385 (Cortex-M3, 4 MB of RAM) with capacities for the models that
-# do not fit 64 KB: cost figures and HIL comparison only, not a board.
+# qemu-mps2 is QEMU's mps2-an385 (Cortex-M3, 4 MB of RAM) with capacities for the sample models
+# unsimplified and their offsets whole: cost figures and HIL comparison only, not a board.
 #
 # Release build with LTO, one codegen unit and opt-level "s" (the root Cargo.toml's release
 # profile, tightened through cargo's environment overrides so that only this build is

@@ -30,9 +30,10 @@ use strata::protocol::Endpoint;
 pub use strata::printer::board::BoardPrinter as FwPrinter;
 
 /// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
-/// default 0.02 mm (embodier_LM8UU_8p2pi: 742 active triangles, 1,740 loop points), so that
-/// the one that does not fit 64 KB runs on the Cortex-M3 instruction set for its cost figures
-/// and the bit-exact comparison with the host. The move buffer is the 64 KB
+/// default 0.02 mm, unsimplified and their offsets whole (embodier_LM8UU_8p2pi: 742 active
+/// triangles, 1,740 loop points; the 64 KB build prints it simplified, its offsets in bands),
+/// so that it runs so on the Cortex-M3 instruction set too, for its cost figures and the
+/// bit-exact comparison with the host. The move buffer is the 64 KB
 /// board's (`MOVE_BYTES`; the largest unit of any sample model is 1,089 B): the slicer cuts a
 /// layer once the previous one is all in the buffer, so a larger buffer would let the
 /// pipeline run layers ahead of the motion and the per-layer costs would not be the board's.

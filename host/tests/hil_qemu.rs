@@ -16,7 +16,7 @@
 //! ```text
 //! apt-get install qemu-system-arm             # once
 //! scripts/build_firmware.sh qemu               # target/firmware/qemu/strata-firmware.elf (release)
-//! scripts/build_firmware.sh qemu-mps2          # the LM8UU run (4 MB of RAM)
+//! scripts/build_firmware.sh qemu-mps2          # LM8UU unsimplified (4 MB of RAM)
 //! cargo test -p strata-host --test hil_qemu -- --nocapture
 //! cargo test -p strata-host --test hil_qemu -- --nocapture --include-ignored qemu_   # + models
 //! ```

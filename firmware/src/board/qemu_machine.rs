@@ -6,9 +6,9 @@
 //!   UART0 with 16-byte FIFOs; the system clock set to 200 MHz (SysTick count = 5 ns).
 //! - `qemu-mps2`: `mps2-an385` (Cortex-M3, 4 MB RAM at 0x2000_0000, 4 MB for the image at 0):
 //!   CMSDK APB UART0 (one byte each way); the fixed 25 MHz system clock (40 ns). It exists
-//!   to run the models that do not fit 64 KB on the same instruction set, with the same
-//!   firmware, for their cost figures and their bit-exact comparison with the host
-//!   simulation. It is not a board anyone flashes.
+//!   to run models with more than 64 KB holds (unsimplified, their offsets whole) on the
+//!   same instruction set, with the same firmware, for their cost figures and their
+//!   bit-exact comparison with the host simulation. It is not a board anyone flashes.
 //!
 //! The image carries the machine's name ([`MACHINE_TAG`]) so that the host starts QEMU with
 //! the right `-machine`.
