@@ -148,6 +148,9 @@ pub(crate) struct Compressor<const B: usize> {
     after_dir: bool,
     /// The last accepted step (its direction is `dir`): the newest pending one, if any.
     prev_tick: u64,
+    /// The oldest pending step's tick (while any is pending): what the generator asks for
+    /// after every step, kept whole.
+    head_tick: u64,
     /// Steps moved later to respect the driver's minimum intervals.
     pub clamped: u32,
     /// Sequences committed.
@@ -169,6 +172,7 @@ impl<const B: usize> Compressor<B> {
             dir: QueuedDir::None,
             after_dir: false,
             prev_tick: 0,
+            head_tick: 0,
             clamped: 0,
             sequences: 0,
             prev_count: 0,
@@ -192,7 +196,7 @@ impl<const B: usize> Compressor<B> {
     }
 
     pub(crate) fn first_pending(&self) -> Option<u64> {
-        (self.len > 0).then(|| self.tick_at(self.head))
+        (self.len > 0).then_some(self.head_tick)
     }
 
     /// The exact tick of the pending step at ring position `j % B`: `prev_tick` less the
@@ -246,10 +250,16 @@ impl<const B: usize> Compressor<B> {
         // `pending_ticks` (20 ms) after it, so this needs a pause of 2^32 - `pending_ticks`
         // between two consecutive steps of the machine within a motion (a stop sends
         // everything).
-        while self.first_pending().is_some_and(|first| tick - first > u32::MAX as u64) {
-            self.emit(axis, out, tune)?;
+        // (Pending steps come after `last`: within 2^32 of it, none is checked one by one.)
+        if tick - self.last > u32::MAX as u64 {
+            while self.first_pending().is_some_and(|first| tick - first > u32::MAX as u64) {
+                self.emit(axis, out, tune)?;
+            }
         }
         self.buf[(self.head + self.len) % B] = tick as u32;
+        if self.len == 0 {
+            self.head_tick = tick;
+        }
         self.len += 1;
         self.prev_tick = tick;
         Ok(())
@@ -295,6 +305,9 @@ impl<const B: usize> Compressor<B> {
         self.last = (self.last as i64 + n * interval + fit.add * steps_sum) as u64;
         self.head = (self.head + fit.count) % B;
         self.len -= fit.count;
+        if self.len > 0 {
+            self.head_tick = self.tick_at(self.head);
+        }
         self.after_dir = false;
         self.sequences += 1;
         self.prev_count = fit.count;
@@ -348,7 +361,7 @@ impl<const B: usize> Compressor<B> {
         let add_t = T::of(add);
         let mut iv = T::of(interval);
         let mut t = T::low(self.last).add(iv);
-        if t.sub(T::low(self.tick_at(self.head))).wide().abs() > tune.tol {
+        if t.sub(T::low(self.head_tick)).wide().abs() > tune.tol {
             return false;
         }
         for j in self.head + 1..self.head + count {
@@ -375,7 +388,7 @@ impl<const B: usize> Compressor<B> {
             return if n == 2 {
                 let t0 = self.buf[self.head % B];
                 let t1 = self.buf[(self.head + 1) % B];
-                let d0 = self.tick_at(self.head).wrapping_sub(self.last);
+                let d0 = self.head_tick.wrapping_sub(self.last);
                 (t1.wrapping_sub(t0) as i64).wrapping_sub(d0 as i64)
             } else {
                 0
@@ -521,7 +534,7 @@ impl<const B: usize> Compressor<B> {
         if n == 0 || n >= 1 << 12 {
             return 0;
         }
-        let first = self.tick_at(self.head) as i64 - self.last as i64;
+        let first = self.head_tick as i64 - self.last as i64;
         let end = self.tick_at(self.head + n - 1) as i64 - self.last as i64;
         // (end + tol + 1) n < 2^29, that is end + tol + 1 <= floor((2^29 - 1) / n), compared
         // as a quotient (no 64-bit product).
@@ -752,6 +765,7 @@ mod tests {
             let mut t = c.last + if round % 7 == 0 { rnd(1 << 27) } else { rnd(3000) };
             let mut iv = 144 + rnd(20_000) as i64;
             let acc = rnd(400) as i64 - 200;
+            c.head_tick = t;
             for i in 0..c.len {
                 c.buf[(c.head + i) % 64] = t as u32;
                 c.prev_tick = t;
