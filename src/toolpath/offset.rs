@@ -774,7 +774,7 @@ impl<const E: usize> Offsetter<E> {
     /// Collects the boundary darts of the union of the raw curves that `source` adds (with
     /// [`add_loop`](Self::add_loop)), using at most `limit` (and `E`) edge slots and pieces:
     /// whole if that fits, else band by band (see [`Offsetter`]). `source` is called once per
-    /// attempt and must add the same curves every time. A band of [`MIN_BAND`] that does not
+    /// attempt and must add the same curves every time. A band of 1 um that does not
     /// fit is the capacity error.
     pub fn collect(
         &mut self,
