@@ -755,9 +755,9 @@ impl<const E: usize> Offsetter<E> {
     }
 
     /// Runs the union of the raw curves that `source` adds (with [`add_loop`](Self::add_loop))
-    /// and appends the boundary loops (um) to `out`, tagged `island`/`depth`: [`collect`]
-    /// (Self::collect) with `limit`, then [`trace_into`](Self::trace_into). Returns the
-    /// loops added.
+    /// and appends the boundary loops (um) to `out`, tagged `island`/`depth`:
+    /// [`collect`](Self::collect) with `limit`, then [`trace_into`](Self::trace_into).
+    /// Returns the loops added.
     pub fn union_into<const L: usize>(
         &mut self,
         out: &mut Loops<'_, L>,
