@@ -245,13 +245,16 @@ impl<const E: usize> Offsetter<E> {
         }
     }
 
-    /// Starts a band: no edges, splits or pieces (the darts of the bands before stay).
+    /// Starts a band: no edges, splits or pieces (the darts of the bands before stay; so does
+    /// the span of the raw edges, which a band's raw curves do not all take part in).
     fn begin_band(&mut self, band: Band) {
         self.band = band;
         self.n_segs = 0;
         self.n_splits = 0;
         self.n_pieces = 0;
-        self.y_span = (i32::MAX, i32::MIN);
+        if band == Band::ALL {
+            self.y_span = (i32::MAX, i32::MIN);
+        }
         self.overflow = false;
         self.in_band = 0;
     }
@@ -304,7 +307,9 @@ impl<const E: usize> Offsetter<E> {
             return Ok(());
         };
         let first_vertex = i;
-        let prev = (0..n).map(|k| (i + n - 1 - k) % n).find(|&j| pts[j] != pts[i]).unwrap_or(i);
+        let prev_distinct =
+            |i: usize| (0..n).map(|k| (i + n - 1 - k) % n).find(|&j| pts[j] != pts[i]).unwrap_or(i);
+        let prev = prev_distinct(i);
         let mut first_out: Option<Point2> = None;
         let mut last_out = Point2::new(0, 0);
         let mut steps = 0;
@@ -314,18 +319,68 @@ impl<const E: usize> Offsetter<E> {
             let len = isqrt_u64((v.0 * v.0 + v.1 * v.1) as u64) as i64;
             (v, len, normal(v.0, v.1, len.max(1), d))
         };
-        // The edge into the vertex: the previous vertex's edge out.
-        let (mut a, mut la, mut na) = edge(pts[prev], pts[i]);
+        // In a band, a vertex is skipped when its points and its neighbours' all lie beyond
+        // the band on one side (the edges between them would be clipped away): a vertex's
+        // points lie within 2 |d| and half its shorter edge of it (the miter limits below),
+        // and a unit of rounding. `side` is -1 (below), 1 (above) or 0.
+        let (band, banded) = (self.band, self.band != Band::ALL);
+        let side = |v: usize, before: usize, after: usize| -> i8 {
+            if !banded {
+                return 0;
+            }
+            let l1 = |u: Point2, w: Point2| {
+                (i64::from(w.x) - i64::from(u.x)).abs() + (i64::from(w.y) - i64::from(u.y)).abs()
+            };
+            let shorter = l1(pts[before], pts[v]).min(l1(pts[v], pts[after]));
+            let reach = 2 * d.abs() + shorter * i64::from(SCALE) / 2 + 2;
+            let y = i64::from(pts[v].y) * i64::from(SCALE);
+            if y + reach < i64::from(band.lo) {
+                -1
+            } else if y - reach > i64::from(band.hi) {
+                1
+            } else {
+                0
+            }
+        };
+        let Some(mut next) = next_distinct(i) else { return Ok(()) };
+        let side_prev = if banded { side(prev, prev_distinct(prev), i) } else { 0 };
+        let (mut side_prev, mut side_cur) = (side_prev, side(i, prev, next));
+        let mut prev = prev;
+        // The edge into the vertex (the previous vertex's edge out), once computed.
+        let (mut a, mut la, mut na) = ((0, 0), 0, (0, 0));
+        let mut have_a = false;
+        // The next point emitted starts a new run (the points before it were skipped); the
+        // loop's first and last vertices were skipped.
+        let mut fresh = false;
+        let mut skipped_first = false;
+        let mut skipped_last;
         loop {
-            let Some(next) = next_distinct(i) else { return Ok(()) };
+            let Some(after) = next_distinct(next) else { return Ok(()) };
+            let side_next = if banded { side(next, i, after) } else { 0 };
+            let skip = side_cur != 0 && side_prev == side_cur && side_cur == side_next;
+            skipped_first |= skip && steps == 0;
+            skipped_last = skip;
+            if skip {
+                (fresh, have_a) = (true, false);
+                (prev, i, next, side_prev, side_cur) = (i, next, after, side_cur, side_next);
+                steps += 1;
+                if i == first_vertex || steps > n {
+                    break;
+                }
+                continue;
+            }
+            if !have_a {
+                (a, la, na) = edge(pts[prev], pts[i]);
+            }
             let p = pts[i];
             let (b, lb, nb) = edge(p, pts[next]);
             let mut emit = |q: Point2, this: &mut Self| -> Result<(), Buffer> {
                 match first_out {
                     None => first_out = Some(q),
-                    Some(_) => this.push_seg(last_out, q)?,
+                    Some(_) if !fresh => this.push_seg(last_out, q)?,
+                    Some(_) => {}
                 }
-                last_out = q;
+                (fresh, last_out) = (false, q);
                 Ok(())
             };
             let ps = (i64::from(p.x) * i64::from(SCALE), i64::from(p.y) * i64::from(SCALE));
@@ -364,17 +419,17 @@ impl<const E: usize> Offsetter<E> {
                 self.arc(ps, mid, nb, r, &mut emit)?;
                 emit(at(nb), self)?;
             }
-            (a, la, na) = (b, lb, nb);
-            i = next;
+            (a, la, na, have_a) = (b, lb, nb, true);
+            (prev, i, next, side_prev, side_cur) = (i, next, after, side_cur, side_next);
             steps += 1;
             if i == first_vertex || steps > n {
                 break;
             }
         }
-        if let Some(f) = first_out {
-            self.push_seg(last_out, f)?;
+        match first_out {
+            Some(f) if !skipped_first && !skipped_last => self.push_seg(last_out, f),
+            _ => Ok(()),
         }
-        Ok(())
     }
 
     /// Emits the interior points of the arc from `u` to `v` (both of length `r`, at most 90
@@ -1704,6 +1759,61 @@ mod tests {
         // angle became overlapping pieces with different vertices after rounding.
         for d in [225, 675, 900] {
             offset_loops(&refs, d, Join::Miter);
+        }
+    }
+
+    /// A band's raw curves (vertices far beyond the band skipped) are exactly the whole raw
+    /// curves clipped to the band, edge for edge, for random polygons, the LM8UU layer, both
+    /// joins, both signs of the distance and bands of every height.
+    #[test]
+    fn a_band_generates_exactly_the_clipped_curves() {
+        let mut rng = Lcg(11);
+        let mut shapes: Vec<Vec<Vec<Point2>>> = vec![LM8UU_LAYER
+            .iter()
+            .map(|l| l.iter().map(|&(x, y)| Point2::new(x, y)).collect())
+            .collect()];
+        for _ in 0..12 {
+            let n = 5 + (rng.next() * 60.0) as usize;
+            let mut v: Vec<Point2> = (0..n)
+                .map(|j| {
+                    let a = 2.0 * core::f64::consts::PI * (j as f64 + 0.8 * rng.next()) / n as f64;
+                    let r = 2_000.0 + 8_000.0 * rng.next();
+                    Point2::new((r * a.cos()) as i32 + 50_000, (r * a.sin()) as i32 + 50_000)
+                })
+                .collect();
+            v.dedup();
+            shapes.push(vec![v]);
+        }
+        let generate = |loops: &[Vec<Point2>], d: i32, join: Join, band: Band| {
+            let mut e = Box::new(Offsetter::<8192>::new());
+            e.cap = 8192;
+            e.begin_band(band);
+            for l in loops {
+                e.add_loop(l, d, join).unwrap();
+            }
+            assert!(!e.overflow);
+            (e.segs[..e.n_segs].to_vec(), e.y_span)
+        };
+        for loops in &shapes {
+            for (d, join) in
+                [(225, Join::Miter), (900, Join::Miter), (-400, Join::Round), (-60, Join::Miter)]
+            {
+                let (whole, (lo, hi)) = generate(loops, d, join, Band::ALL);
+                for parts in [2, 3, 7, 20] {
+                    let h = (hi - lo) / parts + 1;
+                    for k in 0..parts {
+                        let band = Band { lo: lo + k * h, hi: lo + (k + 1) * h };
+                        let (got, _) = generate(loops, d, join, band);
+                        let want: Vec<(Point2, Point2)> = whole
+                            .iter()
+                            .filter_map(|s| clip_to(s.a, s.b, band))
+                            .filter(|(a, b)| a != b)
+                            .collect();
+                        let got: Vec<(Point2, Point2)> = got.iter().map(|s| (s.a, s.b)).collect();
+                        assert_eq!(got, want, "d {d} band {band:?}");
+                    }
+                }
+            }
         }
     }
 
