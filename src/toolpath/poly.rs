@@ -8,10 +8,14 @@ use super::Buffer;
 /// `num / den` rounded to the nearest integer, halves away from zero (`den != 0`).
 pub fn div_round(num: i64, den: i64) -> i64 {
     let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
+    let (n, d) = (num.unsigned_abs() + den.unsigned_abs() / 2, den.unsigned_abs());
+    // Operands that fit a word (most: offsets of short edges) take the hardware divider,
+    // not the library's 64-bit division.
+    let q = if n | d <= u64::from(u32::MAX) { u64::from(n as u32 / d as u32) } else { n / d };
     if num >= 0 {
-        (num + den / 2) / den
+        q as i64
     } else {
-        -((-num + den / 2) / den)
+        -(q as i64)
     }
 }
 
@@ -407,6 +411,40 @@ pub fn segment_touches_rings(points: &[Point2], rings: &[Ring], a: Point2, b: Po
 
 #[cfg(test)]
 mod tests {
+    use super::div_round;
+
+    /// Against the exact quotient in `i128`, on both sides of the one-word fast path.
+    #[test]
+    fn div_round_rounds_halves_away_from_zero() {
+        let reference = |n: i64, d: i64| {
+            let (n, d) = (i128::from(n), i128::from(d));
+            let q = (2 * n.abs() + d.abs()) / (2 * d.abs());
+            (if (n < 0) != (d < 0) { -q } else { q }) as i64
+        };
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let edges = [0i64, 1, 2, 3, 7, (1 << 31) - 1, 1 << 31, (1 << 32) - 1, 1 << 32, 1 << 40];
+        for _ in 0..20_000 {
+            let shift = next() % 60;
+            let n = (next() >> (4 + shift)) as i64 * if next() % 2 == 0 { 1 } else { -1 };
+            let d = ((next() >> (4 + next() % 60)) as i64).max(1)
+                * if next() % 3 == 0 { -1 } else { 1 };
+            assert_eq!(div_round(n, d), reference(n, d), "{n} / {d}");
+        }
+        for &n in &edges {
+            for &d in &edges[1..] {
+                for (n, d) in [(n, d), (-n, d), (n, -d), (-n, -d)] {
+                    assert_eq!(div_round(n, d), reference(n, d), "{n} / {d}");
+                }
+            }
+        }
+    }
+
     use super::*;
 
     #[test]
