@@ -889,9 +889,15 @@ mod tests {
                 p.enqueue(0, cmd).unwrap();
             }
         }
-        let got = replay(&mut q);
+        assert_replays_within_tolerance(&mut q, &exact);
+    }
+
+    /// The queued commands replayed step for step: every step within the tolerance of its
+    /// exact tick.
+    fn assert_replays_within_tolerance(q: &mut StepQueue<256>, exact: &[u64]) {
+        let got = replay(q);
         assert_eq!(got.len(), exact.len());
-        for (g, e) in got.iter().zip(&exact) {
+        for (g, e) in got.iter().zip(exact) {
             assert!((g - *e as i64).abs() <= tune().tol, "{g} vs {e}");
         }
     }
@@ -915,11 +921,7 @@ mod tests {
             }
         }
         assert_eq!(c.check_failures, 0);
-        let got = replay(&mut q);
-        assert_eq!(got.len(), exact.len());
-        for (g, e) in got.iter().zip(&exact) {
-            assert!((g - *e as i64).abs() <= tune().tol, "{g} vs {e}");
-        }
+        assert_replays_within_tolerance(&mut q, &exact);
     }
 
     #[test]

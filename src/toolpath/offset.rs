@@ -1747,13 +1747,14 @@ mod tests {
         ],
     ];
 
+    fn lm8uu_layer() -> Vec<Vec<Point2>> {
+        LM8UU_LAYER.iter().map(|l| l.iter().map(|&(x, y)| Point2::new(x, y)).collect()).collect()
+    }
+
     /// An embodier LM8UU layer (simplified contours) that once left boundary chains open.
     #[test]
     fn lm8uu_layer_offsets_close() {
-        let loops: Vec<Vec<Point2>> = LM8UU_LAYER
-            .iter()
-            .map(|l| l.iter().map(|&(x, y)| Point2::new(x, y)).collect())
-            .collect();
+        let loops = lm8uu_layer();
         let refs: Vec<&[Point2]> = loops.iter().map(|l| l.as_slice()).collect();
         // d = 675 once left a chain open: two nearly collinear edges crossing at a tiny
         // angle became overlapping pieces with different vertices after rounding.
@@ -1768,10 +1769,7 @@ mod tests {
     #[test]
     fn a_band_generates_exactly_the_clipped_curves() {
         let mut rng = Lcg(11);
-        let mut shapes: Vec<Vec<Vec<Point2>>> = vec![LM8UU_LAYER
-            .iter()
-            .map(|l| l.iter().map(|&(x, y)| Point2::new(x, y)).collect())
-            .collect()];
+        let mut shapes: Vec<Vec<Vec<Point2>>> = vec![lm8uu_layer()];
         for _ in 0..12 {
             let n = 5 + (rng.next() * 60.0) as usize;
             let mut v: Vec<Point2> = (0..n)
@@ -1822,10 +1820,7 @@ mod tests {
     /// within the seams' rounding), in more bands for the smallest engine than the largest.
     #[test]
     fn bands_give_the_whole_union() {
-        let loops: Vec<Vec<Point2>> = LM8UU_LAYER
-            .iter()
-            .map(|l| l.iter().map(|&(x, y)| Point2::new(x, y)).collect())
-            .collect();
+        let loops = lm8uu_layer();
         let refs: Vec<&[Point2]> = loops.iter().map(|l| l.as_slice()).collect();
         for d in [225, 675, 900] {
             let (whole, peaks) = offset_limited(&refs, d, Join::Miter, usize::MAX).unwrap();
