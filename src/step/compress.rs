@@ -131,6 +131,10 @@ impl QueuedDir {
     }
 }
 
+/// Half-longest-interval waits one `Wait` command carries at most: 7 x 2^29 ticks (52 s at
+/// 72 MHz) is under 2^32.
+const WAITS_PER_COMMAND: u64 = 7;
+
 /// One axis' pending steps and its committed reference time.
 #[derive(Debug, Clone)]
 pub(crate) struct Compressor<const B: usize> {
@@ -275,10 +279,17 @@ impl<const B: usize> Compressor<B> {
         let Some(first) = self.first_pending() else {
             return Ok(());
         };
+        // Waits of half the longest interval until the first step is in reach, up to
+        // `WAITS_PER_COMMAND` of them in one command: the interrupt takes a pause's waits in
+        // one go, so few commands keep its worst call short.
         let max = MAX_INTERVAL_TICKS as u64;
-        while first > self.last + max - tune.tol as u64 {
-            out.enqueue(axis, StepCmd::Wait(MAX_INTERVAL_TICKS / 2)).map_err(|_| Full)?;
-            self.last += max / 2;
+        let reach = max - tune.tol as u64;
+        while first > self.last + reach {
+            let needed = (first - self.last - reach).div_ceil(max / 2);
+            let waits = needed.min(WAITS_PER_COMMAND);
+            let ticks = (waits * (max / 2)) as u32;
+            out.enqueue(axis, StepCmd::Wait(ticks)).map_err(|_| Full)?;
+            self.last += waits * (max / 2);
         }
         if out.free(axis) == 0 {
             return Err(Full);
@@ -856,9 +867,14 @@ mod tests {
     fn ticks_past_32_bits_compress_as_before() {
         let (cmds, exact, c) = steps_across_32_bit_ticks();
         assert_eq!(c.check_failures, 0);
-        let waits = |n: usize| vec![StepCmd::Wait(MAX_INTERVAL_TICKS / 2); n];
+        // `n` waits of half the longest interval, up to seven a command.
+        let waits = |n: u32| {
+            let full = vec![StepCmd::Wait(7 * (MAX_INTERVAL_TICKS / 2)); n as usize / 7];
+            let rest = (n % 7 > 0).then_some(StepCmd::Wait(n % 7 * (MAX_INTERVAL_TICKS / 2)));
+            full.into_iter().chain(rest).collect::<Vec<_>>()
+        };
         let steps = |interval, count, add| StepCmd::Steps { interval, count, add };
-        // The commands of the compressor that kept whole 64-bit ticks.
+        // The commands of the compressor that kept whole 64-bit ticks (its waits one by one).
         let expected = [
             vec![StepCmd::Dir(true)],
             waits(6),
@@ -921,6 +937,43 @@ mod tests {
             }
         }
         assert_eq!(c.check_failures, 0);
+        assert_replays_within_tolerance(&mut q, &exact);
+    }
+
+    /// A five-minute pause (21.6 G ticks: 39 waits of 2^29 bring the step within the longest
+    /// interval) is six commands (seven waits each, then four), and the steps after it replay
+    /// within the tolerance.
+    #[test]
+    fn a_long_pause_takes_few_commands() {
+        let mut q = StepQueue::<256>::new();
+        let mut c = Compressor::<8>::new();
+        let exact = [5_000u64, 5_000 + 300 * 72_000_000, 5_000 + 300 * 72_000_000 + 900];
+        {
+            let (mut p, _) = q.split();
+            for &t in &exact {
+                c.push_step(0, t, true, &mut p, &tune()).unwrap();
+            }
+            while !c.is_empty() {
+                c.emit(0, &mut p, &tune()).unwrap();
+            }
+        }
+        let cmds: Vec<StepCmd> = {
+            let (_, mut cons) = q.split();
+            core::iter::from_fn(|| cons.dequeue(0)).collect()
+        };
+        let waits: Vec<u32> = cmds
+            .iter()
+            .filter_map(|c| if let StepCmd::Wait(w) = c { Some(*w) } else { None })
+            .collect();
+        let half = MAX_INTERVAL_TICKS / 2;
+        assert_eq!(waits, [7 * half, 7 * half, 7 * half, 7 * half, 7 * half, 4 * half]);
+        let mut q = StepQueue::<256>::new();
+        {
+            let (mut p, _) = q.split();
+            for &cmd in &cmds {
+                p.enqueue(0, cmd).unwrap();
+            }
+        }
         assert_replays_within_tolerance(&mut q, &exact);
     }
 
