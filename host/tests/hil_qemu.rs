@@ -6,8 +6,8 @@
 //! host simulation of the same job (`strata_host::simjob::simulate`, what
 //! `strata simulate --json` reports) bit for bit; then again through a seeded fault-injecting
 //! relay (frame drop, byte corruption and loss, duplication, delay at 3 % per frame each, on
-//! both directions at 250000 baud): the cylinders, embodier_asc and the cube always, the two
-//! long prints (hotend, LM8UU) with `STRATA_HIL_LOSSY_ALL=1`. Every QEMU job also heats its
+//! both directions at 250000 baud): every model on the 64 KB build (the mps2 run clean only;
+//! `STRATA_HIL_LOSSY_ALL=1` adds its lossy run too). Every QEMU job also heats its
 //! simulated hotend and bed first: the firmware's `HEAT at_target` line must come before the
 //! first step, and no thermal fault may trip.
 //!
@@ -222,11 +222,10 @@ fn assert_same(what: &str, reference: &SimReport, p: &Progress, fw: Option<&Cost
     assert_eq!(steps.hash, Some(reference.board_hash), "{what}: step hash (axis, direction, tick)");
 }
 
-/// One model on QEMU: clean, then (with `lossy`, or always with `STRATA_HIL_LOSSY_ALL` set)
-/// through the lossy relay; both equal the simulation.
-fn qemu_model(name: &str, lossy: bool) {
+/// One model on QEMU: clean, then through the lossy relay; both equal the simulation.
+fn qemu_model(name: &str) {
     let (tris, job) = load(name);
-    qemu_job(name, &tris, job, lossy || std::env::var_os("STRATA_HIL_LOSSY_ALL").is_some());
+    qemu_job(name, &tris, job, true);
 }
 
 fn qemu_job(name: &str, tris: &[Triangle], job: JobSpec, lossy: bool) {
@@ -348,19 +347,19 @@ fn qemu_banded_cylinder_r5() {
 
 #[test]
 fn qemu_embodier_asc() {
-    qemu_model("embodier_asc.stl", true);
+    qemu_model("embodier_asc.stl");
 }
 
 #[test]
 fn qemu_xyz_20mm_cube() {
-    qemu_model("xyz_20mm_cube.stl", true);
+    qemu_model("xyz_20mm_cube.stl");
 }
 
 #[test]
 fn qemu_embodier_hotend_v2() {
-    // The two long prints run clean only (about 2 and 1.5 minutes of QEMU each): the whole
-    // test stays near 5 minutes on 2 cores. STRATA_HIL_LOSSY_ALL=1 adds their lossy runs.
-    qemu_model("embodier_hotend_v2.stl", false);
+    // The long prints take about 1.5 minutes of QEMU a run: with their lossy runs the whole
+    // test stays near 8 minutes on 2 cores.
+    qemu_model("embodier_hotend_v2.stl");
 }
 
 // embodier_LM8UU on the 64 KB build: admission simplifies it for the slicer (742 active
@@ -369,18 +368,20 @@ fn qemu_embodier_hotend_v2() {
 
 #[test]
 fn qemu_embodier_lm8uu() {
-    qemu_model("embodier_LM8UU_8p2pi.stl", false);
+    qemu_model("embodier_LM8UU_8p2pi.stl");
 }
 
 // LM8UU also prints unsimplified, its offsets whole, on the same firmware built for QEMU's
 // mps2-an385 (`scripts/build_firmware.sh qemu-mps2`: the same Cortex-M3 instruction set with
 // 4 MB of RAM and capacities to match): the pipeline on the device's instruction set equals
-// the host simulation for it too. Clean run only (about 1.5 minutes of QEMU).
+// the host simulation for it too. Clean run only (about 1.5 minutes of QEMU;
+// `STRATA_HIL_LOSSY_ALL=1` adds its lossy run).
 
 #[test]
 fn qemu_mps2_embodier_lm8uu() {
     let (tris, job) = load("embodier_LM8UU_8p2pi.stl");
-    qemu_job_on(Some("qemu-mps2"), "embodier_LM8UU_8p2pi.stl on mps2-an385", &tris, job, false);
+    let lossy = std::env::var_os("STRATA_HIL_LOSSY_ALL").is_some();
+    qemu_job_on(Some("qemu-mps2"), "embodier_LM8UU_8p2pi.stl on mps2-an385", &tris, job, lossy);
 }
 
 /// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm),
