@@ -267,6 +267,8 @@ pub struct ToolpathPeaks {
     pub points: Peak,
     /// `LOOPS`: loops of a layer.
     pub loops: Peak,
+    /// The slicer's `L` (`contour_loops`): loops the slicer keeps of a layer.
+    pub contour_loops: Peak,
     /// `CROSS`: scanline crossings (segments and pieces in 12-byte units) of a pass.
     pub crossings: Peak,
     /// `PATH`: path points of a layer.
@@ -413,6 +415,9 @@ fn measure(
         let index = l.layer().index;
         let pushed = (index, cfg.layer_z_um(index));
         emitting.set(pushed);
+        let mut p = peaks.get();
+        p.contour_loops.raise(l.layer().loops.len() as u32, pushed);
+        peaks.set(p);
         let taken = tp.accept_sliced(l, &mut *events);
         raise(before, tp.stats().needs, pushed);
         if let Err(e) = taken.and_then(|work| emit(&mut tp, work, &mut *events)) {
@@ -482,8 +487,9 @@ impl Room for UnitBytes<'_, '_> {
 /// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user
 /// (empty when everything fits). `PTS >= max(layer_points, offset_edges)`,
 /// `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >= path_points`, `RING >= ring_points`,
-/// `SPANS >= spans` (the `ToolpathNeeds` docs), and the move buffer's bytes `>=` the largest
-/// emission unit's ([`ToolpathPeaks::unit_bytes`]).
+/// `SPANS >= spans` (the `ToolpathNeeds` docs), the slicer's `contour_loops >=` the loops it
+/// keeps of a layer, and the move buffer's bytes `>=` the largest emission unit's
+/// ([`ToolpathPeaks::unit_bytes`]).
 /// Paths are not compared with `CROSS`: a layer with more paths than the nearest-path grid
 /// holds is ordered by a scan instead (same order, no error).
 pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<String> {
@@ -504,6 +510,7 @@ pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<Stri
     };
     need(&peaks.points, "toolpath loop points and offset edges", caps.toolpath_points, AREA);
     need(&peaks.loops, "toolpath loops", caps.toolpath_loops, AREA);
+    need(&peaks.contour_loops, "contour loops", caps.contour_loops, AREA);
     need(&peaks.crossings, "scanline crossings", caps.scan_crossings, AREA);
     need(&peaks.path_points, "toolpath path points", caps.path_points, AREA);
     need(&peaks.ring_words, "contour words", caps.window_ring_words, WINDOW);

@@ -208,12 +208,14 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
         window_ring_words: 2,
         window_spans: 0,
         move_buffer_bytes: 8,
+        contour_loops: 0,
         ..CREALITY_CAPACITIES
     };
     let e = admit_job(&tris, &machine, &job, &tiny, 0.02).unwrap_err();
     for what in [
         "toolpath loop points and offset edges; the printer holds 2",
         "toolpath loops; the printer holds 0",
+        "needs 1 contour loops; the printer holds 0",
         "scanline crossings; the printer holds 2",
         "toolpath path points; the printer holds 2",
         "the skin window at 1.00 mm needs",
@@ -224,6 +226,31 @@ fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
     ] {
         assert!(e.contains(what), "{what}: {e}");
     }
+}
+
+/// Ten separate blocks: every layer has ten loops. A slicer that keeps eight a layer is
+/// refused (the device would stop at the first layer), one that keeps ten is not.
+#[test]
+fn more_loops_a_layer_than_the_slicer_keeps_are_refused() {
+    let tris: Vec<Triangle> = {
+        let mut t: Vec<Triangle> = (0..10)
+            .flat_map(|k| {
+                let x = 60_000 + k * 10_000;
+                cuboid(x, x + 5_000, 100_000, 105_000, 600)
+            })
+            .collect();
+        t.sort_by_key(|t| t.z_min());
+        t
+    };
+    let machine = MachineConfig::default();
+    let job = job(&tris);
+    let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
+    assert_eq!(peaks.contour_loops.value, 10, "{peaks:?}");
+    let eight = Capacities { contour_loops: 8, ..CREALITY_CAPACITIES };
+    let e = admit_job(&tris, &machine, &job, &eight, 0.02).unwrap_err();
+    assert!(e.contains("needs 10 contour loops; the printer holds 8"), "{e}");
+    let ten = Capacities { contour_loops: 10, ..CREALITY_CAPACITIES };
+    assert!(admit_job(&tris, &machine, &job, &ten, 0.02).is_ok());
 }
 
 #[test]
