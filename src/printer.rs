@@ -67,11 +67,12 @@ use crate::toolpath::{Emitted, Seam, ToolEvent, Toolpath, ToolpathConfig, Toolpa
 /// (it prints unsimplified) and what embodier_LM8UU_8p2pi needs simplified for the slicer
 /// (742 active triangles unsimplified; admission simplifies it to 388 with a measured
 /// deviation of 0.0135 mm, under the default 0.02 mm) with its offsets done in bands;
-/// embodier_asc and xyz_20mm_cube need far less of each. RAM on the board = the `Printer` (slicer + toolpath + their
-/// scratch + move buffer + planner + generator) + the protocol endpoint, the step queue, the
-/// executor and the UART buffers + the stack; the firmware prints `.data + .bss` and the
-/// stack's high-water mark after every job, and `scripts/build_firmware.sh` fails when the
-/// static part leaves less than the stack reserve (see there).
+/// embodier_asc and xyz_20mm_cube need far less of each. RAM on the board = the `Printer`
+/// (slicer + toolpath + their scratch + move buffer + planner + generator) + the protocol
+/// endpoint, the step queue, the executor and the UART buffers + the stack; the firmware
+/// prints `.data + .bss` and the stack's high-water mark after every job, and
+/// `scripts/build_firmware.sh` fails when the static part leaves less than the stack reserve
+/// (see there).
 /// Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
 /// the toolpath stage take turns in holds the largest of the cut (29 per segment: the
 /// segment, its link and flags, and the endpoint hash whose place the layer's loop points

@@ -249,12 +249,11 @@ impl<const B: usize> Compressor<B> {
             tick
         };
         // The ring keeps the low 32 bits of each tick: pending steps 2^32 ticks (59.6 s at
-        // 72 MHz) or more before this one go out first. Never taken in the generator: it
-        // sends a pending step before the next step once any axis steps more than
-        // `pending_ticks` (20 ms) after it, so this needs a pause of 2^32 - `pending_ticks`
-        // between two consecutive steps of the machine within a motion (a stop sends
-        // everything).
-        // (Pending steps come after `last`: within 2^32 of it, none is checked one by one.)
+        // 72 MHz) or more before this one go out first. Pending steps come after `last`, so
+        // within 2^32 of it none needs checking. Never taken in the generator: it sends a
+        // pending step before the next step once any axis steps more than `pending_ticks`
+        // (20 ms) after it, so this needs a pause of 2^32 - `pending_ticks` between two
+        // consecutive steps of the machine within a motion (a stop sends everything).
         if tick - self.last > u32::MAX as u64 {
             while self.first_pending().is_some_and(|first| tick - first > u32::MAX as u64) {
                 self.emit(axis, out, tune)?;

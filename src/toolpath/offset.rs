@@ -360,66 +360,64 @@ impl<const E: usize> Offsetter<E> {
             let skip = side_cur != 0 && side_prev == side_cur && side_cur == side_next;
             skipped_first |= skip && steps == 0;
             skipped_last = skip;
-            if skip {
-                (fresh, have_a) = (true, false);
-                (prev, i, next, side_prev, side_cur) = (i, next, after, side_cur, side_next);
-                steps += 1;
-                if i == first_vertex || steps > n {
-                    break;
+            'join: {
+                if skip {
+                    (fresh, have_a) = (true, false);
+                    break 'join;
                 }
-                continue;
-            }
-            if !have_a {
-                (a, la, na) = edge(pts[prev], pts[i]);
-            }
-            let p = pts[i];
-            let (b, lb, nb) = edge(p, pts[next]);
-            let mut emit = |q: Point2, this: &mut Self| -> Result<(), Buffer> {
-                match first_out {
-                    None => first_out = Some(q),
-                    Some(_) if !fresh => this.push_seg(last_out, q)?,
-                    Some(_) => {}
+                if !have_a {
+                    (a, la, na) = edge(pts[prev], pts[i]);
                 }
-                (fresh, last_out) = (false, q);
-                Ok(())
-            };
-            let ps = (i64::from(p.x) * i64::from(SCALE), i64::from(p.y) * i64::from(SCALE));
-            let at = |v: (i64, i64)| Point2::new((ps.0 + v.0) as i32, (ps.1 + v.1) as i32);
-            let cross = a.0 * b.1 - a.1 * b.0;
-            let dot = a.0 * b.0 + a.1 * b.1;
-            let lab = la * lb;
-            let d2 = d * d;
-            let ndot = na.0 * nb.0 + na.1 * nb.1;
-            let miter =
-                |den: i64| (div_round((na.0 + nb.0) * d2, den), div_round((na.1 + nb.1) * d2, den));
-            let shrinking = (cross > 0) == (d > 0) && cross != 0;
-            if dot > 0 && cross.abs() * 6 < lab {
-                // Nearly straight (under ~10 degrees): the miter point.
-                emit(at(miter(d2 + ndot)), self)?;
-            } else if shrinking {
-                // Miter only if both edges hold the trimmed part: |d| tan(theta/2) <= len/2.
-                let lhs = i128::from(d.abs() / i64::from(SCALE)) * i128::from(cross.abs()) * 2;
-                let rhs = i128::from(la.min(lb)) * i128::from(lab + dot);
-                if d2 + ndot > d2 / 64 && lhs <= rhs {
+                let p = pts[i];
+                let (b, lb, nb) = edge(p, pts[next]);
+                let mut emit = |q: Point2, this: &mut Self| -> Result<(), Buffer> {
+                    match first_out {
+                        None => first_out = Some(q),
+                        Some(_) if !fresh => this.push_seg(last_out, q)?,
+                        Some(_) => {}
+                    }
+                    (fresh, last_out) = (false, q);
+                    Ok(())
+                };
+                let ps = (i64::from(p.x) * i64::from(SCALE), i64::from(p.y) * i64::from(SCALE));
+                let at = |v: (i64, i64)| Point2::new((ps.0 + v.0) as i32, (ps.1 + v.1) as i32);
+                let cross = a.0 * b.1 - a.1 * b.0;
+                let dot = a.0 * b.0 + a.1 * b.1;
+                let lab = la * lb;
+                let d2 = d * d;
+                let ndot = na.0 * nb.0 + na.1 * nb.1;
+                let miter = |den: i64| {
+                    (div_round((na.0 + nb.0) * d2, den), div_round((na.1 + nb.1) * d2, den))
+                };
+                let shrinking = (cross > 0) == (d > 0) && cross != 0;
+                if dot > 0 && cross.abs() * 6 < lab {
+                    // Nearly straight (under ~10 degrees): the miter point.
+                    emit(at(miter(d2 + ndot)), self)?;
+                } else if shrinking {
+                    // Miter only if both edges hold the trimmed part: |d| tan(theta/2) <= len/2.
+                    let lhs = i128::from(d.abs() / i64::from(SCALE)) * i128::from(cross.abs()) * 2;
+                    let rhs = i128::from(la.min(lb)) * i128::from(lab + dot);
+                    if d2 + ndot > d2 / 64 && lhs <= rhs {
+                        emit(at(miter(d2 + ndot)), self)?;
+                    } else {
+                        emit(at(na), self)?;
+                        emit(Point2::new(ps.0 as i32, ps.1 as i32), self)?;
+                        emit(at(nb), self)?;
+                    }
+                } else if join == Join::Miter && 2 * dot >= -lab && d2 + ndot > 0 {
                     emit(at(miter(d2 + ndot)), self)?;
                 } else {
+                    // Round: na -> (direction a - b) -> nb by bisection.
+                    let r = d.abs();
+                    let mid = scale_to((a.0 * lb - b.0 * la, a.1 * lb - b.1 * la), r);
                     emit(at(na), self)?;
-                    emit(Point2::new(ps.0 as i32, ps.1 as i32), self)?;
+                    self.arc(ps, na, mid, r, &mut emit)?;
+                    emit(at(mid), self)?;
+                    self.arc(ps, mid, nb, r, &mut emit)?;
                     emit(at(nb), self)?;
                 }
-            } else if join == Join::Miter && 2 * dot >= -lab && d2 + ndot > 0 {
-                emit(at(miter(d2 + ndot)), self)?;
-            } else {
-                // Round: na -> (direction a - b) -> nb by bisection.
-                let r = d.abs();
-                let mid = scale_to((a.0 * lb - b.0 * la, a.1 * lb - b.1 * la), r);
-                emit(at(na), self)?;
-                self.arc(ps, na, mid, r, &mut emit)?;
-                emit(at(mid), self)?;
-                self.arc(ps, mid, nb, r, &mut emit)?;
-                emit(at(nb), self)?;
+                (a, la, na, have_a) = (b, lb, nb, true);
             }
-            (a, la, na, have_a) = (b, lb, nb, true);
             (prev, i, next, side_prev, side_cur) = (i, next, after, side_cur, side_next);
             steps += 1;
             if i == first_vertex || steps > n {
@@ -934,6 +932,12 @@ impl<const E: usize> Offsetter<E> {
         Ok(())
     }
 
+    /// Where the chain store's record after the one at `at` begins (past its header and
+    /// points).
+    fn chain_after(&self, at: usize) -> usize {
+        at + 1 + self.chain_point(at).x as usize
+    }
+
     /// Point `q` of the chain store: two points an edge slot, from the last slot down.
     fn chain_point(&self, q: usize) -> Point2 {
         let s = &self.segs[self.cap - 1 - q / 2];
@@ -1073,14 +1077,13 @@ impl<const E: usize> Offsetter<E> {
         let mut added = 0;
         let mut chain = 0;
         while chain < self.chain_points {
-            let header = self.chain_point(chain);
-            if header.y == 0
+            if self.chain_point(chain).y == 0
                 && self.trace_chain_loop(chain, out)?
                 && self.finish_loop(out, island, depth, min_width_um)?
             {
                 added += 1;
             }
-            chain += 1 + header.x as usize;
+            chain = self.chain_after(chain);
         }
         (self.n_darts, self.banded, self.chain_points) = (0, false, 0);
         Ok(added)
@@ -1120,11 +1123,7 @@ impl<const E: usize> Offsetter<E> {
             let (v, prev) = (self.chain_point(end), self.chain_point(end - 1));
             match self.next_chain(Seg { a: prev, b: v }) {
                 Some(next) => chain = next,
-                None => {
-                    self.open_chains += 1;
-                    out.discard_open();
-                    return Ok(false);
-                }
+                None => return dead_end(&mut self.open_chains, out),
             }
         }
     }
@@ -1134,10 +1133,10 @@ impl<const E: usize> Offsetter<E> {
         let mut chain = 0;
         let mut candidates = core::iter::from_fn(|| {
             while chain < self.chain_points {
-                let (at, header) = (chain, self.chain_point(chain));
-                chain += 1 + header.x as usize;
+                let at = chain;
+                chain = self.chain_after(at);
                 let start = self.chain_point(at + 1);
-                if header.y == 0 && start == from.b {
+                if self.chain_point(at).y == 0 && start == from.b {
                     return Some((at, dir(Seg { a: start, b: self.chain_point(at + 2) })));
                 }
             }
@@ -1172,16 +1171,12 @@ impl<const E: usize> Offsetter<E> {
                 last_um = um;
             }
             let Some(next) = next_dart(darts, used, darts[cur]) else {
-                self.open_chains += 1;
-                out.discard_open();
-                return Ok(false);
+                return dead_end(&mut self.open_chains, out);
             };
             used[next] = 1;
             cur = next;
         }
-        self.open_chains += 1;
-        out.discard_open();
-        Ok(false)
+        dead_end(&mut self.open_chains, out)
     }
 
     /// Cleans the loop just traced and keeps it if it is wide enough.
@@ -1235,6 +1230,14 @@ fn drop_seam_point<const L: usize>(out: &mut Loops<'_, L>, next: Point2) {
     if orient(a, next, s).abs() <= len && dot(a, s, next) >= 0 && dot(next, s, a) >= 0 {
         out.truncate_open(n - 1);
     }
+}
+
+/// A traced loop that cannot be closed (an inconsistent arrangement): counted in
+/// `open_chains` and dropped from `out`.
+fn dead_end<const L: usize>(open_chains: &mut u32, out: &mut Loops<'_, L>) -> Result<bool, Buffer> {
+    *open_chains += 1;
+    out.discard_open();
+    Ok(false)
 }
 
 /// An engine point in um (rounded).
