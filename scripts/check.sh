@@ -1,10 +1,19 @@
 #!/usr/bin/env bash
 # Every gate CI enforces, runnable the same way locally: formatting, lints, the no_std core and
-# the firmware for the Cortex-M3, then all tests. Installs the Rust pieces it needs.
-set -euo pipefail
+# the firmware for the Cortex-M3, then all tests. Installs the Rust pieces it needs. Every
+# gate and every test binary runs whatever failed before it; the last lines sum up the tests
+# and name the failed gates, and the exit status is non-zero when anything failed.
+set -uo pipefail
 cd "$(dirname "$0")/.."
 
 step() { printf '\n== %s ==\n' "$*"; }
+failed=()
+# Runs a gate; a failure is noted, not fatal.
+gate() {
+  local name=$1
+  shift
+  "$@" || failed+=("$name")
+}
 
 step "toolchain pieces"
 rustup target list --installed | grep -qx thumbv7m-none-eabi || rustup target add thumbv7m-none-eabi
@@ -17,28 +26,43 @@ if ! command -v qemu-system-arm >/dev/null && command -v apt-get >/dev/null && [
 fi
 
 step "cargo fmt --check"
-cargo fmt --all -- --check
+gate fmt cargo fmt --all -- --check
 
 step "cargo clippy (host crates, all targets) -D warnings"
-cargo clippy --all-targets -- -D warnings
+gate clippy cargo clippy --all-targets -- -D warnings
 
 step "core for thumbv7m-none-eabi (no_std, no alloc)"
-cargo build -p strata --target thumbv7m-none-eabi --release
+gate no_std cargo build -p strata --target thumbv7m-none-eabi --release
 step "firmware for thumbv7m-none-eabi (every board: build, clippy)"
 for board in creality-v422 creality-v427 qemu-mps2 qemu; do
-  scripts/build_firmware.sh "$board"
-  cargo clippy -p strata-firmware --target thumbv7m-none-eabi --release --features "$board" -- -D warnings
+  gate "firmware $board" scripts/build_firmware.sh "$board"
+  gate "firmware clippy $board" cargo clippy -p strata-firmware --target thumbv7m-none-eabi \
+    --release --features "$board" -- -D warnings
 done
 
 step "step ISR: no division, no floating point (thumbv7m disassembly)"
-scripts/check_isr_asm.sh
+gate isr_asm scripts/check_isr_asm.sh
 
 step "docs"
-RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p strata -p strata-host --quiet
+gate docs env RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p strata -p strata-host --quiet
 
 step "tests"
+# Every test binary runs (no fail-fast); the closing line sums them all (a binary that
+# crashed without a summary fails the run too).
 log=$(mktemp)
-cargo test --workspace --exclude strata-firmware 2>&1 | tee "$log"
-# One closing line for the whole run (cargo prints one per test binary, doc tests last).
-awk '/^test result:/ { p += $4; f += $6 } END { printf "\ntests: %d passed, %d failed\n", p, f }' "$log"
+status=0
+cargo test --workspace --exclude strata-firmware --no-fail-fast 2>&1 | tee "$log" || status=$?
+awk -v status="$status" '
+  /^test result:/ { p += $4; f += $6 }
+  END {
+    printf "\ntests: %d passed, %d failed\n", p, f
+    if (status != 0 && f == 0) printf "(a test binary failed without a test result: see above)\n"
+  }' "$log"
 rm -f "$log"
+[ "$status" = 0 ] || failed+=(tests)
+
+if [ ${#failed[@]} -gt 0 ]; then
+  printf 'failed: %s\n' "$(IFS=,; echo "${failed[*]}")"
+  exit 1
+fi
+echo "all gates passed"

@@ -10,7 +10,7 @@
 //!
 //! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S]
 //! [--relay LOSS] [--max-deviation MM] [--layers K] MODEL.stl...` (job budget S seconds of
-//! wall time, default 1800; admission's error bound MM, default 0.02 as `strata print`;
+//! QEMU's clock, default 1800; admission's error bound MM, default 0.02 as `strata print`;
 //! `--layers K` lists the K worst layers with their compute split between slicing/toolpaths
 //! and planning/steps; `--relay` streams through the fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
 //! every frame's header; `cylinder:R:H:SIDES:BAND` (mm) is a generated banded cylinder; model
@@ -26,6 +26,7 @@ use strata::machine::{MachineConfig, PrintSettings};
 use strata::protocol::{DeviceState, JobOptions, JobSpec};
 use strata_host::hil::{self, CostSummary, Costs, Qemu, CPU_HZ, CYCLES_PER_INSN};
 use strata_host::model;
+use strata_host::serial::Port;
 use strata_host::simjob::Faults;
 
 const RTF_TARGET: f64 = 20.0;
@@ -89,20 +90,23 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
         triangles: tris.len() as u32,
     };
     let t0 = std::time::Instant::now();
-    let (mut q, uart) = Qemu::start(qemu, elf, echo, Duration::from_secs(20))?;
-    let (_relay, mut port) = match o.relay {
+    let (mut q, uart) = Qemu::start(qemu, elf, echo)?;
+    let mut clock = q.clock()?;
+    let (_relay, port) = match o.relay {
         Some(loss) => {
-            let (r, p) = hil::Relay::spawn(uart, Faults::uniform(loss, 1), 250_000)?;
+            let (r, p) = hil::Relay::spawn(uart, Faults::uniform(loss, 1), 250_000, clock.clone())?;
             (Some(r), p)
         }
         None => (None, uart),
     };
     port.set_read_timeout(Some(Duration::from_millis(1))).map_err(|e| e.to_string())?;
-    port.set_write_timeout(Some(Duration::from_secs(10))).map_err(|e| e.to_string())?;
-    let mut conn = hil::connect(&mut port)?;
+    port.set_write_timeout(Some(Duration::from_millis(1))).map_err(|e| e.to_string())?;
+    let mut port = Port::new(port);
+    let mut conn = hil::connect(&mut port, &mut clock)?;
     let (tris, job, note) = hil::admitted(&tris, job, &conn.caps, o.max_deviation)?;
     let mut next = 10.0;
-    let progress = hil::print_job(&mut port, &mut conn, &tris, job, o.timeout, |p| {
+    let budget_ms = o.timeout.as_millis() as u32;
+    let progress = hil::print_job(&mut port, &mut conn, &mut clock, &tris, job, budget_ms, |p| {
         if echo && t0.elapsed().as_secs_f64() > next {
             next += 10.0;
             eprintln!("{name}: {} triangles sent, status {:?}", p.triangles_sent, p.status);
@@ -117,9 +121,9 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
     if st.state != DeviceState::Done {
         return Err(format!("{name}: ended in {:?}", st.state));
     }
-    q.wait_for(Duration::from_secs(60), |l| {
+    q.wait_for(&mut clock, 60_000, |l| {
         l.iter().any(|l| l.contains("isr_calls=")) && l.iter().any(|l| l.starts_with("MEM"))
-    });
+    })?;
     let costs = Costs::parse(&q.lines());
     let timer_hz = strata::step::StepConfig::from_machine(&machine).timer_hz as f64;
     Ok(Row {

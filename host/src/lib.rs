@@ -4,6 +4,7 @@
 //! to the command line; the tests drive them directly.
 
 pub mod admission;
+pub mod clock;
 #[cfg(unix)]
 pub mod hil;
 pub mod model;

@@ -1,17 +1,18 @@
 //! `strata print` and `strata ports`: stream a model to a printer over a serial port (or a
 //! pseudo-terminal), with admission control, a progress bar, device status and Ctrl-C abort.
 
-use std::io::{ErrorKind, IsTerminal, Read, Write};
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use strata::protocol::{DeviceState, Status, MAX_WIRE};
+use strata::protocol::{DeviceState, LinkConfig, Status};
 use strata_host::admission::{admit_job, Admission};
+use strata_host::clock::WallClock;
 use strata_host::model;
-use strata_host::serial;
+use strata_host::serial::{self, Port};
 use strata_host::session::{HostEndpoint, Progress};
 
 use crate::simulate::job_of;
@@ -28,6 +29,10 @@ pub struct PrintCmdArgs {
     /// Baud rate.
     #[arg(long, default_value_t = 250_000)]
     pub baud: u32,
+    /// Seconds the printer may stay silent, or take no data, before the print counts as lost
+    /// (a slow USB bridge or a busy PC may need more than the protocol's 3 s).
+    #[arg(long, value_name = "S", default_value_t = 3.0)]
+    pub link_timeout: f64,
     /// Largest geometric error simplification may introduce, mm.
     #[arg(long, value_name = "MM", default_value_t = 0.02)]
     pub max_deviation: f64,
@@ -41,19 +46,25 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     let machine = machine_of(&args.print)?;
     let loaded = model::load(&args.model)?;
     let tris = loaded.placed_sorted(&machine)?;
-    let mut port = serialport::new(&args.port, args.baud)
+    if !(args.link_timeout.is_finite() && (0.5..=3600.0).contains(&args.link_timeout)) {
+        return Err(format!("--link-timeout {}: expected 0.5 to 3600 s", args.link_timeout));
+    }
+    let port = serialport::new(&args.port, args.baud)
         .timeout(Duration::from_millis(2))
         .open()
         .map_err(|e| format!("{}: {e}", args.port))?;
+    let mut port = Port::new(port);
     let abort = Arc::new(AtomicBool::new(false));
     {
         let abort = abort.clone();
         // A second handler cannot be installed (tests call `run` once per process).
         let _ = ctrlc::set_handler(move || abort.store(true, Ordering::Relaxed));
     }
-    let t0 = Instant::now();
-    let mut ep = HostEndpoint::new(strata::protocol::LinkConfig::default());
-    let caps = serial::connect(&mut port, &mut ep, t0)?;
+    let mut clock = WallClock::new();
+    let mut link = LinkConfig::default();
+    link.dead_ms = (args.link_timeout * 1000.0).round() as u32;
+    let mut ep = HostEndpoint::new(link);
+    let caps = serial::connect(&mut port, &mut ep, &mut clock)?;
     eprintln!(
         "printer: {} active triangles, {} contour points per layer, toolpath PTS {} LOOPS {} \
          CROSS {} PATH {} RING {} SPANS {}, {} B move buffer, {} KB RAM",
@@ -70,7 +81,7 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     );
     let job = job_of(&args.print, &tris)?;
     // Admission can take longer than the link's dead time (3 s): keep the link alive.
-    let admitted = keeping_link_alive(&mut port, &mut ep, t0, || {
+    let admitted = keeping_link_alive(&mut port, &mut ep, &mut clock, || {
         admit_job(&tris, &machine, &job, &caps, args.max_deviation)
     })?;
     if abort.load(Ordering::Relaxed) {
@@ -104,7 +115,7 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     );
     let total = tris.len();
     let mut last_line: Option<(usize, u32)> = None;
-    let result = serial::print(&mut port, &mut ep, t0, caps, &tris, job, &abort, |p| {
+    let result = serial::print(&mut port, &mut ep, &mut clock, caps, &tris, job, &abort, |p| {
         let text = progress_text(p, total);
         if terminal {
             bar.set_position(p.triangles_sent as u64);
@@ -120,11 +131,9 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     bar.finish_and_clear();
     let result = result.map_err(|e| {
         if abort.load(Ordering::Relaxed) {
-            match e.as_str() {
-                "aborted by the user" => "aborted by the user (Ctrl-C): the printer was told to \
-                                          abort"
-                    .to_string(),
-                _ => format!("aborted (Ctrl-C): {e}"),
+            match e.strip_prefix("aborted by the user") {
+                Some(rest) => format!("aborted by the user (Ctrl-C){rest}"),
+                None => format!("aborted (Ctrl-C): {e}"),
             }
         } else {
             e
@@ -149,38 +158,16 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
 /// Runs `work` on another thread while this one keeps the link alive: frames in (acked, kept
 /// for the job), acks and keepalives out, so neither end declares the link dead.
 fn keeping_link_alive<T: Send>(
-    port: &mut Box<dyn serialport::SerialPort>,
+    port: &mut Port<Box<dyn serialport::SerialPort>>,
     ep: &mut HostEndpoint,
-    t0: Instant,
+    clock: &mut WallClock,
     work: impl FnOnce() -> T + Send,
 ) -> Result<T, String> {
     std::thread::scope(|s| {
         let worker = s.spawn(work);
-        let mut buf = [0u8; 4096];
-        let mut frame = [0u8; MAX_WIRE];
         while !worker.is_finished() {
-            let now = t0.elapsed().as_millis() as u32;
             // The port's read timeout (2 ms) paces the loop.
-            let n = match port.read(&mut buf) {
-                Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        ErrorKind::TimedOut | ErrorKind::WouldBlock | ErrorKind::Interrupted
-                    ) =>
-                {
-                    0
-                }
-                Err(e) => return Err(format!("serial port: {e}")),
-            };
-            ep.receive(&buf[..n], now);
-            loop {
-                let n = ep.poll_transmit(now, &mut frame);
-                if n == 0 {
-                    break;
-                }
-                port.write_all(&frame[..n]).map_err(|e| format!("serial port: {e}"))?;
-            }
+            port.pump(ep, clock)?;
         }
         worker.join().map_err(|_| "admission control panicked".to_string())
     })

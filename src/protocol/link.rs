@@ -190,6 +190,11 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
         }
     }
 
+    /// The timers.
+    pub fn config(&self) -> &LinkConfig {
+        &self.cfg
+    }
+
     /// The counters.
     pub fn stats(&self) -> &LinkStats {
         &self.stats

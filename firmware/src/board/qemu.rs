@@ -8,7 +8,9 @@
 //! SysTick count is 5 ns = 5 instructions (mps2-an385: 25 MHz, 40 instructions). SysTick
 //! fires every [`RELOAD`] counts (10,000 instructions on both); counting
 //! its wraps gives a 64-bit instruction clock ([`insns_now`]), from which the protocol's
-//! millisecond clock (1 ms = 1,000,000 instructions) and the cost figures are derived.
+//! millisecond clock (1 ms = 1,000,000 instructions) and the cost figures are derived. The
+//! `CLOCK` line at start-up gives the wrap counter's address, so the host harness runs its
+//! side of the link on the same emulated time (`strata_host::hil::QemuClock`).
 //!
 //! # Accelerated print time
 //! The print must not run in real time. Each SysTick interrupt moves a *virtual print clock*
@@ -713,6 +715,13 @@ pub fn init(cfg: &StepConfig) -> Board {
         RELOAD,
         PIN_OVERHEAD_X16.load(Ordering::Relaxed),
         TIMER_OVERHEAD_X16.load(Ordering::Relaxed)
+    );
+    // Where the host harness reads the emulated time (QEMU's monitor, `xp`): the wrap
+    // counter's address and the nanoseconds of one wrap (RELOAD counts of PERIOD_NS).
+    log!(
+        "CLOCK wraps_at={} wrap_ns={}",
+        &WRAPS as *const AtomicU32 as u32,
+        RELOAD * PERIOD_NS.load(Ordering::Relaxed)
     );
     Board { _syst: cp.SYST, plant: Plant::new() }
 }
