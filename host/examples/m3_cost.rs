@@ -103,7 +103,8 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
     port.set_write_timeout(Some(Duration::from_millis(1))).map_err(|e| e.to_string())?;
     let mut port = Port::new(port);
     let mut conn = hil::connect(&mut port, &mut clock)?;
-    let (tris, job, note) = hil::admitted(&tris, job, &conn.caps, o.max_deviation)?;
+    let (tris, job, note) =
+        hil::admitted_on_link(&mut port, &mut conn, &mut clock, &tris, job, o.max_deviation)?;
     let mut next = 10.0;
     let budget_ms = o.timeout.as_millis() as u32;
     let progress = hil::print_job(&mut port, &mut conn, &mut clock, &tris, job, budget_ms, |p| {

@@ -81,7 +81,7 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     );
     let job = job_of(&args.print, &tris)?;
     // Admission can take longer than the link's dead time (3 s): keep the link alive.
-    let admitted = keeping_link_alive(&mut port, &mut ep, &mut clock, || {
+    let admitted = serial::keeping_link_alive(&mut port, &mut ep, &mut clock, || {
         admit_job(&tris, &machine, &job, &caps, args.max_deviation)
     })?;
     if abort.load(Ordering::Relaxed) {
@@ -153,24 +153,6 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         return Err(format!("the printer ended in state {:?}", s.state));
     }
     Ok(())
-}
-
-/// Runs `work` on another thread while this one keeps the link alive: frames in (acked, kept
-/// for the job), acks and keepalives out, so neither end declares the link dead.
-fn keeping_link_alive<T: Send>(
-    port: &mut Port<Box<dyn serialport::SerialPort>>,
-    ep: &mut HostEndpoint,
-    clock: &mut WallClock,
-    work: impl FnOnce() -> T + Send,
-) -> Result<T, String> {
-    std::thread::scope(|s| {
-        let worker = s.spawn(work);
-        while !worker.is_finished() {
-            // The port's read timeout (2 ms) paces the loop.
-            port.pump(ep, clock)?;
-        }
-        worker.join().map_err(|_| "admission control panicked".to_string())
-    })
 }
 
 /// One progress report: triangles and bytes streamed, the printer's layer, state, print time

@@ -110,6 +110,25 @@ impl<P: Read + Write> Port<P> {
     }
 }
 
+/// Runs `work` on another thread while this one keeps the link alive: frames in (acked, kept
+/// for the job), acks and keepalives out, so neither end declares the link dead (admission
+/// control can take longer than the link's dead time).
+pub fn keeping_link_alive<P: Read + Write, T: Send>(
+    port: &mut Port<P>,
+    ep: &mut HostEndpoint,
+    clock: &mut impl LinkClock,
+    work: impl FnOnce() -> T + Send,
+) -> Result<T, String> {
+    std::thread::scope(|s| {
+        let worker = s.spawn(work);
+        while !worker.is_finished() {
+            // The port's read timeout paces the loop.
+            port.pump(ep, clock)?;
+        }
+        worker.join().map_err(|_| "the work beside the link panicked".to_string())
+    })
+}
+
 /// Connects: hello and the device's capacities (within 5 s of the clock).
 pub fn connect<P: Read + Write>(
     port: &mut Port<P>,

@@ -62,6 +62,21 @@ pub fn connect<P: Read + Write>(
     Ok(Connected { ep, caps })
 }
 
+/// [`admitted`] while the link is kept alive, as `strata print` does.
+pub fn admitted_on_link<P: Read + Write>(
+    port: &mut Port<P>,
+    conn: &mut Connected,
+    clock: &mut impl LinkClock,
+    tris: &[Triangle],
+    job: JobSpec,
+    max_deviation_mm: f64,
+) -> Result<(Vec<Triangle>, JobSpec, Option<String>), String> {
+    let caps = conn.caps;
+    crate::serial::keeping_link_alive(port, &mut conn.ep, clock, || {
+        admitted(tris, job, &caps, max_deviation_mm)
+    })?
+}
+
 /// The triangles to stream for `tris` to a device with `caps`, decided as `strata print`
 /// decides ([`admit_job`]: the slicer's needs, simplified within the measured deviation
 /// `max_deviation_mm` if need be, then the toolpath stage's needs and the moves per layer),

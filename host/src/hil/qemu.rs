@@ -379,6 +379,17 @@ impl MonitorClock {
                 Ok(0) => return Err("qemu exited (its monitor closed)".into()),
                 Ok(n) => text.extend_from_slice(&buf[..n]),
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    return Err(format!(
+                        "qemu's monitor did not answer within {:.0} s",
+                        MONITOR_ANSWER_LIMIT.as_secs_f64()
+                    ))
+                }
                 Err(e) => return Err(format!("qemu's monitor: {e}")),
             }
         }

@@ -41,6 +41,8 @@ struct Direction {
     /// `STRATA_HIL_TRACE`: each frame's header on standard error, with this label.
     trace: Option<&'static str>,
     wire: Wire,
+    /// Bytes read, not yet split into frames.
+    inbox: Vec<u8>,
     partial: Vec<u8>,
     out: Vec<u8>,
     frames: u64,
@@ -48,30 +50,33 @@ struct Direction {
 }
 
 impl Direction {
-    /// Reads what is available; false when the peer closed.
-    fn read_from(&mut self, s: &mut UnixStream, now_ms: u64) -> Result<bool, String> {
+    /// Reads what is available into the inbox; false when the peer closed.
+    fn pull(&mut self, s: &mut UnixStream) -> Result<bool, String> {
         let mut buf = [0u8; 4096];
         loop {
             match s.read(&mut buf) {
                 Ok(0) => return Ok(false),
-                Ok(n) => {
-                    for &b in &buf[..n] {
-                        self.partial.push(b);
-                        // A frame ends at its delimiter; garbage without one is passed on in
-                        // pieces (the decoder resynchronises).
-                        if b == 0 || self.partial.len() >= 2 * MAX_WIRE {
-                            if let Some(label) = self.trace {
-                                trace_frame(label, now_ms, &self.partial);
-                            }
-                            self.wire.send_frame(now_ms, &self.partial);
-                            self.partial.clear();
-                            self.frames += 1;
-                        }
-                    }
-                }
+                Ok(n) => self.inbox.extend_from_slice(&buf[..n]),
                 Err(e) if e.kind() == ErrorKind::WouldBlock => return Ok(true),
                 Err(e) if e.kind() == ErrorKind::Interrupted => {}
                 Err(e) => return Err(format!("relay: {e}")),
+            }
+        }
+    }
+
+    /// Splits the inbox into frames sent onto the wire at `now_ms`.
+    fn send(&mut self, now_ms: u64) {
+        for b in std::mem::take(&mut self.inbox) {
+            self.partial.push(b);
+            // A frame ends at its delimiter; garbage without one is passed on in pieces (the
+            // decoder resynchronises).
+            if b == 0 || self.partial.len() >= 2 * MAX_WIRE {
+                if let Some(label) = self.trace {
+                    trace_frame(label, now_ms, &self.partial);
+                }
+                self.wire.send_frame(now_ms, &self.partial);
+                self.partial.clear();
+                self.frames += 1;
             }
         }
     }
@@ -149,6 +154,7 @@ impl Relay {
                 let dir = |salt, label| Direction {
                     trace: trace.then_some(label),
                     wire: Wire::new(faults, salt, baud),
+                    inbox: Vec::new(),
                     partial: Vec::new(),
                     out: Vec::new(),
                     frames: 0,
@@ -161,15 +167,19 @@ impl Relay {
                     if stop2.load(Ordering::Relaxed) {
                         break Ok(());
                     }
-                    let now = match clock.now_ms() {
-                        Ok(ms) => ms.wrapping_sub(*origin.get_or_insert(ms)) as u64 + 1,
-                        Err(e) => break Err(format!("relay: {e}")),
-                    };
-                    match (h2d.read_from(&mut near, now), d2h.read_from(&mut device, now)) {
+                    // Both sides are read before the clock: QEMU's UART blocks the emulator
+                    // (and its monitor, which the clock asks) once its socket is full.
+                    match (h2d.pull(&mut near), d2h.pull(&mut device)) {
                         (Ok(true), Ok(true)) => {}
                         (Err(e), _) | (_, Err(e)) => break Err(e),
                         _ => break Ok(()),
                     }
+                    let now = match clock.now_ms() {
+                        Ok(ms) => ms.wrapping_sub(*origin.get_or_insert(ms)) as u64 + 1,
+                        Err(e) => break Err(format!("relay: {e}")),
+                    };
+                    h2d.send(now);
+                    d2h.send(now);
                     while last < now {
                         last += 1;
                         h2d.tick(last);
