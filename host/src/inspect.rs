@@ -10,7 +10,7 @@ use std::path::Path;
 use serde_json::{json, Value};
 use strata::stl::{RawTriangle, StlFormat};
 
-use crate::model::{self, Model};
+use strata_host::model::{self, Model};
 
 /// Runs `strata inspect MODEL [--json]`.
 pub fn run(path: &Path, json: bool) -> Result<(), String> {

@@ -7,8 +7,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod inspect;
-mod model;
 mod print;
+mod settings;
 mod simulate;
 mod slice_cmd;
 

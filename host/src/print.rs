@@ -15,8 +15,7 @@ use strata_host::model;
 use strata_host::serial::{self, Port};
 use strata_host::session::{HostEndpoint, Progress};
 
-use crate::simulate::job_of;
-use crate::slice_cmd::{machine_of, PrintArgs};
+use crate::settings::{job_of, machine_of, PrintArgs};
 
 /// Options of `strata print`.
 #[derive(Debug, clap::Args)]

@@ -5,15 +5,13 @@
 use std::path::PathBuf;
 
 use serde::Serialize;
-use strata::geom::Triangle;
-use strata::protocol::{JobOptions, JobSpec};
-use strata::toolpath::Seam;
+use strata::protocol::JobSpec;
 use strata_host::admission::{self, Admission};
 use strata_host::model;
 use strata_host::preview;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
 
-use crate::slice_cmd::{machine_of, settings_of, toolpath_config_of, PrintArgs};
+use crate::settings::{job_of, machine_of, PrintArgs};
 
 /// Options of `strata simulate`.
 #[derive(Debug, clap::Args)]
@@ -102,25 +100,6 @@ struct Summary {
     stream_time_s: f64,
     underruns: u32,
     retransmits: u64,
-}
-
-/// Builds the job message from the settings flags.
-pub fn job_of(args: &PrintArgs, tris: &[Triangle]) -> Result<JobSpec, String> {
-    let machine = machine_of(args)?;
-    let settings = settings_of(args, &machine)?;
-    let cfg = toolpath_config_of(args, &machine, &settings)?;
-    let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
-    Ok(JobSpec {
-        settings,
-        options: JobOptions {
-            outer_perimeter_last: cfg.outer_perimeter_last,
-            seam: matches!(cfg.seam, Seam::Nearest) as u8,
-            skirt_loops: cfg.skirt_loops,
-            skirt_distance_um: cfg.skirt_distance_um,
-        },
-        model_height_um: top,
-        triangles: tris.len() as u32,
-    })
 }
 
 /// Runs `strata simulate`.

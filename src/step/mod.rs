@@ -251,7 +251,7 @@ pub struct StepProducer<'q, const N: usize> {
     hash: u64,
 }
 
-/// FNV-1a 64 offset basis (the step hashes here and in [`crate::sim`]).
+/// FNV-1a 64 offset basis (the step hashes here and on the simulated board).
 pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
 const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
 

@@ -21,7 +21,7 @@ use core::convert::Infallible;
 use embedded_hal::digital::{ErrorType, OutputPin};
 
 use crate::machine::AXES;
-use crate::step::{Pins, StepConfig};
+use crate::step::{Pins, StepConfig, StepTimer};
 
 /// One of the simulated pins.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -389,6 +389,19 @@ impl<O: EdgeObserver> SimBoard<O> {
         }
     }
 }
+
+/// The simulated board's clock: waiting moves it on (to the exact tick).
+impl<O: EdgeObserver> StepTimer for &SimBoard<O> {
+    fn now(&mut self) -> u32 {
+        self.now_u32()
+    }
+    fn wait_until(&mut self, t: u32) {
+        self.advance_to_u32(t);
+    }
+}
+
+#[cfg(test)]
+mod exec_tests;
 
 #[cfg(test)]
 mod tests {
