@@ -527,8 +527,8 @@ impl<
 
     /// A job that waits longer than [`HEAT_WAIT_LIMIT_MS`] (printing, not paused) for its
     /// heaters fails with
-    /// [`ThermalFault::HeatingTimeout`] (a heater stalled just below its target trips no
-    /// protection, so the wait needs its own limit).
+    /// [`ThermalFault::HeatingTimeout`] (the last line of defence behind each heater's own
+    /// checks, which also catch a heater that stalls short of its target).
     fn check_heat_wait(&mut self, now_ms: u32) {
         if !(self.state == DeviceState::Printing && self.heaters && !self.heated) {
             self.heat_wait_since_ms = None;

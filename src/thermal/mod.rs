@@ -22,11 +22,16 @@
 //! - drive PA1/PA2/PA0 with the duties, kick a [`Watchdog`] after each update and have the PWM
 //!   interrupt force the heater pins low (and stop feeding the IWDG) once it has expired;
 //! - before the first layer, [`ThermalController::apply_settings`] then wait for
-//!   [`ThermalController::at_target`] (1 °C for 10 s, like M190/M109; a job-level timeout is
-//!   advisable: like Marlin, a heater that stalls within 6 °C below its target is past the
-//!   heating watch and not yet under runaway protection); [`ThermalController::all_off`] at the
-//!   end, on abort and on emergency stop; on a fault, stop motion and report
-//!   [`ThermalFault::name`]; status reports carry [`ThermalController::status`].
+//!   [`ThermalController::at_target`] (inside [`HeaterConfig::window_c`] for
+//!   [`HeaterConfig::residency_ms`], like M190/M109). A heater that stalls short of its target
+//!   trips [`ThermalFault::HeatingFailed`]: more than [`ProtectParams::watch_band_c`] below it
+//!   through the heating watch, inside that band (where Marlin watches nothing) through the
+//!   approach deadline [`ProtectParams::approach_period_ms`]. The job's own wait limit,
+//!   [`HEAT_WAIT_LIMIT_MS`] ([`ThermalFault::HeatingTimeout`]), stays as the last line of
+//!   defence (a heater that reaches its target but never settles inside the window);
+//!   [`ThermalController::all_off`] at the end, on abort and on emergency stop; on a fault,
+//!   stop motion and report [`ThermalFault::name`]; status reports carry
+//!   [`ThermalController::status`].
 
 pub mod pid;
 pub mod protect;
@@ -76,14 +81,15 @@ pub enum ThermalFault {
     MinTemp(Heater),
     /// Reading above the max-temperature cutoff (heater stuck on or runaway).
     MaxTemp(Heater),
-    /// While heating, the temperature did not rise enough within the watch period.
+    /// While heating, the temperature did not rise enough within the watch period, or did not
+    /// reach the target within the approach period once close to it.
     HeatingFailed(Heater),
     /// While holding, the temperature stayed too far below the target for too long.
     ThermalRunaway(Heater),
     /// The main loop stopped kicking the watchdog.
     Watchdog,
     /// A job waited longer than [`HEAT_WAIT_LIMIT_MS`] for its heaters to reach their targets
-    /// (a heater stalled too close to its target for the heating check to trip).
+    /// and settle (the last line of defence behind each heater's own checks).
     HeatingTimeout,
 }
 
@@ -557,6 +563,8 @@ mod tests {
 
     #[test]
     fn ram_size_is_small() {
+        // Per heater: 16 B of protection state (asserted in `protect`) and 20 B of limits.
+        assert!(core::mem::size_of::<ProtectParams>() <= 20);
         let size = core::mem::size_of::<ThermalController>();
         assert!(size <= 208, "ThermalController is {size} bytes");
         assert!(core::mem::size_of::<Watchdog>() <= 8);

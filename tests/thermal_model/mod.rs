@@ -9,13 +9,14 @@
 //!
 //! Numbers (stock Ender-3): hotend 40 W cartridge, 25 J/K, 0.12 W/K loss (a 1.6 °C/s initial
 //! rise, 358 °C at full power), 3 s sensor lag, part fan at 100 % adds 0.03 W/K; bed 220 W,
-//! 550 J/K, 2 W/K (0.4 °C/s initial rise, 135 °C at full power), 4 s sensor lag.
+//! 550 J/K, 2 W/K (0.4 °C/s initial rise, 135 °C at full power), 4 s sensor lag; both in a
+//! room at [`AMBIENT`] unless [`HeaterModel::in_room`] puts them elsewhere.
 #![allow(dead_code)]
 
 use strata::machine::MachineConfig;
 use strata::thermal::{Outputs, ThermalConfig, ThermalController, ThermalFault};
 
-/// Ambient temperature, °C.
+/// Default ambient temperature, °C.
 pub const AMBIENT: f64 = 25.0;
 /// Simulation and control step, ms.
 pub const STEP_MS: u32 = 100;
@@ -49,6 +50,8 @@ pub struct HeaterModel {
     pub block: f64,
     /// Sensor temperature, °C.
     pub sensor: f64,
+    /// Ambient temperature, °C.
+    pub ambient: f64,
     /// Fraction of the power that reaches the block (1 normal, ~0 for a loose cartridge).
     pub power_scale: f64,
     /// Heater forced fully on whatever the duty (a stuck MOSFET).
@@ -70,6 +73,7 @@ impl HeaterModel {
             sensor_tau: 3.0,
             block: AMBIENT,
             sensor: AMBIENT,
+            ambient: AMBIENT,
             power_scale: 1.0,
             stuck_on: false,
             open: false,
@@ -89,6 +93,11 @@ impl HeaterModel {
         }
     }
 
+    /// The same heater in a room at `t` °C, at room temperature.
+    pub fn in_room(self, t: f64) -> Self {
+        Self { ambient: t, block: t, sensor: t, ..self }
+    }
+
     /// Advances `dt` seconds at `duty` (0..=1) with the fan at `fan` (0..=1).
     pub fn step(&mut self, dt: f64, duty: f64, fan: f64) {
         let duty = if self.stuck_on { 1.0 } else { duty };
@@ -97,7 +106,7 @@ impl HeaterModel {
         let h = dt / f64::from(n);
         for _ in 0..n {
             let p = self.power * self.power_scale * duty;
-            let loss = (self.loss + self.fan_loss * fan) * (self.block - AMBIENT);
+            let loss = (self.loss + self.fan_loss * fan) * (self.block - self.ambient);
             self.block += h * (p - loss) / self.capacity;
             self.sensor += h * (self.block - self.sensor) / self.sensor_tau;
         }
