@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The step interrupt must do integer adds and compares only: no division instruction, no
 # software division or floating-point helper (the Cortex-M3 has no FPU), on the whole path
-# `Executor::on_timer` reaches. Builds scripts/isr_probe for thumbv7m-none-eabi (release),
+# `Executor::on_timer` reaches. Builds tools/isr-probe for thumbv7m-none-eabi (release),
 # disassembles it and walks the call graph from `strata_step_isr`. Exits 1 on a finding.
 # A self-test first checks that the walk flags two probe functions that do divide / use
 # floats. Also reports panic paths and where 64-bit arithmetic (adc/sbc, long multiplies)
@@ -18,7 +18,7 @@ fi
 rustup target list --installed | grep -qx thumbv7m-none-eabi || rustup target add thumbv7m-none-eabi
 
 TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}/isr_probe"
-cargo build --quiet --manifest-path scripts/isr_probe/Cargo.toml --release \
+cargo build --quiet --manifest-path tools/isr-probe/Cargo.toml --release \
   --target thumbv7m-none-eabi --target-dir "$TARGET_DIR"
 LIB="$TARGET_DIR/thumbv7m-none-eabi/release/libisr_probe.a"
 DIS="$TARGET_DIR/isr_probe.dis"

@@ -36,7 +36,7 @@ use crate::board;
 use crate::capacities::FwPrinter;
 use crate::log;
 
-/// Marks the start of a measured region for `scripts/m3_profile.sh --counted` (its QEMU plugin
+/// Marks the start of a measured region for `tools/job-profile/run.sh --counted` (its QEMU plugin
 /// counts only between this and [`strata_counted_off`]; no effect otherwise).
 #[no_mangle]
 #[inline(never)]
@@ -51,7 +51,7 @@ pub extern "C" fn strata_counted_off() {
     core::hint::black_box(2u32);
 }
 
-/// Keeps the measured region that just ended for `scripts/m3_profile.sh --counted` (called
+/// Keeps the measured region that just ended for `tools/job-profile/run.sh --counted` (called
 /// after [`strata_counted_off`] when the region counts in the figures: a `service` call
 /// that moved the pipeline, a `poll` that worked).
 #[no_mangle]

@@ -3,7 +3,7 @@
 //! the two ([`Relay`], built on the simulated link's [`crate::simjob::Wire`]), and the
 //! firmware's cost lines on QEMU's standard output ([`Costs`]). The same harness serves the
 //! in-process simulated printer ([`SimDevice`]): see `host/tests/hil_qemu.rs` and
-//! `host/examples/m3_cost.rs`.
+//! `host/examples/job_cost.rs`.
 //!
 //! Every timer runs on the device's clock: QEMU's instruction clock ([`QemuClock`]) or the
 //! simulated printer's turns ([`SimClock`]). The host's link (retransmission, keepalive, the

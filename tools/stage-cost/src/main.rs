@@ -323,7 +323,7 @@ fn execute(
 
 #[entry]
 fn main() -> ! {
-    print(format_args!("m3_cost: start\n"));
+    print(format_args!("stage_cost: start\n"));
     let mut cp = unsafe { cortex_m::Peripherals::steal() };
     // 200 MHz system clock (SYSDIV = 0, USESYSDIV): one SysTick count per 5 instructions.
     // SAFETY: the lm3s6965evb RCC register; only the clock divider changes.

@@ -1,5 +1,5 @@
 /* symprof: executed instructions per address of the firmware image (the first 1 MB of the
- * address space), for scripts/m3_profile/attribute.py to attribute to source functions.
+ * address space), for tools/job-profile/attribute.py to attribute to source functions.
  *
  * qemu-system-arm ... -plugin ./libsymprof.so,out=FILE[,on=SYM,off=SYM]
  *

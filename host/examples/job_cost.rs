@@ -8,13 +8,13 @@
 //! - step interrupt at most 150 instructions per step on average;
 //! - worst interrupt under 900 cycles (X and Y both stepping at 40 kHz: 72e6 / 80e3).
 //!
-//! `cargo run --release -p strata-host --example m3_cost -- [--echo] [--timeout S]
+//! `cargo run --release -p strata-host --example job_cost -- [--echo] [--timeout S]
 //! [--relay LOSS] [--max-deviation MM] [--layers K] MODEL.stl...` (job budget S seconds of
 //! QEMU's clock, default 1800; admission's error bound MM, default 0.02 as `strata print`;
 //! `--layers K` lists the K worst layers with their compute split between slicing/toolpaths
 //! and planning/steps; `--relay` streams through the fault-injecting relay at that loss rate, 0 for none, and `STRATA_HIL_TRACE=1` then prints
 //! every frame's header; `cylinder:R:H:SIDES:BAND` (mm) is a generated banded cylinder; model
-//! names without a directory are looked up in `../shared/models/`); `scripts/m3_hil_cost.sh`
+//! names without a directory are looked up in `../shared/models/`); `tools/job-cost/run.sh`
 //! builds the firmware first and runs the four sample models. Exits non-zero when a job
 //! fails; a missed target is reported, not an error.
 
@@ -194,13 +194,13 @@ fn main() {
     }
     if models.is_empty() {
         eprintln!(
-            "usage: m3_cost [--echo] [--timeout SECONDS] [--relay LOSS] [--max-deviation MM] \
+            "usage: job_cost [--echo] [--timeout SECONDS] [--relay LOSS] [--max-deviation MM] \
              [--layers K] MODEL.stl..."
         );
         std::process::exit(2);
     }
     let (qemu, elf) = hil::locate().unwrap_or_else(|e| {
-        eprintln!("m3_cost: {e}");
+        eprintln!("job_cost: {e}");
         std::process::exit(2);
     });
     println!(

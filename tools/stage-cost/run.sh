@@ -14,12 +14,12 @@
 # executor (no run into an unrested horizon), as in a print. `M3_COST_OPT=s` builds with
 # the firmware's opt-level ("s") instead of 3.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}/m3_cost"
+cd "$(dirname "$0")/../.."
+TARGET_DIR="${CARGO_TARGET_DIR:-$PWD/target}/stage_cost"
 OPT="${M3_COST_OPT:-3}"
 [ "$OPT" = 3 ] || TARGET_DIR="$TARGET_DIR-opt$OPT"
-CARGO_PROFILE_RELEASE_OPT_LEVEL="$OPT" cargo build --quiet --manifest-path scripts/m3_cost/Cargo.toml --release \
+CARGO_PROFILE_RELEASE_OPT_LEVEL="$OPT" cargo build --quiet --manifest-path tools/stage-cost/Cargo.toml --release \
   --target thumbv7m-none-eabi --target-dir "$TARGET_DIR"
 timeout 600 qemu-system-arm -cpu cortex-m3 -machine lm3s6965evb -nographic -icount shift=0 \
   -semihosting-config enable=on,target=native \
-  -kernel "$TARGET_DIR/thumbv7m-none-eabi/release/m3_cost" 2>&1 | grep -v "period zero"
+  -kernel "$TARGET_DIR/thumbv7m-none-eabi/release/stage_cost" 2>&1 | grep -v "period zero"

@@ -40,5 +40,5 @@ def write_binary(path, tris, header=b"strata sample: 20 mm block with 10 mm squa
             f.write(b"\0\0")
 
 if __name__ == "__main__":
-    root = pathlib.Path(__file__).resolve().parent.parent
+    root = pathlib.Path(__file__).resolve().parents[2]
     write_binary(root / "tests/data/cube_with_hole_20mm.stl", block_with_hole())

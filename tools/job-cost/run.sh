@@ -6,7 +6,7 @@
 # real-time factor at 72 MHz and 1.5 cycles per instruction, against the targets (>= 20x,
 # <= 150 instructions per step, worst interrupt < 900 cycles for 40 kHz on X and Y).
 #
-#   scripts/m3_hil_cost.sh [--board qemu|qemu-mps2] [--echo] [MODEL.stl...]
+#   tools/job-cost/run.sh [--board qemu|qemu-mps2] [--echo] [MODEL.stl...]
 #
 # Default: embodier_asc, xyz_20mm_cube, embodier_hotend_v2, embodier_LM8UU_8p2pi (simplified
 # by admission for the slicer, its offsets in bands) and a generated banded cylinder
@@ -18,21 +18,21 @@
 # Needs qemu-system-arm (apt-get install qemu-system-arm). STRATA_FIRMWARE_ELF skips the
 # firmware build and uses that image.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 board=qemu
 if [ "${1:-}" = "--board" ]; then
   board="$2"
   shift 2
 fi
-run() { # board, m3_cost arguments...
+run() { # board, job_cost arguments...
   local b="$1"
   shift
   if [ -z "${STRATA_FIRMWARE_ELF:-}" ]; then
     scripts/build_firmware.sh "$b" >&2
     STRATA_FIRMWARE_ELF="target/firmware/$b/strata-firmware.elf" \
-      cargo run --quiet --release -p strata-host --example m3_cost -- "$@"
+      cargo run --quiet --release -p strata-host --example job_cost -- "$@"
   else
-    cargo run --quiet --release -p strata-host --example m3_cost -- "$@"
+    cargo run --quiet --release -p strata-host --example job_cost -- "$@"
   fi
 }
 args=("$@")
