@@ -423,7 +423,7 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
     assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
     // A heater stuck just below its target: never at target, no protection trips.
     let mut failed_at = None;
-    for s in 0..700u32 {
+    for s in 0..HEAT_WAIT_LIMIT_MS / 1000 + 2 {
         let now = s * 1000;
         p.set_thermal(false, 1960, 600);
         // A live link both ways (the host acknowledges the status reports).
