@@ -3,13 +3,13 @@
 //! [`StlReader`] takes the file in chunks of any size (1 byte .. the whole file) and hands every
 //! complete facet to a sink at once; the result never depends on how the input was split. It
 //! holds at most one header, one binary record or one ASCII token between chunks (constant
-//! memory, about 160 bytes), never allocates and never panics on any input.
+//! memory, under 180 bytes), never allocates and never panics on any input.
 //!
 //! **Detection.** The first 84 bytes are buffered. If they contain a control byte (below 0x20
 //! other than `\t \n \v \f \r`, or 0x7F) the file is binary: a binary count below 2^24 always
-//! has a zero top byte. Otherwise the file is ASCII when its first word is `solid` (any case) or
-//! it has no word yet, else binary. A file shorter than 84 bytes is decided the same way at
-//! [`StlReader::finish`]. So a binary header that starts with `solid` is still binary.
+//! has a zero top byte. Otherwise the file is ASCII when its first word is `solid` or `facet`
+//! (any case) or it has no word yet, else binary. A file shorter than 84 bytes is decided the
+//! same way at [`StlReader::finish`]. So a binary header that starts with `solid` is still binary.
 //!
 //! **Binary.** 80-byte header, u32 LE facet count, then 50-byte records (normal, three vertices
 //! as f32 LE, u16 attribute). Every complete record present is read, whatever the count says;
@@ -21,17 +21,40 @@
 //! **ASCII.** `solid NAME`, then facets `facet normal f f f` `outer loop` `vertex f f f` (x3)
 //! `endloop` `endfacet`, then `endsolid NAME`; several solids may follow each other. Keywords
 //! in any case, tokens separated by any blanks (LF, CRLF or CR line ends), names (any bytes) are
-//! skipped to the end of their line. Numbers are parsed by `<f32 as FromStr>`, which rounds
-//! correctly, so the same mesh as ASCII and as binary gives bit-identical triangles. A file that
-//! ends after complete facets without `endsolid` is accepted and reported in
-//! [`StlSummary::missing_endsolid`]; one that ends inside a facet is
-//! [`StlErrorKind::UnexpectedEnd`]. A facet goes to the sink when its `endloop` is read.
+//! skipped to the end of their line. Vertex coordinates are parsed by `<f32 as FromStr>`, which
+//! rounds correctly, so the same mesh as ASCII and as binary gives bit-identical triangles; C99
+//! hex floats (`0x1.8p3`), which the slicers' `scanf("%f")` reads too, are rounded to nearest
+//! even here. A facet goes to the sink when its `endloop` is read.
 //!
-//! **Checks.** Vertex coordinates must be finite and within [`MAX_COORDINATE`] (10 m in mm);
-//! normals are not checked (not trusted). Zero-area facets (the cross product of `b - a` and
-//! `c - a`, computed in f64 from the f32 coordinates, is exactly zero: repeated corners or
-//! collinear corners) are counted in [`StlSummary::degenerate`] and not passed to the sink. A file
-//! without any facet is [`StlErrorKind::Empty`].
+//! What the desktop slicers also read is accepted wherever the facet's three corners stay
+//! certain (PrusaSlicer's admesh reader, Cura's numpy-stl reader, CuraEngine's line reader):
+//! - the normal is free: `normal` may be missing, and its three components may be missing or be
+//!   any word (`+inf`, `NaN`, `-1.#IND`, `weirdvalue`); they are not used, and a facet whose
+//!   normal is not three finite numbers is counted in [`StlSummary::bad_normals`];
+//! - `outer loop` may be written `outerloop`, `outer` or `loop` alone, or be missing;
+//! - closing keywords may be split: `end loop`, `end facet`, `end solid`;
+//! - words after a complete statement on its line (`endloop foo`, `endfacet bar`) are comments,
+//!   counted in [`StlSummary::ignored_words`]; a number there is an error (a fourth coordinate
+//!   cannot be told from a misplaced one);
+//! - `solid` and `endsolid` lines are optional between facets: facets may come without a
+//!   `solid` line, also after an `endsolid`, and a `solid` line may open a new solid without an
+//!   `endsolid` for the last one;
+//! - NUL or SUB (0x1A, DOS end of file) padding may end the file: counted in
+//!   [`StlSummary::trailing_bytes`].
+//!
+//! A file that ends after complete facets without `endsolid` is accepted and reported in
+//! [`StlSummary::missing_endsolid`]; one that ends inside a facet is
+//! [`StlErrorKind::UnexpectedEnd`]. Misspelled keywords, text on a line of its own and missing
+//! or extra coordinates stay errors: with free layout they cannot be told apart from a lost or
+//! extra token, which would shift every later corner.
+//!
+//! **Checks.** Vertex coordinates must be finite and within [`MAX_COORDINATE`] (10 m in mm): a
+//! corner that is not a number has no place, and dropping its facet would cut a hole into the
+//! part. Normals are not checked, only counted in [`StlSummary::bad_normals`] when NaN or
+//! infinite (both formats). Zero-area facets (the cross product of `b - a` and `c - a`,
+//! computed in f64 from the f32 coordinates, is exactly zero: repeated corners or collinear
+//! corners) are counted in [`StlSummary::degenerate`] and not passed to the sink. A file without
+//! any facet is [`StlErrorKind::Empty`].
 
 use core::fmt;
 
@@ -52,7 +75,8 @@ const RECORD_VERTEX_OFFSET: u64 = 12;
 /// One facet as stored in the file: coordinates in file units (millimetres by convention).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RawTriangle {
-    /// The stored normal (read, not trusted; may be NaN).
+    /// The stored normal (read, not trusted; may be NaN or infinite, and NaN where an ASCII
+    /// component is missing or not a number).
     pub normal: [f32; 3],
     /// The three corners in file order.
     pub vertices: [[f32; 3]; 3],
@@ -91,9 +115,15 @@ pub struct StlSummary {
     /// Binary: the header count disagrees with the complete records (all of them kept).
     pub count_mismatch: Option<CountMismatch>,
     /// Binary: bytes after the last complete record, when at least the declared count is there.
+    /// ASCII: NUL or SUB padding after the last solid or facet.
     pub trailing_bytes: u32,
     /// ASCII: the file ended after complete facets without a closing `endsolid`.
     pub missing_endsolid: bool,
+    /// Facets whose stored normal is not three finite numbers (NaN or infinite values; ASCII:
+    /// also words or missing components). Kept: the normal is not used.
+    pub bad_normals: u32,
+    /// ASCII: comment words after a complete statement on its line (`endloop foo`), skipped.
+    pub ignored_words: u32,
 }
 
 /// Why a file could not be read.
@@ -115,12 +145,15 @@ pub enum StlErrorKind {
     AbsurdCoordinate,
     /// ASCII: a token other than the keyword the grammar expects. Offset: the token.
     UnknownToken,
-    /// ASCII: a token where a number belongs that is not one. Offset: the token.
+    /// ASCII: a token where a vertex coordinate belongs that is not a number. Offset: the token.
     BadNumber,
     /// ASCII: a token longer than [`MAX_TOKEN`] bytes. Offset: the token.
     TokenTooLong,
     /// ASCII: the input ended inside a facet. Offset: the end of the input.
     UnexpectedEnd,
+    /// ASCII file shorter than the 84-byte detection window that holds a facet: at most one
+    /// facet fits, which is no printable solid. Offset: the end of the input.
+    TooShort,
     /// `feed` or `finish` was called after `finish` had succeeded. Offset: the end of the input.
     AfterFinish,
 }
@@ -135,9 +168,10 @@ impl StlErrorKind {
             Self::NonFiniteCoordinate => "vertex coordinate is NaN or infinite",
             Self::AbsurdCoordinate => "vertex coordinate beyond 10 m (10000 mm)",
             Self::UnknownToken => "unexpected token in ASCII STL",
-            Self::BadNumber => "malformed number in ASCII STL",
+            Self::BadNumber => "malformed vertex coordinate in ASCII STL",
             Self::TokenTooLong => "token longer than 64 bytes in ASCII STL",
             Self::UnexpectedEnd => "ASCII STL ends inside a facet",
+            Self::TooShort => "ASCII STL under 84 bytes: one facet is no solid",
             Self::AfterFinish => "STL reader used after finish",
         }
     }
@@ -177,51 +211,125 @@ enum Phase {
 /// The ASCII token the grammar expects next.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Expect {
-    /// `solid` (start of file, or after `endsolid`, where the file may also end).
+    /// `solid` or `facet` (start of file, or after `endsolid`, where the file may also end).
     Solid,
-    /// `facet` or `endsolid`.
+    /// `facet`, `endsolid` or a new `solid` (the file may end here: a missing `endsolid`).
     FacetOrEndsolid,
-    /// Step `n` of [`FACET`].
-    Facet(u8),
+    /// After `facet`: `normal`, a normal component, or the loop.
+    Normal,
+    /// Normal component `n` (0..3); a keyword instead ends the normal early.
+    Component(u8),
+    /// `outer`, `outerloop`, `loop`, or straight the first `vertex`.
+    Outer,
+    /// `loop` after `outer`, or the first `vertex`.
+    Loop,
+    /// The `vertex` of corner `k` (0..3).
+    Vertex(u8),
+    /// Vertex coordinate `n` (0..9: corner `n / 3`, axis `n % 3`).
+    Coord(u8),
+    /// `endloop` (or `end`).
+    EndLoop,
+    /// `endfacet` (or `end`).
+    EndFacet,
+    /// The second half of a split closing keyword.
+    End(Closing),
+    /// NUL/SUB padding up to the end of the input; `closed`: it follows an `endsolid`.
+    Padding { closed: bool },
 }
 
-/// One token of a facet after `facet`.
-#[derive(Debug, Clone, Copy)]
-enum Step {
-    /// This keyword.
-    Keyword(&'static [u8]),
-    /// A number stored in `facet[slot]` (0..3 normal, 3..12 vertices).
-    Number(u8),
-    /// This keyword, and the facet's geometry is complete: emit it.
-    Close(&'static [u8]),
+/// The keyword a lone `end` begins: `end loop`, `end facet`, `end solid`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Closing {
+    Loop,
+    Facet,
+    Solid,
 }
 
-/// The facet grammar after `facet`.
-const FACET: [Step; 20] = {
-    use Step::{Close, Keyword as K, Number as N};
-    [
-        K(b"normal"),
-        N(0),
-        N(1),
-        N(2),
-        K(b"outer"),
-        K(b"loop"),
-        K(b"vertex"),
-        N(3),
-        N(4),
-        N(5),
-        K(b"vertex"),
-        N(6),
-        N(7),
-        N(8),
-        K(b"vertex"),
-        N(9),
-        N(10),
-        N(11),
-        Close(b"endloop"),
-        K(b"endfacet"),
-    ]
-};
+/// An ASCII token, classified once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Word {
+    Solid,
+    Endsolid,
+    Facet,
+    Normal,
+    Outer,
+    Loop,
+    /// `outer loop` written as one word.
+    OuterLoop,
+    Vertex,
+    Endloop,
+    Endfacet,
+    /// First half of a split closing keyword.
+    End,
+    /// Not a keyword: a number, a normal component or a comment.
+    Other,
+}
+
+/// The keywords (matched in any case), the most frequent first.
+const KEYWORDS: [(&[u8], Word); 11] = [
+    (b"vertex", Word::Vertex),
+    (b"endloop", Word::Endloop),
+    (b"endfacet", Word::Endfacet),
+    (b"facet", Word::Facet),
+    (b"normal", Word::Normal),
+    (b"outer", Word::Outer),
+    (b"loop", Word::Loop),
+    (b"solid", Word::Solid),
+    (b"endsolid", Word::Endsolid),
+    (b"outerloop", Word::OuterLoop),
+    (b"end", Word::End),
+];
+
+impl Word {
+    /// Keywords start with a letter: numbers other than `inf`/`nan` skip the table.
+    fn of(token: &[u8]) -> Self {
+        match token.first() {
+            Some(b) if b.is_ascii_alphabetic() => {
+                KEYWORDS.iter().find(|(k, _)| keyword(token, k)).map_or(Self::Other, |&(_, w)| w)
+            }
+            _ => Self::Other,
+        }
+    }
+}
+
+/// What a keyword does in the state that expects it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Action {
+    /// Go to the state.
+    Go(Expect),
+    /// A facet begins: its normal is unknown until read.
+    Open,
+    /// A solid's name or the rest of `endsolid`'s line follows: skip the line, then the state.
+    Name(Expect),
+    /// The facet's corners are complete: emit it, then `endfacet`.
+    Emit,
+}
+
+/// The grammar: what keyword `word` does in state `expect`; `None` where it has no place.
+fn step(expect: Expect, word: Word) -> Option<Action> {
+    use Action::{Emit, Go, Name, Open};
+    use Expect as E;
+    use Word as W;
+    let action = match (expect, word) {
+        (E::Solid | E::FacetOrEndsolid, W::Solid) => Name(E::FacetOrEndsolid),
+        (E::Solid | E::FacetOrEndsolid, W::Facet) => Open,
+        (E::FacetOrEndsolid, W::Endsolid) | (E::End(Closing::Solid), W::Solid) => Name(E::Solid),
+        (E::FacetOrEndsolid, W::End) => Go(E::End(Closing::Solid)),
+        (E::Normal, W::Normal) => Go(E::Component(0)),
+        // A keyword where the normal or one of its components belongs: the normal is short.
+        (E::Normal | E::Component(_), _) => return step(E::Outer, word),
+        (E::Outer, W::Outer) => Go(E::Loop),
+        (E::Outer, W::OuterLoop) | (E::Outer | E::Loop, W::Loop) => Go(E::Vertex(0)),
+        (E::Outer | E::Loop, W::Vertex) => Go(E::Coord(0)),
+        (E::Vertex(k), W::Vertex) => Go(E::Coord(3 * k)),
+        (E::EndLoop, W::Endloop) | (E::End(Closing::Loop), W::Loop) => Emit,
+        (E::EndLoop, W::End) => Go(E::End(Closing::Loop)),
+        (E::EndFacet, W::Endfacet) | (E::End(Closing::Facet), W::Facet) => Go(E::FacetOrEndsolid),
+        (E::EndFacet, W::End) => Go(E::End(Closing::Facet)),
+        _ => return None,
+    };
+    Some(action)
+}
 
 /// The push parser. See the [module docs](self) for formats, checks and findings.
 #[derive(Debug, Clone)]
@@ -239,6 +347,14 @@ pub struct StlReader {
     expect: Expect,
     /// ASCII: skipping a solid name up to the end of its line.
     skip_line: bool,
+    /// ASCII: a line end came after the last token.
+    line_break: bool,
+    /// Facets whose normal is not three finite numbers.
+    bad_normals: u32,
+    /// ASCII: comment words skipped.
+    ignored_words: u32,
+    /// ASCII: padding bytes at the end.
+    padding: u32,
     /// Bytes held in `buf`: the header (detection), a partial record (binary) or a partial
     /// token (ASCII), always the bytes just before `pos`.
     held: u8,
@@ -264,6 +380,10 @@ impl StlReader {
             declared: 0,
             expect: Expect::Solid,
             skip_line: false,
+            line_break: false,
+            bad_normals: 0,
+            ignored_words: 0,
+            padding: 0,
             held: 0,
             buf: [0; HEADER_LEN],
             facet: [0.0; 12],
@@ -333,9 +453,13 @@ impl StlReader {
             if self.pos == 0 {
                 return Err(self.error(StlErrorKind::Empty));
             }
-            // A file shorter than the header. It cannot hold a complete ASCII facet (that takes
-            // at least 91 bytes), so a facet emitted here is always followed by an error.
+            // A file shorter than the header, parsed here where no sink is at hand. The lenient
+            // grammar fits one facet in 61 bytes (`facet vertex 0 0 0 ... endloop endfacet`):
+            // refused rather than counted and not delivered.
             self.start(&mut |_| {})?;
+            if self.triangles > 0 {
+                return Err(self.error(StlErrorKind::TooShort));
+            }
         }
         match self.phase {
             Phase::Failed(kind) => Err(StlError { kind, offset: self.pos }),
@@ -354,13 +478,18 @@ impl StlReader {
             count_mismatch: None,
             trailing_bytes: 0,
             missing_endsolid: false,
+            bad_normals: self.bad_normals,
+            ignored_words: self.ignored_words,
         }
     }
 
-    /// Counts a facet and passes it on unless it has zero area.
+    /// Counts a facet (and a bad normal) and passes it on unless it has zero area.
     #[inline(always)]
     fn emit<F: FnMut(RawTriangle) + ?Sized>(&mut self, t: RawTriangle, sink: &mut F) {
         self.triangles = self.triangles.saturating_add(1);
+        if !t.normal.iter().all(|&v| is_finite_bits(v)) {
+            self.bad_normals = self.bad_normals.saturating_add(1);
+        }
         if is_degenerate(&t.vertices) {
             self.degenerate = self.degenerate.saturating_add(1);
         } else {
@@ -529,10 +658,17 @@ impl StlReader {
                     None => break,
                 }
             }
+            if let Expect::Padding { .. } = self.expect {
+                self.padding(rest, offset_of(rest))?;
+                break;
+            }
             if self.held == 0 {
-                match rest.iter().position(|&b| !is_blank(b)) {
+                match self.skip_blanks(rest) {
                     Some(word) => rest = &rest[word..],
                     None => break,
+                }
+                if self.padding_starts(rest) {
+                    continue;
                 }
             }
             let Some(end) = rest.iter().position(|&b| is_blank(b)) else {
@@ -555,6 +691,38 @@ impl StlReader {
             rest = after;
         }
         self.pos = start + chunk.len() as u64;
+        Ok(())
+    }
+
+    /// The length of the blanks `rest` starts with (`None`: all blanks), noting a line end.
+    fn skip_blanks(&mut self, rest: &[u8]) -> Option<usize> {
+        for (i, &b) in rest.iter().enumerate() {
+            match b {
+                b'\n' | b'\r' => self.line_break = true,
+                b' ' | b'\t' | 0x0b | 0x0c => {}
+                _ => return Some(i),
+            }
+        }
+        None
+    }
+
+    /// At a token start where the file may end, a NUL or SUB byte begins the end padding.
+    fn padding_starts(&mut self, rest: &[u8]) -> bool {
+        let may_end = matches!(self.expect, Expect::Solid | Expect::FacetOrEndsolid);
+        let starts = may_end && rest.first().is_some_and(|&b| is_padding(b));
+        if starts {
+            self.expect = Expect::Padding { closed: self.expect == Expect::Solid };
+        }
+        starts
+    }
+
+    /// Padding bytes (and blanks among them) are counted; anything else after them is an error.
+    fn padding(&mut self, rest: &[u8], at: u64) -> Result<(), StlError> {
+        if let Some(i) = rest.iter().position(|&b| !is_padding(b) && !is_blank(b)) {
+            return Err(StlError { kind: StlErrorKind::UnknownToken, offset: at + i as u64 });
+        }
+        let len = u32::try_from(rest.len()).unwrap_or(u32::MAX);
+        self.padding = self.padding.saturating_add(len);
         Ok(())
     }
 
@@ -590,58 +758,92 @@ impl StlReader {
     /// One complete token starting at file offset `at`, checked against the grammar; returns
     /// the facet its `endloop` completes.
     fn token(&mut self, token: &[u8], at: u64) -> Result<Option<RawTriangle>, StlError> {
-        let fail = |kind| Err(StlError { kind, offset: at });
-        let mut complete = None;
-        if token.len() > MAX_TOKEN {
-            return fail(StlErrorKind::TokenTooLong);
-        }
-        match self.expect {
-            Expect::Solid if keyword(token, b"solid") => {
-                self.skip_line = true;
-                self.expect = Expect::FacetOrEndsolid;
-            }
-            Expect::FacetOrEndsolid if keyword(token, b"facet") => {
-                self.expect = Expect::Facet(0);
-            }
-            Expect::FacetOrEndsolid if keyword(token, b"endsolid") => {
-                self.skip_line = true;
-                self.expect = Expect::Solid;
-            }
-            Expect::Facet(step) => {
-                match FACET.get(usize::from(step)) {
-                    Some(Step::Keyword(k)) if keyword(token, k) => {}
-                    Some(Step::Close(k)) if keyword(token, k) => {
-                        let [nx, ny, nz, ax, ay, az, bx, by, bz, cx, cy, cz] = self.facet;
-                        complete = Some(RawTriangle {
-                            normal: [nx, ny, nz],
-                            vertices: [[ax, ay, az], [bx, by, bz], [cx, cy, cz]],
-                        });
+        let same_line = !core::mem::take(&mut self.line_break);
+        let result = if token.len() > MAX_TOKEN {
+            Err(StlErrorKind::TokenTooLong)
+        } else {
+            self.grammar(token, same_line)
+        };
+        result.map_err(|kind| StlError { kind, offset: at })
+    }
+
+    /// Numbers where the state wants them, else the keyword's [`step`] or a comment.
+    fn grammar(
+        &mut self,
+        token: &[u8],
+        same_line: bool,
+    ) -> Result<Option<RawTriangle>, StlErrorKind> {
+        let word = Word::of(token);
+        match (self.expect, word) {
+            (Expect::Coord(n), _) => self.coordinate(n, token)?,
+            (Expect::Normal, Word::Other) => self.component(0, token),
+            (Expect::Component(n), Word::Other) => self.component(n, token),
+            _ => match step(self.expect, word) {
+                Some(Action::Go(next)) => self.expect = next,
+                Some(Action::Open) => {
+                    if let Some(normal) = self.facet.get_mut(..3) {
+                        normal.fill(f32::NAN);
                     }
-                    Some(&Step::Number(slot)) => {
-                        let Some(v) = parse_f32(token) else {
-                            return fail(StlErrorKind::BadNumber);
-                        };
-                        if slot >= 3 {
-                            if let Err(kind) = check_coordinate(v) {
-                                return fail(kind);
-                            }
-                        }
-                        if let Some(dst) = self.facet.get_mut(usize::from(slot)) {
-                            *dst = v;
-                        }
-                    }
-                    _ => return fail(StlErrorKind::UnknownToken),
+                    self.expect = Expect::Normal;
                 }
-                let next = step + 1;
-                self.expect = if usize::from(next) < FACET.len() {
-                    Expect::Facet(next)
-                } else {
-                    Expect::FacetOrEndsolid
-                };
-            }
-            _ => return fail(StlErrorKind::UnknownToken),
+                Some(Action::Name(next)) => {
+                    self.skip_line = true;
+                    self.expect = next;
+                }
+                Some(Action::Emit) => {
+                    self.expect = Expect::EndFacet;
+                    return Ok(Some(self.current_facet()));
+                }
+                None if same_line && self.is_comment(word, token) => {
+                    self.ignored_words = self.ignored_words.saturating_add(1);
+                }
+                None => return Err(StlErrorKind::UnknownToken),
+            },
         }
-        Ok(complete)
+        Ok(None)
+    }
+
+    /// Normal component `n`: a token that is not a number leaves it NaN.
+    fn component(&mut self, n: u8, token: &[u8]) {
+        if let Some(dst) = self.facet.get_mut(usize::from(n)) {
+            *dst = parse_f32(token).unwrap_or(f32::NAN);
+        }
+        self.expect = if n < 2 { Expect::Component(n + 1) } else { Expect::Outer };
+    }
+
+    /// Vertex coordinate `n` (0..9): a checked number.
+    fn coordinate(&mut self, n: u8, token: &[u8]) -> Result<(), StlErrorKind> {
+        let v = parse_f32(token).ok_or(StlErrorKind::BadNumber)?;
+        check_coordinate(v)?;
+        if let Some(dst) = self.facet.get_mut(3 + usize::from(n)) {
+            *dst = v;
+        }
+        self.expect = match n {
+            2 | 5 => Expect::Vertex(n / 3 + 1),
+            8.. => Expect::EndLoop,
+            _ => Expect::Coord(n + 1),
+        };
+        Ok(())
+    }
+
+    /// A word with no place here, on the line of the statement just completed (`endloop foo`).
+    /// Not a number: a fourth coordinate or normal component is no comment.
+    fn is_comment(&self, word: Word, token: &[u8]) -> bool {
+        let after_statement = matches!(
+            self.expect,
+            Expect::Outer
+                | Expect::Vertex(_)
+                | Expect::EndLoop
+                | Expect::EndFacet
+                | Expect::FacetOrEndsolid
+        );
+        after_statement && word == Word::Other && parse_f32(token).is_none()
+    }
+
+    /// The facet read so far, normal then corners.
+    fn current_facet(&self) -> RawTriangle {
+        let [nx, ny, nz, ax, ay, az, bx, by, bz, cx, cy, cz] = self.facet;
+        RawTriangle { normal: [nx, ny, nz], vertices: [[ax, ay, az], [bx, by, bz], [cx, cy, cz]] }
     }
 
     fn finish_ascii(&mut self) -> Result<StlSummary, StlError> {
@@ -654,10 +856,13 @@ impl StlReader {
         }
         let mut summary = self.summary(StlFormat::Ascii);
         match self.expect {
-            Expect::Facet(_) => return Err(self.error(StlErrorKind::UnexpectedEnd)),
-            Expect::FacetOrEndsolid => summary.missing_endsolid = true,
-            Expect::Solid => {}
+            Expect::Solid | Expect::Padding { closed: true } => {}
+            Expect::FacetOrEndsolid
+            | Expect::End(Closing::Solid)
+            | Expect::Padding { closed: false } => summary.missing_endsolid = true,
+            _ => return Err(self.error(StlErrorKind::UnexpectedEnd)),
         }
+        summary.trailing_bytes = self.padding;
         if self.triangles == 0 {
             return Err(self.error(StlErrorKind::Empty));
         }
@@ -683,24 +888,130 @@ fn is_control(b: u8) -> bool {
     (b < 0x20 && !is_blank(b)) || b == 0x7f
 }
 
-/// Text without control bytes whose first word is `solid`, or that has no word yet.
+/// Text without control bytes whose first word is `solid` or `facet`, or that has no word yet.
 fn looks_ascii(head: &[u8]) -> bool {
     if head.iter().any(|&b| is_control(b)) {
         return false;
     }
     match head.split(|&b| is_blank(b)).find(|w| !w.is_empty()) {
-        Some(word) => keyword(word, b"solid"),
+        Some(word) => keyword(word, b"solid") || keyword(word, b"facet"),
         None => true,
     }
+}
+
+/// End-of-file padding: NUL (C writers, block-padded copies) or SUB (0x1A, DOS end of file).
+fn is_padding(b: u8) -> bool {
+    b == 0 || b == 0x1a
 }
 
 fn keyword(token: &[u8], word: &[u8]) -> bool {
     token.eq_ignore_ascii_case(word)
 }
 
-/// A decimal float token (`1`, `-0`, `+1.5`, `.5`, `1.`, `1e-5`, `inf`, `nan`), correctly rounded.
+/// A float token (`1`, `-0`, `+1.5`, `.5`, `1.`, `1e-5`, `inf`, `nan`, `0x1.8p3`), correctly
+/// rounded.
 fn parse_f32(token: &[u8]) -> Option<f32> {
-    core::str::from_utf8(token).ok()?.parse().ok()
+    let decimal = core::str::from_utf8(token).ok()?.parse().ok();
+    decimal.or_else(|| parse_hex_f32(token))
+}
+
+/// A C99 hexadecimal float (`0x1.8p3`, `-0X.4P-2`, `0x10`: binary exponent optional), as the
+/// `scanf("%f")` of PrusaSlicer, CuraEngine and numpy-stl reads it; rounded to nearest even.
+fn parse_hex_f32(token: &[u8]) -> Option<f32> {
+    let (negative, unsigned) = match token.split_first()? {
+        (b'-', rest) => (true, rest),
+        (b'+', rest) => (false, rest),
+        _ => (false, token),
+    };
+    let body = unsigned.strip_prefix(b"0x").or_else(|| unsigned.strip_prefix(b"0X"))?;
+    let (digits, exponent) = match body.iter().position(|&b| b == b'p' || b == b'P') {
+        Some(p) => (body.get(..p)?, parse_exponent(body.get(p + 1..)?)?),
+        None => (body, 0),
+    };
+    let (mantissa, scale) = hex_mantissa(digits)?;
+    let magnitude = round_to_f32(mantissa, scale.saturating_add(exponent));
+    Some(if negative { -magnitude } else { magnitude })
+}
+
+/// Hex digits with at most one point: `(m, e)` with value `m * 2^e`. Digits beyond 60 bits
+/// only set the lowest bit (sticky: below the rounding position of any f32).
+fn hex_mantissa(digits: &[u8]) -> Option<(u64, i32)> {
+    let (mut m, mut e, mut point, mut any) = (0u64, 0i32, false, false);
+    for &b in digits {
+        if b == b'.' && !point {
+            point = true;
+            continue;
+        }
+        let d = u64::from(char::from(b).to_digit(16)?);
+        any = true;
+        if m >> 60 == 0 {
+            m = m << 4 | d;
+            e -= 4 * i32::from(point);
+        } else {
+            m |= u64::from(d != 0);
+            e += 4 * i32::from(!point);
+        }
+    }
+    any.then_some((m, e))
+}
+
+/// A signed decimal exponent, saturated far beyond the f32 range.
+fn parse_exponent(text: &[u8]) -> Option<i32> {
+    let (negative, digits) = match text.split_first()? {
+        (b'-', rest) => (true, rest),
+        (b'+', rest) => (false, rest),
+        _ => (false, text),
+    };
+    let mut value = 0i32;
+    for &b in digits {
+        let d = char::from(b).to_digit(10)?;
+        value = (value * 10 + d as i32).min(100_000);
+    }
+    (!digits.is_empty()).then_some(if negative { -value } else { value })
+}
+
+/// `m * 2^e` rounded to the nearest f32, ties to even: keep the bits down to the f32 unit in
+/// the last place (2^-149 at least), round on the rest.
+fn round_to_f32(m: u64, e: i32) -> f32 {
+    if m == 0 {
+        return 0.0;
+    }
+    let lz = m.leading_zeros();
+    let (m, e) = (m << lz, e.saturating_sub(lz as i32)); // top bit at 2^(e + 63)
+    if e > 127 - 63 {
+        return f32::INFINITY; // at least 2^128
+    }
+    let ulp = (e + 63 - 23).max(-149); // exponent of the unit in the last place
+    let shift = u32::try_from(ulp.saturating_sub(e)).unwrap_or(u32::MAX); // >= 40
+    let (mut q, rest, half) = match shift {
+        1..=63 => (m >> shift, m & ((1u64 << shift) - 1), 1u64 << (shift - 1)),
+        64 => (0, m, 1 << 63),
+        _ => (0, 1, u64::MAX), // beyond 64: below half of 2^-149
+    };
+    if rest > half || (rest == half && q & 1 == 1) {
+        q += 1;
+    }
+    f32_from_parts(q, ulp)
+}
+
+/// `q * 2^ulp` for `q <= 2^24`, `q < 2^23` only at the subnormal `ulp = -149`.
+fn f32_from_parts(q: u64, ulp: i32) -> f32 {
+    const HIDDEN: u64 = 1 << 23;
+    let (q, ulp) = if q == 2 * HIDDEN { (HIDDEN, ulp.saturating_add(1)) } else { (q, ulp) };
+    if q < HIDDEN {
+        return f32::from_bits(q as u32); // subnormal or zero
+    }
+    match u32::try_from(ulp.saturating_add(150)) {
+        Ok(biased @ 1..=254) => f32::from_bits(biased << 23 | (q - HIDDEN) as u32),
+        _ => f32::INFINITY,
+    }
+}
+
+/// Not NaN or infinite: the f32 exponent field is not all ones (an integer test: no
+/// soft-float call on the Cortex-M3).
+#[inline(always)]
+fn is_finite_bits(v: f32) -> bool {
+    v.to_bits() & 0x7f80_0000 != 0x7f80_0000
 }
 
 /// A vertex coordinate must be finite and within 10 m.
@@ -752,7 +1063,7 @@ mod tests {
     #[test]
     fn reader_is_small() {
         // RAM of one reader on the Cortex-M3 (same layout there: no pointers inside).
-        assert!(core::mem::size_of::<StlReader>() <= 160, "{}", core::mem::size_of::<StlReader>());
+        assert!(core::mem::size_of::<StlReader>() <= 176, "{}", core::mem::size_of::<StlReader>());
     }
 
     #[test]
@@ -763,6 +1074,9 @@ mod tests {
         assert!(!looks_ascii(b"solid x\0"));
         assert!(!looks_ascii(b"solid x\x7f"));
         assert!(!looks_ascii(b"solidworks export"));
+        // PrusaSlicer reads facets without a `solid` line.
+        assert!(looks_ascii(b" FACET normal 0 0 1"));
+        assert!(!looks_ascii(b"facets"));
         assert!(!looks_ascii(b"binary header"));
         // The count bytes of a binary file with a `solid` header (numpy-stl HalfDonut).
         let mut head = [b' '; 84];
@@ -783,7 +1097,7 @@ mod tests {
             ("inf", Some(f32::INFINITY)),
             ("-Infinity", Some(f32::NEG_INFINITY)),
             ("1e", None),
-            ("0x10", None),
+            ("0x10", Some(16.0)),
             ("1,5", None),
         ];
         for (text, want) in cases {
@@ -792,6 +1106,80 @@ mod tests {
         assert!(parse_f32(b"nan").is_some_and(f32::is_nan));
         assert!(parse_f32(&[0xff]).is_none());
         assert_eq!(parse_f32(b"-0").map(f32::to_bits), Some((-0.0f32).to_bits()));
+    }
+
+    #[test]
+    fn words_and_grammar() {
+        assert_eq!(Word::of(b"VeRtEx"), Word::Vertex);
+        assert_eq!(Word::of(b"outerloop"), Word::OuterLoop);
+        assert_eq!(Word::of(b"end"), Word::End);
+        for other in [&b"inf"[..], b"-1.5", b"endloops", b"", b"weirdvalue", b"\xff"] {
+            assert_eq!(Word::of(other), Word::Other);
+        }
+        // Every split closing keyword leads where the whole one does.
+        let pairs = [
+            (Expect::EndLoop, Word::Endloop, Closing::Loop, Word::Loop),
+            (Expect::EndFacet, Word::Endfacet, Closing::Facet, Word::Facet),
+            (Expect::FacetOrEndsolid, Word::Endsolid, Closing::Solid, Word::Solid),
+        ];
+        for (state, whole, closing, second) in pairs {
+            assert_eq!(step(state, Word::End), Some(Action::Go(Expect::End(closing))));
+            assert_eq!(step(Expect::End(closing), second), step(state, whole));
+        }
+        // A keyword ends a short normal; nothing has a place for `Other`.
+        assert_eq!(step(Expect::Component(1), Word::Vertex), Some(Action::Go(Expect::Coord(0))));
+        assert_eq!(step(Expect::Normal, Word::Endloop), None);
+        assert_eq!(step(Expect::EndLoop, Word::Other), None);
+    }
+
+    #[test]
+    fn finite_bits_match_is_finite() {
+        let values = [0.0, -0.0, 1.0, f32::MAX, f32::MIN_POSITIVE, 1e-45, f32::INFINITY];
+        for v in values.into_iter().chain([f32::NEG_INFINITY, f32::NAN, -f32::NAN]) {
+            assert_eq!(is_finite_bits(v), v.is_finite(), "{v}");
+        }
+    }
+
+    #[test]
+    fn hex_floats_as_c_reads_them() {
+        let cases: [(&str, Option<f32>); 17] = [
+            ("0x1p4", Some(16.0)),
+            ("-0X1.8P1", Some(-3.0)),
+            ("+0x.4p-2", Some(0.0625)),
+            ("0xA.8", Some(10.5)),
+            ("-0x0", Some(-0.0)),
+            ("0x1.fffffep127", Some(f32::MAX)),
+            ("0x1.ffffffp127", Some(f32::INFINITY)), // rounds up past MAX
+            ("0x1p128", Some(f32::INFINITY)),
+            ("0x1p-149", Some(f32::from_bits(1))),
+            ("0x1p-150", Some(0.0)),                 // a tie: to even, zero
+            ("0x1.8p-150", Some(f32::from_bits(1))), // above the tie
+            ("0x1.000001p0", Some(1.0)),             // a tie: to even
+            ("0x1.000003p0", Some(1.0 + 2.0 * f32::EPSILON)),
+            ("0x1p", None),
+            ("0x", None),
+            ("0x1.2.3", None),
+            ("0x1g", None),
+        ];
+        for (text, want) in cases {
+            let got = parse_f32(text.as_bytes()).map(f32::to_bits);
+            assert_eq!(got, want.map(f32::to_bits), "{text}");
+        }
+        // Digits past 60 bits are a sticky bit: just above the tie 1 + 2^-24, so up.
+        let long = format!("0x1000001{}1p-{}", "0".repeat(40), 24 + 4 * 41);
+        assert_eq!(parse_f32(long.as_bytes()), Some(1.0 + f32::EPSILON));
+        assert_eq!(parse_f32(b"0x1p99999999999"), Some(f32::INFINITY));
+        assert_eq!(parse_f32(b"0x1p-99999999999"), Some(0.0));
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn hex_floats_round_like_f64_to_f32(m in 0u64..1 << 53, e in -230i32..140) {
+            // Below 2^53 the f64 product is exact, and `as f32` rounds it once, to even.
+            let want = (m as f64 * 2f64.powi(e)) as f32;
+            let text = format!("0x{m:x}p{e}");
+            proptest::prop_assert_eq!(parse_f32(text.as_bytes()).map(f32::to_bits), Some(want.to_bits()));
+        }
     }
 
     #[test]
@@ -842,18 +1230,23 @@ mod tests {
         assert_eq!(parse(b"\0\0\0", 2).1, err(StlErrorKind::TruncatedHeader, 3));
         assert_eq!(parse(b"hello", 2).1, err(StlErrorKind::TruncatedHeader, 5));
         assert_eq!(parse(b"solid x\nfoo", 2).1, err(StlErrorKind::UnknownToken, 8));
+        // The lenient grammar fits one facet in 61 bytes: refused, never counted unread.
+        let one = b"facet vertex 0 0 0 vertex 1 0 0 vertex 0 1 0 endloop endfacet";
+        for size in [1, 7, 100] {
+            assert_eq!(parse(one, size), (vec![], err(StlErrorKind::TooShort, 61)));
+        }
     }
 
     #[test]
     fn errors_stick_and_finish_ends_the_reader() {
         // Past the 84-byte detection window, so `feed` itself reports it.
-        let text = format!("solid {}\nfacet normal 0 0 q\n", "x".repeat(90));
+        let text = format!("solid {}\nfacet normal 0 0 1 outer loop vertex 0 q\n", "x".repeat(90));
         let mut r = StlReader::new();
         let e = r.feed(text.as_bytes(), &mut |_| {}).unwrap_err();
-        assert_eq!(e, StlError { kind: StlErrorKind::BadNumber, offset: 97 + 6 + 7 + 4 });
+        assert_eq!(e, StlError { kind: StlErrorKind::BadNumber, offset: 97 + 39 });
         assert_eq!(r.feed(b"more", &mut |_| {}), Err(e));
         assert_eq!(r.finish(), Err(e));
-        assert_eq!(e.to_string(), "malformed number in ASCII STL at byte 114");
+        assert_eq!(e.to_string(), "malformed vertex coordinate in ASCII STL at byte 136");
 
         let mut r = StlReader::new();
         let text = format!("solid t\n{FACET_TEXT}endsolid t\n");

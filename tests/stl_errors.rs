@@ -3,7 +3,7 @@
 
 mod stl_support;
 
-use stl_support::{parse_chunked, write_binary, Parsed};
+use stl_support::{parse_chunked, vertex_bits, write_binary, Parsed};
 use strata::stl::{CountMismatch, RawTriangle, StlError, StlErrorKind as K, StlFormat, StlSummary};
 
 /// Chunk sizes every case is fed in: whole, bytes, odd, a record, a page.
@@ -150,12 +150,149 @@ fn binary_absurd_coordinates() {
 fn nan_normals_are_kept_not_rejected() {
     let mut t = three();
     t[0].normal = [f32::NAN, f32::INFINITY, 1e30];
-    let (_, tris) = assert_ok(&write_binary(b"x", 3, &t));
+    t[2].normal = [0.0, f32::NEG_INFINITY, 0.0];
+    let (s, tris) = assert_ok(&write_binary(b"x", 3, &t));
     assert!(tris[0].normal[0].is_nan() && tris[0].normal[1].is_infinite());
+    // The same finding as in ASCII: facets whose normal is not three finite numbers.
+    assert_eq!((s.triangles, s.bad_normals), (3, 2));
 
     let (file, _) = ascii(&format!("{}endsolid\n", FACET.replace("0 0 1", "nan -inf 1e300")));
-    let (_, tris) = assert_ok(&file);
+    let (s, tris) = assert_ok(&file);
     assert!(tris[0].normal[0].is_nan() && tris[0].normal[2].is_infinite());
+    assert_eq!(s.bad_normals, 1);
+    // A zero normal (written by many exporters) is a number: no finding.
+    let (file, _) = ascii(&FACET.replace("0 0 1", "0 0 0"));
+    assert_eq!(assert_ok(&file).0.bad_normals, 0);
+}
+
+/// `FACET` with its normal line replaced; the corners stay `[0,0,0] [1,0,0] [0,1,0]`.
+fn with_normal(line: &str) -> String {
+    FACET.replace("facet normal 0 0 1", line)
+}
+
+const CORNERS: [[f32; 3]; 3] = [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+
+#[test]
+fn ascii_normals_that_are_not_numbers_are_a_finding() {
+    // PrusaSlicer's own test box has `+inf  -inf  weirdvalue`; old MSVC runtimes printed NaN
+    // as `-1.#IND00`; an overflow reads as infinity; components may be missing, or all of the
+    // normal, or only the word `normal`.
+    let cases: [(&str, [Option<f32>; 3]); 7] = [
+        (
+            "facet normal +inf  -inf  weirdvalue",
+            [Some(f32::INFINITY), Some(f32::NEG_INFINITY), None],
+        ),
+        ("facet normal NaN nan -1.#IND00", [None; 3]),
+        ("facet normal 1e39 0 0", [Some(f32::INFINITY), Some(0.0), Some(0.0)]),
+        ("facet normal 0 1", [Some(0.0), Some(1.0), None]),
+        ("facet normal", [None; 3]),
+        ("facet", [None; 3]),
+        ("FACET\t-1.#QNAN0 0 0", [None, Some(0.0), Some(0.0)]),
+    ];
+    for (line, normal) in cases {
+        let (file, _) = ascii(&format!("{}endsolid\n", with_normal(line)));
+        let (s, tris) = assert_ok(&file);
+        assert_eq!((s.triangles, s.bad_normals, s.ignored_words), (1, 1, 0), "{line}");
+        assert_eq!(tris[0].vertices, CORNERS, "{line}");
+        for (got, want) in tris[0].normal.iter().zip(normal) {
+            assert_eq!(got.to_bits(), want.unwrap_or(f32::NAN).to_bits(), "{line}");
+        }
+    }
+    // Without the word `normal`, three numbers are still the normal.
+    let (file, _) = ascii(&with_normal("facet 0 0 1"));
+    let (s, tris) = assert_ok(&file);
+    assert_eq!((s.bad_normals, tris[0].normal), (0, [0.0, 0.0, 1.0]));
+    // A fourth number stands where `outer` belongs.
+    let (file, at) = ascii(&with_normal("facet normal 0 0 1 1"));
+    assert_error(&file, K::UnknownToken, at + 19);
+}
+
+#[test]
+fn ascii_outer_loop_variants() {
+    // admesh (PrusaSlicer) matches `outer loop` with scanf: any blanks, one word, or no loop
+    // line at all; numpy-stl (Cura) does not read that line. Only the corners count.
+    for line in ["outerloop", "OUTER\r\n\t LOOP", "outer", "loop", "", "outer loop\nloop"] {
+        let (file, _) = ascii(&FACET.replace("outer loop", line));
+        let parsed = parse_all_ways(&file);
+        if line == "outer loop\nloop" {
+            assert_eq!(parsed.result.unwrap_err().kind, K::UnknownToken);
+            continue;
+        }
+        let s = parsed.result.unwrap_or_else(|e| panic!("{line:?}: {e}"));
+        assert_eq!((s.triangles, s.bad_normals, s.ignored_words), (1, 0, 0), "{line:?}");
+        assert_eq!(parsed.triangles[0].vertices, CORNERS);
+    }
+}
+
+#[test]
+fn ascii_split_closing_keywords() {
+    // `end loop` (MeshLab's issue 194) and `end solid` (numpy-stl's issue 206) in the wild.
+    let body = format!(
+        "{}END\r\nSOLID name\n",
+        FACET.replace("endloop", "end loop").replace("endfacet", "end\tfacet")
+    );
+    let (file, _) = ascii(&body);
+    let (s, tris) = assert_ok(&file);
+    assert_eq!((s.triangles, s.missing_endsolid, s.ignored_words), (1, false, 0));
+    assert_eq!(tris[0].vertices, CORNERS);
+    // A lone `end` at the end of the input: a cut `end solid`.
+    let (file, _) = ascii(&format!("{FACET}end"));
+    assert!(assert_ok(&file).0.missing_endsolid);
+}
+
+#[test]
+fn ascii_comments_after_statements() {
+    // PrusaSlicer's test box has text after `endloop` and `endfacet`; numpy-stl and CuraEngine
+    // read vertex and facet lines with scanf, which leaves the rest of the line unread.
+    let body = "facet normal 0 0 1 n\nouter loop o\nvertex 0 0 0 a\nvertex 1 0 0 b c\n\
+                vertex 0 1 0 d\nendloop foo\nendfacet bar baz\r\nendsolid x y\n";
+    let (file, _) = ascii(body);
+    let (s, tris) = assert_ok(&file);
+    assert_eq!((s.triangles, s.ignored_words, s.bad_normals), (1, 9, 0));
+    assert_eq!((tris[0].normal, tris[0].vertices), ([0.0, 0.0, 1.0], CORNERS));
+    // A word on a line of its own is an error, and so is a number after a statement.
+    let (file, at) = ascii(&FACET.replace("endloop\n", "endloop\nfoo\n"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("endfacet").unwrap() as u64);
+    let (file, at) = ascii(&FACET.replace("endloop", "endloop 7"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("endloop").unwrap() as u64 + 8);
+    // A keyword out of place is never a comment.
+    let (file, at) = ascii(&FACET.replace("endloop", "endloop facet"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("endloop").unwrap() as u64 + 8);
+}
+
+#[test]
+fn ascii_facets_without_a_solid_line() {
+    // admesh skips `solid` and `endsolid` lines where they are, so it reads facets before any
+    // `solid` and after an `endsolid`.
+    let text = format!("\r\n  {FACET}{FACET}endsolid a\n{FACET}");
+    let (s, tris) = assert_ok(text.as_bytes());
+    assert_eq!((s.format, s.triangles, s.missing_endsolid), (StlFormat::Ascii, 3, true));
+    assert!(tris.iter().all(|t| t.vertices == CORNERS));
+    let text = format!("{FACET}endsolid\n");
+    assert!(!assert_ok(text.as_bytes()).0.missing_endsolid);
+    // A new `solid` line without an `endsolid` for the last one.
+    let (file, _) = ascii(&format!("{FACET}solid b\n{FACET}endsolid b\n"));
+    let (s, _) = assert_ok(&file);
+    assert_eq!((s.triangles, s.missing_endsolid, s.ignored_words), (2, false, 0));
+}
+
+#[test]
+fn ascii_end_padding_is_trailing_bytes() {
+    // NUL (C writers, block-padded copies) and SUB (DOS end of file) after the last solid.
+    let (file, _) = ascii(&format!("{FACET}endsolid x\n\0\0\r\n\x1a"));
+    let (s, _) = assert_ok(&file);
+    assert_eq!((s.triangles, s.trailing_bytes, s.missing_endsolid), (1, 5, false));
+    // Right after a facet: the endsolid is missing too.
+    let (file, _) = ascii(&format!("{FACET}\0"));
+    let (s, _) = assert_ok(&file);
+    assert_eq!((s.trailing_bytes, s.missing_endsolid), (1, true));
+    // Nothing but padding may follow it.
+    let body = format!("{FACET}endsolid\n\0\0solid b\n{FACET}");
+    let (file, at) = ascii(&body);
+    assert_error(&file, K::UnknownToken, at + FACET.len() as u64 + 11);
+    // Inside a facet a NUL is no padding.
+    let (file, at) = ascii(&FACET.replace("endloop", "\0"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("endloop").unwrap() as u64);
 }
 
 #[test]
@@ -185,6 +322,12 @@ fn ascii_coordinates() {
     // Overflow to infinity while parsing is non-finite, not a bad number.
     let (file, _) = ascii(&FACET.replace("vertex 1 0 0", "vertex 1 1e39 0"));
     assert_error(&file, K::NonFiniteCoordinate, nan_at);
+    let (file, _) = ascii(&FACET.replace("vertex 1 0 0", "vertex 1 0x1p200 0"));
+    assert_error(&file, K::NonFiniteCoordinate, nan_at);
+    // C99 hex floats, as the slicers' scanf("%f") reads them: the same corner as `1 0 0`.
+    let (file, _) = ascii(&FACET.replace("vertex 1 0 0", "vertex 0x1p0 -0X0 0x.8P1"));
+    let (_, tris) = assert_ok(&file);
+    assert_eq!(tris[0].vertices[1].map(f32::to_bits), [1.0, -0.0, 1.0f32].map(f32::to_bits));
 }
 
 #[test]
@@ -195,16 +338,22 @@ fn ascii_unknown_tokens() {
     // Four numbers after `vertex`: the fourth stands where `vertex` belongs.
     let (file, at) = ascii(&FACET.replace("vertex 0 1 0", "vertex 0 1 0 7"));
     assert_error(&file, K::UnknownToken, at + FACET.find("vertex 0 1 0").unwrap() as u64 + 13);
-    // Garbage after the last endsolid.
-    let body = format!("{FACET}endsolid x\n\0\0");
+    // Text after the last endsolid: it could be a mangled further solid.
+    let body = format!("{FACET}endsolid x\nexported by y");
     let (file, at) = ascii(&body);
-    assert_error(&file, K::UnknownToken, at + body.len() as u64 - 2);
+    assert_error(&file, K::UnknownToken, at + body.len() as u64 - 13);
     // The first word is `solid` but what follows is not a facet.
     assert_error(b"solid x\nfacets normal", K::UnknownToken, 8);
-    // `solid` expected after `endsolid`.
-    let body = format!("{FACET}endsolid\nfacet");
+    // `solid` or `facet` expected after `endsolid`.
+    let body = format!("{FACET}endsolid\nvertex");
     let (file, at) = ascii(&body);
-    assert_error(&file, K::UnknownToken, at + body.len() as u64 - 5);
+    assert_error(&file, K::UnknownToken, at + body.len() as u64 - 6);
+    // `end` followed by another closing word than the one due.
+    let (file, at) = ascii(&FACET.replace("endloop", "end facet"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("endloop").unwrap() as u64 + 4);
+    // `outer loop` in the wrong order.
+    let (file, at) = ascii(&FACET.replace("outer loop", "loop outer"));
+    assert_error(&file, K::UnknownToken, at + FACET.find("outer loop").unwrap() as u64 + 5);
 }
 
 #[test]
@@ -214,13 +363,15 @@ fn ascii_bad_numbers() {
     assert_error(&file, K::BadNumber, number_at);
     let (file, _) = ascii(&FACET.replace("vertex 0 1 0", "vertex 0 endloop"));
     assert_error(&file, K::BadNumber, number_at);
-    let (file, at) = ascii(&FACET.replace("normal 0 0 1", "normal 0 0 0x1"));
-    assert_error(&file, K::BadNumber, at + 17);
+    let (file, _) = ascii(&FACET.replace("vertex 0 1 0", "vertex 0 0x1q 0"));
+    assert_error(&file, K::BadNumber, number_at);
+    // A missing coordinate: the keyword stands where the number belongs.
+    let (file, _) = ascii(&FACET.replace("vertex 0 1 0", "vertex 0 1\nendloop"));
+    assert_error(&file, K::BadNumber, number_at + 2);
     // Invalid UTF-8 where a number belongs.
-    let (mut file, at) = ascii(FACET);
-    let pos = (at + 13) as usize;
-    file[pos] = 0xFF;
-    assert_error(&file, K::BadNumber, at + 13);
+    let (mut file, _) = ascii(FACET);
+    file[number_at as usize] = 0xFF;
+    assert_error(&file, K::BadNumber, number_at);
 }
 
 #[test]
@@ -242,9 +393,10 @@ fn ascii_ending_inside_a_facet() {
         let cut = at as usize + FACET.find(end).unwrap() + end.len();
         assert_error(&file[..cut], K::UnexpectedEnd, cut as u64);
     }
-    // Ends inside a keyword: that word is unknown.
-    let cut = at as usize + FACET.find("endloop").unwrap() + 3;
-    assert_error(&file[..cut], K::UnknownToken, cut as u64 - 3);
+    // Ends inside a keyword: that word is unknown; `end` alone is half of `end loop`.
+    let cut = at as usize + FACET.find("endloop").unwrap() + 4;
+    assert_error(&file[..cut], K::UnknownToken, cut as u64 - 4);
+    assert_error(&file[..cut - 1], K::UnexpectedEnd, cut as u64 - 1);
     // Cut after `endloop`: the facet went to the sink, but the file is still broken.
     let cut_file = &file[..file.len() - "endfacet\n".len()];
     assert_error(cut_file, K::UnexpectedEnd, cut_file.len() as u64);
@@ -287,6 +439,30 @@ fn detection_edge_cases() {
     let mut padded = b"\r\n\r\n   ".to_vec();
     padded.extend_from_slice(&file);
     assert_eq!(assert_ok(&padded).0.format, StlFormat::Ascii);
+}
+
+#[test]
+fn repo_cube_nonstandard_ascii_reads_like_the_binary_twin() {
+    // Every facet of the 10 mm cube in another odd form the desktop slicers read: words as
+    // normals, missing normals, `outer loop` variants, `end loop`, comments after statements,
+    // facets after `endsolid`, a `solid` without `endsolid`, `end solid`, NUL/SUB padding.
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let odd = std::fs::read(dir.join("cube10_nonstandard.stl")).unwrap();
+    let binary = std::fs::read(dir.join("cube10_binary.stl")).unwrap();
+    let (a, b) = (parse_all_ways(&odd), parse_all_ways(&binary));
+    let s = a.result.unwrap();
+    assert_eq!((s.format, s.triangles, s.degenerate), (StlFormat::Ascii, 12, 0));
+    assert_eq!((s.bad_normals, s.ignored_words), (5, 5));
+    assert_eq!((s.trailing_bytes, s.missing_endsolid), (4, false));
+    let vertices = |p: &Parsed| p.triangles.iter().map(vertex_bits).collect::<Vec<_>>();
+    assert!(vertices(&a) == vertices(&b), "the odd and the binary cube differ");
+    // Normals that were numbers are read as numbers.
+    let binary_normals: Vec<_> = b.triangles.iter().map(|t| t.normal).collect();
+    for (i, t) in a.triangles.iter().enumerate() {
+        if t.normal.iter().all(|v| v.is_finite()) {
+            assert_eq!(t.normal, binary_normals[i], "facet {i}");
+        }
+    }
 }
 
 #[test]

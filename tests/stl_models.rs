@@ -117,6 +117,8 @@ fn every_model_matches_the_readme_in_every_chunking() {
             summary.triangles - summary.degenerate,
             "{ctx}: emitted = read - degenerate"
         );
+        // Well-formed files: no normal that is not a number, no skipped word.
+        assert_eq!((summary.bad_normals, summary.ignored_words), (0, 0), "{ctx}: findings");
         if let Some(bbox) = &row.bbox {
             assert_eq!(&printed_bbox(&whole), bbox, "{ctx}: bbox");
         }

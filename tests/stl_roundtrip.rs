@@ -5,7 +5,10 @@
 mod stl_support;
 
 use proptest::prelude::*;
-use stl_support::{bits, parse_chunked, parse_split, write_ascii, write_binary, AsciiStyle};
+use stl_support::{
+    bits, parse_chunked, parse_split, vertex_bits, write_ascii, write_ascii_nonstandard,
+    write_binary, AsciiStyle,
+};
 use strata::stl::{RawTriangle, StlError, StlErrorKind, StlFormat, StlSummary, MAX_COORDINATE};
 
 /// Coordinates: anything finite within 10 m, biased towards the values that make collinear or
@@ -75,6 +78,9 @@ fn check_round_trip(file: &[u8], mesh: &[RawTriangle], format: StlFormat, cut: &
         assert_eq!(summary.triangles as usize, mesh.len());
         assert_eq!(summary.degenerate as usize, degenerate);
         assert_eq!((summary.count_mismatch, summary.trailing_bytes), (None, 0));
+        let bad_normals = mesh.iter().filter(|t| t.normal.iter().any(|v| !v.is_finite())).count();
+        assert_eq!(summary.bad_normals as usize, bad_normals);
+        assert_eq!(summary.ignored_words, 0);
         assert!(parsed.bits() == expected, "facets differ");
     }
 }
@@ -110,6 +116,24 @@ proptest! {
         prop_assert!(a.bits() == b.bits());
         let (sa, sb) = (a.result.unwrap(), b.result.unwrap());
         prop_assert_eq!((sa.triangles, sa.degenerate), (sb.triangles, sb.degenerate));
+    }
+
+    #[test]
+    fn nonstandard_ascii_reads_like_binary(
+        mesh in mesh(prop::num::f32::NORMAL.boxed()),
+        style in ascii_style(),
+        cut in cuts(5000),
+    ) {
+        let (file, odd) = write_ascii_nonstandard("n", &mesh, style);
+        let b = parse_chunked(&write_binary(b"n", mesh.len() as u32, &mesh), usize::MAX);
+        let corners = |p: &stl_support::Parsed| p.triangles.iter().map(vertex_bits).collect::<Vec<_>>();
+        for a in [parse_split(&file, &cut), parse_chunked(&file, 1), parse_chunked(&file, usize::MAX)] {
+            prop_assert!(corners(&a) == corners(&b), "corners differ");
+            let (sa, sb) = (a.result.unwrap(), b.result.unwrap());
+            prop_assert_eq!((sa.format, sa.triangles, sa.degenerate), (StlFormat::Ascii, sb.triangles, sb.degenerate));
+            prop_assert_eq!((sa.bad_normals, sa.ignored_words), (odd.bad_normals, odd.comments));
+            prop_assert_eq!((sa.trailing_bytes, sa.missing_endsolid), (odd.padding, false));
+        }
     }
 
     #[test]

@@ -2,7 +2,8 @@
 //!
 //! The first input byte picks a chunk size, the rest is the file. Checks: no panic; the chunked
 //! parse equals the whole-buffer parse (facets bit for bit, summary or error); emitted facets
-//! pass the reader's own checks; counts and offsets are consistent; errors stick.
+//! pass the reader's own checks; counts (facets, bad normals, trailing bytes) and offsets are
+//! consistent; errors stick.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -60,6 +61,10 @@ fuzz_target!(|data: &[u8]| {
         Ok(s) => {
             assert_eq!(chunked.len() as u64, u64::from(s.triangles - s.degenerate));
             assert!(s.triangles > 0);
+            // Every emitted facet with a NaN or infinite normal is counted as a bad normal.
+            let bad = chunked.iter().filter(|t| t.normal.iter().any(|v| !v.is_finite())).count();
+            assert!(bad as u64 <= u64::from(s.bad_normals) && s.bad_normals <= s.triangles);
+            assert!(u64::from(s.trailing_bytes) <= file.len() as u64);
         }
         Err(e) => assert!(e.offset <= file.len() as u64, "offset {} past the end", e.offset),
     }

@@ -109,3 +109,64 @@ pub fn write_ascii(name: &str, triangles: &[RawTriangle], style: AsciiStyle) -> 
     s += &format!("{ind}{} {name}{eol}", kw("endsolid"));
     s.into_bytes()
 }
+
+/// What [`write_ascii_nonstandard`] put into a file, as the reader should report it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Oddities {
+    /// Facets written without three numbers as the normal.
+    pub bad_normals: u32,
+    /// Comment words after statements.
+    pub comments: u32,
+    /// NUL/SUB bytes at the end.
+    pub padding: u32,
+}
+
+/// An ASCII STL in the odd forms the desktop slicers read, one form per facet in turn (words
+/// and missing parts in the normal, `outer loop` variants, split closing keywords, comments,
+/// facets after `endsolid`, a `solid` without `endsolid`), ending in NUL/SUB padding. Corners
+/// are written exactly as [`write_ascii`] does.
+pub fn write_ascii_nonstandard(
+    name: &str,
+    triangles: &[RawTriangle],
+    style: AsciiStyle,
+) -> (Vec<u8>, Oddities) {
+    let eol = if style.crlf { "\r\n" } else { "\n" };
+    let kw = |k: &str| if style.upper { k.to_uppercase() } else { k.to_string() };
+    let num = |v: f32| if style.exponent { format!("{v:e}") } else { format!("{v}") };
+    let mut odd = Oddities::default();
+    let mut s = format!("{} {name}{eol}", kw("solid"));
+    for (i, t) in triangles.iter().enumerate() {
+        let [x, y, z] = t.normal.map(num);
+        let (normal, open, close, bad, comments) = match i % 8 {
+            0 => ("normal +inf -inf weirdvalue".into(), "outer loop", "endloop foo", 1, 1),
+            1 => (format!("normal {x} {y}"), "outerloop", "endloop", 1, 0),
+            2 => (String::new(), "", "end loop", 1, 0),
+            3 => (format!("{x} {y} {z} c1 c2"), "outer", "endloop", 0, 2),
+            4 => ("normal -1.#IND00 NaN 1e39".into(), "loop", "end\tloop", 1, 0),
+            _ => (format!("normal {x} {y} {z}"), "outer loop", "endloop", 0, 0),
+        };
+        odd.bad_normals += bad;
+        odd.comments += comments;
+        match i % 8 {
+            5 => s += &format!("{}{eol}", kw("endsolid")),
+            7 => s += &format!("{} part{i}{eol}", kw("solid")),
+            _ => {}
+        }
+        s += &format!("{} {normal}{eol}{open}{eol}", kw("facet"));
+        // Facet 6 of 8: a comment after its second corner and after `end facet`.
+        let (note, end) =
+            if i % 8 == 6 { (" (corner)", "end facet bar") } else { ("", "endfacet") };
+        odd.comments += 2 * u32::from(i % 8 == 6);
+        for (k, v) in t.vertices.iter().enumerate() {
+            let [x, y, z] = v.map(num);
+            let note = if k == 1 { note } else { "" };
+            s += &format!("  {} {x} {y} {z}{note}{eol}", kw("vertex"));
+        }
+        s += &format!("{close}{eol}{end}{eol}");
+    }
+    s += &format!("{} {name}{eol}", kw("end solid"));
+    let mut out = s.into_bytes();
+    out.extend_from_slice(b"\0\0\x1a");
+    odd.padding = 3;
+    (out, odd)
+}
