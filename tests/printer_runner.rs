@@ -4,14 +4,28 @@
 
 use strata::geom::{Point3, Triangle};
 use strata::machine::{MachineConfig, PrintSettings, AXES};
-use strata::printer::{Accept, Printer};
+use strata::printer::Accept;
 use strata::protocol::{
     BatchBuilder, DeviceState, Endpoint, ErrorCode, JobOptions, JobSpec, LinkConfig, Message,
     MAX_PAYLOAD, MAX_WIRE, VERSION,
 };
 use strata::step::{StepCmd, StepQueue};
 
-type Small = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 16384, 16>;
+strata::printer_type! {
+    type Small = {
+        active_triangles: 256,
+        contour_points: 256,
+        contour_loops: 16,
+        toolpath_points: 512,
+        toolpath_loops: 32,
+        scan_crossings: 1024,
+        path_points: 4096,
+        window_ring_words: 2048,
+        window_spans: 2048,
+        move_buffer_bytes: 16384,
+        lookahead_moves: 16,
+    };
+}
 
 fn new_printer() -> Box<Small> {
     Box::new(Small::new(&MachineConfig::default()))
@@ -159,8 +173,22 @@ fn step_commands_and_hashes_do_not_depend_on_how_fast_the_queue_drains() {
     assert!(h_fast.windows(2).all(|w| w[0].1 != w[1].1));
 }
 
-/// A small move buffer: one layer of a 20 mm cube fits, a whole model does not.
-type Tight = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 4096, 16>;
+strata::printer_type! {
+    /// A small move buffer: one layer of a 20 mm cube fits, a whole model does not.
+    type Tight = {
+        active_triangles: 256,
+        contour_points: 256,
+        contour_loops: 16,
+        toolpath_points: 512,
+        toolpath_loops: 32,
+        scan_crossings: 1024,
+        path_points: 4096,
+        window_ring_words: 2048,
+        window_spans: 2048,
+        move_buffer_bytes: 4096,
+        lookahead_moves: 16,
+    };
+}
 
 #[test]
 fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
@@ -207,8 +235,22 @@ fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     assert!(busy > 10, "{busy}");
 }
 
-/// A move buffer smaller than the block's first layer's infill.
-type Cramped = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, 96, 16>;
+strata::printer_type! {
+    /// A move buffer smaller than the block's first layer's infill.
+    type Cramped = {
+        active_triangles: 256,
+        contour_points: 256,
+        contour_loops: 16,
+        toolpath_points: 512,
+        toolpath_loops: 32,
+        scan_crossings: 1024,
+        path_points: 4096,
+        window_ring_words: 2048,
+        window_spans: 2048,
+        move_buffer_bytes: 96,
+        lookahead_moves: 16,
+    };
+}
 
 #[test]
 fn a_unit_that_overflows_the_move_buffer_fails_the_job_naming_its_layer() {
@@ -359,7 +401,10 @@ fn service_answers_hello_and_refuses_undecodable_payloads() {
     }
     assert!(got[0].starts_with(&format!("Capabilities {{ version: {VERSION}")), "{got:?}");
     assert!(got[0].contains("active_triangles: 256"), "{got:?}");
-    assert!(got.iter().any(|m| m.contains("state: Failed") && m.contains("BadMessage")), "{got:?}");
+    let failed = got.iter().position(|m| m.contains("state: Failed") && m.contains("BadMessage"));
+    let words =
+        got.iter().position(|m| m == r#"Failure("link: a message of type 0x7f did not decode")"#);
+    assert!(words.is_some() && words < failed, "the words before the failed status: {got:?}");
     assert_eq!(p.error(), (ErrorCode::BadMessage, 0x7f));
 }
 
@@ -595,9 +640,23 @@ fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same(
     assert_eq!(narrow.hashes, lent.hashes);
 }
 
-/// A printer whose move buffer holds [`BUFFERED`] bytes, of which its tests use a part
-/// ([`Printer::limit_move_buffer`]).
-type Buffered = Printer<256, 256, 16, 512, 32, 1024, 4096, 2048, 2048, BUFFERED, 16>;
+strata::printer_type! {
+    /// A printer whose move buffer holds [`BUFFERED`] bytes, of which its tests use a part
+    /// ([`Printer::limit_move_buffer`]).
+    type Buffered = {
+        active_triangles: 256,
+        contour_points: 256,
+        contour_loops: 16,
+        toolpath_points: 512,
+        toolpath_loops: 32,
+        scan_crossings: 1024,
+        path_points: 4096,
+        window_ring_words: 2048,
+        window_spans: 2048,
+        move_buffer_bytes: BUFFERED,
+        lookahead_moves: 16,
+    };
+}
 /// Bytes of a [`Buffered`] printer's move buffer.
 const BUFFERED: usize = 32_768;
 
@@ -701,4 +760,79 @@ fn a_move_buffer_of_one_path_gives_the_hashes_of_a_large_one() {
     let done = small.hashes.len();
     assert!(done <= layer as usize, "{done} layers reported before layer {layer} failed");
     assert_eq!(small.hashes[..], large.hashes[..done]);
+}
+
+strata::printer_type! {
+    /// A slicer that holds 8 active triangles (the block's first layer needs its 8 side
+    /// triangles, the bottom's 2 and the top's...: more).
+    type TinySlicer = {
+        active_triangles: 8,
+        contour_points: 256,
+        contour_loops: 16,
+        toolpath_points: 512,
+        toolpath_loops: 32,
+        scan_crossings: 1024,
+        path_points: 4096,
+        window_ring_words: 2048,
+        window_spans: 2048,
+        move_buffer_bytes: 16384,
+        lookahead_moves: 16,
+    };
+}
+
+/// A slicer that runs out of room fails the job with its own error, and the host gets it in
+/// words (`Message::Failure`) before the failed status: which stage, which buffer, which
+/// layer, how much the printer holds.
+#[test]
+fn a_stage_failure_reaches_the_host_in_the_stages_words() {
+    use strata::printer::Failure;
+    use strata::slice::{Resource, SliceError};
+    // Two boxes side by side: 24 triangles, every side triangle spans the first plane.
+    let mut tris = box_at(100_000, 6_000, 800);
+    tris.extend(box_at(120_000, 6_000, 800));
+    tris.sort_by_key(Triangle::z_min);
+    let capacity = TinySlicer::CAPACITIES.active_triangles;
+    let sides_of_two_boxes = 2 * 8;
+    assert!(sides_of_two_boxes > capacity as usize);
+    let mut p = Box::new(TinySlicer::new(&MachineConfig::default()));
+    let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = Message::JobStart(job(&tris)).encode(&mut buf).unwrap();
+    host.send(&buf[..n]).unwrap();
+    for chunk in tris.chunks(8) {
+        host.send(&batch(chunk)).unwrap();
+    }
+    let mut frame = [0u8; MAX_WIRE];
+    let mut got = Vec::new();
+    for now in 1..500u32 {
+        while let n @ 1.. = host.poll_transmit(now, &mut frame) {
+            dev.receive(&frame[..n], now);
+        }
+        p.service(&mut dev, now, 0, 50, &mut |_| {});
+        while let n @ 1.. = dev.poll_transmit(now, &mut frame) {
+            host.receive(&frame[..n], now);
+        }
+        while let Some(m) = host.peek() {
+            match Message::decode(m).unwrap() {
+                Message::Failure(words) => got.push(words.to_string()),
+                Message::Status(s) if s.state == DeviceState::Failed => {
+                    got.push(format!("status {:?} {}", s.error, s.detail))
+                }
+                _ => {}
+            }
+            host.pop();
+        }
+    }
+    let layer = 0;
+    let expected = SliceError::Capacity { what: Resource::ActiveTriangles, capacity, layer };
+    assert_eq!(p.failure(), Some(Failure::Slice { error: expected, layer }));
+    assert_eq!(p.error(), (ErrorCode::Slice, layer));
+    // The words first, once, then the failed status (repeated).
+    assert_eq!(
+        got[0],
+        format!("slicer: too many active triangles in layer {layer} (capacity {capacity})")
+    );
+    assert_eq!(got.iter().filter(|g| g.starts_with("slicer")).count(), 1, "{got:?}");
+    assert_eq!(got[1], format!("status Slice {layer}"));
 }

@@ -371,3 +371,23 @@ fn golden_job_report() {
     assert_eq!(Message::decode(&golden).unwrap(), Message::JobReport(j));
     assert!(Message::decode(&golden[..golden.len() - 1]).is_err());
 }
+
+/// The failure in words: its type byte, then the text as UTF-8 to the payload's end (so any
+/// shorter text is a message too, unlike the fixed-size messages above); bytes that are not
+/// UTF-8 are refused.
+#[test]
+fn golden_failure_words() {
+    let text = "slicer: too many active triangles in layer 37 (capacity 388) \u{b0}";
+    let mut b = [0u8; MAX_PAYLOAD];
+    let n = Message::Failure(text).encode(&mut b).unwrap();
+    assert_eq!(b[0], 0x33);
+    assert_eq!(&b[1..n], text.as_bytes());
+    assert_eq!(Message::decode(&b[..n]).unwrap(), Message::Failure(text));
+    assert_eq!(Message::decode(&[0x33]).unwrap(), Message::Failure(""));
+    // The degree sign is two bytes: cut between them, the text is not UTF-8.
+    assert!(Message::decode(&b[..n - 1]).is_err());
+    assert!(Message::decode(&[0x33, 0xff, b'a']).is_err());
+    // A text longer than a payload does not encode.
+    let long = "x".repeat(MAX_PAYLOAD);
+    assert!(Message::Failure(&long).encode(&mut b).is_err());
+}

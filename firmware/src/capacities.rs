@@ -29,28 +29,30 @@ use strata::protocol::Endpoint;
 #[cfg(not(feature = "qemu-mps2"))]
 pub use strata::printer::board::BoardPrinter as FwPrinter;
 
-/// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
-/// default 0.02 mm, unsimplified and their offsets whole (embodier_LM8UU_8p2pi: 742 active
-/// triangles, 1,740 loop points; the 64 KB build prints it simplified, its offsets in bands),
-/// so that it runs so on the Cortex-M3 instruction set too, for its cost figures and the
-/// bit-exact comparison with the host. The move buffer is the 64 KB
-/// board's (`MOVE_BYTES`; the largest unit of any sample model is 1,089 B): the slicer cuts a
-/// layer once the previous one is all in the buffer, so a larger buffer would let the
-/// pipeline run layers ahead of the motion and the per-layer costs would not be the board's.
 #[cfg(feature = "qemu-mps2")]
-pub type FwPrinter = strata::printer::Printer<
-    1024,
-    1024,
-    48,
-    2048,
-    64,
-    1024,
-    2048,
-    4096,
-    256,
-    { strata::printer::board::MOVE_BYTES },
-    32,
->;
+strata::printer_type! {
+    /// QEMU mps2-an385 (4 MB of RAM, not a real board): room for every HIL sample model at the
+    /// default 0.02 mm, unsimplified and their offsets whole (embodier_LM8UU_8p2pi: 742 active
+    /// triangles, 1,740 loop points; the 64 KB build prints it simplified, its offsets in bands),
+    /// so that it runs so on the Cortex-M3 instruction set too, for its cost figures and the
+    /// bit-exact comparison with the host. The move buffer is the 64 KB
+    /// board's (`MOVE_BUFFER_BYTES`; the largest unit of any sample model is 1,089 B): the slicer cuts a
+    /// layer once the previous one is all in the buffer, so a larger buffer would let the
+    /// pipeline run layers ahead of the motion and the per-layer costs would not be the board's.
+    pub type FwPrinter = {
+        active_triangles: 1024,
+        contour_points: 1024,
+        contour_loops: 48,
+        toolpath_points: 2048,
+        toolpath_loops: 64,
+        scan_crossings: 1024,
+        path_points: 2048,
+        window_ring_words: 4096,
+        window_spans: 256,
+        move_buffer_bytes: strata::printer::board::MOVE_BUFFER_BYTES,
+        lookahead_moves: strata::printer::board::LOOKAHEAD_MOVES,
+    };
+}
 
 /// Commands per axis in the step queue (a power of two; 12 B each, 4 axes; the host
 /// simulation's).

@@ -43,6 +43,8 @@ pub struct Progress {
     pub job_report: Option<JobReport>,
     /// Time the end of model was acknowledged, ms.
     pub stream_done_ms: Option<u32>,
+    /// Why the job failed, in the failing stage's words (`Message::Failure`).
+    pub failure: Option<String>,
 }
 
 /// The host side of one job.
@@ -146,13 +148,16 @@ impl<'a> HostJob<'a> {
                     self.progress.layer_hashes[l] = hash;
                 }
                 Message::JobReport(j) => self.progress.job_report = Some(j),
+                Message::Failure(text) => self.progress.failure = Some(text.to_string()),
                 Message::Status(s) => {
                     self.progress.status = Some(s);
                     match s.state {
                         DeviceState::Done if self.phase == Phase::Printing => {
                             self.phase = Phase::Done
                         }
-                        DeviceState::Failed => return Err(describe_failure(&s)),
+                        DeviceState::Failed => {
+                            return Err(describe_failure(&s, self.progress.failure.as_deref()))
+                        }
                         DeviceState::Aborted if self.phase != Phase::Hello => {
                             return Err("the job was aborted".into())
                         }
@@ -217,33 +222,41 @@ impl<'a> HostJob<'a> {
 }
 
 /// The user-facing text of a failed status.
-pub fn describe_failure(s: &Status) -> String {
-    let what = match s.error {
+pub fn describe_failure(s: &Status, words: Option<&str>) -> String {
+    let what = match (words, s.error) {
+        (Some(words), _) => words.to_string(),
+        (None, code) => describe_code(code, s.detail),
+    };
+    format!("print failed: {what} (layer {} of {})", s.layer, s.layers)
+}
+
+/// The status' error code and detail in words (a device that did not send its own).
+fn describe_code(code: ErrorCode, detail: u32) -> String {
+    match code {
         ErrorCode::None => "unknown error".to_string(),
         ErrorCode::BadJob => "the printer refused the job settings".to_string(),
-        ErrorCode::Slice => format!("slicing failed on the printer at layer {}", s.detail),
-        ErrorCode::Toolpath => format!("toolpath generation failed at layer {}", s.detail),
-        ErrorCode::Plan => format!("the motion planner refused a move of layer {}", s.detail),
+        ErrorCode::Slice => format!("slicing failed on the printer at layer {}", detail),
+        ErrorCode::Toolpath => format!("toolpath generation failed at layer {}", detail),
+        ErrorCode::Plan => format!("the motion planner refused a move of layer {}", detail),
         ErrorCode::Unexpected => {
-            format!("the printer got an unexpected message 0x{:02x}", s.detail)
+            format!("the printer got an unexpected message 0x{:02x}", detail)
         }
         ErrorCode::BadMessage => {
-            format!("the printer got an undecodable message 0x{:02x}", s.detail)
+            format!("the printer got an undecodable message 0x{:02x}", detail)
         }
         ErrorCode::Moves => format!(
             "a path of layer {} (with the travel before it) needs more bytes of moves than the \
              printer's move buffer holds",
-            s.detail
+            detail
         ),
         ErrorCode::LinkDead => {
-            format!("the printer lost the link after {} ms of silence", s.detail)
+            format!("the printer lost the link after {} ms of silence", detail)
         }
-        ErrorCode::Thermal => match u8::try_from(s.detail).ok().and_then(ThermalFault::from_code) {
+        ErrorCode::Thermal => match u8::try_from(detail).ok().and_then(ThermalFault::from_code) {
             Some(f) => format!("heater fault {f}: heaters off, motion stopped"),
-            None => format!("heater fault (code {}): heaters off, motion stopped", s.detail),
+            None => format!("heater fault (code {}): heaters off, motion stopped", detail),
         },
-    };
-    format!("print failed: {what} (layer {} of {})", s.layer, s.layers)
+    }
 }
 
 /// Sends `Hello` and waits for the device's capacities: `poll_io(ep)` moves bytes both ways
@@ -304,5 +317,31 @@ impl HostJob<'_> {
             self.hello_sent = self.send_msg(ep, &Message::Hello { version: VERSION });
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failure_reads_in_the_devices_words_when_it_sent_them() {
+        let s = Status {
+            state: DeviceState::Failed,
+            layer: 37,
+            layers: 120,
+            error: ErrorCode::Slice,
+            detail: 37,
+            ..Status::default()
+        };
+        let words = "slicer: too many active triangles in layer 37 (capacity 388)";
+        assert_eq!(
+            describe_failure(&s, Some(words)),
+            format!("print failed: {words} (layer 37 of 120)")
+        );
+        assert_eq!(
+            describe_failure(&s, None),
+            "print failed: slicing failed on the printer at layer 37 (layer 37 of 120)"
+        );
     }
 }

@@ -12,7 +12,7 @@ use std::collections::VecDeque;
 
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, AXES};
-use strata::printer::{Printer, BOARD_CAPACITIES};
+use strata::printer::BOARD_CAPACITIES;
 use strata::protocol::{Capacities, Endpoint, JobSpec, LinkConfig, MAX_WIRE};
 use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepProducer, StepQueue, Wake};
@@ -21,23 +21,24 @@ use strata::toolpath::ToolpathNeeds;
 use crate::preview::PathRecorder;
 use crate::session::{HostEndpoint, HostJob, Phase};
 
-/// The simulated device: host-sized buffers (slicer 1024 active triangles, 768 contour
-/// points, 48 loops; a host-sized toolpath stage; a 128 KB move buffer) and the board's 32
-/// moves of lookahead. What it announces, and so what admission holds a model to, is
-/// [`SimOptions::capacities`]: by default the 64 KB firmware build's (`BOARD_CAPACITIES`).
-pub type SimPrinter = Printer<
-    1024,
-    768,
-    48,
-    { 1 << 15 },
-    { 1 << 11 },
-    { 1 << 15 },
-    { 1 << 17 },
-    { 1 << 17 },
-    { 1 << 16 },
-    { 1 << 17 },
-    32,
->;
+strata::printer_type! {
+    /// The simulated device: host-sized buffers and the board's lookahead. What it
+    /// announces, and so what admission holds a model to, is [`SimOptions::capacities`]: by
+    /// default the 64 KB firmware build's (`BOARD_CAPACITIES`).
+    pub type SimPrinter = {
+        active_triangles: 1024,
+        contour_points: 768,
+        contour_loops: 48,
+        toolpath_points: 1 << 15,
+        toolpath_loops: 1 << 11,
+        scan_crossings: 1 << 15,
+        path_points: 1 << 17,
+        window_ring_words: 1 << 17,
+        window_spans: 1 << 16,
+        move_buffer_bytes: 1 << 17,
+        lookahead_moves: strata::printer::board::LOOKAHEAD_MOVES,
+    };
+}
 /// Device endpoint: 4 frames in flight, 4 receive slots (1.6 KB of payload).
 pub type DeviceEndpoint = Endpoint<4, 4>;
 

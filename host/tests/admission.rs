@@ -7,7 +7,7 @@ use std::collections::HashSet;
 
 use strata::geom::{Point3, Triangle};
 use strata::machine::{MachineConfig, PrintSettings, AXES};
-use strata::printer::{Accept, Printer, CREALITY_CAPACITIES};
+use strata::printer::{Accept, CREALITY_CAPACITIES};
 use strata::protocol::{
     BatchBuilder, Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message,
 };
@@ -349,8 +349,22 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
     }
 }
 
-/// A printer with a 64 KB move buffer (a small model's every layer fits it unplanned).
-type Roomy = Printer<1024, 768, 48, 2048, 64, 4096, 8192, 8192, 4096, { 1 << 16 }, 32>;
+strata::printer_type! {
+    /// A printer with a 64 KB move buffer (a small model's every layer fits it unplanned).
+    type Roomy = {
+        active_triangles: 1024,
+        contour_points: 768,
+        contour_loops: 48,
+        toolpath_points: 2048,
+        toolpath_loops: 64,
+        scan_crossings: 4096,
+        path_points: 8192,
+        window_ring_words: 8192,
+        window_spans: 4096,
+        move_buffer_bytes: 1 << 16,
+        lookahead_moves: 32,
+    };
+}
 
 /// Takes the job and the whole model without planning a move (no `poll`): every layer's
 /// moves stay in the move buffer. Returns the bytes in use and the state and error.

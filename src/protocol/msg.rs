@@ -21,8 +21,9 @@ pub const BATCH_HEADER: usize = 2;
 /// Triangles a batch always holds (all in the long form; more short ones fit).
 pub const MAX_BATCH: usize = (MAX_PAYLOAD - BATCH_HEADER) / LONG_TRIANGLE_BYTES;
 
-/// Message type bytes.
-mod ty {
+/// Message type bytes: the first byte of every payload ([`Message::type_byte`]).
+pub mod ty {
+    #![allow(missing_docs)]
     pub const HELLO: u8 = 0x01;
     pub const CAPABILITIES: u8 = 0x02;
     pub const JOB_START: u8 = 0x10;
@@ -35,6 +36,7 @@ mod ty {
     pub const STATUS: u8 = 0x30;
     pub const LAYER_DONE: u8 = 0x31;
     pub const JOB_REPORT: u8 = 0x32;
+    pub const FAILURE: u8 = 0x33;
 }
 
 /// What a device holds: announced in [`Message::Capabilities`], used for admission control.
@@ -287,6 +289,10 @@ pub enum Message<'a> {
     },
     /// The job's totals, sent once when it is done (before the status saying so).
     JobReport(JobReport),
+    /// Why the job failed, in the failing stage's own words (UTF-8, e.g. "slicer: too many
+    /// active triangles in layer 37 (capacity 388)"), sent once before the status saying
+    /// so; the status keeps its code and detail.
+    Failure(&'a str),
 }
 
 /// What a finished job did: every step sent to the motors, where they ended and how long
@@ -518,8 +524,31 @@ impl<'a> Message<'a> {
                 }
                 w.u64(j.print_ticks)?;
             }
+            Self::Failure(text) => {
+                w.u8(ty::FAILURE)?;
+                w.put(text.as_bytes())?;
+            }
         }
         Ok(w.len)
+    }
+
+    /// The message's type byte (the first byte of its payload, [`ty`]).
+    pub fn type_byte(&self) -> u8 {
+        match self {
+            Self::Hello { .. } => ty::HELLO,
+            Self::Capabilities { .. } => ty::CAPABILITIES,
+            Self::JobStart(_) => ty::JOB_START,
+            Self::Triangles(_) => ty::TRIANGLES,
+            Self::EndOfModel => ty::END_OF_MODEL,
+            Self::Pause => ty::PAUSE,
+            Self::Resume => ty::RESUME,
+            Self::Abort => ty::ABORT,
+            Self::EmergencyStop => ty::EMERGENCY_STOP,
+            Self::Status(_) => ty::STATUS,
+            Self::LayerDone { .. } => ty::LAYER_DONE,
+            Self::JobReport(_) => ty::JOB_REPORT,
+            Self::Failure(_) => ty::FAILURE,
+        }
     }
 
     /// Reads and checks a message; every field is validated, a triangle batch completely.
@@ -635,6 +664,10 @@ impl<'a> Message<'a> {
                 }
                 j.print_ticks = r.u64()?;
                 Self::JobReport(j)
+            }
+            ty::FAILURE => {
+                let text = r.take(r.bytes.len())?;
+                Self::Failure(core::str::from_utf8(text).map_err(|_| bad)?)
             }
             other => return Err(DecodeError::UnknownType(other)),
         };

@@ -1,0 +1,113 @@
+//! Every capacity of the firmware build (the Creality 4.2.x boards and QEMU's lm3s6965evb,
+//! 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
+//! announces [`BOARD_CAPACITIES`].
+//!
+//! The capacities are the largest of what embodier_hotend_v2 needs at the default settings
+//! (it prints unsimplified) and what embodier_LM8UU_8p2pi needs simplified for the slicer
+//! (742 active triangles unsimplified; admission simplifies it to 388 with a measured
+//! deviation of 0.0135 mm, under the default 0.02 mm) with its offsets done in bands;
+//! embodier_asc and xyz_20mm_cube need far less of each. RAM on the board = the `Printer`
+//! (slicer + toolpath + their scratch + move buffer + planner + generator) + the protocol
+//! endpoint, the step queue, the executor and the UART buffers + the stack; the firmware
+//! prints `.data + .bss` and the stack's high-water mark after every job, and
+//! `scripts/build_firmware.sh` fails when the static part leaves less than the stack reserve
+//! (see there).
+//! Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
+//! the toolpath stage take turns in holds the largest of the cut (29 per segment: the
+//! segment, its link and flags, and the endpoint hash whose place the layer's loop points
+//! take once it is dead), the offset engine with its result's points (54 per `PTS`) and the
+//! infill scratch (22 per `CROSS`) ([`crate::scratch`]); toolpath see `ToolpathNeeds`;
+//! move buffer `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on
+//! average over the sample models, at most 29), holding the largest path with its travel
+//! (a unit) whole.
+
+use crate::machine::MachineConfig;
+use crate::protocol::{Capacities, JobSpec};
+use crate::toolpath::{Seam, ToolpathConfig};
+
+/// Slicer: active triangles (embodier_hotend_v2: 388).
+pub const ACTIVE_TRIANGLES: usize = 388;
+/// Slicer: segments and contour points per layer (hotend: 388).
+pub const CONTOUR_POINTS: usize = 388;
+/// Slicer: loops per layer.
+pub const CONTOUR_LOOPS: usize = 8;
+/// Toolpath: loop points per layer and offset edges per island (embodier_LM8UU_8p2pi
+/// simplified for the slicer's capacities: 269 loop points; an island's offset that
+/// needs more edges, 710 there, is done in bands; hotend: 207 edges, whole).
+pub const TOOLPATH_POINTS: usize = 271;
+/// Toolpath: loops per layer (LM8UU: 14; hotend: 6).
+pub const TOOLPATH_LOOPS: usize = 14;
+/// Toolpath: scanline crossings, infill segments and paths per layer (hotend: 512).
+pub const SCAN_CROSSINGS: usize = 512;
+/// Toolpath: path points per layer (hotend: 1,010).
+pub const PATH_POINTS: usize = 1_010;
+/// Toolpath: words of the skin window's stored contours (hotend: 1,755).
+pub const WINDOW_RING_WORDS: usize = 1_755;
+/// Toolpath: the skin window's crossings with one scanline (hotend 27; the banded
+/// cylinders of the HIL test more).
+pub const WINDOW_SPANS: usize = 48;
+/// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded). The
+/// toolpath stage fills it a unit (a path with the travel before it) at a time, each once
+/// its coded bytes fit, so the largest unit must fit whole: at the default settings
+/// embodier_asc 693 B, xyz_20mm_cube 1,051 B, embodier_hotend_v2 1,059 B,
+/// embodier_LM8UU_8p2pi 1,089 B, about 6 B a move. 2.25 KB is 2.1 times the largest. The
+/// rest keeps the motion fed while the next layer is computed: the stage refills the
+/// buffer as the planner takes moves, so it is about full when a layer's last unit goes
+/// in, and those ~370 moves (seconds of printing, still ~0.7 s of 2 ms segments) carry
+/// the motion through the next layer's cut and build (about 0.5 s for a large layer on
+/// the Cortex-M3), lent the motion half at its progress points.
+pub const MOVE_BUFFER_BYTES: usize = 2_304;
+/// Planner lookahead, moves (the host simulation plans with the same).
+pub const LOOKAHEAD_MOVES: usize = 32;
+
+crate::printer_type! {
+    /// The job runner of the firmware build.
+    pub type BoardPrinter = {
+        active_triangles: ACTIVE_TRIANGLES,
+        contour_points: CONTOUR_POINTS,
+        contour_loops: CONTOUR_LOOPS,
+        toolpath_points: TOOLPATH_POINTS,
+        toolpath_loops: TOOLPATH_LOOPS,
+        scan_crossings: SCAN_CROSSINGS,
+        path_points: PATH_POINTS,
+        window_ring_words: WINDOW_RING_WORDS,
+        window_spans: WINDOW_SPANS,
+        move_buffer_bytes: MOVE_BUFFER_BYTES,
+        lookahead_moves: LOOKAHEAD_MOVES,
+    };
+}
+
+/// The capacities the firmware build (this module) announces.
+pub const BOARD_CAPACITIES: Capacities = BoardPrinter::CAPACITIES;
+
+/// What the host's simulated printer announces by default: the slicer capacities the protocol
+/// was specified with (1024 active triangles, 768 contour points, 48 loops) and host-sized
+/// toolpath capacities. The real 64 KB build holds far less: [`BOARD_CAPACITIES`].
+pub const CREALITY_CAPACITIES: Capacities = Capacities {
+    active_triangles: 1024,
+    contour_points: 768,
+    contour_loops: 48,
+    move_buffer_bytes: 1 << 16,
+    layer_window: 4,
+    ram_bytes: 64 * 1024,
+    toolpath_points: 1 << 15,
+    toolpath_loops: 1 << 11,
+    scan_crossings: 1 << 15,
+    path_points: 1 << 17,
+    window_ring_words: 1 << 17,
+    window_spans: 1 << 16,
+};
+
+/// The toolpath settings the printer derives from `job` (the host's admission control sizes
+/// the job with the same).
+pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathConfig {
+    let mut cfg = ToolpathConfig::new(machine, &job.settings);
+    cfg.outer_perimeter_last = job.options.outer_perimeter_last;
+    cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
+    cfg.skirt_loops = job.options.skirt_loops;
+    cfg.skirt_distance_um = job.options.skirt_distance_um;
+    // The thin-area figures are a host report (`strata slice`); the printer makes the same
+    // toolpaths without them and saves an offset per island and layer.
+    cfg.measure_thin_area = false;
+    cfg
+}

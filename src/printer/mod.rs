@@ -1,0 +1,823 @@
+//! The device-side job runner: protocol messages in, slicer, toolpaths, planner and step
+//! generator driven incrementally, status reports and per-layer hashes out.
+//!
+//! [`Printer`] owns every pipeline stage with its capacities as const generics (a board picks
+//! them once, see [`CREALITY_CAPACITIES`]); the step queue and the executor stay outside (the
+//! executor runs in the timer interrupt on the board, on a virtual clock in the simulation).
+//! [`Printer::service`] pumps the protocol [`Endpoint`]: it answers `Hello` with the
+//! capacities, hands job messages to [`Printer::handle`] and sends status reports and
+//! `LayerDone` hashes back. [`Printer::poll`] does a bounded amount of work: moves into the
+//! planner (up to its queue), the toolpath stage's next paths into the move buffer (up to
+//! its room), blocks into the step generator, steps into the queue. While a
+//! message makes the toolpath stage compute a layer, `service` lends its caller the motion
+//! half at the stage's progress points ([`MotionSlot`]), so steps keep being generated
+//! during a long layer.
+//!
+//! Flow control reaches back to the host. The toolpath stage builds at most one layer per
+//! cut and emits its moves into the move buffer (toolpath moves waiting for the planner,
+//! delta-coded into `MOVE_BYTES` bytes, see [`crate::move_ring`]) unit by unit, a unit
+//! being one path with the retraction, travel and height change before it (or a layer's
+//! closing move to its height). The buffer's room ([`RingRoom`](crate::move_ring::RingRoom))
+//! codes each unit's moves into the buffer as they are generated and undoes a unit whose
+//! bytes do not fit the free bytes (it waits until its exact bytes are free); `poll` and
+//! `service` emit more as the planner takes moves. The stage keeps
+//! the layer (its paths, the contour combing follows, the ordering state, the nearest-path
+//! grid in the shared scratch) until its last unit went in and builds no other meanwhile, so
+//! the slicer cuts the next layer (which reuses the scratch) only once the stage has emitted
+//! the whole layer before. A batch whose next triangle would need a cut that has to wait
+//! stays in the endpoint's receive slot (and is resumed where it stopped), so the device
+//! announces fewer credits and the host stops sending. The buffer thus holds the largest
+//! unit's bytes, not a whole layer's: the paths, stored once in the stage, are not held
+//! twice as moves. Cutting as soon as the stage is free (not when the buffer has drained to
+//! some level) starts the next layer's computation with the most motion buffered: the
+//! buffer is about full when a layer's last unit goes in, and those moves feed the motion
+//! half, lent at the computation's progress points ([`MotionSlot`]), until the new layer's
+//! first unit. A unit whose bytes exceed the whole buffer could never go in: a typed error
+//! ([`ErrorCode::Moves`], detail: the layer), never a silent drop or a wait forever.
+//!
+//! Planner blocks are released only when the planner queue is full or the model has ended
+//! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
+//! the job, not on the link's timing, and the step generator's commands depend only on the
+//! blocks. The step commands generated for each layer's blocks are hashed (FNV-1a over axis
+//! and command, see [`StepProducer::take_hash`]) and reported with [`Message::LayerDone`]:
+//! identical jobs give identical hashes on the host simulation and on the firmware.
+
+pub mod board;
+mod failure;
+mod motion;
+mod pipeline;
+
+use heapless::Deque;
+
+use crate::geom::Triangle;
+use crate::machine::MachineConfig;
+use crate::plan::PlanConfig;
+use crate::protocol::{
+    Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
+    VERSION,
+};
+use crate::slice::Slicer;
+use crate::slot::Slot;
+use crate::step::{StepConfig, StepGenerator, StepProducer};
+use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
+use crate::toolpath::Toolpath;
+
+pub use board::{job_toolpath_config, BoardPrinter, BOARD_CAPACITIES, CREALITY_CAPACITIES};
+pub use failure::{Failure, Refusal};
+pub use motion::{Motion, MotionSlot};
+use pipeline::{Emit, MotionHook, Pipeline};
+
+/// A [`Printer`] type with every capacity named at the point of use (the names of
+/// [`Capacities`]; `lookahead_moves` is the planner's queue):
+///
+/// ```
+/// strata::printer_type! {
+///     /// A small printer.
+///     pub type Small = {
+///         active_triangles: 256,
+///         contour_points: 256,
+///         contour_loops: 16,
+///         toolpath_points: 512,
+///         toolpath_loops: 32,
+///         scan_crossings: 1024,
+///         path_points: 4096,
+///         window_ring_words: 2048,
+///         window_spans: 2048,
+///         move_buffer_bytes: 16384,
+///         lookahead_moves: 16,
+///     };
+/// }
+/// assert_eq!(Small::CAPACITIES.contour_loops, 16);
+/// ```
+#[macro_export]
+macro_rules! printer_type {
+    (
+        $(#[$meta:meta])*
+        $vis:vis type $name:ident = {
+            active_triangles: $a:expr,
+            contour_points: $s:expr,
+            contour_loops: $l:expr,
+            toolpath_points: $pts:expr,
+            toolpath_loops: $loops:expr,
+            scan_crossings: $cross:expr,
+            path_points: $path:expr,
+            window_ring_words: $ring:expr,
+            window_spans: $spans:expr,
+            move_buffer_bytes: $moves:expr,
+            lookahead_moves: $p:expr $(,)?
+        };
+    ) => {
+        $(#[$meta])*
+        $vis type $name = $crate::printer::Printer<
+            { $a }, { $s }, { $l }, { $pts }, { $loops }, { $cross }, { $path }, { $ring },
+            { $spans }, { $moves }, { $p },
+        >;
+    };
+}
+
+/// Result of [`Printer::handle`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Accept {
+    /// The message was consumed.
+    Taken,
+    /// Not now (the toolpath stage's layer is not all in the move buffer yet, so the next
+    /// layer cannot be cut): offer it again later.
+    Busy,
+}
+
+/// The job runner: the job's state machine over the [`Pipeline`] (slicer `A` active
+/// triangles, `S` segments, `L` loops; toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`,
+/// `SPANS`, see [`Toolpath`]) and the [`Motion`] half (`MOVE_BYTES` bytes of delta-coded
+/// moves waiting for the planner, `P` moves of planner lookahead). Name the capacities with
+/// [`printer_type!`](crate::printer_type).
+pub struct Printer<
+    const A: usize,
+    const S: usize,
+    const L: usize,
+    const PTS: usize,
+    const LOOPS: usize,
+    const CROSS: usize,
+    const PATH: usize,
+    const RING: usize,
+    const SPANS: usize,
+    const MOVE_BYTES: usize,
+    const P: usize,
+> {
+    machine: MachineConfig,
+    plan_cfg: PlanConfig,
+    step_cfg: StepConfig,
+    pipeline: Pipeline<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+    motion: Motion<MOVE_BYTES, P>,
+    state: DeviceState,
+    /// Why the job failed (once it did).
+    failure: Slot<Failure>,
+    /// The failure went to the host in words (`Message::Failure`).
+    failure_sent: bool,
+    job: Slot<JobSpec>,
+    triangles: u32,
+    /// Triangles of the batch being taken that are already in (it waits for room).
+    batch_pos: u32,
+    /// The message at the head of the link waits for room in the move buffer (it is not
+    /// decoded again until the toolpath stage's layer is all in).
+    waiting_for_room: bool,
+    /// The job report went out (once the job is done).
+    report_sent: bool,
+    /// The board reports heaters ([`Printer::set_thermal`] was called): jobs wait for them.
+    heaters: bool,
+    /// The heaters reached the job's targets once (motion waits until then).
+    heated: bool,
+    /// When the job began waiting for its heaters, ms (the clock of [`Printer::service`]).
+    heat_wait_since_ms: Option<u32>,
+    /// Measured temperatures, 0.1 degC.
+    temps_c_x10: (i16, i16),
+    layers: u32,
+    model_ended: bool,
+    toolpath_done: bool,
+    /// Step-command hashes of completed layers, waiting to be reported.
+    done: Deque<(u32, u64), 8>,
+    layers_planned: u32,
+    status_due_ms: u32,
+    /// The announced capacities when [`set_capacities`](Self::set_capacities) overrode them
+    /// (`None`: [`Self::CAPACITIES`]).
+    capacities: Option<Capacities>,
+}
+
+impl<
+        const A: usize,
+        const S: usize,
+        const L: usize,
+        const PTS: usize,
+        const LOOPS: usize,
+        const CROSS: usize,
+        const PATH: usize,
+        const RING: usize,
+        const SPANS: usize,
+        const MOVE_BYTES: usize,
+        const P: usize,
+    > Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVE_BYTES, P>
+{
+    /// A runner for `machine`, idle. (Large: on the host, build it in a `Box` on a thread
+    /// with a big stack; on a board use [`Printer::empty`] in a `static` and
+    /// [`Printer::configure`].)
+    pub fn new(machine: &MachineConfig) -> Self {
+        let mut p = Self::empty();
+        p.configure(machine);
+        p
+    }
+
+    /// An unconfigured runner with empty buffers, built at compile time: a board keeps it in
+    /// a `static` (no stack temporary of the whole pipeline) and calls
+    /// [`Printer::configure`] once at start-up, before anything else. Its configurations
+    /// are [`MachineConfig::UNSET`] and the like: the whole value is zero bytes, so a
+    /// `static` holding it is in `.bss` (no flash image).
+    pub const fn empty() -> Self {
+        Self {
+            machine: MachineConfig::UNSET,
+            plan_cfg: PlanConfig::UNSET,
+            step_cfg: StepConfig::UNSET,
+            pipeline: Pipeline::EMPTY,
+            motion: Motion::EMPTY,
+            state: DeviceState::Idle,
+            failure: Slot::Empty,
+            failure_sent: false,
+            job: Slot::Empty,
+            triangles: 0,
+            batch_pos: 0,
+            waiting_for_room: false,
+            report_sent: false,
+            heaters: false,
+            heated: false,
+            heat_wait_since_ms: None,
+            temps_c_x10: (0, 0),
+            layers: 0,
+            model_ended: false,
+            toolpath_done: false,
+            done: Deque::new(),
+            layers_planned: 0,
+            status_due_ms: 0,
+            capacities: None,
+        }
+    }
+
+    /// What a runner of these capacities holds, announced to the host.
+    pub const CAPACITIES: Capacities = Capacities {
+        active_triangles: A as u32,
+        contour_points: S as u32,
+        contour_loops: L as u32,
+        move_buffer_bytes: MOVE_BYTES as u32,
+        layer_window: crate::toolpath::window::MAX_BLOCKS as u16,
+        ram_bytes: core::mem::size_of::<Self>() as u32,
+        toolpath_points: PTS as u32,
+        toolpath_loops: LOOPS as u32,
+        scan_crossings: CROSS as u32,
+        path_points: PATH as u32,
+        window_ring_words: RING as u32,
+        window_spans: SPANS as u32,
+    };
+
+    /// Sets the machine (limits, steps/mm) and goes idle at the origin; buffers stay where
+    /// they are (no large value is moved).
+    pub fn configure(&mut self, machine: &MachineConfig) {
+        self.machine = *machine;
+        self.plan_cfg = PlanConfig::from_machine(machine);
+        self.step_cfg = StepConfig::from_machine(machine);
+        self.motion.reset(&self.plan_cfg, &self.step_cfg);
+        self.state = DeviceState::Idle;
+        self.job = Slot::Empty;
+    }
+
+    /// What this runner holds (announced to the host).
+    pub fn capacities(&self) -> Capacities {
+        self.capacities.unwrap_or(Self::CAPACITIES)
+    }
+
+    /// Overrides the announced capacities (a simulated printer posing as a smaller board).
+    pub fn set_capacities(&mut self, capacities: Capacities) {
+        self.capacities = Some(capacities);
+        // The device's offset engine holds `toolpath_points` edges: offset as it does.
+        self.pipeline.tp.set_offset_limit(capacities.toolpath_points as usize);
+    }
+
+    /// State.
+    pub fn state(&self) -> DeviceState {
+        self.state
+    }
+
+    /// Why the job failed (once it did).
+    pub fn failure(&self) -> Option<Failure> {
+        self.failure.get().copied()
+    }
+
+    /// Error code and detail of the status report (`None, 0` unless failed).
+    pub fn error(&self) -> (ErrorCode, u32) {
+        self.failure().map_or((ErrorCode::None, 0), |f| f.code())
+    }
+
+    /// The step generator (its statistics, motor positions).
+    pub fn generator(&self) -> &StepGenerator {
+        self.motion.generator()
+    }
+
+    /// The step configuration the generator uses (the executor must use the same).
+    pub fn step_config(&self) -> &StepConfig {
+        &self.step_cfg
+    }
+
+    /// Layers of the job.
+    pub fn layer_count(&self) -> u32 {
+        self.layers
+    }
+
+    /// Print time of the blocks released so far, seconds.
+    pub fn planned_s(&self) -> f64 {
+        self.motion.planner().released_ticks_q16() as f64 / 65536.0 / self.plan_cfg.timer_hz as f64
+    }
+
+    /// The slicer (statistics: peak active set, peak points).
+    pub fn slicer(&self) -> &Slicer<A, S, L> {
+        &self.pipeline.slicer
+    }
+
+    /// The toolpath stage (statistics and needs).
+    pub fn toolpath(&self) -> &Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS> {
+        &self.pipeline.tp
+    }
+
+    /// Bytes in use in the move buffer (coded moves waiting for the planner).
+    pub fn move_buffer_used(&self) -> usize {
+        self.motion.moves().used_bytes()
+    }
+
+    /// Bytes of the largest toolpath unit (a path with the travel before it) that went into
+    /// the move buffer in this job: the least buffer the job's units needed.
+    pub fn largest_unit_bytes(&self) -> usize {
+        self.pipeline.room_memory.largest()
+    }
+
+    /// Uses at most `bytes` of the move buffer from now on (at most `MOVE_BYTES`): a printer
+    /// posing as a board with a smaller one, flow control included (the host's tests). The
+    /// announced capacities are [`set_capacities`](Self::set_capacities)'.
+    pub fn limit_move_buffer(&mut self, bytes: usize) {
+        self.motion.moves_mut().limit(bytes);
+    }
+
+    /// True when the job's last block went to the step generator and it sent every step.
+    pub fn motion_finished(&self) -> bool {
+        self.state == DeviceState::Done
+    }
+
+    /// True while steps may still come: printing or paused.
+    pub fn is_active(&self) -> bool {
+        matches!(self.state, DeviceState::Printing | DeviceState::Paused)
+    }
+
+    /// Fails the running (or idle) job with `failure`; a job that already ended keeps its end.
+    fn fail(&mut self, failure: Failure) {
+        if self.is_active() || self.state == DeviceState::Idle {
+            self.state = DeviceState::Failed;
+            self.failure = Slot::Full(failure);
+        }
+    }
+
+    /// The heater targets the current job wants, degC (hotend, bed): the job's settings while
+    /// it prints or is paused, 0 otherwise (idle, done, failed, aborted, stopped), so a board
+    /// that applies them every update turns the heaters off when a job ends.
+    pub fn heater_targets(&self) -> (i16, i16) {
+        match (self.job.get(), self.is_active()) {
+            (Some(j), true) => (j.settings.hotend_temp_c, j.settings.bed_temp_c),
+            _ => (0, 0),
+        }
+    }
+
+    /// The part-cooling fan's duty (0..=255) the job wants: full from the second layer on
+    /// (the layer whose blocks are being turned into steps), off on the first layer (for bed
+    /// adhesion, like slicers' defaults) and without an active job.
+    pub fn fan_duty(&self) -> u8 {
+        let layer = self.motion.generator().tag();
+        if self.state == DeviceState::Printing && layer.is_some_and(|layer| layer >= 1) {
+            255
+        } else {
+            0
+        }
+    }
+
+    /// What the heaters measure (0.1 degC, for the status reports) and whether they are at
+    /// their targets: motion waits until they have been once for the job (like M190/M109
+    /// before the first layer; the slicer and the toolpath stage work meanwhile). A board that
+    /// never calls this has no heaters (the host simulation): its jobs do not wait.
+    pub fn set_thermal(&mut self, at_target: bool, hotend_c_x10: i16, bed_c_x10: i16) {
+        self.heaters = true;
+        self.temps_c_x10 = (hotend_c_x10, bed_c_x10);
+        if at_target && self.is_active() {
+            self.heated = true;
+        }
+    }
+
+    /// A heater fault: the job fails at once with [`ErrorCode::Thermal`] (detail `code`),
+    /// its moves are dropped; the board stops the steps and keeps the heaters off.
+    pub fn thermal_fault(&mut self, code: u8) {
+        self.fail(Failure::Thermal { code });
+        self.motion.moves_mut().clear();
+    }
+
+    /// A job that waits longer than [`HEAT_WAIT_LIMIT_MS`] (printing, not paused) for its
+    /// heaters fails with [`ThermalFault::HeatingTimeout`] (the last line of defence behind
+    /// each heater's own checks, which also catch a heater that stalls short of its target).
+    fn check_heat_wait(&mut self, now_ms: u32) {
+        if !(self.state == DeviceState::Printing && self.heaters && !self.heated) {
+            self.heat_wait_since_ms = None;
+            return;
+        }
+        let since = *self.heat_wait_since_ms.get_or_insert(now_ms);
+        if now_ms.wrapping_sub(since) > HEAT_WAIT_LIMIT_MS {
+            self.thermal_fault(ThermalFault::HeatingTimeout.code());
+        }
+    }
+
+    /// Ends the job on a dead link.
+    pub fn link_lost(&mut self, silent_ms: u32) {
+        self.fail(Failure::LinkDead { silent_ms });
+    }
+
+    /// Sets every stage up for `job`.
+    fn start(&mut self, job: &JobSpec) -> Result<(), Failure> {
+        self.layers = self.pipeline.start(&self.machine, job)?;
+        self.motion.reset(&self.plan_cfg, &self.step_cfg);
+        self.triangles = 0;
+        self.batch_pos = 0;
+        self.report_sent = false;
+        self.failure_sent = false;
+        self.heated = false;
+        self.heat_wait_since_ms = None;
+        self.model_ended = false;
+        self.toolpath_done = false;
+        self.done.clear();
+        self.layers_planned = 0;
+        self.job = Slot::Full(*job);
+        Ok(())
+    }
+
+    /// Takes a host message. Misplaced messages fail the job (never executed).
+    pub fn handle(&mut self, msg: &Message<'_>) -> Accept {
+        self.handle_with(msg, None)
+    }
+
+    /// [`handle`](Self::handle); `motion` is lent the motion half at the progress points of
+    /// the layers this message makes the toolpath stage compute (see [`MotionSlot`]).
+    fn handle_with(
+        &mut self,
+        msg: &Message<'_>,
+        motion: MotionHook<'_, '_, MOVE_BYTES, P>,
+    ) -> Accept {
+        match (msg, self.state) {
+            (Message::EmergencyStop, _) => {
+                self.state = DeviceState::Stopped;
+                self.motion.moves_mut().clear();
+            }
+            (Message::Abort, s) if s != DeviceState::Stopped => {
+                self.state = DeviceState::Aborted;
+                self.motion.moves_mut().clear();
+            }
+            (Message::JobStart(job), s)
+                if !matches!(s, DeviceState::Printing | DeviceState::Paused) =>
+            {
+                self.failure = Slot::Empty;
+                match self.start(job) {
+                    Ok(()) => self.state = DeviceState::Printing,
+                    Err(f) => {
+                        self.state = DeviceState::Failed;
+                        self.failure = Slot::Full(f);
+                        self.failure_sent = false;
+                    }
+                }
+            }
+            (Message::Pause, DeviceState::Printing) => self.state = DeviceState::Paused,
+            (Message::Resume, DeviceState::Paused) => self.state = DeviceState::Printing,
+            (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
+                if !self.model_ended =>
+            {
+                return self.take_batch(batch, motion);
+            }
+            (Message::EndOfModel, DeviceState::Printing | DeviceState::Paused)
+                if !self.model_ended =>
+            {
+                return self.end_model(motion);
+            }
+            (Message::Hello { .. }, _) => {}
+            // A repeated pause/resume is harmless; everything else out of place fails.
+            (Message::Pause | Message::Resume, _) => {}
+            (m, _) => self.fail(Failure::Unexpected { message: m.type_byte() }),
+        }
+        Accept::Taken
+    }
+
+    /// Takes a batch's triangles from where it stopped. Layers are cut one at a time, each
+    /// only once the toolpath stage has emitted the layer before into the move buffer; a
+    /// batch that has to wait is offered again and resumes here.
+    fn take_batch(
+        &mut self,
+        batch: &crate::protocol::TriangleBatch<'_>,
+        mut motion: MotionHook<'_, '_, MOVE_BYTES, P>,
+    ) -> Accept {
+        for (i, t) in batch.iter().enumerate().skip(self.batch_pos as usize) {
+            while self.pipeline.slicer.would_cut(t.z_min()) {
+                if !self.emit_moves() {
+                    if !self.is_active() {
+                        break;
+                    }
+                    self.batch_pos = i as u32;
+                    return Accept::Busy;
+                }
+                if !self.cut_one(motion.as_deref_mut()) {
+                    break;
+                }
+            }
+            if !self.is_active() {
+                break;
+            }
+            self.push_triangle(&t, motion.as_deref_mut());
+        }
+        self.batch_pos = 0;
+        Accept::Taken
+    }
+
+    /// Cuts and builds every layer left, then ends the model (or waits for room in the move
+    /// buffer and is offered again).
+    fn end_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> Accept {
+        while self.is_active() {
+            if !self.emit_moves() {
+                if !self.is_active() {
+                    break;
+                }
+                return Accept::Busy;
+            }
+            if !self.cut_one(motion.as_deref_mut()) && !self.flush_one(motion.as_deref_mut()) {
+                break;
+            }
+        }
+        self.model_ended = true;
+        self.finish_model(motion);
+        Accept::Taken
+    }
+
+    /// The pipeline's result, its failure recorded (the job fails).
+    fn record<R>(&mut self, r: Result<R, Failure>) -> Option<R> {
+        r.map_err(|f| self.fail(f)).ok()
+    }
+
+    fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
+        let allowed = self.motion_allowed();
+        let r = self.pipeline.push_triangle(t, self.motion.slot(allowed), motion);
+        self.record(r);
+        self.triangles += 1;
+    }
+
+    /// Emits the toolpath stage's built layer into the move buffer as far as it has room
+    /// ([`Pipeline::emit_moves`]); true when no layer is left to emit (the stage may build
+    /// the next one).
+    fn emit_moves(&mut self) -> bool {
+        let r = self.pipeline.emit_moves(self.motion.moves_mut());
+        match self.record(r) {
+            Some(Emit::Idle) => true,
+            Some(Emit::Complete) => self.is_active(),
+            Some(Emit::Waiting) | None => false,
+        }
+    }
+
+    /// Cuts the slicer's next plane and hands its layer to the toolpath stage, then emits
+    /// what the move buffer takes of the layer the stage built; false when no plane was
+    /// left or on an error. Call only when [`emit_moves`](Self::emit_moves) is done.
+    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+        let allowed = self.motion_allowed();
+        let r = self.pipeline.cut_one(self.motion.slot(allowed), motion);
+        let cut = self.record(r);
+        self.emit_moves();
+        cut == Some(true) && self.is_active()
+    }
+
+    /// After the last plane: the toolpath stage builds its next waiting layer, and what the
+    /// move buffer takes of it is emitted; false when none was left or on an error. Call
+    /// only when [`emit_moves`](Self::emit_moves) is done.
+    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
+        let allowed = self.motion_allowed();
+        let r = self.pipeline.flush_one(self.motion.slot(allowed), motion);
+        let built = self.record(r);
+        self.emit_moves();
+        built == Some(true) && self.is_active()
+    }
+
+    /// Ends the model: every plane is cut and every layer flushed and emitted (or the job
+    /// failed).
+    fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
+        let allowed = self.motion_allowed();
+        let r = self.pipeline.finish_slicing(self.motion.slot(allowed), motion.as_deref_mut());
+        if self.record(r).is_some() && self.is_active() {
+            let allowed = self.motion_allowed();
+            let r = self.pipeline.finish_toolpaths(self.motion.slot(allowed), motion);
+            self.record(r);
+        }
+        self.toolpath_done = true;
+    }
+
+    /// Blocks may go to the step generator: printing (not paused) and the heaters reached
+    /// the job's targets once (or the board has none).
+    fn motion_allowed(&self) -> bool {
+        self.state == DeviceState::Printing && (self.heated || !self.heaters)
+    }
+
+    /// Layer hashes completed since the last call.
+    pub fn take_layer_done(&mut self) -> Option<(u32, u64)> {
+        self.done.pop_front()
+    }
+
+    /// Bounded work: moves into the planner, the toolpath stage's next paths into the move
+    /// buffer, blocks into the generator, steps into `out`. Returns true when something
+    /// happened (a move planned or emitted, a block or a step generated, a layer closed).
+    pub fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
+        if !self.is_active() {
+            return false;
+        }
+        let allowed = self.motion_allowed();
+        let mut worked = match self.motion.feed(allowed, self.toolpath_done, out) {
+            Ok(w) => w,
+            Err(layer) => {
+                self.fail(Failure::Plan { layer });
+                return true;
+            }
+        };
+        // The toolpath stage's next paths, as far as the room the planner made allows.
+        if self.pipeline.tp.emitting() {
+            let before = self.motion.moves().used_bytes();
+            worked |= self.emit_moves() || self.motion.moves().used_bytes() != before;
+            if !self.is_active() {
+                return true;
+            }
+        }
+        worked |= self.take_layer_marks();
+        let input_done = self.toolpath_done && self.motion.moves().is_empty();
+        let motion_idle = self.motion.planner().is_empty() && self.motion.generator().is_idle();
+        if input_done && motion_idle && !self.done.is_full() {
+            if let Some(layer) = self.motion.generator().tag() {
+                let _ = self.done.push_back((layer, out.take_hash()));
+                self.layers_planned = layer + 1;
+            }
+            self.state = DeviceState::Done;
+            worked = true;
+        }
+        worked
+    }
+
+    /// Completed layers' hashes into the reports; while the reports are full the generator
+    /// holds at the next layer (its marks fill up), so no hash is ever dropped. True when one
+    /// was taken.
+    fn take_layer_marks(&mut self) -> bool {
+        let mut took = false;
+        while !self.done.is_full() {
+            let Some((layer, hash)) = self.motion.generator_mut().take_mark() else { break };
+            let _ = self.done.push_back((layer, hash));
+            self.layers_planned = layer + 1;
+            took = true;
+        }
+        took
+    }
+
+    /// What the job did so far (complete once it is done): steps per axis, final motor
+    /// positions and the planned motion's duration, from the step generator.
+    pub fn job_report(&self) -> JobReport {
+        let gen = self.motion.generator();
+        JobReport {
+            steps: gen.stats().steps,
+            positions: gen.motor_steps(),
+            print_ticks: gen.time_q16() >> 16,
+        }
+    }
+
+    /// The status report; `done_ms` is the print time executed so far (the executor's).
+    pub fn status(&self, done_ms: u32) -> Status {
+        let (error, detail) = self.error();
+        let moves = self.motion.moves();
+        Status {
+            state: self.state,
+            layer: self.layers_planned,
+            layers: self.layers,
+            planned_ms: ((self.motion.planner().released_ticks_q16() >> 16) * 1000
+                / self.plan_cfg.timer_hz.max(1) as u64) as u32,
+            done_ms,
+            triangles: self.triangles,
+            queue_fill_pct: (moves.used_bytes() * 100 / moves.capacity().max(1)) as u8,
+            error,
+            detail,
+            hotend_c_x10: self.temps_c_x10.0,
+            bed_c_x10: self.temps_c_x10.1,
+            heating: self.is_active() && self.heaters && !self.heated,
+        }
+    }
+
+    /// Pumps the link: decodes delivered messages (a message that does not decode is
+    /// reported and dropped, never executed), answers `Hello`, sends layer hashes, the
+    /// failure in words once a job failed, and a status every `status_every_ms` and at once
+    /// on a state change. A dead link fails the job.
+    pub fn service<const TX: usize, const RX: usize>(
+        &mut self,
+        ep: &mut Endpoint<TX, RX>,
+        now_ms: u32,
+        done_ms: u32,
+        status_every_ms: u32,
+        motion: &mut dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>),
+    ) {
+        if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
+            self.link_lost(silent_ms);
+        }
+        self.check_heat_wait(now_ms);
+        let before = self.state;
+        self.take_messages(ep, motion);
+        while ep.tx_free() > 1 {
+            let Some((layer, hash)) = self.take_layer_done() else { break };
+            send(ep, &Message::LayerDone { layer, hash });
+        }
+        let finished = self.state == DeviceState::Done;
+        if finished && !self.report_sent && self.done.is_empty() && ep.tx_free() > 1 {
+            self.report_sent = send(ep, &Message::JobReport(self.job_report()));
+        }
+        self.send_failure(ep);
+        let due = now_ms.wrapping_sub(self.status_due_ms) < 1 << 31;
+        // Every layer report, the job report and the failure go out before a status (the
+        // host ends on `Done` or `Failed`).
+        let failure_out = self.failure.get().is_none() || self.failure_sent;
+        let reported = self.done.is_empty() && (!finished || self.report_sent) && failure_out;
+        let status_out = (due || self.state != before) && ep.tx_free() > 0 && reported;
+        if status_out && send(ep, &Message::Status(self.status(done_ms))) {
+            self.status_due_ms = now_ms.wrapping_add(status_every_ms);
+        }
+    }
+
+    /// Decodes and handles the delivered messages while the link has room for answers.
+    fn take_messages<const TX: usize, const RX: usize>(
+        &mut self,
+        ep: &mut Endpoint<TX, RX>,
+        motion: &mut dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>),
+    ) {
+        while ep.tx_free() > 1 {
+            let Some(p) = ep.peek() else { break };
+            if self.waiting_for_room && self.is_active() && !self.emit_moves() {
+                break;
+            }
+            self.waiting_for_room = false;
+            match Message::decode(p) {
+                Ok(Message::Hello { .. }) => {
+                    let caps = self.capacities();
+                    let m = Message::Capabilities { version: VERSION, capacities: caps };
+                    send(ep, &m);
+                }
+                Ok(m) => {
+                    if self.handle_with(&m, Some(&mut *motion)) == Accept::Busy {
+                        self.waiting_for_room = true;
+                        break;
+                    }
+                }
+                Err(_) => {
+                    let first_byte = p.first().copied().unwrap_or(0);
+                    self.fail(Failure::BadMessage { first_byte });
+                }
+            }
+            ep.pop();
+        }
+    }
+
+    /// The failure in words (`Message::Failure`), once, when the job failed. Never inlined:
+    /// its text buffer is on the stack only while it runs, not in `service`'s frame (which is
+    /// at the bottom of the deepest stack, a layer's computation).
+    #[inline(never)]
+    fn send_failure<const TX: usize, const RX: usize>(&mut self, ep: &mut Endpoint<TX, RX>) {
+        let Some(failure) = self.failure.get().copied() else { return };
+        if self.failure_sent || self.state != DeviceState::Failed || ep.tx_free() <= 1 {
+            return;
+        }
+        let mut text = TextBuf::new();
+        let _ = core::fmt::write(&mut text, format_args!("{failure}"));
+        self.failure_sent = send(ep, &Message::Failure(text.as_str()));
+    }
+}
+
+/// Encodes `msg` and hands it to the link; false when it did not go out. The payload buffer
+/// lives only while a message is sent (clearing it costs ~100 instructions on the
+/// Cortex-M3, too much for every main-loop turn).
+fn send<const TX: usize, const RX: usize>(ep: &mut Endpoint<TX, RX>, msg: &Message<'_>) -> bool {
+    let mut buf = [0u8; MAX_PAYLOAD];
+    match msg.encode(&mut buf) {
+        Ok(n) => ep.send(&buf[..n]).is_ok(),
+        Err(_) => false,
+    }
+}
+
+/// Text that fits a message after its type byte; what does not fit is cut at a character.
+struct TextBuf {
+    bytes: [u8; MAX_PAYLOAD - 1],
+    len: usize,
+}
+
+impl TextBuf {
+    fn new() -> Self {
+        Self { bytes: [0; MAX_PAYLOAD - 1], len: 0 }
+    }
+
+    fn as_str(&self) -> &str {
+        // Only whole characters are ever written.
+        core::str::from_utf8(&self.bytes[..self.len]).unwrap_or("")
+    }
+}
+
+impl core::fmt::Write for TextBuf {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for c in s.chars() {
+            let mut utf8 = [0u8; 4];
+            let c = c.encode_utf8(&mut utf8).as_bytes();
+            let Some(room) = self.bytes.get_mut(self.len..self.len + c.len()) else {
+                return Err(core::fmt::Error);
+            };
+            room.copy_from_slice(c);
+            self.len += c.len();
+        }
+        Ok(())
+    }
+}

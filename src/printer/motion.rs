@@ -1,0 +1,155 @@
+//! The motion half of the job runner: the move buffer, the planner with the layer of each
+//! move it holds, and the step generator.
+
+use heapless::Deque;
+
+use crate::machine::AXES;
+use crate::move_ring::MoveRing;
+use crate::plan::{PlanConfig, Planner};
+use crate::step::{StepConfig, StepGenerator, StepProducer};
+
+/// Moves waiting for the planner (delta-coded into `MOVE_BYTES` bytes, [`MoveRing`]), the
+/// planner with `P` moves of lookahead and the layer of each of its moves that makes a block,
+/// and the step generator.
+///
+/// Planner blocks are released only when the planner queue is full or the model has ended
+/// (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
+/// the job, not on when [`feed`](Self::feed) runs, and the step generator's commands depend
+/// only on the blocks.
+pub struct Motion<const MOVE_BYTES: usize, const P: usize> {
+    moves: MoveRing<MOVE_BYTES>,
+    planner: Planner<P>,
+    /// Layer of every move in the planner that makes a block.
+    tags: Deque<u32, P>,
+    gen: StepGenerator,
+}
+
+impl<const MOVE_BYTES: usize, const P: usize> Default for Motion<MOVE_BYTES, P> {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
+    /// Empty buffers, unconfigured (all zero bytes: a `static` of it is in `.bss`).
+    pub const EMPTY: Self = Self {
+        moves: MoveRing::new(),
+        planner: Planner::empty(),
+        tags: Deque::new(),
+        gen: StepGenerator::empty(),
+    };
+
+    /// Empties every buffer and starts the planner and the generator at the origin.
+    pub fn reset(&mut self, plan: &PlanConfig, step: &StepConfig) {
+        self.moves.clear();
+        self.planner.reset(plan, [0; AXES]);
+        self.tags.clear();
+        self.gen.reset(step, [0; AXES]);
+    }
+
+    /// The move buffer.
+    pub fn moves(&self) -> &MoveRing<MOVE_BYTES> {
+        &self.moves
+    }
+
+    /// The move buffer, to fill.
+    pub fn moves_mut(&mut self) -> &mut MoveRing<MOVE_BYTES> {
+        &mut self.moves
+    }
+
+    /// The planner.
+    pub fn planner(&self) -> &Planner<P> {
+        &self.planner
+    }
+
+    /// The step generator (its statistics, motor positions).
+    pub fn generator(&self) -> &StepGenerator {
+        &self.gen
+    }
+
+    /// The step generator, to take its layer marks.
+    pub fn generator_mut(&mut self) -> &mut StepGenerator {
+        &mut self.gen
+    }
+
+    /// Lends the motion half, blocks going to the generator only when `allowed`.
+    pub fn slot(&mut self, allowed: bool) -> MotionSlot<'_, MOVE_BYTES, P> {
+        MotionSlot { motion: self, allowed }
+    }
+
+    /// Moves into the planner, blocks into the generator (when `allowed`), steps into `out`;
+    /// true when something happened. `toolpath_done`: the model's last moves are in the
+    /// buffer, so the planner may release its blocks without being full. `Err(layer)`: the
+    /// planner refused a move of that layer (it stays at the front of the buffer).
+    pub fn feed<const Q: usize>(
+        &mut self,
+        allowed: bool,
+        toolpath_done: bool,
+        out: &mut StepProducer<'_, Q>,
+    ) -> Result<bool, u32> {
+        let mut worked = self.plan_moves()?;
+        let input_done = toolpath_done && self.moves.is_empty();
+        if allowed {
+            while self.gen.wants_block() && (input_done || self.planner.is_full()) {
+                let Some(b) = self.planner.pop_forced() else { break };
+                let layer = self.tags.pop_front().unwrap_or(0);
+                // `wants_block` was true: the generator takes it.
+                let _ = self.gen.load_tagged(b, layer);
+                worked = true;
+            }
+        }
+        let steps_before = self.gen.steps_generated();
+        let _ = self.gen.run(out);
+        Ok(worked || self.gen.steps_generated() != steps_before)
+    }
+
+    /// Moves from the buffer into the planner while it has room; true when one went in.
+    fn plan_moves(&mut self) -> Result<bool, u32> {
+        let mut worked = false;
+        // Each record is decoded once, when the planner has room for it (it is full most of
+        // the time: peeking at the head first would decode it on every call).
+        while !self.planner.is_full() {
+            let Some(t) = self.moves.pop_front() else { break };
+            let before = self.planner.position_um();
+            let mv = t.unpack();
+            // The planner had room: any refusal is the move's fault and fails the job.
+            self.planner.push(mv).map_err(|_| u32::from(t.layer))?;
+            worked = true;
+            // A move that goes nowhere makes no block and has no tag.
+            if mv.target_um != before {
+                let _ = self.tags.push_back(u32::from(t.layer));
+            }
+        }
+        Ok(worked)
+    }
+}
+
+/// The motion half, lent by [`Printer::service`](super::Printer::service) to its caller at
+/// the progress points of a long layer computation
+/// ([`ToolEvent::Progress`](crate::toolpath::ToolEvent::Progress)): the firmware generates
+/// steps there ([`MotionSlot::run`]), so the step queue keeps being refilled while a layer's
+/// toolpaths are computed in the same thread.
+///
+/// The commands stay those of [`Printer::poll`](super::Printer::poll): moves go to the
+/// planner in the same order, blocks leave it only when it is full (the model is not done
+/// while a layer is computed), and the step generator's commands depend only on the blocks.
+pub struct MotionSlot<'a, const MOVE_BYTES: usize, const P: usize> {
+    motion: &'a mut Motion<MOVE_BYTES, P>,
+    /// Blocks may go to the generator (printing and heated).
+    allowed: bool,
+}
+
+impl<const MOVE_BYTES: usize, const P: usize> MotionSlot<'_, MOVE_BYTES, P> {
+    /// Moves into the planner, blocks into the generator, steps into `out`, as
+    /// [`Printer::poll`](super::Printer::poll) does; true when something happened. A planning
+    /// error is left in place for the next `poll` to report.
+    pub fn run<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
+        // Inside a layer's computation the toolpath stage is not done.
+        self.motion.feed(self.allowed, false, out).unwrap_or(true)
+    }
+
+    /// The move buffer, for the toolpath stage's moves.
+    pub(super) fn moves_mut(&mut self) -> &mut MoveRing<MOVE_BYTES> {
+        &mut self.motion.moves
+    }
+}

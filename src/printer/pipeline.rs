@@ -1,0 +1,265 @@
+//! The computing half of the job runner: the slicer and the toolpath stage in their shared
+//! scratch, and the toolpath stream that codes their moves into the move buffer.
+
+use crate::geom::{Point2, Triangle};
+use crate::machine::MachineConfig;
+use crate::move_ring::{MoveRing, MoveStream, RoomMemory};
+use crate::protocol::JobSpec;
+use crate::scratch::Scratch;
+use crate::slice::{SliceConfig, SliceError, SlicedLayer, Slicer};
+use crate::toolpath::{Emitted, ToolEvent, Toolpath, ToolpathError};
+
+use super::board::job_toolpath_config;
+use super::failure::{Failure, Refusal};
+use super::motion::MotionSlot;
+
+/// What a caller does with a lent [`MotionSlot`] at a progress point (`None`: nothing).
+pub(super) type MotionHook<'h, 'f, const MOVE_BYTES: usize, const P: usize> =
+    Option<&'h mut (dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>) + 'f)>;
+
+/// Where [`Pipeline::emit_moves`] left the built layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Emit {
+    /// No layer was being emitted.
+    Idle,
+    /// The layer's last unit went into the buffer.
+    Complete,
+    /// A unit waits for room in the buffer.
+    Waiting,
+}
+
+/// The slicer (`A` active triangles, `S` segments, `L` loops) and the toolpath stage (`PTS`,
+/// `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`, see [`Toolpath`]) taking turns in one
+/// [`Scratch`], and the toolpath stream into the move buffer.
+pub(super) struct Pipeline<
+    const A: usize,
+    const S: usize,
+    const L: usize,
+    const PTS: usize,
+    const LOOPS: usize,
+    const CROSS: usize,
+    const PATH: usize,
+    const RING: usize,
+    const SPANS: usize,
+> {
+    pub(super) slicer: Slicer<A, S, L>,
+    pub(super) tp: Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+    /// The slicer's cut, then the toolpath stage's offset engine and infill scratch.
+    scratch: Scratch<S, PTS, CROSS>,
+    /// The toolpath stream's layer, absolute E and position (moves for the buffer).
+    stream: MoveStream,
+    /// What the move buffer's rooms learnt about the toolpath stage's units (the waiting
+    /// unit's bytes, the job's bytes per move, the largest unit).
+    pub(super) room_memory: RoomMemory,
+}
+
+impl<
+        const A: usize,
+        const S: usize,
+        const L: usize,
+        const PTS: usize,
+        const LOOPS: usize,
+        const CROSS: usize,
+        const PATH: usize,
+        const RING: usize,
+        const SPANS: usize,
+    > Pipeline<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS>
+{
+    /// Empty stages (all zero bytes).
+    pub(super) const EMPTY: Self = Self {
+        slicer: Slicer::empty(),
+        tp: Toolpath::empty(),
+        scratch: Scratch::new(),
+        stream: MoveStream::new(),
+        room_memory: RoomMemory::NEW,
+    };
+
+    /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
+    #[inline(never)]
+    pub(super) fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure> {
+        let refused = |r| Failure::Refused(r);
+        job.settings.validate(machine).map_err(|e| refused(Refusal::Settings(e)))?;
+        let slice_cfg = SliceConfig::new(&job.settings, job.model_height_um)
+            .map_err(|e| refused(Refusal::Slice(e)))?;
+        let tp_cfg = job_toolpath_config(machine, job);
+        self.slicer.reset(slice_cfg).map_err(|e| refused(Refusal::Slice(e)))?;
+        self.tp.reset(tp_cfg).map_err(|e| refused(Refusal::Toolpath(e)))?;
+        self.tp.set_position(Point2::new(0, 0), 0);
+        self.stream = MoveStream::new();
+        self.room_memory = RoomMemory::NEW;
+        Ok(self.slicer.layer_count())
+    }
+
+    /// The triangle into the slicer; the layers it completes through the toolpath stage.
+    #[inline(never)]
+    pub(super) fn push_triangle<const M: usize, const P: usize>(
+        &mut self,
+        t: &Triangle,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<(), Failure> {
+        self.through_slicer(slot, hook, |slicer, work, sink| slicer.push(t, work, &mut |l| sink(l)))
+    }
+
+    /// Cuts the slicer's next plane, its layer through the toolpath stage; whether a plane was
+    /// left.
+    pub(super) fn cut_one<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<bool, Failure> {
+        self.through_slicer(slot, hook, |slicer, work, sink| slicer.cut_one(work, &mut |l| sink(l)))
+    }
+
+    /// After the last plane: the toolpath stage builds its next waiting layer; whether one was
+    /// left.
+    pub(super) fn flush_one<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<bool, Failure> {
+        self.through_toolpath(slot, hook, |tp, work, events| {
+            tp.build_next(work, &mut |e| events(e))
+        })
+    }
+
+    /// After the last triangle: every plane left is cut, each layer through the toolpath
+    /// stage.
+    #[inline(never)]
+    pub(super) fn finish_slicing<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<(), Failure> {
+        self.through_slicer(slot, hook, |slicer, work, sink| slicer.finish(work, &mut |l| sink(l)))
+            .map(|_| ())
+    }
+
+    /// After the last plane: the toolpath stage builds every layer it still holds.
+    pub(super) fn finish_toolpaths<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<(), Failure> {
+        self.through_toolpath(slot, hook, |tp, work, events| tp.finish(work, &mut |e| events(e)))
+            .map(|_| ())
+    }
+
+    /// Emits the toolpath stage's built layer into `moves`, unit by unit (a path with the
+    /// travel before it), each coded into the buffer as it is generated and undone when its
+    /// bytes do not fit the free ones ([`MoveRing::room`]). A unit whose bytes exceed the
+    /// whole buffer could never go: [`Failure::Moves`].
+    pub(super) fn emit_moves<const M: usize>(
+        &mut self,
+        moves: &mut MoveRing<M>,
+    ) -> Result<Emit, Failure> {
+        if !self.tp.emitting() {
+            return Ok(Emit::Idle);
+        }
+        // The unit refused last is offered first again, and its bytes stay what they were
+        // (the coding state moves only when a unit goes in): no use offering it before the
+        // buffer has that much free.
+        if moves.free_bytes() < self.room_memory.waits_for() {
+            return Ok(Emit::Waiting);
+        }
+        let mut room = moves.room(&mut self.stream, &mut self.room_memory);
+        let emitted = self.tp.emit_next(&mut self.scratch, &mut room);
+        let never_fits = room.never_fits();
+        match emitted {
+            Ok(Emitted::Complete) => Ok(Emit::Complete),
+            Ok(Emitted::NeedsRoom { layer, .. }) if never_fits => Err(Failure::Moves { layer }),
+            Ok(Emitted::NeedsRoom { .. }) => Ok(Emit::Waiting),
+            Err(error) => Err(self.toolpath_failure(error)),
+        }
+    }
+
+    fn toolpath_failure(&self, error: ToolpathError) -> Failure {
+        Failure::Toolpath { error, layer: self.slicer.stats().layers }
+    }
+
+    /// Runs `step` on the slicer with a sink that hands each layer to the toolpath stage,
+    /// which builds the layer it completes (lending `hook` the motion half at its progress
+    /// points; its moves wait for [`emit_moves`](Self::emit_moves)); the first failure of the
+    /// slicer, the toolpath stage or the move buffer, in that order.
+    fn through_slicer<R, const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+        step: impl FnOnce(
+            &mut Slicer<A, S, L>,
+            &mut Scratch<S, PTS, CROSS>,
+            &mut dyn FnMut(SlicedLayer<'_, S, PTS, CROSS>),
+        ) -> Result<R, SliceError>,
+    ) -> Result<R, Failure> {
+        let Self { slicer, tp, scratch, stream, .. } = self;
+        let mut events = EventSink { slot, stream, hook, failed: None };
+        let mut tp_err = None;
+        let r = {
+            let mut sink = |l: SlicedLayer<'_, S, PTS, CROSS>| {
+                if tp_err.is_none() {
+                    tp_err = tp.accept_sliced(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
+                }
+            };
+            step(slicer, scratch, &mut sink)
+        };
+        let layer = self.slicer.stats().layers;
+        match (r, tp_err, events.failed) {
+            (Err(error), _, _) => Err(Failure::Slice { error, layer }),
+            (Ok(_), Some(error), _) => Err(Failure::Toolpath { error, layer }),
+            (Ok(_), None, Some(layer)) => Err(Failure::Moves { layer }),
+            (Ok(r), None, None) => Ok(r),
+        }
+    }
+
+    /// The toolpath stage's step `step` (after the last plane); the first failure of the stage
+    /// or the move buffer.
+    fn through_toolpath<R, const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+        step: impl FnOnce(
+            &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+            &mut Scratch<S, PTS, CROSS>,
+            &mut dyn FnMut(&ToolEvent<'_>),
+        ) -> Result<R, ToolpathError>,
+    ) -> Result<R, Failure> {
+        let Self { tp, scratch, stream, .. } = self;
+        let mut events = EventSink { slot, stream, hook, failed: None };
+        let r = step(tp, scratch, &mut |e: &ToolEvent<'_>| events.event(e));
+        match (r, events.failed) {
+            (Err(error), _) => Err(self.toolpath_failure(error)),
+            (Ok(_), Some(layer)) => Err(Failure::Moves { layer }),
+            (Ok(r), None) => Ok(r),
+        }
+    }
+}
+
+/// Where the toolpath stage's events go: planner moves (absolute E, [`MoveStream`]) into the
+/// move buffer (the first layer whose moves do not fit is kept in `failed`), and at a progress
+/// point the motion half lent to `hook` (nothing when there is none).
+struct EventSink<'a, 'h, 'f, const MOVE_BYTES: usize, const P: usize> {
+    slot: MotionSlot<'a, MOVE_BYTES, P>,
+    stream: &'a mut MoveStream,
+    hook: MotionHook<'h, 'f, MOVE_BYTES, P>,
+    failed: Option<u32>,
+}
+
+impl<const MOVE_BYTES: usize, const P: usize> EventSink<'_, '_, '_, MOVE_BYTES, P> {
+    fn event(&mut self, e: &ToolEvent<'_>) {
+        let stream = &mut *self.stream;
+        match e {
+            ToolEvent::Progress => {
+                if let Some(lend) = self.hook.as_deref_mut() {
+                    lend(&mut self.slot);
+                }
+            }
+            ToolEvent::LayerStart { index, .. } => stream.start_layer(*index),
+            ToolEvent::Move(m) => {
+                if self.slot.moves_mut().push(&stream.next(m)).is_err() {
+                    self.failed.get_or_insert(stream.layer());
+                }
+            }
+            ToolEvent::LayerEnd(_) => {}
+        }
+    }
+}
