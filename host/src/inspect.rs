@@ -94,6 +94,8 @@ fn report_json(model: &Model, edges: &EdgeUse) -> Value {
                 "found": m.found,
             })),
             "trailing_bytes": s.trailing_bytes,
+            "bad_normals": s.bad_normals,
+            "ignored_words": s.ignored_words,
             "missing_endsolid": s.missing_endsolid,
             "open_edges": edges.open,
             "non_manifold_edges": edges.non_manifold,
@@ -126,6 +128,15 @@ fn report_text(path: &Path, model: &Model, edges: &EdgeUse) -> String {
     let mut findings = Vec::new();
     if let Some(m) = s.count_mismatch {
         findings.push(format!("header declares {} facets, file holds {}", m.declared, m.found));
+    }
+    if s.bad_normals > 0 {
+        findings.push(format!(
+            "{} facets with a normal that is not a number (not used)",
+            s.bad_normals
+        ));
+    }
+    if s.ignored_words > 0 {
+        findings.push(format!("{} words after statements skipped", s.ignored_words));
     }
     if s.trailing_bytes > 0 {
         findings.push(format!("{} bytes after the last facet", s.trailing_bytes));

@@ -122,3 +122,29 @@ fn a_broken_file_exits_non_zero_with_path_and_offset() {
     assert!(!out.status.success());
     assert!(String::from_utf8(out.stderr).unwrap().starts_with("strata: error: "));
 }
+
+/// PrusaSlicer's nonstandard box (normals `+inf -inf weirdvalue`) loads with its odd normals
+/// and skipped words as findings.
+#[test]
+fn normals_that_are_not_numbers_load_as_findings() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("weird.stl");
+    let facet = |n: &str, z: f32| {
+        format!(
+            "facet normal {n}\n outer loop\n  vertex 0 0 {z}\n  vertex 10 0 {z}\n  vertex 0 10 {z}\n \
+             endloop\nendfacet\n"
+        )
+    };
+    let text = format!(
+        "solid weird\n{}{}endsolid weird\n",
+        facet("+inf -inf weirdvalue", 0.0),
+        facet("0 0 1", 5.0)
+    );
+    std::fs::write(&path, text).unwrap();
+    let v = inspect_json(&path);
+    assert_eq!(v["triangles"], 2);
+    assert_eq!(v["findings"]["bad_normals"], 1);
+    let out = Command::cargo_bin("strata").unwrap().arg("inspect").arg(&path).output().unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("1 facets with a normal that is not a number (not used)"), "{text}");
+}
