@@ -96,12 +96,12 @@ fn file_to_gcode(bytes: &[u8], job: &Job, st: &mut Stages) -> String {
     st.toolpath.set_position(pos, z);
     let tp = &mut st.toolpath;
     let mut events = |e: &ToolEvent<'_>| gw.event(e).expect("write");
-    let mut sink = |l: SlicedLayer<'_, _, _, _>| tp.push_sliced(l, &mut events).expect("toolpaths");
+    let mut sink = |l: SlicedLayer<'_, _, _>| tp.push_sliced(l, &mut events).expect("toolpaths");
     for t in &tris {
-        st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
+        st.slicer.push(t, &mut *st.work, &mut sink).expect("slices");
     }
-    st.slicer.finish(&mut st.work, &mut sink).expect("slices");
-    st.toolpath.finish(&mut st.work, &mut events).expect("toolpaths");
+    st.slicer.finish(&mut *st.work, &mut sink).expect("slices");
+    st.toolpath.finish(&mut *st.work, &mut events).expect("toolpaths");
     gw.end(&job.machine, &job.cfg).expect("write");
     gw.into_inner()
 }
@@ -109,7 +109,7 @@ fn file_to_gcode(bytes: &[u8], job: &Job, st: &mut Stages) -> String {
 fn slice_layers(tris: &[Triangle], st: &mut Stages, slice: SliceConfig) -> Vec<OwnedLayer> {
     st.slicer.reset(slice).expect("slice config");
     let mut out = Vec::new();
-    let mut sink = |l: SlicedLayer<'_, _, _, _>| {
+    let mut sink = |l: SlicedLayer<'_, _, _>| {
         let l = l.layer();
         out.push(OwnedLayer {
             index: l.index,
@@ -119,9 +119,9 @@ fn slice_layers(tris: &[Triangle], st: &mut Stages, slice: SliceConfig) -> Vec<O
         })
     };
     for t in tris {
-        st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
+        st.slicer.push(t, &mut *st.work, &mut sink).expect("slices");
     }
-    st.slicer.finish(&mut st.work, &mut sink).expect("slices");
+    st.slicer.finish(&mut *st.work, &mut sink).expect("slices");
     out
 }
 
@@ -152,9 +152,9 @@ fn toolpaths(
             active_triangles: 0,
             segments: l.points.len() as u32,
         };
-        st.toolpath.push_layer(&layer, &mut st.work, &mut events).expect("toolpaths");
+        st.toolpath.push_layer(&layer, &mut *st.work, &mut events).expect("toolpaths");
     }
-    st.toolpath.finish(&mut st.work, &mut events).expect("toolpaths");
+    st.toolpath.finish(&mut *st.work, &mut events).expect("toolpaths");
     moves
 }
 
@@ -227,11 +227,11 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             st.slicer.reset(slice).expect("slice config");
             let mut n = 0usize;
-            let mut sink = |l: SlicedLayer<'_, _, _, _>| n += black_box(l.layer().points.len());
+            let mut sink = |l: SlicedLayer<'_, _, _>| n += black_box(l.layer().points.len());
             for t in &tris {
-                st.slicer.push(t, &mut st.work, &mut sink).expect("slices");
+                st.slicer.push(t, &mut *st.work, &mut sink).expect("slices");
             }
-            st.slicer.finish(&mut st.work, &mut sink).expect("slices");
+            st.slicer.finish(&mut *st.work, &mut sink).expect("slices");
             n
         })
     });

@@ -42,7 +42,7 @@ fn slice_all(
 ) -> usize {
     slicer.reset(config).expect("valid config");
     let mut points = 0usize;
-    let mut sink = |l: SlicedLayer<'_, _, _, _>| points += black_box(l.layer().points.len());
+    let mut sink = |l: SlicedLayer<'_, _, _>| points += black_box(l.layer().points.len());
     for t in tris {
         slicer.push(t, work, &mut sink).expect("slices");
     }

@@ -49,9 +49,9 @@ fn peak_loops(tris: &[Triangle], config: SliceConfig) -> u32 {
                 let mut slicer = Box::new(Slicer::<65536, 65536, 4096>::new(config).unwrap());
                 let mut work = Box::new(SliceScratch::new());
                 for t in tris {
-                    slicer.push(t, &mut work, &mut |_| {}).unwrap();
+                    slicer.push(t, &mut *work, &mut |_| {}).unwrap();
                 }
-                slicer.finish(&mut work, &mut |_| {}).unwrap().peak_loops
+                slicer.finish(&mut *work, &mut |_| {}).unwrap().peak_loops
             })
             .unwrap()
             .join()

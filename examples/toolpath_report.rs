@@ -62,6 +62,7 @@ fn run(bytes: &[u8], machine: &MachineConfig, st: &mut Stages) -> Option<Row> {
     let slice = SliceConfig::new(&settings, top).ok()?;
     let cfg = ToolpathConfig::new(machine, &settings);
     let (slicer, tp, work) = st;
+    let work: &mut HostScratch = work;
     slicer.reset(slice).ok()?;
     tp.reset(cfg).ok()?;
     let mut gw = GcodeWriter::new(String::new(), GcodeOptions::default(), &cfg);
@@ -76,7 +77,7 @@ fn run(bytes: &[u8], machine: &MachineConfig, st: &mut Stages) -> Option<Row> {
         let _ = gw.event(e);
     };
     let mut failed = None;
-    let mut sink = |l: SlicedLayer<'_, _, _, _>| {
+    let mut sink = |l: SlicedLayer<'_, _, HostScratch>| {
         if failed.is_none() {
             failed = tp.push_sliced(l, &mut events).err();
         }

@@ -18,8 +18,9 @@
 //! - [`printer`]: the device-side job runner: protocol messages in, slicer, toolpaths,
 //!   planner and step generator driven with bounded work per poll, status reports out.
 //!
-//! Shared foundations: [`geom`] (integer micrometre geometry), [`machine`] (printer profile
-//! and print settings with validation) and [`scratch`] (the per-layer working memory the
+//! Shared foundations: [`geom`] (integer micrometre geometry), [`math`] (exact integer roots
+//! and divisions), [`machine`] (printer profile and print settings with validation) and
+//! [`scratch`] (the per-layer working memory the
 //! slicer and the toolpath stage take turns in);
 //! [`sim`] is the simulated stepper backend (pins, hand-advanced clock, timing checks, step hash).
 //!
@@ -36,6 +37,7 @@
 pub mod gcode;
 pub mod geom;
 pub mod machine;
+pub mod math;
 pub mod move_ring;
 pub mod place;
 pub mod plan;

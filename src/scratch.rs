@@ -15,9 +15,11 @@
 //!   scans, in the same order).
 //!
 //! A [`Scratch`] holds whichever works now, so an owner of both stages (the
-//! [`Printer`](crate::printer::Printer)) pays for the largest one only. It is lent with `&mut`
-//! to [`Slicer::push`](crate::slice::Slicer::push) (and its other cutting calls), which hands
-//! it on to its layer sink with the layer in it, where the toolpath stage takes both
+//! [`Printer`](crate::printer::Printer)) pays for the largest one only. Each stage states what
+//! it needs as a trait ([`CutSpace`] for the slicer, [`ToolpathSpace`] for the toolpath stage;
+//! neither stage knows the other) and the scratch, above both, provides both. It is lent with
+//! `&mut` to [`Slicer::push`](crate::slice::Slicer::push) (and its other cutting calls), which
+//! hands it on to its layer sink with the layer in it, where the toolpath stage takes both
 //! ([`Toolpath::push_sliced`](crate::toolpath::Toolpath::push_sliced)). A turn starts from a
 //! cleared value written in place (in the optimised build: a memset, no stack temporary, no
 //! constant in flash); nothing is kept from one turn to the next, so a stage works the same
@@ -27,9 +29,9 @@
 use core::mem::size_of;
 
 use crate::geom::Point2;
-use crate::slice::CutScratch;
+use crate::slice::{CutScratch, CutSpace};
 use crate::toolpath::offset::Offsetter;
-use crate::toolpath::{FillScratch, ToolpathNeeds};
+use crate::toolpath::{Engine, FillScratch, ToolpathNeeds, ToolpathSpace};
 
 /// Bytes per `SEGMENTS` of the slicer's cut: segment 16, link 4, flags 1, and 8 for two hash
 /// slots, then an output point.
@@ -53,18 +55,6 @@ enum Tenant<const S: usize, const P: usize, const C: usize> {
     Cut(CutScratch<S>),
     Offset(Engine<P>),
     Fill(FillScratch<C>),
-}
-
-/// The offset engine's tenant: the engine and the points of the loops that the toolpath
-/// stage takes from it and gives back to it (its `tmp` loops, used only while the engine has
-/// the place: 8 B per `P` here instead of in the stage).
-struct Engine<const P: usize> {
-    engine: Offsetter<P>,
-    points: [Point2; P],
-}
-
-impl<const P: usize> Engine<P> {
-    const NEW: Self = Self { engine: Offsetter::new(), points: [Point2::new(0, 0); P] };
 }
 
 impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C> {
@@ -91,15 +81,16 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
         } else if fill >= cut && fill >= engine {
             Tenant::Fill(FillScratch::EMPTY)
         } else if engine >= cut {
-            Tenant::Offset(Engine::NEW)
+            Tenant::Offset(Engine::EMPTY)
         } else {
             Tenant::Cut(CutScratch::EMPTY)
         };
         Self { tenant }
     }
+}
 
-    /// The slicer's cut (a cleared one if another tenant had the place).
-    pub(crate) fn cut(&mut self) -> &mut CutScratch<S> {
+impl<const S: usize, const P: usize, const C: usize> CutSpace<S> for Scratch<S, P, C> {
+    fn cut(&mut self) -> &mut CutScratch<S> {
         match self.tenant {
             Tenant::Cut(ref mut c) => c,
             _ => {
@@ -109,58 +100,46 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
         }
     }
 
-    /// The loop points of the layer the slicer wrote last, while the cut has the place (empty
-    /// otherwise).
-    pub(crate) fn contour_points(&self) -> &[Point2] {
+    fn contour_points(&self) -> &[Point2] {
         match self.tenant {
             Tenant::Cut(ref c) => c.points(),
             _ => &[],
         }
     }
+}
 
-    /// The offset engine (a new one if another tenant had the place).
-    pub(crate) fn engine(&mut self) -> &mut Offsetter<P> {
-        self.engine_and_points().0
-    }
-
-    /// The offset engine and the loop points kept beside it (see [`Engine`]; a new engine
-    /// and cleared points if another tenant had the place).
-    pub(crate) fn engine_and_points(&mut self) -> (&mut Offsetter<P>, &mut [Point2; P]) {
+impl<const S: usize, const P: usize, const C: usize> ToolpathSpace<P, C> for Scratch<S, P, C> {
+    fn engine_and_points(&mut self) -> (&mut Offsetter<P>, &mut [Point2; P]) {
         match self.tenant {
-            Tenant::Offset(ref mut e) => (&mut e.engine, &mut e.points),
+            Tenant::Offset(ref mut e) => e.parts(),
             _ => {
-                self.tenant = Tenant::Offset(Engine::NEW);
+                self.tenant = Tenant::Offset(Engine::EMPTY);
                 self.engine_and_points()
             }
         }
     }
 
-    /// The engine if it has the place (its counters not yet collected), without a switch.
-    pub(crate) fn live_engine(&mut self) -> Option<&mut Offsetter<P>> {
+    fn live_engine(&mut self) -> Option<&mut Offsetter<P>> {
         match self.tenant {
-            Tenant::Offset(ref mut e) => Some(&mut e.engine),
+            Tenant::Offset(ref mut e) => Some(e.parts().0),
             _ => None,
         }
     }
 
-    /// The infill scratch if it has the place, without a switch: where the toolpath stage
-    /// keeps the nearest-path grid of the layer it is emitting
-    /// ([`Toolpath::emit_next`](crate::toolpath::Toolpath::emit_next)).
-    pub(crate) fn live_fill(&mut self) -> Option<&mut FillScratch<C>> {
-        match self.tenant {
-            Tenant::Fill(ref mut f) => Some(f),
-            _ => None,
-        }
-    }
-
-    /// The infill scratch (a cleared one if another tenant had the place).
-    pub(crate) fn fill(&mut self) -> &mut FillScratch<C> {
+    fn fill(&mut self) -> &mut FillScratch<C> {
         match self.tenant {
             Tenant::Fill(ref mut f) => f,
             _ => {
                 self.tenant = Tenant::Fill(FillScratch::EMPTY);
                 self.fill()
             }
+        }
+    }
+
+    fn live_fill(&mut self) -> Option<&mut FillScratch<C>> {
+        match self.tenant {
+            Tenant::Fill(ref mut f) => Some(f),
+            _ => None,
         }
     }
 }
@@ -170,9 +149,7 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
 /// value adds at most a tag and alignment padding).
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
-    let engine = size_of::<Engine<0>>() + pts * ToolpathNeeds::ENGINE_BYTES;
-    let fill = cross * ToolpathNeeds::CROSS_BYTES;
-    cut.max(engine).max(fill)
+    cut.max(ToolpathNeeds::work_bytes_of(pts, cross))
 }
 
 // The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build

@@ -826,7 +826,7 @@ fn a_stage_failure_reaches_the_host_in_the_stages_words() {
     }
     let layer = 0;
     let expected = SliceError::Capacity { what: Resource::ActiveTriangles, capacity, layer };
-    assert_eq!(p.failure(), Some(Failure::Slice { error: expected, layer }));
+    assert_eq!(p.failure(), Some(Failure::Slice(expected)));
     assert_eq!(p.error(), (ErrorCode::Slice, layer));
     // The words first, once, then the failed status (repeated).
     assert_eq!(

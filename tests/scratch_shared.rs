@@ -96,7 +96,7 @@ fn shared<const S: usize, const CROSS: usize>(tris: &[Triangle], slice_cfg: Slic
         _ => {}
     };
     let (mut layers, mut finished_before_cut, mut failed) = (Vec::new(), Vec::new(), None);
-    let mut sink = |l: SlicedLayer<'_, S, PTS, CROSS>| {
+    let mut sink = |l: SlicedLayer<'_, S, Scratch<S, PTS, CROSS>>| {
         layers.push(RawLayer::copy(&l.layer()));
         finished_before_cut.push(finished.get());
         if failed.is_none() {
@@ -105,11 +105,11 @@ fn shared<const S: usize, const CROSS: usize>(tris: &[Triangle], slice_cfg: Slic
     };
     let sliced = tris
         .iter()
-        .try_for_each(|t| slicer.push(t, &mut work, &mut sink))
-        .and_then(|()| slicer.finish(&mut work, &mut sink));
+        .try_for_each(|t| slicer.push(t, &mut *work, &mut sink))
+        .and_then(|()| slicer.finish(&mut *work, &mut sink));
     let toolpath = match failed {
         Some(e) => Err(e),
-        None if sliced.is_ok() => tp.finish(&mut work, &mut events),
+        None if sliced.is_ok() => tp.finish(&mut *work, &mut events),
         None => Ok(tp.stats()),
     };
     Run { layers, slice_error: sliced.err(), moves, toolpath, finished_before_cut }
@@ -123,11 +123,11 @@ fn slice_alone<const S: usize>(
     let mut slicer = Box::new(Slicer::<A, S, L>::new(slice_cfg).unwrap());
     let mut work = Box::new(SliceScratch::<S>::new());
     let mut layers = Vec::new();
-    let mut sink = |l: SlicedLayer<'_, S, 0, 0>| layers.push(RawLayer::copy(&l.layer()));
+    let mut sink = |l: SlicedLayer<'_, S, SliceScratch<S>>| layers.push(RawLayer::copy(&l.layer()));
     let sliced = tris
         .iter()
-        .try_for_each(|t| slicer.push(t, &mut work, &mut sink))
-        .and_then(|()| slicer.finish(&mut work, &mut sink));
+        .try_for_each(|t| slicer.push(t, &mut *work, &mut sink))
+        .and_then(|()| slicer.finish(&mut *work, &mut sink));
     (layers, sliced.err())
 }
 
@@ -143,8 +143,8 @@ fn toolpath_alone<const CROSS: usize>(
             moves.push(*m);
         }
     };
-    let pushed = layers.iter().try_for_each(|l| tp.push_layer(&l.layer(), &mut work, &mut events));
-    let result = pushed.and_then(|()| tp.finish(&mut work, &mut events));
+    let pushed = layers.iter().try_for_each(|l| tp.push_layer(&l.layer(), &mut *work, &mut events));
+    let result = pushed.and_then(|()| tp.finish(&mut *work, &mut events));
     (moves, result)
 }
 

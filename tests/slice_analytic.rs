@@ -278,7 +278,7 @@ fn every_plane_gives_one_sink_call_and_finish_is_final() {
     let mut slicer = Box::new(Slicer::<64, 64, 8>::new(cfg).unwrap());
     let mut work = SliceScratch::new();
     let mut seen = Vec::new();
-    let mut sink = |l: SlicedLayer<'_, _, _, _>| seen.push(l.layer().index);
+    let mut sink = |l: SlicedLayer<'_, _, _>| seen.push(l.layer().index);
     for t in &tris {
         slicer.push(t, &mut work, &mut sink).unwrap();
     }

@@ -114,11 +114,11 @@ fn small_capacities_give_typed_errors_and_misuse_is_reported() {
             let mut work = Box::new(PropScratch::new());
             let mut sink = |_: &ToolEvent<'_>| {};
             let e = ToolpathError::OutOfOrder { expected: 0, got: 1 };
-            assert_eq!(tp.push_layer(&layer, &mut work, &mut sink), Err(e));
-            assert_eq!(tp.finish(&mut work, &mut sink), Err(e));
+            assert_eq!(tp.push_layer(&layer, &mut *work, &mut sink), Err(e));
+            assert_eq!(tp.finish(&mut *work, &mut sink), Err(e));
             tp.reset(cfg()).unwrap();
-            assert!(tp.finish(&mut work, &mut sink).is_ok());
-            assert_eq!(tp.finish(&mut work, &mut sink), Err(ToolpathError::Finished));
+            assert!(tp.finish(&mut *work, &mut sink).is_ok());
+            assert_eq!(tp.finish(&mut *work, &mut sink), Err(ToolpathError::Finished));
             // Settings out of range are refused by name.
             let mut bad = cfg();
             bad.top_layers = 17;
@@ -147,18 +147,18 @@ fn run_cfg_small(
     let mut work = Box::new(TestScratch::<256, 8>::new());
     let mut first = None;
     let mut events = |_: &ToolEvent<'_>| {};
-    let mut sink = |l: SlicedLayer<'_, _, 256, 8>| {
+    let mut sink = |l: SlicedLayer<'_, _, _>| {
         if first.is_none() {
             first = tp.push_sliced(l, &mut events).err();
         }
     };
     for t in tris {
-        slicer.push(t, &mut work, &mut sink).unwrap();
+        slicer.push(t, &mut *work, &mut sink).unwrap();
     }
-    slicer.finish(&mut work, &mut sink).unwrap();
+    slicer.finish(&mut *work, &mut sink).unwrap();
     match first {
         Some(e) => Err(e),
-        None => tp.finish(&mut work, &mut events).map(|_| ()),
+        None => tp.finish(&mut *work, &mut events).map(|_| ()),
     }
 }
 
@@ -198,13 +198,13 @@ fn check_layers(tp: &mut PropToolpath, layers: &Layers) -> Result<(), TestCaseEr
             active_triangles: 0,
             segments: 0,
         };
-        result = tp.push_layer(&layer, &mut work, &mut events);
+        result = tp.push_layer(&layer, &mut *work, &mut events);
         if result.is_err() {
             break;
         }
     }
     if result.is_ok() {
-        result = tp.finish(&mut work, &mut events).map(|_| ());
+        result = tp.finish(&mut *work, &mut events).map(|_| ());
     }
     // The offset arrangement closes every boundary chain.
     prop_assert_eq!(tp.stats().open_chains, 0);

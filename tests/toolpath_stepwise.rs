@@ -24,7 +24,7 @@ use toolpath_support::{run_cfg, TestScratch, TestSlicer, TestToolpath, TpLayer, 
 /// The scratch of the stepwise runs (the test stage's PTS and CROSS).
 type Work = TestScratch<16384, 32768>;
 /// A layer the test slicer cut into a [`Work`].
-type Sliced<'a> = SlicedLayer<'a, 16384, 16384, 32768>;
+type Sliced<'a> = SlicedLayer<'a, 16384, strata::scratch::Scratch<16384, 16384, 32768>>;
 
 /// One `emit_next` call: the room given, the moves emitted, what it returned.
 #[derive(Debug, Clone, Copy)]
@@ -120,32 +120,33 @@ fn run_with(
                 for t in tris {
                     while slicer.would_cut(t.z_min()) {
                         slicer
-                            .cut_one(&mut work, &mut |l| accept(&mut tp, &mut layers, l))
+                            .cut_one(&mut *work, &mut |l| accept(&mut tp, &mut layers, l))
                             .unwrap();
                         if tp.emitting() {
                             // Neither another layer nor a flush while this one is emitted.
                             let sink = &mut |_: &ToolEvent<'_>| panic!("no event expected");
                             let busy = ToolpathError::Emitting { layer: tp.layers_emitted() };
-                            assert_eq!(tp.build_next(&mut work, sink), Err(busy));
-                            let refused = tp.accept_layer(&empty_layer(u32::MAX), &mut work, sink);
+                            assert_eq!(tp.build_next(&mut *work, sink), Err(busy));
+                            let refused = tp.accept_layer(&empty_layer(u32::MAX), &mut *work, sink);
                             assert_eq!(refused, Err(busy));
                         }
                         emit(&mut tp, &mut work, &mut layers);
                     }
-                    slicer.push(t, &mut work, &mut |_| panic!("push cut a layer")).unwrap();
+                    slicer.push(t, &mut *work, &mut |_| panic!("push cut a layer")).unwrap();
                 }
-                while slicer.cut_one(&mut work, &mut |l| accept(&mut tp, &mut layers, l)).unwrap() {
+                while slicer.cut_one(&mut *work, &mut |l| accept(&mut tp, &mut layers, l)).unwrap()
+                {
                     emit(&mut tp, &mut work, &mut layers);
                 }
-                slicer.finish(&mut work, &mut |_| panic!("finish cut a layer")).unwrap();
+                slicer.finish(&mut *work, &mut |_| panic!("finish cut a layer")).unwrap();
                 while tp
-                    .build_next(&mut work, &mut |e: &ToolEvent<'_>| record(&mut layers, e))
+                    .build_next(&mut *work, &mut |e: &ToolEvent<'_>| record(&mut layers, e))
                     .unwrap()
                 {
                     emit(&mut tp, &mut work, &mut layers);
                 }
                 let stats =
-                    tp.finish(&mut work, &mut |e: &ToolEvent<'_>| record(&mut layers, e)).unwrap();
+                    tp.finish(&mut *work, &mut |e: &ToolEvent<'_>| record(&mut layers, e)).unwrap();
                 TpRun { layers, stats, stray: 0 }
             })
             .unwrap()

@@ -406,7 +406,7 @@ fn measure(
         Ok(())
     };
     let mut failed = None;
-    let mut sink = |l: SlicedLayer<'_, _, _, _>| {
+    let mut sink = |l: SlicedLayer<'_, _, _>| {
         if failed.is_some() {
             return;
         }
@@ -425,9 +425,9 @@ fn measure(
         }
     };
     for t in tris {
-        slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
+        slicer.push(t, &mut *work, &mut sink).map_err(|e| e.to_string())?;
     }
-    slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
+    slicer.finish(&mut *work, &mut sink).map_err(|e| e.to_string())?;
     if let Some(e) = failed {
         return Err(format!("the toolpath stage cannot measure this model: {e}"));
     }
@@ -435,14 +435,14 @@ fn measure(
     let flushed = (|| loop {
         let before = tp.stats().needs;
         let pushed = emitting.get();
-        if !tp.build_next(&mut work, &mut *events)? {
+        if !tp.build_next(&mut *work, &mut *events)? {
             return Ok(());
         }
         raise(before, tp.stats().needs, pushed);
         emit(&mut tp, &mut work, &mut *events)?;
     })();
     flushed.map_err(|e: ToolpathError| e.to_string())?;
-    let stats = tp.finish(&mut work, events).map_err(|e| e.to_string())?;
+    let stats = tp.finish(&mut *work, events).map_err(|e| e.to_string())?;
     let mut p = peaks.get();
     p.needs = stats.needs;
     // Every move is in a unit: the rooms counted every byte the moves take.

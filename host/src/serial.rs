@@ -18,7 +18,7 @@ use strata::step::{is_before, Executor, StepQueue, Wake};
 
 use crate::clock::LinkClock;
 use crate::session::{handshake, HostEndpoint, HostJob, Phase, Progress};
-use crate::simjob::{device_turn, DeviceEndpoint, SimPrinter};
+use crate::simjob::{announce_posed, device_turn, DeviceEndpoint, SimPrinter};
 
 /// Whether an I/O error means "not now" rather than "never".
 fn is_transient(e: &std::io::Error) -> bool {
@@ -247,7 +247,7 @@ pub fn serve_device<P: Read + Write>(
     stop: &AtomicBool,
 ) -> Result<DeviceState, String> {
     let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
-    printer.set_capacities(opts.capacities);
+    printer.set_offset_limit(opts.capacities.toolpath_points as usize);
     let step_cfg = *printer.step_config();
     let ticks_per_ms = step_cfg.timer_hz as u64 / 1000;
     let start_tick = 1_000u64;
@@ -290,6 +290,7 @@ pub fn serve_device<P: Read + Write>(
         };
         ep.receive(&buf[..n], now);
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
+        announce_posed(&opts.capacities, &mut ep);
         device_turn(&mut printer, &mut ep, &mut prod, now, done_ms, 200, |f| {
             let _ = port.write_all(f);
         });

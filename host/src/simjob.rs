@@ -13,7 +13,9 @@ use std::collections::VecDeque;
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, AXES};
 use strata::printer::BOARD_CAPACITIES;
-use strata::protocol::{Capacities, Endpoint, JobSpec, LinkConfig, MAX_WIRE};
+use strata::protocol::{
+    Capacities, Endpoint, JobSpec, LinkConfig, Message, MAX_PAYLOAD, MAX_WIRE, VERSION,
+};
 use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepProducer, StepQueue, Wake};
 use strata::toolpath::ToolpathNeeds;
@@ -304,7 +306,7 @@ fn run(
     opts: &SimOptions,
 ) -> Result<SimReport, (String, Box<SimReport>)> {
     let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
-    printer.set_capacities(opts.capacities);
+    printer.set_offset_limit(opts.capacities.toolpath_points as usize);
     let step_cfg = *printer.step_config();
     let timer_hz = step_cfg.timer_hz as u64;
     let ticks_per_ms = timer_hz / 1000;
@@ -372,6 +374,7 @@ fn run(
         }
         // Device.
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
+        announce_posed(&opts.capacities, &mut dev_ep);
         device_turn(&mut printer, &mut dev_ep, &mut prod, t, done_ms, 500, |f| {
             d2h.send_frame(now_ms, f)
         });
@@ -463,6 +466,24 @@ fn wake(w: Result<Wake, core::convert::Infallible>) -> Option<u32> {
 
 fn last_step_tick<O: strata::sim::EdgeObserver>(board: &SimBoard<O>) -> Option<u64> {
     board.axes().iter().filter_map(|a| a.last_rise).max()
+}
+
+/// Answers the `Hello`s at the head of the link with `capacities`: a simulated printer posing
+/// as another device announces that device's capacities (the printer would announce its
+/// own; its offset engine bands as that device's does: [`SimPrinter::set_offset_limit`]).
+pub(crate) fn announce_posed(capacities: &Capacities, ep: &mut DeviceEndpoint) {
+    while ep.tx_free() > 1 {
+        let Some(p) = ep.peek() else { break };
+        if !matches!(Message::decode(p), Ok(Message::Hello { .. })) {
+            break;
+        }
+        let mut buf = [0u8; MAX_PAYLOAD];
+        let m = Message::Capabilities { version: VERSION, capacities: *capacities };
+        if let Ok(n) = m.encode(&mut buf) {
+            let _ = ep.send(&buf[..n]);
+        }
+        ep.pop();
+    }
 }
 
 /// One turn of a device's main loop (as the firmware's): the link's messages into the job

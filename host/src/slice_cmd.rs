@@ -176,11 +176,11 @@ fn run_slicer(
                 let mut slicer = HostSlicer::new(config).map_err(|e| e.to_string())?;
                 let mut work = Box::new(SliceScratch::new());
                 let mut layers = Vec::with_capacity(slicer.layer_count() as usize);
-                let mut sink = |l: SlicedLayer<'_, _, _, _>| layers.push(layer_out(&l.layer()));
+                let mut sink = |l: SlicedLayer<'_, _, _>| layers.push(layer_out(&l.layer()));
                 for t in tris {
-                    slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
+                    slicer.push(t, &mut *work, &mut sink).map_err(|e| e.to_string())?;
                 }
-                let stats = slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
+                let stats = slicer.finish(&mut *work, &mut sink).map_err(|e| e.to_string())?;
                 Ok((layers, stats))
             })
             .map_err(|e| format!("cannot start the slicer thread: {e}"))?;
@@ -294,19 +294,19 @@ fn run_toolpaths(
                     write_error |= gw.event(e).is_err();
                 };
                 let mut failed: Option<ToolpathError> = None;
-                let mut sink = |l: SlicedLayer<'_, _, _, _>| {
+                let mut sink = |l: SlicedLayer<'_, _, _>| {
                     if failed.is_none() {
                         failed = tp.push_sliced(l, &mut events).err();
                     }
                 };
                 for t in tris {
-                    slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
+                    slicer.push(t, &mut *work, &mut sink).map_err(|e| e.to_string())?;
                 }
-                let slice = slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
+                let slice = slicer.finish(&mut *work, &mut sink).map_err(|e| e.to_string())?;
                 if let Some(e) = failed {
                     return Err(e.to_string());
                 }
-                let stats = tp.finish(&mut work, &mut events).map_err(|e| e.to_string())?;
+                let stats = tp.finish(&mut *work, &mut events).map_err(|e| e.to_string())?;
                 if write_error {
                     return Err("G-code formatting failed".into());
                 }

@@ -300,9 +300,9 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
             let mut slicer = Box::new(Slicer::<4096, 4096, 256>::new(cfg).unwrap());
             let mut work = Box::new(SliceScratch::new());
             for t in &tris {
-                slicer.push(t, &mut work, &mut |_| {}).unwrap();
+                slicer.push(t, &mut *work, &mut |_| {}).unwrap();
             }
-            slicer.finish(&mut work, &mut |_| {}).unwrap()
+            slicer.finish(&mut *work, &mut |_| {}).unwrap()
         })
         .unwrap()
         .join()

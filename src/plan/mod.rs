@@ -38,7 +38,7 @@
 //! # Units (all integer, no floating point)
 //! lengths um q32 (`u64`), speeds um/s q16, speeds squared um^2/s^2 q16, accelerations
 //! um/s^2 q16, times timer ticks q16, directions q62. Square roots are exact
-//! ([`math::isqrt_u128`]). Rates given as [`Rate`] (mm/s, mm/s^2) are clamped to 10 m/s and
+//! ([`crate::math::isqrt_u128`]). Rates given as [`Rate`] (mm/s, mm/s^2) are clamped to 10 m/s and
 //! 1000 m/s^2, and moves to 2^24 um (16.7 m) per axis, so that no intermediate overflows.
 
 use core::fmt;
@@ -48,9 +48,8 @@ use fixed::types::U32F32;
 use crate::machine::{MachineConfig, Rate, AXES};
 
 mod junction;
-pub mod math;
 
-use math::{div_i128_pos, div_sat_u64, isqrt_u128, sat_u64, Divisor};
+use crate::math::{self, div_i128_pos, div_sat_u64, isqrt_u128, sat_u64, Divisor};
 
 /// Largest per-axis distance of one move, in um (2^24 um = 16.7 m).
 pub const MAX_AXIS_DELTA_UM: i64 = 1 << 24;

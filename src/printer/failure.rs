@@ -35,20 +35,10 @@ impl fmt::Display for Refusal {
 pub enum Failure {
     /// The job was refused at its start.
     Refused(Refusal),
-    /// The slicer failed (its error, and the layers it had cut).
-    Slice {
-        /// The slicer's error.
-        error: SliceError,
-        /// Layers cut when it failed.
-        layer: u32,
-    },
-    /// The toolpath stage failed (its error, and the layers the slicer had cut).
-    Toolpath {
-        /// The stage's error.
-        error: ToolpathError,
-        /// Layers cut when it failed.
-        layer: u32,
-    },
+    /// The slicer failed.
+    Slice(SliceError),
+    /// The toolpath stage failed.
+    Toolpath(ToolpathError),
     /// A path (with the travel before it) of this layer needs more bytes of coded moves than
     /// the whole move buffer holds, or the buffer overflowed.
     Moves {
@@ -83,12 +73,13 @@ pub enum Failure {
 }
 
 impl Failure {
-    /// The status report's error code and detail.
-    pub fn code(&self) -> (ErrorCode, u32) {
+    /// The status report's error code and detail; `layers_cut`: the layers the slicer had
+    /// cut (the detail of a slicer or toolpath failure).
+    pub fn code(&self, layers_cut: u32) -> (ErrorCode, u32) {
         match *self {
             Self::Refused(_) => (ErrorCode::BadJob, 0),
-            Self::Slice { layer, .. } => (ErrorCode::Slice, layer),
-            Self::Toolpath { layer, .. } => (ErrorCode::Toolpath, layer),
+            Self::Slice(_) => (ErrorCode::Slice, layers_cut),
+            Self::Toolpath(_) => (ErrorCode::Toolpath, layers_cut),
             Self::Moves { layer } => (ErrorCode::Moves, layer),
             Self::Plan { layer } => (ErrorCode::Plan, layer),
             Self::Unexpected { message } => (ErrorCode::Unexpected, u32::from(message)),
@@ -103,8 +94,8 @@ impl fmt::Display for Failure {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::Refused(r) => write!(f, "job refused: {r}"),
-            Self::Slice { error, .. } => write!(f, "slicer: {error}"),
-            Self::Toolpath { error, .. } => write!(f, "toolpaths: {error}"),
+            Self::Slice(error) => write!(f, "slicer: {error}"),
+            Self::Toolpath(error) => write!(f, "toolpaths: {error}"),
             Self::Moves { layer } => write!(
                 f,
                 "move buffer: a path of layer {layer} (with the travel before it) needs more \

@@ -177,9 +177,6 @@ pub struct Printer<
     done: Deque<(u32, u64), 8>,
     layers_planned: u32,
     status_due_ms: u32,
-    /// The announced capacities when [`set_capacities`](Self::set_capacities) overrode them
-    /// (`None`: [`Self::CAPACITIES`]).
-    capacities: Option<Capacities>,
 }
 
 impl<
@@ -235,7 +232,6 @@ impl<
             done: Deque::new(),
             layers_planned: 0,
             status_due_ms: 0,
-            capacities: None,
         }
     }
 
@@ -266,16 +262,16 @@ impl<
         self.job = Slot::Empty;
     }
 
-    /// What this runner holds (announced to the host).
+    /// What this runner holds (announced to the host): [`Self::CAPACITIES`].
     pub fn capacities(&self) -> Capacities {
-        self.capacities.unwrap_or(Self::CAPACITIES)
+        Self::CAPACITIES
     }
 
-    /// Overrides the announced capacities (a simulated printer posing as a smaller board).
-    pub fn set_capacities(&mut self, capacities: Capacities) {
-        self.capacities = Some(capacities);
-        // The device's offset engine holds `toolpath_points` edges: offset as it does.
-        self.pipeline.tp.set_offset_limit(capacities.toolpath_points as usize);
+    /// Offsets with at most `edges` edges an island (in bands beyond), as a device whose
+    /// offset engine holds that many does (a simulated printer posing as a smaller board:
+    /// it announces that board's capacities itself).
+    pub fn set_offset_limit(&mut self, edges: usize) {
+        self.pipeline.tp.set_offset_limit(edges);
     }
 
     /// State.
@@ -290,7 +286,8 @@ impl<
 
     /// Error code and detail of the status report (`None, 0` unless failed).
     pub fn error(&self) -> (ErrorCode, u32) {
-        self.failure().map_or((ErrorCode::None, 0), |f| f.code())
+        let layers_cut = self.pipeline.slicer.stats().layers;
+        self.failure().map_or((ErrorCode::None, 0), |f| f.code(layers_cut))
     }
 
     /// The step generator (its statistics, motor positions).
@@ -335,8 +332,7 @@ impl<
     }
 
     /// Uses at most `bytes` of the move buffer from now on (at most `MOVE_BYTES`): a printer
-    /// posing as a board with a smaller one, flow control included (the host's tests). The
-    /// announced capacities are [`set_capacities`](Self::set_capacities)'.
+    /// posing as a board with a smaller one, flow control included (the host's tests).
     pub fn limit_move_buffer(&mut self, bytes: usize) {
         self.motion.moves_mut().limit(bytes);
     }
@@ -419,14 +415,25 @@ impl<
         self.fail(Failure::LinkDead { silent_ms });
     }
 
-    /// Sets every stage up for `job`.
-    fn start(&mut self, job: &JobSpec) -> Result<(), Failure> {
-        self.layers = self.pipeline.start(&self.machine, job)?;
+    /// Starts `job`: every stage set up for it, or the job refused. Never inlined, as the
+    /// other cold paths of [`handle_with`](Self::handle_with): their frames stay off the
+    /// deepest stack (a batch's layer computation under `handle_with`).
+    #[inline(never)]
+    fn start(&mut self, job: &JobSpec) {
+        self.failure = Slot::Empty;
+        self.failure_sent = false;
+        match self.pipeline.start(&self.machine, job) {
+            Ok(layers) => self.layers = layers,
+            Err(f) => {
+                self.state = DeviceState::Failed;
+                self.failure = Slot::Full(f);
+                return;
+            }
+        }
         self.motion.reset(&self.plan_cfg, &self.step_cfg);
         self.triangles = 0;
         self.batch_pos = 0;
         self.report_sent = false;
-        self.failure_sent = false;
         self.heated = false;
         self.heat_wait_since_ms = None;
         self.model_ended = false;
@@ -434,7 +441,14 @@ impl<
         self.done.clear();
         self.layers_planned = 0;
         self.job = Slot::Full(*job);
-        Ok(())
+        self.state = DeviceState::Printing;
+    }
+
+    /// Fails the job for a message that does not fit its state (see [`start`](Self::start)
+    /// for why this is not inlined).
+    #[inline(never)]
+    fn refuse_unexpected(&mut self, message: u8) {
+        self.fail(Failure::Unexpected { message });
     }
 
     /// Takes a host message. Misplaced messages fail the job (never executed).
@@ -461,15 +475,7 @@ impl<
             (Message::JobStart(job), s)
                 if !matches!(s, DeviceState::Printing | DeviceState::Paused) =>
             {
-                self.failure = Slot::Empty;
-                match self.start(job) {
-                    Ok(()) => self.state = DeviceState::Printing,
-                    Err(f) => {
-                        self.state = DeviceState::Failed;
-                        self.failure = Slot::Full(f);
-                        self.failure_sent = false;
-                    }
-                }
+                self.start(job)
             }
             (Message::Pause, DeviceState::Printing) => self.state = DeviceState::Paused,
             (Message::Resume, DeviceState::Paused) => self.state = DeviceState::Printing,
@@ -486,7 +492,7 @@ impl<
             (Message::Hello { .. }, _) => {}
             // A repeated pause/resume is harmless; everything else out of place fails.
             (Message::Pause | Message::Resume, _) => {}
-            (m, _) => self.fail(Failure::Unexpected { message: m.type_byte() }),
+            (m, _) => self.refuse_unexpected(m.type_byte()),
         }
         Accept::Taken
     }

@@ -169,12 +169,8 @@ impl<
             Ok(Emitted::Complete) => Ok(Emit::Complete),
             Ok(Emitted::NeedsRoom { layer, .. }) if never_fits => Err(Failure::Moves { layer }),
             Ok(Emitted::NeedsRoom { .. }) => Ok(Emit::Waiting),
-            Err(error) => Err(self.toolpath_failure(error)),
+            Err(error) => Err(Failure::Toolpath(error)),
         }
-    }
-
-    fn toolpath_failure(&self, error: ToolpathError) -> Failure {
-        Failure::Toolpath { error, layer: self.slicer.stats().layers }
     }
 
     /// Runs `step` on the slicer with a sink that hands each layer to the toolpath stage,
@@ -188,24 +184,23 @@ impl<
         step: impl FnOnce(
             &mut Slicer<A, S, L>,
             &mut Scratch<S, PTS, CROSS>,
-            &mut dyn FnMut(SlicedLayer<'_, S, PTS, CROSS>),
+            &mut dyn FnMut(SlicedLayer<'_, S, Scratch<S, PTS, CROSS>>),
         ) -> Result<R, SliceError>,
     ) -> Result<R, Failure> {
         let Self { slicer, tp, scratch, stream, .. } = self;
         let mut events = EventSink { slot, stream, hook, failed: None };
         let mut tp_err = None;
         let r = {
-            let mut sink = |l: SlicedLayer<'_, S, PTS, CROSS>| {
+            let mut sink = |l: SlicedLayer<'_, S, Scratch<S, PTS, CROSS>>| {
                 if tp_err.is_none() {
                     tp_err = tp.accept_sliced(l, &mut |e: &ToolEvent<'_>| events.event(e)).err();
                 }
             };
             step(slicer, scratch, &mut sink)
         };
-        let layer = self.slicer.stats().layers;
         match (r, tp_err, events.failed) {
-            (Err(error), _, _) => Err(Failure::Slice { error, layer }),
-            (Ok(_), Some(error), _) => Err(Failure::Toolpath { error, layer }),
+            (Err(error), _, _) => Err(Failure::Slice(error)),
+            (Ok(_), Some(error), _) => Err(Failure::Toolpath(error)),
             (Ok(_), None, Some(layer)) => Err(Failure::Moves { layer }),
             (Ok(r), None, None) => Ok(r),
         }
@@ -227,7 +222,7 @@ impl<
         let mut events = EventSink { slot, stream, hook, failed: None };
         let r = step(tp, scratch, &mut |e: &ToolEvent<'_>| events.event(e));
         match (r, events.failed) {
-            (Err(error), _) => Err(self.toolpath_failure(error)),
+            (Err(error), _) => Err(Failure::Toolpath(error)),
             (Ok(_), Some(layer)) => Err(Failure::Moves { layer }),
             (Ok(r), None) => Ok(r),
         }

@@ -64,10 +64,11 @@ pub(super) struct LayerOutcome {
 
 /// A layer's cut: its segments, their links and flags, the endpoint hash table and then, in
 /// the table's place, the layer's loop points (the slicer's output, read through
-/// [`SlicedLayer`](super::SlicedLayer)). It lives in the shared
-/// [`Scratch`](crate::scratch::Scratch) and is dead once the toolpath stage has copied the
-/// layer: 29 bytes per segment (16 segment + 4 link + 1 flags + 8 hash slots or a point).
-pub(crate) struct CutScratch<const S: usize> {
+/// [`SlicedLayer`](super::SlicedLayer)). It lives in the working memory the slicer is lent
+/// ([`CutSpace`](super::CutSpace)) and is dead once the next stage has copied the layer:
+/// [`BYTES_PER_SEGMENT`](Self::BYTES_PER_SEGMENT) per segment (16 segment + 4 link + 1 flags
+/// + 8 hash slots or a point).
+pub struct CutScratch<const S: usize> {
     pub(super) segs: [Segment; S],
     pub(super) next: [u32; S],
     flags: [u8; S],
@@ -122,13 +123,19 @@ fn slot_of(p: Point2, slots: usize) -> usize {
     ((h * slots as u64) >> 32) as usize
 }
 
+impl<const S: usize> Default for CutScratch<S> {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
 impl<const S: usize> CutScratch<S> {
     /// Bytes per segment: the segment, its link, its flags and two hash slots (or a point).
-    pub(crate) const BYTES_PER_SEGMENT: usize =
+    pub const BYTES_PER_SEGMENT: usize =
         size_of::<Segment>() + size_of::<u32>() + size_of::<u8>() + size_of::<Point2>();
 
     /// No segments. All zero: written in place by a memset (no constant in flash).
-    pub(crate) const EMPTY: Self = Self {
+    pub const EMPTY: Self = Self {
         segs: [Segment { start: Point2::new(0, 0), end: Point2::new(0, 0) }; S],
         next: [0; S],
         flags: [0; S],
@@ -137,24 +144,29 @@ impl<const S: usize> CutScratch<S> {
         points_len: 0,
     };
 
+    /// An empty cut (see [`EMPTY`](Self::EMPTY)).
+    pub const fn new() -> Self {
+        Self::EMPTY
+    }
+
     /// Forgets the previous layer's segments and points.
-    pub fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.len = 0;
         self.points_len = 0;
     }
 
-    /// The loop points written by the last [`Chaining::build`] (until the next `clear`).
+    /// The loop points of the layer linked last (until the next cut).
     pub fn points(&self) -> &[Point2] {
         &self.slots[..self.points_len]
     }
 
     /// Segments of the layer.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.len
     }
 
     /// Adds a segment; `Err` when the segment buffer is full.
-    pub fn push(&mut self, s: Segment) -> Result<(), Resource> {
+    pub(crate) fn push(&mut self, s: Segment) -> Result<(), Resource> {
         let slot = self.segs.get_mut(self.len).ok_or(Resource::Segments)?;
         *slot = s;
         self.len += 1;

@@ -25,15 +25,14 @@
 //! - 72 bytes per `LOOPS` (a [`LoopInfo`] of 48 and an open-chain record of 24);
 //! - about 200 bytes of state.
 //!
-//! The cut of a layer (29 bytes per `SEGMENTS`: segment 16, link 4, flags 1, and 8 for two
-//! endpoint hash slots, then an output point) lives in a [`Scratch`] the caller lends to
-//! every call that may cut ([`Slicer::push`], [`Slicer::cut_one`], [`Slicer::finish`]) and
-//! that the toolpath stage reuses (a [`SliceScratch`] when slicing alone). The hash table is
-//! dead once the segments are linked, so the layer's loop points are written in its place:
-//! the layer is handed to the sink in the scratch, as a [`SlicedLayer`] (its
-//! [`layer`](SlicedLayer::layer) to read it, or the whole to
-//! [`Toolpath::push_sliced`](crate::toolpath::Toolpath::push_sliced), which copies it before
-//! it takes the scratch).
+//! The cut of a layer ([`CutScratch::BYTES_PER_SEGMENT`] per `SEGMENTS`: segment, link,
+//! flags and two endpoint hash slots, then an output point) lives in working memory the
+//! caller lends to every call that may cut ([`Slicer::push`], [`Slicer::cut_one`],
+//! [`Slicer::finish`]): a [`SliceScratch`] when slicing alone, or memory the caller shares
+//! with later stages ([`CutSpace`]). The hash table is dead once the segments are linked, so
+//! the layer's loop points are written in its place: the layer is handed to the sink in that
+//! memory, as a [`SlicedLayer`] (its [`layer`](SlicedLayer::layer) to read it, or the whole
+//! to the next stage, which copies it before it uses the memory).
 //!
 //! For example `Slicer<1024, 512, 32>` takes about 26 KB and its cut about 15 KB.
 //! [`peak_needs`] tells the host which capacities a model needs.
@@ -50,21 +49,40 @@ use core::fmt;
 
 use crate::geom::{Point2, Triangle};
 use crate::machine::PrintSettings;
-use crate::scratch::Scratch;
 
 use chain::{Chaining, Contours};
 use packed::PackedTriangle;
 
-pub(crate) use chain::CutScratch;
+pub use chain::CutScratch;
 
 pub use packed::MAX_COORD_UM;
 pub use peak::{peak_needs, PeakNeeds};
 
-/// The [`Scratch`] of a slicer used alone (no toolpath stage shares it).
-pub type SliceScratch<const SEGMENTS: usize> = Scratch<SEGMENTS, 0, 0>;
+/// Where a slicer cuts its layers: working memory that holds its [`CutScratch`] while the
+/// slicer works (and, once the cut is linked, the layer's loop points in the place of its
+/// dead hash table). Its owner may lend the place to others between layers (the printer's
+/// shared scratch); a slicer alone cuts in a [`SliceScratch`].
+pub trait CutSpace<const SEGMENTS: usize> {
+    /// The cut (a cleared one if another tenant had the place).
+    fn cut(&mut self) -> &mut CutScratch<SEGMENTS>;
+    /// The loop points of the layer cut last, while the cut has the place (empty otherwise).
+    fn contour_points(&self) -> &[Point2];
+}
+
+/// The working memory of a slicer used alone: its cut, nothing else.
+pub type SliceScratch<const SEGMENTS: usize> = CutScratch<SEGMENTS>;
+
+impl<const SEGMENTS: usize> CutSpace<SEGMENTS> for CutScratch<SEGMENTS> {
+    fn cut(&mut self) -> &mut CutScratch<SEGMENTS> {
+        self
+    }
+    fn contour_points(&self) -> &[Point2] {
+        self.points()
+    }
+}
 
 /// RAM of a [`Slicer`] with these capacities (`ACTIVE`, `LOOPS`), without the cut and the
-/// loop points in its [`Scratch`] ([`scratch::bytes`](crate::scratch::bytes), per
+/// loop points in its working memory ([`CutScratch::BYTES_PER_SEGMENT`] per
 /// `SEGMENTS`), bytes: 24 per active triangle, 72 per loop and the fixed state.
 pub fn slicer_bytes(active: usize, loops: usize) -> usize {
     core::mem::size_of::<Slicer<0, 0, 0>>()
@@ -289,9 +307,9 @@ impl LayerRepairs {
     }
 }
 
-/// One sliced layer: from the slicer, its points borrowed from the [`Scratch`] and its loops
-/// from the slicer while the sink has the [`SlicedLayer`] (or a layer of the caller's own,
-/// for [`Toolpath::push_layer`](crate::toolpath::Toolpath::push_layer)).
+/// One sliced layer: from the slicer, its points borrowed from the working memory it was cut
+/// in and its loops from the slicer while the sink has the [`SlicedLayer`] (or a layer of the
+/// caller's own, for the next stage).
 #[derive(Debug, Clone, Copy)]
 pub struct Layer<'a> {
     /// Layer index from 0 (the first layer).
@@ -319,38 +337,34 @@ impl<'a> Layer<'a> {
     }
 }
 
-/// The layer the slicer has just cut, lent to its sink together with the [`Scratch`] it was
-/// cut in: its points are in the scratch (in the place of the cut's dead hash table), its
-/// loops in the slicer. Read it with [`layer`](Self::layer), or hand the whole to the
-/// toolpath stage ([`Toolpath::push_sliced`](crate::toolpath::Toolpath::push_sliced),
-/// [`accept_sliced`](crate::toolpath::Toolpath::accept_sliced)), which copies the layer
-/// before it uses the scratch.
-pub struct SlicedLayer<'a, const SEGMENTS: usize, const P: usize, const C: usize> {
+/// The layer the slicer has just cut, lent to its sink together with the working memory `W`
+/// it was cut in ([`CutSpace`]): its points are in that memory (in the place of the cut's
+/// dead hash table), its loops in the slicer. Read it with [`layer`](Self::layer), or hand
+/// the whole to the next stage, which copies the layer before it uses the memory.
+pub struct SlicedLayer<'a, const SEGMENTS: usize, W: CutSpace<SEGMENTS>> {
     /// The layer but its points (`points` is empty: they are in `work`'s cut).
     head: Layer<'a>,
-    work: &'a mut Scratch<SEGMENTS, P, C>,
+    work: &'a mut W,
 }
 
-impl<'a, const SEGMENTS: usize, const P: usize, const C: usize> SlicedLayer<'a, SEGMENTS, P, C> {
+impl<'a, const SEGMENTS: usize, W: CutSpace<SEGMENTS>> SlicedLayer<'a, SEGMENTS, W> {
     /// The layer (its points in the scratch).
     pub fn layer(&self) -> Layer<'_> {
         Layer { points: self.work.contour_points(), ..self.head }
     }
 
     /// The scratch, for what leaves the cut in place (the layer stays readable).
-    pub(crate) fn scratch_keeping_layer(&mut self) -> &mut Scratch<SEGMENTS, P, C> {
+    pub(crate) fn scratch_keeping_layer(&mut self) -> &mut W {
         self.work
     }
 
     /// The scratch, the layer given up (copy it first).
-    pub(crate) fn into_scratch(self) -> &'a mut Scratch<SEGMENTS, P, C> {
+    pub(crate) fn into_scratch(self) -> &'a mut W {
         self.work
     }
 }
 
-impl<const SEGMENTS: usize, const P: usize, const C: usize> fmt::Debug
-    for SlicedLayer<'_, SEGMENTS, P, C>
-{
+impl<const SEGMENTS: usize, W: CutSpace<SEGMENTS>> fmt::Debug for SlicedLayer<'_, SEGMENTS, W> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_tuple("SlicedLayer").field(&self.layer()).finish()
     }
@@ -399,8 +413,8 @@ impl SliceStats {
 
 /// The streaming slicer. Capacities: `ACTIVE` triangles in the active set, `SEGMENTS` cut
 /// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer. It cuts
-/// each layer in a [`Scratch`] lent to the calls that may cut, and leaves the layer's points
-/// there (see the [module docs](self)).
+/// each layer in working memory lent to the calls that may cut ([`CutSpace`]), and leaves the
+/// layer's points there (see the [module docs](self)).
 ///
 /// Large capacities make a large value: on the host, build it where the stack is big enough
 /// (or in a `static`/boxed slot and call [`Slicer::reset`]).
@@ -501,11 +515,11 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     /// Takes the next triangle (sorted by lowest z). Cuts every plane at or below its lowest
     /// z first in `scratch`, calling `sink` once per layer in order with the layer, which
     /// lives in `scratch` until the sink returns or hands the scratch on ([`SlicedLayer`]).
-    pub fn push<const P: usize, const C: usize>(
+    pub fn push<W: CutSpace<SEGMENTS>>(
         &mut self,
         tri: &Triangle,
-        scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
+        scratch: &mut W,
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, W>),
     ) -> Result<(), SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
@@ -528,10 +542,10 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     /// [`Slicer::push`] does): true when a layer was cut. The triangles still to come must
     /// lie at or above that plane (the stream is sorted; use [`Slicer::would_cut`] for the
     /// next triangle, or call this at the end).
-    pub fn cut_one<const P: usize, const C: usize>(
+    pub fn cut_one<W: CutSpace<SEGMENTS>>(
         &mut self,
-        scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
+        scratch: &mut W,
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, W>),
     ) -> Result<bool, SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
@@ -550,10 +564,10 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
 
     /// Ends the stream: cuts the remaining planes (as [`Slicer::push`] does) and returns the
     /// totals.
-    pub fn finish<const P: usize, const C: usize>(
+    pub fn finish<W: CutSpace<SEGMENTS>>(
         &mut self,
-        scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
+        scratch: &mut W,
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, W>),
     ) -> Result<SliceStats, SliceError> {
         if let Some(e) = self.stopped {
             return Err(e);
@@ -566,11 +580,11 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
         result.map(|()| self.stats)
     }
 
-    fn push_inner<const P: usize, const C: usize>(
+    fn push_inner<W: CutSpace<SEGMENTS>>(
         &mut self,
         tri: &Triangle,
-        scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
+        scratch: &mut W,
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, W>),
     ) -> Result<(), SliceError> {
         let index = self.stats.triangles;
         let (z_min, z_max) = (tri.z_min(), tri.z_max());
@@ -605,10 +619,10 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
 
     /// Cuts the next plane in `scratch`, expires triangles below the plane after it, emits
     /// the layer.
-    fn cut_next<const P: usize, const C: usize>(
+    fn cut_next<W: CutSpace<SEGMENTS>>(
         &mut self,
-        scratch: &mut Scratch<SEGMENTS, P, C>,
-        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, P, C>),
+        scratch: &mut W,
+        sink: &mut impl FnMut(SlicedLayer<'_, SEGMENTS, W>),
     ) -> Result<(), SliceError> {
         let layer = self.next_layer;
         let plane = self.next_plane;

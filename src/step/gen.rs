@@ -5,7 +5,7 @@
 use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
 use crate::machine::{Rate, AXES};
-use crate::plan::math::{div_u128, sat_u64, Divisor};
+use crate::math::{div_u128, sat_u64, Divisor};
 use crate::plan::Block;
 use heapless::Deque;
 

@@ -57,7 +57,7 @@
 //! they come and undoes a unit that ran out of bytes; the stage then restores the nozzle
 //! state from before the unit, which waits). The stage keeps the
 //! layer (its paths, its contour for combing, the ordering state, the nearest-path grid in
-//! the infill scratch of the owner's [`Scratch`]) until its last unit went out and builds no
+//! the infill scratch of its working memory) until its last unit went out and builds no
 //! other meanwhile ([`Toolpath::emitting`]), so an owner's move buffer needs room for the
 //! largest unit ([`LayerStats::max_unit_moves`] moves), not for a layer.
 //! [`Toolpath::push_layer`] (and [`push_sliced`](Toolpath::push_sliced)),
@@ -73,27 +73,27 @@
 //!
 //! [`Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>`](Toolpath) holds:
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
-//!   infill domain): 16 bytes per `PTS` (the offset result's points are in the scratch,
-//!   beside the engine), 123 bytes per `LOOPS`;
-//! - the layer's paths: 8 bytes per `PATH` (a point, its feature in y's low bits; a path's
-//!   record takes two);
-//! - the window: 4 bytes per `RING` word (the simplified contours of up to
-//!   `bottom + top + 2` layers, 3 to 4 bytes a point (9 for a far jump) and four words a loop:
-//!   [`window::StoredRings`]) and
-//!   8 bytes per `SPANS` (the crossings, then spans, of those layers with the scanline being
-//!   filled);
+//!   infill domain): [`ToolpathNeeds::PTS_BYTES`] per `PTS` (the offset result's points are
+//!   in the working memory, beside the engine), [`ToolpathNeeds::LOOPS_BYTES`] per `LOOPS`;
+//! - the layer's paths: [`ToolpathNeeds::PATH_BYTES`] per `PATH` (a point, its feature in
+//!   y's low bits; a path's record takes two);
+//! - the window: [`ToolpathNeeds::RING_BYTES`] per `RING` word (the simplified contours of
+//!   up to `bottom + top + 2` layers, 3 to 4 bytes a point (9 for a far jump) and four words a
+//!   loop: [`window::StoredRings`]) and [`ToolpathNeeds::SPAN_BYTES`] per `SPANS` (the
+//!   crossings, then spans, of those layers with the scanline being filled);
 //! - about 1 KB of fixed state (settings, counters, the window's block table).
 //!
-//! It works in a [`Scratch`] lent to every call that computes layers (the slicer's sink hands
-//! on the slicer's, with the layer in it: [`Toolpath::push_sliced`]; a [`ToolpathScratch`]
-//! when used alone), where two tenants take turns per layer (offsets, then infill and
-//! ordering) with the slicer's cut and output points, which the stage copies first
-//! ([`Toolpath::push_layer`]'s store), the largest of the three counting:
-//! - the offset engine (`PTS` edges, splits and pieces) and the offset result's points: 58
-//!   bytes per `PTS` (edge 16, split 12, piece 20, active entry 2, point 8);
-//! - the infill scratch: 22 bytes per `CROSS` (crossing 8, its order then segment-end
-//!   index 2, 12 bytes of the pool of segments (20 bytes each) and pieces (4 bytes each));
-//!   `CROSS` is the larger of the crossings of one pass and the pool's use in 12-byte units.
+//! It works in working memory lent to every call that computes layers ([`ToolpathSpace`]: a
+//! [`ToolpathScratch`] when used alone; the slicer's sink hands on the memory the layer was
+//! cut in, with the layer in it: [`Toolpath::push_sliced`]), where two tenants take turns per
+//! layer (offsets, then infill and ordering), and in a shared one also with the slicer's cut
+//! and output points, which the stage copies first ([`Toolpath::push_layer`]'s store), the
+//! largest counting:
+//! - the offset engine (`PTS` edges, splits and pieces) and the offset result's points:
+//!   [`ToolpathNeeds::ENGINE_BYTES`] per `PTS`;
+//! - the infill scratch: [`ToolpathNeeds::CROSS_BYTES`] per `CROSS` (a crossing, its order
+//!   then segment-end index, and 12 bytes of the pool of segments and pieces); `CROSS` is the
+//!   larger of the crossings of one pass and the pool's use in 12-byte units.
 //!
 //! [`ToolpathStats::needs`] reports the largest use of each, so a model's needs are known
 //! after one host run, and [`ToolpathNeeds::stage_bytes`] and
@@ -103,8 +103,7 @@ use core::fmt;
 
 use crate::geom::Point2;
 use crate::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
-use crate::scratch::Scratch;
-use crate::slice::{Layer, SlicedLayer};
+use crate::slice::{CutSpace, Layer, SlicedLayer};
 
 use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
 use offset::Join;
@@ -123,7 +122,10 @@ pub mod poly;
 pub mod scan;
 pub mod simplify;
 pub mod sort;
+mod space;
 pub mod window;
+
+pub use space::{Engine, ToolpathScratch, ToolpathSpace};
 
 /// A bounded buffer of the toolpath stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -629,15 +631,15 @@ pub struct ToolpathNeeds {
 
 impl ToolpathNeeds {
     /// Bytes per `PTS` in the stage: two loop buffers' points (the third's are in the
-    /// [`Scratch`], beside the offset engine).
+    /// working memory, beside the offset engine).
     pub const PTS_BYTES: usize = 2 * core::mem::size_of::<Point2>();
     /// Bytes per `PTS` of the offset engine and the stage's loop points kept beside it, in the
-    /// [`Scratch`] (where they take turns with the infill scratch and the slicer's cut: the
-    /// largest counts).
+    /// working memory (where they take turns with the infill scratch, and with other stages'
+    /// tenants in a shared one: the largest counts).
     pub const ENGINE_BYTES: usize = offset::BYTES_PER_EDGE + core::mem::size_of::<Point2>();
     /// Bytes per `LOOPS`: three loop buffers' loop records, island map and stage scratch.
     pub const LOOPS_BYTES: usize = 3 * core::mem::size_of::<Ring>() + 2 + 1;
-    /// Bytes per `CROSS` of the infill scratch, in the [`Scratch`]: a crossing, its order
+    /// Bytes per `CROSS` of the infill scratch, in the working memory: a crossing, its order
     /// (then segment-end) entry and its share of the segment and piece pool.
     pub const CROSS_BYTES: usize =
         core::mem::size_of::<Crossing>() + core::mem::size_of::<u16>() + POOL_WORDS * 4;
@@ -649,8 +651,8 @@ impl ToolpathNeeds {
     /// Bytes per `SPANS` entry (a crossing, then a span, of one scanline).
     pub const SPAN_BYTES: usize = core::mem::size_of::<Span>();
 
-    /// What the stage needs for the model's largest layer (and its window) with a
-    /// [`Scratch`] of its own, on this target: [`stage_bytes`](Self::stage_bytes) plus
+    /// What the stage needs for the model's largest layer (and its window) with working
+    /// memory of its own, on this target: [`stage_bytes`](Self::stage_bytes) plus
     /// [`work_bytes`](Self::work_bytes).
     pub fn bytes(&self) -> usize {
         self.stage_bytes() + self.work_bytes()
@@ -661,15 +663,22 @@ impl ToolpathNeeds {
         self.layer_points.max(self.offset_edges) as usize
     }
 
-    /// RAM of the stage's tenants of a [`Scratch`] (the offset engine or the infill scratch,
-    /// the larger) for these needs, bytes; a slicer's cut may share the place
-    /// ([`scratch::bytes`](crate::scratch::bytes)).
+    /// RAM of the stage's working memory for these needs (the offset engine or the infill
+    /// scratch, the larger; [`ToolpathSpace`]), bytes; another stage's tenant may share the
+    /// place.
     pub fn work_bytes(&self) -> usize {
-        crate::scratch::bytes(0, self.pts(), self.crossings as usize)
+        Self::work_bytes_of(self.pts(), self.crossings as usize)
+    }
+
+    /// RAM of the stage's working memory with `pts` offset edges and `crossings` infill
+    /// crossings: its larger tenant, bytes.
+    pub fn work_bytes_of(pts: usize, crossings: usize) -> usize {
+        let engine = core::mem::size_of::<Engine<0>>() + pts * Self::ENGINE_BYTES;
+        engine.max(crossings * Self::CROSS_BYTES)
     }
 
     /// RAM of a [`Toolpath`] whose capacities equal these needs, on this target, without
-    /// its [`Scratch`].
+    /// its working memory.
     pub fn stage_bytes(&self) -> usize {
         core::mem::size_of::<Toolpath<0, 0, 0, 0, 0, 0>>()
             + self.pts() * Self::PTS_BYTES
@@ -808,8 +817,8 @@ const FIRST_LAYER: u32 = 0;
 
 /// The infill scratch (`CROSS` entries each): crossings, their order then segment ends,
 /// and the pool of segments and pieces. It takes turns with the offset engine (per layer:
-/// offsets, then infill and ordering) and the slicer's cut in a [`Scratch`].
-pub(crate) struct FillScratch<const C: usize> {
+/// offsets, then infill and ordering) in the stage's working memory ([`ToolpathSpace`]).
+pub struct FillScratch<const C: usize> {
     cross: [Crossing; C],
     idx: [u16; C],
     pool: [[u32; POOL_WORDS]; C],
@@ -817,12 +826,9 @@ pub(crate) struct FillScratch<const C: usize> {
 
 impl<const C: usize> FillScratch<C> {
     /// Cleared.
-    pub(crate) const EMPTY: Self =
+    pub const EMPTY: Self =
         Self { cross: [Crossing::EMPTY; C], idx: [0; C], pool: [[0; POOL_WORDS]; C] };
 }
-
-/// The [`Scratch`] of a toolpath stage used alone (no slicer shares it).
-pub type ToolpathScratch<const PTS: usize, const CROSS: usize> = Scratch<0, PTS, CROSS>;
 
 /// The streaming toolpath stage. Capacities (see the [module docs](self) for their memory):
 /// `PTS` points of a layer or of one island's offset, `LOOPS` loops of a layer, `CROSS`
@@ -997,7 +1003,7 @@ impl<
 
     /// Adds the engine's peaks and open chains to the stage's, if the engine has `work`, and
     /// zeroes them there (so the next turn, or another owner, starts from none).
-    fn collect_engine_counters<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) {
+    fn collect_engine_counters<W: ToolpathSpace<PTS, CROSS>>(&mut self, work: &mut W) {
         if let Some(e) = work.live_engine() {
             let p = &mut self.offset_peaks;
             p.edges = p.edges.max(e.peaks.edges);
@@ -1009,7 +1015,7 @@ impl<
     }
 
     /// Gives the engine's place to the infill scratch (the engine's counters are kept).
-    fn park_engine<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) {
+    fn park_engine<W: ToolpathSpace<PTS, CROSS>>(&mut self, work: &mut W) {
         self.collect_engine_counters(work);
         work.fill();
     }
@@ -1038,10 +1044,10 @@ impl<
     /// an owner's buffer allows). The layer is copied (simplified, into the skin window)
     /// before anything else. For the layer the slicer has just cut, in the scratch it hands
     /// its sink: [`push_sliced`](Self::push_sliced).
-    pub fn push_layer<const S: usize>(
+    pub fn push_layer<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         layer: &Layer<'_>,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
         self.emit_all(work, sink)?;
@@ -1051,9 +1057,9 @@ impl<
 
     /// [`push_layer`](Self::push_layer) of the layer the slicer has just cut in `layer`'s
     /// scratch (its points are there): the layer is copied before the scratch is used.
-    pub fn push_sliced<const S: usize>(
+    pub fn push_sliced<const S: usize, W: CutSpace<S> + ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        mut layer: SlicedLayer<'_, S, PTS, CROSS>,
+        mut layer: SlicedLayer<'_, S, W>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
         // Emitting leaves the cut in place (no infill scratch to find the paths in: scans).
@@ -1071,10 +1077,10 @@ impl<
     /// infill scratch, are kept until its last move went out (an owner lends `work` to no
     /// one else meanwhile; if it does, the paths are found by scanning: the same order).
     /// For the layer the slicer has just cut: [`accept_sliced`](Self::accept_sliced).
-    pub fn accept_layer<const S: usize>(
+    pub fn accept_layer<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         layer: &Layer<'_>,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
         self.take(layer)?;
@@ -1084,11 +1090,11 @@ impl<
     /// [`accept_layer`](Self::accept_layer) of the layer the slicer has just cut in
     /// `layer`'s scratch (its points are there): the layer is copied before the scratch is
     /// used. Gives the scratch back (the layer given up) for [`emit_next`](Self::emit_next).
-    pub fn accept_sliced<'w, const S: usize>(
+    pub fn accept_sliced<'w, const S: usize, W: CutSpace<S> + ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        layer: SlicedLayer<'w, S, PTS, CROSS>,
+        layer: SlicedLayer<'w, S, W>,
         sink: &mut impl FnMut(&ToolEvent<'_>),
-    ) -> Result<&'w mut Scratch<S, PTS, CROSS>, ToolpathError> {
+    ) -> Result<&'w mut W, ToolpathError> {
         self.take(&layer.layer())?;
         // Copied: the scratch may go to the offset engine.
         let work = layer.into_scratch();
@@ -1114,9 +1120,9 @@ impl<
 
     /// Second half of [`accept_layer`](Self::accept_layer): builds the layer the one just
     /// taken completes (the one `top_layers` below it), if any, in `work`.
-    fn complete<const S: usize>(
+    fn complete<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
         // Each layer taken completes at most one.
@@ -1146,9 +1152,9 @@ impl<
     /// [`Emitted::NeedsRoom`] names the moves of the unit `room` refused or undid: a later
     /// call offers it again first. [`Emitted::Complete`] when no layer is being emitted (any
     /// more).
-    pub fn emit_next<const S: usize, R: Room + ?Sized>(
+    pub fn emit_next<W: ToolpathSpace<PTS, CROSS>, R: Room + ?Sized>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         room: &mut R,
     ) -> Result<Emitted, ToolpathError> {
         if let Some(e) = self.stopped {
@@ -1188,9 +1194,9 @@ impl<
     }
 
     /// Emits the rest of the layer being emitted, if any, whatever its size.
-    fn emit_all<const S: usize>(
+    fn emit_all<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), ToolpathError> {
         self.emit_next(work, sink).map(|_| ())
@@ -1200,9 +1206,9 @@ impl<
     /// the window (in `work`); true when one was processed, false when none is left (then
     /// [`Toolpath::finish`] only returns the totals). Lets an owner release the last layers
     /// one at a time, as its move buffer allows.
-    pub fn flush_one<const S: usize>(
+    pub fn flush_one<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<bool, ToolpathError> {
         self.emit_all(work, sink)?;
@@ -1215,9 +1221,9 @@ impl<
     /// the window (in `work`), leaving its moves to [`emit_next`](Self::emit_next) (as
     /// [`accept_layer`](Self::accept_layer) does); true when one was built, false when none
     /// is left. Refused with [`ToolpathError::Emitting`] while a layer is being emitted.
-    pub fn build_next<const S: usize>(
+    pub fn build_next<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<bool, ToolpathError> {
         if let Some(e) = self.stopped {
@@ -1241,9 +1247,9 @@ impl<
 
     /// Ends the stream: emits the remaining layers (the top ones, computed in `work`) and
     /// returns the totals.
-    pub fn finish<const S: usize>(
+    pub fn finish<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<ToolpathStats, ToolpathError> {
         if let Some(e) = self.stopped {
@@ -1333,10 +1339,10 @@ impl<
     /// Builds layer `l` in `work` and begins its emission ([`emit_next`](Self::emit_next));
     /// the engine's counters are collected whatever happens (the slicer may have `work`
     /// next).
-    fn process<const S: usize>(
+    fn process<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         l: u32,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), Buffer> {
         let built = self.build(l, work, sink);
@@ -1346,10 +1352,10 @@ impl<
 
     /// Builds layer `l`'s paths in `work` and begins their emission
     /// ([`emit_next`](Self::emit_next)).
-    fn build<const S: usize>(
+    fn build<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         l: u32,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), Buffer> {
         let cfg = self.cfg;
@@ -1485,10 +1491,10 @@ impl<
     /// Runs a thin-area measurement: its use of the offset engine and of `tmp` is kept out
     /// of the printing needs (recorded in [`ToolpathStats::thin_pts`]), and a buffer it
     /// overflows gives `None` instead of an error (the toolpaths do not depend on it).
-    fn measure<const S: usize>(
+    fn measure<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
-        f: impl FnOnce(&mut Self, &mut Scratch<S, PTS, CROSS>) -> Result<i64, Buffer>,
+        work: &mut W,
+        f: impl FnOnce(&mut Self, &mut W) -> Result<i64, Buffer>,
     ) -> Option<i64> {
         let (peaks, points, rings) =
             (work.engine().peaks, self.tmp.peak_points, self.tmp.peak_rings);
@@ -1505,9 +1511,9 @@ impl<
     /// outwards by half a line with miter joins and returns the doubled area of the result,
     /// the island's morphological opening by half a line width: the island minus its parts
     /// thinner than a line (with square corners: a rectangle comes back whole). Clears `tmp`.
-    fn grow_tmp_area2<const S: usize>(
+    fn grow_tmp_area2<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         island: u16,
     ) -> Result<i64, Buffer> {
         let half = self.cfg.line_width_um / 2;
@@ -1531,7 +1537,7 @@ impl<
     }
 
     /// The skirt: convex hull of the first layer, offset outwards with round joins.
-    fn skirt<const S: usize>(&mut self, work: &mut Scratch<S, PTS, CROSS>) -> Result<(), Buffer> {
+    fn skirt<W: ToolpathSpace<PTS, CROSS>>(&mut self, work: &mut W) -> Result<(), Buffer> {
         let (cfg, limit) = (self.cfg, self.offset_limit());
         // Sort all points (in `tmp`), then Andrew's monotone chain into `fill`.
         let (engine, points) = work.engine_and_points();
@@ -1589,9 +1595,9 @@ impl<
     }
 
     /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only).
-    fn infill_pass<const S: usize>(
+    fn infill_pass<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
-        work: &mut Scratch<S, PTS, CROSS>,
+        work: &mut W,
         l: u32,
         angle: Angle,
         solid: bool,

@@ -81,8 +81,7 @@ impl<'a> NearGrid<'a> {
         let h = i64::from(hi.y) - i64::from(lo.y) + 1;
         let cells = count.clamp(1, head.len()) as i64;
         // Square cells of about `w h / cells`, grown until the grid has at most `cells`.
-        let mut cell =
-            (crate::plan::math::isqrt_u64(((w * h) / cells).max(1) as u64) as i64).max(1);
+        let mut cell = (crate::math::isqrt_u64(((w * h) / cells).max(1) as u64) as i64).max(1);
         let dims = |c: i64| ((w + c - 1) / c, (h + c - 1) / c);
         loop {
             let (nx, ny) = dims(cell);

@@ -27,7 +27,7 @@ use super::poly::{div_round, div_round_128, orient, Loops, Ring};
 use super::simplify::simplify_closed;
 use super::sort;
 use super::Buffer;
-use crate::plan::math::isqrt_u64;
+use crate::math::isqrt_u64;
 
 /// Bytes of engine state per unit of its capacity `E` (an edge, a split point or a finished
 /// dart, a piece and an active-list entry).

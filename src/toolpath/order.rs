@@ -327,7 +327,7 @@ impl Emitter {
             self.layer.stops += 1;
             self.extruding = true;
         }
-        let len16 = crate::plan::math::isqrt_u64((dist2(self.pos, to) * 256) as u64) as i64;
+        let len16 = crate::math::isqrt_u64((dist2(self.pos, to) * 256) as u64) as i64;
         self.vol16 += i64::from(ctx.cfg.line_width_um) * i64::from(ctx.height_um) * len16;
         let e_abs = filament_um(self.vol16, ctx.cfg.filament_diameter_um);
         let e = (e_abs - self.e_abs) as i32;

@@ -1,7 +1,7 @@
 //! Bounded loop buffers and the integer helpers every toolpath stage shares.
 
 use crate::geom::Point2;
-use crate::plan::math::{div_u128, isqrt_u64};
+use crate::math::{div_u128, isqrt_u64};
 
 use super::Buffer;
 

@@ -16,7 +16,7 @@ use crate::geom::Point2;
 
 use super::poly::{div_round, Ring};
 use super::Buffer;
-use crate::plan::math::isqrt_u64;
+use crate::math::isqrt_u64;
 
 /// Line direction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -10,7 +10,7 @@
 use crate::geom::Point2;
 
 use super::poly::{dist2, orient};
-use crate::plan::math::isqrt_u64;
+use crate::math::isqrt_u64;
 
 /// Longest run of points one chord may replace.
 pub const MAX_RUN: usize = 48;

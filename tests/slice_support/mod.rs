@@ -242,7 +242,7 @@ pub fn run<const A: usize, const S: usize, const L: usize>(
                 let mut slicer = Slicer::<A, S, L>::new(config)?;
                 let mut work = Box::new(SliceScratch::new());
                 let mut layers = Vec::new();
-                let mut sink = |l: SlicedLayer<'_, S, 0, 0>| {
+                let mut sink = |l: SlicedLayer<'_, S, SliceScratch<S>>| {
                     let l = l.layer();
                     layers.push(OwnedLayer {
                         index: l.index,
@@ -264,9 +264,9 @@ pub fn run<const A: usize, const S: usize, const L: usize>(
                     })
                 };
                 for t in tris {
-                    slicer.push(t, &mut work, &mut sink)?;
+                    slicer.push(t, &mut *work, &mut sink)?;
                 }
-                let stats = slicer.finish(&mut work, &mut sink)?;
+                let stats = slicer.finish(&mut *work, &mut sink)?;
                 Ok((layers, stats))
             })
             .expect("spawn slicer thread")

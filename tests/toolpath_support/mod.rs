@@ -108,7 +108,7 @@ pub fn run_sized<
                             stray += 1;
                         }
                     };
-                    let mut sink = |sliced: SlicedLayer<'_, _, PTS, CROSS>| {
+                    let mut sink = |sliced: SlicedLayer<'_, _, _>| {
                         let l = sliced.layer();
                         contours.push(
                             l.loops.iter().map(|i| (l.loop_points(i).to_vec(), i.hole)).collect(),
@@ -120,13 +120,13 @@ pub fn run_sized<
                         }
                     };
                     for t in tris {
-                        slicer.push(t, &mut work, &mut sink).map_err(|e| e.to_string())?;
+                        slicer.push(t, &mut *work, &mut sink).map_err(|e| e.to_string())?;
                     }
-                    slicer.finish(&mut work, &mut sink).map_err(|e| e.to_string())?;
+                    slicer.finish(&mut *work, &mut sink).map_err(|e| e.to_string())?;
                     if let Some(e) = err {
                         return Err(e.to_string());
                     }
-                    let stats = tp.finish(&mut work, &mut events).map_err(|e| e.to_string())?;
+                    let stats = tp.finish(&mut *work, &mut events).map_err(|e| e.to_string())?;
                     for (l, c) in layers.iter_mut().zip(contours) {
                         l.contours = c;
                     }
