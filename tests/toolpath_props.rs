@@ -230,12 +230,50 @@ fn check_layers(tp: &mut PropToolpath, layers: &Layers) -> Result<(), TestCaseEr
     Ok(())
 }
 
-/// KNOWN BUG (found by the unseeded property run): self-intersecting loops with repeated corners
-/// leave one boundary chain of the offset union open. Run with `--ignored` when fixing offset.rs.
+/// Found by the unseeded property run: self-intersecting loops with repeated corners left one
+/// boundary chain of an offset union open (the thin-area measurement's, which grows the
+/// perimeters back: their edges, offsets of one input line cut into several loops, run nearly
+/// parallel through nearly one point, and the rounded crossings never settled).
 #[test]
-#[ignore = "known offset bug: an open chain on self-intersecting loops with repeated corners"]
 fn self_intersecting_loops_with_repeated_corners_close_every_chain() {
-    let layers: Layers = vec![vec![
+    std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(move || {
+            let mut tp = Box::new(PropToolpath::new(cfg()).unwrap());
+            check_layers(&mut tp, &self_intersecting_layer()).unwrap();
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+}
+
+/// The same layer with the offsets done in bands (engines of a fraction of what the unions
+/// need): every chain closes too, and the small engines give only typed capacity errors.
+#[test]
+fn self_intersecting_loops_close_every_chain_in_bands() {
+    std::thread::Builder::new()
+        .stack_size(256 << 20)
+        .spawn(move || {
+            let layers = self_intersecting_layer();
+            let mut tp = Box::new(PropToolpath::new(cfg()).unwrap());
+            check_layers(&mut tp, &layers).unwrap();
+            let need = tp.stats().needs.offset_edges as usize;
+            let mut banded = 0;
+            for limit in (need / 4..need).step_by(7) {
+                tp.set_offset_limit(limit);
+                check_layers(&mut tp, &layers).unwrap();
+                banded += usize::from(tp.stats().layers == 1);
+            }
+            assert!(banded > 0, "need {need}: no limit ran in bands");
+        })
+        .unwrap()
+        .join()
+        .unwrap();
+}
+
+/// A layer of self-intersecting loops, one with repeated corners.
+fn self_intersecting_layer() -> Layers {
+    vec![vec![
         (
             vec![
                 (112318, 98665),
@@ -298,16 +336,7 @@ fn self_intersecting_loops_with_repeated_corners_close_every_chain() {
             false,
             None,
         ),
-    ]];
-    std::thread::Builder::new()
-        .stack_size(256 << 20)
-        .spawn(move || {
-            let mut tp = Box::new(PropToolpath::new(cfg()).unwrap());
-            check_layers(&mut tp, &layers).unwrap();
-        })
-        .unwrap()
-        .join()
-        .unwrap();
+    ]]
 }
 
 /// One loop for the window scan: up to 14 points around a centre, spread from 3 mm (every
