@@ -1,5 +1,5 @@
 //! Every capacity of the firmware build (the Creality 4.2.x boards and QEMU's lm3s6965evb,
-//! 64 KB of RAM each) in one place: the firmware builds [`board::BoardPrinter`], which
+//! 64 KB of RAM each) in one place: the firmware builds [`BoardPrinter`], which
 //! announces [`BOARD_CAPACITIES`].
 //!
 //! The capacities are the largest of what embodier_hotend_v2 needs at the default settings

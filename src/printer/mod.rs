@@ -125,7 +125,7 @@ pub enum Accept {
     Busy,
 }
 
-/// The job runner: the job's state machine over the [`Pipeline`] (slicer `A` active
+/// The job runner: the job's state machine over the pipeline (slicer `A` active
 /// triangles, `S` segments, `L` loops; toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`,
 /// `SPANS`, see [`Toolpath`]) and the [`Motion`] half (`MOVE_BYTES` bytes of delta-coded
 /// moves waiting for the planner, `P` moves of planner lookahead). Name the capacities with
