@@ -1,6 +1,7 @@
-//! Integer arithmetic shared by the stages (the planner, the step generator, the toolpath
-//! stage): exact square roots, divisions the Cortex-M3 has no instruction for, and saturating
-//! fixed-point conversions.
+//! Integer arithmetic shared by the stages (the planner, the step generator, the toolpath stage).
+//!
+//! Exact square roots, divisions the Cortex-M3 has no instruction for, and saturating fixed-point
+//! conversions.
 //!
 //! Both square roots are exact (`floor(sqrt(n))`) for every input and use no floating point.
 //! They normalize the argument (shift left by an even count so that one of its two top bits

@@ -39,9 +39,11 @@ use crate::machine::{Rate, AXES};
 use crate::plan::{Move, MoveKind};
 use crate::toolpath::{Room, ToolEvent, ToolMove};
 
-/// A toolpath move waiting for the planner: the planner's [`Move`] with its feed as U16F16
-/// bits (the toolpath's feeds are whole or simple fractions of mm/s; the same packing runs on
-/// the host simulation and the board) and the layer it belongs to.
+/// A toolpath move waiting for the planner.
+///
+/// The planner's [`Move`] with its feed as U16F16 bits (the toolpath's feeds are whole or simple
+/// fractions of mm/s; the same packing runs on the host simulation and the board) and the layer it
+/// belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PackedMove {
     /// Target X, Y, Z, E, um.
@@ -72,9 +74,10 @@ impl PackedMove {
     }
 }
 
-/// Where the toolpath stream stands: its layer, absolute E and position. Turns the
-/// toolpath stage's moves into planner moves (the printer and the host's admission control
-/// both use it, so both see the same moves).
+/// Where the toolpath stream stands.
+///
+/// Its layer, absolute E and position. Turns the toolpath stage's moves into planner moves (the
+/// printer and the host's admission control both use it, so both see the same moves).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct MoveStream {
     layer: u32,
@@ -285,9 +288,10 @@ impl MoveMeter {
     }
 }
 
-/// What an owner's rooms learn from one call to the next ([`MoveRing::room`]): the bytes the
-/// waiting unit needs (exact when it was coded, an estimate otherwise), and the bytes and
-/// moves of the units taken so far, whose ratio with a quarter added is the estimate that
+/// What an owner's rooms learn from one call to the next ([`MoveRing::room`]).
+///
+/// The bytes the waiting unit needs (exact when it was coded, an estimate otherwise), and the bytes
+/// and moves of the units taken so far, whose ratio with a quarter added is the estimate that
 /// spares coding a unit that cannot fit.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RoomMemory {
@@ -329,12 +333,13 @@ impl RoomMemory {
     }
 }
 
-/// The move ring as the toolpath stage's [`Room`] (see the [module docs](self)): each move of
-/// a unit is coded into the ring as it comes (through the [`MoveStream`]); when one does not
-/// fit, the unit's other moves are only counted, and at its close the ring and the stream go
-/// back to where the unit began and its exact bytes are remembered. A unit whose expected
-/// bytes ([`RoomMemory`]) exceed the free ones is refused before it runs while the ring holds
-/// moves; the waiting unit's exact bytes, once known, spare that estimate.
+/// The move ring as the toolpath stage's [`Room`] (see the [module docs](self)).
+///
+/// Each move of a unit is coded into the ring as it comes (through the [`MoveStream`]); when one
+/// does not fit, the unit's other moves are only counted, and at its close the ring and the stream
+/// go back to where the unit began and its exact bytes are remembered. A unit whose expected bytes
+/// ([`RoomMemory`]) exceed the free ones is refused before it runs while the ring holds moves; the
+/// waiting unit's exact bytes, once known, spare that estimate.
 #[derive(Debug)]
 pub struct RingRoom<'a, const BYTES: usize> {
     ring: &'a mut MoveRing<BYTES>,

@@ -38,9 +38,10 @@ use crate::toolpath::{Engine, FillScratch, ToolpathNeeds, ToolpathSpace};
 pub const CUT_BYTES: usize = CutScratch::<0>::BYTES_PER_SEGMENT;
 
 /// The working memory of a slicer with `SEGMENTS` segments per layer and a toolpath stage with
-/// `PTS` offset edges and `CROSS` infill crossings (see the [module docs](self)). A slicer
-/// alone uses a [`SliceScratch`](crate::slice::SliceScratch) (`PTS = CROSS = 0`), a toolpath
-/// stage alone a [`ToolpathScratch`](crate::toolpath::ToolpathScratch) (`SEGMENTS = 0`).
+/// `PTS` offset edges and `CROSS` infill crossings (see the [module docs](self)).
+///
+/// A slicer alone uses a [`SliceScratch`](crate::slice::SliceScratch) (`PTS = CROSS = 0`), a
+/// toolpath stage alone a [`ToolpathScratch`](crate::toolpath::ToolpathScratch) (`SEGMENTS = 0`).
 ///
 /// Large capacities make a large value: on the host, build it where the stack is big enough
 /// (or in a `static`/boxed slot).
@@ -144,9 +145,10 @@ impl<const S: usize, const P: usize, const C: usize> ToolpathSpace<P, C> for Scr
     }
 }
 
-/// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments and
-/// loop points, `pts` offset edges, `cross` infill crossings): the largest tenant, bytes (the
-/// value adds at most a tag and alignment padding).
+/// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments and loop
+/// points, `pts` offset edges, `cross` infill crossings).
+///
+/// The largest tenant, bytes (the value adds at most a tag and alignment padding).
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
     cut.max(ToolpathNeeds::work_bytes_of(pts, cross))

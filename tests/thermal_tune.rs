@@ -13,9 +13,10 @@ mod thermal_model;
 use strata::thermal::{Heater, PidGains, Temp, ThermalFault};
 use thermal_model::Sim;
 
-/// Heat-up from 25 °C: (seconds to within 0.5 °C for good, overshoot, worst deviation in the
-/// last 60 s of `total_s`), or the fault it tripped (gains too slow for the approach period
-/// trip `HEATING FAILED`).
+/// Heat-up from 25 °C.
+///
+/// (seconds to within 0.5 °C for good, overshoot, worst deviation in the last 60 s of `total_s`),
+/// or the fault it tripped (gains too slow for the approach period trip `HEATING FAILED`).
 pub fn score(
     heater: Heater,
     target: i16,

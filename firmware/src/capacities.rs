@@ -7,18 +7,14 @@
 //! `.data + .bss` and the stack's high-water mark are printed at the end of each job (`MEM
 //! ...`, see `stack.rs`), and `scripts/build_firmware.sh` prints the static part.
 //!
-//! The pipeline's capacities (and the measured RAM they lead to) are documented in
-//! `strata::printer::board`: they are what `embodier_hotend_v2.stl` needs at the default
-//! settings, so it prints end to end on QEMU with `embodier_asc.stl` and `xyz_20mm_cube.stl`
-//! (host/tests/hil_qemu.rs). `embodier_LM8UU_8p2pi` needs more than 64 KB: 742 active
-//! triangles and 690 offset edges for one island (about 89 KB of `Printer`). The move buffer
-//! (bytes of delta-coded moves) holds the largest emission unit whole (a path with the travel
-//! before it: the toolpath stage emits a layer unit by unit, each once its coded bytes fit),
-//! not a layer: 693 B for embodier_asc, 1,051 B for the cube, 1,059 B for the hotend and
-//! 1,089 B for LM8UU, against the board's 2,560 B (see `MOVE_BYTES` there for the margin).
+//! The pipeline's capacities, what each is sized for and the bytes each unit takes are
+//! documented once, beside the constants, in `strata::printer::board`: the host admits models
+//! against exactly what this build holds (host/tests/hil_qemu.rs prints the sample models on
+//! it).
 //!
-//! The planner lookahead `P` must stay 32: the host simulation (`strata simulate`, the HIL
-//! test) plans with 32 moves of lookahead, and the per-layer hashes compare step commands.
+//! The planner lookahead (`LOOKAHEAD_MOVES`) must stay the host simulation's (`strata
+//! simulate`, the HIL test plans with the same), as the per-layer hashes compare step
+//! commands.
 //! (The step queue's size does not change the commands: the generator's output depends on
 //! the blocks only.)
 

@@ -79,8 +79,9 @@ pub enum Admission {
     Simplified(Simplified),
 }
 
-/// Admits `tris` (placed, sorted by lowest z) for `job` on a device with `caps` and `machine`:
-/// the slicer's needs as [`admit`] (simplified within `max_deviation_mm` if need be), then the
+/// Admits `tris` (placed, sorted by lowest z) for `job` on a device with `caps` and `machine`.
+///
+/// The slicer's needs as [`admit`] (simplified within `max_deviation_mm` if need be), then the
 /// toolpath stage's needs of the model as it will be streamed ([`toolpath_peaks`] against
 /// [`toolpath_shortfalls`]): refused with a message naming every resource that does not fit.
 pub fn admit_job(
@@ -139,9 +140,10 @@ pub fn admit_job_peaks(
     Ok((admission, peaks))
 }
 
-/// Admits `tris` (placed, sorted by lowest z) on a device with `caps`: unchanged, simplified
-/// with a *measured* deviation of at most `max_deviation_mm`, or refused with a message
-/// saying what does not fit and what deviation a fitting simplification would have.
+/// Admits `tris` (placed, sorted by lowest z) on a device with `caps`.
+///
+/// Unchanged, simplified with a *measured* deviation of at most `max_deviation_mm`, or refused with
+/// a message saying what does not fit and what deviation a fitting simplification would have.
 pub fn admit(
     tris: &[Triangle],
     config: &SliceConfig,
@@ -298,16 +300,19 @@ type NeedsToolpath =
 /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
 type NeedsScratch = Scratch<{ 1 << 17 }, { 1 << 16 }, { 1 << 16 }>;
 
-/// Runs `tris` (placed, sorted by lowest z, as they will be streamed) through a host-sized
-/// slicer and toolpath stage with the settings the device derives from `job`, and reports
-/// the stage's needs, the layers where they peak and the largest emission unit's bytes.
-/// The stage is driven as the device drives it: each layer taken (`accept_layer`) builds at
-/// most one, whose units are then emitted (`emit_next`) into the device's byte room, without
-/// bound here, which measures each unit's coded bytes; after the last layer the waiting ones
-/// are built and emitted one at a time (`build_next`). A need found growing while the stage
-/// takes a layer is attributed to that layer (the window's stored contours) or to the layer
-/// it builds meanwhile (the others: a layer is built once the layers its top skins wait for
-/// have arrived). Runs on a thread with a large stack (the stages are large values).
+/// The toolpath stage's needs for `tris`, the layers where they peak and the largest emission
+/// unit's bytes.
+///
+/// `tris` (placed, sorted by lowest z, as they will be streamed) run through a host-sized slicer
+/// and toolpath stage with the settings the device derives from `job`.
+///
+/// The stage is driven as the device drives it: each layer taken (`accept_layer`) builds at most
+/// one, whose units are then emitted (`emit_next`) into the device's byte room, without bound here,
+/// which measures each unit's coded bytes; after the last layer the waiting ones are built and
+/// emitted one at a time (`build_next`). A need found growing while the stage takes a layer is
+/// attributed to that layer (the window's stored contours) or to the layer it builds meanwhile (the
+/// others: a layer is built once the layers its top skins wait for have arrived). Runs on a thread
+/// with a large stack (the stages are large values).
 pub fn toolpath_peaks(
     tris: &[Triangle],
     machine: &MachineConfig,
@@ -316,10 +321,12 @@ pub fn toolpath_peaks(
     toolpath_peaks_limited(tris, machine, job, None)
 }
 
-/// [`toolpath_peaks`] with the offset engine limited to `offset_limit` edges (as a device
-/// with that `PTS` has it: offsets that need more are done in bands, which may change them
-/// within the output's tolerance). An offset that does not fit even in the thinnest bands
-/// is the error.
+/// [`toolpath_peaks`] with the offset engine limited to `offset_limit` edges.
+///
+/// That is how a device with that `PTS` has it: offsets that need more are done in bands, which
+/// may change them within the output's tolerance.
+///
+/// An offset that does not fit even in the thinnest bands is the error.
 pub fn toolpath_peaks_limited(
     tris: &[Triangle],
     machine: &MachineConfig,
@@ -484,14 +491,15 @@ impl Room for UnitBytes<'_, '_> {
     }
 }
 
-/// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user
-/// (empty when everything fits). `PTS >= max(layer_points, offset_edges)`,
-/// `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >= path_points`, `RING >= ring_points`,
-/// `SPANS >= spans` (the `ToolpathNeeds` docs), the slicer's `contour_loops >=` the loops it
-/// keeps of a layer, and the move buffer's bytes `>=` the largest emission unit's
-/// ([`ToolpathPeaks::unit_bytes`]).
-/// Paths are not compared with `CROSS`: a layer with more paths than the nearest-path grid
-/// holds is ordered by a scan instead (same order, no error).
+/// Every toolpath need of `peaks` that `caps` does not hold, as a sentence for the user (empty when
+/// everything fits).
+///
+/// `PTS >= max(layer_points, offset_edges)`, `LOOPS >= layer_loops`, `CROSS >= crossings`, `PATH >=
+/// path_points`, `RING >= ring_points`, `SPANS >= spans` (the `ToolpathNeeds` docs), the slicer's
+/// `contour_loops >=` the loops it keeps of a layer, and the move buffer's bytes `>=` the largest
+/// emission unit's ([`ToolpathPeaks::unit_bytes`]). Paths are not compared with `CROSS`: a layer
+/// with more paths than the nearest-path grid holds is ordered by a scan instead (same order, no
+/// error).
 pub fn toolpath_shortfalls(peaks: &ToolpathPeaks, caps: &Capacities) -> Vec<String> {
     const AREA: &str = "the part's cross-section is too large for this printer's memory";
     const WINDOW: &str = "the layers the top and bottom skins wait for are too large for this \

@@ -55,10 +55,11 @@ impl LinkClock for WallClock {
     }
 }
 
-/// How long a device's clock may stand still, in wall time, before it counts as stopped: an
-/// emulator on a machine whose cores are both saturated still moves its clock every few
-/// milliseconds (QEMU's moves every 10 us of emulated time), so a minute of standstill is a
-/// hung or dead emulator, not a slow one.
+/// How long a device's clock may stand still, in wall time, before it counts as stopped.
+///
+/// An emulator on a machine whose cores are both saturated still moves its clock every few
+/// milliseconds (QEMU's moves every 10 us of emulated time), so a minute of standstill is a hung or
+/// dead emulator, not a slow one.
 pub const CLOCK_STALL_LIMIT: Duration = Duration::from_secs(60);
 
 /// Watches a clock read from elsewhere: an error once its value has not changed for

@@ -1,6 +1,7 @@
-//! Preview of what the simulated printer did: the nozzle path reconstructed from the step
-//! pulses of the simulated board (not from the planned moves), one SVG per layer and an HTML
-//! page that steps through them.
+//! Preview of what the simulated printer did.
+//!
+//! The nozzle path reconstructed from the step pulses of the simulated board (not from the planned
+//! moves), one SVG per layer and an HTML page that steps through them.
 
 use std::fmt::Write as _;
 use std::path::Path;

@@ -110,9 +110,10 @@ impl<P: Read + Write> Port<P> {
     }
 }
 
-/// Runs `work` on another thread while this one keeps the link alive: frames in (acked, kept
-/// for the job), acks and keepalives out, so neither end declares the link dead (admission
-/// control can take longer than the link's dead time).
+/// Runs `work` on another thread while this one keeps the link alive.
+///
+/// Frames in (acked, kept for the job), acks and keepalives out, so neither end declares the link
+/// dead (admission control can take longer than the link's dead time).
 pub fn keeping_link_alive<P: Read + Write, T: Send>(
     port: &mut Port<P>,
     ep: &mut HostEndpoint,
@@ -138,10 +139,11 @@ pub fn connect<P: Read + Write>(
     handshake(ep, 5_000, |ep| port.pump(ep, clock))
 }
 
-/// Runs a job on a connected port until the device reports it done. `on_progress` is called
-/// about every 100 ms of the clock; `abort` (Ctrl-C) sends an abort and ends with an error
-/// once the device confirms (or after [`ABORT_CONFIRM_MS`] or the link's dead time, the
-/// longer, of the clock).
+/// Runs a job on a connected port until the device reports it done.
+///
+/// `on_progress` is called about every 100 ms of the clock; `abort` (Ctrl-C) sends an abort and
+/// ends with an error once the device confirms (or after [`ABORT_CONFIRM_MS`] or the link's dead
+/// time, the longer, of the clock).
 #[allow(clippy::too_many_arguments)]
 pub fn print<P: Read + Write>(
     port: &mut Port<P>,
@@ -235,10 +237,11 @@ pub enum DeviceClock<'a> {
     Turns(&'a AtomicU32),
 }
 
-/// A simulated printer serving `port` on `clock` (the link's timers and, `speedup` times
-/// faster, the board's motion). Returns when the job ended (done, failed, aborted, stopped)
-/// and the last reports went out, or when `stop` is set. Runs on the calling thread, which
-/// needs a large stack (512 MB reserved).
+/// A simulated printer serving `port` on `clock` (the link's timers and, `speedup` times faster,
+/// the board's motion).
+///
+/// Returns when the job ended (done, failed, aborted, stopped) and the last reports went out, or
+/// when `stop` is set. Runs on the calling thread, which needs a large stack (512 MB reserved).
 pub fn serve_device<P: Read + Write>(
     port: &mut P,
     machine: &MachineConfig,

@@ -1,6 +1,8 @@
-//! The host side of a print job over a protocol [`Endpoint`], independent of the transport
-//! (serial port or the in-memory simulated link): hello, capacities, job start, triangle
-//! batches as fast as the device's credits allow, end of model, then status until done.
+//! The host side of a print job over a protocol [`Endpoint`], independent of the transport (serial
+//! port or the in-memory simulated link).
+//!
+//! Hello, capacities, job start, triangle batches as fast as the device's credits allow, end of
+//! model, then status until done.
 
 use strata::geom::Triangle;
 use strata::protocol::frame::wire_len;

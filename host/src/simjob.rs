@@ -1,6 +1,8 @@
-//! The simulated printer: the device-side job runner (`strata::printer`), the step executor
-//! and the simulated board (`strata::sim`), connected to a [`HostJob`] through an in-memory
-//! serial link, all on one virtual clock.
+//! The simulated printer.
+//!
+//! The device-side job runner (`strata::printer`), the step executor and the simulated board
+//! (`strata::sim`), connected to a [`HostJob`] through an in-memory serial link, all on one virtual
+//! clock.
 //!
 //! Every virtual millisecond: the host and the device exchange what the link carried (at the
 //! baud rate, 10 bits per byte, through the seeded [`Faults`]), the device services its
@@ -200,9 +202,11 @@ impl Rng {
     }
 }
 
-/// One direction of the link: frames wait in a transmit queue, leave at the baud rate,
-/// suffer the faults and arrive after their delay. Also used by the fault-injecting relay of
-/// the hardware-in-the-loop test (`hil::Relay`) on a wall-clock millisecond.
+/// One direction of the link.
+///
+/// Frames wait in a transmit queue, leave at the baud rate, suffer the faults and arrive after
+/// their delay. Also used by the fault-injecting relay of the hardware-in-the-loop test
+/// (`hil::Relay`) on a wall-clock millisecond.
 pub struct Wire {
     faults: Faults,
     rng: Rng,
@@ -517,10 +521,11 @@ pub(crate) fn device_turn<const N: usize>(
     }
 }
 
-/// RAM of a device pipeline sized exactly to this job's needs: slicer, toolpath stage and
-/// the scratch they take turns in (the slicer's cut and the layer's points, or the toolpath
-/// stage's engine and infill scratch, the largest), planner and step generator and queues
-/// (12 KB, the motion test's bound).
+/// RAM of a device pipeline sized exactly to this job's needs.
+///
+/// Slicer, toolpath stage and the scratch they take turns in (the slicer's cut and the layer's
+/// points, or the toolpath stage's engine and infill scratch, the largest), planner and step
+/// generator and queues (12 KB, the motion test's bound).
 pub fn device_ram(slice: &strata::slice::SliceStats, needs: &ToolpathNeeds) -> u64 {
     let slicer = strata::slice::slicer_bytes(slice.peak_active as usize, slice.peak_loops as usize);
     // `SEGMENTS` bounds a layer's segments and its points (repairs may add points).

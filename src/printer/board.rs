@@ -12,14 +12,17 @@
 //! prints `.data + .bss` and the stack's high-water mark after every job, and
 //! `scripts/build_firmware.sh` fails when the static part leaves less than the stack reserve
 //! (see there).
-//! Per-unit bytes: slicer 24 per active triangle, 72 per loop; the scratch the slicer and
-//! the toolpath stage take turns in holds the largest of the cut (29 per segment: the
-//! segment, its link and flags, and the endpoint hash whose place the layer's loop points
-//! take once it is dead), the offset engine with its result's points (54 per `PTS`) and the
-//! infill scratch (22 per `CROSS`) ([`crate::scratch`]); toolpath see `ToolpathNeeds`;
-//! move buffer `MOVE_BYTES` + 60 (Cortex-M3), about 6 bytes per queued move (5.0 to 6.3 on
-//! average over the sample models, at most 29), holding the largest path with its travel
-//! (a unit) whole.
+//! Per-unit bytes, each asserted beside its constant: the slicer's
+//! ([`slicer_bytes`](crate::slice::slicer_bytes)); the scratch the slicer and the toolpath
+//! stage take turns in holds the largest of the cut
+//! ([`CutScratch::BYTES_PER_SEGMENT`](crate::slice::CutScratch::BYTES_PER_SEGMENT) per
+//! segment, the layer's loop points taking the dead hash's place), the offset engine with its
+//! result's points ([`ToolpathNeeds::ENGINE_BYTES`](crate::toolpath::ToolpathNeeds::ENGINE_BYTES)
+//! per `PTS`) and the infill scratch
+//! ([`ToolpathNeeds::CROSS_BYTES`](crate::toolpath::ToolpathNeeds::CROSS_BYTES) per `CROSS`)
+//! ([`crate::scratch`]); the rest of the toolpath stage see
+//! [`ToolpathNeeds`](crate::toolpath::ToolpathNeeds); the move buffer holds the largest path
+//! with its travel (a unit) whole ([`MOVE_BUFFER_BYTES`]).
 
 use crate::machine::MachineConfig;
 use crate::protocol::{Capacities, JobSpec};
@@ -31,9 +34,11 @@ pub const ACTIVE_TRIANGLES: usize = 388;
 pub const CONTOUR_POINTS: usize = 388;
 /// Slicer: loops per layer.
 pub const CONTOUR_LOOPS: usize = 8;
-/// Toolpath: loop points per layer and offset edges per island (embodier_LM8UU_8p2pi
-/// simplified for the slicer's capacities: 269 loop points; an island's offset that
-/// needs more edges, 710 there, is done in bands; hotend: 207 edges, whole).
+/// Toolpath.
+///
+/// Loop points per layer and offset edges per island (embodier_LM8UU_8p2pi simplified for the
+/// slicer's capacities: 269 loop points; an island's offset that needs more edges is done in bands;
+/// hotend: 207 edges, whole).
 pub const TOOLPATH_POINTS: usize = 271;
 /// Toolpath: loops per layer (LM8UU: 14; hotend: 6).
 pub const TOOLPATH_LOOPS: usize = 14;
@@ -46,16 +51,16 @@ pub const WINDOW_RING_WORDS: usize = 1_755;
 /// Toolpath: the skin window's crossings with one scanline (hotend 27; the banded
 /// cylinders of the HIL test more).
 pub const WINDOW_SPANS: usize = 48;
-/// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded). The
-/// toolpath stage fills it a unit (a path with the travel before it) at a time, each once
-/// its coded bytes fit, so the largest unit must fit whole: at the default settings
-/// embodier_asc 693 B, xyz_20mm_cube 1,051 B, embodier_hotend_v2 1,059 B,
-/// embodier_LM8UU_8p2pi 1,089 B, about 6 B a move. 2.25 KB is 2.1 times the largest. The
-/// rest keeps the motion fed while the next layer is computed: the stage refills the
-/// buffer as the planner takes moves, so it is about full when a layer's last unit goes
-/// in, and those ~370 moves (seconds of printing, still ~0.7 s of 2 ms segments) carry
-/// the motion through the next layer's cut and build (about 0.5 s for a large layer on
-/// the Cortex-M3), lent the motion half at its progress points.
+/// Bytes of the move buffer (toolpath moves waiting for the planner, delta-coded).
+///
+/// The toolpath stage fills it a unit (a path with the travel before it) at a time, each once its
+/// coded bytes fit, so the largest unit must fit whole: at the default settings embodier_asc 693 B,
+/// xyz_20mm_cube 1,051 B, embodier_hotend_v2 1,059 B, embodier_LM8UU_8p2pi 1,089 B, about 6 B a
+/// move. 2.25 KB is 2.1 times the largest. The rest keeps the motion fed while the next layer is
+/// computed: the stage refills the buffer as the planner takes moves, so it is about full when a
+/// layer's last unit goes in, and those ~370 moves (seconds of printing, still ~0.7 s of 2 ms
+/// segments) carry the motion through the next layer's cut and build (about 0.5 s for a large layer
+/// on the Cortex-M3), lent the motion half at its progress points.
 pub const MOVE_BUFFER_BYTES: usize = 2_304;
 /// Planner lookahead, moves (the host simulation plans with the same).
 pub const LOOKAHEAD_MOVES: usize = 32;
@@ -80,9 +85,11 @@ crate::printer_type! {
 /// The capacities the firmware build (this module) announces.
 pub const BOARD_CAPACITIES: Capacities = BoardPrinter::CAPACITIES;
 
-/// What the host's simulated printer announces by default: the slicer capacities the protocol
-/// was specified with (1024 active triangles, 768 contour points, 48 loops) and host-sized
-/// toolpath capacities. The real 64 KB build holds far less: [`BOARD_CAPACITIES`].
+/// What the host's simulated printer announces by default.
+///
+/// The slicer capacities the protocol was specified with (1024 active triangles, 768 contour
+/// points, 48 loops) and host-sized toolpath capacities. The real 64 KB build holds far less:
+/// [`BOARD_CAPACITIES`].
 pub const CREALITY_CAPACITIES: Capacities = Capacities {
     active_triangles: 1024,
     contour_points: 768,

@@ -125,11 +125,12 @@ pub enum Accept {
     Busy,
 }
 
-/// The job runner: the job's state machine over the pipeline (slicer `A` active
-/// triangles, `S` segments, `L` loops; toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`,
-/// `SPANS`, see [`Toolpath`]) and the [`Motion`] half (`MOVE_BYTES` bytes of delta-coded
-/// moves waiting for the planner, `P` moves of planner lookahead). Name the capacities with
-/// [`printer_type!`](crate::printer_type).
+/// The job runner.
+///
+/// The job's state machine over the pipeline (slicer `A` active triangles, `S` segments, `L` loops;
+/// toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`, see [`Toolpath`]) and the [`Motion`]
+/// half (`MOVE_BYTES` bytes of delta-coded moves waiting for the planner, `P` moves of planner
+/// lookahead). Name the capacities with [`printer_type!`](crate::printer_type).
 pub struct Printer<
     const A: usize,
     const S: usize,

@@ -8,9 +8,10 @@ use crate::move_ring::MoveRing;
 use crate::plan::{PlanConfig, Planner};
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 
-/// Moves waiting for the planner (delta-coded into `MOVE_BYTES` bytes, [`MoveRing`]), the
-/// planner with `P` moves of lookahead and the layer of each of its moves that makes a block,
-/// and the step generator.
+/// The motion half: moves waiting for the planner, the planner and the step generator.
+///
+/// The moves are delta-coded into `MOVE_BYTES` bytes ([`MoveRing`]); the planner holds `P` moves
+/// of lookahead and the layer of each of its moves that makes a block.
 ///
 /// Planner blocks are released only when the planner queue is full or the model has ended
 /// (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
@@ -124,11 +125,13 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
     }
 }
 
-/// The motion half, lent by [`Printer::service`](super::Printer::service) to its caller at
-/// the progress points of a long layer computation
-/// ([`ToolEvent::Progress`](crate::toolpath::ToolEvent::Progress)): the firmware generates
-/// steps there ([`MotionSlot::run`]), so the step queue keeps being refilled while a layer's
-/// toolpaths are computed in the same thread.
+/// The motion half, lent by [`Printer::service`](super::Printer::service) to its caller at the
+/// progress points of a long layer computation.
+///
+/// Those are the toolpath stage's [`ToolEvent::Progress`](crate::toolpath::ToolEvent::Progress).
+///
+/// The firmware generates steps there ([`MotionSlot::run`]), so the step queue keeps being refilled
+/// while a layer's toolpaths are computed in the same thread.
 ///
 /// The commands stay those of [`Printer::poll`](super::Printer::poll): moves go to the
 /// planner in the same order, blocks leave it only when it is full (the model is not done

@@ -62,12 +62,13 @@ pub(super) struct LayerOutcome {
     pub dropped_small_loops: u32,
 }
 
-/// A layer's cut: its segments, their links and flags, the endpoint hash table and then, in
-/// the table's place, the layer's loop points (the slicer's output, read through
-/// [`SlicedLayer`](super::SlicedLayer)). It lives in the working memory the slicer is lent
-/// ([`CutSpace`](super::CutSpace)) and is dead once the next stage has copied the layer:
-/// [`BYTES_PER_SEGMENT`](Self::BYTES_PER_SEGMENT) per segment (16 segment + 4 link + 1 flags
-/// + 8 hash slots or a point).
+/// A layer's cut.
+///
+/// Its segments, their links and flags, the endpoint hash table and then, in the table's place, the
+/// layer's loop points (the slicer's output, read through [`SlicedLayer`](super::SlicedLayer)). It
+/// lives in the working memory the slicer is lent ([`CutSpace`](super::CutSpace)) and is dead once
+/// the next stage has copied the layer: [`BYTES_PER_SEGMENT`](Self::BYTES_PER_SEGMENT) per segment
+/// (16 segment + 4 link + 1 flags + 8 hash slots or a point).
 pub struct CutScratch<const S: usize> {
     pub(super) segs: [Segment; S],
     pub(super) next: [u32; S],

@@ -58,10 +58,12 @@ pub use chain::CutScratch;
 pub use packed::MAX_COORD_UM;
 pub use peak::{peak_needs, PeakNeeds};
 
-/// Where a slicer cuts its layers: working memory that holds its [`CutScratch`] while the
-/// slicer works (and, once the cut is linked, the layer's loop points in the place of its
-/// dead hash table). Its owner may lend the place to others between layers (the printer's
-/// shared scratch); a slicer alone cuts in a [`SliceScratch`].
+/// Where a slicer cuts its layers.
+///
+/// Working memory that holds its [`CutScratch`] while the slicer works (and, once the cut is
+/// linked, the layer's loop points in the place of its dead hash table). Its owner may lend the
+/// place to others between layers (the printer's shared scratch); a slicer alone cuts in a
+/// [`SliceScratch`].
 pub trait CutSpace<const SEGMENTS: usize> {
     /// The cut (a cleared one if another tenant had the place).
     fn cut(&mut self) -> &mut CutScratch<SEGMENTS>;
@@ -81,9 +83,10 @@ impl<const SEGMENTS: usize> CutSpace<SEGMENTS> for CutScratch<SEGMENTS> {
     }
 }
 
-/// RAM of a [`Slicer`] with these capacities (`ACTIVE`, `LOOPS`), without the cut and the
-/// loop points in its working memory ([`CutScratch::BYTES_PER_SEGMENT`] per
-/// `SEGMENTS`), bytes: 24 per active triangle, 72 per loop and the fixed state.
+/// RAM of a [`Slicer`] with these capacities (`ACTIVE`, `LOOPS`), without the cut and the loop
+/// points in its working memory ([`CutScratch::BYTES_PER_SEGMENT`] per `SEGMENTS`), bytes.
+///
+/// 24 per active triangle, 72 per loop and the fixed state.
 pub fn slicer_bytes(active: usize, loops: usize) -> usize {
     core::mem::size_of::<Slicer<0, 0, 0>>()
         + active * core::mem::size_of::<PackedTriangle>()
@@ -307,9 +310,11 @@ impl LayerRepairs {
     }
 }
 
-/// One sliced layer: from the slicer, its points borrowed from the working memory it was cut
-/// in and its loops from the slicer while the sink has the [`SlicedLayer`] (or a layer of the
-/// caller's own, for the next stage).
+/// One sliced layer.
+///
+/// From the slicer, its points borrowed from the working memory it was cut in and its loops from
+/// the slicer while the sink has the [`SlicedLayer`] (or a layer of the caller's own, for the next
+/// stage).
 #[derive(Debug, Clone, Copy)]
 pub struct Layer<'a> {
     /// Layer index from 0 (the first layer).
@@ -337,10 +342,12 @@ impl<'a> Layer<'a> {
     }
 }
 
-/// The layer the slicer has just cut, lent to its sink together with the working memory `W`
-/// it was cut in ([`CutSpace`]): its points are in that memory (in the place of the cut's
-/// dead hash table), its loops in the slicer. Read it with [`layer`](Self::layer), or hand
-/// the whole to the next stage, which copies the layer before it uses the memory.
+/// The layer the slicer has just cut, lent to its sink together with the working memory `W` it was
+/// cut in ([`CutSpace`]).
+///
+/// Its points are in that memory (in the place of the cut's dead hash table), its loops in the
+/// slicer. Read it with [`layer`](Self::layer), or hand the whole to the next stage, which copies
+/// the layer before it uses the memory.
 pub struct SlicedLayer<'a, const SEGMENTS: usize, W: CutSpace<SEGMENTS>> {
     /// The layer but its points (`points` is empty: they are in `work`'s cut).
     head: Layer<'a>,
@@ -411,10 +418,12 @@ impl SliceStats {
     };
 }
 
-/// The streaming slicer. Capacities: `ACTIVE` triangles in the active set, `SEGMENTS` cut
-/// segments (and loop points) per layer, `LOOPS` loops (and open chains) per layer. It cuts
-/// each layer in working memory lent to the calls that may cut ([`CutSpace`]), and leaves the
-/// layer's points there (see the [module docs](self)).
+/// The streaming slicer.
+///
+/// Capacities: `ACTIVE` triangles in the active set, `SEGMENTS` cut segments (and loop points) per
+/// layer, `LOOPS` loops (and open chains) per layer. It cuts each layer in working memory lent to
+/// the calls that may cut ([`CutSpace`]), and leaves the layer's points there (see the [module
+/// docs](self)).
 ///
 /// Large capacities make a large value: on the host, build it where the stack is big enough
 /// (or in a `static`/boxed slot and call [`Slicer::reset`]).

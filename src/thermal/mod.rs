@@ -93,10 +93,11 @@ pub enum ThermalFault {
     HeatingTimeout,
 }
 
-/// The longest a job waits for its heaters before the first layer, ms (20 minutes: a stock
-/// Ender-3 heats its bed to 60 C and its hotend to 200 C in about 3, but a 100 C bed in a
-/// 15 C room takes about 9 in the stock model, more with a glass plate; each heater's own
-/// checks catch a stall long before this).
+/// The longest a job waits for its heaters before the first layer, ms (20 minutes).
+///
+/// A stock Ender-3 heats its bed to 60 C and its hotend to 200 C in about 3, but a 100 C bed in
+/// a 15 C room takes about 9 in the stock model, more with a glass plate; each heater's own
+/// checks catch a stall long before this.
 pub const HEAT_WAIT_LIMIT_MS: u32 = 1_200_000;
 
 impl ThermalFault {

@@ -31,16 +31,20 @@ pub const MINTEMP_C: i16 = 5;
 /// Marlin's `TEMP_HYSTERESIS`: the watch is only armed when the target is at least
 /// `increase + WATCH_HYSTERESIS_C + 1` above the reading.
 pub const WATCH_HYSTERESIS_C: i16 = 3;
-/// How long the hotend's first heat-up may take from its first reading inside the watch band
-/// to its target, ms: twice the slowest such last stretch of a normal heat-up, rounded up to
-/// the minute. The slowest is 78.9 s on the stock Ender-3 model with the stock gains
-/// (`tests/thermal_stall.rs` heats to every target from 170 °C to the machine's maximum in
-/// rooms at 15 to 35 °C, part fan off and at full, and checks this derivation): the maximum
-/// in a 15 °C room with the fan at full, where the cartridge has about 3 W to spare.
+/// How long the hotend's first heat-up may take from its first reading inside the watch band to its
+/// target, ms.
+///
+/// Twice the slowest such last stretch of a normal heat-up, rounded up to the minute. The slowest
+/// is 78.9 s on the stock Ender-3 model with the stock gains (`tests/thermal_stall.rs` heats to
+/// every target from 170 °C to the machine's maximum in rooms at 15 to 35 °C, part fan off and at
+/// full, and checks this derivation): the maximum in a 15 °C room with the fan at full, where the
+/// cartridge has about 3 W to spare.
 pub const HOTEND_APPROACH_MS: u32 = 180_000;
-/// The same for the bed, ms: twice its slowest last stretch, rounded up to the minute. The
-/// slowest is 154.0 s (targets from 40 °C to the machine's maximum in rooms at 15 to 35 °C):
-/// the maximum in a 15 °C room, where the integral term has to build almost full duty.
+/// The same for the bed, ms.
+///
+/// Twice its slowest last stretch, rounded up to the minute. The slowest is 154.0 s (targets from
+/// 40 °C to the machine's maximum in rooms at 15 to 35 °C): the maximum in a 15 °C room, where the
+/// integral term has to build almost full duty.
 pub const BED_APPROACH_MS: u32 = 360_000;
 
 /// Thermal protection limits of one heater.

@@ -117,11 +117,12 @@ impl LineSeg {
     };
 }
 
-/// The segments and pieces of one pass in one word pool: segment `s` in the 5 words from
-/// `5 s` (`line x 8 + flags`, `u0`, `c0 + c1 x 2^16`, `piece0`, `npieces + island x 2^16`;
-/// its `u1` is its last piece's), piece `k` in the word `len - 1 - k` from the back
-/// (`u1 x 4 + kind`). A line beyond `2^28`, a `u1` beyond `2^29` or a segment of more than
-/// 65535 pieces is [`Buffer::LineSegments`], like a full pool.
+/// The segments and pieces of one pass in one word pool.
+///
+/// Segment `s` in the 5 words from `5 s` (`line x 8 + flags`, `u0`, `c0 + c1 x 2^16`, `piece0`,
+/// `npieces + island x 2^16`; its `u1` is its last piece's), piece `k` in the word `len - 1 - k`
+/// from the back (`u1 x 4 + kind`). A line beyond `2^28`, a `u1` beyond `2^29` or a segment of more
+/// than 65535 pieces is [`Buffer::LineSegments`], like a full pool.
 pub struct Segs<'a> {
     w: &'a mut [u32],
     /// Segments.

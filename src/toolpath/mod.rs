@@ -452,9 +452,10 @@ pub enum Emitted {
     },
 }
 
-/// Where a layer's emission units go ([`Toolpath::emit_next`]), each whole or not at all:
-/// a unit is opened with its exact move count, its moves are sent, and it is closed, kept or
-/// undone by the room (then the stage undoes it too and the unit waits).
+/// Where a layer's emission units go ([`Toolpath::emit_next`]), each whole or not at all.
+///
+/// A unit is opened with its exact move count, its moves are sent, and it is closed, kept or undone
+/// by the room (then the stage undoes it too and the unit waits).
 ///
 /// A closure is a room without bound; [`Moves`] counts moves; the printer's move ring
 /// ([`crate::move_ring::RingRoom`]) codes each move into its bytes as it comes and undoes a
@@ -815,9 +816,11 @@ const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
 /// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
 const FIRST_LAYER: u32 = 0;
 
-/// The infill scratch (`CROSS` entries each): crossings, their order then segment ends,
-/// and the pool of segments and pieces. It takes turns with the offset engine (per layer:
-/// offsets, then infill and ordering) in the stage's working memory ([`ToolpathSpace`]).
+/// The infill scratch (`CROSS` entries each).
+///
+/// Crossings, their order then segment ends, and the pool of segments and pieces. It takes turns
+/// with the offset engine (per layer: offsets, then infill and ordering) in the stage's working
+/// memory ([`ToolpathSpace`]).
 pub struct FillScratch<const C: usize> {
     cross: [Crossing; C],
     idx: [u16; C],
@@ -830,11 +833,13 @@ impl<const C: usize> FillScratch<C> {
         Self { cross: [Crossing::EMPTY; C], idx: [0; C], pool: [[0; POOL_WORDS]; C] };
 }
 
-/// The streaming toolpath stage. Capacities (see the [module docs](self) for their memory):
-/// `PTS` points of a layer or of one island's offset, `LOOPS` loops of a layer, `CROSS`
-/// scanline crossings of one infill pass (and its segments and pieces, in 12-byte units),
-/// `PATH` path points of a layer (2 a path record), `RING` words of the window's stored
-/// contours, `SPANS` crossings of the window's layers with one scanline.
+/// The streaming toolpath stage.
+///
+/// Capacities (see the [module docs](self) for their memory): `PTS` points of a layer or of one
+/// island's offset, `LOOPS` loops of a layer, `CROSS` scanline crossings of one infill pass (and
+/// its segments and pieces, in 12-byte units), `PATH` path points of a layer (2 a path record),
+/// `RING` words of the window's stored contours, `SPANS` crossings of the window's layers with one
+/// scanline.
 pub struct Toolpath<
     const PTS: usize,
     const LOOPS: usize,

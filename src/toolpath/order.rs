@@ -865,14 +865,15 @@ enum Phase {
     Closed,
 }
 
-/// The emission of one layer's paths, resumable between units: the skirt first (in order),
-/// then the islands nearest first, in each the stages in order and the nearest path first
-/// (see the [module docs](self)), then a move to the layer's height if none went there.
-/// Each [`emit`](Self::emit) call emits whole units while the room it was given takes them
-/// (each opened with its exact moves, kept or undone at its end); the state between calls
-/// is this value, the [`Emitter`], the layer's paths (their done flags, the rear seams
-/// rotated, the records grouped by island), `island_stage` and the nearest-path grid's
-/// buffers, which the owner keeps untouched until the layer is complete.
+/// The emission of one layer's paths, resumable between units.
+///
+/// The skirt first (in order), then the islands nearest first, in each the stages in order and the
+/// nearest path first (see the [module docs](self)), then a move to the layer's height if none went
+/// there. Each [`emit`](Self::emit) call emits whole units while the room it was given takes them
+/// (each opened with its exact moves, kept or undone at its end); the state between calls is this
+/// value, the [`Emitter`], the layer's paths (their done flags, the rear seams rotated, the records
+/// grouped by island), `island_stage` and the nearest-path grid's buffers, which the owner keeps
+/// untouched until the layer is complete.
 #[derive(Debug, Clone)]
 pub struct Emission {
     phase: Phase,

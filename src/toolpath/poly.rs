@@ -19,10 +19,12 @@ pub fn div_round(num: i64, den: i64) -> i64 {
     }
 }
 
-/// [`div_round`] in `i128`: `(|num| + den / 2) / den` with the sign of `num / den`, the
-/// division by the planner's exact long division (a 64-bit divisor takes two 32-bit digits on
-/// the hardware divider, not the library's 128-bit loop; for `i64` operands the library's
-/// 64-bit division is faster and [`div_round`] keeps it).
+/// [`div_round`] in `i128`.
+///
+/// `(|num| + den / 2) / den` with the sign of `num / den`, the division by the planner's exact long
+/// division (a 64-bit divisor takes two 32-bit digits on the hardware divider, not the library's
+/// 128-bit loop; for `i64` operands the library's 64-bit division is faster and [`div_round`] keeps
+/// it).
 pub fn div_round_128(num: i128, den: i128) -> i128 {
     let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
     let den = den.unsigned_abs();
@@ -91,9 +93,10 @@ pub struct LoopBuf<const P: usize, const L: usize> {
     pub(crate) meta: LoopMeta<L>,
 }
 
-/// A loop buffer's loops and counters without its points, which are lent to it as a
-/// [`Loops`] (the toolpath stage keeps the points of its loops between offsets in the offset
-/// engine's place in the scratch).
+/// A loop buffer's loops and counters without its points, which are lent to it as a [`Loops`].
+///
+/// The toolpath stage keeps the points of its loops between offsets in the offset engine's
+/// place in its working memory.
 pub struct LoopMeta<const L: usize> {
     n_points: usize,
     rings: [Ring; L],

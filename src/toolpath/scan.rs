@@ -175,10 +175,11 @@ fn ceil_div(a: i64, b: i64) -> i64 {
     }
 }
 
-/// Appends the crossings of `rings` (points in `points`) with the lines of `angle` spaced
-/// `step` in `t`, to `out[*n..]`, in boundary order. More than `out` or [`MAX_CROSSINGS`]
-/// crossings, a point index above `u16::MAX` or more than 32768 loops are
-/// [`Buffer::Crossings`].
+/// Appends the crossings of `rings` (points in `points`) with the lines of `angle` spaced `step` in
+/// `t`, to `out[*n..]`, in boundary order.
+///
+/// More than `out` or [`MAX_CROSSINGS`] crossings, a point index above `u16::MAX` or more than
+/// 32768 loops are [`Buffer::Crossings`].
 pub fn crossings(
     points: &[Point2],
     rings: &[Ring],
@@ -369,11 +370,13 @@ impl<I: Iterator<Item = Point2>> ScanLoop for I {
     }
 }
 
-/// Writes to `out` the intervals of non-zero winding of `loops` along line `line` (`t = line
-/// x step`) in increasing `u`, empty ones skipped, and returns their number and the number
-/// of crossings: the same intervals as [`crossings`], [`sort_by_line`] and [`intervals`]
-/// give on that line. `out` must hold every crossing of the line (it is their scratch
-/// first): more is [`Buffer::WindowSpans`].
+/// Writes to `out` the intervals of non-zero winding of `loops` along line `line` (`t = line x
+/// step`) in increasing `u`, empty ones skipped, and returns their number and the number of
+/// crossings.
+///
+/// The same intervals as [`crossings`], [`sort_by_line`] and [`intervals`] give on that line. `out`
+/// must hold every crossing of the line (it is their scratch first): more is
+/// [`Buffer::WindowSpans`].
 pub fn line_spans<L: ScanLoop>(
     loops: impl Iterator<Item = L>,
     angle: Angle,

@@ -1,7 +1,8 @@
-//! In-place unstable sort with a small, fixed stack frame: an iterative quicksort (pivot the
-//! median of three, Hoare partition that stops on equal keys, insertion sort up to
-//! 16 elements) that pushes the larger part and loops on the smaller, so at most
-//! log2(n / 16) ranges wait, in a fixed 128 B array. Core's `sort_unstable` recurses, and its
+//! In-place unstable sort with a small, fixed stack frame.
+//!
+//! An iterative quicksort (pivot the median of three, Hoare partition that stops on equal keys,
+//! insertion sort up to 16 elements) that pushes the larger part and loops on the smaller, so at
+//! most log2(n / 16) ranges wait, in a fixed 128 B array. Core's `sort_unstable` recurses, and its
 //! small-sort scratch scales with the element: about 1 KB of stack per level for the offset
 //! engine's 12–20 B items on the M3.
 //!

@@ -31,9 +31,11 @@ pub trait ToolpathSpace<const PTS: usize, const CROSS: usize> {
     }
 }
 
-/// The offset engine's tenant: the engine and the points of the loops that the stage takes
-/// from it and gives back to it (its `tmp` loops, used only while the engine has the place:
-/// 8 B per `P` here instead of in the stage).
+/// The offset engine's tenant.
+///
+/// The engine and the points of the loops that the stage takes from it and gives back to it (its
+/// `tmp` loops, used only while the engine has the place: 8 B per `P` here instead of in the
+/// stage).
 pub struct Engine<const P: usize> {
     engine: Offsetter<P>,
     points: [Point2; P],

@@ -263,9 +263,10 @@ fn sext(v: u32, bits: u32) -> i32 {
     ((v << (32 - bits)) as i32) >> (32 - bits)
 }
 
-/// Words of a stored loop's header: its points and island, words of its points and the
-/// packed `t` range of its points for [`Angle::D45`] and [`Angle::D135`] (in 32 `t` units,
-/// see [`LoopPoints::t_range`]).
+/// Words of a stored loop's header.
+///
+/// Its points and island, words of its points and the packed `t` range of its points for
+/// [`Angle::D45`] and [`Angle::D135`] (in 32 `t` units, see [`LoopPoints::t_range`]).
 pub const LOOP_HEADER: usize = 4;
 
 /// Largest count of points, or words of points, of a stored loop (24 bits of a header word).
@@ -456,15 +457,15 @@ impl LoopWords {
     }
 }
 
-/// The loops of one stored layer, in words: `(loops, islands)`, then every loop is a
-/// [`LOOP_HEADER`] (`points + (island & 0xFF) x 2^24`, `words of its points + (island >> 8) x
-/// 2^24`, t range at 45 degrees, t range at 135 degrees) and its points' bytes in
-/// little-endian words, the last one padded with zeros: the first point's x, y in 8, then each
-/// point after the previous one in 3 (11-bit offsets), 4 (15-bit offsets) or 9 bytes (tag
-/// byte, x, y), the tag in the low bits of the first byte (on a typical loop most simplified
-/// points are under 1 mm apart). Yields `(island, points)`
-/// for the loops of at least three points; the next loop is found from the words, without
-/// walking the points.
+/// The loops of one stored layer, in words.
+///
+/// `(loops, islands)`, then every loop is a [`LOOP_HEADER`] (`points + (island & 0xFF) x 2^24`,
+/// `words of its points + (island >> 8) x 2^24`, t range at 45 degrees, t range at 135 degrees) and
+/// its points' bytes in little-endian words, the last one padded with zeros: the first point's x, y
+/// in 8, then each point after the previous one in 3 (11-bit offsets), 4 (15-bit offsets) or 9
+/// bytes (tag byte, x, y), the tag in the low bits of the first byte (on a typical loop most
+/// simplified points are under 1 mm apart). Yields `(island, points)` for the loops of at least
+/// three points; the next loop is found from the words, without walking the points.
 pub struct StoredRings<'a> {
     data: Parts<'a, u32>,
     at: usize,

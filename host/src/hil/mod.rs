@@ -1,9 +1,10 @@
-//! Hardware in the loop: the firmware's QEMU build (`lm3s6965evb`, UART0 on a unix socket)
-//! driven by the real host code ([`crate::serial`]), a seeded fault-injecting relay between
-//! the two ([`Relay`], built on the simulated link's [`crate::simjob::Wire`]), and the
-//! firmware's cost lines on QEMU's standard output ([`Costs`]). The same harness serves the
-//! in-process simulated printer ([`SimDevice`]): see `host/tests/hil_qemu.rs` and
-//! `host/examples/job_cost.rs`.
+//! Hardware in the loop.
+//!
+//! The firmware's QEMU build (`lm3s6965evb`, UART0 on a unix socket) driven by the real host code
+//! ([`crate::serial`]), a seeded fault-injecting relay between the two ([`Relay`], built on the
+//! simulated link's [`crate::simjob::Wire`]), and the firmware's cost lines on QEMU's standard
+//! output ([`Costs`]). The same harness serves the in-process simulated printer ([`SimDevice`]):
+//! see `host/tests/hil_qemu.rs` and `host/examples/job_cost.rs`.
 //!
 //! Every timer runs on the device's clock: QEMU's instruction clock ([`QemuClock`]) or the
 //! simulated printer's turns ([`SimClock`]). The host's link (retransmission, keepalive, the
@@ -77,11 +78,13 @@ pub fn admitted_on_link<P: Read + Write>(
     })?
 }
 
-/// The triangles to stream for `tris` to a device with `caps`, decided as `strata print`
-/// decides ([`admit_job`]: the slicer's needs, simplified within the measured deviation
-/// `max_deviation_mm` if need be, then the toolpath stage's needs and the moves per layer),
-/// the job for them, and a note when they were simplified. A refusal is an error: the
-/// hardware-in-the-loop test streams exactly what the real tool would.
+/// The triangles to stream for `tris` to a device with `caps`, the job for them, and a note when
+/// they were simplified, decided as `strata print` decides.
+///
+/// [`admit_job`]: the slicer's needs, simplified within the measured deviation
+/// `max_deviation_mm` if need be, then the toolpath stage's needs and the moves per layer.
+///
+/// A refusal is an error: the hardware-in-the-loop test streams exactly what the real tool would.
 pub fn admitted(
     tris: &[Triangle],
     job: JobSpec,
@@ -105,10 +108,12 @@ pub fn admitted(
     Ok((t, job, note))
 }
 
-/// Streams the job with [`crate::serial::print`] on `clock` and waits for the device to report
-/// it done; past `budget_ms` of the clock the job ends with an error saying so. An error ends
-/// with what the host saw last (triangles sent, layer reports, status). `on_progress` is
-/// called about every 100 ms of the clock.
+/// Streams the job with [`crate::serial::print`] on `clock` and waits for the device to report it
+/// done.
+///
+/// Past `budget_ms` of the clock the job ends with an error saying so. An error ends with what the
+/// host saw last (triangles sent, layer reports, status). `on_progress` is called about every 100
+/// ms of the clock.
 pub fn print_job<P: Read + Write>(
     port: &mut Port<P>,
     conn: &mut Connected,
@@ -138,9 +143,10 @@ pub fn print_job<P: Read + Write>(
     })
 }
 
-/// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm), its
-/// side cut into bands `band` um high (no face spans many layers, so no triangle batch
-/// completes many layers at once), zmin-sorted: a test model of any size.
+/// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm), its side
+/// cut into bands `band` um high, zmin-sorted: a test model of any size.
+///
+/// No face spans many layers, so no triangle batch completes many layers at once.
 pub fn banded_cylinder(r: f64, h: i32, n: usize, band: i32) -> Vec<Triangle> {
     let o = 100_000;
     let p = |k: usize, z: i32| {

@@ -33,9 +33,10 @@ pub fn build_output(board: &str) -> PathBuf {
     repo_root().join("target/firmware").join(board).join("strata-firmware.elf")
 }
 
-/// The QEMU machine a firmware image is built for: the `strata-qemu-machine=NAME` tag the
-/// QEMU boards carry (`lm3s6965evb`, or `mps2-an385` for the `qemu-mps2` build);
-/// `lm3s6965evb` when the image has none.
+/// The QEMU machine a firmware image is built for.
+///
+/// The `strata-qemu-machine=NAME` tag the QEMU boards carry (`lm3s6965evb`, or `mps2-an385` for the
+/// `qemu-mps2` build); `lm3s6965evb` when the image has none.
 pub fn qemu_machine(elf: &[u8]) -> String {
     const TAG: &[u8] = b"strata-qemu-machine=";
     elf.windows(TAG.len())
@@ -78,14 +79,17 @@ pub fn locate_image(elf: PathBuf, board: &str) -> Result<(PathBuf, PathBuf), Str
     Ok((qemu, elf))
 }
 
-/// How long QEMU may take to accept the UART connection, wall time: it waits for that
-/// connection before it runs anything, so this is process start-up alone (milliseconds on an
-/// idle machine, seconds on a saturated one).
+/// How long QEMU may take to accept the UART connection, wall time.
+///
+/// It waits for that connection before it runs anything, so this is process start-up alone
+/// (milliseconds on an idle machine, seconds on a saturated one).
 pub const QEMU_ACCEPT_LIMIT: Duration = Duration::from_secs(60);
 
-/// A running `qemu-system-arm` with the firmware; its UART0 is a unix socket the caller is
-/// connected to, its standard output (semihosting) is collected line by line. Killed on drop
-/// and, on Linux, when the thread that started it ends (keep it on that thread).
+/// A running `qemu-system-arm` with the firmware.
+///
+/// Its UART0 is a unix socket the caller is connected to, its standard output (semihosting) is
+/// collected line by line. Killed on drop and, on Linux, when the thread that started it ends (keep
+/// it on that thread).
 pub struct Qemu {
     child: Child,
     dir: PathBuf,
@@ -329,11 +333,12 @@ const CLOCK_REFRESH: Duration = Duration::from_millis(1);
 /// CPU to yield; seconds at worst on a saturated machine).
 const MONITOR_ANSWER_LIMIT: Duration = Duration::from_secs(30);
 
-/// QEMU's instruction clock (`-icount shift=0`: 1 ns of emulated time per instruction) as a
-/// link clock in emulated milliseconds: the firmware's 32-bit SysTick wrap counter, read with
-/// the monitor's `xp` (physical memory), wraps accumulated into 64 bits. Shared by clones (the
-/// host and the relay read one clock); an error once QEMU is gone or its clock stood still for
-/// [`CLOCK_STALL_LIMIT`].
+/// QEMU's instruction clock (`-icount shift=0`: 1 ns of emulated time per instruction) as a link
+/// clock in emulated milliseconds.
+///
+/// The firmware's 32-bit SysTick wrap counter, read with the monitor's `xp` (physical memory),
+/// wraps accumulated into 64 bits. Shared by clones (the host and the relay read one clock); an
+/// error once QEMU is gone or its clock stood still for [`CLOCK_STALL_LIMIT`].
 #[derive(Clone)]
 pub struct QemuClock {
     inner: Arc<Mutex<MonitorClock>>,

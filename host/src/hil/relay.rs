@@ -26,12 +26,13 @@ pub struct RelayStats {
     pub bytes_to_host: u64,
 }
 
-/// A fault-injecting relay between a device's UART socket and the host: every frame (split
-/// at its `0x00` delimiter) goes through a [`Wire`] per direction with seeded [`Faults`]
-/// (frame drop, byte corruption, byte loss, duplication, delay) at `baud`, timed on the
-/// device's clock (QEMU's instruction clock, or the in-process printer's), so the line runs
-/// at `baud` in the device's time however fast the machine runs it. Runs on its own thread
-/// until dropped, either side closes, or the clock fails.
+/// A fault-injecting relay between a device's UART socket and the host.
+///
+/// Every frame (split at its `0x00` delimiter) goes through a [`Wire`] per direction with seeded
+/// [`Faults`] (frame drop, byte corruption, byte loss, duplication, delay) at `baud`, timed on the
+/// device's clock (QEMU's instruction clock, or the in-process printer's), so the line runs at
+/// `baud` in the device's time however fast the machine runs it. Runs on its own thread until
+/// dropped, either side closes, or the clock fails.
 pub struct Relay {
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<Result<RelayStats, String>>>,
