@@ -56,7 +56,7 @@ impl Default for MachineConfig {
 impl MachineConfig {
     /// No machine: every field zero, a placeholder until a real configuration replaces it
     /// (a `static` built from it stays all zero bytes, in `.bss`).
-    pub const UNSET: Self = Self {
+    pub const EMPTY: Self = Self {
         steps_per_mm: [Rate::ZERO; AXES],
         build_volume_um: [0; 3],
         max_feed_mm_s: [Rate::ZERO; AXES],

@@ -307,7 +307,7 @@ pub struct RoomMemory {
 
 impl RoomMemory {
     /// Nothing learnt yet (a new job).
-    pub const NEW: Self = Self { wait: 0, exact: false, coded: (0, 0), largest: 0 };
+    pub const EMPTY: Self = Self { wait: 0, exact: false, coded: (0, 0), largest: 0 };
 
     /// Free bytes below which offering the waiting unit is no use.
     pub fn waits_for(&self) -> usize {
@@ -840,7 +840,7 @@ mod tests {
         // One byte short: the unit runs out of bytes, is undone (the ring, its coder and the
         // stream as before) and its exact bytes are known, all of them.
         ring.limit(used + bytes - 1);
-        let mut memory = RoomMemory::NEW;
+        let mut memory = RoomMemory::EMPTY;
         let mut room = ring.room(&mut stream, &mut memory);
         assert!(!offer(&mut room, &unit));
         assert_eq!((room.refused(), room.never_fits()), (Some(bytes), false));
@@ -870,7 +870,7 @@ mod tests {
         let mut small: MoveRing<64> = MoveRing::new();
         let (_, alone) = coded(stream_at(1), MoveEncoder::new(), &unit);
         small.limit(alone - 1);
-        let (mut s, mut m) = (stream_at(1), RoomMemory::NEW);
+        let (mut s, mut m) = (stream_at(1), RoomMemory::EMPTY);
         let mut never = small.room(&mut s, &mut m);
         assert!(!offer(&mut never, &unit));
         assert!(never.never_fits());
@@ -883,7 +883,7 @@ mod tests {
         let (_, bytes) = coded(stream_at(1), MoveEncoder::new(), &unit);
         // A room that learnt `bytes` for 3 moves expects (bytes / 3 + a quarter) a move.
         let mut ring: MoveRing<64> = MoveRing::new();
-        let (mut stream, mut memory) = (stream_at(1), RoomMemory::NEW);
+        let (mut stream, mut memory) = (stream_at(1), RoomMemory::EMPTY);
         assert!(offer(&mut ring.room(&mut stream, &mut memory), &unit));
         let expected = 3 * (bytes * 20 / 3) / 16;
         assert!(expected > bytes);

@@ -349,7 +349,7 @@ impl RingRun {
             refused: 0,
             undone: 0,
             never: 0,
-            memory: RoomMemory::NEW,
+            memory: RoomMemory::EMPTY,
             forget: false,
             stream: MoveStream::new(),
             coder: MoveEncoder::new(),
@@ -382,7 +382,7 @@ fn through_ring<const B: usize>(
     let mut waiting: Option<usize> = None;
     loop {
         let used = ring.used_bytes();
-        let mut memory = if seen.forget { RoomMemory::NEW } else { seen.memory };
+        let mut memory = if seen.forget { RoomMemory::EMPTY } else { seen.memory };
         let mut room = Logged {
             room: ring.room(stream, &mut memory),
             run: &mut *seen,

@@ -130,7 +130,7 @@ pub struct PlanConfig {
 impl PlanConfig {
     /// No configuration: every field zero, a placeholder until
     /// [`from_machine`](Self::from_machine)'s value replaces it.
-    pub const UNSET: Self = Self {
+    pub const EMPTY: Self = Self {
         timer_hz: 0,
         max_feed_mm_s: [Rate::ZERO; AXES],
         max_accel_mm_s2: [Rate::ZERO; AXES],
@@ -223,7 +223,7 @@ pub(crate) struct Limits {
 
 impl Limits {
     /// No motion allowed (an unconfigured planner).
-    const ZERO: Self = Self {
+    const EMPTY: Self = Self {
         vmax2_q16: [0; AXES],
         amax_q16: [0; AXES],
         print_accel_q16: 0,
@@ -584,7 +584,7 @@ impl<const N: usize> Planner<N> {
     pub const fn empty() -> Self {
         let () = Self::CAPACITY_OK;
         Self {
-            lim: Limits::ZERO,
+            lim: Limits::EMPTY,
             ring: [Entry::EMPTY; N],
             head: 0,
             len: 0,

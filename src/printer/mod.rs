@@ -206,13 +206,13 @@ impl<
     /// An unconfigured runner with empty buffers, built at compile time: a board keeps it in
     /// a `static` (no stack temporary of the whole pipeline) and calls
     /// [`Printer::configure`] once at start-up, before anything else. Its configurations
-    /// are [`MachineConfig::UNSET`] and the like: the whole value is zero bytes, so a
+    /// are [`MachineConfig::EMPTY`] and the like: the whole value is zero bytes, so a
     /// `static` holding it is in `.bss` (no flash image).
     pub const fn empty() -> Self {
         Self {
-            machine: MachineConfig::UNSET,
-            plan_cfg: PlanConfig::UNSET,
-            step_cfg: StepConfig::UNSET,
+            machine: MachineConfig::EMPTY,
+            plan_cfg: PlanConfig::EMPTY,
+            step_cfg: StepConfig::EMPTY,
             pipeline: Pipeline::EMPTY,
             motion: Motion::EMPTY,
             state: DeviceState::Idle,

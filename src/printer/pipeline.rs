@@ -71,7 +71,7 @@ impl<
         tp: Toolpath::empty(),
         scratch: Scratch::new(),
         stream: MoveStream::new(),
-        room_memory: RoomMemory::NEW,
+        room_memory: RoomMemory::EMPTY,
     };
 
     /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
@@ -86,7 +86,7 @@ impl<
         self.tp.reset(tp_cfg).map_err(|e| refused(Refusal::Toolpath(e)))?;
         self.tp.set_position(Point2::new(0, 0), 0);
         self.stream = MoveStream::new();
-        self.room_memory = RoomMemory::NEW;
+        self.room_memory = RoomMemory::EMPTY;
         Ok(self.slicer.layer_count())
     }
 

@@ -285,7 +285,7 @@ pub struct LayerRepairs {
 }
 
 impl LayerRepairs {
-    const ZERO: Self = Self {
+    const EMPTY: Self = Self {
         exact_joins: 0,
         tolerance_joins: 0,
         gaps_closed: 0,
@@ -404,7 +404,7 @@ pub struct SliceStats {
 }
 
 impl SliceStats {
-    const ZERO: Self = Self {
+    const EMPTY: Self = Self {
         layers: 0,
         triangles: 0,
         dropped_triangles: 0,
@@ -414,7 +414,7 @@ impl SliceStats {
         peak_loops: 0,
         loops: 0,
         dropped_small_loops: 0,
-        repairs: LayerRepairs::ZERO,
+        repairs: LayerRepairs::EMPTY,
     };
 }
 
@@ -453,7 +453,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
             layers: 0,
             next_layer: 0,
             next_plane: 0,
-            active: [PackedTriangle::ZERO; ACTIVE],
+            active: [PackedTriangle::EMPTY; ACTIVE],
             active_len: 0,
             contours: Contours::EMPTY,
             last_z_min: 0,
@@ -468,7 +468,7 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
     /// [`SliceError::Finished`] until [`Slicer::reset`] configures it. Lets a large owner be
     /// built in a `static` in `.bss` without a stack temporary.
     pub const fn empty() -> Self {
-        const UNSET: SliceConfig = SliceConfig {
+        const UNCONFIGURED: SliceConfig = SliceConfig {
             first_layer_height_um: 0,
             layer_height_um: 0,
             model_height_um: 0,
@@ -477,16 +477,16 @@ impl<const ACTIVE: usize, const SEGMENTS: usize, const LOOPS: usize>
             max_gap_um: 0,
         };
         Self {
-            config: UNSET,
+            config: UNCONFIGURED,
             layers: 0,
             next_layer: 0,
             next_plane: 0,
-            active: [PackedTriangle::ZERO; ACTIVE],
+            active: [PackedTriangle::EMPTY; ACTIVE],
             active_len: 0,
             contours: Contours::EMPTY,
             // `reset` sets it to i32::MIN (no triangle yet).
             last_z_min: 0,
-            stats: SliceStats::ZERO,
+            stats: SliceStats::EMPTY,
             stopped: Some(SliceError::Finished),
         }
     }

@@ -24,7 +24,7 @@ pub(crate) fn is_packable(t: &Triangle) -> bool {
 
 impl PackedTriangle {
     /// An all-zero entry (fills unused capacity).
-    pub(crate) const ZERO: Self = Self([0; 3]);
+    pub(crate) const EMPTY: Self = Self([0; 3]);
 
     /// Packs `t`, or `None` when a coordinate is outside `0..=MAX_COORD_UM`.
     pub(crate) fn pack(t: &Triangle) -> Option<Self> {

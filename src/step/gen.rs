@@ -74,7 +74,7 @@ impl AxisRun {
 
     /// Every field zero: the state of an unconfigured generator ([`StepGenerator::empty`]),
     /// which [`StepGenerator::reset`] replaces with [`AxisRun::STILL`].
-    const UNSET: Self =
+    const EMPTY: Self =
         Self { remaining: 0, dir: false, s_q32: 0, s_frac: 0, ds_q32: 0, ds_frac: 0, next_key: 0 };
 
     /// One step of the block `b` (which starts at `start_q16`) is generated on `axis`: on to
@@ -199,7 +199,7 @@ impl<const B: usize> StepGenerator<B> {
             pending_ticks: 0,
             steps_per_mm: [Rate::ZERO; AXES],
             comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
-            axes: [AxisRun::UNSET; AXES],
+            axes: [AxisRun::EMPTY; AXES],
             block: None,
             next: None,
             tag: None,

@@ -107,7 +107,7 @@ pub struct StepConfig {
 impl StepConfig {
     /// No configuration: every field zero, a placeholder until
     /// [`from_machine`](Self::from_machine)'s value replaces it.
-    pub const UNSET: Self = Self {
+    pub const EMPTY: Self = Self {
         timer_hz: 0,
         steps_per_mm: [Rate::ZERO; AXES],
         driver: DriverTiming { step_high_ns: 0, step_low_ns: 0, dir_setup_ns: 0 },
