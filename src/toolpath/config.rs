@@ -1,0 +1,208 @@
+//! The toolpath stage's settings, in its units.
+
+use crate::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
+
+use super::ToolpathError;
+#[cfg(doc)]
+#[allow(unused_imports)]
+use super::*;
+
+/// Where loops start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Seam {
+    /// The rear-most vertex (largest Y): seams line up at the back of the part.
+    Rear,
+    /// The vertex nearest to the nozzle: shortest travel, scattered seams.
+    Nearest,
+}
+
+/// Everything the toolpath stage needs to know, in its units.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ToolpathConfig {
+    /// Extrusion line width, um.
+    pub line_width_um: i32,
+    /// First layer height, um.
+    pub first_layer_height_um: i32,
+    /// Layer height, um.
+    pub layer_height_um: i32,
+    /// Perimeter loops.
+    pub perimeters: u8,
+    /// Sparse infill density, percent.
+    pub infill_percent: u8,
+    /// Sparse infill pattern.
+    pub infill_pattern: InfillPattern,
+    /// Solid layers under a top surface (at most 16).
+    pub top_layers: u8,
+    /// Solid layers over a bottom surface (at most 16).
+    pub bottom_layers: u8,
+    /// Perimeter and skirt speed, mm/s.
+    pub perimeter_speed_mm_s: Rate,
+    /// Infill speed (sparse and solid), mm/s.
+    pub infill_speed_mm_s: Rate,
+    /// Travel speed, mm/s.
+    pub travel_speed_mm_s: Rate,
+    /// Speed of every extrusion on the first layer, mm/s.
+    pub first_layer_speed_mm_s: Rate,
+    /// Retraction length, um (0: never retract).
+    pub retract_length_um: i32,
+    /// Retraction speed, mm/s.
+    pub retract_speed_mm_s: Rate,
+    /// Filament diameter, um.
+    pub filament_diameter_um: i32,
+    /// Print the external perimeter after the inner ones.
+    pub outer_perimeter_last: bool,
+    /// How far infill lines reach into the innermost perimeter, um.
+    pub infill_overlap_um: i32,
+    /// Gap between the first layer and the skirt, um.
+    pub skirt_distance_um: i32,
+    /// Skirt loops (0: no skirt).
+    pub skirt_loops: u8,
+    /// Where loops start.
+    pub seam: Seam,
+    /// Contour simplification tolerance, um.
+    pub simplify_tolerance_um: i32,
+    /// Travels that leave the part retract only from this length on, um.
+    pub min_retract_travel_um: i32,
+    /// Travel inside the part without retraction.
+    pub comb: bool,
+    /// Measure each island's area thinner than a line ([`LayerStats::thin_area_um2`]): one
+    /// more offset per island and layer, for reports only (the toolpaths do not depend on
+    /// it); the printer leaves it out.
+    pub measure_thin_area: bool,
+}
+
+impl ToolpathConfig {
+    /// The toolpath settings of `settings` on `machine`, with this stage's defaults: outer
+    /// perimeter last, infill overlap half a line (infill lines reach the innermost
+    /// perimeter's inner edge), a 3 mm skirt of one loop, rear seams,
+    /// 10 um simplification, combing, retraction for travels over 1.5 mm that leave the part.
+    pub fn new(machine: &MachineConfig, settings: &PrintSettings) -> Self {
+        Self {
+            line_width_um: settings.line_width_um,
+            first_layer_height_um: settings.first_layer_height_um,
+            layer_height_um: settings.layer_height_um,
+            perimeters: settings.perimeters,
+            infill_percent: settings.infill_percent,
+            infill_pattern: settings.infill_pattern,
+            top_layers: settings.top_layers,
+            bottom_layers: settings.bottom_layers,
+            perimeter_speed_mm_s: settings.perimeter_speed_mm_s,
+            infill_speed_mm_s: settings.infill_speed_mm_s,
+            travel_speed_mm_s: settings.travel_speed_mm_s,
+            first_layer_speed_mm_s: settings.first_layer_speed_mm_s,
+            retract_length_um: settings.retract_length_um,
+            retract_speed_mm_s: settings.retract_speed_mm_s,
+            filament_diameter_um: machine.filament_diameter_um,
+            outer_perimeter_last: true,
+            infill_overlap_um: settings.line_width_um / 2,
+            skirt_distance_um: 3_000,
+            skirt_loops: 1,
+            seam: Seam::Rear,
+            simplify_tolerance_um: 10,
+            min_retract_travel_um: 1_500,
+            comb: true,
+            measure_thin_area: true,
+        }
+    }
+
+    /// Checks ranges: positive widths and heights, at most 16 top/bottom layers and 20
+    /// perimeters, density at most 100 %, non-negative distances.
+    pub fn validate(&self) -> Result<(), ToolpathError> {
+        let checks = [
+            ("line_width_um", (100..=5_000).contains(&self.line_width_um)),
+            ("first_layer_height_um", (1..=5_000).contains(&self.first_layer_height_um)),
+            ("layer_height_um", (1..=5_000).contains(&self.layer_height_um)),
+            ("perimeters", self.perimeters <= 20),
+            ("infill_percent", self.infill_percent <= 100),
+            ("top_layers", self.top_layers <= 16),
+            ("bottom_layers", self.bottom_layers <= 16),
+            ("retract_length_um", (0..=50_000).contains(&self.retract_length_um)),
+            ("filament_diameter_um", (100..=10_000).contains(&self.filament_diameter_um)),
+            ("infill_overlap_um", (0..=self.line_width_um).contains(&self.infill_overlap_um)),
+            ("skirt_distance_um", (0..=100_000).contains(&self.skirt_distance_um)),
+            ("skirt_loops", self.skirt_loops <= 20),
+            ("simplify_tolerance_um", (0..=200).contains(&self.simplify_tolerance_um)),
+            ("min_retract_travel_um", self.min_retract_travel_um >= 0),
+            ("travel_speed_mm_s", self.travel_speed_mm_s > 0),
+            ("perimeter_speed_mm_s", self.perimeter_speed_mm_s > 0),
+            ("infill_speed_mm_s", self.infill_speed_mm_s > 0),
+            ("first_layer_speed_mm_s", self.first_layer_speed_mm_s > 0),
+            ("retract_speed_mm_s", self.retract_speed_mm_s > 0),
+        ];
+        match checks.iter().find(|(_, ok)| !ok) {
+            Some(&(field, _)) => Err(ToolpathError::InvalidConfig { field }),
+            None => Ok(()),
+        }
+    }
+
+    /// Nozzle height of layer `index` (top of the layer), um.
+    pub fn layer_z_um(&self, index: u32) -> i32 {
+        self.first_layer_height_um + self.layer_height_um * index as i32
+    }
+
+    /// Thickness of layer `index`, um.
+    pub fn layer_height_of(&self, index: u32) -> i32 {
+        if index == 0 {
+            self.first_layer_height_um
+        } else {
+            self.layer_height_um
+        }
+    }
+
+    /// Every how many solid-spacing lines a sparse line runs (per direction), 0 for none.
+    pub fn sparse_every(&self) -> i32 {
+        let p = i32::from(self.infill_percent);
+        if p == 0 {
+            return 0;
+        }
+        let k = ((100 + p / 2) / p).max(1);
+        if self.infill_pattern == InfillPattern::Grid {
+            2 * k
+        } else {
+            k
+        }
+    }
+
+    /// Offset of the infill domain from the contour, um.
+    pub fn infill_inset_um(&self) -> i32 {
+        let w = self.line_width_um;
+        let p = i32::from(self.perimeters);
+        if p == 0 {
+            w / 2
+        } else {
+            p * w + w / 2 - self.infill_overlap_um
+        }
+    }
+}
+
+/// The configuration of a [`Toolpath::empty`] stage until its [`reset`](Toolpath::reset):
+/// never used to build a layer. Every field is zero (the first variant of the enums), so
+/// that an empty stage is all zero bytes.
+pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
+    line_width_um: 0,
+    first_layer_height_um: 0,
+    layer_height_um: 0,
+    perimeters: 0,
+    infill_percent: 0,
+    infill_pattern: InfillPattern::Lines,
+    top_layers: 0,
+    bottom_layers: 0,
+    perimeter_speed_mm_s: Rate::ZERO,
+    infill_speed_mm_s: Rate::ZERO,
+    travel_speed_mm_s: Rate::ZERO,
+    first_layer_speed_mm_s: Rate::ZERO,
+    retract_length_um: 0,
+    retract_speed_mm_s: Rate::ZERO,
+    filament_diameter_um: 0,
+    outer_perimeter_last: false,
+    infill_overlap_um: 0,
+    skirt_distance_um: 0,
+    skirt_loops: 0,
+    seam: Seam::Rear,
+    simplify_tolerance_um: 0,
+    min_retract_travel_um: 0,
+    comb: false,
+    measure_thin_area: false,
+};
