@@ -1,4 +1,4 @@
-//! Ordering, travel, retraction and extrusion amounts: one layer's paths become moves.
+//! Ordering: one layer's paths become units of moves, in the order they print.
 //!
 //! Islands are visited nearest first. Within an island the perimeters go inner to outer (the
 //! external perimeter last, by default) and then the infill runs, each stage nearest first
@@ -8,342 +8,33 @@
 //! loop first) and, once an island is chosen, only within the box of its paths' entries (the
 //! path records are grouped by island first, keeping their order), so a layer of `n` paths
 //! costs about `n` grid lookups instead of `n^2` distance checks (islands of at most
-//! 16 paths are simply scanned); loops whose entry depends on the nozzle (nearest-vertex seams) are
-//! scanned beside it, and a layer whose paths do not fit the grid's buffers is scanned
-//! whole. The choice is the scan's in every case (lowest index among equally near paths). A travel that crosses no contour of the layer
-//! stays inside the part (combing) and needs no retraction; one that crosses a contour and is
-//! at least `min_retract_travel_um` long retracts first and primes again before the next
-//! extrusion.
+//! [`SCAN_MAX`] paths are simply scanned); loops whose entry depends on the nozzle
+//! (nearest-vertex seams) are scanned beside it, and a layer whose paths do not fit the grid's
+//! buffers is scanned whole. The choice is the scan's in every case (lowest index among
+//! equally near paths).
 //!
-//! Extrusion: `E = width x height x length / filament area`, accumulated as an exact volume
-//! (um^3 x 16) and converted to a rounded absolute filament position, so per-move rounding
-//! never drifts. The filament area uses pi = 355/113 (relative error 8.5e-8).
+//! The travels between paths ([`comb`]: a travel that crosses no contour stays inside the
+//! part, one that would goes around it when a short route exists) and the extrusion amounts
+//! and retractions ([`emitter`]) are their own modules.
 
 use core::ops::Range;
 
 use crate::geom::Point2;
-use crate::machine::Rate;
 use crate::slot::Slot;
+
+pub mod comb;
+pub mod emitter;
+
+pub use comb::CombFn;
+use comb::*;
+use emitter::*;
+pub use emitter::{filament_um, Ctx, Emitter};
 
 use super::near::{GridShape, NearGrid};
 use super::paths;
 use super::paths::{PathBuf, PathKind, PathPoints, PathRec};
-use super::poly::{dist, dist2, orient, segment_touches_rings, segments_touch, Ring};
-use super::{Feature, LayerStats, Room, Seam, ToolEvent, ToolMove, ToolpathConfig};
-
-/// A comb router: waypoints from the first point to the second, `false` if none.
-pub type CombFn<'a> = dyn Fn(Point2, Point2, &mut dyn FnMut(Point2)) -> bool + 'a;
-
-/// A combed travel may be this much (um) longer than twice the straight one.
-const COMB_EXTRA_UM: i64 = 15_000;
-/// Most loops one combed travel goes around.
-const MAX_COMB_LOOPS: usize = 16;
-/// Most comb waypoints a plan keeps for its travel (the sample models' routes have at most
-/// 57, nearly all at most 32); a longer route is found again when travelled.
-const ROUTE_POINTS: usize = 32;
-
-/// The waypoints of the comb route [`Emitter::plan_travel`] found, for the travel it planned.
-#[derive(Debug, Clone, Copy)]
-struct Route {
-    pts: [Point2; ROUTE_POINTS],
-    /// Waypoints of the route (more than [`ROUTE_POINTS`]: only the first are kept).
-    len: usize,
-}
-
-impl Route {
-    /// No waypoints (all zero bytes).
-    const EMPTY: Self = Self { pts: [Point2::new(0, 0); ROUTE_POINTS], len: 0 };
-
-    fn push(&mut self, w: Point2) {
-        if let Some(slot) = self.pts.get_mut(self.len) {
-            *slot = w;
-        }
-        self.len = self.len.saturating_add(1);
-    }
-
-    /// The waypoints, when all were kept.
-    fn points(&self) -> Option<&[Point2]> {
-        self.pts.get(..self.len)
-    }
-}
-
-/// Nozzle state and per-layer counters.
-#[derive(Debug, Clone, Copy)]
-pub struct Emitter {
-    /// Where the nozzle is (XY, um).
-    pub pos: Point2,
-    /// Nozzle height (um).
-    pub z: i32,
-    /// Height to move to before the next travel.
-    pub pending_z: Option<i32>,
-    /// Filament is retracted.
-    pub retracted: bool,
-    /// Extruded volume so far, um^3 x 16.
-    vol16: i64,
-    /// Absolute filament position for `vol16`, um (retractions excluded).
-    e_abs: i64,
-    /// The last move extruded (a travel ends an extrusion run).
-    extruding: bool,
-    /// Counters of the layer being emitted.
-    pub layer: LayerStats,
-}
-
-impl Emitter {
-    /// At the bed origin, nothing extruded.
-    pub const fn new() -> Self {
-        Self {
-            pos: Point2::new(0, 0),
-            z: 0,
-            pending_z: None,
-            retracted: false,
-            vol16: 0,
-            e_abs: 0,
-            extruding: false,
-            layer: LayerStats::EMPTY,
-        }
-    }
-}
-
-impl Default for Emitter {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-/// Filament length (um) for a volume of `vol16 / 16` um^3: `4 V / (pi d^2)`.
-pub fn filament_um(vol16: i64, filament_diameter_um: i32) -> i64 {
-    let d2 = i64::from(filament_diameter_um) * i64::from(filament_diameter_um);
-    // 4 V 113 / (355 d^2) with V = vol16 / 16.
-    vol16 * 113 / (1420 * d2)
-}
-
-/// Everything the emitter reads besides its state.
-pub struct Ctx<'a> {
-    /// Settings.
-    pub cfg: &'a ToolpathConfig,
-    /// Contour points of the layer (combing).
-    pub points: &'a [Point2],
-    /// Contour loops of the layer.
-    pub rings: &'a [Ring],
-    /// Layer height (um), for extrusion.
-    pub height_um: i32,
-    /// First layer: every extrusion at the first-layer speed.
-    pub first_layer: bool,
-}
-
-impl Ctx<'_> {
-    fn feed(&self, f: Feature) -> Rate {
-        let c = self.cfg;
-        match f {
-            Feature::Travel => c.travel_speed_mm_s,
-            Feature::Retract | Feature::Unretract => c.retract_speed_mm_s,
-            _ if self.first_layer => c.first_layer_speed_mm_s,
-            Feature::ExternalPerimeter | Feature::Perimeter | Feature::Skirt => {
-                c.perimeter_speed_mm_s
-            }
-            Feature::InternalInfill | Feature::SolidInfill | Feature::TopSolidInfill => {
-                c.infill_speed_mm_s
-            }
-        }
-    }
-
-    /// Does the segment touch any contour edge of the layer?
-    fn crosses_contour(&self, a: Point2, b: Point2) -> bool {
-        segment_touches_rings(self.points, self.rings, a, b)
-    }
-}
-
-/// A travel planned by [`Emitter::plan_travel`].
-#[derive(Debug, Clone, Copy)]
-struct Travel {
-    /// Retract first (unless already retracted).
-    retract: bool,
-    /// Follow the comb route.
-    routed: bool,
-    /// Moves it emits: retraction, height change and the legs that move.
-    moves: u32,
-}
-
-impl Emitter {
-    fn send(&mut self, sink: &mut impl FnMut(&ToolEvent<'_>), m: ToolMove) {
-        sink(&ToolEvent::Move(m));
-    }
-
-    /// Travels to `to`. A travel that crosses no contour stays inside the part; one that
-    /// does is routed by `comb` (waypoints after the start, ending at `to`) when that route
-    /// crosses no contour and is not much longer; otherwise it retracts first (from
-    /// `min_retract_travel_um` on).
-    pub fn travel_to(
-        &mut self,
-        ctx: &Ctx<'_>,
-        to: Point2,
-        comb: &CombFn<'_>,
-        sink: &mut impl FnMut(&ToolEvent<'_>),
-    ) {
-        let mut route = Route::EMPTY;
-        let plan = self.plan_travel(ctx, to, comb, &mut route);
-        self.travel(ctx, to, plan, &route, comb, sink);
-    }
-
-    /// What [`travel_to`](Self::travel_to) would do from here, nothing emitted: whether it
-    /// retracts, whether it takes the comb route (its waypoints into `route`), and its moves
-    /// exactly.
-    fn plan_travel(
-        &self,
-        ctx: &Ctx<'_>,
-        to: Point2,
-        comb: &CombFn<'_>,
-        route: &mut Route,
-    ) -> Travel {
-        if to == self.pos && self.pending_z.is_none() {
-            return Travel { retract: false, routed: false, moves: 0 };
-        }
-        let from = self.pos;
-        let d = dist(from, to);
-        let mut routed = false;
-        // Legs that move (a waypoint equal to the one before makes no move).
-        let mut legs = u32::from(to != from);
-        // Short hops go straight and retract neither way: whether they cross a contour is
-        // not asked.
-        let short = d < i64::from(ctx.cfg.min_retract_travel_um);
-        let leaves = d > 0 && !short && (!ctx.cfg.comb || ctx.crosses_contour(from, to));
-        if leaves && ctx.cfg.comb {
-            // Check the detour leg by leg, then take it.
-            let (mut prev, mut ok, mut len, mut waypoints, mut moving) =
-                (from, true, 0i64, 0u32, 0u32);
-            let longest = 2 * d + COMB_EXTRA_UM;
-            route.len = 0;
-            let found = comb(from, to, &mut |w| {
-                route.push(w);
-                len += dist(prev, w);
-                // A route already refused (too long, or a leg leaves) needs no more checks.
-                ok = ok && len <= longest && !ctx.crosses_contour(prev, w);
-                waypoints += 1;
-                moving += u32::from(w != prev);
-                prev = w;
-            });
-            routed = found && ok && waypoints > 1;
-            if routed {
-                legs = moving;
-            }
-        }
-        let retract = leaves && !routed && ctx.cfg.retract_length_um > 0;
-        let moves = u32::from(retract && !self.retracted) + u32::from(self.pending_z.is_some());
-        Travel { retract, routed, moves: moves + legs }
-    }
-
-    /// Carries out `plan` (made by [`plan_travel`](Self::plan_travel) from this state, with
-    /// `route`; `comb` finds a route too long to be kept again).
-    fn travel(
-        &mut self,
-        ctx: &Ctx<'_>,
-        to: Point2,
-        plan: Travel,
-        route: &Route,
-        comb: &CombFn<'_>,
-        sink: &mut impl FnMut(&ToolEvent<'_>),
-    ) {
-        if to == self.pos && self.pending_z.is_none() {
-            return;
-        }
-        let from = self.pos;
-        if plan.retract && !self.retracted {
-            self.retracted = true;
-            self.layer.retractions += 1;
-            let m = ToolMove {
-                to: self.pos,
-                z_um: self.z,
-                e_um: -ctx.cfg.retract_length_um,
-                feed_mm_s: ctx.feed(Feature::Retract),
-                feature: Feature::Retract,
-            };
-            self.send(sink, m);
-        }
-        if let Some(z) = self.pending_z.take() {
-            self.z = z;
-            self.layer.travel_moves += 1;
-            let m = ToolMove {
-                to: self.pos,
-                z_um: z,
-                e_um: 0,
-                feed_mm_s: ctx.feed(Feature::Travel),
-                feature: Feature::Travel,
-            };
-            self.send(sink, m);
-        }
-        if plan.routed {
-            match route.points() {
-                Some(pts) => pts.iter().for_each(|&w| self.travel_leg(ctx, w, sink)),
-                None => {
-                    comb(from, to, &mut |w| self.travel_leg(ctx, w, sink));
-                }
-            }
-        } else {
-            self.travel_leg(ctx, to, sink);
-        }
-        self.extruding = false;
-    }
-
-    fn travel_leg(&mut self, ctx: &Ctx<'_>, to: Point2, sink: &mut impl FnMut(&ToolEvent<'_>)) {
-        if to == self.pos {
-            return;
-        }
-        self.layer.travel_moves += 1;
-        self.layer.travel_um += dist(self.pos, to) as u64;
-        self.pos = to;
-        let m = ToolMove {
-            to,
-            z_um: self.z,
-            e_um: 0,
-            feed_mm_s: ctx.feed(Feature::Travel),
-            feature: Feature::Travel,
-        };
-        self.send(sink, m);
-    }
-
-    /// Extrudes a line to `to`.
-    pub fn extrude_to(
-        &mut self,
-        ctx: &Ctx<'_>,
-        to: Point2,
-        feature: Feature,
-        sink: &mut impl FnMut(&ToolEvent<'_>),
-    ) {
-        if to == self.pos {
-            return;
-        }
-        if self.retracted {
-            self.retracted = false;
-            let m = ToolMove {
-                to: self.pos,
-                z_um: self.z,
-                e_um: ctx.cfg.retract_length_um,
-                feed_mm_s: ctx.feed(Feature::Unretract),
-                feature: Feature::Unretract,
-            };
-            self.send(sink, m);
-        }
-        if !self.extruding {
-            self.layer.stops += 1;
-            self.extruding = true;
-        }
-        let len16 = crate::math::isqrt_u64((dist2(self.pos, to) * 256) as u64) as i64;
-        self.vol16 += i64::from(ctx.cfg.line_width_um) * i64::from(ctx.height_um) * len16;
-        let e_abs = filament_um(self.vol16, ctx.cfg.filament_diameter_um);
-        let e = (e_abs - self.e_abs) as i32;
-        self.e_abs = e_abs;
-        self.layer.extrusion_moves += 1;
-        self.layer.filament_um += i64::from(e);
-        self.pos = to;
-        let m = ToolMove { to, z_um: self.z, e_um: e, feed_mm_s: ctx.feed(feature), feature };
-        self.send(sink, m);
-    }
-
-    /// Total filament extruded so far, um.
-    pub fn filament_total_um(&self) -> i64 {
-        self.e_abs
-    }
-}
+use super::poly::dist2;
+use super::{Room, Seam, ToolEvent, ToolpathConfig};
 
 /// Rear-most vertex (largest y, then smallest x).
 fn rear(pts: PathPoints<'_>) -> usize {
@@ -409,154 +100,6 @@ fn stage(r: &PathRec, cfg: &ToolpathConfig) -> u8 {
     }
 }
 
-/// A loop the travel `a`-`b` crosses: record `rec`, first met on edge `e_in`, last met on
-/// edge `e_out` (edge `k` runs from point `k` to the next). The crossings' parameters and
-/// points are computed again from the edges (12 bytes a hit on the stack).
-#[derive(Clone, Copy)]
-struct Hit {
-    rec: u32,
-    e_in: u32,
-    e_out: u32,
-}
-
-/// A parameter along a travel: `num / den`, `den > 0`.
-type Frac = (i64, i64);
-
-fn frac_lt(x: Frac, y: Frac) -> bool {
-    i128::from(x.0) * i128::from(y.1) < i128::from(y.0) * i128::from(x.1)
-}
-
-/// Parameter `num / den` (`den > 0`) of the intersection of `a`-`b` with `p`-`q` (they
-/// touch); `None` past i64 (coordinates far beyond the print volume).
-fn cut_t(a: Point2, b: Point2, p: Point2, q: Point2) -> Option<Frac> {
-    let (da, db) = (i128::from(orient(p, q, a)), i128::from(orient(p, q, b)));
-    let (num, den) = if da != db {
-        (da, da - db)
-    } else {
-        // Collinear: the nearer end of p-q along a-b.
-        let along = |v: Point2| {
-            i128::from(v.x - a.x) * i128::from(b.x - a.x)
-                + i128::from(v.y - a.y) * i128::from(b.y - a.y)
-        };
-        let len2 = i128::from(dist2(a, b)).max(1);
-        (along(p).min(along(q)).max(0), len2)
-    };
-    let (num, den) = if den < 0 { (-num, -den) } else { (num, den) };
-    Some((i64::try_from(num).ok()?, i64::try_from(den).ok()?))
-}
-
-/// The point at parameter `t` along `a`-`b` (rounded to the nearest unit).
-fn point_at(a: Point2, b: Point2, t: Frac) -> Point2 {
-    let (num, den) = (i128::from(t.0), i128::from(t.1).max(1));
-    let at = |o: i32, e: i32| {
-        let v = i128::from(o) + super::poly::div_round_128(i128::from(e - o) * num, den);
-        v as i32
-    };
-    Point2::new(at(a.x, b.x), at(a.y, b.y))
-}
-
-/// The comb route from `a` to `b` around the external perimeter loops of `island` that the
-/// straight travel crosses: for each (outermost first along the travel) the shorter way
-/// along the loop between where the travel meets it first and last. Calls `visit` for every
-/// waypoint after `a`, ending with `b`. False if the travel meets too many loops.
-fn comb_route<const N: usize>(
-    paths: &PathBuf<N>,
-    island: u16,
-    a: Point2,
-    b: Point2,
-    visit: &mut dyn FnMut(Point2),
-) -> bool {
-    let mut hits = [Hit { rec: 0, e_in: 0, e_out: 0 }; MAX_COMB_LOOPS];
-    let mut nh = 0;
-    let (lo, hi) =
-        (Point2::new(a.x.min(b.x), a.y.min(b.y)), Point2::new(a.x.max(b.x), a.y.max(b.y)));
-    for ri in 0..paths.len() {
-        let r = &paths.rec(ri);
-        if r.island != island || r.kind != PathKind::Perimeter(0) {
-            continue;
-        }
-        let pts = paths.points(r);
-        let n = pts.len();
-        // (t_in, e_in, t_out, e_out) of the loop so far.
-        let mut hit: Option<(Frac, usize, Frac, usize)> = None;
-        for k in 0..n {
-            let (p, q) = (pts.at(k), pts.at((k + 1) % n));
-            if p.x.max(q.x) < lo.x
-                || p.x.min(q.x) > hi.x
-                || p.y.max(q.y) < lo.y
-                || p.y.min(q.y) > hi.y
-            {
-                continue;
-            }
-            if !segments_touch(a, b, p, q) {
-                continue;
-            }
-            let Some(t) = cut_t(a, b, p, q) else { return false };
-            let h = hit.get_or_insert((t, k, t, k));
-            if frac_lt(t, h.0) {
-                (h.0, h.1) = (t, k);
-            }
-            if frac_lt(h.2, t) {
-                (h.2, h.3) = (t, k);
-            }
-        }
-        if let Some((_, e_in, _, e_out)) = hit {
-            if nh == MAX_COMB_LOOPS {
-                return false;
-            }
-            hits[nh] = Hit { rec: ri as u32, e_in: e_in as u32, e_out: e_out as u32 };
-            nh += 1;
-        }
-    }
-    // Where the travel meets edge `e` of record `rec` (found touching above).
-    let edge_t = |rec: u32, e: u32| {
-        let pts = paths.points(&paths.rec(rec as usize));
-        let (e, n) = (e as usize, pts.len());
-        cut_t(a, b, pts.at(e), pts.at((e + 1) % n)).unwrap_or((0, 1))
-    };
-    let hits = &mut hits[..nh];
-    hits.sort_unstable_by(|x, y| {
-        let (tx, ty) = (edge_t(x.rec, x.e_in), edge_t(y.rec, y.e_in));
-        (i128::from(tx.0) * i128::from(ty.1)).cmp(&(i128::from(ty.0) * i128::from(tx.1)))
-    });
-    let mut done_to: Frac = (0, 1);
-    for h in hits.iter() {
-        let t_in = edge_t(h.rec, h.e_in);
-        if frac_lt(t_in, done_to) {
-            continue;
-        }
-        let r = paths.rec(h.rec as usize);
-        let pts = paths.points(&r);
-        let n = pts.len();
-        let (e_in, e_out) = (h.e_in as usize, h.e_out as usize);
-        let t_out = edge_t(h.rec, h.e_out);
-        let (p_in, p_out) = (point_at(a, b, t_in), point_at(a, b, t_out));
-        // Forward: vertices e_in+1 ..= e_out; backward: e_in, e_in-1, ..., e_out+1.
-        let fwd_count = (e_out + n - e_in) % n;
-        let back_count = (e_in + n - e_out) % n;
-        let walk_len = |count: usize, fwd: bool| {
-            let mut len = 0i64;
-            let mut prev = p_in;
-            for s in 0..count {
-                let v = if fwd { pts.at((e_in + 1 + s) % n) } else { pts.at((e_in + n - s) % n) };
-                len += dist(prev, v);
-                prev = v;
-            }
-            len + dist(prev, p_out)
-        };
-        let fwd = walk_len(fwd_count, true) <= walk_len(back_count, false);
-        visit(p_in);
-        let count = if fwd { fwd_count } else { back_count };
-        for s in 0..count {
-            visit(if fwd { pts.at((e_in + 1 + s) % n) } else { pts.at((e_in + n - s) % n) });
-        }
-        visit(p_out);
-        done_to = t_out;
-    }
-    visit(b);
-    true
-}
-
 /// The points path `r` extrudes to from its start point `start` (`reversed`: an open path
 /// from its last point): (point index, index of the feature of the move reaching it).
 fn path_order(r: &PathRec, start: usize, reversed: bool) -> impl Iterator<Item = (usize, usize)> {
@@ -573,14 +116,6 @@ fn path_order(r: &PathRec, start: usize, reversed: bool) -> impl Iterator<Item =
             (k + 1, k + 1)
         }
     })
-}
-
-/// The comb router of `island`'s paths.
-fn comber<const N: usize>(
-    paths: &PathBuf<N>,
-    island: u16,
-) -> impl Fn(Point2, Point2, &mut dyn FnMut(Point2)) -> bool + '_ {
-    move |a, b, visit| comb_route(paths, island, a, b, visit)
 }
 
 /// Plans printing path `r` from `start` (`reversed`: from its last point): the travel to
@@ -674,7 +209,7 @@ fn fixed_entry<const N: usize>(
 }
 
 /// Islands with at most this many paths are searched by scanning them.
-const SCAN_MAX: usize = 16;
+pub const SCAN_MAX: usize = 16;
 
 /// Path search of one layer: a [`NearGrid`] over the fixed entry points (item `2 i + end`
 /// for path `i`), plus a scan of the loops whose entry depends on the nozzle; a scan when the
@@ -1113,6 +648,8 @@ impl Emission {
 mod tests {
     use super::*;
     use crate::machine::{MachineConfig, PrintSettings};
+    use crate::toolpath::poly::Ring;
+    use crate::toolpath::Feature;
     use core::cell::Cell;
 
     /// A travel across a wall follows the comb route found for it, whether its waypoints
