@@ -8,7 +8,7 @@ mod slice_support;
 
 use std::cell::Cell;
 
-use slice_support::{config, cuboid, holed_prism, ngon, section_area_f64, sphere, to_um, TriMm};
+use slice_support::config;
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::scratch::Scratch;
@@ -20,6 +20,9 @@ use strata::toolpath::{
     Buffer, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError, ToolpathScratch,
     ToolpathStats,
 };
+use strata_testkit::check::section_area_f64;
+use strata_testkit::mesh::{cuboid, holed_prism, loft, ngon, sphere, to_um, TriMm};
+use strata_testkit::on_big_stack;
 
 /// Slicer capacities: active triangles, loops (segments per test).
 const A: usize = 512;
@@ -148,14 +151,6 @@ fn toolpath_alone<const CROSS: usize>(
     (moves, result)
 }
 
-/// Runs `f` on a thread with a big stack (the stage values are large in debug builds).
-fn on_big_stack(f: impl FnOnce() + Send) {
-    std::thread::scope(|s| {
-        std::thread::Builder::new().stack_size(64 << 20).spawn_scoped(s, f).unwrap().join()
-    })
-    .unwrap();
-}
-
 /// A sphere beside a ring with a hole: loops of many sizes, holes, infill and skins.
 fn parts() -> Vec<TriMm> {
     let mut mesh = sphere([110.0, 110.0, 4.0], 4.0, 40, 20);
@@ -205,7 +200,7 @@ fn a_full_tenant_in_the_shared_scratch_is_the_same_typed_error() {
         // after the toolpath stage has built layers in the scratch.
         let mut mesh = cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 2.0]);
         let ring = ngon(40, 110.0, 110.0, 8.0, 0.0);
-        mesh.extend(slice_support::loft(&[(2.0, ring.clone()), (3.0, ring)]));
+        mesh.extend(loft(&[(2.0, ring.clone()), (3.0, ring)]));
         let tris = to_um(&mesh);
         let cfg = config(&tris, 0);
         let run = shared::<64, 2048>(&tris, cfg);

@@ -13,7 +13,7 @@
 //!   the layers its skins wait for) must arrive, which the printed "first step at" shows;
 //! - the wire cost per triangle and the time to stream all of 3DBenchy at 250000 baud.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::printer::CREALITY_CAPACITIES;
@@ -23,20 +23,14 @@ use strata::slice::SliceConfig;
 use strata_host::admission::{admit, Admission};
 use strata_host::model;
 use strata_host::simjob::{simulate, SimOptions};
+use strata_testkit::models;
 
 fn models() -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
-    let list = |d: &Path| -> Vec<PathBuf> {
-        std::fs::read_dir(d)
-            .unwrap_or_else(|e| panic!("{}: {e}", d.display()))
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.extension().is_some_and(|x| x == "stl"))
-            .collect()
-    };
+    let dir = models::dir();
     // The top-level models and their real-size versions (`scaled_mm/`).
-    let mut v = list(&dir);
+    let mut v = models::stl_files(&dir);
     if dir.join("scaled_mm").is_dir() {
-        v.extend(list(&dir.join("scaled_mm")));
+        v.extend(models::stl_files(&dir.join("scaled_mm")));
     }
     v.sort();
     // STRATA_MODELS=name,name runs only those files.

@@ -13,9 +13,8 @@ use strata::machine::MachineConfig;
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::{Capacities, DeviceState};
 use strata_host::serial::{serve_device, DeviceClock, ServeOptions};
-
-mod common;
-use common::{holed_block, write_stl};
+use strata_testkit::mesh::{holed_block, sphere};
+use strata_testkit::stl::write_mesh;
 
 /// The link timeout of both ends in these tests, s: the simulated printer serves in real
 /// time on the test's own cores, so a machine busy elsewhere can hold either end for a
@@ -69,7 +68,7 @@ fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Outp
 fn print_streams_a_model_to_the_simulated_printer_over_a_pty() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let (out, state) =
         print_over_pty(&[model.to_str().unwrap(), "--skirt-loops", "0"], CREALITY_CAPACITIES);
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -84,7 +83,7 @@ fn print_streams_a_model_to_the_simulated_printer_over_a_pty() {
 fn print_refuses_a_model_the_printer_cannot_hold() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     // A printer with room for 4 triangles: the 32-triangle block cannot be simplified that far.
     let tiny = Capacities { active_triangles: 4, contour_points: 4, ..CREALITY_CAPACITIES };
     let (out, _) = print_over_pty(&[model.to_str().unwrap()], tiny);
@@ -100,7 +99,7 @@ fn print_fails_cleanly_when_nobody_answers() {
     drop(slave);
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let out = Command::cargo_bin("strata")
         .unwrap()
         .args(["print", model.to_str().unwrap(), "--port", &name])
@@ -125,7 +124,7 @@ fn ctrl_c_aborts_the_print_and_the_printer() {
 
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let (mut master, slave) = TTYPort::pair().expect("pseudo-terminal pair");
     master.set_timeout(Duration::from_millis(1)).unwrap();
     let name = slave.name().expect("slave name");
@@ -216,29 +215,9 @@ fn eta_known_line(l: &str) -> bool {
         && l.split("ETA ").nth(1).is_some_and(|t| t.starts_with(|c: char| c.is_ascii_digit()))
 }
 
-/// A UV sphere (radius `r` mm, `lon` x `lat`, resting on z = 0) as STL triangles.
-fn sphere_stl(r: f32, lon: usize, lat: usize) -> Vec<common::Tri> {
-    let v = |i: usize, j: usize| -> [f32; 3] {
-        let th = std::f32::consts::PI * i as f32 / lat as f32;
-        let ph = 2.0 * std::f32::consts::PI * (j % lon) as f32 / lon as f32;
-        if i == 0 || i == lat {
-            return [0.0, 0.0, if i == 0 { 0.0 } else { 2.0 * r }];
-        }
-        [r * th.sin() * ph.cos(), r * th.sin() * ph.sin(), r - r * th.cos()]
-    };
-    let mut t = Vec::new();
-    for i in 0..lat {
-        for j in 0..lon {
-            let (a, b, c, d) = (v(i, j), v(i, j + 1), v(i + 1, j + 1), v(i + 1, j));
-            if i > 0 {
-                t.push([a, b, d]);
-            }
-            if i + 1 < lat {
-                t.push([b, c, d]);
-            }
-        }
-    }
-    t
+/// A UV sphere of radius 5 mm resting on z = 0, `lon` x `lat` ([`sphere`]).
+fn sphere_on_the_bed(lon: usize, lat: usize) -> Vec<strata_testkit::mesh::TriMm> {
+    sphere([0.0, 0.0, 5.0], 5.0, lon, lat)
 }
 
 /// Admission that takes longer than the link's dead time (a fine sphere simplified for a
@@ -248,7 +227,7 @@ fn sphere_stl(r: f32, lon: usize, lat: usize) -> Vec<common::Tri> {
 fn a_slow_admission_keeps_the_link_alive() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("sphere.stl");
-    write_stl(&model, &sphere_stl(5.0, 96, 48));
+    write_mesh(&model, &sphere_on_the_bed(96, 48));
     let small = Capacities { active_triangles: 150, contour_points: 150, ..CREALITY_CAPACITIES };
     let (out, state) = print_over_pty(
         &[model.to_str().unwrap(), "--skirt-loops", "0", "--max-deviation", "0.1"],
@@ -269,7 +248,7 @@ fn a_slow_admission_keeps_the_link_alive() {
 fn a_printer_that_stops_reading_for_a_while_still_completes_the_print() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("sphere.stl");
-    write_stl(&model, &sphere_stl(5.0, 48, 24));
+    write_mesh(&model, &sphere_on_the_bed(48, 24));
     let mut opts = device(CREALITY_CAPACITIES, 400);
     opts.stall_reads_ms = STALL_FILLS_THE_TERMINAL_MS;
     let (out, state) = print_over_pty_with(&[model.to_str().unwrap(), "--skirt-loops", "0"], opts);
@@ -292,7 +271,7 @@ const STALL_FILLS_THE_TERMINAL_MS: u32 = 8_000;
 fn a_printer_that_takes_no_data_past_the_link_timeout_ends_the_print_with_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("sphere.stl");
-    write_stl(&model, &sphere_stl(5.0, 48, 24));
+    write_mesh(&model, &sphere_on_the_bed(48, 24));
     let mut opts = device(CREALITY_CAPACITIES, 400);
     opts.stall_reads_ms = 2 * LINK_TIMEOUT_S * 1000;
     let (out, _) = print_over_pty_with(

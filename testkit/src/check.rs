@@ -60,16 +60,15 @@ pub fn inside(loops: &[(Vec<Point2>, bool)], p: (f64, f64)) -> bool {
     w != 0
 }
 
-/// Signed area (um^2) of the section of `tris` by the plane at height `z` (um), without
-/// chaining: each triangle's cut segment (from its above->below edge to its below->above
-/// edge) contributes its cross product (Green's theorem). Also returns the summed segment
-/// length (um), a scale for rounding tolerances.
-pub fn section_area_f64(tris: &[Triangle], z: f64) -> (f64, f64) {
-    let (mut twice, mut length) = (0.0, 0.0);
+/// The section of `tris` by the plane at height `z` (um), without chaining: per crossing
+/// triangle its cut segment, from where the section enters it (its above->below edge) to
+/// where it leaves (its below->above edge), in `f64` um. Corners at `z` count as above, as in
+/// the slicer.
+pub fn section_segments_f64(tris: &[Triangle], z: f64) -> Vec<[[f64; 2]; 2]> {
+    let mut out = Vec::new();
     for t in tris {
-        let v: Vec<[f64; 3]> =
-            t.v.iter().map(|p| [f64::from(p.x), f64::from(p.y), f64::from(p.z)]).collect();
-        let below: Vec<bool> = v.iter().map(|p| p[2] < z).collect();
+        let v = t.v.map(|p| [f64::from(p.x), f64::from(p.y), f64::from(p.z)]);
+        let below = v.map(|p| p[2] < z);
         let cross_at = |i: usize, j: usize| {
             let s = (z - v[i][2]) / (v[j][2] - v[i][2]);
             [v[i][0] + s * (v[j][0] - v[i][0]), v[i][1] + s * (v[j][1] - v[i][1])]
@@ -83,9 +82,20 @@ pub fn section_area_f64(tris: &[Triangle], z: f64) -> (f64, f64) {
             }
         }
         if let (Some(a), Some(b)) = (from, to) {
-            twice += a[0] * b[1] - b[0] * a[1];
-            length += ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
+            out.push([a, b]);
         }
+    }
+    out
+}
+
+/// Signed area (um^2) of the section of `tris` by the plane at height `z` (um): each
+/// [`section_segments_f64`] segment contributes its cross product (Green's theorem). Also
+/// returns the summed segment length (um), a scale for rounding tolerances.
+pub fn section_area_f64(tris: &[Triangle], z: f64) -> (f64, f64) {
+    let (mut twice, mut length) = (0.0, 0.0);
+    for [a, b] in section_segments_f64(tris, z) {
+        twice += a[0] * b[1] - b[0] * a[1];
+        length += ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
     }
     (twice / 2.0, length)
 }

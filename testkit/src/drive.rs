@@ -181,12 +181,23 @@ pub fn batches(tris: &[Triangle]) -> Vec<Vec<u8>> {
     out
 }
 
-/// A whole job's payloads: `JobStart(spec)`, the [`batches`] of `tris`, `EndOfModel`.
-pub fn job_payloads(spec: JobSpec, tris: &[Triangle]) -> Vec<Vec<u8>> {
-    let mut out = vec![encode(&Message::JobStart(spec))];
-    out.extend(batches(tris));
+/// A model's payloads: the [`batches`] of `tris`, then `EndOfModel`.
+pub fn model_payloads(tris: &[Triangle]) -> Vec<Vec<u8>> {
+    let mut out = batches(tris);
     out.push(encode(&Message::EndOfModel));
     out
+}
+
+/// A whole job's payloads: `JobStart(spec)`, then the [`model_payloads`] of `tris`.
+pub fn job_payloads(spec: JobSpec, tris: &[Triangle]) -> Vec<Vec<u8>> {
+    let mut out = vec![encode(&Message::JobStart(spec))];
+    out.extend(model_payloads(tris));
+    out
+}
+
+/// Starts the job `spec` on `p`, asserting the printer takes it at once.
+pub fn start<P: Device>(p: &mut P, spec: JobSpec) {
+    assert_eq!(p.handle(&Message::JobStart(spec)), Accept::Taken, "the job start was refused");
 }
 
 /// Moves every frame `from` has due at `now` (ms) into `to`.

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use strata::stl::RawTriangle;
 
-use crate::mesh::StlTri;
+use crate::mesh::{to_f32, StlTri, TriMm};
 
 /// Facets with zero normals (what most writers of test models put there).
 pub fn raw(tris: &[StlTri]) -> Vec<RawTriangle> {
@@ -33,6 +33,11 @@ pub fn binary(header: &[u8], count: u32, triangles: &[RawTriangle]) -> Vec<u8> {
 pub fn write_file(path: &Path, tris: &[StlTri]) {
     let bytes = binary(&[0; 80], tris.len() as u32, &raw(tris));
     std::fs::write(path, bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+}
+
+/// Writes the mesh (mm) to `path` as a binary STL: [`write_file`] of its [`to_f32`] facets.
+pub fn write_mesh(path: &Path, mesh: &[TriMm]) {
+    write_file(path, &to_f32(mesh));
 }
 
 /// How [`ascii`] lays out the text.
