@@ -20,7 +20,7 @@ use strata::toolpath::{
     Buffer, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError, ToolpathScratch,
     ToolpathStats,
 };
-use strata_testkit::check::section_area_f64;
+use strata_testkit::check::assert_section_area;
 use strata_testkit::mesh::{cuboid, holed_prism, loft, ngon, sphere, to_um, TriMm};
 use strata_testkit::on_big_stack;
 
@@ -180,10 +180,8 @@ fn a_cut_after_the_toolpath_stage_slices_and_prints_as_with_scratches_of_their_o
         assert_eq!(run.layers, alone);
         // And the sections are right (independent f64 cut, 0.1 % or 1 um x the cut length).
         for l in &run.layers {
-            let (oracle, length) = section_area_f64(&tris, f64::from(l.z_um));
             let got: i64 = l.loops.iter().map(|i| i.area_um2).sum();
-            let tol = (oracle.abs() * 1e-3).max(length);
-            assert!((got as f64 - oracle).abs() <= tol, "layer {}: {got} vs {oracle}", l.index);
+            assert_section_area(&format!("layer {}", l.index), got as f64, &tris, l.z_um, 0.0);
         }
         let (moves, stats) = toolpath_alone::<2048>(&alone);
         let stats = stats.unwrap();

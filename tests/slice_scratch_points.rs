@@ -12,7 +12,7 @@ use std::f64::consts::PI;
 use slice_support::{config, run, OwnedLayer};
 use strata::geom::{Point2, Triangle};
 use strata::slice::{Resource, SliceError};
-use strata_testkit::check::{section_area_f64, section_segments_f64};
+use strata_testkit::check::{assert_section_area, section_segments_f64};
 use strata_testkit::mesh::{holed_prism, loft, ngon, sphere, to_um, TriMm};
 
 const C: f64 = 110.0; // bed centre, mm
@@ -52,9 +52,8 @@ fn check_closed(layers: &[OwnedLayer], tris: &[Triangle], what: &str) {
     for l in layers {
         let z = f64::from(l.z_um);
         assert_same_points(l, &crossings_f64(tris, z), what);
-        let (oracle, length) = section_area_f64(tris, z);
-        let tol = (oracle.abs() * 1e-3).max(length);
-        assert!((l.area_um2() as f64 - oracle).abs() <= tol, "{what} layer {}", l.index);
+        let what_layer = format!("{what} layer {}", l.index);
+        assert_section_area(&what_layer, l.area_um2() as f64, tris, l.z_um, 0.0);
         for lp in &l.loops {
             let doubled = strata::geom::doubled_signed_area(&lp.points);
             assert_eq!(doubled > 0, !lp.hole, "{what} layer {}: orientation", l.index);

@@ -37,6 +37,28 @@ fn print_over_pty(args: &[&str], caps: Capacities) -> (std::process::Output, Dev
 
 /// [`print_over_pty`] with the device's options.
 fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Output, DeviceState) {
+    let (out, state) = serve_on_pty(opts, |name, _| {
+        let mut cmd = Command::cargo_bin("strata").unwrap();
+        cmd.args(["print", "--port", name]).args(args);
+        if !args.contains(&"--link-timeout") {
+            cmd.args(["--link-timeout", &LINK_TIMEOUT_S.to_string()]);
+        }
+        cmd.timeout(hang_guard()).output().unwrap()
+    });
+    let state = state.unwrap_or_else(|e| {
+        panic!("device: {e}; strata: {}", String::from_utf8_lossy(&out.stderr))
+    });
+    (out, state)
+}
+
+/// Serves a simulated printer with `opts` on the master end of a new pseudo-terminal pair
+/// (on a thread with a big stack) while `host(slave name, stop)` runs, then stops it (a host
+/// that panics sets `stop` first, or the device serves on); returns what `host` returned and
+/// the device's final state.
+fn serve_on_pty<R>(
+    opts: ServeOptions,
+    host: impl FnOnce(&str, &AtomicBool) -> R,
+) -> (R, Result<DeviceState, String>) {
     let (mut master, slave) = TTYPort::pair().expect("pseudo-terminal pair");
     master.set_timeout(Duration::from_millis(1)).unwrap();
     let name = slave.name().expect("slave name");
@@ -50,17 +72,9 @@ fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Outp
                 serve_device(&mut master, &MachineConfig::default(), opts, DeviceClock::Wall, &stop)
             })
             .unwrap();
-        let mut cmd = Command::cargo_bin("strata").unwrap();
-        cmd.args(["print", "--port", &name]).args(args);
-        if !args.contains(&"--link-timeout") {
-            cmd.args(["--link-timeout", &LINK_TIMEOUT_S.to_string()]);
-        }
-        let out = cmd.timeout(hang_guard()).output().unwrap();
+        let got = host(&name, &stop);
         stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        let state = device.join().unwrap().unwrap_or_else(|e| {
-            panic!("device: {e}; strata: {}", String::from_utf8_lossy(&out.stderr))
-        });
-        (out, state)
+        (got, device.join().unwrap())
     })
 }
 
@@ -125,83 +139,72 @@ fn ctrl_c_aborts_the_print_and_the_printer() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
     write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
-    let (mut master, slave) = TTYPort::pair().expect("pseudo-terminal pair");
-    master.set_timeout(Duration::from_millis(1)).unwrap();
-    let name = slave.name().expect("slave name");
-    drop(slave);
-    let stop = AtomicBool::new(false);
-    std::thread::scope(|s| {
-        let device = std::thread::Builder::new()
-            .stack_size(512 << 20)
-            .spawn_scoped(s, || {
-                let opts = device(CREALITY_CAPACITIES, 5);
-                serve_device(&mut master, &MachineConfig::default(), opts, DeviceClock::Wall, &stop)
-            })
-            .unwrap();
-        let timeout = LINK_TIMEOUT_S.to_string();
-        let mut child = Std::new(env!("CARGO_BIN_EXE_strata"))
-            .args(["print", model.to_str().unwrap(), "--port", &name, "--skirt-loops", "0"])
-            .args(["--link-timeout", &timeout])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let pid = child.id();
-        let stderr = child.stderr.take().unwrap();
-        let (tx, rx) = std::sync::mpsc::channel::<String>();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
+    let ((status, lines, stdout, sent), state) =
+        serve_on_pty(device(CREALITY_CAPACITIES, 5), |name, stop| {
+            let timeout = LINK_TIMEOUT_S.to_string();
+            let mut child = Std::new(env!("CARGO_BIN_EXE_strata"))
+                .args(["print", model.to_str().unwrap(), "--port", name, "--skirt-loops", "0"])
+                .args(["--link-timeout", &timeout])
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap();
+            let pid = child.id();
+            let stderr = child.stderr.take().unwrap();
+            let (tx, rx) = std::sync::mpsc::channel::<String>();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    if tx.send(line).is_err() {
+                        break;
+                    }
                 }
-            }
-        });
-        let t0 = Instant::now();
-        let mut lines: Vec<String> = Vec::new();
-        let mut sent = false;
-        let status = loop {
+            });
+            let t0 = Instant::now();
+            let mut lines: Vec<String> = Vec::new();
+            let mut sent = false;
+            let status = loop {
+                while let Ok(l) = rx.try_recv() {
+                    lines.push(l);
+                }
+                if !sent && lines.iter().any(|l| eta_known_line(l)) {
+                    let ok = Std::new("kill").args(["-INT", &pid.to_string()]).status().unwrap();
+                    assert!(ok.success());
+                    sent = true;
+                }
+                if let Some(st) = child.try_wait().unwrap() {
+                    break st;
+                }
+                if t0.elapsed() > hang_guard() {
+                    let _ = child.kill();
+                    stop.store(true, Ordering::Relaxed);
+                    panic!("strata print hung (SIGINT sent: {sent}): {lines:#?}");
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            };
+            // The rest of stderr.
+            std::thread::sleep(Duration::from_millis(100));
             while let Ok(l) = rx.try_recv() {
                 lines.push(l);
             }
-            if !sent && lines.iter().any(|l| eta_known_line(l)) {
-                let ok = Std::new("kill").args(["-INT", &pid.to_string()]).status().unwrap();
-                assert!(ok.success());
-                sent = true;
-            }
-            if let Some(st) = child.try_wait().unwrap() {
-                break st;
-            }
-            if t0.elapsed() > hang_guard() {
-                let _ = child.kill();
-                stop.store(true, Ordering::Relaxed);
-                panic!("strata print hung (SIGINT sent: {sent}): {lines:#?}");
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        };
-        // The rest of stderr.
-        std::thread::sleep(Duration::from_millis(100));
-        while let Ok(l) = rx.try_recv() {
-            lines.push(l);
-        }
-        let mut stdout = String::new();
-        std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stdout).unwrap();
-        assert!(sent, "no progress line with an ETA: {lines:#?}");
-        stop.store(true, Ordering::Relaxed);
-        let state = device.join().unwrap().unwrap();
-        let all = lines.join("\n");
-        eprintln!("{all}");
-        assert!(!status.success(), "{all}\n{stdout}");
-        // The printer confirmed the abort (the CLI says so only on the printer's Aborted
-        // status; without it, it says it was told).
-        assert!(all.contains("aborted by the user (Ctrl-C): the printer confirmed"), "{all}");
-        assert!(!stdout.contains("printed"), "{stdout}");
-        assert_eq!(state, DeviceState::Aborted, "{all}");
-        // The plain progress lines: triangles, bytes, layer, state and ETA.
-        let p = lines.iter().find(|l| eta_known_line(l)).unwrap();
-        for what in ["32/32 triangles (100%)", " B sent", "| layer ", "/6 |", "Printing", "ETA "] {
-            assert!(p.contains(what), "{what}: {p}");
-        }
-    });
+            let mut stdout = String::new();
+            std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stdout).unwrap();
+            (status, lines, stdout, sent)
+        });
+    assert!(sent, "no progress line with an ETA: {lines:#?}");
+    let state = state.unwrap();
+    let all = lines.join("\n");
+    eprintln!("{all}");
+    assert!(!status.success(), "{all}\n{stdout}");
+    // The printer confirmed the abort (the CLI says so only on the printer's Aborted
+    // status; without it, it says it was told).
+    assert!(all.contains("aborted by the user (Ctrl-C): the printer confirmed"), "{all}");
+    assert!(!stdout.contains("printed"), "{stdout}");
+    assert_eq!(state, DeviceState::Aborted, "{all}");
+    // The plain progress lines: triangles, bytes, layer, state and ETA.
+    let p = lines.iter().find(|l| eta_known_line(l)).unwrap();
+    for what in ["32/32 triangles (100%)", " B sent", "| layer ", "/6 |", "Printing", "ETA "] {
+        assert!(p.contains(what), "{what}: {p}");
+    }
 }
 
 /// How long a test may wait for `strata print` before it counts as hung, wall time: several

@@ -100,6 +100,24 @@ pub fn section_area_f64(tris: &[Triangle], z: f64) -> (f64, f64) {
     (twice / 2.0, length)
 }
 
+/// Asserts that `area_um2` is the area of the section of `tris` at height `z_um` (the
+/// [`section_area_f64`] oracle) within 0.1 % or 1 um x the cut's length (the slicer rounds
+/// every crossing to the um), plus `extra_um2`. Messages start with `what`.
+pub fn assert_section_area(
+    what: &str,
+    area_um2: f64,
+    tris: &[Triangle],
+    z_um: i32,
+    extra_um2: f64,
+) {
+    let (oracle, length) = section_area_f64(tris, f64::from(z_um));
+    let tol = (oracle.abs() * 1e-3).max(length) + extra_um2;
+    assert!(
+        (area_um2 - oracle).abs() <= tol,
+        "{what} z {z_um}: area {area_um2} um^2, oracle {oracle} (tol {tol})"
+    );
+}
+
 /// Asserts that every line a-b lies inside `contours` and at least `min_dist` um from each of
 /// their edges (endpoints inside, segment-to-edge distances); returns the lines checked.
 /// Messages start with `what` and name the line's `label`.

@@ -175,7 +175,7 @@ pub fn batches(tris: &[Triangle]) -> Vec<Vec<u8>> {
             b.push(t).expect("one triangle fits a batch");
         }
     }
-    if b.len() > 0 {
+    if !b.is_empty() {
         out.push(b.payload().to_vec());
     }
     out

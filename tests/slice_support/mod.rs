@@ -108,15 +108,9 @@ pub fn check_layer(layer: &OwnedLayer, tris: &[Triangle], what: &str) {
 
 /// [`check_layer`] with `extra_um2` more area tolerance (for loops dropped as too small).
 pub fn check_layer_within(layer: &OwnedLayer, tris: &[Triangle], what: &str, extra_um2: f64) {
-    let (oracle, length) = strata_testkit::check::section_area_f64(tris, f64::from(layer.z_um));
     let got = layer.area_um2() as f64;
-    let tol = (oracle.abs() * 1e-3).max(length) + extra_um2;
-    assert!(
-        (got - oracle).abs() <= tol,
-        "{what} layer {} z {}: area {got} um^2, oracle {oracle} (tol {tol})",
-        layer.index,
-        layer.z_um
-    );
+    let what_layer = format!("{what} layer {}", layer.index);
+    strata_testkit::check::assert_section_area(&what_layer, got, tris, layer.z_um, extra_um2);
     for l in &layer.loops {
         let doubled = strata::geom::doubled_signed_area(&l.points);
         assert_eq!(doubled > 0, !l.hole, "{what} layer {}: orientation", layer.index);
