@@ -18,11 +18,12 @@ use std::path::PathBuf;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::frame::wire_len;
-use strata::protocol::{BatchBuilder, JobOptions, JobSpec};
+use strata::protocol::{JobOptions, JobSpec};
 use strata::slice::SliceConfig;
 use strata_host::admission::{admit, Admission};
 use strata_host::model;
 use strata_host::simjob::{simulate, SimOptions};
+use strata_testkit::drive::batches;
 use strata_testkit::models;
 
 fn models() -> Vec<PathBuf> {
@@ -56,16 +57,7 @@ fn every_model_streams_ahead_of_printing() {
             }
         };
         // Streaming the whole model as it is, at 250000 baud (10 bits per byte).
-        let mut bb = BatchBuilder::new();
-        let mut bytes = 0usize;
-        for t in &tris {
-            if bb.push(t).is_err() {
-                bytes += wire_len(bb.payload());
-                bb.clear();
-                bb.push(t).unwrap();
-            }
-        }
-        bytes += wire_len(bb.payload());
+        let bytes: usize = batches(&tris).iter().map(|b| wire_len(b)).sum();
         let top = tris.iter().map(|t| t.z_max()).max().unwrap();
         let cfg = SliceConfig::new(&settings, top).unwrap();
         // Refused at the default 0.02 mm error: say so, then stream it simplified further.
