@@ -10,9 +10,6 @@
 //! peak resident memory (VmHWM). Run: `cargo bench --bench gcode`. Skips with a message when
 //! `../shared/models` is absent.
 
-#[path = "../tests/common/mod.rs"]
-mod common;
-
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -20,30 +17,16 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use strata::gcode::{GcodeOptions, GcodeWriter};
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::place::{Bounds, Placement};
 use strata::scratch::Scratch;
 use strata::slice::{Layer, LayerRepairs, LoopInfo, SliceConfig, SlicedLayer, Slicer};
 use strata::toolpath::{ToolEvent, ToolMove, Toolpath, ToolpathConfig};
+use strata_testkit::models::{placed_sorted, shared_models};
 
 /// Capacities comfortably above 3DBenchy's needs (see `examples/toolpath_report.rs`).
 type BenchSlicer = Slicer<8192, 8192, 256>;
 type BenchToolpath = Toolpath<8192, 256, 16384, 32768, 16384, 16384>;
 /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
 type BenchScratch = Scratch<8192, 8192, 16384>;
-
-fn placed_sorted(bytes: &[u8], machine: &MachineConfig) -> Vec<Triangle> {
-    let mut raw = Vec::new();
-    let mut bounds = Bounds::EMPTY;
-    strata::stl::read_all(bytes, &mut |t| {
-        bounds.include(&t);
-        raw.push(t);
-    })
-    .expect("model parses");
-    let placement = Placement::on_bed(&bounds, machine).expect("fits the bed");
-    let mut tris: Vec<Triangle> = raw.iter().map(|t| placement.apply(t)).collect();
-    tris.sort_by_key(Triangle::z_min);
-    tris
-}
 
 /// The stage values, built once on a thread with a big stack (they are megabytes).
 struct Stages {
@@ -53,16 +36,11 @@ struct Stages {
 }
 
 fn stages(slice: SliceConfig, cfg: ToolpathConfig) -> Stages {
-    std::thread::Builder::new()
-        .stack_size(256 << 20)
-        .spawn(move || Stages {
-            slicer: Box::new(BenchSlicer::new(slice).expect("slice config")),
-            toolpath: Box::new(BenchToolpath::new(cfg).expect("toolpath config")),
-            work: Box::new(BenchScratch::new()),
-        })
-        .expect("spawn")
-        .join()
-        .expect("build stages")
+    strata_testkit::on_big_stack(move || Stages {
+        slicer: Box::new(BenchSlicer::new(slice).expect("slice config")),
+        toolpath: Box::new(BenchToolpath::new(cfg).expect("toolpath config")),
+        work: Box::new(BenchScratch::new()),
+    })
 }
 
 /// A layer copied out of the slicer.
@@ -83,7 +61,7 @@ struct Job {
 
 /// File bytes to G-code text.
 fn file_to_gcode(bytes: &[u8], job: &Job, st: &mut Stages) -> String {
-    let tris = placed_sorted(bytes, &job.machine);
+    let tris = placed_sorted(bytes, &job.machine).expect("3DBenchy parses and fits the bed");
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let mut slice = job.slice;
     slice.model_height_um = top;
@@ -176,7 +154,7 @@ fn peak_rss_kb() -> Option<u64> {
 }
 
 fn bench(c: &mut Criterion) {
-    let Some(dir) = common::shared_models() else {
+    let Some(dir) = shared_models() else {
         eprintln!("gcode: ../shared/models not found, nothing to measure");
         return;
     };
@@ -184,7 +162,7 @@ fn bench(c: &mut Criterion) {
     let machine = MachineConfig::default();
     let settings = PrintSettings::default();
     let cfg = ToolpathConfig::new(&machine, &settings);
-    let tris = placed_sorted(&bytes, &machine);
+    let tris = placed_sorted(&bytes, &machine).expect("3DBenchy parses and fits the bed");
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let slice = SliceConfig::new(&settings, top).expect("slice config");
     let job = Job { machine, settings, cfg, slice };
@@ -221,7 +199,7 @@ fn bench(c: &mut Criterion) {
         b.iter(|| file_to_gcode(black_box(&bytes), &job, &mut st).len())
     });
     group.bench_function("3DBenchy/parse", |b| {
-        b.iter(|| placed_sorted(black_box(&bytes), &job.machine).len())
+        b.iter(|| placed_sorted(black_box(&bytes), &job.machine).map(|t| t.len()))
     });
     group.bench_function("3DBenchy/slice", |b| {
         b.iter(|| {

@@ -3,35 +3,18 @@
 //! host's admission check) alongside. Run: `cargo bench --bench slice`. Skips with a message
 //! when `../shared/models` is absent.
 
-#[path = "../tests/common/mod.rs"]
-mod common;
-
 use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::place::{Bounds, Placement};
 use strata::slice::{peak_needs, SliceConfig, SliceScratch, SlicedLayer, Slicer};
+use strata_testkit::models::{placed_sorted, shared_models};
 
 /// Bench capacities: comfortably above 3DBenchy's peaks (4,685 active, 4,681 segments).
 type BenchSlicer = Slicer<8192, 8192, 256>;
 type BenchScratch = SliceScratch<8192>;
-
-fn placed_sorted(bytes: &[u8]) -> Vec<Triangle> {
-    let mut raw = Vec::new();
-    let mut bounds = Bounds::EMPTY;
-    strata::stl::read_all(bytes, &mut |t| {
-        bounds.include(&t);
-        raw.push(t);
-    })
-    .expect("model parses");
-    let placement = Placement::on_bed(&bounds, &MachineConfig::default()).expect("fits the bed");
-    let mut tris: Vec<Triangle> = raw.iter().map(|t| placement.apply(t)).collect();
-    tris.sort_by_key(Triangle::z_min);
-    tris
-}
 
 /// One full run; returns the points emitted so nothing is optimised out.
 fn slice_all(
@@ -51,12 +34,12 @@ fn slice_all(
 }
 
 fn slice(c: &mut Criterion) {
-    let Some(dir) = common::shared_models() else {
+    let Some(dir) = shared_models() else {
         eprintln!("slice: ../shared/models not found, nothing to measure");
         return;
     };
     let bytes = std::fs::read(dir.join("3DBenchy.stl")).expect("read 3DBenchy.stl");
-    let tris = placed_sorted(&bytes);
+    let tris = placed_sorted(&bytes, &MachineConfig::default()).expect("3DBenchy fits the bed");
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let config = SliceConfig::new(&PrintSettings::default(), top).expect("config");
     let mut slicer = Box::new(BenchSlicer::new(config).expect("config"));

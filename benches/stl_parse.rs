@@ -2,14 +2,12 @@
 //! `../shared/models`, parsed from memory whole and in 4096-byte chunks (the streaming case).
 //! Run: `cargo bench --bench stl_parse`. Skips with a message when the models are absent.
 
-#[path = "../tests/common/mod.rs"]
-mod common;
-
 use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use strata::stl::{RawTriangle, StlReader};
+use strata_testkit::models::shared_models;
 
 /// Parses `bytes` fed in `chunk`-byte pieces; returns the facet count so nothing is optimised out.
 fn parse(bytes: &[u8], chunk: usize) -> usize {
@@ -27,7 +25,7 @@ fn parse(bytes: &[u8], chunk: usize) -> usize {
 }
 
 fn stl_parse(c: &mut Criterion) {
-    let Some(dir) = common::shared_models() else {
+    let Some(dir) = shared_models() else {
         eprintln!("stl_parse: ../shared/models not found, nothing to measure");
         return;
     };

@@ -5,67 +5,30 @@
 use std::path::{Path, PathBuf};
 
 use strata::geom::Triangle;
-use strata::machine::{MachineConfig, PrintSettings};
-use strata::place::{Bounds, Placement};
+use strata::machine::PrintSettings;
 use strata::slice::{peak_needs, slicer_bytes, SliceConfig, SliceScratch, Slicer};
+use strata_testkit::models::{self, placed_sorted};
 
-fn stl_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let mut entries: Vec<PathBuf> =
-        std::fs::read_dir(dir).expect("read models dir").map(|e| e.unwrap().path()).collect();
-    entries.sort();
-    for p in entries {
-        if p.is_dir() {
-            stl_files(&p, out);
-        } else if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("stl")) {
-            out.push(p);
-        }
-    }
-}
-
+/// The model placed on a bed big enough for plate_holes (203 x 305 mm).
 fn load(path: &Path) -> Option<Vec<Triangle>> {
-    let bytes = std::fs::read(path).ok()?;
-    let mut raw = Vec::new();
-    let mut bounds = Bounds::EMPTY;
-    strata::stl::read_all(&bytes, &mut |t| {
-        bounds.include(&t);
-        raw.push(t);
-    })
-    .ok()?;
-    // Big enough for plate_holes (203 x 305 mm).
-    let mut machine = MachineConfig::default();
-    machine.build_volume_um = [400_000, 400_000, 250_000];
-    let placement = Placement::on_bed(&bounds, &machine).ok()?;
-    let mut tris: Vec<Triangle> = raw.iter().map(|t| placement.apply(t)).collect();
-    tris.sort_by_key(Triangle::z_min);
-    Some(tris)
+    placed_sorted(&std::fs::read(path).ok()?, &models::big_machine()).ok()
 }
 
 /// Peak loops per layer, from a real slicing run (host capacities, on a big-stack thread).
 fn peak_loops(tris: &[Triangle], config: SliceConfig) -> u32 {
-    std::thread::scope(|s| {
-        std::thread::Builder::new()
-            .stack_size(64 << 20)
-            .spawn_scoped(s, || {
-                let mut slicer = Box::new(Slicer::<65536, 65536, 4096>::new(config).unwrap());
-                let mut work = Box::new(SliceScratch::new());
-                for t in tris {
-                    slicer.push(t, &mut *work, &mut |_| {}).unwrap();
-                }
-                slicer.finish(&mut *work, &mut |_| {}).unwrap().peak_loops
-            })
-            .unwrap()
-            .join()
-            .unwrap()
+    strata_testkit::on_big_stack(|| {
+        let mut slicer = Box::new(Slicer::<65536, 65536, 4096>::new(config).unwrap());
+        let mut work = Box::new(SliceScratch::new());
+        for t in tris {
+            slicer.push(t, &mut *work, &mut |_| {}).unwrap();
+        }
+        slicer.finish(&mut *work, &mut |_| {}).unwrap().peak_loops
     })
 }
 
 fn main() {
-    let dir = std::env::args()
-        .nth(1)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/models"));
-    let mut files = Vec::new();
-    stl_files(&dir, &mut files);
+    let dir = std::env::args().nth(1).map(PathBuf::from).unwrap_or_else(models::dir);
+    let files = models::stl_files_below(&dir);
     println!(
         "| model | triangles | layers | span no plane | peak active (layer) | peak points (layer) \
          | peak loops | device RAM at these capacities |"

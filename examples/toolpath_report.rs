@@ -7,16 +7,16 @@
 //!
 //! Run: `cargo run --release --example toolpath_report [MODELS_DIR] [--markdown]`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use strata::gcode::{GcodeOptions, GcodeWriter};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::place::{Bounds, Placement};
 use strata::scratch::Scratch;
 use strata::slice::{SliceConfig, SlicedLayer, Slicer};
 use strata::toolpath::{LayerStats, ToolEvent, Toolpath, ToolpathConfig, ToolpathStats};
+use strata_testkit::models::{self, placed_sorted};
 
 type HostSlicer = Slicer<{ 1 << 16 }, { 1 << 16 }, 4096>;
 type HostToolpath = Toolpath<{ 1 << 15 }, 4096, { 1 << 16 }, { 1 << 17 }, { 1 << 17 }, { 1 << 17 }>;
@@ -24,19 +24,6 @@ type HostToolpath = Toolpath<{ 1 << 15 }, 4096, { 1 << 16 }, { 1 << 17 }, { 1 <<
 type HostScratch = Scratch<{ 1 << 16 }, { 1 << 15 }, { 1 << 16 }>;
 /// The stage values.
 type Stages = (Box<HostSlicer>, Box<HostToolpath>, Box<HostScratch>);
-
-fn stl_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let mut entries: Vec<PathBuf> =
-        std::fs::read_dir(dir).expect("read models dir").map(|e| e.unwrap().path()).collect();
-    entries.sort();
-    for p in entries {
-        if p.is_dir() {
-            stl_files(&p, out);
-        } else if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("stl")) {
-            out.push(p);
-        }
-    }
-}
 
 struct Row {
     stats: ToolpathStats,
@@ -47,16 +34,7 @@ struct Row {
 
 fn run(bytes: &[u8], machine: &MachineConfig, st: &mut Stages) -> Option<Row> {
     let t0 = Instant::now();
-    let mut raw = Vec::new();
-    let mut bounds = Bounds::EMPTY;
-    strata::stl::read_all(bytes, &mut |t| {
-        bounds.include(&t);
-        raw.push(t);
-    })
-    .ok()?;
-    let placement = Placement::on_bed(&bounds, machine).ok()?;
-    let mut tris: Vec<Triangle> = raw.iter().map(|t| placement.apply(t)).collect();
-    tris.sort_by_key(Triangle::z_min);
+    let tris = placed_sorted(bytes, machine).ok()?;
     let settings = PrintSettings::default();
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let slice = SliceConfig::new(&settings, top).ok()?;
@@ -98,56 +76,51 @@ fn run(bytes: &[u8], machine: &MachineConfig, st: &mut Stages) -> Option<Row> {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let dir = args
-        .iter()
-        .find(|a| !a.starts_with("--"))
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/models"));
-    let mut files = Vec::new();
-    stl_files(&dir, &mut files);
+    let dir =
+        args.iter().find(|a| !a.starts_with("--")).map(PathBuf::from).unwrap_or_else(models::dir);
+    let files = models::stl_files_below(&dir);
     // Build the stage values on a thread with a big stack, then work there.
-    let handle = std::thread::Builder::new()
-        .stack_size(512 << 20)
-        .spawn(move || {
-            let mut st: Stages = (
-                Box::new(HostSlicer::new(
-                    SliceConfig::new(&PrintSettings::default(), 1000).expect("config"),
-                )
-                .expect("slicer")),
-                Box::new(
-                    HostToolpath::new(ToolpathConfig::new(
-                        &MachineConfig::default(),
-                        &PrintSettings::default(),
-                    ))
-                    .expect("toolpath"),
-                ),
-                Box::new(HostScratch::new()),
-            );
-            println!(
-                "| model | layers | retractions | per layer (mean / max) | travel mm | per layer \
+    strata_testkit::on_big_stack(move || {
+        let mut st: Stages = (
+            Box::new(
+                HostSlicer::new(SliceConfig::new(&PrintSettings::default(), 1000).expect("config"))
+                    .expect("slicer"),
+            ),
+            Box::new(
+                HostToolpath::new(ToolpathConfig::new(
+                    &MachineConfig::default(),
+                    &PrintSettings::default(),
+                ))
+                .expect("toolpath"),
+            ),
+            Box::new(HostScratch::new()),
+        );
+        println!(
+            "| model | layers | retractions | per layer (mean / max) | travel mm | per layer \
                  (mean) | extrusion stops | per layer (mean / max) | thin islands | thin area mm^2 \
                  (max layer: mm^2 @ layer) | time ms | toolpath RAM KB (window KB) |"
-            );
-            println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
-            let mut total_ram_device = Vec::new();
-            for f in &files {
-                let name = f.strip_prefix(&dir).unwrap_or(f).display().to_string();
-                let bytes = std::fs::read(f).expect("read model");
-                let mut machine = MachineConfig::default();
-                if name == "plate_holes.stl" {
-                    machine.build_volume_um = [400_000, 400_000, 250_000];
-                }
-                let Some(r) = run(&bytes, &machine, &mut st) else {
-                    println!("| {name} | (not sliced) ||||||||||");
-                    continue;
-                };
-                let s = &r.stats;
-                let n = s.layers.max(1) as f64;
-                let max_retr = r.layers.iter().map(|l| l.retractions).max().unwrap_or(0);
-                let max_stops = r.layers.iter().map(|l| l.stops).max().unwrap_or(0);
-                let ram = s.needs.bytes();
-                total_ram_device.push((name.clone(), ram, s.needs, s.thin_pts));
-                println!(
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+        let mut total_ram_device = Vec::new();
+        for f in &files {
+            let name = f.strip_prefix(&dir).unwrap_or(f).display().to_string();
+            let bytes = std::fs::read(f).expect("read model");
+            let machine = if name == "plate_holes.stl" {
+                models::big_machine()
+            } else {
+                MachineConfig::default()
+            };
+            let Some(r) = run(&bytes, &machine, &mut st) else {
+                println!("| {name} | (not sliced) ||||||||||");
+                continue;
+            };
+            let s = &r.stats;
+            let n = s.layers.max(1) as f64;
+            let max_retr = r.layers.iter().map(|l| l.retractions).max().unwrap_or(0);
+            let max_stops = r.layers.iter().map(|l| l.stops).max().unwrap_or(0);
+            let ram = s.needs.bytes();
+            total_ram_device.push((name.clone(), ram, s.needs, s.thin_pts));
+            println!(
                     "| {name} | {} | {} | {:.2} / {max_retr} | {:.0} | {:.1} | {} | {:.1} / {max_stops} \
                      | {} | {:.2} ({:.3} @ {}) | {:.1} | {:.1} ({:.1}) |",
                     s.layers,
@@ -165,25 +138,23 @@ fn main() {
                     ram as f64 / 1024.0,
                     s.needs.window_bytes() as f64 / 1024.0,
                 );
-                let _ = r.gcode_bytes;
-            }
-            println!();
-            println!("Peak needs (capacities) per model:");
-            for (name, ram, n, thin_pts) in &total_ram_device {
-                println!(
-                    "  {name}: PTS {} LOOPS {} CROSS {} PATH {} RING {} SPANS {} -> {} bytes \
+            let _ = r.gcode_bytes;
+        }
+        println!();
+        println!("Peak needs (capacities) per model:");
+        for (name, ram, n, thin_pts) in &total_ram_device {
+            println!(
+                "  {name}: PTS {} LOOPS {} CROSS {} PATH {} RING {} SPANS {} -> {} bytes \
                      (thin-area measurement: PTS {})",
-                    n.layer_points.max(n.offset_edges),
-                    n.layer_loops,
-                    n.crossings,
-                    n.path_points,
-                    n.ring_points,
-                    n.spans,
-                    ram,
-                    thin_pts
-                );
-            }
-        })
-        .expect("spawn");
-    handle.join().expect("report");
+                n.layer_points.max(n.offset_edges),
+                n.layer_loops,
+                n.crossings,
+                n.path_points,
+                n.ring_points,
+                n.spans,
+                ram,
+                thin_pts
+            );
+        }
+    });
 }

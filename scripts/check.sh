@@ -44,7 +44,8 @@ step "step ISR: no division, no floating point (thumbv7m disassembly)"
 gate isr_asm scripts/check_isr_asm.sh
 
 step "docs"
-gate docs env RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p strata -p strata-host --quiet
+gate docs env RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p strata -p strata-host -p strata-testkit \
+    --quiet
 
 step "tests"
 # Every test binary runs (no fail-fast); the closing line sums them all (a binary that

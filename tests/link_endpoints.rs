@@ -3,19 +3,7 @@
 //! sender never exceeds the receiver's credits; a dead link is reported within bounded time.
 
 use strata::protocol::{Endpoint, LinkConfig, LinkError, MAX_PAYLOAD, MAX_WIRE};
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn chance(&mut self, p_per_mille: u64) -> bool {
-        self.next() % 1000 < p_per_mille
-    }
-}
+use strata_testkit::rng::Rng;
 
 /// One direction: whole frames with a delivery time; faults applied per frame.
 struct Channel {
@@ -27,19 +15,19 @@ struct Channel {
 
 impl Channel {
     fn send(&mut self, now: u32, frame: &[u8]) {
-        if self.cut || self.rng.chance(self.loss) {
+        if self.cut || self.rng.per_mille(self.loss) {
             return;
         }
         let mut f = frame.to_vec();
-        if self.rng.chance(self.loss) {
-            let i = (self.rng.next() % f.len() as u64) as usize;
-            f[i] ^= 1 << (self.rng.next() % 8);
+        if self.rng.per_mille(self.loss) {
+            let i = self.rng.below(f.len() as u64) as usize;
+            f[i] ^= 1 << self.rng.below(8);
         }
-        if self.rng.chance(self.loss) {
-            f.truncate((self.rng.next() % f.len() as u64) as usize);
+        if self.rng.per_mille(self.loss) {
+            f.truncate(self.rng.below(f.len() as u64) as usize);
         }
-        let delay = if self.rng.chance(self.loss) { 1 + (self.rng.next() % 40) as u32 } else { 1 };
-        if self.rng.chance(self.loss) {
+        let delay = if self.rng.per_mille(self.loss) { 1 + self.rng.below(40) as u32 } else { 1 };
+        if self.rng.per_mille(self.loss) {
             self.queue.push((now + delay, f.clone()));
         }
         self.queue.push((now + delay, f));
@@ -76,8 +64,8 @@ struct Run {
 fn transfer(count: u32, loss: u64, seed: u64, cut_at: Option<u32>) -> Run {
     let mut a: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
     let mut b: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
-    let mut ab = Channel { rng: Rng(seed), loss, queue: Vec::new(), cut: false };
-    let mut ba = Channel { rng: Rng(seed ^ 0xdead_beef), loss, queue: Vec::new(), cut: false };
+    let mut ab = Channel { rng: Rng::new(seed), loss, queue: Vec::new(), cut: false };
+    let mut ba = Channel { rng: Rng::new(seed ^ 0xdead_beef), loss, queue: Vec::new(), cut: false };
     let mut frame = [0u8; MAX_WIRE];
     let (mut sent, mut got) = (0u32, 0u32);
     let mut now = 0u32;

@@ -9,6 +9,7 @@ use motion_support::{mm_s, mv, JobConfig};
 use proptest::prelude::*;
 use strata::plan::MoveKind::{Print, Retract, Travel};
 use strata::plan::{Block, Move, PlanError, Planner};
+use strata_testkit::rng::Rng;
 
 /// Plans `moves` with an `N`-move queue the way a streaming caller does: push while there is
 /// room, release final blocks, force the head out only when the queue is full or the input
@@ -42,13 +43,8 @@ fn rel(a: f64, b: f64) -> f64 {
 
 /// Random moves: XYZ directions anywhere, E sometimes, kinds mixed, lengths `lo..hi` um.
 fn random_moves(seed: u64, n: usize, lo: i64, hi: i64) -> Vec<Move> {
-    let mut s = seed | 1;
-    let mut rnd = |a: i64, b: i64| {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        a + (s % (b - a + 1) as u64) as i64
-    };
+    let mut rng = Rng::new(seed | 1);
+    let mut rnd = |a: i64, b: i64| rng.range(a..=b);
     let mut p = [100_000i64, 100_000, 10_000, 0];
     let mut out = Vec::new();
     for _ in 0..n {

@@ -2,29 +2,18 @@
 //! executed, identical jobs give identical layer hashes, pause/resume, abort and emergency
 //! stop; and through `service` with a real endpoint pair: hello/capabilities and status.
 
-use strata::geom::{Point3, Triangle};
-use strata::machine::{MachineConfig, PrintSettings, AXES};
+use strata::geom::Triangle;
+use strata::machine::{MachineConfig, AXES};
 use strata::printer::Accept;
-use strata::protocol::{
-    BatchBuilder, DeviceState, Endpoint, ErrorCode, JobOptions, JobSpec, LinkConfig, Message,
-    MAX_PAYLOAD, MAX_WIRE, VERSION,
-};
+use strata::protocol::{DeviceState, Endpoint, ErrorCode, JobSpec, LinkConfig, Message, VERSION};
 use strata::step::{StepCmd, StepQueue};
+use strata_testkit::drive::{batch, batches, carry, encode, job_spec, model_payloads, start, Rig};
+use strata_testkit::mesh::{cuboid, ngon, prism, to_um};
+use strata_testkit::rng::Rng;
+use strata_testkit::small_printer;
 
-strata::printer_type! {
-    type Small = {
-        active_triangles: 256,
-        contour_points: 256,
-        contour_loops: 16,
-        toolpath_points: 512,
-        toolpath_loops: 32,
-        scan_crossings: 1024,
-        path_points: 4096,
-        window_ring_words: 2048,
-        window_spans: 2048,
-        move_buffer_bytes: 16384,
-        lookahead_moves: 16,
-    };
+small_printer! {
+    type Small = {};
 }
 
 fn new_printer() -> Box<Small> {
@@ -33,81 +22,40 @@ fn new_printer() -> Box<Small> {
 
 /// A closed 6 x 6 x 0.8 mm box at (100, 100) mm, zmin-sorted.
 fn block() -> Vec<Triangle> {
-    box_at(100_000, 6_000, 800)
+    box_at(100.0, 6.0, 0.8)
 }
 
-/// A closed `w` x `w` x `h` um box with its corner at (`o`, `o`), zmin-sorted.
-fn box_at(o: i32, w: i32, h: i32) -> Vec<Triangle> {
-    let c = |i: usize| {
-        Point3::new(o + w * (i & 1) as i32, o + w * (i >> 1 & 1) as i32, h * (i >> 2 & 1) as i32)
-    };
-    let quads =
-        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
-    let mut t: Vec<Triangle> = quads
-        .iter()
-        .flat_map(|q| {
-            [
-                Triangle { v: [c(q[0]), c(q[1]), c(q[2])] },
-                Triangle { v: [c(q[0]), c(q[2]), c(q[3])] },
-            ]
-        })
-        .collect();
-    t.sort_by_key(Triangle::z_min);
-    t
+/// A closed `w` x `w` x `h` mm box with its corner at (`o`, `o`) mm, zmin-sorted.
+fn box_at(o: f64, w: f64, h: f64) -> Vec<Triangle> {
+    to_um(&cuboid([o, o, 0.0], [o + w, o + w, h]))
 }
 
+/// The job of `tris`: one top and one bottom layer, no skirt.
 fn job(tris: &[Triangle]) -> JobSpec {
-    let mut settings = PrintSettings::default();
-    settings.top_layers = 1;
-    settings.bottom_layers = 1;
-    JobSpec {
-        settings,
-        options: JobOptions { skirt_loops: 0, ..JobOptions::default() },
-        model_height_um: 800,
-        triangles: tris.len() as u32,
-    }
+    let mut spec = job_spec(tris);
+    spec.settings.top_layers = 1;
+    spec.settings.bottom_layers = 1;
+    spec.options.skirt_loops = 0;
+    spec
 }
 
-fn batch(tris: &[Triangle]) -> Vec<u8> {
-    let mut b = BatchBuilder::new();
-    for t in tris {
-        b.push(t).unwrap();
-    }
-    b.payload().to_vec()
-}
-
-/// Feeds the whole job and runs it, draining the step queue; returns layer hashes and the
-/// steps per axis. `between` is called every poll with the poll count.
-fn run(p: &mut Small, mut between: impl FnMut(&mut Small, u32)) -> (Vec<(u32, u64)>, [u64; AXES]) {
+/// Feeds the whole job of the [`block`] and runs it, the steps executed on a simulated board
+/// (checked against the drivers' timing); returns layer hashes and the steps per axis.
+/// `between` is called every poll with the poll count.
+fn run(p: &mut Small, between: impl FnMut(&mut Small, u32)) -> (Vec<(u32, u64)>, [u64; AXES]) {
     let tris = block();
-    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
+    start(p, job(&tris));
     assert_eq!(p.state(), DeviceState::Printing);
-    let bytes = batch(&tris);
-    let m = Message::decode(&bytes).unwrap();
-    assert_eq!(p.handle(&m), Accept::Taken);
-    assert_eq!(p.handle(&Message::EndOfModel), Accept::Taken);
+    let payloads = model_payloads(&tris);
+    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
     let mut q: StepQueue<32> = StepQueue::new();
-    let (mut prod, mut cons) = q.split();
-    let mut hashes = Vec::new();
-    let mut steps = [0u64; AXES];
-    for i in 0..1_000_000 {
-        between(p, i);
-        p.poll(&mut prod);
-        for (axis, s) in steps.iter_mut().enumerate() {
-            while let Some(cmd) = cons.dequeue(axis) {
-                if let strata::step::StepCmd::Steps { count, .. } = cmd {
-                    *s += count as u64;
-                }
-            }
-        }
-        while let Some(h) = p.take_layer_done() {
-            hashes.push(h);
-        }
-        if !p.is_active() {
-            break;
-        }
-    }
-    (hashes, steps)
+    let mut rig = Rig::executing(&mut q, p.step_config());
+    rig.drive(p, &payloads, 1_000_000, between);
+    // Every message was taken when offered.
+    assert_eq!(rig.busy, 0);
+    let board = rig.board().expect("an executing rig");
+    assert_eq!(board.violation_count(), 0, "{:?}", board.first_violation());
+    (rig.hashes, rig.steps)
 }
 
 /// Runs the job with a small step queue drained by `drain(poll, axis)` commands per axis
@@ -118,37 +66,15 @@ fn run_draining(
 ) -> (Vec<(u32, u64)>, Vec<Vec<StepCmd>>) {
     let mut p = new_printer();
     let tris = block();
-    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
-    let bytes = batch(&tris);
-    assert_eq!(p.handle(&Message::decode(&bytes).unwrap()), Accept::Taken);
-    assert_eq!(p.handle(&Message::EndOfModel), Accept::Taken);
     let mut q: StepQueue<8> = StepQueue::new();
-    let (mut prod, mut cons) = q.split();
-    let (mut hashes, mut cmds) = (Vec::new(), vec![Vec::new(); AXES]);
-    for i in 0..10_000_000 {
-        p.poll(&mut prod);
-        for (axis, out) in cmds.iter_mut().enumerate() {
-            for _ in 0..drain(i, axis) {
-                match cons.dequeue(axis) {
-                    Some(c) => out.push(c),
-                    None => break,
-                }
-            }
-        }
-        while let Some(h) = p.take_layer_done() {
-            hashes.push(h);
-        }
-        if !p.is_active() {
-            break;
-        }
-    }
+    let mut rig = Rig::recording(&mut q).limit_drain(move |turn, axis| drain(turn as u32, axis));
+    start(&mut *p, job(&tris));
+    rig.drive(&mut *p, &model_payloads(&tris), 10_000_000, |_, _| {});
+    // Every message was taken when offered.
+    assert_eq!(rig.busy, 0);
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
-    for (axis, out) in cmds.iter_mut().enumerate() {
-        while let Some(c) = cons.dequeue(axis) {
-            out.push(c);
-        }
-    }
-    (hashes, cmds)
+    rig.drain_all();
+    (rig.hashes, rig.commands)
 }
 
 #[test]
@@ -156,14 +82,12 @@ fn step_commands_and_hashes_do_not_depend_on_how_fast_the_queue_drains() {
     let (h_fast, c_fast) = run_draining(|_, _| usize::MAX);
     assert_eq!(h_fast.iter().map(|h| h.0).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
     // Slow and uneven: one command per axis every few polls, X slowest; then bursts.
-    let mut rng = 0x2545_f491_4f6c_dd1du64;
+    let mut rng = Rng::new(0x2545_f491_4f6c_dd1d);
     let (h_slow, c_slow) = run_draining(|i, axis| {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
+        let x = rng.u64();
         match (i / 5000) % 3 {
-            0 => usize::from(rng % (axis as u64 + 3) == 0),
-            1 => (rng % 3) as usize,
+            0 => usize::from(x % (axis as u64 + 3) == 0),
+            1 => (x % 3) as usize,
             _ => usize::MAX,
         }
     });
@@ -173,107 +97,45 @@ fn step_commands_and_hashes_do_not_depend_on_how_fast_the_queue_drains() {
     assert!(h_fast.windows(2).all(|w| w[0].1 != w[1].1));
 }
 
-strata::printer_type! {
+small_printer! {
     /// A small move buffer: one layer of a 20 mm cube fits, a whole model does not.
-    type Tight = {
-        active_triangles: 256,
-        contour_points: 256,
-        contour_loops: 16,
-        toolpath_points: 512,
-        toolpath_loops: 32,
-        scan_crossings: 1024,
-        path_points: 4096,
-        window_ring_words: 2048,
-        window_spans: 2048,
-        move_buffer_bytes: 4096,
-        lookahead_moves: 16,
-    };
+    type Tight = { move_buffer_bytes: 4096 };
 }
 
 #[test]
 fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
-    // A 20 x 20 x 10 mm box of 12 triangles in one batch: its last triangles complete every
+    // A 20 x 20 x 10 mm box of 16 triangles in one batch: its last triangles complete every
     // layer at once, 50 layers of moves (tens of kilobytes) against a 4 KB move buffer.
-    let h = 10_000;
-    let tris = box_at(90_000, 20_000, h);
+    let tris = box_at(90.0, 20.0, 10.0);
     let mut p: Box<Tight> = Box::new(Tight::new(&MachineConfig::default()));
-    let mut spec = job(&tris);
-    spec.model_height_um = h;
-    assert_eq!(p.handle(&Message::JobStart(spec)), Accept::Taken);
-    let bytes = batch(&tris);
-    let (mut busy, mut hashes) = (0, Vec::new());
+    start(&mut *p, job(&tris));
+    let payloads = model_payloads(&tris);
+    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
     let mut q: StepQueue<32> = StepQueue::new();
-    let (mut prod, mut cons) = q.split();
-    let mut batch_done = false;
-    let mut end_done = false;
-    for _ in 0..50_000_000u64 {
-        if !batch_done {
-            match p.handle(&Message::decode(&bytes).unwrap()) {
-                Accept::Taken => batch_done = true,
-                Accept::Busy => busy += 1,
-            }
-        } else if !end_done {
-            match p.handle(&Message::EndOfModel) {
-                Accept::Taken => end_done = true,
-                Accept::Busy => busy += 1,
-            }
-        }
-        p.poll(&mut prod);
-        for axis in 0..AXES {
-            while cons.dequeue(axis).is_some() {}
-        }
-        while let Some(h) = p.take_layer_done() {
-            hashes.push(h.0);
-        }
-        if !p.is_active() {
-            break;
-        }
-    }
+    let mut rig = Rig::counting(&mut q);
+    rig.drive(&mut *p, &payloads, 50_000_000, |_, _| {});
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
-    assert_eq!(hashes, (0..50).collect::<Vec<u32>>());
+    assert_eq!(rig.hashes.iter().map(|h| h.0).collect::<Vec<_>>(), (0..50).collect::<Vec<u32>>());
     // The batch and the end of the model both had to wait for room, more than once.
-    assert!(busy > 10, "{busy}");
+    assert!(rig.busy > 10, "{}", rig.busy);
 }
 
-strata::printer_type! {
+small_printer! {
     /// A move buffer smaller than the block's first layer's infill.
-    type Cramped = {
-        active_triangles: 256,
-        contour_points: 256,
-        contour_loops: 16,
-        toolpath_points: 512,
-        toolpath_loops: 32,
-        scan_crossings: 1024,
-        path_points: 4096,
-        window_ring_words: 2048,
-        window_spans: 2048,
-        move_buffer_bytes: 96,
-        lookahead_moves: 16,
-    };
+    type Cramped = { move_buffer_bytes: 96 };
 }
 
 #[test]
 fn a_unit_that_overflows_the_move_buffer_fails_the_job_naming_its_layer() {
     let tris = block();
     let mut p: Box<Cramped> = Box::new(Cramped::new(&MachineConfig::default()));
-    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
-    let bytes = batch(&tris);
+    start(&mut *p, job(&tris));
     let mut q: StepQueue<32> = StepQueue::new();
-    let (mut prod, mut cons) = q.split();
-    let (mut batch_done, mut turns) = (false, 0);
-    while p.is_active() && turns < 1_000_000 {
-        turns += 1;
-        let m = if batch_done { Message::EndOfModel } else { Message::decode(&bytes).unwrap() };
-        if p.handle(&m) == Accept::Taken {
-            batch_done = true;
-        }
-        p.poll(&mut prod);
-        for axis in 0..AXES {
-            while cons.dequeue(axis).is_some() {}
-        }
-        // What was accepted stays within the buffer.
-        assert!(p.move_buffer_used() <= 96, "{}", p.move_buffer_used());
-    }
+    let mut rig = Rig::counting(&mut q);
+    // What was accepted stays within the buffer, after every message and every poll.
+    let within = |p: &Cramped| assert!(p.move_buffer_used() <= 96, "{}", p.move_buffer_used());
+    rig.drive(&mut *p, &model_payloads(&tris), 1_000_000, |p, _| within(p));
+    within(&p);
     // The first layer's solid infill (a 6 mm square: one zigzag of 15 lines, some 30 moves
     // of at least 2 bytes each) cannot fit 96 bytes even in an empty buffer: a typed failure
     // at layer 0 (not a dropped move, not a wait forever).
@@ -372,28 +234,13 @@ fn service_answers_hello_and_refuses_undecodable_payloads() {
     let mut p = new_printer();
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
-    let mut frame = [0u8; MAX_WIRE];
-    let mut buf = [0u8; MAX_PAYLOAD];
-    let n = Message::Hello { version: 1 }.encode(&mut buf).unwrap();
-    host.send(&buf[..n]).unwrap();
+    host.send(&encode(&Message::Hello { version: 1 })).unwrap();
     host.send(&[0x7f, 1, 2, 3]).unwrap();
     let mut got = Vec::new();
     for now in 1..200u32 {
-        loop {
-            let n = host.poll_transmit(now, &mut frame);
-            if n == 0 {
-                break;
-            }
-            dev.receive(&frame[..n], now);
-        }
+        carry(&mut host, &mut dev, now);
         p.service(&mut dev, now, 0, 50, &mut |_| {});
-        loop {
-            let n = dev.poll_transmit(now, &mut frame);
-            if n == 0 {
-                break;
-            }
-            host.receive(&frame[..n], now);
-        }
+        carry(&mut dev, &mut host, now);
         while let Some(m) = host.peek() {
             got.push(format!("{:?}", Message::decode(m).unwrap()));
             host.pop();
@@ -463,7 +310,6 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
     let mut p = new_printer();
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
-    let mut frame = [0u8; MAX_WIRE];
     let tris = block();
     assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
     // A heater stuck just below its target: never at target, no protection trips.
@@ -473,15 +319,11 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
         p.set_thermal(false, 1960, 600);
         // A live link both ways (the host acknowledges the status reports).
         for t in now..now + 1000 {
-            while let n @ 1.. = host.poll_transmit(t, &mut frame) {
-                dev.receive(&frame[..n], t);
-            }
+            carry(&mut host, &mut dev, t);
             if t % 100 == 0 {
                 p.service(&mut dev, t, 0, 100, &mut |_| {});
             }
-            while let n @ 1.. = dev.poll_transmit(t, &mut frame) {
-                host.receive(&frame[..n], t);
-            }
+            carry(&mut dev, &mut host, t);
             while host.peek().is_some() {
                 host.pop();
             }
@@ -498,32 +340,6 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
     assert_eq!(at, HEAT_WAIT_LIMIT_MS, "{at}");
     assert_eq!(p.error().1, u32::from(ThermalFault::HeatingTimeout.code()));
     assert_eq!(p.heater_targets(), (0, 0));
-}
-
-/// A closed prism of `n` sides around a circle of radius `r` um, `h` um tall, centred at
-/// (110, 110) mm, zmin-sorted (short perimeter moves: the planner's lookahead matters).
-fn prism(r: f64, h: i32, n: usize) -> Vec<Triangle> {
-    let c = 110_000;
-    let ring = |z: i32| -> Vec<Point3> {
-        (0..n)
-            .map(|k| {
-                let a = k as f64 * std::f64::consts::TAU / n as f64;
-                Point3::new(c + (r * a.cos()).round() as i32, c + (r * a.sin()).round() as i32, z)
-            })
-            .collect()
-    };
-    let (lo, hi) = (ring(0), ring(h));
-    let (cl, ch) = (Point3::new(c, c, 0), Point3::new(c, c, h));
-    let mut t = Vec::new();
-    for k in 0..n {
-        let m = (k + 1) % n;
-        t.push(Triangle { v: [lo[k], lo[m], hi[m]] });
-        t.push(Triangle { v: [lo[k], hi[m], hi[k]] });
-        t.push(Triangle { v: [cl, lo[m], lo[k]] });
-        t.push(Triangle { v: [ch, hi[k], hi[m]] });
-    }
-    t.sort_by_key(Triangle::z_min);
-    t
 }
 
 /// What a job streamed through `service` gave: layer hashes, the command stream per axis,
@@ -547,35 +363,18 @@ struct Streamed {
 fn stream_through_service(generate: bool, limit: usize) -> Streamed {
     let mut p: Box<Buffered> = Box::new(Buffered::new(&MachineConfig::default()));
     p.limit_move_buffer(limit);
-    let tris = prism(10_000.0, 1_200, 48);
+    let ring = ngon(48, 110.0, 110.0, 10.0, 0.0);
+    let tris = to_um(&prism(&ring, 0.0, 1.2));
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
-    let mut frame = [0u8; MAX_WIRE];
-    let mut buf = [0u8; MAX_PAYLOAD];
-    let mut spec = job(&tris);
-    spec.model_height_um = 1_200;
-    let mut outbox = vec![Message::JobStart(spec).encode(&mut buf).map(|n| buf[..n].to_vec())];
-    outbox.extend(tris.iter().map(|t| Ok(batch(std::slice::from_ref(t)))));
-    outbox.push(Message::EndOfModel.encode(&mut buf).map(|n| buf[..n].to_vec()));
-    let mut outbox = outbox.into_iter().map(Result::unwrap).collect::<Vec<_>>().into_iter();
+    let mut outbox = vec![encode(&Message::JobStart(job(&tris)))];
+    outbox.extend(tris.iter().map(|t| batch(std::slice::from_ref(t))));
+    outbox.push(encode(&Message::EndOfModel));
+    let mut outbox = outbox.into_iter();
     let mut pending = outbox.next();
     let mut q: StepQueue<32> = StepQueue::new();
-    let (mut prod, mut cons) = q.split();
-    let mut s = Streamed {
-        hashes: Vec::new(),
-        cmds: vec![Vec::new(); AXES],
-        lends: 0,
-        lends_with_steps: 0,
-        largest_unit: 0,
-        held: 0,
-    };
-    let drain = |cons: &mut strata::step::StepConsumer<'_, 32>, cmds: &mut Vec<Vec<StepCmd>>| {
-        for (axis, out) in cmds.iter_mut().enumerate() {
-            while let Some(c) = cons.dequeue(axis) {
-                out.push(c);
-            }
-        }
-    };
+    let mut rig = Rig::recording(&mut q);
+    let (mut lends, mut lends_with_steps, mut held) = (0, 0, 0);
     for now in 1..2_000_000u32 {
         while let Some(m) = pending.as_ref() {
             if host.send(m).is_err() {
@@ -583,25 +382,19 @@ fn stream_through_service(generate: bool, limit: usize) -> Streamed {
             }
             pending = outbox.next();
         }
-        while let n @ 1.. = host.poll_transmit(now, &mut frame) {
-            dev.receive(&frame[..n], now);
-        }
+        carry(&mut host, &mut dev, now);
         p.service(&mut dev, now, 0, 1000, &mut |m| {
-            s.lends += 1;
-            if generate && m.run(&mut prod) {
-                s.lends_with_steps += 1;
-                drain(&mut cons, &mut s.cmds);
+            lends += 1;
+            if generate && m.run(rig.producer()) {
+                lends_with_steps += 1;
+                rig.drain();
             }
         });
-        s.held += u32::from(dev.rx_len() > 0);
-        while p.poll(&mut prod) {}
-        drain(&mut cons, &mut s.cmds);
-        while let Some(h) = p.take_layer_done() {
-            s.hashes.push(h);
-        }
-        while let n @ 1.. = dev.poll_transmit(now, &mut frame) {
-            host.receive(&frame[..n], now);
-        }
+        held += u32::from(dev.rx_len() > 0);
+        while p.poll(rig.producer()) {}
+        rig.drain();
+        rig.take_hashes(&mut *p);
+        carry(&mut dev, &mut host, now);
         while host.peek().is_some() {
             host.pop();
         }
@@ -610,8 +403,14 @@ fn stream_through_service(generate: bool, limit: usize) -> Streamed {
         }
     }
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
-    s.largest_unit = p.largest_unit_bytes();
-    s
+    Streamed {
+        hashes: rig.hashes,
+        cmds: rig.commands,
+        lends,
+        lends_with_steps,
+        largest_unit: p.largest_unit_bytes(),
+        held,
+    }
 }
 
 #[test]
@@ -640,22 +439,10 @@ fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same(
     assert_eq!(narrow.hashes, lent.hashes);
 }
 
-strata::printer_type! {
+small_printer! {
     /// A printer whose move buffer holds [`BUFFERED`] bytes, of which its tests use a part
-    /// ([`Printer::limit_move_buffer`]).
-    type Buffered = {
-        active_triangles: 256,
-        contour_points: 256,
-        contour_loops: 16,
-        toolpath_points: 512,
-        toolpath_loops: 32,
-        scan_crossings: 1024,
-        path_points: 4096,
-        window_ring_words: 2048,
-        window_spans: 2048,
-        move_buffer_bytes: BUFFERED,
-        lookahead_moves: 16,
-    };
+    /// ([`Printer::limit_move_buffer`](strata::printer::Printer::limit_move_buffer)).
+    type Buffered = { move_buffer_bytes: BUFFERED };
 }
 /// Bytes of a [`Buffered`] printer's move buffer.
 const BUFFERED: usize = 32_768;
@@ -681,46 +468,21 @@ struct BufferedRun {
 fn run_buffered(tris: &[Triangle], spec: JobSpec, limit: usize) -> BufferedRun {
     let mut p: Box<Buffered> = Box::new(Buffered::new(&MachineConfig::default()));
     p.limit_move_buffer(limit);
-    assert_eq!(p.handle(&Message::JobStart(spec)), Accept::Taken);
-    let bytes = batch(tris);
+    start(&mut *p, spec);
+    let payloads = model_payloads(tris);
+    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
     let mut q: StepQueue<32> = StepQueue::new();
-    let (mut prod, mut cons) = q.split();
-    let (mut batch_done, mut end_done, mut busy, mut hashes) = (false, false, 0, Vec::new());
-    for _ in 0..50_000_000u64 {
-        let msg = if !batch_done {
-            Some(Message::decode(&bytes).unwrap())
-        } else if !end_done {
-            Some(Message::EndOfModel)
-        } else {
-            None
-        };
-        if let Some(m) = msg {
-            match p.handle(&m) {
-                Accept::Taken if batch_done => end_done = true,
-                Accept::Taken => batch_done = true,
-                Accept::Busy => busy += 1,
-            }
-        }
-        p.poll(&mut prod);
-        for axis in 0..AXES {
-            while cons.dequeue(axis).is_some() {}
-        }
-        while let Some(h) = p.take_layer_done() {
-            hashes.push(h);
-        }
-        if !p.is_active() {
-            break;
-        }
-    }
+    let mut rig = Rig::counting(&mut q);
+    rig.drive(&mut *p, &payloads, 50_000_000, |_, _| {});
     let s = p.toolpath().stats();
     BufferedRun {
-        hashes,
+        hashes: rig.hashes,
         state: p.state(),
         error: p.error(),
         largest_unit_moves: s.max_unit_moves,
         largest_unit: p.largest_unit_bytes(),
         moves: s.extrusion_moves + s.travel_moves + 2 * s.retractions,
-        busy,
+        busy: rig.busy,
     }
 }
 
@@ -728,10 +490,8 @@ fn run_buffered(tris: &[Triangle], spec: JobSpec, limit: usize) -> BufferedRun {
 fn a_move_buffer_of_one_path_gives_the_hashes_of_a_large_one() {
     // A 20 x 20 x 4 mm box: its top skins' zigzag runs are its largest units (114 moves),
     // about a tenth of its 1,100 moves.
-    let h = 4_000;
-    let tris = box_at(90_000, 20_000, h);
+    let tris = box_at(90.0, 20.0, 4.0);
     let mut spec = job(&tris);
-    spec.model_height_um = h;
     spec.settings.top_layers = 3;
     spec.options.skirt_loops = 1;
     let large = run_buffered(&tris, spec, BUFFERED);
@@ -762,22 +522,10 @@ fn a_move_buffer_of_one_path_gives_the_hashes_of_a_large_one() {
     assert_eq!(small.hashes[..], large.hashes[..done]);
 }
 
-strata::printer_type! {
+small_printer! {
     /// A slicer that holds 8 active triangles (the block's first layer needs its 8 side
-    /// triangles, the bottom's 2 and the top's...: more).
-    type TinySlicer = {
-        active_triangles: 8,
-        contour_points: 256,
-        contour_loops: 16,
-        toolpath_points: 512,
-        toolpath_loops: 32,
-        scan_crossings: 1024,
-        path_points: 4096,
-        window_ring_words: 2048,
-        window_spans: 2048,
-        move_buffer_bytes: 16384,
-        lookahead_moves: 16,
-    };
+    /// triangles, the bottom's 4 and the top's...: more).
+    type TinySlicer = { active_triangles: 8 };
 }
 
 /// A slicer that runs out of room fails the job with its own error, and the host gets it in
@@ -787,9 +535,9 @@ strata::printer_type! {
 fn a_stage_failure_reaches_the_host_in_the_stages_words() {
     use strata::printer::Failure;
     use strata::slice::{Resource, SliceError};
-    // Two boxes side by side: 24 triangles, every side triangle spans the first plane.
-    let mut tris = box_at(100_000, 6_000, 800);
-    tris.extend(box_at(120_000, 6_000, 800));
+    // Two boxes side by side: 32 triangles, every side triangle spans the first plane.
+    let mut tris = box_at(100.0, 6.0, 0.8);
+    tris.extend(box_at(120.0, 6.0, 0.8));
     tris.sort_by_key(Triangle::z_min);
     let capacity = TinySlicer::CAPACITIES.active_triangles;
     let sides_of_two_boxes = 2 * 8;
@@ -797,22 +545,15 @@ fn a_stage_failure_reaches_the_host_in_the_stages_words() {
     let mut p = Box::new(TinySlicer::new(&MachineConfig::default()));
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
-    let mut buf = [0u8; MAX_PAYLOAD];
-    let n = Message::JobStart(job(&tris)).encode(&mut buf).unwrap();
-    host.send(&buf[..n]).unwrap();
-    for chunk in tris.chunks(8) {
-        host.send(&batch(chunk)).unwrap();
+    host.send(&encode(&Message::JobStart(job(&tris)))).unwrap();
+    for b in batches(&tris) {
+        host.send(&b).unwrap();
     }
-    let mut frame = [0u8; MAX_WIRE];
     let mut got = Vec::new();
     for now in 1..500u32 {
-        while let n @ 1.. = host.poll_transmit(now, &mut frame) {
-            dev.receive(&frame[..n], now);
-        }
+        carry(&mut host, &mut dev, now);
         p.service(&mut dev, now, 0, 50, &mut |_| {});
-        while let n @ 1.. = dev.poll_transmit(now, &mut frame) {
-            host.receive(&frame[..n], now);
-        }
+        carry(&mut dev, &mut host, now);
         while let Some(m) = host.peek() {
             match Message::decode(m).unwrap() {
                 Message::Failure(words) => got.push(words.to_string()),

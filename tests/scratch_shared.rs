@@ -8,7 +8,7 @@ mod slice_support;
 
 use std::cell::Cell;
 
-use slice_support::{config, cuboid, holed_prism, ngon, section_area_f64, sphere, to_um, TriMm};
+use slice_support::config;
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::scratch::Scratch;
@@ -20,6 +20,9 @@ use strata::toolpath::{
     Buffer, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError, ToolpathScratch,
     ToolpathStats,
 };
+use strata_testkit::check::assert_section_area;
+use strata_testkit::mesh::{cuboid, holed_prism, loft, ngon, sphere, to_um, TriMm};
+use strata_testkit::on_big_stack;
 
 /// Slicer capacities: active triangles, loops (segments per test).
 const A: usize = 512;
@@ -148,14 +151,6 @@ fn toolpath_alone<const CROSS: usize>(
     (moves, result)
 }
 
-/// Runs `f` on a thread with a big stack (the stage values are large in debug builds).
-fn on_big_stack(f: impl FnOnce() + Send) {
-    std::thread::scope(|s| {
-        std::thread::Builder::new().stack_size(64 << 20).spawn_scoped(s, f).unwrap().join()
-    })
-    .unwrap();
-}
-
 /// A sphere beside a ring with a hole: loops of many sizes, holes, infill and skins.
 fn parts() -> Vec<TriMm> {
     let mut mesh = sphere([110.0, 110.0, 4.0], 4.0, 40, 20);
@@ -185,10 +180,8 @@ fn a_cut_after_the_toolpath_stage_slices_and_prints_as_with_scratches_of_their_o
         assert_eq!(run.layers, alone);
         // And the sections are right (independent f64 cut, 0.1 % or 1 um x the cut length).
         for l in &run.layers {
-            let (oracle, length) = section_area_f64(&tris, f64::from(l.z_um));
             let got: i64 = l.loops.iter().map(|i| i.area_um2).sum();
-            let tol = (oracle.abs() * 1e-3).max(length);
-            assert!((got as f64 - oracle).abs() <= tol, "layer {}: {got} vs {oracle}", l.index);
+            assert_section_area(&format!("layer {}", l.index), got as f64, &tris, l.z_um, 0.0);
         }
         let (moves, stats) = toolpath_alone::<2048>(&alone);
         let stats = stats.unwrap();
@@ -205,7 +198,7 @@ fn a_full_tenant_in_the_shared_scratch_is_the_same_typed_error() {
         // after the toolpath stage has built layers in the scratch.
         let mut mesh = cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 2.0]);
         let ring = ngon(40, 110.0, 110.0, 8.0, 0.0);
-        mesh.extend(slice_support::loft(&[(2.0, ring.clone()), (3.0, ring)]));
+        mesh.extend(loft(&[(2.0, ring.clone()), (3.0, ring)]));
         let tris = to_um(&mesh);
         let cfg = config(&tris, 0);
         let run = shared::<64, 2048>(&tris, cfg);

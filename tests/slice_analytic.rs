@@ -6,9 +6,12 @@ mod slice_support;
 
 use std::f64::consts::PI;
 
-use slice_support::*;
+use slice_support::{check_layer, config, run, slice, OwnedLayer};
 use strata::geom::{Point3, Triangle};
 use strata::slice::{LayerRepairs, Resource, SliceError, SliceScratch, SlicedLayer, Slicer};
+use strata_testkit::mesh::{
+    cuboid, holed_prism, inverted, loft, ngon, sphere, to_um, torus, TriMm,
+};
 
 const C: f64 = 110.0; // bed centre, mm
 

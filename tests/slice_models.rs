@@ -2,39 +2,15 @@
 //! "layers @0.2" column, zero repairs for every watertight model, broken models sliced with
 //! their repairs reported, and the capacities from `peak_needs` equal to the slicer's peaks.
 
-mod common;
 mod slice_support;
 
 use std::path::Path;
 
-use slice_support::{check_layer_within, load_placed, run, top, OwnedLayer};
+use slice_support::{check_layer_within, run, top, OwnedLayer};
 use strata::geom::Triangle;
-use strata::machine::{MachineConfig, PrintSettings};
+use strata::machine::PrintSettings;
 use strata::slice::{peak_needs, LayerRepairs, SliceConfig, SliceStats};
-
-/// (file, watertight, layers @0.2) for every README row that has a layer count.
-fn readme_layers(readme: &Path) -> Vec<(String, bool, u32)> {
-    let text = std::fs::read_to_string(readme).expect("read README.md");
-    let mut rows = Vec::new();
-    for line in text.lines() {
-        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
-        // | file | bytes | format | triangles | size | bbox | watertight | bodies | layers | sha |
-        if cells.len() < 11 || !cells[1].ends_with(".stl") {
-            continue;
-        }
-        if let Ok(layers) = cells[9].parse() {
-            rows.push((cells[1].to_string(), cells[7] == "yes", layers));
-        }
-    }
-    rows
-}
-
-/// A machine large enough for every shared model (plate_holes is 203 x 305 mm).
-fn big_machine() -> MachineConfig {
-    let mut m = MachineConfig::default();
-    m.build_volume_um = [400_000, 400_000, 250_000];
-    m
-}
+use strata_testkit::models::{big_machine, load_placed, readme_layers, shared_models};
 
 fn slice_file(path: &Path) -> (Vec<OwnedLayer>, SliceStats, SliceConfig, Vec<Triangle>) {
     let tris = load_placed(path, &big_machine());
@@ -57,13 +33,15 @@ fn check_areas(layers: &[OwnedLayer], tris: &[Triangle], config: &SliceConfig, f
 
 #[test]
 fn every_model_slices_with_readme_layer_counts_and_closed_mesh_needs_no_repair() {
-    let Some(dir) = common::shared_models() else { return };
-    let rows = readme_layers(&dir.join("README.md"));
+    let Some(dir) = shared_models() else { return };
+    let rows = readme_layers(&dir);
     assert!(rows.len() >= 30, "README rows: {}", rows.len());
-    let big = ["3DBenchy.stl"]; // its own test below
-                                // Watertight, but with inconsistently wound faces: its cuts need exact joins (reversals).
+    // 3DBenchy has its own test below.
+    let big = ["3DBenchy.stl"];
+    // Watertight, but with inconsistently wound faces: its cuts need exact joins (reversals).
     let flipped = ["numpy-stl/stl_tests__triamid.stl"];
-    for (file, watertight, expected) in &rows {
+    for row in &rows {
+        let (file, watertight, expected) = (&row.file, row.watertight, &row.layers);
         if big.contains(&file.as_str()) {
             continue;
         }
@@ -73,7 +51,7 @@ fn every_model_slices_with_readme_layer_counts_and_closed_mesh_needs_no_repair()
         if flipped.contains(&file.as_str()) {
             let r = stats.repairs;
             assert!(r.exact_joins > 0 && r.total() == r.exact_joins, "{file}: {r:?}");
-        } else if *watertight {
+        } else if watertight {
             for l in &layers {
                 assert_eq!(l.repairs, LayerRepairs::default(), "{file} layer {}", l.index);
                 assert!(l.loops.iter().all(|x| x.points.len() >= 3), "{file} layer {}", l.index);
@@ -101,7 +79,7 @@ fn embodier_bin_is_sliced_and_its_repairs_reported() {
     // Broken for trimesh (21 bodies, not watertight): overlapping and duplicated bodies. Its
     // cuts still close exactly; duplicated bodies give coincident loops, and its slivers fall
     // under the minimum loop area.
-    let Some(dir) = common::shared_models() else { return };
+    let Some(dir) = shared_models() else { return };
     let (layers, stats, _, _) = slice_file(&dir.join("embodier_bin.stl"));
     assert_eq!(layers.len(), 17);
     eprintln!("embodier_bin: {stats:?}");
@@ -112,7 +90,7 @@ fn embodier_bin_is_sliced_and_its_repairs_reported() {
 
 #[test]
 fn benchy_slices_240_layers_with_repairs_reported() {
-    let Some(dir) = common::shared_models() else { return };
+    let Some(dir) = shared_models() else { return };
     let (layers, stats, config, tris) = slice_file(&dir.join("3DBenchy.stl"));
     // The parser drops the 19 zero-area facets.
     assert_eq!((tris.len(), layers.len()), (225_135, 240));

@@ -4,8 +4,9 @@
 mod slice_support;
 
 use proptest::prelude::*;
-use slice_support::*;
+use slice_support::{check_layer, config, run, slice};
 use strata::slice::LayerRepairs;
+use strata_testkit::mesh::{cuboid, holed_prism, inverted, ngon, sphere, to_um, torus, TriMm};
 
 /// Rotates `mesh` about its bounding-box centre (angles in radians, about x then y then z),
 /// then moves it so its minimum corner sits at `offset` (mm).

@@ -9,31 +9,19 @@ mod slice_support;
 
 use std::f64::consts::PI;
 
-use slice_support::{
-    config, holed_prism, loft, ngon, run, section_area_f64, sphere, to_um, OwnedLayer, TriMm,
-};
+use slice_support::{config, run, OwnedLayer};
 use strata::geom::{Point2, Triangle};
 use strata::slice::{Resource, SliceError};
+use strata_testkit::check::{assert_section_area, section_segments_f64};
+use strata_testkit::mesh::{holed_prism, loft, ngon, sphere, to_um, TriMm};
 
 const C: f64 = 110.0; // bed centre, mm
 
 /// The cut points of `tris` by plane `z` computed independently in f64: where each crossing
 /// triangle's section enters it (one per segment, so on a closed mesh every point of the
-/// section once). Corners at `z` count as above, as in the slicer.
+/// section once).
 fn crossings_f64(tris: &[Triangle], z: f64) -> Vec<[f64; 2]> {
-    let mut out = Vec::new();
-    for t in tris {
-        let v: Vec<[f64; 3]> =
-            t.v.iter().map(|p| [f64::from(p.x), f64::from(p.y), f64::from(p.z)]).collect();
-        let below: Vec<bool> = v.iter().map(|p| p[2] < z).collect();
-        for (i, j) in [(0, 1), (1, 2), (2, 0)] {
-            if !below[i] && below[j] {
-                let s = (z - v[i][2]) / (v[j][2] - v[i][2]);
-                out.push([v[i][0] + s * (v[j][0] - v[i][0]), v[i][1] + s * (v[j][1] - v[i][1])]);
-            }
-        }
-    }
-    out
+    section_segments_f64(tris, z).into_iter().map(|[enter, _]| enter).collect()
 }
 
 /// Asserts that the layer's points and `want` match one for one, each within 1 um (the
@@ -64,9 +52,8 @@ fn check_closed(layers: &[OwnedLayer], tris: &[Triangle], what: &str) {
     for l in layers {
         let z = f64::from(l.z_um);
         assert_same_points(l, &crossings_f64(tris, z), what);
-        let (oracle, length) = section_area_f64(tris, z);
-        let tol = (oracle.abs() * 1e-3).max(length);
-        assert!((l.area_um2() as f64 - oracle).abs() <= tol, "{what} layer {}", l.index);
+        let what_layer = format!("{what} layer {}", l.index);
+        assert_section_area(&what_layer, l.area_um2() as f64, tris, l.z_um, 0.0);
         for lp in &l.loops {
             let doubled = strata::geom::doubled_signed_area(&lp.points);
             assert_eq!(doubled > 0, !lp.hole, "{what} layer {}: orientation", l.index);

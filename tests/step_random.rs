@@ -13,60 +13,45 @@ use motion_support::{assert_clean, mv, reference, run_job, JobConfig};
 use proptest::prelude::*;
 use strata::plan::Move;
 use strata::plan::MoveKind::{Print, Retract, Travel};
-
-/// Deterministic generator (SplitMix64).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn range(&mut self, lo: i64, hi: i64) -> i64 {
-        lo + (self.next() % (hi - lo + 1) as u64) as i64
-    }
-}
+use strata_testkit::rng::Rng;
 
 /// A plausible print: extruding lines and arcs, travels with retraction, Z steps, within the
 /// bed; `n` moves.
 fn random_job(seed: u64, n: usize) -> (Vec<Move>, [i32; 4]) {
-    let mut r = Rng(seed);
+    let mut r = Rng::new(seed);
     let start = [110_000, 110_000, 200, 0];
     let (mut x, mut y, mut z, mut e) = (start[0] as i64, start[1] as i64, 200i64, 0i64);
     let mut moves = Vec::new();
     while moves.len() < n {
-        match r.range(0, 9) {
+        match r.range(0..=9) {
             0 => {
                 // Retract, travel, unretract.
-                let feed = r.range(20, 45) as f64;
+                let feed = r.range(20..=45) as f64;
                 moves.push(mv([x as i32, y as i32, z as i32, (e - 4000) as i32], feed, Retract));
-                x = r.range(5_000, 215_000);
-                y = r.range(5_000, 215_000);
+                x = r.range(5_000..=215_000);
+                y = r.range(5_000..=215_000);
                 moves.push(mv(
                     [x as i32, y as i32, z as i32, (e - 4000) as i32],
-                    r.range(60, 150) as f64,
+                    r.range(60..=150) as f64,
                     Travel,
                 ));
                 moves.push(mv([x as i32, y as i32, z as i32, e as i32], feed, Retract));
             }
             1 => {
-                z += r.range(1, 3) * 100;
+                z += r.range(1..=3) * 100;
                 moves.push(mv(
                     [x as i32, y as i32, z as i32, e as i32],
-                    r.range(2, 5) as f64,
+                    r.range(2..=5) as f64,
                     Travel,
                 ));
             }
             _ => {
                 // A polyline of extruding moves, 1..25 mm each, turning by random angles.
-                let feed = r.range(10, 120) as f64;
-                let mut heading = r.range(0, 359) as f64;
-                for _ in 0..r.range(1, 12) {
-                    heading += r.range(-100, 100) as f64;
-                    let len = r.range(1_000, 25_000) as f64;
+                let feed = r.range(10..=120) as f64;
+                let mut heading = r.range(0..=359) as f64;
+                for _ in 0..r.range(1..=12) {
+                    heading += r.range(-100..=100) as f64;
+                    let len = r.range(1_000..=25_000) as f64;
                     let (nx, ny) = (
                         (x as f64 + len * heading.to_radians().cos()).clamp(2_000.0, 218_000.0),
                         (y as f64 + len * heading.to_radians().sin()).clamp(2_000.0, 218_000.0),

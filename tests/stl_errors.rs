@@ -3,8 +3,9 @@
 
 mod stl_support;
 
-use stl_support::{parse_chunked, vertex_bits, write_binary, Parsed};
+use stl_support::{parse_chunked, vertex_bits, Parsed};
 use strata::stl::{CountMismatch, RawTriangle, StlError, StlErrorKind as K, StlFormat, StlSummary};
+use strata_testkit::stl as write;
 
 /// Chunk sizes every case is fed in: whole, bytes, odd, a record, a page.
 const CHUNKINGS: [usize; 6] = [usize::MAX, 1, 2, 7, 50, 4096];
@@ -64,12 +65,12 @@ fn empty_inputs() {
     let blank = " \n".repeat(60);
     assert_error(blank.as_bytes(), K::Empty, 120);
     // A valid binary file with no records.
-    assert_error(&write_binary(b"empty", 0, &[]), K::Empty, 84);
+    assert_error(&write::binary(b"empty", 0, &[]), K::Empty, 84);
 }
 
 #[test]
 fn truncated_binary_header() {
-    let file = write_binary(b"x", 3, &three());
+    let file = write::binary(b"x", 3, &three());
     assert_error(&file[..83], K::TruncatedHeader, 83);
     assert_error(&file[..1], K::TruncatedHeader, 1);
     assert_error(b"\0", K::TruncatedHeader, 1);
@@ -78,7 +79,7 @@ fn truncated_binary_header() {
 
 #[test]
 fn truncated_binary_record() {
-    let file = write_binary(b"x", 3, &three());
+    let file = write::binary(b"x", 3, &three());
     // Two complete records and 30 bytes of the third.
     assert_error(&file[..84 + 100 + 30], K::TruncatedRecord, 184);
     assert_error(&file[..84 + 1], K::TruncatedRecord, 84);
@@ -89,26 +90,26 @@ fn truncated_binary_record() {
 
 #[test]
 fn count_mismatch_keeps_the_intact_records() {
-    let (s, tris) = assert_ok(&write_binary(b"x", 5, &three()));
+    let (s, tris) = assert_ok(&write::binary(b"x", 5, &three()));
     assert_eq!(s.count_mismatch, Some(CountMismatch { declared: 5, found: 3 }));
     assert_eq!((s.triangles, tris), (3, three()));
 
     // Some exporters write 0.
-    let (s, tris) = assert_ok(&write_binary(b"x", 0, &three()));
+    let (s, tris) = assert_ok(&write::binary(b"x", 0, &three()));
     assert_eq!(s.count_mismatch, Some(CountMismatch { declared: 0, found: 3 }));
     assert_eq!(tris.len(), 3);
 }
 
 #[test]
 fn trailing_bytes_after_the_declared_records() {
-    let mut file = write_binary(b"solid but binary", 3, &three());
+    let mut file = write::binary(b"solid but binary", 3, &three());
     file.extend_from_slice(&[0xAA; 7]);
     let (s, tris) = assert_ok(&file);
     assert_eq!((s.format, s.trailing_bytes, s.count_mismatch), (StlFormat::Binary, 7, None));
     assert_eq!(tris, three());
 
     // More records than declared and a tail: both reported.
-    let mut file = write_binary(b"x", 2, &three());
+    let mut file = write::binary(b"x", 2, &three());
     file.push(0);
     let (s, _) = assert_ok(&file);
     assert_eq!(s.trailing_bytes, 1);
@@ -121,29 +122,29 @@ fn trailing_bytes_after_the_declared_records() {
 fn binary_non_finite_coordinates() {
     let mut t = three();
     t[1].vertices[1][1] = f32::NAN;
-    assert_error(&write_binary(b"x", 3, &t), K::NonFiniteCoordinate, coord_offset(1, 4));
+    assert_error(&write::binary(b"x", 3, &t), K::NonFiniteCoordinate, coord_offset(1, 4));
     let mut t = three();
     t[0].vertices[2][2] = f32::NEG_INFINITY;
-    assert_error(&write_binary(b"x", 3, &t), K::NonFiniteCoordinate, coord_offset(0, 8));
+    assert_error(&write::binary(b"x", 3, &t), K::NonFiniteCoordinate, coord_offset(0, 8));
     // The first bad coordinate of a record is named.
     let mut t = three();
     t[2].vertices[0][0] = 1e9;
     t[2].vertices[0][1] = f32::NAN;
-    assert_error(&write_binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(2, 0));
+    assert_error(&write::binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(2, 0));
 }
 
 #[test]
 fn binary_absurd_coordinates() {
     let mut t = three();
     t[1].vertices[0][2] = 10_000.001;
-    assert_error(&write_binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(1, 2));
+    assert_error(&write::binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(1, 2));
     let mut t = three();
     t[0].vertices[2][0] = -20_000.0;
-    assert_error(&write_binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(0, 6));
+    assert_error(&write::binary(b"x", 3, &t), K::AbsurdCoordinate, coord_offset(0, 6));
     // Exactly 10 m is accepted.
     let mut t = three();
     t[0].vertices[2] = [10_000.0, -10_000.0, 10_000.0];
-    assert_eq!(assert_ok(&write_binary(b"x", 3, &t)).1, t);
+    assert_eq!(assert_ok(&write::binary(b"x", 3, &t)).1, t);
 }
 
 #[test]
@@ -151,7 +152,7 @@ fn nan_normals_are_kept_not_rejected() {
     let mut t = three();
     t[0].normal = [f32::NAN, f32::INFINITY, 1e30];
     t[2].normal = [0.0, f32::NEG_INFINITY, 0.0];
-    let (s, tris) = assert_ok(&write_binary(b"x", 3, &t));
+    let (s, tris) = assert_ok(&write::binary(b"x", 3, &t));
     assert!(tris[0].normal[0].is_nan() && tris[0].normal[1].is_infinite());
     // The same finding as in ASCII: facets whose normal is not three finite numbers.
     assert_eq!((s.triangles, s.bad_normals), (3, 2));
@@ -300,11 +301,11 @@ fn degenerate_facets_are_counted_not_emitted() {
     let mut t = three();
     t.push(tri([1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 0.0, 0.0])); // repeated corner
     t.push(tri([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], [2.0, 4.0, 6.0])); // collinear
-    let (s, tris) = assert_ok(&write_binary(b"x", 5, &t));
+    let (s, tris) = assert_ok(&write::binary(b"x", 5, &t));
     assert_eq!((s.triangles, s.degenerate), (5, 2));
     assert_eq!(tris, three());
     // Only degenerate facets: read, but nothing emitted (not Empty: the file has facets).
-    let (s, tris) = assert_ok(&write_binary(b"x", 2, &t[3..]));
+    let (s, tris) = assert_ok(&write::binary(b"x", 2, &t[3..]));
     assert_eq!((s.triangles, s.degenerate, tris.len()), (2, 2, 0));
 }
 
@@ -429,10 +430,10 @@ fn ascii_layout_variants() {
 #[test]
 fn detection_edge_cases() {
     // A binary header that starts with "solid": the count's zero top byte makes it binary.
-    let (s, _) = assert_ok(&write_binary(b"solid looks like text", 3, &three()));
+    let (s, _) = assert_ok(&write::binary(b"solid looks like text", 3, &three()));
     assert_eq!(s.format, StlFormat::Binary);
     // An all-zero header.
-    let (s, _) = assert_ok(&write_binary(&[0; 80], 3, &three()));
+    let (s, _) = assert_ok(&write::binary(&[0; 80], 3, &three()));
     assert_eq!(s.format, StlFormat::Binary);
     // Leading blank lines before `solid` are fine; text starting with another word is binary.
     let (file, _) = ascii(FACET);

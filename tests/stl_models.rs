@@ -2,7 +2,6 @@
 //! and bounding box, as measured there with trimesh), in several chunkings; and the models that
 //! exist as both ASCII and binary against each other.
 
-mod common;
 mod stl_support;
 
 use std::collections::BTreeSet;
@@ -10,6 +9,7 @@ use std::path::Path;
 
 use stl_support::{parse_chunked, vertex_bits, Parsed};
 use strata::stl::{StlFormat, StlSummary};
+use strata_testkit::models::{readme_table, shared_models, stl_files_below};
 
 /// One README table row.
 #[derive(Debug)]
@@ -23,44 +23,38 @@ struct Row {
     bbox: Option<[String; 6]>,
 }
 
-/// The rows of every markdown table in the README whose first cell names an `.stl` file.
-fn readme_rows(readme: &Path) -> Vec<Row> {
-    let text = std::fs::read_to_string(readme).expect("read README.md");
+/// The README's rows: file, format, triangle count, printed bounding box.
+fn readme_rows(dir: &Path) -> Vec<Row> {
     let mut rows = Vec::new();
-    for line in text.lines() {
-        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
-        // "| file | bytes | format | triangles | size | bbox min..max | ..." -> cells[1..]
-        if cells.len() < 8 || !cells[1].ends_with(".stl") {
+    for cells in readme_table(dir) {
+        // file | bytes | format | triangles | size | bbox min..max | ...
+        if cells.len() < 6 {
             continue;
         }
-        let digits: String = cells[4].chars().take_while(char::is_ascii_digit).collect();
+        let line = cells.join(" | ");
+        let digits: String = cells[3].chars().take_while(char::is_ascii_digit).collect();
         let triangles = digits.parse().unwrap_or_else(|_| panic!("triangles cell: {line}"));
-        let format = cells[3].split_whitespace().next().unwrap_or("").to_string();
-        let bbox = (!cells[6].is_empty()).then(|| {
-            let numbers: Vec<String> = cells[6]
+        let format = cells[2].split_whitespace().next().unwrap_or("").to_string();
+        let bbox = (!cells[5].is_empty()).then(|| {
+            let numbers: Vec<String> = cells[5]
                 .split(")..(")
                 .flat_map(|corner| corner.trim_matches(['(', ')']).split(','))
                 .map(|n| n.trim().to_string())
                 .collect();
             numbers.try_into().unwrap_or_else(|_| panic!("bbox cell: {line}"))
         });
-        rows.push(Row { file: cells[1].to_string(), format, triangles, bbox });
+        rows.push(Row { file: cells[0].clone(), format, triangles, bbox });
     }
     rows
 }
 
 /// Every `.stl` below `dir`, as `/`-separated relative paths.
-fn stl_files(dir: &Path, prefix: &str, out: &mut BTreeSet<String>) {
-    for entry in std::fs::read_dir(dir).expect("read models folder") {
-        let entry = entry.expect("dir entry");
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let path = entry.path();
-        if path.is_dir() {
-            stl_files(&path, &format!("{prefix}{name}/"), out);
-        } else if name.to_ascii_lowercase().ends_with(".stl") {
-            out.insert(format!("{prefix}{name}"));
-        }
-    }
+fn stl_files(dir: &Path) -> BTreeSet<String> {
+    let relative = |p: &Path| {
+        let parts = p.strip_prefix(dir).expect("below the folder").iter();
+        parts.map(|s| s.to_string_lossy().into_owned()).collect::<Vec<_>>().join("/")
+    };
+    stl_files_below(dir).iter().map(|p| relative(p)).collect()
 }
 
 /// Bounding box of the emitted facets, printed like the README (`{:.2}` of the f64 value,
@@ -90,12 +84,11 @@ fn print2(s: &str) -> String {
 
 #[test]
 fn every_model_matches_the_readme_in_every_chunking() {
-    let Some(dir) = common::shared_models() else { return };
-    let rows = readme_rows(&dir.join("README.md"));
+    let Some(dir) = shared_models() else { return };
+    let rows = readme_rows(&dir);
     assert!(rows.len() >= 30, "README parse found only {} rows", rows.len());
 
-    let mut on_disk = BTreeSet::new();
-    stl_files(&dir, "", &mut on_disk);
+    let on_disk = stl_files(&dir);
     let listed: BTreeSet<String> = rows.iter().map(|r| r.file.clone()).collect();
     assert_eq!(on_disk, listed, "files on disk vs rows in README.md");
 
@@ -132,7 +125,7 @@ fn every_model_matches_the_readme_in_every_chunking() {
 
 #[test]
 fn findings_of_the_tricky_models() {
-    let Some(dir) = common::shared_models() else { return };
+    let Some(dir) = shared_models() else { return };
     let parse = |name: &str| parse_chunked(&std::fs::read(dir.join(name)).unwrap(), 4096);
 
     // Header starts with "solid ", 1 byte after the 288 records: binary with a trailing byte.
@@ -158,7 +151,7 @@ fn findings_of_the_tricky_models() {
 
 #[test]
 fn ascii_and_binary_copies_hold_identical_vertices() {
-    let Some(dir) = common::shared_models() else { return };
+    let Some(dir) = shared_models() else { return };
     let parse = |name: &str| {
         let p = parse_chunked(&std::fs::read(dir.join("numpy-stl").join(name)).unwrap(), 4096);
         assert!(p.result.is_ok(), "{name}: {:?}", p.result);

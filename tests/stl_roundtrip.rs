@@ -5,11 +5,9 @@
 mod stl_support;
 
 use proptest::prelude::*;
-use stl_support::{
-    bits, parse_chunked, parse_split, vertex_bits, write_ascii, write_ascii_nonstandard,
-    write_binary, AsciiStyle,
-};
+use stl_support::{bits, parse_chunked, parse_split, vertex_bits};
 use strata::stl::{RawTriangle, StlError, StlErrorKind, StlFormat, StlSummary, MAX_COORDINATE};
+use strata_testkit::stl::{self as write, AsciiStyle};
 
 /// Coordinates: anything finite within 10 m, biased towards the values that make collinear or
 /// repeated corners (and so degenerate facets) likely, plus -0.0 and subnormals.
@@ -94,7 +92,7 @@ proptest! {
         header in prop::collection::vec(any::<u8>(), 80),
         cut in cuts(2100),
     ) {
-        let file = write_binary(&header, mesh.len() as u32, &mesh);
+        let file = write::binary(&header, mesh.len() as u32, &mesh);
         check_round_trip(&file, &mesh, StlFormat::Binary, &cut);
     }
 
@@ -105,14 +103,14 @@ proptest! {
         name in "[a-zA-Z0-9 _äö中-]{0,20}",
         cut in cuts(4000),
     ) {
-        let file = write_ascii(&name, &mesh, style);
+        let file = write::ascii(&name, &mesh, style);
         check_round_trip(&file, &mesh, StlFormat::Ascii, &cut);
     }
 
     #[test]
     fn ascii_and_binary_of_one_mesh_agree(mesh in mesh(prop::num::f32::NORMAL.boxed()), style in ascii_style()) {
-        let a = parse_chunked(&write_ascii("m", &mesh, style), 13);
-        let b = parse_chunked(&write_binary(b"m", mesh.len() as u32, &mesh), 13);
+        let a = parse_chunked(&write::ascii("m", &mesh, style), 13);
+        let b = parse_chunked(&write::binary(b"m", mesh.len() as u32, &mesh), 13);
         prop_assert!(a.bits() == b.bits());
         let (sa, sb) = (a.result.unwrap(), b.result.unwrap());
         prop_assert_eq!((sa.triangles, sa.degenerate), (sb.triangles, sb.degenerate));
@@ -124,8 +122,8 @@ proptest! {
         style in ascii_style(),
         cut in cuts(5000),
     ) {
-        let (file, odd) = write_ascii_nonstandard("n", &mesh, style);
-        let b = parse_chunked(&write_binary(b"n", mesh.len() as u32, &mesh), usize::MAX);
+        let (file, odd) = write::ascii_nonstandard("n", &mesh, style);
+        let b = parse_chunked(&write::binary(b"n", mesh.len() as u32, &mesh), usize::MAX);
         let corners = |p: &stl_support::Parsed| p.triangles.iter().map(vertex_bits).collect::<Vec<_>>();
         for a in [parse_split(&file, &cut), parse_chunked(&file, 1), parse_chunked(&file, usize::MAX)] {
             prop_assert!(corners(&a) == corners(&b), "corners differ");
@@ -154,9 +152,9 @@ proptest! {
         cut in cuts(3000),
     ) {
         let mut file = if ascii {
-            write_ascii("d", &mesh, AsciiStyle::default())
+            write::ascii("d", &mesh, AsciiStyle::default())
         } else {
-            write_binary(b"d", mesh.len() as u32, &mesh)
+            write::binary(b"d", mesh.len() as u32, &mesh)
         };
         for (at, byte) in damage {
             let i = at.index(file.len());
@@ -171,7 +169,7 @@ proptest! {
 
 #[test]
 fn an_empty_mesh_is_empty_in_both_formats() {
-    for file in [write_binary(b"e", 0, &[]), write_ascii("e", &[], AsciiStyle::default())] {
+    for file in [write::binary(b"e", 0, &[]), write::ascii("e", &[], AsciiStyle::default())] {
         let r = parse_chunked(&file, 3).result;
         assert_eq!(r.map_err(|e| e.kind), Err(StlErrorKind::Empty));
     }

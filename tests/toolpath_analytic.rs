@@ -2,18 +2,16 @@
 //! of every extrusion in the contour shrunk by half a line width, coverage of top surfaces,
 //! solid first and last layers, bottom skins over a bridge, skins around a pocket.
 
-mod slice_support;
 mod toolpath_support;
 
 use std::f64::consts::PI;
 
-use slice_support::{cuboid, four_holed_discs, holed_prism, ngon, to_um, TriMm};
 use strata::geom::Point2;
 use strata::machine::{InfillPattern, MachineConfig, PrintSettings};
 use strata::toolpath::{Feature, ToolpathConfig};
-use toolpath_support::{
-    extrusions, inside, layer_starts, point_seg_dist, pt, run, run_cfg, TpLayer, TpRun,
-};
+use strata_testkit::check::{pt, seg_seg_dist};
+use strata_testkit::mesh::{cuboid, four_holed_discs, holed_prism, loft, ngon, to_um};
+use toolpath_support::{default_run, extrusions, layer_starts, run, run_cfg, TpLayer, TpRun};
 
 const W: f64 = 450.0; // line width, um
 const H: f64 = 200.0; // layer height, um
@@ -23,156 +21,15 @@ fn filament_area() -> f64 {
     PI * 875.0 * 875.0
 }
 
-fn cross(o: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
-    (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
-}
-
-/// Distance between segments a-b and c-d (0 if they cross).
-fn seg_seg_dist(a: (f64, f64), b: (f64, f64), c: (f64, f64), d: (f64, f64)) -> f64 {
-    let (d1, d2, d3, d4) = (cross(c, d, a), cross(c, d, b), cross(a, b, c), cross(a, b, d));
-    if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
-        return 0.0;
-    }
-    point_seg_dist(a, c, d)
-        .min(point_seg_dist(b, c, d))
-        .min(point_seg_dist(c, a, b))
-        .min(point_seg_dist(d, a, b))
-}
-
-/// Every extrusion except the skirt lies inside the layer's contour and at least
-/// `w/2 - tol` from it: endpoints inside, and the segment's distance to every contour edge.
+/// [`toolpath_support::check_containment`] at the line width.
 fn check_containment(run: &TpRun, what: &str, tol: f64, every: usize) {
-    let starts = layer_starts(run);
-    let mut checked = 0;
-    for (l, &start) in run.layers.iter().zip(&starts).step_by(every.max(1)) {
-        for (a, b, f, _) in extrusions(l, start) {
-            if f == Feature::Skirt {
-                continue;
-            }
-            let (a, b) = (pt(a), pt(b));
-            assert!(
-                inside(&l.contours, a) && inside(&l.contours, b),
-                "{what} layer {}: {f:?} {a:?}-{b:?} outside the contour",
-                l.index
-            );
-            for (c, _) in &l.contours {
-                for k in 0..c.len() {
-                    let d = seg_seg_dist(a, b, pt(c[k]), pt(c[(k + 1) % c.len()]));
-                    assert!(
-                        d >= W / 2.0 - tol,
-                        "{what} layer {}: {f:?} {a:?}-{b:?} is {d:.1} um from the contour",
-                        l.index
-                    );
-                }
-            }
-            checked += 1;
-        }
-    }
-    assert!(checked > 0, "{what}: nothing checked");
+    toolpath_support::check_containment(run, what, W, tol, every);
 }
 
-/// Raster at 50 um over `[lo, hi]` (um).
-struct Raster {
-    lo: (f64, f64),
-    nx: usize,
-    ny: usize,
-    cells: Vec<bool>,
-}
-
-const CELL: f64 = 50.0;
-
-impl Raster {
-    fn new(lo: (f64, f64), hi: (f64, f64)) -> Self {
-        let nx = ((hi.0 - lo.0) / CELL).ceil() as usize + 1;
-        let ny = ((hi.1 - lo.1) / CELL).ceil() as usize + 1;
-        Self { lo, nx, ny, cells: vec![false; nx * ny] }
-    }
-
-    fn centre(&self, i: usize, j: usize) -> (f64, f64) {
-        (self.lo.0 + (i as f64 + 0.5) * CELL, self.lo.1 + (j as f64 + 0.5) * CELL)
-    }
-
-    /// Marks cells whose centre lies in the rectangle of width `w` around segment a-b.
-    fn line(&mut self, a: (f64, f64), b: (f64, f64), w: f64) {
-        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-        let len = (dx * dx + dy * dy).sqrt();
-        if len == 0.0 {
-            return;
-        }
-        let (ux, uy) = (dx / len, dy / len);
-        let r = w / 2.0;
-        let i0 = (((a.0.min(b.0) - r - self.lo.0) / CELL).floor().max(0.0)) as usize;
-        let i1 = ((((a.0.max(b.0) + r - self.lo.0) / CELL).ceil()) as usize).min(self.nx - 1);
-        let j0 = (((a.1.min(b.1) - r - self.lo.1) / CELL).floor().max(0.0)) as usize;
-        let j1 = ((((a.1.max(b.1) + r - self.lo.1) / CELL).ceil()) as usize).min(self.ny - 1);
-        for j in j0..=j1 {
-            for i in i0..=i1 {
-                let c = self.centre(i, j);
-                let (px, py) = (c.0 - a.0, c.1 - a.1);
-                let along = px * ux + py * uy;
-                let across = (px * uy - py * ux).abs();
-                if (0.0..=len).contains(&along) && across <= r {
-                    self.cells[j * self.nx + i] = true;
-                }
-            }
-        }
-    }
-}
-
-/// Fraction of layer `l`'s top surface (its region minus the next layer's) covered by the
-/// layer's deposited lines, each a rectangle one line wide; and the surface area (mm^2).
+/// Covered fraction and area (mm^2) of layer `l`'s top surface, lines one line width wide.
 fn top_coverage(run: &TpRun, l: usize) -> (f64, f64) {
-    let layer = &run.layers[l];
-    let next = run.layers.get(l + 1);
-    let starts = layer_starts(run);
-    let pts: Vec<(f64, f64)> =
-        layer.contours.iter().flat_map(|(c, _)| c.iter().map(|&p| pt(p))).collect();
-    let lo = pts.iter().fold((f64::MAX, f64::MAX), |m, p| (m.0.min(p.0), m.1.min(p.1)));
-    let hi = pts.iter().fold((f64::MIN, f64::MIN), |m, p| (m.0.max(p.0), m.1.max(p.1)));
-    let mut dep = Raster::new(lo, hi);
-    for (a, b, f, _) in extrusions(layer, starts[l]) {
-        if f != Feature::Skirt {
-            dep.line(pt(a), pt(b), W);
-        }
-    }
-    let (mut top, mut covered) = (0usize, 0usize);
-    for j in 0..dep.ny {
-        for i in 0..dep.nx {
-            let c = dep.centre(i, j);
-            if !inside(&layer.contours, c) || next.is_some_and(|n| inside(&n.contours, c)) {
-                continue;
-            }
-            top += 1;
-            covered += usize::from(dep.cells[j * dep.nx + i]);
-        }
-    }
-    if let Ok(path) = std::env::var("STRATA_DUMP") {
-        let mut img = format!("P2\n{} {}\n2\n", dep.nx, dep.ny);
-        for j in (0..dep.ny).rev() {
-            for i in 0..dep.nx {
-                let c = dep.centre(i, j);
-                let t = inside(&layer.contours, c) && !next.is_some_and(|n| inside(&n.contours, c));
-                let v = if !t {
-                    1
-                } else if dep.cells[j * dep.nx + i] {
-                    2
-                } else {
-                    0
-                };
-                img.push_str(if v == 0 {
-                    "0 "
-                } else if v == 1 {
-                    "1 "
-                } else {
-                    "2 "
-                });
-            }
-            img.push('\n');
-        }
-        std::fs::write(format!("{path}_{l}.pgm"), img).unwrap();
-    }
-    let area = top as f64 * CELL * CELL / 1e6;
-    (if top == 0 { 1.0 } else { covered as f64 / top as f64 }, area)
+    let c = toolpath_support::top_coverage(run, l, W);
+    (c.fraction, c.area_mm2)
 }
 
 fn features(l: &TpLayer) -> Vec<Feature> {
@@ -192,10 +49,6 @@ fn check_solid_ends(run: &TpRun, what: &str) {
             l.index
         );
     }
-}
-
-fn default_run(mesh: &[TriMm]) -> TpRun {
-    run(&to_um(mesh), &PrintSettings::default())
 }
 
 #[test]
@@ -264,8 +117,7 @@ fn extrusions_stay_inside_the_contour_shrunk_by_half_a_line() {
     let hole = ngon(6, c + 2.0, c - 1.0, 4.0, 0.7);
     let r = run(&to_um(&holed_prism(&outer, &hole, 0.0, 3.0)), &PrintSettings::default());
     check_containment(&r, "holed hexagon", 15.0, 1);
-    let cyl =
-        slice_support::loft(&[(0.0, ngon(64, c, c, 8.0, 0.0)), (3.0, ngon(64, c, c, 8.0, 0.0))]);
+    let cyl = loft(&[(0.0, ngon(64, c, c, 8.0, 0.0)), (3.0, ngon(64, c, c, 8.0, 0.0))]);
     let r = run(&to_um(&cyl), &PrintSettings::default());
     check_containment(&r, "cylinder", 15.0, 1);
     let tube = holed_prism(&ngon(48, c, c, 6.0, 0.0), &ngon(48, c, c, 5.2, 0.0), 0.0, 2.0);

@@ -4,13 +4,11 @@
 //! move ring's room takes a unit exactly when its coded moves fit, and a unit it undoes
 //! leaves the ring as it was.
 
-mod slice_support;
 mod toolpath_support;
 
+use std::collections::VecDeque;
 use std::path::Path;
 
-use slice_support::{cuboid, four_holed_discs, holed_prism, load_placed, ngon, to_um};
-use std::collections::VecDeque;
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 
@@ -19,6 +17,9 @@ use strata::slice::{Layer, SliceConfig, SlicedLayer};
 use strata::toolpath::{
     Emitted, Moves, Room, Seam, ToolEvent, ToolMove, ToolpathConfig, ToolpathError, ToolpathStats,
 };
+use strata_testkit::mesh::{cuboid, four_holed_discs, holed_prism, ngon, to_um};
+use strata_testkit::models::load_placed;
+use strata_testkit::rng::Rng;
 use toolpath_support::{run_cfg, TestScratch, TestSlicer, TestToolpath, TpLayer, TpRun};
 
 /// The scratch of the stepwise runs (the test stage's PTS and CROSS).
@@ -105,53 +106,39 @@ fn run_with(
 ) -> TpRun {
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let slice_cfg = SliceConfig::new(settings, top).unwrap();
-    std::thread::scope(|scope| {
-        std::thread::Builder::new()
-            .stack_size(512 << 20)
-            .spawn_scoped(scope, move || {
-                let mut slicer = Box::new(TestSlicer::new(slice_cfg).unwrap());
-                let mut tp = Box::new(TestToolpath::new(cfg).unwrap());
-                let mut work = Box::new(Work::new());
-                let mut layers = Vec::new();
-                let accept = |tp: &mut TestToolpath, layers: &mut Vec<TpLayer>, l: Sliced<'_>| {
-                    assert!(!tp.emitting());
-                    tp.accept_sliced(l, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
-                };
-                for t in tris {
-                    while slicer.would_cut(t.z_min()) {
-                        slicer
-                            .cut_one(&mut *work, &mut |l| accept(&mut tp, &mut layers, l))
-                            .unwrap();
-                        if tp.emitting() {
-                            // Neither another layer nor a flush while this one is emitted.
-                            let sink = &mut |_: &ToolEvent<'_>| panic!("no event expected");
-                            let busy = ToolpathError::Emitting { layer: tp.layers_emitted() };
-                            assert_eq!(tp.build_next(&mut *work, sink), Err(busy));
-                            let refused = tp.accept_layer(&empty_layer(u32::MAX), &mut *work, sink);
-                            assert_eq!(refused, Err(busy));
-                        }
-                        emit(&mut tp, &mut work, &mut layers);
-                    }
-                    slicer.push(t, &mut *work, &mut |_| panic!("push cut a layer")).unwrap();
+    strata_testkit::on_big_stack(move || {
+        let mut slicer = Box::new(TestSlicer::new(slice_cfg).unwrap());
+        let mut tp = Box::new(TestToolpath::new(cfg).unwrap());
+        let mut work = Box::new(Work::new());
+        let mut layers = Vec::new();
+        let accept = |tp: &mut TestToolpath, layers: &mut Vec<TpLayer>, l: Sliced<'_>| {
+            assert!(!tp.emitting());
+            tp.accept_sliced(l, &mut |e: &ToolEvent<'_>| record(layers, e)).unwrap();
+        };
+        for t in tris {
+            while slicer.would_cut(t.z_min()) {
+                slicer.cut_one(&mut *work, &mut |l| accept(&mut tp, &mut layers, l)).unwrap();
+                if tp.emitting() {
+                    // Neither another layer nor a flush while this one is emitted.
+                    let sink = &mut |_: &ToolEvent<'_>| panic!("no event expected");
+                    let busy = ToolpathError::Emitting { layer: tp.layers_emitted() };
+                    assert_eq!(tp.build_next(&mut *work, sink), Err(busy));
+                    let refused = tp.accept_layer(&empty_layer(u32::MAX), &mut *work, sink);
+                    assert_eq!(refused, Err(busy));
                 }
-                while slicer.cut_one(&mut *work, &mut |l| accept(&mut tp, &mut layers, l)).unwrap()
-                {
-                    emit(&mut tp, &mut work, &mut layers);
-                }
-                slicer.finish(&mut *work, &mut |_| panic!("finish cut a layer")).unwrap();
-                while tp
-                    .build_next(&mut *work, &mut |e: &ToolEvent<'_>| record(&mut layers, e))
-                    .unwrap()
-                {
-                    emit(&mut tp, &mut work, &mut layers);
-                }
-                let stats =
-                    tp.finish(&mut *work, &mut |e: &ToolEvent<'_>| record(&mut layers, e)).unwrap();
-                TpRun { layers, stats, stray: 0 }
-            })
-            .unwrap()
-            .join()
-            .unwrap()
+                emit(&mut tp, &mut work, &mut layers);
+            }
+            slicer.push(t, &mut *work, &mut |_| panic!("push cut a layer")).unwrap();
+        }
+        while slicer.cut_one(&mut *work, &mut |l| accept(&mut tp, &mut layers, l)).unwrap() {
+            emit(&mut tp, &mut work, &mut layers);
+        }
+        slicer.finish(&mut *work, &mut |_| panic!("finish cut a layer")).unwrap();
+        while tp.build_next(&mut *work, &mut |e: &ToolEvent<'_>| record(&mut layers, e)).unwrap() {
+            emit(&mut tp, &mut work, &mut layers);
+        }
+        let stats = tp.finish(&mut *work, &mut |e: &ToolEvent<'_>| record(&mut layers, e)).unwrap();
+        TpRun { layers, stats, stray: 0 }
     })
 }
 
@@ -227,14 +214,12 @@ fn emitting_unit_by_unit_gives_the_moves_of_whole_layers() {
         let most = whole.layers.iter().map(|l| l.moves.len()).max().unwrap_or(0);
         assert!(largest > 0 && (largest as usize) < most, "{what}: {largest} of {most}");
         // Random rooms, often too small for the waiting unit.
-        let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rng = Rng::new(0x9e37_79b9_7f4a_7c15);
         let (random, calls) = run_stepwise(&tris, &settings, cfg, move |needed| {
-            rng ^= rng << 13;
-            rng ^= rng >> 7;
-            rng ^= rng << 17;
-            match rng % 3 {
-                0 => (rng >> 8) as usize % (needed as usize + 1),
-                _ => needed as usize + (rng >> 8) as usize % 64,
+            let x = rng.u64();
+            match x % 3 {
+                0 => (x >> 8) as usize % (needed as usize + 1),
+                _ => needed as usize + (x >> 8) as usize % 64,
             }
         });
         assert_same(&whole, &random, what);
@@ -456,12 +441,7 @@ type Ring = MoveRing<{ 1 << 18 }>;
 #[test]
 fn a_byte_room_takes_a_unit_exactly_when_its_coded_moves_fit() {
     // The rings are large values: built on a thread with a big stack (debug builds copy them).
-    std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(byte_room_checks)
-        .unwrap()
-        .join()
-        .unwrap();
+    strata_testkit::on_big_stack(byte_room_checks);
 }
 
 fn byte_room_checks() {
@@ -490,14 +470,9 @@ fn byte_room_checks() {
             exact.limit(largest);
             let (mut stream, mut tight) = (MoveStream::new(), RingRun::new());
             tight.forget = forget;
-            let mut rng = 0x2545_f491_4f6c_dd1du64;
+            let mut rng = Rng::new(0x2545_f491_4f6c_dd1d);
             let run = run_with(&tris, &settings, cfg, |tp, work, layers| {
-                let pop = &mut |_| {
-                    rng ^= rng << 13;
-                    rng ^= rng >> 7;
-                    rng ^= rng << 17;
-                    (rng % 8) as usize
-                };
+                let pop = &mut |_| rng.below(8) as usize;
                 through_ring(tp, work, layers, &mut exact, &mut stream, &mut tight, pop)
             });
             assert_same(&whole, &run, what);

@@ -8,19 +8,13 @@
 //! clean-up pass removes only points within 2 um of a straight edge), so every edge of the
 //! opening moves by at most ~1 um and its area by at most `perimeter x 1 um` (per layer).
 
-mod common;
-mod slice_support;
 mod toolpath_support;
 
-use slice_support::{cuboid, load_placed, loft, to_um, TriMm};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::toolpath::{Feature, ToolpathConfig};
-use toolpath_support::{extrusions, layer_starts, run, run_cfg, run_sized, TpRun};
-
-/// Prism (mm) over a simple counter-clockwise polygon between `z0` and `z1`.
-fn prism(poly: &[[f64; 2]], z0: f64, z1: f64) -> Vec<TriMm> {
-    loft(&[(z0, poly.to_vec()), (z1, poly.to_vec())])
-}
+use strata_testkit::mesh::{cuboid, prism, to_um};
+use strata_testkit::models::{load_placed, shared_models};
+use toolpath_support::{default_run, extrusions, layer_starts, run_cfg, run_sized};
 
 /// A 10 mm block with a 0.3 mm x 5 mm fin on its right side (mm, counter-clockwise).
 const FIN_BLOCK: [[f64; 2]; 8] = [
@@ -33,12 +27,6 @@ const FIN_BLOCK: [[f64; 2]; 8] = [
     [110.0, 110.0],
     [100.0, 110.0],
 ];
-
-fn default_run(mesh: &[TriMm]) -> TpRun {
-    let mut tris = to_um(mesh);
-    tris.sort_by_key(|t| t.z_min());
-    run(&tris, &PrintSettings::default())
-}
 
 #[test]
 fn a_fin_on_a_block_is_reported_with_its_area() {
@@ -136,7 +124,7 @@ fn a_stage_sized_to_the_printing_needs_prints_the_same_and_measures_in_bands() {
     // capacities well above the model's needs) prints exactly the same moves and measures
     // the fins in bands: the thin area is that of the host-sized run up to the output
     // loops' clean-up tolerance (2 um along the outlines: a few thousand um^2 a layer).
-    let Some(dir) = common::shared_models() else { return };
+    let Some(dir) = shared_models() else { return };
     let machine = MachineConfig::default();
     let tris = load_placed(&dir.join("embodier_LM8UU_8p2pi.stl"), &machine);
     let settings = PrintSettings::default();
@@ -171,11 +159,10 @@ fn the_measurement_leaves_the_toolpaths_unchanged() {
     // The fin block of the first test and a model with thin slivers: the printer leaves the
     // measurement out (`measure_thin_area: false`), which must change only the figures.
     let poly = FIN_BLOCK;
-    let mut fin = to_um(&prism(&poly, 0.0, 1.0));
-    fin.sort_by_key(|t| t.z_min());
+    let fin = to_um(&prism(&poly, 0.0, 1.0));
     let machine = MachineConfig::default();
     let mut models = vec![("fin block", fin)];
-    if let Some(dir) = common::shared_models() {
+    if let Some(dir) = shared_models() {
         models.push(("LM8UU", load_placed(&dir.join("embodier_LM8UU_8p2pi.stl"), &machine)));
     }
     let settings = PrintSettings::default();

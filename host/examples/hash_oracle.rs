@@ -8,12 +8,13 @@
 
 use std::hash::Hasher;
 
-use strata::machine::{MachineConfig, PrintSettings};
+use strata::machine::MachineConfig;
 use strata::printer::BOARD_CAPACITIES;
-use strata::protocol::{Capacities, JobOptions, JobSpec};
+use strata::protocol::Capacities;
 use strata_host::admission::{admit_job, Admission};
 use strata_host::model;
 use strata_host::simjob::{simulate, SimOptions};
+use strata_testkit::drive::job_spec;
 
 /// FNV-1a over bytes (stable across runs and platforms, unlike `DefaultHasher`).
 struct Fnv(u64);
@@ -29,22 +30,13 @@ impl Hasher for Fnv {
     }
 }
 
-fn job_for(tris: &[strata::geom::Triangle]) -> JobSpec {
-    JobSpec {
-        settings: PrintSettings::default(),
-        options: JobOptions::default(),
-        model_height_um: tris.iter().map(|t| t.z_max()).max().unwrap_or(0),
-        triangles: tris.len() as u32,
-    }
-}
-
 fn run(name: &str, label: &str, caps: Option<Capacities>, path: &std::path::Path) {
     let machine = MachineConfig::default();
     let m = model::load(path).unwrap_or_else(|e| panic!("{e}"));
     let mut tris = m.placed_sorted(&machine).unwrap_or_else(|e| panic!("{e}"));
     let mut opts = SimOptions::default();
     if let Some(caps) = caps {
-        let job = job_for(&tris);
+        let job = job_spec(&tris);
         match admit_job(&tris, &machine, &job, &caps, 0.02) {
             Ok(Admission::Unchanged(_)) => {}
             Ok(Admission::Simplified(s)) => tris = s.triangles,
@@ -55,7 +47,7 @@ fn run(name: &str, label: &str, caps: Option<Capacities>, path: &std::path::Path
         }
         opts.capacities = caps;
     }
-    let job = job_for(&tris);
+    let job = job_spec(&tris);
     match simulate(&tris, &machine, job, &opts) {
         Ok(r) => {
             println!(

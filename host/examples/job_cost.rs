@@ -39,7 +39,7 @@ fn resolve(arg: &str) -> PathBuf {
     if p.components().count() > 1 || p.is_file() {
         return p.to_path_buf();
     }
-    hil::repo_root().join("../shared/models").join(arg)
+    strata_testkit::models::dir().join(arg)
 }
 
 struct Row {

@@ -6,53 +6,27 @@
 use std::collections::HashSet;
 
 use strata::geom::{Point3, Triangle};
-use strata::machine::{MachineConfig, PrintSettings, AXES};
+use strata::machine::MachineConfig;
 use strata::printer::{Accept, CREALITY_CAPACITIES};
-use strata::protocol::{
-    BatchBuilder, Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message,
-};
+use strata::protocol::{Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message};
 use strata::slice::{SliceConfig, SliceScratch, Slicer};
 use strata::step::StepQueue;
 use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
 use strata_host::model;
 use strata_host::simjob::{device_ram, simulate, SimOptions};
-
-mod common;
-use common::{holed_block, write_stl};
+use strata_testkit::drive::{job_payloads, job_spec, model_payloads, start, Rig};
+use strata_testkit::mesh::{cuboid, holed_block, sphere, to_um};
+use strata_testkit::on_big_stack;
+use strata_testkit::stl::write_mesh;
 
 /// Sphere centre (um) and radius (mm): resting on the bed at the bed's centre.
 const C: [f64; 3] = [110_000.0, 110_000.0, 5_000.0];
 const R_MM: f64 = 5.0;
 
-/// A UV sphere of `lon` x `lat` quads (triangles at the poles), vertices on the sphere rounded
-/// to the um grid and shared between triangles, outward winding, sorted by lowest z.
-fn sphere(lon: usize, lat: usize) -> Vec<Triangle> {
-    let r = R_MM * 1000.0;
-    let v = |i: usize, j: usize| -> Point3 {
-        // i: 0 (south pole) ..= lat (north pole), j: longitude.
-        let th = std::f64::consts::PI * i as f64 / lat as f64;
-        let ph = 2.0 * std::f64::consts::PI * (j % lon) as f64 / lon as f64;
-        let (x, y, z) = if i == 0 || i == lat {
-            (0.0, 0.0, if i == 0 { -r } else { r })
-        } else {
-            (r * th.sin() * ph.cos(), r * th.sin() * ph.sin(), -r * th.cos())
-        };
-        Point3::new((C[0] + x).round() as i32, (C[1] + y).round() as i32, (C[2] + z).round() as i32)
-    };
-    let mut t = Vec::new();
-    for i in 0..lat {
-        for j in 0..lon {
-            let (a, b, c, d) = (v(i, j), v(i, j + 1), v(i + 1, j + 1), v(i + 1, j));
-            if i > 0 {
-                t.push(Triangle { v: [a, b, d] });
-            }
-            if i + 1 < lat {
-                t.push(Triangle { v: [b, c, d] });
-            }
-        }
-    }
-    t.sort_by_key(Triangle::z_min);
-    t
+/// A UV sphere of `lon` x `lat` ([`sphere`]) around [`C`], its vertices rounded to the um
+/// grid and shared between triangles, outward winding, sorted by lowest z.
+fn uv_sphere(lon: usize, lat: usize) -> Vec<Triangle> {
+    to_um(&sphere(C.map(|um| um / 1000.0), R_MM, lon, lat))
 }
 
 /// How far a triangle's flat face lies inside the sphere, mm: its corners are on the sphere,
@@ -95,37 +69,22 @@ fn sphere_deviation_mm(t: &Triangle) -> f64 {
     R_MM - d
 }
 
+/// The job of `tris` with the default settings, without a skirt.
 fn job(tris: &[Triangle]) -> JobSpec {
-    JobSpec {
-        settings: PrintSettings::default(),
-        options: JobOptions { skirt_loops: 0, ..JobOptions::default() },
-        model_height_um: tris.iter().map(Triangle::z_max).max().unwrap(),
-        triangles: tris.len() as u32,
-    }
+    let mut spec = job_spec(tris);
+    spec.options.skirt_loops = 0;
+    spec
 }
 
-/// A closed box [x0, x1] x [y0, y1] x [0, h], um, sorted by lowest z.
-fn cuboid(x0: i32, x1: i32, y0: i32, y1: i32, h: i32) -> Vec<Triangle> {
-    let p = |x, y, z| Point3::new(x, y, z);
-    let c = [p(x0, y0, 0), p(x1, y0, 0), p(x1, y1, 0), p(x0, y1, 0)];
-    let top = c.map(|q| p(q.x, q.y, h));
-    let mut t = Vec::new();
-    for j in 0..4 {
-        let k = (j + 1) % 4;
-        t.push(Triangle { v: [c[j], c[k], top[k]] });
-        t.push(Triangle { v: [c[j], top[k], top[j]] });
-    }
-    t.push(Triangle { v: [c[0], c[2], c[1]] });
-    t.push(Triangle { v: [c[0], c[3], c[2]] });
-    t.push(Triangle { v: [top[0], top[1], top[2]] });
-    t.push(Triangle { v: [top[0], top[2], top[3]] });
-    t.sort_by_key(Triangle::z_min);
-    t
+/// A closed box [x0, x1] x [y0, y1] x [0, h], um ([`cuboid`]), sorted by lowest z.
+fn cuboid_um(x0: i32, x1: i32, y0: i32, y1: i32, h: i32) -> Vec<Triangle> {
+    let mm = |um: i32| f64::from(um) / 1000.0;
+    to_um(&cuboid([mm(x0), mm(y0), 0.0], [mm(x1), mm(y1), mm(h)]))
 }
 
 #[test]
 fn a_fine_sphere_is_simplified_to_fit_within_the_measured_deviation() {
-    let tris = sphere(96, 48);
+    let tris = uv_sphere(96, 48);
     let original: HashSet<Point3> = tris.iter().flat_map(|t| t.v).collect();
     let orig_sag = tris.iter().map(sphere_deviation_mm).fold(0.0, f64::max);
     assert!(orig_sag < 0.01, "{orig_sag}");
@@ -165,7 +124,7 @@ fn a_fine_sphere_is_simplified_to_fit_within_the_measured_deviation() {
 
 #[test]
 fn a_model_that_cannot_fit_is_refused_naming_what() {
-    let tris = sphere(48, 24);
+    let tris = uv_sphere(48, 24);
     let caps = Capacities { active_triangles: 4, contour_points: 4, ..CREALITY_CAPACITIES };
     let e = admit_job(&tris, &MachineConfig::default(), &job(&tris), &caps, 0.1).unwrap_err();
     assert!(e.contains("does not fit the printer"), "{e}");
@@ -175,7 +134,7 @@ fn a_model_that_cannot_fit_is_refused_naming_what() {
 
 #[test]
 fn toolpath_needs_beyond_the_printer_are_refused_naming_the_resource() {
-    let tris = cuboid(100_000, 120_000, 100_000, 110_000, 1_000);
+    let tris = cuboid_um(100_000, 120_000, 100_000, 110_000, 1_000);
     let machine = MachineConfig::default();
     let job = job(&tris);
     let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
@@ -236,7 +195,7 @@ fn more_loops_a_layer_than_the_slicer_keeps_are_refused() {
         let mut t: Vec<Triangle> = (0..10)
             .flat_map(|k| {
                 let x = 60_000 + k * 10_000;
-                cuboid(x, x + 5_000, 100_000, 105_000, 600)
+                cuboid_um(x, x + 5_000, 100_000, 105_000, 600)
             })
             .collect();
         t.sort_by_key(|t| t.z_min());
@@ -255,12 +214,12 @@ fn more_loops_a_layer_than_the_slicer_keeps_are_refused() {
 
 #[test]
 fn a_small_model_that_fits_is_streamed_unchanged() {
-    let tris = cuboid(100_000, 106_000, 100_000, 104_000, 600);
+    let tris = cuboid_um(100_000, 106_000, 100_000, 104_000, 600);
     let machine = MachineConfig::default();
     let job = job(&tris);
     let caps = CREALITY_CAPACITIES;
     let Admission::Unchanged(needs) = admit_job(&tris, &machine, &job, &caps, 0.02).unwrap() else {
-        panic!("a 12-triangle box fits");
+        panic!("a 16-triangle box fits");
     };
     assert!(needs.active_triangles <= 12);
     let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
@@ -281,7 +240,7 @@ fn a_small_model_that_fits_is_streamed_unchanged() {
 fn simulate_reports_the_ram_and_capacities_admission_checks() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("holed.stl");
-    write_stl(&path, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&path, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_strata"))
         .args(["simulate", path.to_str().unwrap(), "--json", "--skirt-loops", "0"])
         .output()
@@ -294,19 +253,14 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
     let peaks = toolpath_peaks(&tris, &machine, &job).unwrap();
     // The slicer's peaks, from the core slicer directly.
     let cfg = SliceConfig::new(&job.settings, job.model_height_um).unwrap();
-    let stats = std::thread::Builder::new()
-        .stack_size(64 << 20)
-        .spawn(move || {
-            let mut slicer = Box::new(Slicer::<4096, 4096, 256>::new(cfg).unwrap());
-            let mut work = Box::new(SliceScratch::new());
-            for t in &tris {
-                slicer.push(t, &mut *work, &mut |_| {}).unwrap();
-            }
-            slicer.finish(&mut *work, &mut |_| {}).unwrap()
-        })
-        .unwrap()
-        .join()
-        .unwrap();
+    let stats = on_big_stack(|| {
+        let mut slicer = Box::new(Slicer::<4096, 4096, 256>::new(cfg).unwrap());
+        let mut work = Box::new(SliceScratch::new());
+        for t in &tris {
+            slicer.push(t, &mut *work, &mut |_| {}).unwrap();
+        }
+        slicer.finish(&mut *work, &mut |_| {}).unwrap()
+    });
     assert_eq!(doc["device_ram_bytes"], device_ram(&stats, &peaks.needs));
     let n = &doc["device_needs"];
     assert_eq!(n["toolpath_ram_bytes"], peaks.needs.bytes() as u64);
@@ -369,40 +323,23 @@ strata::printer_type! {
 /// Takes the job and the whole model without planning a move (no `poll`): every layer's
 /// moves stay in the move buffer. Returns the bytes in use and the state and error.
 fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, ErrorCode) {
-    with_batch_on_big_stack(tris, move |payload| {
+    let payloads = job_payloads(job, tris);
+    assert_eq!(payloads.len(), 3, "the job, one batch, the end of the model");
+    on_big_stack(|| {
         let mut p = Box::new(Roomy::new(&MachineConfig::default()));
-        for m in [Message::JobStart(job), Message::decode(&payload).unwrap(), Message::EndOfModel] {
-            assert_eq!(p.handle(&m), Accept::Taken);
+        for m in &payloads {
+            assert_eq!(p.handle(&Message::decode(m).unwrap()), Accept::Taken);
         }
         (p.move_buffer_used(), p.state(), p.error().0)
     })
-}
-
-/// `run` with the triangle batch message of `tris`, on a thread with room for a
-/// host-sized printer on its stack.
-fn with_batch_on_big_stack<R: Send + 'static>(
-    tris: &[Triangle],
-    run: impl FnOnce(Vec<u8>) -> R + Send + 'static,
-) -> R {
-    let mut batch = BatchBuilder::new();
-    for t in tris {
-        batch.push(t).unwrap();
-    }
-    let payload = batch.payload().to_vec();
-    std::thread::Builder::new()
-        .stack_size(256 << 20)
-        .spawn(move || run(payload))
-        .unwrap()
-        .join()
-        .unwrap()
 }
 
 /// Two small jobs for the move buffer's checks: a box with a skirt, and a tall thin wall
 /// without one.
 fn unit_cases() -> Vec<(Vec<Triangle>, JobSpec)> {
     [
-        (cuboid(100_000, 112_000, 100_000, 109_000, 1_000), 1),
-        (cuboid(60_000, 61_500, 150_000, 190_000, 2_200), 0),
+        (cuboid_um(100_000, 112_000, 100_000, 109_000, 1_000), 1),
+        (cuboid_um(60_000, 61_500, 150_000, 190_000, 2_200), 0),
     ]
     .into_iter()
     .map(|(tris, skirt_loops)| {
@@ -441,34 +378,21 @@ struct Limited {
 /// What a job did on a [`Roomy`] printer using `limit` bytes of its move buffer, fed and
 /// drained as a device is.
 fn run_limited(tris: &[Triangle], job: JobSpec, limit: usize) -> Limited {
-    with_batch_on_big_stack(tris, move |payload| {
+    let payloads = model_payloads(tris);
+    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
+    on_big_stack(|| {
         let mut p = Box::new(Roomy::new(&MachineConfig::default()));
         p.limit_move_buffer(limit);
-        assert_eq!(p.handle(&Message::JobStart(job)), Accept::Taken);
+        start(&mut *p, job);
         let mut q: StepQueue<32> = StepQueue::new();
-        let (mut prod, mut cons) = q.split();
-        let (mut sent, mut hashes) = (0, Vec::new());
-        for _ in 0..50_000_000u64 {
-            let m = match sent {
-                0 => Some(Message::decode(&payload).unwrap()),
-                1 => Some(Message::EndOfModel),
-                _ => None,
-            };
-            if m.is_some_and(|m| p.handle(&m) == Accept::Taken) {
-                sent += 1;
-            }
-            p.poll(&mut prod);
-            for axis in 0..AXES {
-                while cons.dequeue(axis).is_some() {}
-            }
-            while let Some(h) = p.take_layer_done() {
-                hashes.push(h);
-            }
-            if !p.is_active() {
-                break;
-            }
+        let mut rig = Rig::counting(&mut q);
+        rig.drive(&mut *p, &payloads, 50_000_000, |_, _| {});
+        Limited {
+            state: p.state(),
+            error: p.error(),
+            hashes: rig.hashes,
+            largest: p.largest_unit_bytes(),
         }
-        Limited { state: p.state(), error: p.error(), hashes, largest: p.largest_unit_bytes() }
     })
 }
 

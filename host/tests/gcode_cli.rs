@@ -5,15 +5,14 @@
 
 use assert_cmd::Command;
 use serde_json::Value;
-
-mod common;
-use common::{holed_block, write_stl};
+use strata_testkit::mesh::{holed_block, prism};
+use strata_testkit::stl::write_mesh;
 
 /// Runs `strata slice` on the block with `extra` options; returns (G-code, JSON summary).
 fn slice(extra: &[&str]) -> (String, Value) {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("block.stl");
-    write_stl(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
+    write_mesh(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
     let out = dir.path().join("block.gcode");
     let ok = Command::cargo_bin("strata")
         .unwrap()
@@ -177,23 +176,6 @@ fn gcode_has_start_layers_types_and_end_and_matches_the_summary() {
     assert!(per_layer.iter().all(|l| l["thin_wall_area_mm2"] == 0.0));
 }
 
-/// A prism (mm) over a simple counter-clockwise polygon from z = 0 to `h`, caps fanned
-/// from the first vertex (watertight; the caps are never cut by a slicing plane).
-fn prism(poly: &[[f32; 2]], h: f32) -> Vec<[[f32; 3]; 3]> {
-    let n = poly.len();
-    let at = |j: usize, z: f32| [poly[j % n][0], poly[j % n][1], z];
-    let mut t = Vec::new();
-    for j in 0..n {
-        t.push([at(j, 0.0), at(j + 1, 0.0), at(j + 1, h)]);
-        t.push([at(j, 0.0), at(j + 1, h), at(j, h)]);
-    }
-    for j in 1..n - 1 {
-        t.push([at(0, h), at(j, h), at(j + 1, h)]);
-        t.push([at(0, 0.0), at(j + 1, 0.0), at(j, 0.0)]);
-    }
-    t
-}
-
 #[test]
 fn a_thin_fin_is_reported_in_the_json_and_the_text_output() {
     // A 10 mm block with a 5 mm x 0.3 mm fin, 1 mm tall (5 layers): 1.5 mm^2 per layer.
@@ -209,7 +191,7 @@ fn a_thin_fin_is_reported_in_the_json_and_the_text_output() {
         [5.0, 5.0],
         [-5.0, 5.0],
     ];
-    write_stl(&model, &prism(&poly, 1.0));
+    write_mesh(&model, &prism(&poly, 0.0, 1.0));
     let out = dir.path().join("fin.gcode");
     let run = |json: bool| {
         let mut cmd = Command::cargo_bin("strata").unwrap();
@@ -291,7 +273,7 @@ fn settings_flags_change_the_gcode() {
 fn bad_settings_and_big_models_are_refused_with_a_message() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("block.stl");
-    write_stl(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
+    write_mesh(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
     let out = dir.path().join("x.gcode");
     for (args, msg) in [
         (vec!["--infill", "120"], "infill density 120"),

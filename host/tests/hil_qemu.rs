@@ -46,20 +46,21 @@
 #![cfg(unix)]
 
 use std::os::unix::net::UnixStream;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use strata_host::clock::LinkClock;
 use strata_host::serial::{Port, ServeOptions};
 
 use strata::geom::Triangle;
-use strata::machine::{MachineConfig, PrintSettings};
+use strata::machine::MachineConfig;
 use strata::printer::CREALITY_CAPACITIES;
-use strata::protocol::{DeviceState, JobOptions, JobSpec};
+use strata::protocol::{DeviceState, JobSpec};
 use strata_host::hil::{self, banded_cylinder, Costs, Qemu, Relay, SimDevice};
 use strata_host::model;
 use strata_host::session::Progress;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
+use strata_testkit::drive::job_spec;
 
 /// Faults of the lossy runs: 3 % of frames each dropped, corrupted, shortened by a byte,
 /// duplicated and delayed (up to 50 ms), on both directions, at 250000 baud.
@@ -76,10 +77,6 @@ const STACK_HEADROOM: u64 = 256;
 /// The sample models of the end-to-end test.
 const MODELS: [&str; 4] =
     ["embodier_asc.stl", "xyz_20mm_cube.stl", "embodier_hotend_v2.stl", "embodier_LM8UU_8p2pi.stl"];
-
-fn models_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models")
-}
 
 /// QEMU and the image of the 64 KB build (or, with `Some(board)`, of that build), or `None`
 /// (skip) with the reason printed; under CI a missing piece fails the test.
@@ -98,21 +95,11 @@ fn qemu_or_skip(test: &str, board: Option<&str>) -> Option<(PathBuf, PathBuf)> {
     }
 }
 
-/// The job `strata simulate`/`strata print` build with default settings.
-fn job_for(tris: &[Triangle]) -> JobSpec {
-    JobSpec {
-        settings: PrintSettings::default(),
-        options: JobOptions::default(),
-        model_height_um: tris.iter().map(Triangle::z_max).max().unwrap_or(0),
-        triangles: tris.len() as u32,
-    }
-}
-
 fn load(name: &str) -> (Vec<Triangle>, JobSpec) {
-    let path = models_dir().join(name);
+    let path = strata_testkit::models::dir().join(name);
     let m = model::load(&path).unwrap_or_else(|e| panic!("{e}"));
     let tris = m.placed_sorted(&MachineConfig::default()).unwrap();
-    let job = job_for(&tris);
+    let job = job_spec(&tris);
     (tris, job)
 }
 
@@ -345,7 +332,7 @@ fn qemu_job_on(board: Option<&str>, name: &str, tris: &[Triangle], job: JobSpec,
 #[test]
 fn qemu_small_cylinder() {
     let tris = cylinder(4_000.0, 600, 16);
-    qemu_job("cylinder r4 h0.6 16 sides", &tris, job_for(&tris), true);
+    qemu_job("cylinder r4 h0.6 16 sides", &tris, job_spec(&tris), true);
 }
 
 /// A taller one in 0.2 mm bands (512 triangles, 15 layers: skins, infill, about a minute of
@@ -354,7 +341,7 @@ fn qemu_small_cylinder() {
 fn qemu_banded_cylinder() {
     let tris = banded_cylinder(4_000.0, 3_000, 16, 200);
     assert_eq!(tris.len(), 512);
-    qemu_job("banded cylinder r4 h3 16 sides", &tris, job_for(&tris), true);
+    qemu_job("banded cylinder r4 h3 16 sides", &tris, job_spec(&tris), true);
 }
 
 /// A wider one (672 triangles, 20 layers): its last layers once overflowed the move buffer
@@ -363,7 +350,7 @@ fn qemu_banded_cylinder() {
 fn qemu_banded_cylinder_r5() {
     let tris = banded_cylinder(5_000.0, 4_000, 16, 200);
     assert_eq!(tris.len(), 672);
-    qemu_job("banded cylinder r5 h4 16 sides", &tris, job_for(&tris), true);
+    qemu_job("banded cylinder r5 h4 16 sides", &tris, job_spec(&tris), true);
 }
 
 #[test]
@@ -420,7 +407,7 @@ const SIM_JOB_MS: u32 = 600_000;
 #[test]
 fn harness_against_the_in_process_printer() {
     let tris = cylinder(6_000.0, 1_000, 96);
-    let job = job_for(&tris);
+    let job = job_spec(&tris);
     let mut reference = None;
     for faults in [None, Some(Faults::uniform(LOSS, 3))] {
         let label = if faults.is_some() { "in-process lossy" } else { "in-process clean" };

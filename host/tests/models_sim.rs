@@ -13,30 +13,25 @@
 //!   the layers its skins wait for) must arrive, which the printed "first step at" shows;
 //! - the wire cost per triangle and the time to stream all of 3DBenchy at 250000 baud.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::frame::wire_len;
-use strata::protocol::{BatchBuilder, JobOptions, JobSpec};
+use strata::protocol::{JobOptions, JobSpec};
 use strata::slice::SliceConfig;
 use strata_host::admission::{admit, Admission};
 use strata_host::model;
 use strata_host::simjob::{simulate, SimOptions};
+use strata_testkit::drive::batches;
+use strata_testkit::models;
 
 fn models() -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
-    let list = |d: &Path| -> Vec<PathBuf> {
-        std::fs::read_dir(d)
-            .unwrap_or_else(|e| panic!("{}: {e}", d.display()))
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.extension().is_some_and(|x| x == "stl"))
-            .collect()
-    };
+    let dir = models::dir();
     // The top-level models and their real-size versions (`scaled_mm/`).
-    let mut v = list(&dir);
+    let mut v = models::stl_files(&dir);
     if dir.join("scaled_mm").is_dir() {
-        v.extend(list(&dir.join("scaled_mm")));
+        v.extend(models::stl_files(&dir.join("scaled_mm")));
     }
     v.sort();
     // STRATA_MODELS=name,name runs only those files.
@@ -62,16 +57,7 @@ fn every_model_streams_ahead_of_printing() {
             }
         };
         // Streaming the whole model as it is, at 250000 baud (10 bits per byte).
-        let mut bb = BatchBuilder::new();
-        let mut bytes = 0usize;
-        for t in &tris {
-            if bb.push(t).is_err() {
-                bytes += wire_len(bb.payload());
-                bb.clear();
-                bb.push(t).unwrap();
-            }
-        }
-        bytes += wire_len(bb.payload());
+        let bytes: usize = batches(&tris).iter().map(|b| wire_len(b)).sum();
         let top = tris.iter().map(|t| t.z_max()).max().unwrap();
         let cfg = SliceConfig::new(&settings, top).unwrap();
         // Refused at the default 0.02 mm error: say so, then stream it simplified further.

@@ -13,9 +13,8 @@ use strata::machine::MachineConfig;
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::{Capacities, DeviceState};
 use strata_host::serial::{serve_device, DeviceClock, ServeOptions};
-
-mod common;
-use common::{holed_block, write_stl};
+use strata_testkit::mesh::{holed_block, sphere};
+use strata_testkit::stl::write_mesh;
 
 /// The link timeout of both ends in these tests, s: the simulated printer serves in real
 /// time on the test's own cores, so a machine busy elsewhere can hold either end for a
@@ -38,6 +37,28 @@ fn print_over_pty(args: &[&str], caps: Capacities) -> (std::process::Output, Dev
 
 /// [`print_over_pty`] with the device's options.
 fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Output, DeviceState) {
+    let (out, state) = serve_on_pty(opts, |name, _| {
+        let mut cmd = Command::cargo_bin("strata").unwrap();
+        cmd.args(["print", "--port", name]).args(args);
+        if !args.contains(&"--link-timeout") {
+            cmd.args(["--link-timeout", &LINK_TIMEOUT_S.to_string()]);
+        }
+        cmd.timeout(hang_guard()).output().unwrap()
+    });
+    let state = state.unwrap_or_else(|e| {
+        panic!("device: {e}; strata: {}", String::from_utf8_lossy(&out.stderr))
+    });
+    (out, state)
+}
+
+/// Serves a simulated printer with `opts` on the master end of a new pseudo-terminal pair
+/// (on a thread with a big stack) while `host(slave name, stop)` runs, then stops it (a host
+/// that panics sets `stop` first, or the device serves on); returns what `host` returned and
+/// the device's final state.
+fn serve_on_pty<R>(
+    opts: ServeOptions,
+    host: impl FnOnce(&str, &AtomicBool) -> R,
+) -> (R, Result<DeviceState, String>) {
     let (mut master, slave) = TTYPort::pair().expect("pseudo-terminal pair");
     master.set_timeout(Duration::from_millis(1)).unwrap();
     let name = slave.name().expect("slave name");
@@ -51,17 +72,9 @@ fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Outp
                 serve_device(&mut master, &MachineConfig::default(), opts, DeviceClock::Wall, &stop)
             })
             .unwrap();
-        let mut cmd = Command::cargo_bin("strata").unwrap();
-        cmd.args(["print", "--port", &name]).args(args);
-        if !args.contains(&"--link-timeout") {
-            cmd.args(["--link-timeout", &LINK_TIMEOUT_S.to_string()]);
-        }
-        let out = cmd.timeout(hang_guard()).output().unwrap();
+        let got = host(&name, &stop);
         stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        let state = device.join().unwrap().unwrap_or_else(|e| {
-            panic!("device: {e}; strata: {}", String::from_utf8_lossy(&out.stderr))
-        });
-        (out, state)
+        (got, device.join().unwrap())
     })
 }
 
@@ -69,7 +82,7 @@ fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Outp
 fn print_streams_a_model_to_the_simulated_printer_over_a_pty() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let (out, state) =
         print_over_pty(&[model.to_str().unwrap(), "--skirt-loops", "0"], CREALITY_CAPACITIES);
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -84,7 +97,7 @@ fn print_streams_a_model_to_the_simulated_printer_over_a_pty() {
 fn print_refuses_a_model_the_printer_cannot_hold() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     // A printer with room for 4 triangles: the 32-triangle block cannot be simplified that far.
     let tiny = Capacities { active_triangles: 4, contour_points: 4, ..CREALITY_CAPACITIES };
     let (out, _) = print_over_pty(&[model.to_str().unwrap()], tiny);
@@ -100,7 +113,7 @@ fn print_fails_cleanly_when_nobody_answers() {
     drop(slave);
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let out = Command::cargo_bin("strata")
         .unwrap()
         .args(["print", model.to_str().unwrap(), "--port", &name])
@@ -125,84 +138,73 @@ fn ctrl_c_aborts_the_print_and_the_printer() {
 
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
-    let (mut master, slave) = TTYPort::pair().expect("pseudo-terminal pair");
-    master.set_timeout(Duration::from_millis(1)).unwrap();
-    let name = slave.name().expect("slave name");
-    drop(slave);
-    let stop = AtomicBool::new(false);
-    std::thread::scope(|s| {
-        let device = std::thread::Builder::new()
-            .stack_size(512 << 20)
-            .spawn_scoped(s, || {
-                let opts = device(CREALITY_CAPACITIES, 5);
-                serve_device(&mut master, &MachineConfig::default(), opts, DeviceClock::Wall, &stop)
-            })
-            .unwrap();
-        let timeout = LINK_TIMEOUT_S.to_string();
-        let mut child = Std::new(env!("CARGO_BIN_EXE_strata"))
-            .args(["print", model.to_str().unwrap(), "--port", &name, "--skirt-loops", "0"])
-            .args(["--link-timeout", &timeout])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let pid = child.id();
-        let stderr = child.stderr.take().unwrap();
-        let (tx, rx) = std::sync::mpsc::channel::<String>();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    let ((status, lines, stdout, sent), state) =
+        serve_on_pty(device(CREALITY_CAPACITIES, 5), |name, stop| {
+            let timeout = LINK_TIMEOUT_S.to_string();
+            let mut child = Std::new(env!("CARGO_BIN_EXE_strata"))
+                .args(["print", model.to_str().unwrap(), "--port", name, "--skirt-loops", "0"])
+                .args(["--link-timeout", &timeout])
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap();
+            let pid = child.id();
+            let stderr = child.stderr.take().unwrap();
+            let (tx, rx) = std::sync::mpsc::channel::<String>();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    if tx.send(line).is_err() {
+                        break;
+                    }
                 }
-            }
-        });
-        let t0 = Instant::now();
-        let mut lines: Vec<String> = Vec::new();
-        let mut sent = false;
-        let status = loop {
+            });
+            let t0 = Instant::now();
+            let mut lines: Vec<String> = Vec::new();
+            let mut sent = false;
+            let status = loop {
+                while let Ok(l) = rx.try_recv() {
+                    lines.push(l);
+                }
+                if !sent && lines.iter().any(|l| eta_known_line(l)) {
+                    let ok = Std::new("kill").args(["-INT", &pid.to_string()]).status().unwrap();
+                    assert!(ok.success());
+                    sent = true;
+                }
+                if let Some(st) = child.try_wait().unwrap() {
+                    break st;
+                }
+                if t0.elapsed() > hang_guard() {
+                    let _ = child.kill();
+                    stop.store(true, Ordering::Relaxed);
+                    panic!("strata print hung (SIGINT sent: {sent}): {lines:#?}");
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            };
+            // The rest of stderr.
+            std::thread::sleep(Duration::from_millis(100));
             while let Ok(l) = rx.try_recv() {
                 lines.push(l);
             }
-            if !sent && lines.iter().any(|l| eta_known_line(l)) {
-                let ok = Std::new("kill").args(["-INT", &pid.to_string()]).status().unwrap();
-                assert!(ok.success());
-                sent = true;
-            }
-            if let Some(st) = child.try_wait().unwrap() {
-                break st;
-            }
-            if t0.elapsed() > hang_guard() {
-                let _ = child.kill();
-                stop.store(true, Ordering::Relaxed);
-                panic!("strata print hung (SIGINT sent: {sent}): {lines:#?}");
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        };
-        // The rest of stderr.
-        std::thread::sleep(Duration::from_millis(100));
-        while let Ok(l) = rx.try_recv() {
-            lines.push(l);
-        }
-        let mut stdout = String::new();
-        std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stdout).unwrap();
-        assert!(sent, "no progress line with an ETA: {lines:#?}");
-        stop.store(true, Ordering::Relaxed);
-        let state = device.join().unwrap().unwrap();
-        let all = lines.join("\n");
-        eprintln!("{all}");
-        assert!(!status.success(), "{all}\n{stdout}");
-        // The printer confirmed the abort (the CLI says so only on the printer's Aborted
-        // status; without it, it says it was told).
-        assert!(all.contains("aborted by the user (Ctrl-C): the printer confirmed"), "{all}");
-        assert!(!stdout.contains("printed"), "{stdout}");
-        assert_eq!(state, DeviceState::Aborted, "{all}");
-        // The plain progress lines: triangles, bytes, layer, state and ETA.
-        let p = lines.iter().find(|l| eta_known_line(l)).unwrap();
-        for what in ["32/32 triangles (100%)", " B sent", "| layer ", "/6 |", "Printing", "ETA "] {
-            assert!(p.contains(what), "{what}: {p}");
-        }
-    });
+            let mut stdout = String::new();
+            std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut stdout).unwrap();
+            (status, lines, stdout, sent)
+        });
+    assert!(sent, "no progress line with an ETA: {lines:#?}");
+    let state = state.unwrap();
+    let all = lines.join("\n");
+    eprintln!("{all}");
+    assert!(!status.success(), "{all}\n{stdout}");
+    // The printer confirmed the abort (the CLI says so only on the printer's Aborted
+    // status; without it, it says it was told).
+    assert!(all.contains("aborted by the user (Ctrl-C): the printer confirmed"), "{all}");
+    assert!(!stdout.contains("printed"), "{stdout}");
+    assert_eq!(state, DeviceState::Aborted, "{all}");
+    // The plain progress lines: triangles, bytes, layer, state and ETA.
+    let p = lines.iter().find(|l| eta_known_line(l)).unwrap();
+    for what in ["32/32 triangles (100%)", " B sent", "| layer ", "/6 |", "Printing", "ETA "] {
+        assert!(p.contains(what), "{what}: {p}");
+    }
 }
 
 /// How long a test may wait for `strata print` before it counts as hung, wall time: several
@@ -216,29 +218,9 @@ fn eta_known_line(l: &str) -> bool {
         && l.split("ETA ").nth(1).is_some_and(|t| t.starts_with(|c: char| c.is_ascii_digit()))
 }
 
-/// A UV sphere (radius `r` mm, `lon` x `lat`, resting on z = 0) as STL triangles.
-fn sphere_stl(r: f32, lon: usize, lat: usize) -> Vec<common::Tri> {
-    let v = |i: usize, j: usize| -> [f32; 3] {
-        let th = std::f32::consts::PI * i as f32 / lat as f32;
-        let ph = 2.0 * std::f32::consts::PI * (j % lon) as f32 / lon as f32;
-        if i == 0 || i == lat {
-            return [0.0, 0.0, if i == 0 { 0.0 } else { 2.0 * r }];
-        }
-        [r * th.sin() * ph.cos(), r * th.sin() * ph.sin(), r - r * th.cos()]
-    };
-    let mut t = Vec::new();
-    for i in 0..lat {
-        for j in 0..lon {
-            let (a, b, c, d) = (v(i, j), v(i, j + 1), v(i + 1, j + 1), v(i + 1, j));
-            if i > 0 {
-                t.push([a, b, d]);
-            }
-            if i + 1 < lat {
-                t.push([b, c, d]);
-            }
-        }
-    }
-    t
+/// A UV sphere of radius 5 mm resting on z = 0, `lon` x `lat` ([`sphere`]).
+fn sphere_on_the_bed(lon: usize, lat: usize) -> Vec<strata_testkit::mesh::TriMm> {
+    sphere([0.0, 0.0, 5.0], 5.0, lon, lat)
 }
 
 /// Admission that takes longer than the link's dead time (a fine sphere simplified for a
@@ -248,7 +230,7 @@ fn sphere_stl(r: f32, lon: usize, lat: usize) -> Vec<common::Tri> {
 fn a_slow_admission_keeps_the_link_alive() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("sphere.stl");
-    write_stl(&model, &sphere_stl(5.0, 96, 48));
+    write_mesh(&model, &sphere_on_the_bed(96, 48));
     let small = Capacities { active_triangles: 150, contour_points: 150, ..CREALITY_CAPACITIES };
     let (out, state) = print_over_pty(
         &[model.to_str().unwrap(), "--skirt-loops", "0", "--max-deviation", "0.1"],
@@ -269,7 +251,7 @@ fn a_slow_admission_keeps_the_link_alive() {
 fn a_printer_that_stops_reading_for_a_while_still_completes_the_print() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("sphere.stl");
-    write_stl(&model, &sphere_stl(5.0, 48, 24));
+    write_mesh(&model, &sphere_on_the_bed(48, 24));
     let mut opts = device(CREALITY_CAPACITIES, 400);
     opts.stall_reads_ms = STALL_FILLS_THE_TERMINAL_MS;
     let (out, state) = print_over_pty_with(&[model.to_str().unwrap(), "--skirt-loops", "0"], opts);
@@ -292,7 +274,7 @@ const STALL_FILLS_THE_TERMINAL_MS: u32 = 8_000;
 fn a_printer_that_takes_no_data_past_the_link_timeout_ends_the_print_with_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("sphere.stl");
-    write_stl(&model, &sphere_stl(5.0, 48, 24));
+    write_mesh(&model, &sphere_on_the_bed(48, 24));
     let mut opts = device(CREALITY_CAPACITIES, 400);
     opts.stall_reads_ms = 2 * LINK_TIMEOUT_S * 1000;
     let (out, _) = print_over_pty_with(

@@ -5,19 +5,16 @@
 
 use strata::geom::Triangle;
 use strata::machine::MachineConfig;
-use strata::protocol::{JobOptions, JobSpec};
+use strata::protocol::JobSpec;
 use strata_host::hil::banded_cylinder;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
+use strata_testkit::drive::job_spec;
 
 fn small_job() -> (Vec<Triangle>, JobSpec) {
     // A closed cylinder, one band (its sides span every layer).
     let tris = banded_cylinder(5_000.0, 1_600, 256, 1_600);
-    let job = JobSpec {
-        settings: strata::machine::PrintSettings::default(),
-        options: JobOptions::default(),
-        model_height_um: 1_600,
-        triangles: tris.len() as u32,
-    };
+    let job = job_spec(&tris);
+    assert_eq!(job.model_height_um, 1_600);
     (tris, job)
 }
 

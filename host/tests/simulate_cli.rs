@@ -3,15 +3,14 @@
 
 use assert_cmd::Command;
 use serde_json::Value;
-
-mod common;
-use common::{holed_block, write_stl};
+use strata_testkit::mesh::holed_block;
+use strata_testkit::stl::write_mesh;
 
 #[test]
 fn simulate_json_has_the_contract_keys() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let out = Command::cargo_bin("strata")
         .unwrap()
         .args(["simulate", model.to_str().unwrap(), "--json", "--skirt-loops", "0"])
@@ -87,7 +86,7 @@ fn simulate_json_has_the_contract_keys() {
 fn simulate_refuses_a_model_off_the_bed() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("big.stl");
-    write_stl(&model, &holed_block(-150.0, 150.0, -2.0, 2.0, 1.0));
+    write_mesh(&model, &holed_block(-150.0, 150.0, -2.0, 2.0, 1.0));
     let out = Command::cargo_bin("strata")
         .unwrap()
         .args(["simulate", model.to_str().unwrap()])

@@ -3,31 +3,26 @@
 
 use assert_cmd::Command;
 use serde_json::Value;
-
-mod common;
-use common::{holed_block, write_stl};
+use strata_testkit::check;
+use strata_testkit::mesh::holed_block;
+use strata_testkit::stl::write_mesh;
 
 fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
+/// Signed area of a JSON loop's `[x, y]` points.
 fn signed_area(points: &[Value]) -> f64 {
     let p: Vec<(f64, f64)> =
         points.iter().map(|q| (q[0].as_f64().unwrap(), q[1].as_f64().unwrap())).collect();
-    (0..p.len())
-        .map(|i| {
-            let (a, b) = (p[i], p[(i + 1) % p.len()]);
-            a.0 * b.1 - b.0 * a.1
-        })
-        .sum::<f64>()
-        / 2.0
+    check::signed_area(&p)
 }
 
 #[test]
 fn slice_writes_oriented_contours_and_one_svg_per_layer() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
+    write_mesh(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
     let json = dir.path().join("contours.json");
     let svg = dir.path().join("svg");
     let out = Command::cargo_bin("strata")
@@ -82,7 +77,7 @@ fn slice_writes_oriented_contours_and_one_svg_per_layer() {
 fn layer_height_options_change_the_layer_count() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("holed.stl");
-    write_stl(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
+    write_mesh(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
     // Planes at 0.15, then 0.35, 0.45, ... 9.95 mm: 1 + 97 layers.
     let ok = Command::cargo_bin("strata")
         .unwrap()
@@ -103,7 +98,7 @@ fn layer_height_options_change_the_layer_count() {
 fn model_larger_than_the_bed_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("wide.stl");
-    write_stl(&model, &holed_block(0.0, 230.0, 100.0, 110.0, 1.0));
+    write_mesh(&model, &holed_block(0.0, 230.0, 100.0, 110.0, 1.0));
     let bad = Command::cargo_bin("strata")
         .unwrap()
         .args(["slice", model.to_str().unwrap()])

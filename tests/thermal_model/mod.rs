@@ -15,6 +15,7 @@
 
 use strata::machine::MachineConfig;
 use strata::thermal::{Outputs, ThermalConfig, ThermalController, ThermalFault};
+use strata_testkit::rng::Rng;
 
 /// Default ambient temperature, °C.
 pub const AMBIENT: f64 = 25.0;
@@ -113,20 +114,6 @@ impl HeaterModel {
     }
 }
 
-/// Seeded xorshift noise.
-#[derive(Clone, Copy, Debug)]
-pub struct Rng(u64);
-
-impl Rng {
-    /// Uniform in `-1..1`.
-    pub fn unit(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-    }
-}
-
 /// The controller driving both models.
 pub struct Sim {
     /// Controller under test.
@@ -154,7 +141,7 @@ impl Sim {
             bed: HeaterModel::bed(),
             now_ms: 0,
             noise: 2.0,
-            rng: Rng(seed | 1),
+            rng: Rng::new(seed | 1),
             out: Outputs { hotend_pwm: 0, bed_pwm: 0, fan_pwm: 0, fault: None },
         }
     }
@@ -168,7 +155,7 @@ impl Sim {
         }
         let mean = adc_of_temp(m.sensor);
         (0..16)
-            .map(|_| (mean + self.noise * self.rng.unit()).round().clamp(0.0, 4095.0) as u16)
+            .map(|_| (mean + self.noise * self.rng.signed_unit()).round().clamp(0.0, 4095.0) as u16)
             .sum()
     }
 

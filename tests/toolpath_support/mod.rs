@@ -1,5 +1,6 @@
 //! Helpers for the toolpath and G-code tests: run the slicer and the toolpath stage on a
-//! thread with a big stack and collect every layer's moves.
+//! thread with a big stack and collect every layer's moves; check a run's extrusions against
+//! its contours with the f64 oracles of `strata_testkit::check`.
 #![allow(dead_code)] // each test crate uses a different subset
 
 use strata::geom::{Point2, Triangle};
@@ -10,6 +11,8 @@ use strata::toolpath::{
     Feature, LayerStats, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError,
     ToolpathStats,
 };
+use strata_testkit::check::{self, TopCoverage};
+use strata_testkit::mesh::{to_um, TriMm};
 
 /// Host-sized capacities for tests: PTS, LOOPS, CROSS, PATH, RING, SPANS.
 pub type TestToolpath = Toolpath<16384, 1024, 32768, 65536, 65536, 65536>;
@@ -88,54 +91,46 @@ pub fn run_sized<
 ) -> Result<TpRun, String> {
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let slice_cfg = SliceConfig::new(settings, top).map_err(|e| e.to_string())?;
-    std::thread::scope(|scope| {
-        std::thread::Builder::new()
-            .stack_size(512 << 20)
-            .spawn_scoped(scope, move || -> Result<TpRun, String> {
-                let mut slicer = Box::new(TestSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
-                let mut tp = Box::new(
-                    Toolpath::<PTS, LOOPS, CROSS, PATH, RING, SPANS>::new(cfg)
-                        .map_err(|e| e.to_string())?,
-                );
-                let mut work = Box::new(TestScratch::<PTS, CROSS>::new());
-                let mut layers: Vec<TpLayer> = Vec::new();
-                let mut contours: Vec<Vec<(Vec<Point2>, bool)>> = Vec::new();
-                let mut stray = 0usize;
-                let mut err: Option<ToolpathError> = None;
-                {
-                    let mut events = |e: &ToolEvent<'_>| {
-                        if !record(&mut layers, e) {
-                            stray += 1;
-                        }
-                    };
-                    let mut sink = |sliced: SlicedLayer<'_, _, _>| {
-                        let l = sliced.layer();
-                        contours.push(
-                            l.loops.iter().map(|i| (l.loop_points(i).to_vec(), i.hole)).collect(),
-                        );
-                        if err.is_none() {
-                            if let Err(e) = tp.push_sliced(sliced, &mut events) {
-                                err = Some(e);
-                            }
-                        }
-                    };
-                    for t in tris {
-                        slicer.push(t, &mut *work, &mut sink).map_err(|e| e.to_string())?;
-                    }
-                    slicer.finish(&mut *work, &mut sink).map_err(|e| e.to_string())?;
-                    if let Some(e) = err {
-                        return Err(e.to_string());
-                    }
-                    let stats = tp.finish(&mut *work, &mut events).map_err(|e| e.to_string())?;
-                    for (l, c) in layers.iter_mut().zip(contours) {
-                        l.contours = c;
-                    }
-                    Ok(TpRun { layers, stats, stray })
+    strata_testkit::on_big_stack(move || -> Result<TpRun, String> {
+        let mut slicer = Box::new(TestSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
+        let mut tp = Box::new(
+            Toolpath::<PTS, LOOPS, CROSS, PATH, RING, SPANS>::new(cfg)
+                .map_err(|e| e.to_string())?,
+        );
+        let mut work = Box::new(TestScratch::<PTS, CROSS>::new());
+        let mut layers: Vec<TpLayer> = Vec::new();
+        let mut contours: Vec<Vec<(Vec<Point2>, bool)>> = Vec::new();
+        let mut stray = 0usize;
+        let mut err: Option<ToolpathError> = None;
+        {
+            let mut events = |e: &ToolEvent<'_>| {
+                if !record(&mut layers, e) {
+                    stray += 1;
                 }
-            })
-            .expect("spawn toolpath thread")
-            .join()
-            .expect("toolpath thread panicked")
+            };
+            let mut sink = |sliced: SlicedLayer<'_, _, _>| {
+                let l = sliced.layer();
+                contours
+                    .push(l.loops.iter().map(|i| (l.loop_points(i).to_vec(), i.hole)).collect());
+                if err.is_none() {
+                    if let Err(e) = tp.push_sliced(sliced, &mut events) {
+                        err = Some(e);
+                    }
+                }
+            };
+            for t in tris {
+                slicer.push(t, &mut *work, &mut sink).map_err(|e| e.to_string())?;
+            }
+            slicer.finish(&mut *work, &mut sink).map_err(|e| e.to_string())?;
+            if let Some(e) = err {
+                return Err(e.to_string());
+            }
+            let stats = tp.finish(&mut *work, &mut events).map_err(|e| e.to_string())?;
+            for (l, c) in layers.iter_mut().zip(contours) {
+                l.contours = c;
+            }
+            Ok(TpRun { layers, stats, stray })
+        }
     })
 }
 
@@ -143,6 +138,11 @@ pub fn run_sized<
 pub fn run(tris: &[Triangle], settings: &PrintSettings) -> TpRun {
     let cfg = ToolpathConfig::new(&MachineConfig::default(), settings);
     run_cfg(tris, settings, cfg).expect("toolpath run")
+}
+
+/// [`run`] of a mesh (mm) with the default settings.
+pub fn default_run(mesh: &[TriMm]) -> TpRun {
+    run(&to_um(mesh), &PrintSettings::default())
 }
 
 /// Extrusion segments of a layer: (from, to, feature, e_um).
@@ -171,33 +171,39 @@ pub fn layer_starts(run: &TpRun) -> Vec<Point2> {
     out
 }
 
-/// A point as f64 (um).
-pub fn pt(p: Point2) -> (f64, f64) {
-    (f64::from(p.x), f64::from(p.y))
-}
-
-/// Non-zero winding of `p` in the loops (f64).
-pub fn inside(loops: &[(Vec<Point2>, bool)], p: (f64, f64)) -> bool {
-    let mut w = 0;
-    for (l, _) in loops {
-        for k in 0..l.len() {
-            let (a, b) = (pt(l[k]), pt(l[(k + 1) % l.len()]));
-            if (a.1 <= p.1) != (b.1 <= p.1) {
-                let x = a.0 + (p.1 - a.1) / (b.1 - a.1) * (b.0 - a.0);
-                if x > p.0 {
-                    w += if b.1 > a.1 { 1 } else { -1 };
-                }
-            }
-        }
+/// Asserts that every extrusion but the skirt (of every `every`-th layer) lies inside the
+/// layer's contour and at least `w/2 - tol` from it (`w`: `width_um`); returns the extrusions
+/// checked.
+pub fn check_containment(run: &TpRun, what: &str, width_um: f64, tol: f64, every: usize) -> usize {
+    let starts = layer_starts(run);
+    let mut checked = 0;
+    for (l, &start) in run.layers.iter().zip(&starts).step_by(every.max(1)) {
+        let lines: Vec<_> = extrusions(l, start)
+            .into_iter()
+            .filter(|e| e.2 != Feature::Skirt)
+            .map(|(a, b, f, _)| (a, b, f))
+            .collect();
+        let what = format!("{what} layer {}", l.index);
+        checked += check::assert_lines_inside(&what, &l.contours, &lines, width_um / 2.0 - tol);
     }
-    w != 0
+    assert!(checked > 0, "{what}: nothing checked");
+    checked
 }
 
-/// Distance from `p` to the segment a-b (f64).
-pub fn point_seg_dist(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
-    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-    let l2 = dx * dx + dy * dy;
-    let t =
-        if l2 == 0.0 { 0.0 } else { (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / l2).clamp(0.0, 1.0) };
-    ((p.0 - a.0 - t * dx).powi(2) + (p.1 - a.1 - t * dy).powi(2)).sqrt()
+/// How much of layer `l`'s top surface (its region minus the next layer's) the layer's
+/// extrusions but the skirt cover, each a rectangle `width_um` wide.
+pub fn top_coverage(run: &TpRun, l: usize, width_um: f64) -> TopCoverage {
+    let layer = &run.layers[l];
+    let lines: Vec<(Point2, Point2)> = extrusions(layer, layer_starts(run)[l])
+        .into_iter()
+        .filter(|e| e.2 != Feature::Skirt)
+        .map(|(a, b, _, _)| (a, b))
+        .collect();
+    let above = run.layers.get(l + 1).map(|n| &n.contours[..]);
+    let coverage = check::top_coverage(&layer.contours, above, &lines, width_um);
+    // STRATA_DUMP=prefix writes the raster as prefix_<layer>.pgm.
+    if let Ok(path) = std::env::var("STRATA_DUMP") {
+        std::fs::write(format!("{path}_{l}.pgm"), coverage.pgm()).unwrap();
+    }
+    coverage
 }
