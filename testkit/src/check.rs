@@ -1,6 +1,7 @@
-//! `f64` geometry oracles, independent of the core's integer code: areas, distances, winding,
-//! the section of a mesh by a plane, and a raster of deposited lines. Coordinates are um
-//! (the core's units) unless a name says otherwise.
+//! `f64` geometry oracles, independent of the core's integer code.
+//!
+//! Areas, distances, winding, the section of a mesh by a plane, and a raster of deposited lines.
+//! Coordinates are um (the core's units) unless a name says otherwise.
 
 use std::fmt::Debug;
 
@@ -60,9 +61,10 @@ pub fn inside(loops: &[(Vec<Point2>, bool)], p: (f64, f64)) -> bool {
     w != 0
 }
 
-/// The section of `tris` by the plane at height `z` (um), without chaining: per crossing
-/// triangle its cut segment, from where the section enters it (its above->below edge) to
-/// where it leaves (its below->above edge), in `f64` um. Corners at `z` count as above, as in
+/// The section of `tris` by the plane at height `z` (um), without chaining.
+///
+/// Per crossing triangle its cut segment, from where the section enters it (its above->below edge)
+/// to where it leaves (its below->above edge), in `f64` um. Corners at `z` count as above, as in
 /// the slicer.
 pub fn section_segments_f64(tris: &[Triangle], z: f64) -> Vec<[[f64; 2]; 2]> {
     let mut out = Vec::new();
@@ -88,8 +90,9 @@ pub fn section_segments_f64(tris: &[Triangle], z: f64) -> Vec<[[f64; 2]; 2]> {
     out
 }
 
-/// Signed area (um^2) of the section of `tris` by the plane at height `z` (um): each
-/// [`section_segments_f64`] segment contributes its cross product (Green's theorem). Also
+/// Signed area (um^2) of the section of `tris` by the plane at height `z` (um).
+///
+/// Each [`section_segments_f64`] segment contributes its cross product (Green's theorem). Also
 /// returns the summed segment length (um), a scale for rounding tolerances.
 pub fn section_area_f64(tris: &[Triangle], z: f64) -> (f64, f64) {
     let (mut twice, mut length) = (0.0, 0.0);
@@ -100,9 +103,13 @@ pub fn section_area_f64(tris: &[Triangle], z: f64) -> (f64, f64) {
     (twice / 2.0, length)
 }
 
-/// Asserts that `area_um2` is the area of the section of `tris` at height `z_um` (the
-/// [`section_area_f64`] oracle) within 0.1 % or 1 um x the cut's length (the slicer rounds
-/// every crossing to the um), plus `extra_um2`. Messages start with `what`.
+/// Asserts that `area_um2` is the area of the section of `tris` at height `z_um`, plus
+/// `extra_um2`.
+///
+/// The oracle is [`section_area_f64`]; the tolerance 0.1 % or 1 um x the cut's length (the
+/// slicer rounds every crossing to the um).
+///
+/// Messages start with `what`.
 pub fn assert_section_area(
     what: &str,
     area_um2: f64,
@@ -118,9 +125,10 @@ pub fn assert_section_area(
     );
 }
 
-/// Asserts that every line a-b lies inside `contours` and at least `min_dist` um from each of
-/// their edges (endpoints inside, segment-to-edge distances); returns the lines checked.
-/// Messages start with `what` and name the line's `label`.
+/// Asserts that every line a-b lies inside `contours` and at least `min_dist` um from each of their
+/// edges (endpoints inside, segment-to-edge distances).
+///
+/// Returns the lines checked. Messages start with `what` and name the line's `label`.
 pub fn assert_lines_inside<L: Debug>(
     what: &str,
     contours: &[(Vec<Point2>, bool)],

@@ -1,6 +1,8 @@
-//! The printer drive loop, as a board runs it without a link: a job's messages into a
-//! [`Printer`] (each offered again while it answers [`Accept::Busy`]), then turn after turn a
-//! `poll`, the step queue drained and the finished layers' hashes taken, until the job ends.
+//! The printer drive loop, as a board runs it without a link.
+//!
+//! A job's messages into a [`Printer`] (each offered again while it answers [`Accept::Busy`]), then
+//! turn after turn a `poll`, the step queue drained and the finished layers' hashes taken, until
+//! the job ends.
 //!
 //! A [`Rig`] owns the step queue's two ends and says what becomes of the commands:
 //! - [`Rig::counting`]: dequeued at once, their steps counted per axis (a fast executor);

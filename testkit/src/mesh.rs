@@ -1,9 +1,10 @@
-//! Analytic test shapes. Every shape is built in mm as `f64` triangles ([`TriMm`]), corners
-//! counter-clockwise seen from outside, and then quantised: to the core's um [`Triangle`]s
-//! with [`to_um`] (what the slicer and the printer take), or to the `f32` corners of an STL
-//! file with [`to_f32`] (what the host's CLI reads, see [`crate::stl`]). Both drop the
-//! triangles whose corners coincide (the pole triangles of a [`sphere`]), so the um and the STL
-//! forms of a shape have the same triangles.
+//! Analytic test shapes.
+//!
+//! Every shape is built in mm as `f64` triangles ([`TriMm`]), corners counter-clockwise seen from
+//! outside, and then quantised: to the core's um [`Triangle`]s with [`to_um`] (what the slicer and
+//! the printer take), or to the `f32` corners of an STL file with [`to_f32`] (what the host's CLI
+//! reads, see [`crate::stl`]). Both drop the triangles whose corners coincide (the pole triangles
+//! of a [`sphere`]), so the um and the STL forms of a shape have the same triangles.
 //!
 //! The shapes are closed (watertight) unless said otherwise: rings lofted into walls with
 //! fan caps ([`loft`], [`prism`], [`cuboid`]), a prism with a hole ([`holed_prism`],
@@ -19,9 +20,12 @@ pub type TriMm = [[f64; 3]; 3];
 /// A triangle as an STL file stores it: `f32` corners (mm).
 pub type StlTri = [[f32; 3]; 3];
 
-/// Walls between consecutive rings (same point count, counter-clockwise from above) plus fan
-/// caps from the centre of the first and the last ring (star-shaped from it: convex rings,
-/// and the fin blocks of the thin-wall tests). Each ring: (z, points) in mm.
+/// Walls between consecutive rings plus fan caps from the centre of the first and the last ring.
+///
+/// The rings have the same point count, counter-clockwise from above; the caps need rings
+/// star-shaped from their centre (convex rings, and the fin blocks of the thin-wall tests).
+///
+/// Each ring: (z, points) in mm.
 pub fn loft(rings: &[(f64, Vec<[f64; 2]>)]) -> Vec<TriMm> {
     let mut out = Vec::new();
     let p = |r: usize, j: usize| {
@@ -122,10 +126,11 @@ pub fn four_holed_discs(c: f64, height: f64) -> Vec<TriMm> {
     plate
 }
 
-/// A closed parametric surface on a `nu` x `nv` grid: `f(u, v)` with u, v in [0, 1]; u wraps,
-/// v wraps too when `wrap_v` (torus) and otherwise runs pole to pole (sphere: the triangles
-/// at the poles are degenerate, [`to_um`] and [`to_f32`] drop them). Orientation:
-/// df/du x df/dv must point outward.
+/// A closed parametric surface on a `nu` x `nv` grid.
+///
+/// `f(u, v)` with u, v in [0, 1]; u wraps, v wraps too when `wrap_v` (torus) and otherwise runs
+/// pole to pole (sphere: the triangles at the poles are degenerate, [`to_um`] and [`to_f32`] drop
+/// them). Orientation: df/du x df/dv must point outward.
 pub fn grid(nu: usize, nv: usize, wrap_v: bool, f: impl Fn(f64, f64) -> [f64; 3]) -> Vec<TriMm> {
     let p = |i: usize, j: usize| f((i % nu) as f64 / nu as f64, j as f64 / nv as f64);
     let mut out = Vec::new();

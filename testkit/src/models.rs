@@ -1,7 +1,8 @@
-//! The shared test models: `../shared/models` beside the checkout (described by its
-//! `README.md`, whose table gives every file's triangle count, format, bounding box,
-//! watertightness and layer count at 0.2 mm), found, listed, read and placed as the host
-//! places a model.
+//! The shared test models.
+//!
+//! `../shared/models` beside the checkout (described by its `README.md`, whose table gives every
+//! file's triangle count, format, bounding box, watertightness and layer count at 0.2 mm), found,
+//! listed, read and placed as the host places a model.
 
 use std::path::{Path, PathBuf};
 
@@ -57,9 +58,10 @@ pub fn stl_files_below(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
-/// The rows of every markdown table in `dir/README.md` whose first cell names an `.stl`
-/// file: the cells, trimmed (`| file | bytes | format | triangles | size | bbox | watertight
-/// | bodies | layers @0.2 | sha |`: cell 0 is the file, `/`-separated below `dir`).
+/// The rows of every markdown table in `dir/README.md` whose first cell names an `.stl` file.
+///
+/// The cells, trimmed (`| file | bytes | format | triangles | size | bbox | watertight | bodies |
+/// layers @0.2 | sha |`: cell 0 is the file, `/`-separated below `dir`).
 pub fn readme_table(dir: &Path) -> Vec<Vec<String>> {
     let path = dir.join("README.md");
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));

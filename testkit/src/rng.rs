@@ -1,7 +1,9 @@
-//! The one seeded generator of the tests: xorshift64 (Marsaglia 2003, shifts 13, 7, 17), a
-//! full-period generator over the non-zero `u64`s. Tests need reproducible noise, fault
-//! patterns and random models, not statistical quality; this is the generator most of the
-//! tests' former private copies were, so their sequences stayed as they were.
+//! The one seeded generator of the tests.
+//!
+//! Xorshift64 (Marsaglia 2003, shifts 13, 7, 17), a full-period generator over the non-zero `u64`s.
+//! Tests need reproducible noise, fault patterns and random models, not statistical quality; this
+//! is the generator most of the tests' former private copies were, so their sequences stayed as
+//! they were.
 //!
 //! Helpers take the state as it is after a step ([`Rng::u64`]); [`Rng::below`] and
 //! [`Rng::range`] reduce it modulo the span (a bias of at most span / 2^64).

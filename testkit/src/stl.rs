@@ -1,6 +1,8 @@
-//! Reference STL writers that share no code with the parser (`strata::stl`): binary files,
-//! ASCII files in several layouts, and ASCII files in the odd forms the desktop slicers read.
-//! Numbers are written in Rust's shortest round-trip form, so they parse back to the same bits.
+//! Reference STL writers that share no code with the parser (`strata::stl`).
+//!
+//! Binary files, ASCII files in several layouts, and ASCII files in the odd forms the desktop
+//! slicers read. Numbers are written in Rust's shortest round-trip form, so they parse back to the
+//! same bits.
 
 use std::path::Path;
 
@@ -109,10 +111,13 @@ pub struct Oddities {
     pub padding: u32,
 }
 
-/// An ASCII STL in the odd forms the desktop slicers read, one form per facet in turn (words
-/// and missing parts in the normal, `outer loop` variants, split closing keywords, comments,
-/// facets after `endsolid`, a `solid` without `endsolid`), ending in NUL/SUB padding. Corners
-/// are written exactly as [`ascii`] does (`style.indent` is not used).
+/// An ASCII STL in the odd forms the desktop slicers read, one form per facet in turn.
+///
+/// The forms: words and missing parts in the normal, `outer loop` variants, split closing
+/// keywords, comments, facets after `endsolid`, a `solid` without `endsolid`; the file ends in
+/// NUL/SUB padding.
+///
+/// Corners are written exactly as [`ascii`] does (`style.indent` is not used).
 pub fn ascii_nonstandard(
     name: &str,
     triangles: &[RawTriangle],
