@@ -17,16 +17,36 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use strata::gcode::{GcodeOptions, GcodeWriter};
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::scratch::Scratch;
-use strata::slice::{Layer, LayerRepairs, LoopInfo, SliceConfig, SlicedLayer, Slicer};
-use strata::toolpath::{ToolEvent, ToolMove, Toolpath, ToolpathConfig};
+use strata::slice::{Layer, LayerRepairs, LoopInfo, SliceConfig, SlicedLayer};
+use strata::toolpath::{ToolEvent, ToolMove, ToolpathConfig};
 use strata_testkit::models::{placed_sorted, shared_models};
 
-/// Capacities comfortably above 3DBenchy's needs (see `examples/toolpath_report.rs`).
-type BenchSlicer = Slicer<8192, 8192, 256>;
-type BenchToolpath = Toolpath<8192, 256, 16384, 32768, 16384, 16384>;
-/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
-type BenchScratch = Scratch<8192, 8192, 16384>;
+strata::slicer_type! {
+    /// Capacities comfortably above 3DBenchy's needs (see `examples/toolpath_report.rs`).
+    type BenchSlicer = {
+        active_triangles: 8192,
+        contour_points: 8192,
+        contour_loops: 256,
+    };
+}
+strata::toolpath_type! {
+    type BenchToolpath = {
+        toolpath_points: 8192,
+        toolpath_loops: 256,
+        scan_crossings: 16384,
+        path_points: 32768,
+        window_ring_words: 16384,
+        window_spans: 16384,
+    };
+}
+strata::scratch_type! {
+    /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+    type BenchScratch = {
+        contour_points: 8192,
+        toolpath_points: 8192,
+        scan_crossings: 16384,
+    };
+}
 
 /// The stage values, built once on a thread with a big stack (they are megabytes).
 struct Stages {

@@ -9,11 +9,17 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::slice::{peak_needs, SliceConfig, SliceScratch, SlicedLayer, Slicer};
+use strata::slice::{peak_needs, SliceConfig, SliceScratch, SlicedLayer};
 use strata_testkit::models::{placed_sorted, shared_models};
 
-/// Bench capacities: comfortably above 3DBenchy's peaks (4,685 active, 4,681 segments).
-type BenchSlicer = Slicer<8192, 8192, 256>;
+strata::slicer_type! {
+    /// Bench capacities: comfortably above 3DBenchy's peaks (4,685 active, 4,681 segments).
+    type BenchSlicer = {
+        active_triangles: 8192,
+        contour_points: 8192,
+        contour_loops: 256,
+    };
+}
 type BenchScratch = SliceScratch<8192>;
 
 /// One full run; returns the points emitted so nothing is optimised out.

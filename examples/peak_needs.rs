@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use strata::geom::Triangle;
 use strata::machine::PrintSettings;
-use strata::slice::{peak_needs, slicer_bytes, SliceConfig, SliceScratch, Slicer};
+use strata::slice::{peak_needs, slicer_bytes, SliceConfig, SliceScratch};
 use strata_testkit::models::{self, placed_sorted};
 
 /// The model placed on a bed big enough for plate_holes (203 x 305 mm).
@@ -17,7 +17,7 @@ fn load(path: &Path) -> Option<Vec<Triangle>> {
 /// Peak loops per layer, from a real slicing run (host capacities, on a big-stack thread).
 fn peak_loops(tris: &[Triangle], config: SliceConfig) -> u32 {
     strata_testkit::on_big_stack(|| {
-        let mut slicer = Box::new(Slicer::<65536, 65536, 4096>::new(config).unwrap());
+        let mut slicer = Box::new(HostSlicer::new(config).unwrap());
         let mut work = Box::new(SliceScratch::new());
         for t in tris {
             slicer.push(t, &mut *work, &mut |_| {}).unwrap();
@@ -60,4 +60,8 @@ fn main() {
             ram as f64 / 1024.0
         );
     }
+}
+
+strata::slicer_type! {
+    type HostSlicer = { active_triangles: 65536, contour_points: 65536, contour_loops: 4096 };
 }

@@ -13,15 +13,35 @@ use std::time::Instant;
 use strata::gcode::{GcodeOptions, GcodeWriter};
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::scratch::Scratch;
-use strata::slice::{SliceConfig, SlicedLayer, Slicer};
-use strata::toolpath::{LayerStats, ToolEvent, Toolpath, ToolpathConfig, ToolpathStats};
+use strata::slice::{SliceConfig, SlicedLayer};
+use strata::toolpath::{LayerStats, ToolEvent, ToolpathConfig, ToolpathStats};
 use strata_testkit::models::{self, placed_sorted};
 
-type HostSlicer = Slicer<{ 1 << 16 }, { 1 << 16 }, 4096>;
-type HostToolpath = Toolpath<{ 1 << 15 }, 4096, { 1 << 16 }, { 1 << 17 }, { 1 << 17 }, { 1 << 17 }>;
-/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
-type HostScratch = Scratch<{ 1 << 16 }, { 1 << 15 }, { 1 << 16 }>;
+strata::slicer_type! {
+    type HostSlicer = {
+        active_triangles: 1 << 16,
+        contour_points: 1 << 16,
+        contour_loops: 4096,
+    };
+}
+strata::toolpath_type! {
+    type HostToolpath = {
+        toolpath_points: 1 << 15,
+        toolpath_loops: 4096,
+        scan_crossings: 1 << 16,
+        path_points: 1 << 17,
+        window_ring_words: 1 << 17,
+        window_spans: 1 << 17,
+    };
+}
+strata::scratch_type! {
+    /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+    type HostScratch = {
+        contour_points: 1 << 16,
+        toolpath_points: 1 << 15,
+        scan_crossings: 1 << 16,
+    };
+}
 /// The stage values.
 type Stages = (Box<HostSlicer>, Box<HostToolpath>, Box<HostScratch>);
 

@@ -37,6 +37,30 @@ use crate::toolpath::{Engine, FillScratch, ToolpathNeeds, ToolpathSpace};
 /// slots, then an output point.
 pub const CUT_BYTES: usize = CutScratch::<0>::BYTES_PER_SEGMENT;
 
+/// A [`Scratch`] type with the capacities of its tenants named at the point of use (the names
+/// of [`Capacities`](crate::protocol::Capacities)):
+///
+/// ```
+/// strata::scratch_type! {
+///     /// A bench scratch.
+///     pub type BenchScratch = { contour_points: 8192, toolpath_points: 8192, scan_crossings: 16384 };
+/// }
+/// ```
+#[macro_export]
+macro_rules! scratch_type {
+    (
+        $(#[$meta:meta])*
+        $vis:vis type $name:ident = {
+            contour_points: $s:expr,
+            toolpath_points: $pts:expr,
+            scan_crossings: $cross:expr $(,)?
+        };
+    ) => {
+        $(#[$meta])*
+        $vis type $name = $crate::scratch::Scratch<{ $s }, { $pts }, { $cross }>;
+    };
+}
+
 /// The working memory of a slicer with `SEGMENTS` segments per layer and a toolpath stage with
 /// `PTS` offset edges and `CROSS` infill crossings (see the [module docs](self)).
 ///

@@ -8,7 +8,7 @@ use std::f64::consts::PI;
 
 use slice_support::{check_layer, config, run, slice, OwnedLayer};
 use strata::geom::{Point3, Triangle};
-use strata::slice::{LayerRepairs, Resource, SliceError, SliceScratch, SlicedLayer, Slicer};
+use strata::slice::{LayerRepairs, Resource, SliceError, SliceScratch, SlicedLayer};
 use strata_testkit::mesh::{
     cuboid, holed_prism, inverted, loft, ngon, sphere, to_um, torus, TriMm,
 };
@@ -278,7 +278,7 @@ fn capacities_are_exact_and_overflow_is_typed() {
 fn every_plane_gives_one_sink_call_and_finish_is_final() {
     let tris = cube_tris();
     let cfg = config(&tris, 0);
-    let mut slicer = Box::new(Slicer::<64, 64, 8>::new(cfg).unwrap());
+    let mut slicer = Box::new(SmallSlicer::new(cfg).unwrap());
     let mut work = SliceScratch::new();
     let mut seen = Vec::new();
     let mut sink = |l: SlicedLayer<'_, _, _>| seen.push(l.layer().index);
@@ -331,4 +331,8 @@ fn open_strip_shorter_than_its_gap_is_dropped_not_closed() {
         assert_eq!((l.repairs.dropped_chains, l.repairs.gaps_closed), (1, 0));
     }
     assert_eq!(stats.repairs.dropped_segments, 10);
+}
+
+strata::slicer_type! {
+    type SmallSlicer = { active_triangles: 64, contour_points: 64, contour_loops: 8 };
 }

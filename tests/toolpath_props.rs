@@ -13,12 +13,19 @@ use strata::machine::{MachineConfig, PrintSettings};
 use strata::slice::{Layer, LayerRepairs, LoopInfo, SlicedLayer};
 use strata::toolpath::scan::{line_spans, Angle, Span};
 use strata::toolpath::window::{Encoder, Fifo, StoredRings};
-use strata::toolpath::{
-    Buffer, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathScratch,
-};
+use strata::toolpath::{Buffer, ToolEvent, ToolpathConfig, ToolpathError, ToolpathScratch};
 use toolpath_support::{run_cfg, TestScratch};
 
-type PropToolpath = Toolpath<4096, 64, 4096, 16384, 8192, 8192>;
+strata::toolpath_type! {
+    type PropToolpath = {
+        toolpath_points: 4096,
+        toolpath_loops: 64,
+        scan_crossings: 4096,
+        path_points: 16384,
+        window_ring_words: 8192,
+        window_spans: 8192,
+    };
+}
 type PropScratch = ToolpathScratch<4096, 4096>;
 
 /// One arbitrary loop: points in a 30 mm square around the bed centre, a hole flag and a
@@ -139,7 +146,16 @@ fn run_cfg_small(
     tris: &[strata::geom::Triangle],
     settings: &PrintSettings,
 ) -> Result<(), ToolpathError> {
-    type Tiny = Toolpath<256, 8, 8, 256, 256, 256>;
+    strata::toolpath_type! {
+        type Tiny = {
+            toolpath_points: 256,
+            toolpath_loops: 8,
+            scan_crossings: 8,
+            path_points: 256,
+            window_ring_words: 256,
+            window_spans: 256,
+        };
+    }
     let top = tris.iter().map(|t| t.z_max()).max().unwrap();
     let slice_cfg = strata::slice::SliceConfig::new(settings, top).unwrap();
     let mut slicer = Box::new(toolpath_support::TestSlicer::new(slice_cfg).unwrap());

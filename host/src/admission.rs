@@ -34,9 +34,8 @@ use strata::geom::{Point2, Point3, Triangle};
 use strata::machine::MachineConfig;
 use strata::move_ring::MoveMeter;
 use strata::protocol::{Capacities, JobSpec};
-use strata::scratch::Scratch;
-use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer, Slicer};
-use strata::toolpath::{Room, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds};
+use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer};
+use strata::toolpath::{Room, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
 /// What a model needs against what the device has.
 #[derive(Debug, Clone, Copy)]
@@ -292,13 +291,33 @@ pub struct ToolpathPeaks {
     pub layers: u32,
 }
 
-/// The slicer of the needs run: room for any model the host can stream.
-type NeedsSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
-/// The toolpath stage of the needs run (as `strata slice`'s).
-type NeedsToolpath =
-    Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
-/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
-type NeedsScratch = Scratch<{ 1 << 17 }, { 1 << 16 }, { 1 << 16 }>;
+strata::slicer_type! {
+    /// The slicer of the needs run: room for any model the host can stream.
+    type NeedsSlicer = {
+        active_triangles: 1 << 17,
+        contour_points: 1 << 17,
+        contour_loops: 1 << 14,
+    };
+}
+strata::toolpath_type! {
+    /// The toolpath stage of the needs run (as `strata slice`'s).
+    type NeedsToolpath = {
+        toolpath_points: 1 << 16,
+        toolpath_loops: 1 << 12,
+        scan_crossings: 1 << 16,
+        path_points: 1 << 18,
+        window_ring_words: 1 << 18,
+        window_spans: 1 << 17,
+    };
+}
+strata::scratch_type! {
+    /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+    type NeedsScratch = {
+        contour_points: 1 << 17,
+        toolpath_points: 1 << 16,
+        scan_crossings: 1 << 16,
+    };
+}
 
 /// The toolpath stage's needs for `tris`, the layers where they peak and the largest emission
 /// unit's bytes.

@@ -16,26 +16,44 @@ use serde::Serialize;
 use strata::gcode::{GcodeOptions, GcodeStats, GcodeWriter};
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
-use strata::scratch::Scratch;
 use strata::slice::{
     peak_needs, Layer, LayerRepairs, PeakNeeds, SliceConfig, SliceScratch, SliceStats, SlicedLayer,
-    Slicer,
 };
 use strata::toolpath::{
-    LayerStats, ToolEvent, Toolpath, ToolpathConfig, ToolpathError, ToolpathNeeds, ToolpathStats,
+    LayerStats, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds, ToolpathStats,
 };
 
 use strata_host::model;
 
 use crate::settings::{machine_of, settings_of, toolpath_config_of, PrintArgs};
 
-/// Host capacities: active triangles, segments (and points) per layer, loops per layer.
-type HostSlicer = Slicer<{ 1 << 17 }, { 1 << 17 }, { 1 << 14 }>;
-/// Host toolpath capacities: PTS, LOOPS, CROSS, PATH, RING, SPANS (about 20 MB).
-type HostToolpath =
-    Toolpath<{ 1 << 16 }, { 1 << 12 }, { 1 << 16 }, { 1 << 18 }, { 1 << 18 }, { 1 << 17 }>;
-/// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
-type HostScratch = Scratch<{ 1 << 17 }, { 1 << 16 }, { 1 << 16 }>;
+strata::slicer_type! {
+    /// Host capacities: active triangles, segments (and points) per layer, loops per layer.
+    type HostSlicer = {
+        active_triangles: 1 << 17,
+        contour_points: 1 << 17,
+        contour_loops: 1 << 14,
+    };
+}
+strata::toolpath_type! {
+    /// Host toolpath capacities: PTS, LOOPS, CROSS, PATH, RING, SPANS (about 20 MB).
+    type HostToolpath = {
+        toolpath_points: 1 << 16,
+        toolpath_loops: 1 << 12,
+        scan_crossings: 1 << 16,
+        path_points: 1 << 18,
+        window_ring_words: 1 << 18,
+        window_spans: 1 << 17,
+    };
+}
+strata::scratch_type! {
+    /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
+    type HostScratch = {
+        contour_points: 1 << 17,
+        toolpath_points: 1 << 16,
+        scan_crossings: 1 << 16,
+    };
+}
 const SLICER_STACK_BYTES: usize = 256 << 20;
 
 /// Options of `strata slice`.

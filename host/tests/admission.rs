@@ -9,7 +9,7 @@ use strata::geom::{Point3, Triangle};
 use strata::machine::MachineConfig;
 use strata::printer::{Accept, CREALITY_CAPACITIES};
 use strata::protocol::{Capacities, DeviceState, ErrorCode, JobOptions, JobSpec, Message};
-use strata::slice::{SliceConfig, SliceScratch, Slicer};
+use strata::slice::{SliceConfig, SliceScratch};
 use strata::step::StepQueue;
 use strata_host::admission::{admit_job, hausdorff_mm, toolpath_peaks, Admission};
 use strata_host::model;
@@ -254,7 +254,7 @@ fn simulate_reports_the_ram_and_capacities_admission_checks() {
     // The slicer's peaks, from the core slicer directly.
     let cfg = SliceConfig::new(&job.settings, job.model_height_um).unwrap();
     let stats = on_big_stack(|| {
-        let mut slicer = Box::new(Slicer::<4096, 4096, 256>::new(cfg).unwrap());
+        let mut slicer = Box::new(NeedsSlicer::new(cfg).unwrap());
         let mut work = Box::new(SliceScratch::new());
         for t in &tris {
             slicer.push(t, &mut *work, &mut |_| {}).unwrap();
@@ -427,4 +427,8 @@ fn the_largest_unit_admission_reports_is_the_buffer_a_printer_needs() {
         );
         assert!(e.contains(&want), "{e}\nwant {want}");
     }
+}
+
+strata::slicer_type! {
+    type NeedsSlicer = { active_triangles: 4096, contour_points: 4096, contour_loops: 256 };
 }

@@ -56,16 +56,14 @@ use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
     VERSION,
 };
-use crate::slice::Slicer;
 use crate::slot::Slot;
 use crate::step::{StepConfig, StepGenerator, StepProducer};
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
-use crate::toolpath::Toolpath;
 
 pub use board::{job_toolpath_config, BoardPrinter, BOARD_CAPACITIES, CREALITY_CAPACITIES};
 pub use failure::{Failure, Refusal};
 pub use motion::{Motion, MotionSlot};
-use pipeline::{Emit, MotionHook, Pipeline};
+pub use pipeline::{Emit, MotionHook, Pipeline, Stages};
 
 /// A [`Printer`] type with every capacity named at the point of use (the names of
 /// [`Capacities`]; `lookahead_moves` is the planner's queue):
@@ -109,8 +107,12 @@ macro_rules! printer_type {
     ) => {
         $(#[$meta])*
         $vis type $name = $crate::printer::Printer<
-            { $a }, { $s }, { $l }, { $pts }, { $loops }, { $cross }, { $path }, { $ring },
-            { $spans }, { $moves }, { $p },
+            $crate::printer::Pipeline<
+                { $a }, { $s }, { $l }, { $pts }, { $loops }, { $cross }, { $path }, { $ring },
+                { $spans },
+            >,
+            { $moves },
+            { $p },
         >;
     };
 }
@@ -125,29 +127,17 @@ pub enum Accept {
     Busy,
 }
 
-/// The job runner.
+/// The job runner: the job's state machine over a computing half and a motion half.
 ///
-/// The job's state machine over the pipeline (slicer `A` active triangles, `S` segments, `L` loops;
-/// toolpath `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`, see [`Toolpath`]) and the [`Motion`]
-/// half (`MOVE_BYTES` bytes of delta-coded moves waiting for the planner, `P` moves of planner
-/// lookahead). Name the capacities with [`printer_type!`](crate::printer_type).
-pub struct Printer<
-    const A: usize,
-    const S: usize,
-    const L: usize,
-    const PTS: usize,
-    const LOOPS: usize,
-    const CROSS: usize,
-    const PATH: usize,
-    const RING: usize,
-    const SPANS: usize,
-    const MOVE_BYTES: usize,
-    const P: usize,
-> {
+/// The computing half `Pl` is a [`Pipeline`] of the slicer and the toolpath stage
+/// ([`Stages`]); the [`Motion`] half holds `MOVE_BYTES` bytes of delta-coded moves waiting for
+/// the planner and `P` moves of planner lookahead. Name every capacity with
+/// [`printer_type!`](crate::printer_type).
+pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     machine: MachineConfig,
     plan_cfg: PlanConfig,
     step_cfg: StepConfig,
-    pipeline: Pipeline<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+    pipeline: Pl,
     motion: Motion<MOVE_BYTES, P>,
     state: DeviceState,
     /// Why the job failed (once it did).
@@ -180,20 +170,7 @@ pub struct Printer<
     status_due_ms: u32,
 }
 
-impl<
-        const A: usize,
-        const S: usize,
-        const L: usize,
-        const PTS: usize,
-        const LOOPS: usize,
-        const CROSS: usize,
-        const PATH: usize,
-        const RING: usize,
-        const SPANS: usize,
-        const MOVE_BYTES: usize,
-        const P: usize,
-    > Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVE_BYTES, P>
-{
+impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES, P> {
     /// A runner for `machine`, idle. (Large: on the host, build it in a `Box` on a thread
     /// with a big stack; on a board use [`Printer::empty`] in a `static` and
     /// [`Printer::configure`].)
@@ -213,7 +190,7 @@ impl<
             machine: MachineConfig::EMPTY,
             plan_cfg: PlanConfig::EMPTY,
             step_cfg: StepConfig::EMPTY,
-            pipeline: Pipeline::EMPTY,
+            pipeline: Pl::EMPTY,
             motion: Motion::EMPTY,
             state: DeviceState::Idle,
             failure: Slot::Empty,
@@ -238,18 +215,9 @@ impl<
 
     /// What a runner of these capacities holds, announced to the host.
     pub const CAPACITIES: Capacities = Capacities {
-        active_triangles: A as u32,
-        contour_points: S as u32,
-        contour_loops: L as u32,
         move_buffer_bytes: MOVE_BYTES as u32,
-        layer_window: crate::toolpath::window::MAX_BLOCKS as u16,
         ram_bytes: core::mem::size_of::<Self>() as u32,
-        toolpath_points: PTS as u32,
-        toolpath_loops: LOOPS as u32,
-        scan_crossings: CROSS as u32,
-        path_points: PATH as u32,
-        window_ring_words: RING as u32,
-        window_spans: SPANS as u32,
+        ..Pl::CAPACITIES
     };
 
     /// Sets the machine (limits, steps/mm) and goes idle at the origin; buffers stay where
@@ -272,7 +240,7 @@ impl<
     /// offset engine holds that many does (a simulated printer posing as a smaller board:
     /// it announces that board's capacities itself).
     pub fn set_offset_limit(&mut self, edges: usize) {
-        self.pipeline.tp.set_offset_limit(edges);
+        self.pipeline.set_offset_limit(edges);
     }
 
     /// State.
@@ -287,7 +255,7 @@ impl<
 
     /// Error code and detail of the status report (`None, 0` unless failed).
     pub fn error(&self) -> (ErrorCode, u32) {
-        let layers_cut = self.pipeline.slicer.stats().layers;
+        let layers_cut = self.pipeline.layers_cut();
         self.failure().map_or((ErrorCode::None, 0), |f| f.code(layers_cut))
     }
 
@@ -312,13 +280,13 @@ impl<
     }
 
     /// The slicer (statistics: peak active set, peak points).
-    pub fn slicer(&self) -> &Slicer<A, S, L> {
-        &self.pipeline.slicer
+    pub fn slicer(&self) -> &Pl::Slicer {
+        self.pipeline.slicer()
     }
 
     /// The toolpath stage (statistics and needs).
-    pub fn toolpath(&self) -> &Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS> {
-        &self.pipeline.tp
+    pub fn toolpath(&self) -> &Pl::Toolpath {
+        self.pipeline.toolpath()
     }
 
     /// Bytes in use in the move buffer (coded moves waiting for the planner).
@@ -329,7 +297,7 @@ impl<
     /// Bytes of the largest toolpath unit (a path with the travel before it) that went into
     /// the move buffer in this job: the least buffer the job's units needed.
     pub fn largest_unit_bytes(&self) -> usize {
-        self.pipeline.room_memory.largest()
+        self.pipeline.largest_unit_bytes()
     }
 
     /// Uses at most `bytes` of the move buffer from now on (at most `MOVE_BYTES`): a printer
@@ -507,7 +475,7 @@ impl<
         mut motion: MotionHook<'_, '_, MOVE_BYTES, P>,
     ) -> Accept {
         for (i, t) in batch.iter().enumerate().skip(self.batch_pos as usize) {
-            while self.pipeline.slicer.would_cut(t.z_min()) {
+            while self.pipeline.would_cut(t.z_min()) {
                 if !self.emit_moves() {
                     if !self.is_active() {
                         break;
@@ -633,7 +601,7 @@ impl<
             }
         };
         // The toolpath stage's next paths, as far as the room the planner made allows.
-        if self.pipeline.tp.emitting() {
+        if self.pipeline.emitting() {
             let before = self.motion.moves().used_bytes();
             worked |= self.emit_moves() || self.motion.moves().used_bytes() != before;
             if !self.is_active() {

@@ -4,7 +4,7 @@
 use crate::geom::{Point2, Triangle};
 use crate::machine::MachineConfig;
 use crate::move_ring::{MoveRing, MoveStream, RoomMemory};
-use crate::protocol::JobSpec;
+use crate::protocol::{Capacities, JobSpec};
 use crate::scratch::Scratch;
 use crate::slice::{SliceConfig, SliceError, SlicedLayer, Slicer};
 use crate::toolpath::{Emitted, ToolEvent, Toolpath, ToolpathError};
@@ -14,12 +14,12 @@ use super::failure::{Failure, Refusal};
 use super::motion::MotionSlot;
 
 /// What a caller does with a lent [`MotionSlot`] at a progress point (`None`: nothing).
-pub(super) type MotionHook<'h, 'f, const MOVE_BYTES: usize, const P: usize> =
+pub type MotionHook<'h, 'f, const MOVE_BYTES: usize, const P: usize> =
     Option<&'h mut (dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>) + 'f)>;
 
-/// Where [`Pipeline::emit_moves`] left the built layer.
+/// Where [`Stages::emit_moves`] left the built layer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Emit {
+pub enum Emit {
     /// No layer was being emitted.
     Idle,
     /// The layer's last unit went into the buffer.
@@ -28,10 +28,79 @@ pub(super) enum Emit {
     Waiting,
 }
 
-/// The slicer (`A` active triangles, `S` segments, `L` loops) and the toolpath stage (`PTS`,
-/// `LOOPS`, `CROSS`, `PATH`, `RING`, `SPANS`, see [`Toolpath`]) taking turns in one
-/// [`Scratch`], and the toolpath stream into the move buffer.
-pub(super) struct Pipeline<
+/// What the job runner ([`Printer`](super::Printer)) needs of its computing half, whatever
+/// its capacities: the [`Pipeline`]'s operations, each failing with the stage's own error.
+pub trait Stages {
+    /// Empty stages (all zero bytes).
+    const EMPTY: Self;
+    /// The stages' capacities (the motion half's are the printer's).
+    const CAPACITIES: Capacities;
+    /// The slicer.
+    type Slicer;
+    /// The toolpath stage.
+    type Toolpath;
+
+    /// The slicer (statistics: peak active set, peak points).
+    fn slicer(&self) -> &Self::Slicer;
+    /// The toolpath stage (statistics and needs).
+    fn toolpath(&self) -> &Self::Toolpath;
+    /// Layers the slicer has cut.
+    fn layers_cut(&self) -> u32;
+    /// Whether the next triangle, lowest at `z_min`, makes the slicer cut a plane.
+    fn would_cut(&self, z_min: i32) -> bool;
+    /// Whether the toolpath stage is emitting a built layer.
+    fn emitting(&self) -> bool;
+    /// Bytes of the largest unit that went into the move buffer in this job.
+    fn largest_unit_bytes(&self) -> usize;
+    /// Offsets with at most `edges` edges an island (in bands beyond).
+    fn set_offset_limit(&mut self, edges: usize);
+    /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
+    fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure>;
+    /// The triangle into the slicer; the layers it completes through the toolpath stage.
+    fn push_triangle<const M: usize, const P: usize>(
+        &mut self,
+        t: &Triangle,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<(), Failure>;
+    /// Cuts the slicer's next plane, its layer through the toolpath stage; whether a plane
+    /// was left.
+    fn cut_one<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<bool, Failure>;
+    /// After the last plane: the toolpath stage builds its next waiting layer; whether one was
+    /// left.
+    fn flush_one<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<bool, Failure>;
+    /// After the last triangle: every plane left is cut, each layer through the toolpath
+    /// stage.
+    fn finish_slicing<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<(), Failure>;
+    /// After the last plane: the toolpath stage builds every layer it still holds.
+    fn finish_toolpaths<const M: usize, const P: usize>(
+        &mut self,
+        slot: MotionSlot<'_, M, P>,
+        hook: MotionHook<'_, '_, M, P>,
+    ) -> Result<(), Failure>;
+    /// Emits the built layer into `moves` as far as it has room.
+    fn emit_moves<const M: usize>(&mut self, moves: &mut MoveRing<M>) -> Result<Emit, Failure>;
+}
+
+/// The slicer and the toolpath stage taking turns in one [`Scratch`], and the toolpath stream
+/// into the move buffer.
+///
+/// Capacities: the slicer's `A` active triangles, `S` segments and `L` loops, the toolpath
+/// stage's `PTS`, `LOOPS`, `CROSS`, `PATH`, `RING` and `SPANS` (see [`Toolpath`]); name them
+/// with [`printer_type!`](crate::printer_type).
+pub struct Pipeline<
     const A: usize,
     const S: usize,
     const L: usize,
@@ -42,15 +111,15 @@ pub(super) struct Pipeline<
     const RING: usize,
     const SPANS: usize,
 > {
-    pub(super) slicer: Slicer<A, S, L>,
-    pub(super) tp: Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
+    slicer: Slicer<A, S, L>,
+    tp: Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
     /// The slicer's cut, then the toolpath stage's offset engine and infill scratch.
     scratch: Scratch<S, PTS, CROSS>,
     /// The toolpath stream's layer, absolute E and position (moves for the buffer).
     stream: MoveStream,
     /// What the move buffer's rooms learnt about the toolpath stage's units (the waiting
     /// unit's bytes, the job's bytes per move, the largest unit).
-    pub(super) room_memory: RoomMemory,
+    room_memory: RoomMemory,
 }
 
 impl<
@@ -63,10 +132,26 @@ impl<
         const PATH: usize,
         const RING: usize,
         const SPANS: usize,
-    > Pipeline<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS>
+    > Stages for Pipeline<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS>
 {
-    /// Empty stages (all zero bytes).
-    pub(super) const EMPTY: Self = Self {
+    const CAPACITIES: Capacities = Capacities {
+        active_triangles: A as u32,
+        contour_points: S as u32,
+        contour_loops: L as u32,
+        move_buffer_bytes: 0,
+        layer_window: crate::toolpath::window::MAX_BLOCKS as u16,
+        ram_bytes: core::mem::size_of::<Self>() as u32,
+        toolpath_points: PTS as u32,
+        toolpath_loops: LOOPS as u32,
+        scan_crossings: CROSS as u32,
+        path_points: PATH as u32,
+        window_ring_words: RING as u32,
+        window_spans: SPANS as u32,
+    };
+    type Slicer = Slicer<A, S, L>;
+    type Toolpath = Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>;
+
+    const EMPTY: Self = Self {
         slicer: Slicer::empty(),
         tp: Toolpath::empty(),
         scratch: Scratch::new(),
@@ -74,9 +159,37 @@ impl<
         room_memory: RoomMemory::EMPTY,
     };
 
+    fn slicer(&self) -> &Self::Slicer {
+        &self.slicer
+    }
+
+    fn toolpath(&self) -> &Self::Toolpath {
+        &self.tp
+    }
+
+    fn layers_cut(&self) -> u32 {
+        self.slicer.stats().layers
+    }
+
+    fn would_cut(&self, z_min: i32) -> bool {
+        self.slicer.would_cut(z_min)
+    }
+
+    fn emitting(&self) -> bool {
+        self.tp.emitting()
+    }
+
+    fn largest_unit_bytes(&self) -> usize {
+        self.room_memory.largest()
+    }
+
+    fn set_offset_limit(&mut self, edges: usize) {
+        self.tp.set_offset_limit(edges);
+    }
+
     /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
     #[inline(never)]
-    pub(super) fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure> {
+    fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure> {
         let refused = |r| Failure::Refused(r);
         job.settings.validate(machine).map_err(|e| refused(Refusal::Settings(e)))?;
         let slice_cfg = SliceConfig::new(&job.settings, job.model_height_um)
@@ -92,7 +205,7 @@ impl<
 
     /// The triangle into the slicer; the layers it completes through the toolpath stage.
     #[inline(never)]
-    pub(super) fn push_triangle<const M: usize, const P: usize>(
+    fn push_triangle<const M: usize, const P: usize>(
         &mut self,
         t: &Triangle,
         slot: MotionSlot<'_, M, P>,
@@ -103,7 +216,7 @@ impl<
 
     /// Cuts the slicer's next plane, its layer through the toolpath stage; whether a plane was
     /// left.
-    pub(super) fn cut_one<const M: usize, const P: usize>(
+    fn cut_one<const M: usize, const P: usize>(
         &mut self,
         slot: MotionSlot<'_, M, P>,
         hook: MotionHook<'_, '_, M, P>,
@@ -113,7 +226,7 @@ impl<
 
     /// After the last plane: the toolpath stage builds its next waiting layer; whether one was
     /// left.
-    pub(super) fn flush_one<const M: usize, const P: usize>(
+    fn flush_one<const M: usize, const P: usize>(
         &mut self,
         slot: MotionSlot<'_, M, P>,
         hook: MotionHook<'_, '_, M, P>,
@@ -126,7 +239,7 @@ impl<
     /// After the last triangle: every plane left is cut, each layer through the toolpath
     /// stage.
     #[inline(never)]
-    pub(super) fn finish_slicing<const M: usize, const P: usize>(
+    fn finish_slicing<const M: usize, const P: usize>(
         &mut self,
         slot: MotionSlot<'_, M, P>,
         hook: MotionHook<'_, '_, M, P>,
@@ -136,7 +249,7 @@ impl<
     }
 
     /// After the last plane: the toolpath stage builds every layer it still holds.
-    pub(super) fn finish_toolpaths<const M: usize, const P: usize>(
+    fn finish_toolpaths<const M: usize, const P: usize>(
         &mut self,
         slot: MotionSlot<'_, M, P>,
         hook: MotionHook<'_, '_, M, P>,
@@ -149,10 +262,7 @@ impl<
     /// travel before it), each coded into the buffer as it is generated and undone when its
     /// bytes do not fit the free ones ([`MoveRing::room`]). A unit whose bytes exceed the
     /// whole buffer could never go: [`Failure::Moves`].
-    pub(super) fn emit_moves<const M: usize>(
-        &mut self,
-        moves: &mut MoveRing<M>,
-    ) -> Result<Emit, Failure> {
+    fn emit_moves<const M: usize>(&mut self, moves: &mut MoveRing<M>) -> Result<Emit, Failure> {
         if !self.tp.emitting() {
             return Ok(Emit::Idle);
         }
@@ -172,7 +282,20 @@ impl<
             Err(error) => Err(Failure::Toolpath(error)),
         }
     }
+}
 
+impl<
+        const A: usize,
+        const S: usize,
+        const L: usize,
+        const PTS: usize,
+        const LOOPS: usize,
+        const CROSS: usize,
+        const PATH: usize,
+        const RING: usize,
+        const SPANS: usize,
+    > Pipeline<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS>
+{
     /// Runs `step` on the slicer with a sink that hands each layer to the toolpath stage,
     /// which builds the layer it completes (lending `hook` the motion half at its progress
     /// points; its moves wait for [`emit_moves`](Self::emit_moves)); the first failure of the

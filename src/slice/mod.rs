@@ -34,7 +34,8 @@
 //! memory, as a [`SlicedLayer`] (its [`layer`](SlicedLayer::layer) to read it, or the whole
 //! to the next stage, which copies it before it uses the memory).
 //!
-//! For example `Slicer<1024, 512, 32>` takes about 26 KB and its cut about 15 KB.
+//! For example a slicer of 1024 active triangles, 512 segments and 32 loops takes about
+//! 26 KB and its cut about 15 KB (`memory_per_capacity_unit_is_as_documented`).
 //! [`peak_needs`] tells the host which capacities a model needs.
 
 mod chain;
@@ -91,6 +92,30 @@ pub fn slicer_bytes(active: usize, loops: usize) -> usize {
     core::mem::size_of::<Slicer<0, 0, 0>>()
         + active * core::mem::size_of::<PackedTriangle>()
         + loops * (core::mem::size_of::<LoopInfo>() + core::mem::size_of::<chain::Chain>())
+}
+
+/// A [`Slicer`] type with its capacities named at the point of use (the names of
+/// [`Capacities`](crate::protocol::Capacities)):
+///
+/// ```
+/// strata::slicer_type! {
+///     /// A bench slicer.
+///     pub type BenchSlicer = { active_triangles: 8192, contour_points: 8192, contour_loops: 256 };
+/// }
+/// ```
+#[macro_export]
+macro_rules! slicer_type {
+    (
+        $(#[$meta:meta])*
+        $vis:vis type $name:ident = {
+            active_triangles: $a:expr,
+            contour_points: $s:expr,
+            contour_loops: $l:expr $(,)?
+        };
+    ) => {
+        $(#[$meta])*
+        $vis type $name = $crate::slice::Slicer<{ $a }, { $s }, { $l }>;
+    };
 }
 
 /// Default tolerance for joining open chain ends that nearly meet, in um.
@@ -711,7 +736,10 @@ mod tests {
         assert_eq!(size_of::<LoopInfo>() + size_of::<chain::Chain>(), 72);
         let fixed = size_of::<Slicer<0, 0, 0>>();
         assert!(fixed <= 200, "{fixed}");
-        let device = size_of::<Slicer<1024, 512, 32>>();
+        crate::slicer_type! {
+            type Device = { active_triangles: 1024, contour_points: 512, contour_loops: 32 };
+        }
+        let device = size_of::<Device>();
         assert_eq!(device, fixed + 1024 * 24 + 32 * 72);
         assert_eq!(device, slicer_bytes(1024, 32));
         assert!(device < 27 * 1024, "{device}");

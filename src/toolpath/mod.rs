@@ -135,6 +135,42 @@ pub use events::{Emitted, Feature, Moves, Room, ToolEvent, ToolMove};
 pub use space::{Engine, ToolpathScratch, ToolpathSpace};
 pub use stats::{LayerStats, ToolpathNeeds, ToolpathStats};
 
+/// A [`Toolpath`] type with its capacities named at the point of use (the names of
+/// [`Capacities`](crate::protocol::Capacities)):
+///
+/// ```
+/// strata::toolpath_type! {
+///     /// A bench stage.
+///     pub type BenchToolpath = {
+///         toolpath_points: 8192,
+///         toolpath_loops: 256,
+///         scan_crossings: 16384,
+///         path_points: 32768,
+///         window_ring_words: 16384,
+///         window_spans: 16384,
+///     };
+/// }
+/// ```
+#[macro_export]
+macro_rules! toolpath_type {
+    (
+        $(#[$meta:meta])*
+        $vis:vis type $name:ident = {
+            toolpath_points: $pts:expr,
+            toolpath_loops: $loops:expr,
+            scan_crossings: $cross:expr,
+            path_points: $path:expr,
+            window_ring_words: $ring:expr,
+            window_spans: $spans:expr $(,)?
+        };
+    ) => {
+        $(#[$meta])*
+        $vis type $name = $crate::toolpath::Toolpath<
+            { $pts }, { $loops }, { $cross }, { $path }, { $ring }, { $spans },
+        >;
+    };
+}
+
 /// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
 const FIRST_LAYER: u32 = 0;
 
@@ -980,12 +1016,36 @@ mod tests {
     use crate::machine::{MachineConfig, PrintSettings};
     use core::mem::size_of;
 
+    crate::toolpath_type! {
+        /// A stage for a few small squares.
+        type Tiny = {
+            toolpath_points: 16,
+            toolpath_loops: 4,
+            scan_crossings: 16,
+            path_points: 16,
+            window_ring_words: 16,
+            window_spans: 16,
+        };
+    }
+
+    crate::toolpath_type! {
+        /// A stage for one layer of squares.
+        type Squares = {
+            toolpath_points: 256,
+            toolpath_loops: 8,
+            scan_crossings: 256,
+            path_points: 1024,
+            window_ring_words: 1024,
+            window_spans: 64,
+        };
+    }
+
     /// Built at compile time (what a firmware `static` needs); idle until `reset`.
-    static IDLE: Toolpath<16, 4, 16, 16, 16, 16> = Toolpath::empty();
+    static IDLE: Tiny = Toolpath::empty();
 
     #[test]
     fn empty_stage_waits_for_reset() {
-        let mut t = Toolpath::<16, 4, 16, 16, 16, 16>::empty();
+        let mut t = Tiny::empty();
         assert_eq!(IDLE.stats(), ToolpathStats::EMPTY);
         let mut work = ToolpathScratch::new();
         let mut sink = |_: &ToolEvent<'_>| {};
@@ -998,11 +1058,7 @@ mod tests {
 
     /// Moves of a one-layer job: `squares` (x0, y0, size, hole) in this order, holes
     /// pointing at `parent`.
-    fn job(
-        t: &mut Toolpath<256, 8, 256, 1024, 1024, 64>,
-        squares: &[(i32, i32, i32, bool)],
-        parent: u32,
-    ) -> Vec<ToolMove> {
+    fn job(t: &mut Squares, squares: &[(i32, i32, i32, bool)], parent: u32) -> Vec<ToolMove> {
         let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
         t.reset(cfg).unwrap();
         let mut points = Vec::new();
@@ -1079,7 +1135,17 @@ mod tests {
         };
         // Alignment padding between arrays (and the scratch's tag) only.
         let close = |exact: usize, want: usize| exact >= want && exact <= want + 64;
-        let stage = size_of::<Toolpath<64, 8, 128, 256, 200, 96>>();
+        crate::toolpath_type! {
+            type Sized = {
+                toolpath_points: 64,
+                toolpath_loops: 8,
+                scan_crossings: 128,
+                path_points: 256,
+                window_ring_words: 200,
+                window_spans: 96,
+            };
+        }
+        let stage = size_of::<Sized>();
         assert!(close(stage, needs.stage_bytes()), "{stage} vs {}", needs.stage_bytes());
         let work = size_of::<ToolpathScratch<64, 128>>();
         assert!(close(work, needs.work_bytes()), "{work} vs {}", needs.work_bytes());

@@ -19,8 +19,8 @@
 
 use strata::geom::Triangle;
 use strata::machine::{PrintSettings, AXES};
-use strata::printer::Accept;
 pub use strata::printer::Printer;
+use strata::printer::{Accept, Stages};
 use strata::protocol::{
     BatchBuilder, DeviceState, Endpoint, JobOptions, JobSpec, Message, MAX_PAYLOAD, MAX_WIRE,
 };
@@ -44,20 +44,7 @@ pub trait Device {
 }
 
 // Inherent methods come first in method resolution: each call below is the printer's own.
-impl<
-        const A: usize,
-        const S: usize,
-        const L: usize,
-        const PTS: usize,
-        const LOOPS: usize,
-        const CROSS: usize,
-        const PATH: usize,
-        const RING: usize,
-        const SPANS: usize,
-        const MOVE_BYTES: usize,
-        const P: usize,
-    > Device for Printer<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS, MOVE_BYTES, P>
-{
+impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Device for Printer<Pl, MOVE_BYTES, P> {
     fn handle(&mut self, msg: &Message<'_>) -> Accept {
         self.handle(msg)
     }
@@ -130,13 +117,22 @@ macro_rules! small_printer {
             ($crate::drive::Sizes { $($key: $value,)* ..$crate::drive::Sizes::SMALL }));
     };
     (@sized $(#[$meta:meta])* $vis:vis $name:ident, $s:tt) => {
-        $(#[$meta])*
-        $vis type $name = $crate::drive::Printer<
-            { $s.active_triangles }, { $s.contour_points }, { $s.contour_loops },
-            { $s.toolpath_points }, { $s.toolpath_loops }, { $s.scan_crossings },
-            { $s.path_points }, { $s.window_ring_words }, { $s.window_spans },
-            { $s.move_buffer_bytes }, { $s.lookahead_moves },
-        >;
+        ::strata::printer_type! {
+            $(#[$meta])*
+            $vis type $name = {
+                active_triangles: $s.active_triangles,
+                contour_points: $s.contour_points,
+                contour_loops: $s.contour_loops,
+                toolpath_points: $s.toolpath_points,
+                toolpath_loops: $s.toolpath_loops,
+                scan_crossings: $s.scan_crossings,
+                path_points: $s.path_points,
+                window_ring_words: $s.window_ring_words,
+                window_spans: $s.window_spans,
+                move_buffer_bytes: $s.move_buffer_bytes,
+                lookahead_moves: $s.lookahead_moves,
+            };
+        }
     };
 }
 

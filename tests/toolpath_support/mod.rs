@@ -6,7 +6,7 @@
 use strata::geom::{Point2, Triangle};
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::scratch::Scratch;
-use strata::slice::{SliceConfig, SlicedLayer, Slicer};
+use strata::slice::{SliceConfig, SlicedLayer};
 use strata::toolpath::{
     Feature, LayerStats, ToolEvent, ToolMove, Toolpath, ToolpathConfig, ToolpathError,
     ToolpathStats,
@@ -14,10 +14,25 @@ use strata::toolpath::{
 use strata_testkit::check::{self, TopCoverage};
 use strata_testkit::mesh::{to_um, TriMm};
 
-/// Host-sized capacities for tests: PTS, LOOPS, CROSS, PATH, RING, SPANS.
-pub type TestToolpath = Toolpath<16384, 1024, 32768, 65536, 65536, 65536>;
-/// Slicer capacities for tests.
-pub type TestSlicer = Slicer<16384, 16384, 1024>;
+strata::toolpath_type! {
+    /// Host-sized capacities for tests: PTS, LOOPS, CROSS, PATH, RING, SPANS.
+    pub type TestToolpath = {
+        toolpath_points: 16384,
+        toolpath_loops: 1024,
+        scan_crossings: 32768,
+        path_points: 65536,
+        window_ring_words: 65536,
+        window_spans: 65536,
+    };
+}
+strata::slicer_type! {
+    /// Slicer capacities for tests.
+    pub type TestSlicer = {
+        active_triangles: 16384,
+        contour_points: 16384,
+        contour_loops: 1024,
+    };
+}
 /// The scratch a [`TestSlicer`] and a toolpath stage of `PTS` and `CROSS` take turns in.
 pub type TestScratch<const PTS: usize, const CROSS: usize> = Scratch<16384, PTS, CROSS>;
 
