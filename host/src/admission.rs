@@ -37,6 +37,8 @@ use strata::protocol::{Capacities, JobSpec};
 use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer};
 use strata::toolpath::{Room, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
+use crate::stages::{HostScratch, HostSlicer, HostToolpath};
+
 /// What a model needs against what the device has.
 #[derive(Debug, Clone, Copy)]
 pub struct Fit {
@@ -291,34 +293,6 @@ pub struct ToolpathPeaks {
     pub layers: u32,
 }
 
-strata::slicer_type! {
-    /// The slicer of the needs run: room for any model the host can stream.
-    type NeedsSlicer = {
-        active_triangles: 1 << 17,
-        contour_points: 1 << 17,
-        contour_loops: 1 << 14,
-    };
-}
-strata::toolpath_type! {
-    /// The toolpath stage of the needs run (as `strata slice`'s).
-    type NeedsToolpath = {
-        toolpath_points: 1 << 16,
-        toolpath_loops: 1 << 12,
-        scan_crossings: 1 << 16,
-        path_points: 1 << 18,
-        window_ring_words: 1 << 18,
-        window_spans: 1 << 17,
-    };
-}
-strata::scratch_type! {
-    /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
-    type NeedsScratch = {
-        contour_points: 1 << 17,
-        toolpath_points: 1 << 16,
-        scan_crossings: 1 << 16,
-    };
-}
-
 /// The toolpath stage's needs for `tris`, the layers where they peak and the largest emission
 /// unit's bytes.
 ///
@@ -372,12 +346,12 @@ fn measure(
     cfg: ToolpathConfig,
     offset_limit: Option<usize>,
 ) -> Result<ToolpathPeaks, String> {
-    let mut slicer = Box::new(NeedsSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
-    let mut tp = Box::new(NeedsToolpath::new(cfg).map_err(|e| e.to_string())?);
+    let mut slicer = Box::new(HostSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
+    let mut tp = Box::new(HostToolpath::new(cfg).map_err(|e| e.to_string())?);
     if let Some(limit) = offset_limit {
         tp.set_offset_limit(limit);
     }
-    let mut work = Box::new(NeedsScratch::new());
+    let mut work = Box::new(HostScratch::new());
     tp.set_position(Point2::new(0, 0), 0);
     let peaks = Cell::new(ToolpathPeaks::default());
     // The layer being built or emitted, and the moves coded as the device's move buffer
@@ -415,8 +389,8 @@ fn measure(
     };
     // The built layer's units into a room without bound, each unit's bytes those the
     // events' meter (the device's coding) counts from its open to its close.
-    let emit = |tp: &mut NeedsToolpath,
-                work: &mut NeedsScratch,
+    let emit = |tp: &mut HostToolpath,
+                work: &mut HostScratch,
                 events: &mut dyn FnMut(&ToolEvent<'_>)|
      -> Result<(), ToolpathError> {
         while tp.emitting() {

@@ -12,3 +12,4 @@ pub mod preview;
 pub mod serial;
 pub mod session;
 pub mod simjob;
+pub mod stages;

@@ -25,35 +25,10 @@ use strata::toolpath::{
 
 use strata_host::model;
 
+use strata_host::stages::{HostScratch, HostSlicer, HostToolpath};
+
 use crate::settings::{machine_of, settings_of, toolpath_config_of, PrintArgs};
 
-strata::slicer_type! {
-    /// Host capacities: active triangles, segments (and points) per layer, loops per layer.
-    type HostSlicer = {
-        active_triangles: 1 << 17,
-        contour_points: 1 << 17,
-        contour_loops: 1 << 14,
-    };
-}
-strata::toolpath_type! {
-    /// Host toolpath capacities: PTS, LOOPS, CROSS, PATH, RING, SPANS (about 20 MB).
-    type HostToolpath = {
-        toolpath_points: 1 << 16,
-        toolpath_loops: 1 << 12,
-        scan_crossings: 1 << 16,
-        path_points: 1 << 18,
-        window_ring_words: 1 << 18,
-        window_spans: 1 << 17,
-    };
-}
-strata::scratch_type! {
-    /// The scratch both take turns in (SEGMENTS, PTS, CROSS as theirs).
-    type HostScratch = {
-        contour_points: 1 << 17,
-        toolpath_points: 1 << 16,
-        scan_crossings: 1 << 16,
-    };
-}
 const SLICER_STACK_BYTES: usize = 256 << 20;
 
 /// Options of `strata slice`.
