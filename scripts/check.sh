@@ -40,6 +40,9 @@ for board in creality-v422 creality-v427 qemu-mps2 qemu; do
     --release --features "$board" -- -D warnings
 done
 
+step "imports run one way (slice, step, toolpath)"
+gate imports scripts/check_imports.sh
+
 step "step ISR: no division, no floating point (thumbv7m disassembly)"
 gate isr_asm scripts/check_isr_asm.sh
 
