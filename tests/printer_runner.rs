@@ -4,16 +4,27 @@
 
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, AXES};
-use strata::printer::Accept;
+use strata::printer::{Accept, Motion, MotionAccess, MotionHalf};
 use strata::protocol::{DeviceState, Endpoint, ErrorCode, JobSpec, LinkConfig, Message, VERSION};
-use strata::step::{StepCmd, StepQueue};
-use strata_testkit::drive::{batch, batches, carry, encode, job_spec, model_payloads, start, Rig};
+use strata::step::{StepCmd, StepProducer, StepQueue};
+use strata_testkit::drive::{
+    batch, batches, carry, encode, job_spec, model_payloads, start, Rig, Sizes,
+};
 use strata_testkit::mesh::{cuboid, ngon, prism, to_um};
 use strata_testkit::rng::Rng;
 use strata_testkit::small_printer;
 
 small_printer! {
     type Small = {};
+}
+
+/// The motion half of a [`Small`] printer with a step queue of 32 commands an axis.
+type SmallMotion<'q> =
+    MotionHalf<'q, { Sizes::SMALL.move_buffer_bytes }, { Sizes::SMALL.lookahead_moves }, 32>;
+
+/// A motion half for calls outside a drive loop (the producer of `q`).
+fn loose_motion(q: &mut StepQueue<32>) -> Box<SmallMotion<'_>> {
+    Box::new(MotionHalf::new(q.split().0))
 }
 
 fn new_printer() -> Box<Small> {
@@ -42,14 +53,17 @@ fn job(tris: &[Triangle]) -> JobSpec {
 /// Feeds the whole job of the [`block`] and runs it, the steps executed on a simulated board
 /// (checked against the drivers' timing); returns layer hashes and the steps per axis.
 /// `between` is called every poll with the poll count.
-fn run(p: &mut Small, between: impl FnMut(&mut Small, u32)) -> (Vec<(u32, u64)>, [u64; AXES]) {
+fn run(
+    p: &mut Small,
+    between: impl FnMut(&mut Small, &mut SmallMotion<'_>, u32),
+) -> (Vec<(u32, u64)>, [u64; AXES]) {
     let tris = block();
-    start(p, job(&tris));
+    let mut q: StepQueue<32> = StepQueue::new();
+    let mut rig = Rig::executing(&mut q, p.step_config());
+    start(p, &mut rig, job(&tris));
     assert_eq!(p.state(), DeviceState::Printing);
     let payloads = model_payloads(&tris);
     assert_eq!(payloads.len(), 2, "one batch, the end of the model");
-    let mut q: StepQueue<32> = StepQueue::new();
-    let mut rig = Rig::executing(&mut q, p.step_config());
     rig.drive(p, &payloads, 1_000_000, between);
     // Every message was taken when offered.
     assert_eq!(rig.busy, 0);
@@ -68,8 +82,8 @@ fn run_draining(
     let tris = block();
     let mut q: StepQueue<8> = StepQueue::new();
     let mut rig = Rig::recording(&mut q).limit_drain(move |turn, axis| drain(turn as u32, axis));
-    start(&mut *p, job(&tris));
-    rig.drive(&mut *p, &model_payloads(&tris), 10_000_000, |_, _| {});
+    start(&mut *p, &mut rig, job(&tris));
+    rig.drive(&mut *p, &model_payloads(&tris), 10_000_000, |_, _, _| {});
     // Every message was taken when offered.
     assert_eq!(rig.busy, 0);
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
@@ -108,12 +122,12 @@ fn layers_are_cut_one_at_a_time_as_the_move_buffer_allows() {
     // layer at once, 50 layers of moves (tens of kilobytes) against a 4 KB move buffer.
     let tris = box_at(90.0, 20.0, 10.0);
     let mut p: Box<Tight> = Box::new(Tight::new(&MachineConfig::default()));
-    start(&mut *p, job(&tris));
-    let payloads = model_payloads(&tris);
-    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
     let mut q: StepQueue<32> = StepQueue::new();
     let mut rig = Rig::counting(&mut q);
-    rig.drive(&mut *p, &payloads, 50_000_000, |_, _| {});
+    start(&mut *p, &mut rig, job(&tris));
+    let payloads = model_payloads(&tris);
+    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
+    rig.drive(&mut *p, &payloads, 50_000_000, |_, _, _| {});
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
     assert_eq!(rig.hashes.iter().map(|h| h.0).collect::<Vec<_>>(), (0..50).collect::<Vec<u32>>());
     // The batch and the end of the model both had to wait for room, more than once.
@@ -129,13 +143,14 @@ small_printer! {
 fn a_unit_that_overflows_the_move_buffer_fails_the_job_naming_its_layer() {
     let tris = block();
     let mut p: Box<Cramped> = Box::new(Cramped::new(&MachineConfig::default()));
-    start(&mut *p, job(&tris));
     let mut q: StepQueue<32> = StepQueue::new();
     let mut rig = Rig::counting(&mut q);
+    start(&mut *p, &mut rig, job(&tris));
     // What was accepted stays within the buffer, after every message and every poll.
-    let within = |p: &Cramped| assert!(p.move_buffer_used() <= 96, "{}", p.move_buffer_used());
-    rig.drive(&mut *p, &model_payloads(&tris), 1_000_000, |p, _| within(p));
-    within(&p);
+    let within =
+        |m: &Motion<96, 16>| assert!(m.moves().used_bytes() <= 96, "{}", m.moves().used_bytes());
+    rig.drive(&mut *p, &model_payloads(&tris), 1_000_000, |_, m, _| within(&m.motion));
+    within(&rig.motion.motion);
     // The first layer's solid infill (a 6 mm square: one zigzag of 15 lines, some 30 moves
     // of at least 2 bytes each) cannot fit 96 bytes even in an empty buffer: a typed failure
     // at layer 0 (not a dropped move, not a wait forever).
@@ -147,34 +162,34 @@ fn a_unit_that_overflows_the_move_buffer_fails_the_job_naming_its_layer() {
 #[test]
 fn identical_jobs_give_identical_hashes() {
     let mut a = new_printer();
-    let (ha, sa) = run(&mut a, |_, _| {});
+    let (ha, sa) = run(&mut a, |_, _, _| {});
     assert_eq!(a.state(), DeviceState::Done, "{:?}", a.error());
     assert_eq!(ha.len(), 4);
     assert_eq!(ha.iter().map(|h| h.0).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
     let mut b = new_printer();
-    let (hb, sb) = run(&mut b, |_, _| {});
+    let (hb, sb) = run(&mut b, |_, _, _| {});
     assert_eq!(ha, hb);
     assert_eq!(sa, sb);
     assert!(sa[0] > 0 && sa[3] > 0);
     // The runner can run a second job after the first.
-    let (hc, _) = run(&mut a, |_, _| {});
+    let (hc, _) = run(&mut a, |_, _, _| {});
     assert_eq!(hc, ha);
 }
 
 #[test]
 fn pause_holds_motion_and_resume_finishes_the_same_job() {
     let mut clean = new_printer();
-    let (h0, s0) = run(&mut clean, |_, _| {});
+    let (h0, s0) = run(&mut clean, |_, _, _| {});
     let mut p = new_printer();
     let mut paused_polls = 0;
-    let (h1, s1) = run(&mut p, |p, i| {
+    let (h1, s1) = run(&mut p, |p, m, i| {
         if i == 20 {
-            assert_eq!(p.handle(&Message::Pause), Accept::Taken);
+            assert_eq!(p.handle(&Message::Pause, m), Accept::Taken);
         }
         if p.state() == DeviceState::Paused {
             paused_polls += 1;
             if paused_polls == 500 {
-                assert_eq!(p.handle(&Message::Resume), Accept::Taken);
+                assert_eq!(p.handle(&Message::Resume, m), Accept::Taken);
             }
         }
     });
@@ -186,25 +201,26 @@ fn pause_holds_motion_and_resume_finishes_the_same_job() {
 #[test]
 fn abort_and_emergency_stop_end_the_job() {
     let mut p = new_printer();
-    run(&mut p, |p, i| {
+    run(&mut p, |p, m, i| {
         if i == 10 {
             assert_eq!(p.heater_targets(), (200, 60));
-            p.handle(&Message::Abort);
+            p.handle(&Message::Abort, m);
         }
     });
     assert_eq!(p.state(), DeviceState::Aborted);
     // Heaters and fan off with the job.
-    assert_eq!((p.heater_targets(), p.fan_duty()), ((0, 0), 0));
+    let mut q = StepQueue::new();
+    assert_eq!((p.heater_targets(), p.fan_duty(&mut *loose_motion(&mut q))), ((0, 0), 0));
     let mut p = new_printer();
-    run(&mut p, |p, i| {
+    run(&mut p, |p, m, i| {
         if i == 10 {
             assert_eq!(p.heater_targets(), (200, 60));
-            p.handle(&Message::EmergencyStop);
-            assert_eq!((p.heater_targets(), p.fan_duty()), ((0, 0), 0));
+            p.handle(&Message::EmergencyStop, m);
+            assert_eq!((p.heater_targets(), p.fan_duty(m)), ((0, 0), 0));
         }
         if i == 11 {
             // Nothing restarts a stopped printer but a new job.
-            p.handle(&Message::Resume);
+            p.handle(&Message::Resume, m);
         }
     });
     assert_eq!(p.state(), DeviceState::Stopped);
@@ -216,7 +232,10 @@ fn misplaced_messages_are_never_executed() {
     let bytes = batch(&tris);
     let m = Message::decode(&bytes).unwrap();
     let mut p = new_printer();
-    p.handle(&m);
+    let mut q = StepQueue::new();
+    let mut boxed = loose_motion(&mut q);
+    let motion = &mut *boxed;
+    p.handle(&m, motion);
     assert_eq!(p.state(), DeviceState::Failed);
     assert_eq!(p.error(), (ErrorCode::Unexpected, 0x11));
     assert_eq!(p.slicer().stats().triangles, 0, "triangles before a job were sliced");
@@ -224,7 +243,7 @@ fn misplaced_messages_are_never_executed() {
     let mut p = new_printer();
     let mut bad = job(&tris);
     bad.settings.layer_height_um = 0;
-    p.handle(&Message::JobStart(bad));
+    p.handle(&Message::JobStart(bad), motion);
     assert_eq!(p.state(), DeviceState::Failed);
     assert_eq!(p.error().0, ErrorCode::BadJob);
 }
@@ -236,10 +255,13 @@ fn service_answers_hello_and_refuses_undecodable_payloads() {
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     host.send(&encode(&Message::Hello { version: 1 })).unwrap();
     host.send(&[0x7f, 1, 2, 3]).unwrap();
+    let mut q = StepQueue::new();
+    let mut boxed = loose_motion(&mut q);
+    let motion = &mut *boxed;
     let mut got = Vec::new();
     for now in 1..200u32 {
         carry(&mut host, &mut dev, now);
-        p.service(&mut dev, now, 0, 50, &mut |_| {});
+        p.service(&mut dev, motion, now, 0, 50, false);
         carry(&mut dev, &mut host, now);
         while let Some(m) = host.peek() {
             got.push(format!("{:?}", Message::decode(m).unwrap()));
@@ -257,7 +279,7 @@ fn service_answers_hello_and_refuses_undecodable_payloads() {
 
 #[test]
 fn motion_waits_for_the_heaters_and_a_heater_fault_ends_the_job() {
-    let (h_ref, s_ref) = run(&mut new_printer(), |_, _| {});
+    let (h_ref, s_ref) = run(&mut new_printer(), |_, _, _| {});
     // A board with heaters: nothing moves until they report being at target, then the job
     // runs exactly as without heaters.
     let mut p = new_printer();
@@ -265,37 +287,44 @@ fn motion_waits_for_the_heaters_and_a_heater_fault_ends_the_job() {
     assert_eq!(p.heater_targets(), (0, 0), "no job, heaters off");
     let mut waited = 0;
     let mut fan_seen = false;
-    let (h, s) = run(&mut p, |p, i| {
+    let (h, s) = run(&mut p, |p, m, i| {
         assert_eq!(p.heater_targets(), (200, 60));
         // The fan stays off on the first layer, comes on from the second.
-        let layer = p.generator().tag();
-        assert_eq!(p.fan_duty() == 255, layer.is_some_and(|l| l >= 1), "layer {layer:?}");
-        fan_seen |= p.fan_duty() == 255;
+        let layer = m.motion.generator().tag();
+        assert_eq!(p.fan_duty(m) == 255, layer.is_some_and(|l| l >= 1), "layer {layer:?}");
+        fan_seen |= p.fan_duty(m) == 255;
         if i < 300 {
-            assert!(p.status(0).heating);
-            assert_eq!(p.generator().stats().blocks, 0, "moved before the heaters were ready");
+            assert!(p.status(m, 0).heating);
+            assert_eq!(
+                m.motion.generator().stats().blocks,
+                0,
+                "moved before the heaters were ready"
+            );
             p.set_thermal(false, 1500 + i as i16, 500);
             waited += 1;
         } else {
             p.set_thermal(true, 2000, 600);
-            assert!(!p.status(0).heating);
+            assert!(!p.status(m, 0).heating);
         }
     });
     assert_eq!(waited, 300);
     assert!(fan_seen);
-    assert_eq!(p.fan_duty(), 0, "the fan stops with the job");
+    let mut q = StepQueue::new();
+    let mut boxed = loose_motion(&mut q);
+    let m = &mut *boxed;
+    assert_eq!(p.fan_duty(m), 0, "the fan stops with the job");
     assert_eq!(p.state(), DeviceState::Done);
     assert_eq!((h, s), (h_ref, s_ref));
     assert_eq!(p.heater_targets(), (0, 0), "a finished job turns the heaters off");
-    assert_eq!((p.status(0).hotend_c_x10, p.status(0).bed_c_x10), (2000, 600));
+    assert_eq!((p.status(m, 0).hotend_c_x10, p.status(m, 0).bed_c_x10), (2000, 600));
     // A heater fault mid-job fails it at once, naming the fault.
     let mut p = new_printer();
     let fault = strata::thermal::ThermalFault::ThermalRunaway(strata::thermal::Heater::Hotend);
-    run(&mut p, |p, i| {
+    run(&mut p, |p, m, i| {
         p.set_thermal(true, 2000, 600);
         if i == 20 {
             assert!(p.is_active());
-            p.thermal_fault(fault.code());
+            p.thermal_fault(fault.code(), m);
         }
     });
     assert_eq!(p.state(), DeviceState::Failed);
@@ -311,7 +340,10 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
     let tris = block();
-    assert_eq!(p.handle(&Message::JobStart(job(&tris))), Accept::Taken);
+    let mut q = StepQueue::new();
+    let mut boxed = loose_motion(&mut q);
+    let motion = &mut *boxed;
+    assert_eq!(p.handle(&Message::JobStart(job(&tris)), motion), Accept::Taken);
     // A heater stuck just below its target: never at target, no protection trips.
     let mut failed_at = None;
     for s in 0..HEAT_WAIT_LIMIT_MS / 1000 + 2 {
@@ -321,7 +353,7 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
         for t in now..now + 1000 {
             carry(&mut host, &mut dev, t);
             if t % 100 == 0 {
-                p.service(&mut dev, t, 0, 100, &mut |_| {});
+                p.service(&mut dev, motion, t, 0, 100, false);
             }
             carry(&mut dev, &mut host, t);
             while host.peek().is_some() {
@@ -347,12 +379,37 @@ fn a_job_that_waits_too_long_for_its_heaters_fails_naming_it() {
 struct Streamed {
     hashes: Vec<(u32, u64)>,
     cmds: Vec<Vec<StepCmd>>,
-    lends: u32,
+    /// Accesses to the motion half inside `service` that generated steps (the progress
+    /// points it was lent).
     lends_with_steps: u32,
     /// Bytes of the largest toolpath unit that went into the move buffer.
     largest_unit: usize,
     /// Turns after which a received message was still held (waiting for room).
     held: u32,
+}
+
+/// The rig's motion half, counting the accesses inside `service` (`inside`) that generated
+/// steps, the queue drained after each (an executor that keeps up).
+struct Lent<'r, 'q> {
+    rig: &'r mut Rig<'q, BUFFERED, 16, 32>,
+    inside: bool,
+    with_steps: u32,
+}
+
+impl MotionAccess<BUFFERED, 16, 32> for Lent<'_, '_> {
+    fn with<R>(
+        &mut self,
+        f: impl FnOnce(&mut Motion<BUFFERED, 16>, &mut StepProducer<'_, 32>) -> R,
+    ) -> R {
+        let before = self.rig.motion.motion.generator().steps_generated();
+        let r = self.rig.motion.with(f);
+        let generated = self.rig.motion.motion.generator().steps_generated() != before;
+        if self.inside && generated {
+            self.with_steps += 1;
+            self.rig.drain();
+        }
+        r
+    }
 }
 
 /// Streams a 48-sided prism of 10 mm radius, 1.2 mm tall (six layers, one triangle per
@@ -362,7 +419,6 @@ struct Streamed {
 /// its move buffer.
 fn stream_through_service(generate: bool, limit: usize) -> Streamed {
     let mut p: Box<Buffered> = Box::new(Buffered::new(&MachineConfig::default()));
-    p.limit_move_buffer(limit);
     let ring = ngon(48, 110.0, 110.0, 10.0, 0.0);
     let tris = to_um(&prism(&ring, 0.0, 1.2));
     let mut host: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
@@ -374,7 +430,9 @@ fn stream_through_service(generate: bool, limit: usize) -> Streamed {
     let mut pending = outbox.next();
     let mut q: StepQueue<32> = StepQueue::new();
     let mut rig = Rig::recording(&mut q);
-    let (mut lends, mut lends_with_steps, mut held) = (0, 0, 0);
+    rig.motion.motion.moves_mut().limit(limit);
+    let mut held = 0;
+    let mut lent = Lent { rig: &mut rig, inside: false, with_steps: 0 };
     for now in 1..2_000_000u32 {
         while let Some(m) = pending.as_ref() {
             if host.send(m).is_err() {
@@ -383,17 +441,13 @@ fn stream_through_service(generate: bool, limit: usize) -> Streamed {
             pending = outbox.next();
         }
         carry(&mut host, &mut dev, now);
-        p.service(&mut dev, now, 0, 1000, &mut |m| {
-            lends += 1;
-            if generate && m.run(rig.producer()) {
-                lends_with_steps += 1;
-                rig.drain();
-            }
-        });
+        lent.inside = true;
+        p.service(&mut dev, &mut lent, now, 0, 1000, generate);
+        lent.inside = false;
         held += u32::from(dev.rx_len() > 0);
-        while p.poll(rig.producer()) {}
-        rig.drain();
-        rig.take_hashes(&mut *p);
+        while p.poll(&mut lent) {}
+        lent.rig.drain();
+        lent.rig.take_hashes(&mut *p);
         carry(&mut dev, &mut host, now);
         while host.peek().is_some() {
             host.pop();
@@ -403,10 +457,10 @@ fn stream_through_service(generate: bool, limit: usize) -> Streamed {
         }
     }
     assert_eq!(p.state(), DeviceState::Done, "{:?}", p.error());
+    let lends_with_steps = lent.with_steps;
     Streamed {
         hashes: rig.hashes,
         cmds: rig.commands,
-        lends,
         lends_with_steps,
         largest_unit: p.largest_unit_bytes(),
         held,
@@ -419,10 +473,9 @@ fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same(
     let kept = stream_through_service(false, BUFFERED);
     assert_eq!(lent.hashes.len(), 6, "{:?}", lent.hashes);
     // The toolpath stage offered the motion half inside its layers, and the generator made
-    // steps there (the earlier layers' moves were waiting).
-    assert!(lent.lends >= 6, "{} progress points", lent.lends);
+    // steps there (the earlier layers' moves were waiting); not without lending.
     assert!(lent.lends_with_steps > 0, "no steps generated inside a layer's computation");
-    assert_eq!(kept.lends, lent.lends, "the progress points depend on the job only");
+    assert_eq!(kept.lends_with_steps, 0);
     // The same commands and hashes either way.
     assert_eq!(lent.cmds, kept.cmds, "the command streams differ");
     assert_eq!(lent.hashes, kept.hashes);
@@ -441,7 +494,7 @@ fn steps_are_generated_while_a_layer_is_computed_and_the_commands_stay_the_same(
 
 small_printer! {
     /// A printer whose move buffer holds [`BUFFERED`] bytes, of which its tests use a part
-    /// ([`Printer::limit_move_buffer`](strata::printer::Printer::limit_move_buffer)).
+    /// (`MoveRing::limit`).
     type Buffered = { move_buffer_bytes: BUFFERED };
 }
 /// Bytes of a [`Buffered`] printer's move buffer.
@@ -467,13 +520,13 @@ struct BufferedRun {
 /// draining the steps.
 fn run_buffered(tris: &[Triangle], spec: JobSpec, limit: usize) -> BufferedRun {
     let mut p: Box<Buffered> = Box::new(Buffered::new(&MachineConfig::default()));
-    p.limit_move_buffer(limit);
-    start(&mut *p, spec);
-    let payloads = model_payloads(tris);
-    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
     let mut q: StepQueue<32> = StepQueue::new();
     let mut rig = Rig::counting(&mut q);
-    rig.drive(&mut *p, &payloads, 50_000_000, |_, _| {});
+    rig.motion.motion.moves_mut().limit(limit);
+    start(&mut *p, &mut rig, spec);
+    let payloads = model_payloads(tris);
+    assert_eq!(payloads.len(), 2, "one batch, the end of the model");
+    rig.drive(&mut *p, &payloads, 50_000_000, |_, _, _| {});
     let s = p.toolpath().stats();
     BufferedRun {
         hashes: rig.hashes,
@@ -549,10 +602,13 @@ fn a_stage_failure_reaches_the_host_in_the_stages_words() {
     for b in batches(&tris) {
         host.send(&b).unwrap();
     }
+    let mut q = StepQueue::new();
+    let mut motion = Box::new(MotionHalf::<'_, 16384, 16, 32>::new(q.split().0));
+    let motion = &mut *motion;
     let mut got = Vec::new();
     for now in 1..500u32 {
         carry(&mut host, &mut dev, now);
-        p.service(&mut dev, now, 0, 50, &mut |_| {});
+        p.service(&mut dev, motion, now, 0, 50, false);
         carry(&mut dev, &mut host, now);
         while let Some(m) = host.peek() {
             match Message::decode(m).unwrap() {

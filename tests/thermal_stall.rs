@@ -7,7 +7,12 @@
 mod thermal_model;
 
 use strata::machine::MachineConfig;
-use strata::printer::board::BoardPrinter;
+use strata::printer::board::{BoardPrinter, LOOKAHEAD_MOVES, MOVE_BUFFER_BYTES};
+use strata::printer::MotionHalf;
+use strata::step::StepQueue;
+
+/// The board's motion half with a step queue of 64 commands an axis.
+type BoardMotion<'q> = MotionHalf<'q, MOVE_BUFFER_BYTES, LOOKAHEAD_MOVES, 64>;
 use strata::protocol::{
     DeviceState, Endpoint, ErrorCode, JobOptions, JobSpec, LinkConfig, Message, MAX_WIRE,
 };
@@ -395,7 +400,10 @@ fn a_job_whose_hotend_stalls_fails_naming_it_before_the_wait_limit() {
         triangles: 12,
     };
     let target = f64::from(spec.settings.hotend_temp_c);
-    let _ = p.handle(&Message::JobStart(spec));
+    let mut queue = StepQueue::<64>::new();
+    let mut motion = Box::new(BoardMotion::new(queue.split().0));
+    let motion = &mut *motion;
+    let _ = p.handle(&Message::JobStart(spec), motion);
     assert_eq!(p.state(), DeviceState::Printing);
     let mut sim = sim_in(0x1830, 25.0);
     let mut cut = false;
@@ -408,13 +416,13 @@ fn a_job_whose_hotend_stalls_fails_naming_it_before_the_wait_limit() {
         if sim.ctl.fault().is_none() {
             sim.ctl.set_targets(sim.now_ms, h, b).unwrap();
         }
-        sim.ctl.set_fan(p.fan_duty());
+        sim.ctl.set_fan(p.fan_duty(motion));
         let out = sim.step();
         let now = sim.now_ms;
         let st = sim.ctl.status();
         p.set_thermal(sim.ctl.at_target(), st.hotend.temp_decidegrees(), st.bed.temp_decidegrees());
         if let Some(f) = out.fault {
-            p.thermal_fault(f.code());
+            p.thermal_fault(f.code(), motion);
         }
         let r: f64 = st.hotend.temp.to_num();
         assert!((r - sensed).abs() <= READ_EPS, "reading {r:.2} vs sensor {sensed:.2}");
@@ -432,7 +440,7 @@ fn a_job_whose_hotend_stalls_fails_naming_it_before_the_wait_limit() {
         while let n @ 1.. = host.poll_transmit(now, &mut frame) {
             dev.receive(&frame[..n], now);
         }
-        p.service(&mut dev, now, 0, 100, &mut |_| {});
+        p.service(&mut dev, motion, now, 0, 100, false);
         while let n @ 1.. = dev.poll_transmit(now, &mut frame) {
             host.receive(&frame[..n], now);
         }

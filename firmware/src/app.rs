@@ -4,11 +4,10 @@
 
 use strata::machine::{MachineConfig, AXES};
 use strata::protocol::{DeviceState, Message, MAX_WIRE};
-use strata::step::StepConfig;
 
 use crate::board::{self, Board};
 use crate::capacities::{FwEndpoint, FwPrinter, POLLS_PER_LOOP, STATUS_EVERY_MS};
-use crate::motion::{fresh_queue, Producer};
+use crate::pipeline_motion::{FwMotion, FwMotionHalf};
 use crate::{heat, log, stack};
 
 /// The stock Ender-3 (DESIGN §3).
@@ -17,24 +16,6 @@ pub const MACHINE: MachineConfig = MachineConfig::ENDER3;
 /// Soft limits: the generator's motor positions (which lead the executor by the whole step
 /// queue) must stay inside the build volume plus this margin, mm.
 const SOFT_LIMIT_MARGIN_MM: i64 = 1;
-
-/// A fresh step queue: the interrupt's executor and this loop's producer are replaced
-/// together (the old ones are dropped first); the motion halts, drivers off.
-fn reset_motion(prod: &mut Option<Producer>, cfg: &StepConfig) {
-    board::with_motion(|m| {
-        // Both ends of the old queue go away here (neither has a destructor; what matters
-        // is that no borrow of the queue outlives this point).
-        {
-            let _old_exec = m.halt();
-            let _old_prod = prod.take();
-        }
-        // SAFETY: the previous executor (`old`) and producer (`*prod`) are dropped above,
-        // inside this critical section, so nothing borrows the queue any more.
-        let (p, e) = unsafe { fresh_queue(cfg) };
-        m.install(e);
-        *prod = Some(p);
-    });
-}
 
 /// The axis (and its position in steps) outside the soft limits, if any.
 fn soft_limit(machine: &MachineConfig, motor: [i64; AXES]) -> Option<(usize, i64)> {
@@ -70,10 +51,14 @@ fn transmit(board: &mut Board, ep: &mut FwEndpoint, now: u32) {
 }
 
 /// Runs the printer forever.
-pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut FwEndpoint) -> ! {
+pub fn run(
+    mut board: Board,
+    printer: &'static mut FwPrinter,
+    half: &'static mut FwMotionHalf,
+    ep: &'static mut FwEndpoint,
+) -> ! {
     let cfg = board::executor_config(printer.step_config());
-    let mut prod: Option<Producer> = None;
-    reset_motion(&mut prod, &cfg);
+    let mut motion = FwMotion::new(half, &cfg);
     log!(
         "strata firmware: printer {} B, endpoint {} B, step queue {} cmds/axis",
         core::mem::size_of::<FwPrinter>() as u32,
@@ -94,38 +79,29 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
         #[cfg(feature = "qemu")]
         if now.wrapping_sub(hb_ms) >= 1000 && job_open {
             hb_ms = now;
-            if let Some(p) = prod.as_ref() {
-                board::heartbeat(p);
-                log!(
-                    "HB state={} layer={} triangles={}",
-                    printer.state() as u32,
-                    printer.status(0).layer,
-                    printer.status(0).triangles
-                );
-            }
+            board::heartbeat(motion.producer());
+            let status = printer.status(&mut motion, 0);
+            log!(
+                "HB state={} layer={} triangles={}",
+                printer.state() as u32,
+                status.layer,
+                status.triangles
+            );
         }
         receive(&mut board, ep, now);
         let done_ms = board::print_done_ms();
         #[cfg(feature = "qemu")]
-        let t0 = cost.begin(ep.peek().is_some(), printer);
+        let t0 = cost.begin(ep.peek().is_some(), printer, &mut motion.generation);
         // Inside a layer's computation the printer lends its motion half: steps keep being
         // generated while the toolpaths of a large layer take half a second.
-        printer.service(ep, now, done_ms, STATUS_EVERY_MS, &mut |motion| {
-            if let Some(p) = prod.as_mut() {
-                #[cfg(feature = "qemu")]
-                let t = cost.motion_lent();
-                motion.run(p);
-                #[cfg(feature = "qemu")]
-                cost.motion_returned(t);
-            }
-        });
+        printer.service(ep, &mut motion, now, done_ms, STATUS_EVERY_MS, true);
         #[cfg(feature = "qemu")]
-        cost.end_service(t0, printer);
+        cost.end_service(t0, printer, &mut motion);
         // Heaters (10 Hz): a fault turns everything off in the controller at once; here the
         // motion stops as for an emergency stop and the job fails.
-        if let Some(fault) = heat.service(&mut board, printer, now) {
-            reset_motion(&mut prod, &cfg);
-            printer.thermal_fault(fault.code());
+        if let Some(fault) = heat.service(&mut board, printer, &mut motion, now) {
+            motion.reset_queue(&cfg);
+            printer.thermal_fault(fault.code(), &mut motion);
         }
 
         let new = printer.state();
@@ -134,7 +110,7 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
             match new {
                 DeviceState::Printing if !was_active => {
                     // A new job: clean queue, home X/Y/Z before the first step.
-                    reset_motion(&mut prod, &cfg);
+                    motion.reset_queue(&cfg);
                     board::with_motion(|m| m.start_homing(&MACHINE));
                     board::job_started();
                     heat.job_started(now);
@@ -146,7 +122,7 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
                 DeviceState::Stopped | DeviceState::Aborted | DeviceState::Failed => {
                     // Emergency stop (and abort, failure): no further step, queue cleared,
                     // drivers off at once.
-                    reset_motion(&mut prod, &cfg);
+                    motion.reset_queue(&cfg);
                     if !was_active && !job_open {
                         // A job refused or failed within the call that started it: it still
                         // gets its closing lines.
@@ -161,33 +137,33 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
             state = new;
         }
 
-        if let Some(p) = prod.as_mut() {
-            if printer.is_active() && !board::with_motion(|m| m.homing()) {
-                for _ in 0..POLLS_PER_LOOP {
-                    #[cfg(feature = "qemu")]
-                    let t = cost.begin_poll();
-                    let worked = printer.poll(p);
-                    #[cfg(feature = "qemu")]
-                    cost.end_poll(t, worked, printer);
-                    if !worked {
-                        break;
-                    }
+        if printer.is_active() && !board::with_motion(|m| m.homing()) {
+            for _ in 0..POLLS_PER_LOOP {
+                #[cfg(feature = "qemu")]
+                let t = cost.begin_poll();
+                let worked = printer.poll(&mut motion);
+                #[cfg(feature = "qemu")]
+                cost.end_poll(t, worked, printer, &mut motion);
+                if !worked {
+                    break;
                 }
-                board::kick();
-                if let Some((axis, pos)) = soft_limit(&MACHINE, printer.generator().motor_steps()) {
-                    log!("SOFT LIMIT axis={} steps={}: job aborted", axis as u32, pos);
-                    reset_motion(&mut prod, &cfg);
-                    printer.handle(&Message::Abort);
-                }
+            }
+            board::kick();
+            let motor = motion.half().generator().motor_steps();
+            if let Some((axis, pos)) = soft_limit(&MACHINE, motor) {
+                log!("SOFT LIMIT axis={} steps={}: job aborted", axis as u32, pos);
+                motion.reset_queue(&cfg);
+                printer.handle(&Message::Abort, &mut motion);
             }
         }
         if let Some(missed) = board::with_motion(|m| m.take_homed()) {
             log!("HOMED missed_endstops={}", (missed & 7) as u32);
         }
-        if let Some(p) = prod.as_ref() {
+        {
             let finished = printer.motion_finished() || !printer.is_active();
-            let gen_blocked = printer.generator().waits_on_a_full_queue();
-            board::after_poll(p, finished, printer.state() == DeviceState::Paused, gen_blocked);
+            let gen_blocked = motion.half().generator().waits_on_a_full_queue();
+            let paused = printer.state() == DeviceState::Paused;
+            board::after_poll(motion.producer(), finished, paused, gen_blocked);
         }
 
         transmit(&mut board, ep, now);
@@ -207,11 +183,11 @@ pub fn run(mut board: Board, printer: &'static mut FwPrinter, ep: &'static mut F
                     printer.state() as u32,
                     err as u32,
                     detail,
-                    printer.status(0).triangles,
+                    printer.status(&mut motion, 0).triangles,
                     printer.layer_count()
                 );
                 #[cfg(feature = "qemu")]
-                cost.job_ended(printer);
+                cost.job_ended(printer, &mut motion);
                 board::job_ended();
                 heat.job_ended();
                 let (used, size) = stack::high_water();

@@ -34,6 +34,12 @@
 
 use crate::board;
 use crate::capacities::FwPrinter;
+use crate::pipeline_motion::{FwMotion, Generation};
+
+/// Thread-mode instructions so far (all instructions minus the SysTick handler's).
+pub fn thread_now() -> u64 {
+    board::insns_now() - board::isr_insns_total()
+}
 use crate::log;
 
 /// Marks the start of a measured region for `tools/job-profile/run.sh --counted` (its QEMU plugin
@@ -76,13 +82,8 @@ pub struct Cost {
     slice_insns: u64,
     /// The longest stretch of a `service` call without step generation (slicing and
     /// toolpaths between the progress points where the printer lends its motion half: the
-    /// step queue must cover it on a real board), and when steps were last generated in
-    /// the current call.
+    /// step queue must cover it on a real board).
     gap_max: u64,
-    generated_at: u64,
-    /// Instructions the current `service` call spent generating steps (left out of the
-    /// slicing figure, still in the layer's).
-    lent: u64,
     active: bool,
 }
 
@@ -106,45 +107,21 @@ impl Cost {
             planned_ticks: 0,
             slice_insns: 0,
             gap_max: 0,
-            generated_at: 0,
-            lent: 0,
             active: false,
         }
     }
 
-    /// Thread-mode instructions so far (all instructions minus the SysTick handler's).
-    pub fn thread_now(&self) -> u64 {
-        board::insns_now() - board::isr_insns_total()
-    }
-
-    /// Starts measuring a `service` call when it has a message to handle.
-    pub fn begin(&mut self, pending: bool, p: &FwPrinter) -> Mark {
+    /// Starts measuring a `service` call when it has a message to handle; `g`: where the
+    /// motion half generates steps meanwhile.
+    pub fn begin(&mut self, pending: bool, p: &FwPrinter, g: &mut Generation) -> Mark {
         (self.active && pending).then(|| {
             let before = progress(p);
             let layer = p.slicer().stats().layers;
             strata_counted_on();
-            let t = self.thread_now();
-            self.generated_at = t;
-            self.lent = 0;
+            let t = thread_now();
+            *g = Generation { measuring: true, lent: 0, generated_at: t, gap_max: 0 };
             (t, layer, before)
         })
-    }
-
-    /// The printer lends its motion half inside a `service` call (steps are generated
-    /// until [`Cost::motion_returned`]); returns the time.
-    pub fn motion_lent(&mut self) -> u64 {
-        let t = self.thread_now();
-        if self.active {
-            self.gap_max = self.gap_max.max(t - self.generated_at);
-        }
-        t
-    }
-
-    /// The lent motion half (since `t0`) is back.
-    pub fn motion_returned(&mut self, t0: u64) {
-        let t = self.thread_now();
-        self.lent += t - t0;
-        self.generated_at = t;
     }
 
     fn add(&mut self, layer: u32, insns: u64, service: u64) {
@@ -154,22 +131,23 @@ impl Cost {
     }
 
     /// Ends a `service` measurement.
-    pub fn end_service(&mut self, m: Mark, p: &FwPrinter) {
+    pub fn end_service(&mut self, m: Mark, p: &FwPrinter, motion: &mut FwMotion) {
+        let g = core::mem::take(&mut motion.generation);
         if let Some((t, layer, before)) = m {
-            let now = self.thread_now();
+            let now = thread_now();
             let d = now - t;
             strata_counted_off();
             if progress(p) == before {
-                self.report(p, false);
+                self.report(p, motion);
                 return;
             }
             strata_counted_keep();
-            let service = d - self.lent.min(d);
+            let service = d - g.lent.min(d);
             self.slice_insns += service;
-            self.gap_max = self.gap_max.max(now - self.generated_at.max(t));
+            self.gap_max = self.gap_max.max(g.gap_max).max(now - g.generated_at.max(t));
             self.add(layer, d, service);
         }
-        self.report(p, false);
+        self.report(p, motion);
     }
 
     /// Starts measuring a `poll` call.
@@ -177,31 +155,36 @@ impl Cost {
         if self.active {
             strata_counted_on();
         }
-        self.thread_now()
+        thread_now()
     }
 
     /// Ends a `poll` measurement (started at `t`); counted when the poll `worked`.
-    pub fn end_poll(&mut self, t: u64, worked: bool, p: &FwPrinter) {
+    pub fn end_poll(&mut self, t: u64, worked: bool, p: &FwPrinter, motion: &mut FwMotion) {
         if self.active {
-            let d = self.thread_now() - t;
+            let d = thread_now() - t;
             strata_counted_off();
             if !worked {
                 return;
             }
             strata_counted_keep();
-            self.add(p.status(0).layer, d, 0);
-            self.report(p, false);
+            self.add(p.status(motion, 0).layer, d, 0);
+            self.report(p, motion);
         }
     }
 
-    /// Prints the layers the planner has closed (all of them at the end of the job).
-    fn report(&mut self, p: &FwPrinter, all: bool) {
+    /// Prints the layers the planner has closed.
+    fn report(&mut self, p: &FwPrinter, motion: &mut FwMotion) {
+        let closed = p.status(motion, 0).layer;
+        self.report_to(p, motion, closed);
+    }
+
+    /// Prints the layers before `closed`.
+    fn report_to(&mut self, p: &FwPrinter, motion: &mut FwMotion, closed: u32) {
         if !self.active {
             return;
         }
-        let closed = if all { p.layer_count() } else { p.status(0).layer };
         while self.reported < closed {
-            let ticks = (p.planned_s() * 72e6) as u64;
+            let ticks = (p.planned_s(motion) * 72e6) as u64;
             let k = self.reported as usize % RING;
             log!(
                 "COST layer={} compute_insns={} service_insns={} print_ticks={}",
@@ -224,11 +207,13 @@ impl Cost {
     }
 
     /// A job ended: the remaining layers (all of them when it is done) and the job's totals.
-    pub fn job_ended(&mut self, p: &FwPrinter) {
-        self.report(p, p.state() == strata::protocol::DeviceState::Done);
+    pub fn job_ended(&mut self, p: &FwPrinter, motion: &mut FwMotion) {
+        let all = p.state() == strata::protocol::DeviceState::Done;
+        let closed = if all { p.layer_count() } else { p.status(motion, 0).layer };
+        self.report_to(p, motion, closed);
         log!(
             "COST triangles={} slice_insns={} gen_gap_max_insns={}",
-            p.status(0).triangles,
+            p.status(motion, 0).triangles,
             self.slice_insns,
             self.gap_max
         );

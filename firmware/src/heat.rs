@@ -23,6 +23,7 @@ use strata::thermal::{Heater, ThermalController, ThermalFault, Watchdog};
 use crate::board::{self, Board};
 use crate::capacities::FwPrinter;
 use crate::log;
+use crate::pipeline_motion::FwMotion;
 
 /// Control period, ms (the controller expects about 10 Hz).
 pub const UPDATE_MS: u32 = 100;
@@ -131,6 +132,7 @@ impl Heat {
         &mut self,
         board: &mut Board,
         printer: &mut FwPrinter,
+        motion: &mut FwMotion,
         now_ms: u32,
     ) -> Option<ThermalFault> {
         if (now_ms.wrapping_sub(self.next_ms) as i32) < 0 {
@@ -157,7 +159,7 @@ impl Heat {
             let _ = self.ctl.set_targets(now_ms, 0, 0);
         }
         // The part-cooling fan as the job wants it (off on the first layer and without a job).
-        self.ctl.set_fan(printer.fan_duty());
+        self.ctl.set_fan(printer.fan_duty(motion));
         let (hotend_sum, bed_sum) = board.read_thermistors(now_ms);
         let out = self.ctl.update(now_ms, hotend_sum, bed_sum);
         board.set_heaters(now_ms, out.hotend_pwm, out.bed_pwm, out.fan_pwm);

@@ -26,6 +26,7 @@ mod cost;
 mod heat;
 mod log;
 mod motion;
+mod pipeline_motion;
 mod stack;
 
 use cortex_m_rt::entry;
@@ -38,6 +39,9 @@ use strata::protocol::{Endpoint, LinkConfig};
 /// is all zero bytes, so it lives in `.bss` (zeroed at boot, no flash image);
 /// `scripts/build_firmware.sh` fails the build if it lands in `.data`.
 static PRINTER: ConstStaticCell<FwPrinter> = ConstStaticCell::new(FwPrinter::empty());
+/// The printer's motion half (move buffer, planner, generator), all zero bytes too.
+static MOTION: ConstStaticCell<pipeline_motion::FwMotionHalf> =
+    ConstStaticCell::new(pipeline_motion::FwMotionHalf::EMPTY);
 /// The protocol endpoint (3.3 KB; `LinkConfig::default()` is not const, so it is built at
 /// start-up, in place where the optimiser manages).
 static ENDPOINT: StaticCell<FwEndpoint> = StaticCell::new();
@@ -51,5 +55,5 @@ fn main() -> ! {
     printer.configure(&app::MACHINE);
     let ep = ENDPOINT.init_with(|| Endpoint::new(LinkConfig::default()));
     let board = board::init(printer.step_config());
-    app::run(board, printer, ep)
+    app::run(board, printer, MOTION.take(), ep)
 }

@@ -12,13 +12,14 @@ use std::time::{Duration, Instant};
 
 use strata::geom::Triangle;
 use strata::machine::MachineConfig;
+use strata::printer::MotionHalf;
 use strata::protocol::{Capacities, DeviceState, Endpoint, JobSpec, LinkConfig, MAX_WIRE};
 use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepQueue, Wake};
 
 use crate::clock::LinkClock;
 use crate::session::{handshake, HostEndpoint, HostJob, Phase, Progress};
-use crate::simjob::{announce_posed, device_turn, DeviceEndpoint, SimPrinter};
+use crate::simjob::{announce_posed, device_turn, DeviceEndpoint, SimMotion, SimPrinter};
 
 /// Whether an I/O error means "not now" rather than "never".
 fn is_transient(e: &std::io::Error) -> bool {
@@ -257,7 +258,8 @@ pub fn serve_device<P: Read + Write>(
     let board = SimBoard::new(SimTiming::from_config(&step_cfg), start_tick, ());
     let mut pins = board.pins();
     let mut queue: StepQueue<64> = StepQueue::new();
-    let (mut prod, cons) = queue.split();
+    let (prod, cons) = queue.split();
+    let mut motion: Box<SimMotion<'_, 64>> = Box::new(MotionHalf::new(prod));
     let mut exec = Executor::new(&step_cfg, cons);
     let mut ep: DeviceEndpoint = Endpoint::new(opts.link);
     let mut next_wake: Option<u32> = None;
@@ -294,7 +296,7 @@ pub fn serve_device<P: Read + Write>(
         ep.receive(&buf[..n], now);
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
         announce_posed(&opts.capacities, &mut ep);
-        device_turn(&mut printer, &mut ep, &mut prod, now, done_ms, 200, |f| {
+        device_turn(&mut printer, &mut ep, &mut motion, now, done_ms, 200, |f| {
             let _ = port.write_all(f);
         });
         let end_tick = start_tick + now as u64 * opts.speedup * ticks_per_ms;
@@ -311,7 +313,7 @@ pub fn serve_device<P: Read + Write>(
                 }
                 board.advance_to_u32(w);
                 next_wake = wake(exec.on_timer(board.now_u32(), &mut pins));
-                printer.poll(&mut prod);
+                printer.poll(&mut *motion);
             }
         }
         board.advance_to(end_tick.max(board.now()));

@@ -14,12 +14,13 @@ use std::collections::VecDeque;
 
 use strata::geom::Triangle;
 use strata::machine::{MachineConfig, AXES};
-use strata::printer::BOARD_CAPACITIES;
+use strata::printer::board::LOOKAHEAD_MOVES;
+use strata::printer::{MotionHalf, BOARD_CAPACITIES};
 use strata::protocol::{
     Capacities, Endpoint, JobSpec, LinkConfig, Message, MAX_PAYLOAD, MAX_WIRE, VERSION,
 };
 use strata::sim::{SimBoard, SimTiming};
-use strata::step::{is_before, Executor, StepProducer, StepQueue, Wake};
+use strata::step::{is_before, Executor, StepQueue, Wake};
 use strata::toolpath::ToolpathNeeds;
 
 use crate::preview::PathRecorder;
@@ -39,10 +40,17 @@ strata::printer_type! {
         path_points: 1 << 17,
         window_ring_words: 1 << 17,
         window_spans: 1 << 16,
-        move_buffer_bytes: 1 << 17,
-        lookahead_moves: strata::printer::board::LOOKAHEAD_MOVES,
+        move_buffer_bytes: SIM_MOVE_BYTES,
+        lookahead_moves: LOOKAHEAD_MOVES,
     };
 }
+
+/// The simulated device's move buffer, bytes (room for any job's moves).
+const SIM_MOVE_BYTES: usize = 1 << 17;
+
+/// The simulated device's motion half (move buffer, planner, generator) and the step queue's
+/// producer.
+pub type SimMotion<'q, const N: usize> = MotionHalf<'q, SIM_MOVE_BYTES, LOOKAHEAD_MOVES, N>;
 /// Device endpoint: 4 frames in flight, 4 receive slots (1.6 KB of payload).
 pub type DeviceEndpoint = Endpoint<4, 4>;
 
@@ -322,8 +330,9 @@ fn run(
     );
     let mut pins = board.pins();
     let mut queue: StepQueue<STEP_QUEUE> = StepQueue::new();
-    let (mut prod, cons) = queue.split();
+    let (prod, cons) = queue.split();
     let mut exec = Executor::new(&step_cfg, cons);
+    let mut motion: Box<SimMotion<'_, STEP_QUEUE>> = Box::new(MotionHalf::new(prod));
 
     let mut host_ep: HostEndpoint = Endpoint::new(LinkConfig::default());
     let mut dev_ep: DeviceEndpoint = Endpoint::new(LinkConfig::default());
@@ -379,7 +388,7 @@ fn run(
         // Device.
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
         announce_posed(&opts.capacities, &mut dev_ep);
-        device_turn(&mut printer, &mut dev_ep, &mut prod, t, done_ms, 500, |f| {
+        device_turn(&mut printer, &mut dev_ep, &mut motion, t, done_ms, 500, |f| {
             d2h.send_frame(now_ms, f)
         });
         // Motion up to the end of this millisecond.
@@ -403,7 +412,7 @@ fn run(
                     first_step = Some(board.now());
                 }
                 next_wake = wake(exec.on_timer(board.now_u32(), &mut pins));
-                printer.poll(&mut prod);
+                printer.poll(&mut *motion);
             }
         }
         board.advance_to(end_tick.max(board.now()));
@@ -415,7 +424,7 @@ fn run(
             break;
         }
     }
-    let gen = printer.generator().stats();
+    let gen = motion.motion.generator().stats();
     let tp = printer.toolpath().stats();
     let slice = *printer.slicer().stats();
     rep.layers = printer.layer_count();
@@ -428,7 +437,7 @@ fn run(
         _ => 0,
     };
     rep.print_time_s = rep.print_ticks as f64 / timer_hz as f64;
-    rep.planned_s = printer.planned_s();
+    rep.planned_s = printer.planned_s(&mut *motion);
     rep.filament_mm = tp.filament_um as f64 / 1000.0;
     rep.max_step_error_us = step_cfg.max_error_ticks as f64 * 1e6 / timer_hz as f64;
     rep.step_check_failures = gen.check_failures;
@@ -497,17 +506,15 @@ pub(crate) fn announce_posed(capacities: &Capacities, ep: &mut DeviceEndpoint) {
 pub(crate) fn device_turn<const N: usize>(
     printer: &mut SimPrinter,
     ep: &mut DeviceEndpoint,
-    prod: &mut StepProducer<'_, N>,
+    motion: &mut SimMotion<'_, N>,
     now_ms: u32,
     done_ms: u32,
     status_every_ms: u32,
     mut send: impl FnMut(&[u8]),
 ) {
-    printer.service(ep, now_ms, done_ms, status_every_ms, &mut |m| {
-        m.run(prod);
-    });
+    printer.service(ep, motion, now_ms, done_ms, status_every_ms, true);
     for _ in 0..64 {
-        if !printer.poll(prod) {
+        if !printer.poll(motion) {
             break;
         }
     }

@@ -327,10 +327,12 @@ fn buffer_unplanned(tris: &[Triangle], job: JobSpec) -> (usize, DeviceState, Err
     assert_eq!(payloads.len(), 3, "the job, one batch, the end of the model");
     on_big_stack(|| {
         let mut p = Box::new(Roomy::new(&MachineConfig::default()));
+        let mut q: StepQueue<32> = StepQueue::new();
+        let mut rig = Rig::counting(&mut q);
         for m in &payloads {
-            assert_eq!(p.handle(&Message::decode(m).unwrap()), Accept::Taken);
+            assert_eq!(p.handle(&Message::decode(m).unwrap(), &mut rig.motion), Accept::Taken);
         }
-        (p.move_buffer_used(), p.state(), p.error().0)
+        (rig.motion.motion.moves().used_bytes(), p.state(), p.error().0)
     })
 }
 
@@ -382,11 +384,11 @@ fn run_limited(tris: &[Triangle], job: JobSpec, limit: usize) -> Limited {
     assert_eq!(payloads.len(), 2, "one batch, the end of the model");
     on_big_stack(|| {
         let mut p = Box::new(Roomy::new(&MachineConfig::default()));
-        p.limit_move_buffer(limit);
-        start(&mut *p, job);
         let mut q: StepQueue<32> = StepQueue::new();
         let mut rig = Rig::counting(&mut q);
-        rig.drive(&mut *p, &payloads, 50_000_000, |_, _| {});
+        rig.motion.motion.moves_mut().limit(limit);
+        start(&mut *p, &mut rig, job);
+        rig.drive(&mut *p, &payloads, 50_000_000, |_, _, _| {});
         Limited {
             state: p.state(),
             error: p.error(),

@@ -10,7 +10,7 @@
 //! planner (up to its queue), the toolpath stage's next paths into the move buffer (up to
 //! its room), blocks into the step generator, steps into the queue. While a
 //! message makes the toolpath stage compute a layer, `service` lends its caller the motion
-//! half at the stage's progress points ([`MotionSlot`]), so steps keep being generated
+//! half at the stage's progress points ([`MotionAccess`]), so steps keep being generated
 //! during a long layer.
 //!
 //! Flow control reaches back to the host. The toolpath stage builds at most one layer per
@@ -31,7 +31,7 @@
 //! twice as moves. Cutting as soon as the stage is free (not when the buffer has drained to
 //! some level) starts the next layer's computation with the most motion buffered: the
 //! buffer is about full when a layer's last unit goes in, and those moves feed the motion
-//! half, lent at the computation's progress points ([`MotionSlot`]), until the new layer's
+//! half, lent at the computation's progress points ([`Computing`]), until the new layer's
 //! first unit. A unit whose bytes exceed the whole buffer could never go in: a typed error
 //! ([`ErrorCode::Moves`], detail: the layer), never a silent drop or a wait forever.
 //!
@@ -39,7 +39,7 @@
 //! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
 //! the job, not on the link's timing, and the step generator's commands depend only on the
 //! blocks. The step commands generated for each layer's blocks are hashed (FNV-1a over axis
-//! and command, see [`StepProducer::take_hash`]) and reported with [`Message::LayerDone`]:
+//! and command, see [`StepProducer::take_hash`](crate::step::StepProducer::take_hash)) and reported with [`Message::LayerDone`]:
 //! identical jobs give identical hashes on the host simulation and on the firmware.
 
 pub mod board;
@@ -51,19 +51,20 @@ use heapless::Deque;
 
 use crate::geom::Triangle;
 use crate::machine::MachineConfig;
+use crate::move_ring::{PackedMove, RingFull};
 use crate::plan::PlanConfig;
 use crate::protocol::{
     Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
     VERSION,
 };
 use crate::slot::Slot;
-use crate::step::{StepConfig, StepGenerator, StepProducer};
+use crate::step::StepConfig;
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 
 pub use board::{job_toolpath_config, BoardPrinter, BOARD_CAPACITIES, CREALITY_CAPACITIES};
 pub use failure::{Failure, Refusal};
-pub use motion::{Motion, MotionSlot};
-pub use pipeline::{Emit, MotionHook, Pipeline, Stages};
+pub use motion::{Motion, MotionAccess, MotionHalf};
+pub use pipeline::{Computing, Emit, Pipeline, Stages};
 
 /// A [`Printer`] type with every capacity named at the point of use (the names of
 /// [`Capacities`]; `lookahead_moves` is the planner's queue):
@@ -138,7 +139,6 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     plan_cfg: PlanConfig,
     step_cfg: StepConfig,
     pipeline: Pl,
-    motion: Motion<MOVE_BYTES, P>,
     state: DeviceState,
     /// Why the job failed (once it did).
     failure: Slot<Failure>,
@@ -191,7 +191,6 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             plan_cfg: PlanConfig::EMPTY,
             step_cfg: StepConfig::EMPTY,
             pipeline: Pl::EMPTY,
-            motion: Motion::EMPTY,
             state: DeviceState::Idle,
             failure: Slot::Empty,
             failure_sent: false,
@@ -213,10 +212,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         }
     }
 
-    /// What a runner of these capacities holds, announced to the host.
+    /// What a runner of these capacities holds, announced to the host (RAM: the runner and
+    /// its motion half).
     pub const CAPACITIES: Capacities = Capacities {
         move_buffer_bytes: MOVE_BYTES as u32,
-        ram_bytes: core::mem::size_of::<Self>() as u32,
+        ram_bytes: (core::mem::size_of::<Self>() + core::mem::size_of::<Motion<MOVE_BYTES, P>>())
+            as u32,
         ..Pl::CAPACITIES
     };
 
@@ -226,7 +227,6 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.machine = *machine;
         self.plan_cfg = PlanConfig::from_machine(machine);
         self.step_cfg = StepConfig::from_machine(machine);
-        self.motion.reset(&self.plan_cfg, &self.step_cfg);
         self.state = DeviceState::Idle;
         self.job = Slot::Empty;
     }
@@ -259,11 +259,6 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.failure().map_or((ErrorCode::None, 0), |f| f.code(layers_cut))
     }
 
-    /// The step generator (its statistics, motor positions).
-    pub fn generator(&self) -> &StepGenerator {
-        self.motion.generator()
-    }
-
     /// The step configuration the generator uses (the executor must use the same).
     pub fn step_config(&self) -> &StepConfig {
         &self.step_cfg
@@ -275,8 +270,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     }
 
     /// Print time of the blocks released so far, seconds.
-    pub fn planned_s(&self) -> f64 {
-        self.motion.planner().released_ticks_q16() as f64 / 65536.0 / self.plan_cfg.timer_hz as f64
+    pub fn planned_s<const Q: usize>(
+        &self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> f64 {
+        let ticks_q16 = motion.with(|m, _| m.planner().released_ticks_q16());
+        ticks_q16 as f64 / 65536.0 / self.plan_cfg.timer_hz as f64
     }
 
     /// The slicer (statistics: peak active set, peak points).
@@ -289,21 +288,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.pipeline.toolpath()
     }
 
-    /// Bytes in use in the move buffer (coded moves waiting for the planner).
-    pub fn move_buffer_used(&self) -> usize {
-        self.motion.moves().used_bytes()
-    }
-
     /// Bytes of the largest toolpath unit (a path with the travel before it) that went into
     /// the move buffer in this job: the least buffer the job's units needed.
     pub fn largest_unit_bytes(&self) -> usize {
         self.pipeline.largest_unit_bytes()
-    }
-
-    /// Uses at most `bytes` of the move buffer from now on (at most `MOVE_BYTES`): a printer
-    /// posing as a board with a smaller one, flow control included (the host's tests).
-    pub fn limit_move_buffer(&mut self, bytes: usize) {
-        self.motion.moves_mut().limit(bytes);
     }
 
     /// True when the job's last block went to the step generator and it sent every step.
@@ -337,8 +325,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// The part-cooling fan's duty (0..=255) the job wants: full from the second layer on
     /// (the layer whose blocks are being turned into steps), off on the first layer (for bed
     /// adhesion, like slicers' defaults) and without an active job.
-    pub fn fan_duty(&self) -> u8 {
-        let layer = self.motion.generator().tag();
+    pub fn fan_duty<const Q: usize>(&self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) -> u8 {
+        let layer = motion.with(|m, _| m.generator().tag());
         if self.state == DeviceState::Printing && layer.is_some_and(|layer| layer >= 1) {
             255
         } else {
@@ -360,22 +348,30 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
 
     /// A heater fault: the job fails at once with [`ErrorCode::Thermal`] (detail `code`),
     /// its moves are dropped; the board stops the steps and keeps the heaters off.
-    pub fn thermal_fault(&mut self, code: u8) {
+    pub fn thermal_fault<const Q: usize>(
+        &mut self,
+        code: u8,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
         self.fail(Failure::Thermal { code });
-        self.motion.moves_mut().clear();
+        motion.with(|m, _| m.moves_mut().clear());
     }
 
     /// A job that waits longer than [`HEAT_WAIT_LIMIT_MS`] (printing, not paused) for its
     /// heaters fails with [`ThermalFault::HeatingTimeout`] (the last line of defence behind
     /// each heater's own checks, which also catch a heater that stalls short of its target).
-    fn check_heat_wait(&mut self, now_ms: u32) {
+    fn check_heat_wait<const Q: usize>(
+        &mut self,
+        now_ms: u32,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
         if !(self.state == DeviceState::Printing && self.heaters && !self.heated) {
             self.heat_wait_since_ms = None;
             return;
         }
         let since = *self.heat_wait_since_ms.get_or_insert(now_ms);
         if now_ms.wrapping_sub(since) > HEAT_WAIT_LIMIT_MS {
-            self.thermal_fault(ThermalFault::HeatingTimeout.code());
+            self.thermal_fault(ThermalFault::HeatingTimeout.code(), motion);
         }
     }
 
@@ -388,7 +384,11 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// other cold paths of [`handle_with`](Self::handle_with): their frames stay off the
     /// deepest stack (a batch's layer computation under `handle_with`).
     #[inline(never)]
-    fn start(&mut self, job: &JobSpec) {
+    fn start<const Q: usize>(
+        &mut self,
+        job: &JobSpec,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
         self.failure = Slot::Empty;
         self.failure_sent = false;
         match self.pipeline.start(&self.machine, job) {
@@ -399,7 +399,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 return;
             }
         }
-        self.motion.reset(&self.plan_cfg, &self.step_cfg);
+        motion.with(|m, _| m.reset(&self.plan_cfg, &self.step_cfg));
         self.triangles = 0;
         self.batch_pos = 0;
         self.report_sent = false;
@@ -421,42 +421,47 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     }
 
     /// Takes a host message. Misplaced messages fail the job (never executed).
-    pub fn handle(&mut self, msg: &Message<'_>) -> Accept {
-        self.handle_with(msg, None)
-    }
-
-    /// [`handle`](Self::handle); `motion` is lent the motion half at the progress points of
-    /// the layers this message makes the toolpath stage compute (see [`MotionSlot`]).
-    fn handle_with(
+    pub fn handle<const Q: usize>(
         &mut self,
         msg: &Message<'_>,
-        motion: MotionHook<'_, '_, MOVE_BYTES, P>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> Accept {
+        self.handle_with(msg, motion, false)
+    }
+
+    /// [`handle`](Self::handle); `lend`: the motion half gets the progress points of the
+    /// layers this message makes the toolpath stage compute (it generates steps there).
+    fn handle_with<const Q: usize>(
+        &mut self,
+        msg: &Message<'_>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
     ) -> Accept {
         match (msg, self.state) {
             (Message::EmergencyStop, _) => {
                 self.state = DeviceState::Stopped;
-                self.motion.moves_mut().clear();
+                motion.with(|m, _| m.moves_mut().clear());
             }
             (Message::Abort, s) if s != DeviceState::Stopped => {
                 self.state = DeviceState::Aborted;
-                self.motion.moves_mut().clear();
+                motion.with(|m, _| m.moves_mut().clear());
             }
             (Message::JobStart(job), s)
                 if !matches!(s, DeviceState::Printing | DeviceState::Paused) =>
             {
-                self.start(job)
+                self.start(job, motion)
             }
             (Message::Pause, DeviceState::Printing) => self.state = DeviceState::Paused,
             (Message::Resume, DeviceState::Paused) => self.state = DeviceState::Printing,
             (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                return self.take_batch(batch, motion);
+                return self.take_batch(batch, motion, lend);
             }
             (Message::EndOfModel, DeviceState::Printing | DeviceState::Paused)
                 if !self.model_ended =>
             {
-                return self.end_model(motion);
+                return self.end_model(motion, lend);
             }
             (Message::Hello { .. }, _) => {}
             // A repeated pause/resume is harmless; everything else out of place fails.
@@ -469,28 +474,29 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Takes a batch's triangles from where it stopped. Layers are cut one at a time, each
     /// only once the toolpath stage has emitted the layer before into the move buffer; a
     /// batch that has to wait is offered again and resumes here.
-    fn take_batch(
+    fn take_batch<const Q: usize>(
         &mut self,
         batch: &crate::protocol::TriangleBatch<'_>,
-        mut motion: MotionHook<'_, '_, MOVE_BYTES, P>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
     ) -> Accept {
         for (i, t) in batch.iter().enumerate().skip(self.batch_pos as usize) {
             while self.pipeline.would_cut(t.z_min()) {
-                if !self.emit_moves() {
+                if !self.emit_moves(motion) {
                     if !self.is_active() {
                         break;
                     }
                     self.batch_pos = i as u32;
                     return Accept::Busy;
                 }
-                if !self.cut_one(motion.as_deref_mut()) {
+                if !self.cut_one(motion, lend) {
                     break;
                 }
             }
             if !self.is_active() {
                 break;
             }
-            self.push_triangle(&t, motion.as_deref_mut());
+            self.push_triangle(&t, motion, lend);
         }
         self.batch_pos = 0;
         Accept::Taken
@@ -498,20 +504,24 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
 
     /// Cuts and builds every layer left, then ends the model (or waits for room in the move
     /// buffer and is offered again).
-    fn end_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> Accept {
+    fn end_model<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
+    ) -> Accept {
         while self.is_active() {
-            if !self.emit_moves() {
+            if !self.emit_moves(motion) {
                 if !self.is_active() {
                     break;
                 }
                 return Accept::Busy;
             }
-            if !self.cut_one(motion.as_deref_mut()) && !self.flush_one(motion.as_deref_mut()) {
+            if !self.cut_one(motion, lend) && !self.flush_one(motion, lend) {
                 break;
             }
         }
         self.model_ended = true;
-        self.finish_model(motion);
+        self.finish_model(motion, lend);
         Accept::Taken
     }
 
@@ -520,18 +530,36 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         r.map_err(|f| self.fail(f)).ok()
     }
 
-    fn push_triangle(&mut self, t: &Triangle, motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
-        let allowed = self.motion_allowed();
-        let r = self.pipeline.push_triangle(t, self.motion.slot(allowed), motion);
+    /// The motion half as the pipeline sees it while it computes (see [`Lending`]).
+    fn computing<'a, const Q: usize, A: MotionAccess<MOVE_BYTES, P, Q>>(
+        &self,
+        motion: &'a mut A,
+        lend: bool,
+    ) -> Lending<'a, A, MOVE_BYTES, P, Q> {
+        Lending { motion, allowed: self.motion_allowed(), lend }
+    }
+
+    fn push_triangle<const Q: usize>(
+        &mut self,
+        t: &Triangle,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
+    ) {
+        let mut computing = self.computing(motion, lend);
+        let r = self.pipeline.push_triangle(t, &mut computing);
         self.record(r);
         self.triangles += 1;
     }
 
     /// Emits the toolpath stage's built layer into the move buffer as far as it has room
-    /// ([`Pipeline::emit_moves`]); true when no layer is left to emit (the stage may build
-    /// the next one).
-    fn emit_moves(&mut self) -> bool {
-        let r = self.pipeline.emit_moves(self.motion.moves_mut());
+    /// ([`Stages::emit_moves`], the motion half held meanwhile: one unit of moves at most);
+    /// true when no layer is left to emit (the stage may build the next one).
+    fn emit_moves<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> bool {
+        let pipeline = &mut self.pipeline;
+        let r = motion.with(|m, _| pipeline.emit_moves(m.moves_mut()));
         match self.record(r) {
             Some(Emit::Idle) => true,
             Some(Emit::Complete) => self.is_active(),
@@ -542,33 +570,45 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Cuts the slicer's next plane and hands its layer to the toolpath stage, then emits
     /// what the move buffer takes of the layer the stage built; false when no plane was
     /// left or on an error. Call only when [`emit_moves`](Self::emit_moves) is done.
-    fn cut_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let allowed = self.motion_allowed();
-        let r = self.pipeline.cut_one(self.motion.slot(allowed), motion);
+    fn cut_one<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
+    ) -> bool {
+        let mut computing = self.computing(motion, lend);
+        let r = self.pipeline.cut_one(&mut computing);
         let cut = self.record(r);
-        self.emit_moves();
+        self.emit_moves(motion);
         cut == Some(true) && self.is_active()
     }
 
     /// After the last plane: the toolpath stage builds its next waiting layer, and what the
     /// move buffer takes of it is emitted; false when none was left or on an error. Call
     /// only when [`emit_moves`](Self::emit_moves) is done.
-    fn flush_one(&mut self, motion: MotionHook<'_, '_, MOVE_BYTES, P>) -> bool {
-        let allowed = self.motion_allowed();
-        let r = self.pipeline.flush_one(self.motion.slot(allowed), motion);
+    fn flush_one<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
+    ) -> bool {
+        let mut computing = self.computing(motion, lend);
+        let r = self.pipeline.flush_one(&mut computing);
         let built = self.record(r);
-        self.emit_moves();
+        self.emit_moves(motion);
         built == Some(true) && self.is_active()
     }
 
     /// Ends the model: every plane is cut and every layer flushed and emitted (or the job
     /// failed).
-    fn finish_model(&mut self, mut motion: MotionHook<'_, '_, MOVE_BYTES, P>) {
-        let allowed = self.motion_allowed();
-        let r = self.pipeline.finish_slicing(self.motion.slot(allowed), motion.as_deref_mut());
+    fn finish_model<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
+    ) {
+        let mut computing = self.computing(motion, lend);
+        let r = self.pipeline.finish_slicing(&mut computing);
         if self.record(r).is_some() && self.is_active() {
-            let allowed = self.motion_allowed();
-            let r = self.pipeline.finish_toolpaths(self.motion.slot(allowed), motion);
+            let mut computing = self.computing(motion, lend);
+            let r = self.pipeline.finish_toolpaths(&mut computing);
             self.record(r);
         }
         self.toolpath_done = true;
@@ -580,20 +620,30 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.state == DeviceState::Printing && (self.heated || !self.heaters)
     }
 
+    /// Whether the motion half may release blocks, and whether the model's last moves are in
+    /// the move buffer: what a board's motion interrupt passes to [`Motion::feed`].
+    pub fn motion_gate(&self) -> (bool, bool) {
+        (self.is_active() && self.motion_allowed(), self.toolpath_done)
+    }
+
     /// Layer hashes completed since the last call.
     pub fn take_layer_done(&mut self) -> Option<(u32, u64)> {
         self.done.pop_front()
     }
 
     /// Bounded work: moves into the planner, the toolpath stage's next paths into the move
-    /// buffer, blocks into the generator, steps into `out`. Returns true when something
-    /// happened (a move planned or emitted, a block or a step generated, a layer closed).
-    pub fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
+    /// buffer, blocks into the generator, steps into the step queue. Returns true when
+    /// something happened (a move planned or emitted, a block or a step generated, a layer
+    /// closed).
+    pub fn poll<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> bool {
         if !self.is_active() {
             return false;
         }
-        let allowed = self.motion_allowed();
-        let mut worked = match self.motion.feed(allowed, self.toolpath_done, out) {
+        let (allowed, toolpath_done) = (self.motion_allowed(), self.toolpath_done);
+        let mut worked = match motion.with(|m, out| m.feed(allowed, toolpath_done, out)) {
             Ok(w) => w,
             Err(layer) => {
                 self.fail(Failure::Plan { layer });
@@ -602,18 +652,26 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         };
         // The toolpath stage's next paths, as far as the room the planner made allows.
         if self.pipeline.emitting() {
-            let before = self.motion.moves().used_bytes();
-            worked |= self.emit_moves() || self.motion.moves().used_bytes() != before;
+            let before = motion.with(|m, _| m.moves().used_bytes());
+            worked |=
+                self.emit_moves(motion) || motion.with(|m, _| m.moves().used_bytes()) != before;
             if !self.is_active() {
                 return true;
             }
         }
-        worked |= self.take_layer_marks();
-        let input_done = self.toolpath_done && self.motion.moves().is_empty();
-        let motion_idle = self.motion.planner().is_empty() && self.motion.generator().is_idle();
-        if input_done && motion_idle && !self.done.is_full() {
-            if let Some(layer) = self.motion.generator().tag() {
-                let _ = self.done.push_back((layer, out.take_hash()));
+        worked |= self.take_layer_marks(motion);
+        if self.done.is_full() {
+            return worked;
+        }
+        let done = self.toolpath_done;
+        let end = motion.with(|m, out| {
+            let idle =
+                done && m.moves().is_empty() && m.planner().is_empty() && m.generator().is_idle();
+            idle.then(|| m.generator().tag().map(|layer| (layer, out.take_hash())))
+        });
+        if let Some(last) = end {
+            if let Some((layer, hash)) = last {
+                let _ = self.done.push_back((layer, hash));
                 self.layers_planned = layer + 1;
             }
             self.state = DeviceState::Done;
@@ -625,10 +683,15 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Completed layers' hashes into the reports; while the reports are full the generator
     /// holds at the next layer (its marks fill up), so no hash is ever dropped. True when one
     /// was taken.
-    fn take_layer_marks(&mut self) -> bool {
+    fn take_layer_marks<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> bool {
         let mut took = false;
         while !self.done.is_full() {
-            let Some((layer, hash)) = self.motion.generator_mut().take_mark() else { break };
+            let Some((layer, hash)) = motion.with(|m, _| m.generator_mut().take_mark()) else {
+                break;
+            };
             let _ = self.done.push_back((layer, hash));
             self.layers_planned = layer + 1;
             took = true;
@@ -638,28 +701,38 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
 
     /// What the job did so far (complete once it is done): steps per axis, final motor
     /// positions and the planned motion's duration, from the step generator.
-    pub fn job_report(&self) -> JobReport {
-        let gen = self.motion.generator();
-        JobReport {
-            steps: gen.stats().steps,
-            positions: gen.motor_steps(),
-            print_ticks: gen.time_q16() >> 16,
-        }
+    pub fn job_report<const Q: usize>(
+        &self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> JobReport {
+        motion.with(|m, _| {
+            let gen = m.generator();
+            JobReport {
+                steps: gen.stats().steps,
+                positions: gen.motor_steps(),
+                print_ticks: gen.time_q16() >> 16,
+            }
+        })
     }
 
     /// The status report; `done_ms` is the print time executed so far (the executor's).
-    pub fn status(&self, done_ms: u32) -> Status {
+    pub fn status<const Q: usize>(
+        &self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        done_ms: u32,
+    ) -> Status {
         let (error, detail) = self.error();
-        let moves = self.motion.moves();
+        let (released_q16, used, capacity) = motion.with(|m, _| {
+            (m.planner().released_ticks_q16(), m.moves().used_bytes(), m.moves().capacity())
+        });
         Status {
             state: self.state,
             layer: self.layers_planned,
             layers: self.layers,
-            planned_ms: ((self.motion.planner().released_ticks_q16() >> 16) * 1000
-                / self.plan_cfg.timer_hz.max(1) as u64) as u32,
+            planned_ms: ((released_q16 >> 16) * 1000 / self.plan_cfg.timer_hz.max(1) as u64) as u32,
             done_ms,
             triangles: self.triangles,
-            queue_fill_pct: (moves.used_bytes() * 100 / moves.capacity().max(1)) as u8,
+            queue_fill_pct: (used * 100 / capacity.max(1)) as u8,
             error,
             detail,
             hotend_c_x10: self.temps_c_x10.0,
@@ -671,28 +744,31 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Pumps the link: decodes delivered messages (a message that does not decode is
     /// reported and dropped, never executed), answers `Hello`, sends layer hashes, the
     /// failure in words once a job failed, and a status every `status_every_ms` and at once
-    /// on a state change. A dead link fails the job.
-    pub fn service<const TX: usize, const RX: usize>(
+    /// on a state change. A dead link fails the job. `lend`: the motion half generates steps
+    /// at the progress points of the layers the messages make the toolpath stage compute (a
+    /// board whose interrupt generates them does not need it).
+    pub fn service<const TX: usize, const RX: usize, const Q: usize>(
         &mut self,
         ep: &mut Endpoint<TX, RX>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
         now_ms: u32,
         done_ms: u32,
         status_every_ms: u32,
-        motion: &mut dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>),
+        lend: bool,
     ) {
         if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
             self.link_lost(silent_ms);
         }
-        self.check_heat_wait(now_ms);
+        self.check_heat_wait(now_ms, motion);
         let before = self.state;
-        self.take_messages(ep, motion);
+        self.take_messages(ep, motion, lend);
         while ep.tx_free() > 1 {
             let Some((layer, hash)) = self.take_layer_done() else { break };
             send(ep, &Message::LayerDone { layer, hash });
         }
         let finished = self.state == DeviceState::Done;
         if finished && !self.report_sent && self.done.is_empty() && ep.tx_free() > 1 {
-            self.report_sent = send(ep, &Message::JobReport(self.job_report()));
+            self.report_sent = send(ep, &Message::JobReport(self.job_report(motion)));
         }
         self.send_failure(ep);
         let due = now_ms.wrapping_sub(self.status_due_ms) < 1 << 31;
@@ -701,20 +777,21 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let failure_out = self.failure.get().is_none() || self.failure_sent;
         let reported = self.done.is_empty() && (!finished || self.report_sent) && failure_out;
         let status_out = (due || self.state != before) && ep.tx_free() > 0 && reported;
-        if status_out && send(ep, &Message::Status(self.status(done_ms))) {
+        if status_out && send(ep, &Message::Status(self.status(motion, done_ms))) {
             self.status_due_ms = now_ms.wrapping_add(status_every_ms);
         }
     }
 
     /// Decodes and handles the delivered messages while the link has room for answers.
-    fn take_messages<const TX: usize, const RX: usize>(
+    fn take_messages<const TX: usize, const RX: usize, const Q: usize>(
         &mut self,
         ep: &mut Endpoint<TX, RX>,
-        motion: &mut dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>),
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
     ) {
         while ep.tx_free() > 1 {
             let Some(p) = ep.peek() else { break };
-            if self.waiting_for_room && self.is_active() && !self.emit_moves() {
+            if self.waiting_for_room && self.is_active() && !self.emit_moves(motion) {
                 break;
             }
             self.waiting_for_room = false;
@@ -725,7 +802,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                     send(ep, &m);
                 }
                 Ok(m) => {
-                    if self.handle_with(&m, Some(&mut *motion)) == Accept::Busy {
+                    if self.handle_with(&m, motion, lend) == Accept::Busy {
                         self.waiting_for_room = true;
                         break;
                     }
@@ -751,6 +828,37 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let mut text = TextBuf::new();
         let _ = core::fmt::write(&mut text, format_args!("{failure}"));
         self.failure_sent = send(ep, &Message::Failure(text.as_str()));
+    }
+}
+
+/// The motion half as the pipeline sees it while it computes a layer: each move goes into the
+/// move buffer under the motion half's lock, and with `lend` each progress point feeds the
+/// motion half (blocks only when `allowed`; inside a computation the toolpath stage is not
+/// done). A planning error is left in place for the next [`Printer::poll`] to report.
+struct Lending<'a, A, const MOVE_BYTES: usize, const P: usize, const Q: usize> {
+    motion: &'a mut A,
+    allowed: bool,
+    lend: bool,
+}
+
+impl<
+        A: MotionAccess<MOVE_BYTES, P, Q>,
+        const MOVE_BYTES: usize,
+        const P: usize,
+        const Q: usize,
+    > Computing for Lending<'_, A, MOVE_BYTES, P, Q>
+{
+    fn push_move(&mut self, mv: &PackedMove) -> Result<(), RingFull> {
+        self.motion.with(|m, _| m.moves_mut().push(mv))
+    }
+
+    fn progress(&mut self) {
+        if self.lend {
+            let allowed = self.allowed;
+            self.motion.with(|m, out| {
+                let _ = m.feed(allowed, false, out);
+            });
+        }
     }
 }
 

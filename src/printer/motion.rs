@@ -73,11 +73,6 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         &mut self.gen
     }
 
-    /// Lends the motion half, blocks going to the generator only when `allowed`.
-    pub fn slot(&mut self, allowed: bool) -> MotionSlot<'_, MOVE_BYTES, P> {
-        MotionSlot { motion: self, allowed }
-    }
-
     /// Moves into the planner, blocks into the generator (when `allowed`), steps into `out`;
     /// true when something happened. `toolpath_done`: the model's last moves are in the
     /// buffer, so the planner may release its blocks without being full. `Err(layer)`: the
@@ -125,34 +120,42 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
     }
 }
 
-/// The motion half, lent by [`Printer::service`](super::Printer::service) to its caller at the
-/// progress points of a long layer computation.
+/// The job runner's way to the motion half and the step queue's producer.
 ///
-/// Those are the toolpath stage's [`ToolEvent::Progress`](crate::toolpath::ToolEvent::Progress).
-///
-/// The firmware generates steps there ([`MotionSlot::run`]), so the step queue keeps being refilled
-/// while a layer's toolpaths are computed in the same thread.
-///
-/// The commands stay those of [`Printer::poll`](super::Printer::poll): moves go to the
-/// planner in the same order, blocks leave it only when it is full (the model is not done
-/// while a layer is computed), and the step generator's commands depend only on the blocks.
-pub struct MotionSlot<'a, const MOVE_BYTES: usize, const P: usize> {
-    motion: &'a mut Motion<MOVE_BYTES, P>,
-    /// Blocks may go to the generator (printing and heated).
-    allowed: bool,
+/// On the host (and in tests) the runner's caller owns both ([`MotionHalf`]): direct access.
+/// On a board whose interrupt runs the planner and the step generator, the motion half lives
+/// in a `static` that the interrupt and thread mode share: each access is a short critical
+/// section that holds that interrupt off (the step interrupt keeps running).
+pub trait MotionAccess<const MOVE_BYTES: usize, const P: usize, const Q: usize> {
+    /// Runs `f` on the motion half and the step queue's producer.
+    fn with<R>(
+        &mut self,
+        f: impl FnOnce(&mut Motion<MOVE_BYTES, P>, &mut StepProducer<'_, Q>) -> R,
+    ) -> R;
 }
 
-impl<const MOVE_BYTES: usize, const P: usize> MotionSlot<'_, MOVE_BYTES, P> {
-    /// Moves into the planner, blocks into the generator, steps into `out`, as
-    /// [`Printer::poll`](super::Printer::poll) does; true when something happened. A planning
-    /// error is left in place for the next `poll` to report.
-    pub fn run<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
-        // Inside a layer's computation the toolpath stage is not done.
-        self.motion.feed(self.allowed, false, out).unwrap_or(true)
-    }
+/// The motion half and the step queue's producer, owned together.
+pub struct MotionHalf<'q, const MOVE_BYTES: usize, const P: usize, const Q: usize> {
+    /// The motion half.
+    pub motion: Motion<MOVE_BYTES, P>,
+    /// Where the step generator's commands go.
+    pub out: StepProducer<'q, Q>,
+}
 
-    /// The move buffer, for the toolpath stage's moves.
-    pub(super) fn moves_mut(&mut self) -> &mut MoveRing<MOVE_BYTES> {
-        &mut self.motion.moves
+impl<'q, const MOVE_BYTES: usize, const P: usize, const Q: usize> MotionHalf<'q, MOVE_BYTES, P, Q> {
+    /// An empty motion half generating into `out`.
+    pub fn new(out: StepProducer<'q, Q>) -> Self {
+        Self { motion: Motion::EMPTY, out }
+    }
+}
+
+impl<const MOVE_BYTES: usize, const P: usize, const Q: usize> MotionAccess<MOVE_BYTES, P, Q>
+    for MotionHalf<'_, MOVE_BYTES, P, Q>
+{
+    fn with<R>(
+        &mut self,
+        f: impl FnOnce(&mut Motion<MOVE_BYTES, P>, &mut StepProducer<'_, Q>) -> R,
+    ) -> R {
+        f(&mut self.motion, &mut self.out)
     }
 }

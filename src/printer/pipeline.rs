@@ -3,7 +3,7 @@
 
 use crate::geom::{Point2, Triangle};
 use crate::machine::MachineConfig;
-use crate::move_ring::{MoveRing, MoveStream, RoomMemory};
+use crate::move_ring::{MoveRing, MoveStream, PackedMove, RingFull, RoomMemory};
 use crate::protocol::{Capacities, JobSpec};
 use crate::scratch::Scratch;
 use crate::slice::{SliceConfig, SliceError, SlicedLayer, Slicer};
@@ -11,11 +11,16 @@ use crate::toolpath::{Emitted, ToolEvent, Toolpath, ToolpathError};
 
 use super::board::job_toolpath_config;
 use super::failure::{Failure, Refusal};
-use super::motion::MotionSlot;
-
-/// What a caller does with a lent [`MotionSlot`] at a progress point (`None`: nothing).
-pub type MotionHook<'h, 'f, const MOVE_BYTES: usize, const P: usize> =
-    Option<&'h mut (dyn FnMut(&mut MotionSlot<'_, MOVE_BYTES, P>) + 'f)>;
+/// What the pipeline does with the motion half while it computes a layer.
+///
+/// The moves its events carry go into the move buffer, and at each progress point
+/// ([`ToolEvent::Progress`]) the job runner may lend the motion half its time.
+pub trait Computing {
+    /// Pushes a move into the move buffer; `Err` when it is full.
+    fn push_move(&mut self, mv: &PackedMove) -> Result<(), RingFull>;
+    /// A progress point of a long computation.
+    fn progress(&mut self);
+}
 
 /// Where [`Stages::emit_moves`] left the built layer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -57,39 +62,18 @@ pub trait Stages {
     /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
     fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure>;
     /// The triangle into the slicer; the layers it completes through the toolpath stage.
-    fn push_triangle<const M: usize, const P: usize>(
-        &mut self,
-        t: &Triangle,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<(), Failure>;
+    fn push_triangle(&mut self, t: &Triangle, motion: &mut impl Computing) -> Result<(), Failure>;
     /// Cuts the slicer's next plane, its layer through the toolpath stage; whether a plane
     /// was left.
-    fn cut_one<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<bool, Failure>;
+    fn cut_one(&mut self, motion: &mut impl Computing) -> Result<bool, Failure>;
     /// After the last plane: the toolpath stage builds its next waiting layer; whether one was
     /// left.
-    fn flush_one<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<bool, Failure>;
+    fn flush_one(&mut self, motion: &mut impl Computing) -> Result<bool, Failure>;
     /// After the last triangle: every plane left is cut, each layer through the toolpath
     /// stage.
-    fn finish_slicing<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<(), Failure>;
+    fn finish_slicing(&mut self, motion: &mut impl Computing) -> Result<(), Failure>;
     /// After the last plane: the toolpath stage builds every layer it still holds.
-    fn finish_toolpaths<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<(), Failure>;
+    fn finish_toolpaths(&mut self, motion: &mut impl Computing) -> Result<(), Failure>;
     /// Emits the built layer into `moves` as far as it has room.
     fn emit_moves<const M: usize>(&mut self, moves: &mut MoveRing<M>) -> Result<Emit, Failure>;
 }
@@ -205,56 +189,33 @@ impl<
 
     /// The triangle into the slicer; the layers it completes through the toolpath stage.
     #[inline(never)]
-    fn push_triangle<const M: usize, const P: usize>(
-        &mut self,
-        t: &Triangle,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<(), Failure> {
-        self.through_slicer(slot, hook, |slicer, work, sink| slicer.push(t, work, &mut |l| sink(l)))
+    fn push_triangle(&mut self, t: &Triangle, motion: &mut impl Computing) -> Result<(), Failure> {
+        self.through_slicer(motion, |slicer, work, sink| slicer.push(t, work, &mut |l| sink(l)))
     }
 
     /// Cuts the slicer's next plane, its layer through the toolpath stage; whether a plane was
     /// left.
-    fn cut_one<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<bool, Failure> {
-        self.through_slicer(slot, hook, |slicer, work, sink| slicer.cut_one(work, &mut |l| sink(l)))
+    fn cut_one(&mut self, motion: &mut impl Computing) -> Result<bool, Failure> {
+        self.through_slicer(motion, |slicer, work, sink| slicer.cut_one(work, &mut |l| sink(l)))
     }
 
     /// After the last plane: the toolpath stage builds its next waiting layer; whether one was
     /// left.
-    fn flush_one<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<bool, Failure> {
-        self.through_toolpath(slot, hook, |tp, work, events| {
-            tp.build_next(work, &mut |e| events(e))
-        })
+    fn flush_one(&mut self, motion: &mut impl Computing) -> Result<bool, Failure> {
+        self.through_toolpath(motion, |tp, work, events| tp.build_next(work, &mut |e| events(e)))
     }
 
     /// After the last triangle: every plane left is cut, each layer through the toolpath
     /// stage.
     #[inline(never)]
-    fn finish_slicing<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<(), Failure> {
-        self.through_slicer(slot, hook, |slicer, work, sink| slicer.finish(work, &mut |l| sink(l)))
+    fn finish_slicing(&mut self, motion: &mut impl Computing) -> Result<(), Failure> {
+        self.through_slicer(motion, |slicer, work, sink| slicer.finish(work, &mut |l| sink(l)))
             .map(|_| ())
     }
 
     /// After the last plane: the toolpath stage builds every layer it still holds.
-    fn finish_toolpaths<const M: usize, const P: usize>(
-        &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
-    ) -> Result<(), Failure> {
-        self.through_toolpath(slot, hook, |tp, work, events| tp.finish(work, &mut |e| events(e)))
+    fn finish_toolpaths(&mut self, motion: &mut impl Computing) -> Result<(), Failure> {
+        self.through_toolpath(motion, |tp, work, events| tp.finish(work, &mut |e| events(e)))
             .map(|_| ())
     }
 
@@ -297,13 +258,12 @@ impl<
     > Pipeline<A, S, L, PTS, LOOPS, CROSS, PATH, RING, SPANS>
 {
     /// Runs `step` on the slicer with a sink that hands each layer to the toolpath stage,
-    /// which builds the layer it completes (lending `hook` the motion half at its progress
+    /// which builds the layer it completes (telling `motion` at its progress
     /// points; its moves wait for [`emit_moves`](Self::emit_moves)); the first failure of the
     /// slicer, the toolpath stage or the move buffer, in that order.
-    fn through_slicer<R, const M: usize, const P: usize>(
+    fn through_slicer<R>(
         &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
+        motion: &mut impl Computing,
         step: impl FnOnce(
             &mut Slicer<A, S, L>,
             &mut Scratch<S, PTS, CROSS>,
@@ -311,7 +271,7 @@ impl<
         ) -> Result<R, SliceError>,
     ) -> Result<R, Failure> {
         let Self { slicer, tp, scratch, stream, .. } = self;
-        let mut events = EventSink { slot, stream, hook, failed: None };
+        let mut events = EventSink { motion, stream, failed: None };
         let mut tp_err = None;
         let r = {
             let mut sink = |l: SlicedLayer<'_, S, Scratch<S, PTS, CROSS>>| {
@@ -331,10 +291,9 @@ impl<
 
     /// The toolpath stage's step `step` (after the last plane); the first failure of the stage
     /// or the move buffer.
-    fn through_toolpath<R, const M: usize, const P: usize>(
+    fn through_toolpath<R>(
         &mut self,
-        slot: MotionSlot<'_, M, P>,
-        hook: MotionHook<'_, '_, M, P>,
+        motion: &mut impl Computing,
         step: impl FnOnce(
             &mut Toolpath<PTS, LOOPS, CROSS, PATH, RING, SPANS>,
             &mut Scratch<S, PTS, CROSS>,
@@ -342,7 +301,7 @@ impl<
         ) -> Result<R, ToolpathError>,
     ) -> Result<R, Failure> {
         let Self { tp, scratch, stream, .. } = self;
-        let mut events = EventSink { slot, stream, hook, failed: None };
+        let mut events = EventSink { motion, stream, failed: None };
         let r = step(tp, scratch, &mut |e: &ToolEvent<'_>| events.event(e));
         match (r, events.failed) {
             (Err(error), _) => Err(Failure::Toolpath(error)),
@@ -353,27 +312,22 @@ impl<
 }
 
 /// Where the toolpath stage's events go: planner moves (absolute E, [`MoveStream`]) into the
-/// move buffer (the first layer whose moves do not fit is kept in `failed`), and at a progress
-/// point the motion half lent to `hook` (nothing when there is none).
-struct EventSink<'a, 'h, 'f, const MOVE_BYTES: usize, const P: usize> {
-    slot: MotionSlot<'a, MOVE_BYTES, P>,
+/// move buffer (the first layer whose moves do not fit is kept in `failed`), and progress
+/// points to the job runner.
+struct EventSink<'a, C: ?Sized> {
+    motion: &'a mut C,
     stream: &'a mut MoveStream,
-    hook: MotionHook<'h, 'f, MOVE_BYTES, P>,
     failed: Option<u32>,
 }
 
-impl<const MOVE_BYTES: usize, const P: usize> EventSink<'_, '_, '_, MOVE_BYTES, P> {
+impl<C: Computing + ?Sized> EventSink<'_, C> {
     fn event(&mut self, e: &ToolEvent<'_>) {
         let stream = &mut *self.stream;
         match e {
-            ToolEvent::Progress => {
-                if let Some(lend) = self.hook.as_deref_mut() {
-                    lend(&mut self.slot);
-                }
-            }
+            ToolEvent::Progress => self.motion.progress(),
             ToolEvent::LayerStart { index, .. } => stream.start_layer(*index),
             ToolEvent::Move(m) => {
-                if self.slot.moves_mut().push(&stream.next(m)).is_err() {
+                if self.motion.push_move(&stream.next(m)).is_err() {
                     self.failed.get_or_insert(stream.layer());
                 }
             }

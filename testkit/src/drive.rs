@@ -20,7 +20,7 @@
 use strata::geom::Triangle;
 use strata::machine::{PrintSettings, AXES};
 pub use strata::printer::Printer;
-use strata::printer::{Accept, Stages};
+use strata::printer::{Accept, MotionHalf, Stages};
 use strata::protocol::{
     BatchBuilder, DeviceState, Endpoint, JobOptions, JobSpec, Message, MAX_PAYLOAD, MAX_WIRE,
 };
@@ -29,12 +29,17 @@ use strata::step::{
     is_before, Executor, StepCmd, StepConfig, StepConsumer, StepProducer, StepQueue, Wake,
 };
 
-/// What the drive loop needs of a printer, whatever its capacities.
-pub trait Device {
+/// What the drive loop needs of a printer whose motion half is `Motion<M, P>`, whatever its
+/// other capacities.
+pub trait Device<const M: usize, const P: usize> {
     /// [`Printer::handle`].
-    fn handle(&mut self, msg: &Message<'_>) -> Accept;
+    fn handle<const Q: usize>(
+        &mut self,
+        msg: &Message<'_>,
+        motion: &mut MotionHalf<'_, M, P, Q>,
+    ) -> Accept;
     /// [`Printer::poll`].
-    fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool;
+    fn poll<const Q: usize>(&mut self, motion: &mut MotionHalf<'_, M, P, Q>) -> bool;
     /// [`Printer::take_layer_done`].
     fn take_layer_done(&mut self) -> Option<(u32, u64)>;
     /// [`Printer::state`].
@@ -44,12 +49,16 @@ pub trait Device {
 }
 
 // Inherent methods come first in method resolution: each call below is the printer's own.
-impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Device for Printer<Pl, MOVE_BYTES, P> {
-    fn handle(&mut self, msg: &Message<'_>) -> Accept {
-        self.handle(msg)
+impl<Pl: Stages, const M: usize, const P: usize> Device<M, P> for Printer<Pl, M, P> {
+    fn handle<const Q: usize>(
+        &mut self,
+        msg: &Message<'_>,
+        motion: &mut MotionHalf<'_, M, P, Q>,
+    ) -> Accept {
+        self.handle(msg, motion)
     }
-    fn poll<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
-        self.poll(out)
+    fn poll<const Q: usize>(&mut self, motion: &mut MotionHalf<'_, M, P, Q>) -> bool {
+        self.poll(motion)
     }
     fn take_layer_done(&mut self) -> Option<(u32, u64)> {
         self.take_layer_done()
@@ -193,9 +202,15 @@ pub fn job_payloads(spec: JobSpec, tris: &[Triangle]) -> Vec<Vec<u8>> {
     out
 }
 
-/// Starts the job `spec` on `p`, asserting the printer takes it at once.
-pub fn start<P: Device>(p: &mut P, spec: JobSpec) {
-    assert_eq!(p.handle(&Message::JobStart(spec)), Accept::Taken, "the job start was refused");
+/// Starts the job `spec` on `p` (its motion half in `rig`), asserting the printer takes it at
+/// once.
+pub fn start<D: Device<M, P>, const M: usize, const P: usize, const N: usize>(
+    p: &mut D,
+    rig: &mut Rig<'_, M, P, N>,
+    spec: JobSpec,
+) {
+    let taken = p.handle(&Message::JobStart(spec), &mut rig.motion);
+    assert_eq!(taken, Accept::Taken, "the job start was refused");
 }
 
 /// Moves every frame `from` has due at `now` (ms) into `to`.
@@ -247,9 +262,11 @@ enum Sink<'q, const N: usize> {
 /// A turn's drain limit: commands per axis, from the turn and the axis.
 type Limit<'q> = Box<dyn FnMut(u64, usize) -> usize + 'q>;
 
-/// The step queue's two ends and what the loop has collected: see the [module](self).
-pub struct Rig<'q, const N: usize> {
-    prod: StepProducer<'q, N>,
+/// The printer's motion half, the step queue's two ends and what the loop has collected: see
+/// the [module](self).
+pub struct Rig<'q, const M: usize, const P: usize, const N: usize> {
+    /// The printer's motion half (move buffer, planner, generator) and the queue's producer.
+    pub motion: MotionHalf<'q, M, P, N>,
     sink: Sink<'q, N>,
     limit: Option<Limit<'q>>,
     /// Layer hashes taken from the printer, in order.
@@ -267,10 +284,11 @@ pub struct Rig<'q, const N: usize> {
 /// Board tick at which a [`Rig::executing`] board starts.
 pub const START_TICK: u64 = 1_000;
 
-impl<'q, const N: usize> Rig<'q, N> {
+impl<'q, const M: usize, const P: usize, const N: usize> Rig<'q, M, P, N> {
     fn new(prod: StepProducer<'q, N>, sink: Sink<'q, N>) -> Self {
         let (hashes, steps, commands) = (Vec::new(), [0; AXES], vec![Vec::new(); AXES]);
-        Self { prod, sink, limit: None, hashes, steps, commands, busy: 0, turns: 0 }
+        let motion = MotionHalf::new(prod);
+        Self { motion, sink, limit: None, hashes, steps, commands, busy: 0, turns: 0 }
     }
 
     /// Commands are dequeued at once and their steps counted.
@@ -299,11 +317,6 @@ impl<'q, const N: usize> Rig<'q, N> {
     pub fn limit_drain(mut self, limit: impl FnMut(u64, usize) -> usize + 'q) -> Self {
         self.limit = Some(Box::new(limit));
         self
-    }
-
-    /// The end the printer queues into.
-    pub fn producer(&mut self) -> &mut StepProducer<'q, N> {
-        &mut self.prod
     }
 
     /// The simulated board ([`Rig::executing`] only): violations, positions, step hash.
@@ -361,15 +374,15 @@ impl<'q, const N: usize> Rig<'q, N> {
     }
 
     /// Takes the printer's finished layers' hashes into [`Rig::hashes`].
-    pub fn take_hashes<P: Device>(&mut self, p: &mut P) {
+    pub fn take_hashes<D: Device<M, P>>(&mut self, p: &mut D) {
         while let Some(h) = p.take_layer_done() {
             self.hashes.push(h);
         }
     }
 
     /// One turn: a `poll`, the queue drained, the hashes taken.
-    pub fn turn<P: Device>(&mut self, p: &mut P) {
-        p.poll(&mut self.prod);
+    pub fn turn<D: Device<M, P>>(&mut self, p: &mut D) {
+        p.poll(&mut self.motion);
         self.drain();
         self.take_hashes(p);
         self.turns += 1;
@@ -380,18 +393,18 @@ impl<'q, const N: usize> Rig<'q, N> {
     /// `between(printer, turn)`; runs a [`turn`](Self::turn). Stops once every payload is
     /// taken and the printer is no longer active, or once its job ended (done, failed,
     /// aborted, stopped), or after `max_turns`.
-    pub fn drive<P: Device>(
+    pub fn drive<D: Device<M, P>>(
         &mut self,
-        p: &mut P,
+        p: &mut D,
         payloads: &[Vec<u8>],
         max_turns: u64,
-        mut between: impl FnMut(&mut P, u32),
+        mut between: impl FnMut(&mut D, &mut MotionHalf<'q, M, P, N>, u32),
     ) {
         let mut next = 0;
         for turn in 0..max_turns {
             while next < payloads.len() && (next == 0 || p.is_active()) {
                 let msg = Message::decode(&payloads[next]).expect("the payload decodes");
-                match p.handle(&msg) {
+                match p.handle(&msg, &mut self.motion) {
                     Accept::Taken => next += 1,
                     Accept::Busy => {
                         self.busy += 1;
@@ -399,7 +412,7 @@ impl<'q, const N: usize> Rig<'q, N> {
                     }
                 }
             }
-            between(p, turn as u32);
+            between(p, &mut self.motion, turn as u32);
             self.turn(p);
             if !p.is_active() && (next == payloads.len() || p.state() != DeviceState::Idle) {
                 return;
@@ -444,7 +457,7 @@ mod tests {
                     }
                     _ => Rig::executing(&mut q, p.step_config()),
                 };
-                rig.drive(&mut *p, &payloads, 10_000_000, |_, _| {});
+                rig.drive(&mut *p, &payloads, 10_000_000, |_, _, _| {});
                 rig.drain_all();
                 assert_eq!(p.state(), DeviceState::Done);
                 if let Some(board) = rig.board() {
