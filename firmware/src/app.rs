@@ -4,6 +4,7 @@
 
 use strata::machine::{MachineConfig, AXES};
 use strata::protocol::{DeviceState, Message, MAX_WIRE};
+use strata::step::StepConfig;
 
 use crate::board::{self, Board};
 use crate::capacities::{FwEndpoint, FwPrinter, POLLS_PER_LOOP, STATUS_EVERY_MS};
@@ -50,149 +51,233 @@ fn transmit(board: &mut Board, ep: &mut FwEndpoint, now: u32) {
     }
 }
 
+/// The main loop's state: the board, the printer and its motion half, the link, the heaters.
+struct MainLoop {
+    board: Board,
+    printer: &'static mut FwPrinter,
+    motion: FwMotion,
+    ep: &'static mut FwEndpoint,
+    heat: heat::Heat,
+    cfg: StepConfig,
+    /// The printer's state after the last turn.
+    state: DeviceState,
+    /// A job's opening lines were printed and its closing ones not yet.
+    job_open: bool,
+    #[cfg(feature = "qemu")]
+    cost: crate::cost::Cost,
+    /// When the last heartbeat was printed, ms.
+    #[cfg(feature = "qemu")]
+    hb_ms: u32,
+}
+
 /// Runs the printer forever.
 pub fn run(
-    mut board: Board,
+    board: Board,
     printer: &'static mut FwPrinter,
     half: &'static mut FwMotionHalf,
     ep: &'static mut FwEndpoint,
 ) -> ! {
-    let cfg = board::executor_config(printer.step_config());
-    let mut motion = FwMotion::new(half, &cfg);
-    log!(
-        "strata firmware: printer {} B, endpoint {} B, step queue {} cmds/axis",
-        core::mem::size_of::<FwPrinter>() as u32,
-        core::mem::size_of::<FwEndpoint>() as u32,
-        crate::capacities::STEP_QUEUE as u32
-    );
-    let (used, size) = stack::high_water();
-    log!("BOOT stack_used={} stack_size={}", used, size);
-    let mut heat = heat::Heat::new(board.now_ms());
-    let mut state = printer.state();
-    let mut job_open = false;
-    #[cfg(feature = "qemu")]
-    let mut cost = crate::cost::Cost::new();
-    #[cfg(feature = "qemu")]
-    let mut hb_ms = 0u32;
+    let mut main = MainLoop::new(board, printer, half, ep);
     loop {
-        let now = board.now_ms();
-        #[cfg(feature = "qemu")]
-        if now.wrapping_sub(hb_ms) >= 1000 && job_open {
-            hb_ms = now;
-            board::heartbeat(motion.producer());
-            let status = printer.status(&mut motion, 0);
-            log!(
-                "HB state={} layer={} triangles={}",
-                printer.state() as u32,
-                status.layer,
-                status.triangles
-            );
-        }
-        receive(&mut board, ep, now);
-        let done_ms = board::print_done_ms();
-        #[cfg(feature = "qemu")]
-        let t0 = cost.begin(ep.peek().is_some(), printer, &mut motion.generation);
-        // Inside a layer's computation the printer lends its motion half: steps keep being
-        // generated while the toolpaths of a large layer take half a second.
-        printer.service(ep, &mut motion, now, done_ms, STATUS_EVERY_MS, true);
-        #[cfg(feature = "qemu")]
-        cost.end_service(t0, printer, &mut motion);
-        // Heaters (10 Hz): a fault turns everything off in the controller at once; here the
-        // motion stops as for an emergency stop and the job fails.
-        if let Some(fault) = heat.service(&mut board, printer, &mut motion, now) {
-            motion.reset_queue(&cfg);
-            printer.thermal_fault(fault.code(), &mut motion);
-        }
+        main.turn();
+    }
+}
 
-        let new = printer.state();
-        if new != state {
-            let was_active = matches!(state, DeviceState::Printing | DeviceState::Paused);
-            match new {
-                DeviceState::Printing if !was_active => {
-                    // A new job: clean queue, home X/Y/Z before the first step.
-                    motion.reset_queue(&cfg);
-                    board::with_motion(|m| m.start_homing(&MACHINE));
-                    board::job_started();
-                    heat.job_started(now);
-                    #[cfg(feature = "qemu")]
-                    cost.job_started();
-                    job_open = true;
-                    log!("JOB start layers={}", printer.layer_count());
-                }
-                DeviceState::Stopped | DeviceState::Aborted | DeviceState::Failed => {
-                    // Emergency stop (and abort, failure): no further step, queue cleared,
-                    // drivers off at once.
-                    motion.reset_queue(&cfg);
-                    if !was_active && !job_open {
-                        // A job refused or failed within the call that started it: it still
-                        // gets its closing lines.
-                        board::job_started();
-                        #[cfg(feature = "qemu")]
-                        cost.job_started();
-                        job_open = true;
-                    }
-                }
-                _ => {}
-            }
-            state = new;
+impl MainLoop {
+    /// The loop's state at boot (the step queue set up, the boot lines printed). Not inlined:
+    /// its temporaries (a fresh step queue's halves) stay out of `run`'s frame.
+    #[inline(never)]
+    fn new(
+        mut board: Board,
+        printer: &'static mut FwPrinter,
+        half: &'static mut FwMotionHalf,
+        ep: &'static mut FwEndpoint,
+    ) -> Self {
+        let cfg = board::executor_config(printer.step_config());
+        let motion = FwMotion::new(half, &cfg);
+        log!(
+            "strata firmware: printer {} B, endpoint {} B, step queue {} cmds/axis",
+            core::mem::size_of::<FwPrinter>() as u32,
+            core::mem::size_of::<FwEndpoint>() as u32,
+            crate::capacities::STEP_QUEUE as u32
+        );
+        let (used, size) = stack::high_water();
+        log!("BOOT stack_used={} stack_size={}", used, size);
+        let heat = heat::Heat::new(board.now_ms());
+        let state = printer.state();
+        MainLoop {
+            board,
+            printer,
+            motion,
+            ep,
+            heat,
+            cfg,
+            state,
+            job_open: false,
+            #[cfg(feature = "qemu")]
+            cost: crate::cost::Cost::new(),
+            #[cfg(feature = "qemu")]
+            hb_ms: 0,
         }
+    }
 
-        if printer.is_active() && !board::with_motion(|m| m.homing()) {
-            for _ in 0..POLLS_PER_LOOP {
-                #[cfg(feature = "qemu")]
-                let t = cost.begin_poll();
-                let worked = printer.poll(&mut motion);
-                #[cfg(feature = "qemu")]
-                cost.end_poll(t, worked, printer, &mut motion);
-                if !worked {
-                    break;
-                }
-            }
-            board::kick();
-            let motor = motion.half().generator().motor_steps();
-            if let Some((axis, pos)) = soft_limit(&MACHINE, motor) {
-                log!("SOFT LIMIT axis={} steps={}: job aborted", axis as u32, pos);
-                motion.reset_queue(&cfg);
-                printer.handle(&Message::Abort, &mut motion);
-            }
+    /// One turn: bytes in, messages handled, heaters, state changes, motion, frames out.
+    /// The parts off the deepest stack (a layer's computation inside `serve`) are not inlined,
+    /// so their locals stay out of the frames under it.
+    #[inline(never)]
+    fn turn(&mut self) {
+        let now = self.board.now_ms();
+        #[cfg(feature = "qemu")]
+        self.heartbeat(now);
+        receive(&mut self.board, self.ep, now);
+        self.serve(now);
+        self.heaters(now);
+        let new = self.printer.state();
+        if new != self.state {
+            self.state_changed(new, now);
+        }
+        if self.printer.is_active() && !board::with_motion(|m| m.homing()) {
+            self.advance();
         }
         if let Some(missed) = board::with_motion(|m| m.take_homed()) {
             log!("HOMED missed_endstops={}", (missed & 7) as u32);
         }
-        {
-            let finished = printer.motion_finished() || !printer.is_active();
-            let gen_blocked = motion.half().generator().waits_on_a_full_queue();
-            let paused = printer.state() == DeviceState::Paused;
-            board::after_poll(motion.producer(), finished, paused, gen_blocked);
+        let finished = self.printer.motion_finished() || !self.printer.is_active();
+        let gen_blocked = self.motion.half().generator().waits_on_a_full_queue();
+        let paused = self.printer.state() == DeviceState::Paused;
+        board::after_poll(self.motion.producer(), finished, paused, gen_blocked);
+        transmit(&mut self.board, self.ep, now);
+        if self.job_open {
+            self.close_job_when_over();
         }
+    }
 
-        transmit(&mut board, ep, now);
+    /// A heartbeat line every second of a job (QEMU).
+    #[cfg(feature = "qemu")]
+    #[inline(never)]
+    fn heartbeat(&mut self, now: u32) {
+        if now.wrapping_sub(self.hb_ms) < 1000 || !self.job_open {
+            return;
+        }
+        self.hb_ms = now;
+        board::heartbeat(self.motion.producer());
+        let status = self.printer.status(&mut self.motion, 0);
+        log!(
+            "HB state={} layer={} triangles={}",
+            self.printer.state() as u32,
+            status.layer,
+            status.triangles
+        );
+    }
 
-        if job_open {
-            let finished = match printer.state() {
-                DeviceState::Done => !board::with_motion(|m| m.busy()),
-                DeviceState::Failed | DeviceState::Aborted | DeviceState::Stopped => true,
-                _ => false,
-            };
-            if finished {
-                job_open = false;
-                board::with_motion(|m| m.disable_if_idle());
-                let (err, detail) = printer.error();
-                log!(
-                    "JOB end state={} error={} detail={} triangles={} layers={}",
-                    printer.state() as u32,
-                    err as u32,
-                    detail,
-                    printer.status(&mut motion, 0).triangles,
-                    printer.layer_count()
-                );
+    /// One `service` call. Never inlined: its frame is at the bottom of the deepest stack.
+    #[inline(never)]
+    fn serve(&mut self, now: u32) {
+        let done_ms = board::print_done_ms();
+        #[cfg(feature = "qemu")]
+        let t0 =
+            self.cost.begin(self.ep.peek().is_some(), self.printer, &mut self.motion.generation);
+        // Inside a layer's computation the printer lends its motion half: steps keep being
+        // generated while the toolpaths of a large layer take half a second.
+        self.printer.service(self.ep, &mut self.motion, now, done_ms, STATUS_EVERY_MS, true);
+        #[cfg(feature = "qemu")]
+        self.cost.end_service(t0, self.printer, &mut self.motion);
+    }
+
+    /// Heaters (10 Hz): a fault turns everything off in the controller at once; here the
+    /// motion stops as for an emergency stop and the job fails.
+    #[inline(never)]
+    fn heaters(&mut self, now: u32) {
+        if let Some(fault) = self.heat.service(&mut self.board, self.printer, &mut self.motion, now)
+        {
+            self.motion.reset_queue(&self.cfg);
+            self.printer.thermal_fault(fault.code(), &mut self.motion);
+        }
+    }
+
+    /// The printer went from `self.state` to `new`.
+    #[inline(never)]
+    fn state_changed(&mut self, new: DeviceState, now: u32) {
+        let was_active = matches!(self.state, DeviceState::Printing | DeviceState::Paused);
+        match new {
+            DeviceState::Printing if !was_active => {
+                // A new job: clean queue, home X/Y/Z before the first step.
+                self.motion.reset_queue(&self.cfg);
+                board::with_motion(|m| m.start_homing(&MACHINE));
+                board::job_started();
+                self.heat.job_started(now);
                 #[cfg(feature = "qemu")]
-                cost.job_ended(printer, &mut motion);
-                board::job_ended();
-                heat.job_ended();
-                let (used, size) = stack::high_water();
-                log!("MEM data_bss={} stack_hwm={} stack_size={}", stack::data_bss(), used, size);
+                self.cost.job_started();
+                self.job_open = true;
+                log!("JOB start layers={}", self.printer.layer_count());
+            }
+            DeviceState::Stopped | DeviceState::Aborted | DeviceState::Failed => {
+                // Emergency stop (and abort, failure): no further step, queue cleared,
+                // drivers off at once.
+                self.motion.reset_queue(&self.cfg);
+                if !was_active && !self.job_open {
+                    // A job refused or failed within the call that started it: it still
+                    // gets its closing lines.
+                    board::job_started();
+                    #[cfg(feature = "qemu")]
+                    self.cost.job_started();
+                    self.job_open = true;
+                }
+            }
+            _ => {}
+        }
+        self.state = new;
+    }
+
+    /// Bounded `poll` calls into the step queue, then the soft limits.
+    #[inline(never)]
+    fn advance(&mut self) {
+        for _ in 0..POLLS_PER_LOOP {
+            #[cfg(feature = "qemu")]
+            let t = self.cost.begin_poll();
+            let worked = self.printer.poll(&mut self.motion);
+            #[cfg(feature = "qemu")]
+            self.cost.end_poll(t, worked, self.printer, &mut self.motion);
+            if !worked {
+                break;
             }
         }
+        board::kick();
+        let motor = self.motion.half().generator().motor_steps();
+        if let Some((axis, pos)) = soft_limit(&MACHINE, motor) {
+            log!("SOFT LIMIT axis={} steps={}: job aborted", axis as u32, pos);
+            self.motion.reset_queue(&self.cfg);
+            self.printer.handle(&Message::Abort, &mut self.motion);
+        }
+    }
+
+    /// The job's closing lines once it is over (done and every step out, or ended).
+    #[inline(never)]
+    fn close_job_when_over(&mut self) {
+        let finished = match self.printer.state() {
+            DeviceState::Done => !board::with_motion(|m| m.busy()),
+            DeviceState::Failed | DeviceState::Aborted | DeviceState::Stopped => true,
+            _ => false,
+        };
+        if !finished {
+            return;
+        }
+        self.job_open = false;
+        board::with_motion(|m| m.disable_if_idle());
+        let (err, detail) = self.printer.error();
+        log!(
+            "JOB end state={} error={} detail={} triangles={} layers={}",
+            self.printer.state() as u32,
+            err as u32,
+            detail,
+            self.printer.status(&mut self.motion, 0).triangles,
+            self.printer.layer_count()
+        );
+        #[cfg(feature = "qemu")]
+        self.cost.job_ended(self.printer, &mut self.motion);
+        board::job_ended();
+        self.heat.job_ended();
+        let (used, size) = stack::high_water();
+        log!("MEM data_bss={} stack_hwm={} stack_size={}", stack::data_bss(), used, size);
     }
 }
