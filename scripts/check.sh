@@ -34,10 +34,12 @@ gate clippy cargo clippy --all-targets -- -D warnings
 step "core for thumbv7m-none-eabi (no_std, no alloc)"
 gate no_std cargo build -p strata --target thumbv7m-none-eabi --release
 step "firmware for thumbv7m-none-eabi (every board: build, clippy)"
-for board in creality-v422 creality-v427 qemu-mps2 qemu; do
+for board in creality-v422 creality-v427 qemu-mps2 qemu-rt qemu; do
+  features="$board"
+  [ "$board" = qemu-rt ] && features=qemu-realtime
   gate "firmware $board" scripts/build_firmware.sh "$board"
   gate "firmware clippy $board" cargo clippy -p strata-firmware --target thumbv7m-none-eabi \
-    --release --features "$board" -- -D warnings
+    --release --features "$features" -- -D warnings
 done
 
 step "imports run one way (slice, step, toolpath)"

@@ -28,6 +28,15 @@ fn soft_limit(machine: &MachineConfig, motor: [i64; AXES]) -> Option<(usize, i64
     })
 }
 
+/// Thread mode's phases for the QEMU board's underrun report (`board::set_phase`): other
+/// work, a `service` call (slicing, toolpaths), `poll` calls (planning, step generation).
+#[cfg(feature = "qemu")]
+const PHASE_OTHER: u32 = 0;
+#[cfg(feature = "qemu")]
+const PHASE_SERVICE: u32 = 1;
+#[cfg(feature = "qemu")]
+const PHASE_POLL: u32 = 2;
+
 /// UART bytes into the endpoint. Not inlined: its buffer is on the stack only here, not
 /// under the printer's deepest calls.
 #[inline(never)]
@@ -143,9 +152,11 @@ impl MainLoop {
             log!("HOMED missed_endstops={}", (missed & 7) as u32);
         }
         let finished = self.printer.motion_finished() || !self.printer.is_active();
-        let gen_blocked = self.motion.half().generator().waits_on_a_full_queue();
         let paused = self.printer.state() == DeviceState::Paused;
-        board::after_poll(self.motion.producer(), finished, paused, gen_blocked);
+        self.motion.peek(|m, prod| {
+            let gen_blocked = m.generator().waits_on_a_full_queue();
+            board::after_poll(prod, finished, paused, gen_blocked);
+        });
         transmit(&mut self.board, self.ep, now);
         if self.job_open {
             self.close_job_when_over();
@@ -160,7 +171,7 @@ impl MainLoop {
             return;
         }
         self.hb_ms = now;
-        board::heartbeat(self.motion.producer());
+        self.motion.peek(|_, prod| board::heartbeat(prod));
         let status = self.printer.status(&mut self.motion, 0);
         log!(
             "HB state={} layer={} triangles={}",
@@ -175,13 +186,17 @@ impl MainLoop {
     fn serve(&mut self, now: u32) {
         let done_ms = board::print_done_ms();
         #[cfg(feature = "qemu")]
+        board::set_phase(PHASE_SERVICE, self.printer.slicer().stats().layers);
+        #[cfg(feature = "qemu")]
         let t0 =
             self.cost.begin(self.ep.peek().is_some(), self.printer, &mut self.motion.generation);
-        // Inside a layer's computation the printer lends its motion half: steps keep being
-        // generated while the toolpaths of a large layer take half a second.
-        self.printer.service(self.ep, &mut self.motion, now, done_ms, STATUS_EVERY_MS, true);
+        // No lending: the feed interrupt (PendSV) generates steps while a layer's toolpaths
+        // take half a second (`pipeline_motion`).
+        self.printer.service(self.ep, &mut self.motion, now, done_ms, STATUS_EVERY_MS, false);
         #[cfg(feature = "qemu")]
         self.cost.end_service(t0, self.printer, &mut self.motion);
+        #[cfg(feature = "qemu")]
+        board::set_phase(PHASE_OTHER, 0);
     }
 
     /// Heaters (10 Hz): a fault turns everything off in the controller at once; here the
@@ -232,6 +247,8 @@ impl MainLoop {
     /// Bounded `poll` calls into the step queue, then the soft limits.
     #[inline(never)]
     fn advance(&mut self) {
+        #[cfg(feature = "qemu")]
+        board::set_phase(PHASE_POLL, self.printer.slicer().stats().layers);
         for _ in 0..POLLS_PER_LOOP {
             #[cfg(feature = "qemu")]
             let t = self.cost.begin_poll();
@@ -242,8 +259,10 @@ impl MainLoop {
                 break;
             }
         }
+        #[cfg(feature = "qemu")]
+        board::set_phase(PHASE_OTHER, 0);
         board::kick();
-        let motor = self.motion.half().generator().motor_steps();
+        let motor = self.motion.peek(|m, _| m.generator().motor_steps());
         if let Some((axis, pos)) = soft_limit(&MACHINE, motor) {
             log!("SOFT LIMIT axis={} steps={}: job aborted", axis as u32, pos);
             self.motion.reset_queue(&self.cfg);

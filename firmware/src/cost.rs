@@ -203,6 +203,7 @@ impl Cost {
     /// A job started.
     pub fn job_started(&mut self) {
         *self = Self::new();
+        crate::pipeline_motion::take_lock_max();
         self.active = true;
     }
 
@@ -212,10 +213,11 @@ impl Cost {
         let closed = if all { p.layer_count() } else { p.status(motion, 0).layer };
         self.report_to(p, motion, closed);
         log!(
-            "COST triangles={} slice_insns={} gen_gap_max_insns={}",
+            "COST triangles={} slice_insns={} gen_gap_max_insns={} lock_insns_max={}",
             p.status(motion, 0).triangles,
             self.slice_insns,
-            self.gap_max
+            self.gap_max,
+            crate::pipeline_motion::take_lock_max()
         );
         self.active = false;
     }

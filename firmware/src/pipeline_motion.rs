@@ -1,6 +1,29 @@
 //! The printer's motion half (move buffer, planner, step generator) and the step queue's
-//! producer, as the job runner reaches them ([`MotionAccess`]).
+//! producer, shared by thread mode and the feed interrupt.
+//!
+//! # Priorities
+//! Three levels, highest first (set by each board's `init`, RTIC-style: hand-rolled because
+//! RTIC 2's `#[app]` owns `main` and every interrupt of the image, and the QEMU board's SysTick
+//! is both the executor and the emulated clock):
+//! 1. the step interrupt (the executor: QEMU's SysTick, the Creality's TIM2), never masked
+//!    except by the short `interrupt::free` sections of `board::with_motion`;
+//! 2. the feed interrupt, PendSV at [`FEED_PRIORITY`] (the lowest): planning and step
+//!    generation until the step queue is full or the planner has nothing to release
+//!    ([`feed`]); the board pends it periodically while a job runs (QEMU: every SysTick,
+//!    10,000 instructions; Creality: at least every millisecond from TIM2 and SysTick);
+//! 3. thread mode: the protocol, slicing, toolpaths, the heaters. It reaches the motion half
+//!    only through [`locked`], which raises BASEPRI to [`FEED_PRIORITY`]: the feed waits, the
+//!    executor does not. A thread-mode access holds it for as long as its closure runs (a move
+//!    pushed, a poll's feed, the toolpath stage's moves into the buffer); the QEMU build
+//!    measures the longest (`COST ... lock_insns_max`).
+//!
+//! The step commands depend only on the moves and the job's gate, not on which level made
+//! them or when, so the steps and their ticks stay those of the host simulation.
 
+use core::cell::UnsafeCell;
+
+use cortex_m::register::{basepri, basepri_max};
+use cortex_m_rt::exception;
 use strata::printer::board::{LOOKAHEAD_MOVES, MOVE_BUFFER_BYTES};
 use strata::printer::{Motion, MotionAccess};
 use strata::step::{StepConfig, StepProducer};
@@ -11,6 +34,11 @@ use crate::motion::{fresh_queue, Producer};
 
 /// The firmware's motion half.
 pub type FwMotionHalf = Motion<MOVE_BUFFER_BYTES, LOOKAHEAD_MOVES>;
+
+/// Priority of the feed interrupt (PendSV), and the BASEPRI that masks it: the lowest level
+/// (the Creality's STM32F103 implements 4 priority bits, QEMU's lm3s6965 3: either keeps the
+/// top bits of the same byte, so the handler and the mask agree on both).
+pub const FEED_PRIORITY: u8 = 0xF0;
 
 /// Where steps were generated during a measured `service` call (the QEMU build's cost
 /// figures): instructions spent in accesses that generated steps, when the last one ended,
@@ -28,11 +56,93 @@ pub struct Generation {
     pub gap_max: u64,
 }
 
-/// The motion half and the step queue's producer of the main loop.
-pub struct FwMotion {
-    motion: &'static mut FwMotionHalf,
-    /// Always set (taken only while it is replaced, inside [`FwMotion::reset_queue`]).
+/// What thread mode and the feed interrupt share.
+struct Shared {
+    /// Set once at start-up ([`FwMotion::new`]).
+    motion: Option<&'static mut FwMotionHalf>,
+    /// Taken only while it is replaced, inside [`FwMotion::reset_queue`].
     prod: Option<Producer>,
+    /// The job's gate ([`MotionAccess::gate`]): blocks may be released, the model's last
+    /// moves are in the buffer.
+    allowed: bool,
+    toolpath_done: bool,
+    /// The longest thread-mode hold of the lock, instructions (QEMU).
+    #[cfg(feature = "qemu")]
+    lock_max: u64,
+}
+
+struct SharedCell(UnsafeCell<Shared>);
+
+// SAFETY: `Shared` is reached only by thread mode inside `locked` (PendSV masked) and by the
+// PendSV handler, which cannot preempt that section and which thread mode cannot preempt.
+unsafe impl Sync for SharedCell {}
+
+static SHARED: SharedCell = SharedCell(UnsafeCell::new(Shared {
+    motion: None,
+    prod: None,
+    allowed: false,
+    toolpath_done: false,
+    #[cfg(feature = "qemu")]
+    lock_max: 0,
+}));
+
+/// Runs `f` on the shared state with the feed interrupt masked (BASEPRI), the step interrupt
+/// not. Thread mode only (a handler above PendSV must not call it).
+fn locked<R>(f: impl FnOnce(&mut Shared) -> R) -> R {
+    let old = basepri::read();
+    // Raises BASEPRI only (masks more, never less); restored below.
+    basepri_max::write(FEED_PRIORITY);
+    #[cfg(feature = "qemu")]
+    let t0 = board::insns_now();
+    // SAFETY: PendSV, the only other user, is masked until BASEPRI is restored, and thread
+    // mode does not nest `locked` (every caller below is a leaf).
+    let shared = unsafe { &mut *SHARED.0.get() };
+    let r = f(shared);
+    #[cfg(feature = "qemu")]
+    {
+        shared.lock_max = shared.lock_max.max(board::insns_now() - t0);
+    }
+    // SAFETY: restores the level this call found.
+    unsafe { basepri::write(old) };
+    r
+}
+
+/// Feeds calls a PendSV makes at most (each plans what fits, releases what the generator
+/// takes and generates until the queue is full; one that does nothing ends the run).
+const FEEDS_PER_PENDSV: u32 = 64;
+
+/// Planning and step generation until there is nothing to do.
+fn feed(s: &mut Shared) {
+    let (Some(m), Some(p)) = (s.motion.as_deref_mut(), s.prod.as_mut()) else { return };
+    for _ in 0..FEEDS_PER_PENDSV {
+        // A planning error stays in place for the printer's next poll to report.
+        if m.feed(s.allowed, s.toolpath_done, p) != Ok(true) {
+            break;
+        }
+    }
+}
+
+#[exception]
+fn PendSV() {
+    // SAFETY: thread mode reaches `SHARED` only with PendSV masked (`locked`); no other
+    // handler reaches it.
+    feed(unsafe { &mut *SHARED.0.get() });
+}
+
+/// Asks for a feed (PendSV runs once no higher level is active).
+pub fn pend_feed() {
+    cortex_m::peripheral::SCB::set_pendsv();
+}
+
+/// The longest thread-mode hold of the motion half's lock so far, instructions (QEMU); the
+/// measure restarts.
+#[cfg(feature = "qemu")]
+pub fn take_lock_max() -> u64 {
+    locked(|s| core::mem::take(&mut s.lock_max))
+}
+
+/// Thread mode's handle on the shared motion half and the step queue's producer.
+pub struct FwMotion {
     /// Where steps were generated (QEMU's cost figures).
     #[cfg(feature = "qemu")]
     pub generation: Generation,
@@ -41,51 +151,51 @@ pub struct FwMotion {
 impl FwMotion {
     /// The motion half `motion` with a fresh step queue (see [`FwMotion::reset_queue`]).
     pub fn new(motion: &'static mut FwMotionHalf, cfg: &StepConfig) -> Self {
-        let prod = board::with_motion(|m| {
-            let _old_exec = m.halt();
-            // SAFETY: no producer or executor exists yet (this is the first queue; the
-            // interrupt's executor was just taken).
-            let (p, e) = unsafe { fresh_queue(cfg) };
-            m.install(e);
-            p
+        locked(|s| {
+            let prod = board::with_motion(|m| {
+                let _old_exec = m.halt();
+                // SAFETY: no producer or executor exists yet (this is the first queue; the
+                // interrupt's executor was just taken).
+                let (p, e) = unsafe { fresh_queue(cfg) };
+                m.install(e);
+                p
+            });
+            s.motion = Some(motion);
+            s.prod = Some(prod);
         });
-        #[cfg(feature = "qemu")]
-        let generation = Generation::default();
         Self {
-            motion,
-            prod: Some(prod),
             #[cfg(feature = "qemu")]
-            generation,
+            generation: Generation::default(),
         }
     }
 
     /// A fresh step queue: the interrupt's executor and this producer are replaced together
     /// (the old ones are dropped first); the motion halts, drivers off.
     pub fn reset_queue(&mut self, cfg: &StepConfig) {
-        let slot = &mut self.prod;
-        board::with_motion(|m| {
-            // Both ends of the old queue go away here (neither has a destructor; what matters
-            // is that no borrow of the queue outlives this point).
-            {
-                let _old_exec = m.halt();
-                let _old_prod = slot.take();
-            }
-            // SAFETY: the previous executor and producer are dropped above, inside this
-            // critical section, so nothing borrows the queue any more.
-            let (p, e) = unsafe { fresh_queue(cfg) };
-            m.install(e);
-            *slot = Some(p);
+        locked(|s| {
+            let slot = &mut s.prod;
+            board::with_motion(|m| {
+                // Both ends of the old queue go away here (neither has a destructor; what
+                // matters is that no borrow of the queue outlives this point).
+                {
+                    let _old_exec = m.halt();
+                    let _old_prod = slot.take();
+                }
+                // SAFETY: the previous executor and producer are dropped above, inside this
+                // critical section, so nothing borrows the queue any more.
+                let (p, e) = unsafe { fresh_queue(cfg) };
+                m.install(e);
+                *slot = Some(p);
+            });
         });
     }
 
-    /// The step queue's producer (its fill, for the board).
-    pub fn producer(&self) -> &Producer {
-        self.prod.as_ref().expect("the step queue is set up")
-    }
-
-    /// The motion half.
-    pub fn half(&self) -> &FwMotionHalf {
-        self.motion
+    /// Runs `f` on the motion half and the step queue's producer (feed masked).
+    pub fn peek<R>(&self, f: impl FnOnce(&FwMotionHalf, &Producer) -> R) -> R {
+        locked(|s| {
+            let m = s.motion.as_deref().expect("the motion half is set up");
+            f(m, s.prod.as_ref().expect("the step queue is set up"))
+        })
     }
 }
 
@@ -95,17 +205,31 @@ impl MotionAccess<MOVE_BUFFER_BYTES, LOOKAHEAD_MOVES, STEP_QUEUE> for FwMotion {
         f: impl FnOnce(&mut FwMotionHalf, &mut StepProducer<'_, STEP_QUEUE>) -> R,
     ) -> R {
         #[cfg(feature = "qemu")]
-        let (t0, s0) = (crate::cost::thread_now(), self.motion.generator().steps_generated());
-        let prod = self.prod.as_mut().expect("the step queue is set up");
-        let r = f(self.motion, prod);
+        let t0 = crate::cost::thread_now();
+        let (r, generated) = locked(|s| {
+            let m = s.motion.as_deref_mut().expect("the motion half is set up");
+            let prod = s.prod.as_mut().expect("the step queue is set up");
+            let s0 = m.generator().steps_generated();
+            let r = f(m, prod);
+            (r, m.generator().steps_generated() != s0)
+        });
         #[cfg(feature = "qemu")]
-        if self.generation.measuring && self.motion.generator().steps_generated() != s0 {
+        if self.generation.measuring && generated {
             let g = &mut self.generation;
             let t1 = crate::cost::thread_now();
             g.gap_max = g.gap_max.max(t0 - g.generated_at.min(t0));
             g.lent += t1 - t0;
             g.generated_at = t1;
         }
+        #[cfg(not(feature = "qemu"))]
+        let _ = generated;
         r
+    }
+
+    fn gate(&mut self, allowed: bool, toolpath_done: bool) {
+        locked(|s| {
+            s.allowed = allowed;
+            s.toolpath_done = toolpath_done;
+        });
     }
 }

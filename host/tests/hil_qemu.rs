@@ -232,13 +232,21 @@ fn qemu_model(name: &str) {
 }
 
 fn qemu_job(name: &str, tris: &[Triangle], job: JobSpec, lossy: bool) {
-    qemu_job_on(None, name, tris, job, lossy)
+    qemu_job_on(None, name, tris, job, lossy);
 }
 
 /// [`qemu_job`] on the image of `board` (`None`: the 64 KB `qemu` build).
-fn qemu_job_on(board: Option<&str>, name: &str, tris: &[Triangle], job: JobSpec, lossy: bool) {
+/// Returns the firmware's records of the clean run (`None`: skipped).
+fn qemu_job_on(
+    board: Option<&str>,
+    name: &str,
+    tris: &[Triangle],
+    job: JobSpec,
+    lossy: bool,
+) -> Option<Costs> {
     let test = format!("hil_qemu {name}");
-    let Some((qemu, elf)) = qemu_or_skip(&test, board) else { return };
+    let (qemu, elf) = qemu_or_skip(&test, board)?;
+    let mut clean = None;
     let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
     let mut reference = None;
     let runs = if lossy { &[None, Some(Faults::uniform(LOSS, 7))][..] } else { &[None][..] };
@@ -324,8 +332,11 @@ fn qemu_job_on(board: Option<&str>, name: &str, tris: &[Triangle], job: JobSpec,
                 l.retransmits + l.bad_frames + l.duplicates > 0,
                 "{label}: the relay injected nothing: {l:?}"
             );
+        } else {
+            clean = Some(costs);
         }
     }
+    clean
 }
 
 /// A small model every firmware build holds (64 triangles, 3 layers, 20 s of print).
@@ -390,6 +401,110 @@ fn qemu_mps2_embodier_lm8uu() {
     let (tris, job) = load("embodier_LM8UU_8p2pi.stl");
     let lossy = std::env::var_os("STRATA_HIL_LOSSY_ALL").is_some();
     qemu_job_on(Some("qemu-mps2"), "embodier_LM8UU_8p2pi.stl on mps2-an385", &tris, job, lossy);
+}
+
+// Real time: the 64 KB build with its print clock at the chip's speed
+// (`scripts/build_firmware.sh qemu-rt`: print ticks = instructions x 2.0 cycles, the
+// executor's events at their wake times whatever thread mode does; `firmware/src/board/qemu.rs`).
+// Every job must run without an underrun (no executor stall, no interrupt that fell behind),
+// its queue slack never below zero, and equal the simulation bit for bit as above (which the
+// accelerated board equals too). CI runs the first layers of each model
+// ([`REALTIME_CI_LAYERS`]); the whole models are the ignored `qemu_realtime_models`.
+
+/// Layers of each model the CI's real-time runs print (bottom skins, the first perimeters
+/// and infill: the layers whose computation runs while the first moves print).
+const REALTIME_CI_LAYERS: i32 = 4;
+
+/// The first `layers` layers of a placed model as a job of its own: the triangles that start
+/// below their top (of the model as admission streams it to the 64 KB board: a simplified
+/// model stays the same one), the model's height there (the slicer cuts the same sections;
+/// the last layers get top skins, as a part cut there would).
+fn first_layers(tris: &[Triangle], job: JobSpec, layers: i32) -> (Vec<Triangle>, JobSpec) {
+    let (tris, job, _) = hil::admitted(tris, job, &strata::printer::BOARD_CAPACITIES, 0.02)
+        .unwrap_or_else(|e| panic!("admission for the 64 KB board: {e}"));
+    let s = &job.settings;
+    let top = s.first_layer_height_um + (layers - 1) * s.layer_height_um;
+    let tris: Vec<Triangle> = tris.iter().filter(|t| t.z_min() < top).copied().collect();
+    let job = JobSpec { model_height_um: top, triangles: tris.len() as u32, ..job };
+    (tris, job)
+}
+
+/// The real-time board's figures of one job (its `RT` line), checked: no underrun, no
+/// interrupt behind, a slack above zero throughout.
+fn qemu_realtime(name: &str, tris: &[Triangle], job: JobSpec) {
+    let label = format!("{name} in real time");
+    let Some(costs) = qemu_job_on(Some("qemu-rt"), &label, tris, job, false) else { return };
+    let rt = |key: &str| -> i64 {
+        costs
+            .text("RT", &[key])
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{label}: no `RT ... {key}=N` line after the job"))
+    };
+    let ms = |ticks: i64| ticks as f64 / 72_000.0;
+    eprintln!(
+        "{label}: CPI {:.1}, {} underruns (stall {:.3} ms, longest {:.3} ms; the first at {:.1} \
+         ms, thread phase {} layer {}), minimum queue slack {:.3} ms, {} overruns",
+        rt("cpi_x10") as f64 / 10.0,
+        rt("underruns"),
+        ms(rt("stall_ticks")),
+        ms(rt("stall_max_ticks")),
+        ms(rt("first_underrun_tick")),
+        rt("first_underrun_phase"),
+        rt("first_underrun_layer"),
+        ms(rt("min_slack_ticks")),
+        rt("overruns")
+    );
+    assert_eq!(rt("underruns"), 0, "{label}: the step queue ran dry mid-move");
+    assert_eq!(rt("overruns"), 0, "{label}: the step interrupt fell behind its events");
+    assert_eq!(rt("slack_samples"), 1, "{label}: the motion never ran ahead of the clock");
+    assert!(rt("min_slack_ticks") > 0, "{label}: the queue's slack reached zero");
+}
+
+#[test]
+fn qemu_realtime_first_layers() {
+    for name in MODELS {
+        let (tris, job) = load(name);
+        let (tris, job) = first_layers(&tris, job, REALTIME_CI_LAYERS);
+        qemu_realtime(&format!("{name} (first {REALTIME_CI_LAYERS} layers)"), &tris, job);
+    }
+}
+
+/// A gear prism with `teeth` teeth (outer radius 25 mm, 2 mm deep) at the bed's middle,
+/// `height` mm tall: every layer a loop of `4 x teeth` short edges (two wall triangles
+/// each), with narrow teeth whose perimeters and infill are all short segments.
+fn gear(teeth: usize, height: f64) -> Vec<Triangle> {
+    use std::f64::consts::TAU;
+    let (r_out, r_in) = (25.0, 23.0);
+    let ring: Vec<[f64; 2]> = (0..4 * teeth)
+        .map(|j| {
+            // Each tooth: two corners out, two in (a trapezoid wave).
+            let r = if j % 4 < 2 { r_out } else { r_in };
+            let a = TAU * j as f64 / (4 * teeth) as f64;
+            [110.0 + r * a.cos(), 110.0 + r * a.sin()]
+        })
+        .collect();
+    let mut tris = strata_testkit::mesh::to_um(&strata_testkit::mesh::prism(&ring, 0.0, height));
+    tris.sort_by_key(Triangle::z_min);
+    tris
+}
+
+/// The heaviest layers the 64 KB board takes print in real time without an underrun too: a
+/// [`gear`] of 48 teeth, 192 edges a layer (384 active triangles: the slicer holds 388),
+/// four layers.
+#[test]
+fn qemu_realtime_heavy_layers() {
+    let tris = gear(48, 0.8);
+    let job = job_spec(&tris);
+    qemu_realtime("a 48-tooth gear (192 edges a layer)", &tris, job);
+}
+
+#[test]
+#[ignore = "whole models in real time: about N minutes; run with --ignored"]
+fn qemu_realtime_models() {
+    for name in MODELS {
+        let (tris, job) = load(name);
+        qemu_realtime(name, &tris, job);
+    }
 }
 
 /// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm),

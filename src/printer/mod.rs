@@ -430,8 +430,21 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     }
 
     /// [`handle`](Self::handle); `lend`: the motion half gets the progress points of the
-    /// layers this message makes the toolpath stage compute (it generates steps there).
+    /// layers this message makes the toolpath stage compute (it generates steps there). The
+    /// motion half's gate follows the message ([`MotionAccess::gate`]).
     fn handle_with<const Q: usize>(
+        &mut self,
+        msg: &Message<'_>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        lend: bool,
+    ) -> Accept {
+        let accept = self.handle_message(msg, motion, lend);
+        let (allowed, toolpath_done) = self.motion_gate();
+        motion.gate(allowed, toolpath_done);
+        accept
+    }
+
+    fn handle_message<const Q: usize>(
         &mut self,
         msg: &Message<'_>,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
@@ -643,6 +656,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             return false;
         }
         let (allowed, toolpath_done) = (self.motion_allowed(), self.toolpath_done);
+        motion.gate(allowed, toolpath_done);
         let mut worked = match motion.with(|m, out| m.feed(allowed, toolpath_done, out)) {
             Ok(w) => w,
             Err(layer) => {

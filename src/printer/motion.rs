@@ -83,23 +83,41 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         toolpath_done: bool,
         out: &mut StepProducer<'_, Q>,
     ) -> Result<bool, u32> {
-        let mut worked = self.plan_moves()?;
+        let planned = self.plan_moves()?;
+        let released = allowed && self.release_blocks(toolpath_done);
+        Ok(self.generate(out) || planned || released)
+    }
+
+    /// Blocks from the planner into the generator while it wants one and the planner may
+    /// release them (full, or the input is done); true when one went (see
+    /// [`Motion::plan_moves`]).
+    #[inline(never)]
+    fn release_blocks(&mut self, toolpath_done: bool) -> bool {
         let input_done = toolpath_done && self.moves.is_empty();
-        if allowed {
-            while self.gen.wants_block() && (input_done || self.planner.is_full()) {
-                let Some(b) = self.planner.pop_forced() else { break };
-                let layer = self.tags.pop_front().unwrap_or(0);
-                // `wants_block` was true: the generator takes it.
-                let _ = self.gen.load_tagged(b, layer);
-                worked = true;
-            }
+        let mut released = false;
+        while self.gen.wants_block() && (input_done || self.planner.is_full()) {
+            let Some(b) = self.planner.pop_forced() else { break };
+            let layer = self.tags.pop_front().unwrap_or(0);
+            // `wants_block` was true: the generator takes it.
+            let _ = self.gen.load_tagged(b, layer);
+            released = true;
         }
+        released
+    }
+
+    /// Steps into `out`; true when one was generated (see [`Motion::plan_moves`]).
+    #[inline(never)]
+    fn generate<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
         let steps_before = self.gen.steps_generated();
         let _ = self.gen.run(out);
-        Ok(worked || self.gen.steps_generated() != steps_before)
+        self.gen.steps_generated() != steps_before
     }
 
     /// Moves from the buffer into the planner while it has room; true when one went in.
+    /// Not inlined, nor is the generator's part of [`Motion::feed`]: a board runs `feed` in an
+    /// interrupt on top of thread mode's deepest stack, where only the larger of the two
+    /// frames counts.
+    #[inline(never)]
     fn plan_moves(&mut self) -> Result<bool, u32> {
         let mut worked = false;
         // Each record is decoded once, when the planner has room for it (it is full most of
@@ -132,6 +150,15 @@ pub trait MotionAccess<const MOVE_BYTES: usize, const P: usize, const Q: usize> 
         &mut self,
         f: impl FnOnce(&mut Motion<MOVE_BYTES, P>, &mut StepProducer<'_, Q>) -> R,
     ) -> R;
+
+    /// The job's gate for a motion half that is also fed elsewhere (a board's feed
+    /// interrupt): whether blocks may be released and whether the model's last moves are in
+    /// the move buffer, the arguments of [`Motion::feed`] ([`Printer::motion_gate`]). The
+    /// runner calls it after every message and at every poll; nothing to do where only the
+    /// runner feeds.
+    ///
+    /// [`Printer::motion_gate`]: super::Printer::motion_gate
+    fn gate(&mut self, _allowed: bool, _toolpath_done: bool) {}
 }
 
 /// The motion half and the step queue's producer, owned together.

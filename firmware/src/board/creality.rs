@@ -32,8 +32,10 @@
 //!   the core.
 
 use core::cell::RefCell;
+use core::sync::atomic::{AtomicU32, Ordering};
 
 use cortex_m::interrupt::{free, Mutex};
+use cortex_m::peripheral::scb::SystemHandler;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{DWT, NVIC};
 use cortex_m_rt::exception;
@@ -118,6 +120,8 @@ static HEATERS: Mutex<RefCell<Option<Heaters>>> = Mutex::new(RefCell::new(None))
 
 #[exception]
 fn SysTick() {
+    // The feed interrupt also runs every SysTick (10 ms), whatever the executor does.
+    crate::pipeline_motion::pend_feed();
     free(|cs| {
         if let Some(h) = HEATERS.borrow(cs).borrow_mut().as_mut() {
             if h.watch.tick(SYSTICK_MS) {
@@ -132,6 +136,11 @@ fn SysTick() {
 
 /// Link speed (the CH340 bridge; the host's default).
 pub const BAUD: u32 = 250_000;
+/// NVIC priorities (0 highest; see `init`).
+const PRIORITY_STEP: u8 = 0x00;
+const PRIORITY_UART: u8 = 0x40;
+const PRIORITY_SYSTICK: u8 = 0x80;
+
 /// Events handled per interrupt at most (then the interrupt comes back at once).
 const EVENTS_PER_IRQ: u32 = 8;
 /// Longest compare step of the 16-bit timer, ticks.
@@ -215,6 +224,11 @@ impl Isr {
     }
 }
 
+/// The feed interrupt is pended at least this often while the executor runs, cycles (1 ms).
+const FEED_PERIOD_CYCLES: u32 = 72_000;
+/// Cycle counter at the last feed request from TIM2.
+static FEED_PENDED_AT: AtomicU32 = AtomicU32::new(0);
+
 #[interrupt]
 fn TIM2() {
     free(|cs| {
@@ -223,6 +237,12 @@ fn TIM2() {
             isr.run();
         }
     });
+    // The feed interrupt tops the step queue up once a millisecond while steps run.
+    let now = DWT::cycle_count();
+    if now.wrapping_sub(FEED_PENDED_AT.load(Ordering::Relaxed)) >= FEED_PERIOD_CYCLES {
+        FEED_PENDED_AT.store(now, Ordering::Relaxed);
+        crate::pipeline_motion::pend_feed();
+    }
 }
 
 /// USART1, the millisecond clock and the thermistors.
@@ -433,6 +453,18 @@ pub fn init(cfg: &StepConfig) -> Board {
             next: Next::Idle,
         }));
     });
+    // Priorities (0 highest; the STM32F103 keeps the top 4 bits), set before the interrupts
+    // are unmasked: TIM2 (the executor) above USART1 (a byte every 40 us at 250000 baud, which
+    // waits at most EVENTS_PER_IRQ executor events), SysTick (heaters, watchdog) and PendSV
+    // (the feed, `pipeline_motion`) below.
+    // SAFETY: set before either NVIC interrupt is unmasked; SysTick and PendSV only change
+    // order (their handlers share nothing unguarded with these).
+    unsafe {
+        cp.NVIC.set_priority(Interrupt::TIM2, PRIORITY_STEP);
+        cp.NVIC.set_priority(Interrupt::USART1, PRIORITY_UART);
+        cp.SCB.set_priority(SystemHandler::SysTick, PRIORITY_SYSTICK);
+        cp.SCB.set_priority(SystemHandler::PendSV, crate::pipeline_motion::FEED_PRIORITY);
+    }
     // SAFETY: the handlers only touch `ISR` and `RX`, set up above.
     unsafe {
         NVIC::unmask(Interrupt::TIM2);

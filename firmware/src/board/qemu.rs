@@ -26,6 +26,20 @@
 //! the same executor configuration (1 ms start lead) the executed steps, their ticks (the
 //! step hash) and the print time equal the host simulation's.
 //!
+//! # Real-time print clock (`qemu-realtime`)
+//! The board `qemu-rt` (feature `qemu-realtime`) runs the print clock at the chip's speed
+//! instead: print ticks (72 MHz cycles) are the instructions executed times a stated cycles
+//! per instruction ([`CPI_X10`] / 10, `STRATA_QEMU_CPI_X10` at build time, default 2.0: flash
+//! wait states at 72 MHz, interrupts, bus contention), and each SysTick interrupt runs every
+//! executor event whose wake time that clock has reached, whatever thread mode is doing. No
+//! wait at the horizon: an empty step queue mid-move is an underrun, counted with its stall
+//! time and the thread's phase ([`set_phase`]) instead of prevented. The `RT` line at the end
+//! of a job gives the figures, among them the minimum step-queue slack: the print time queued
+//! ahead of the executor at one SysTick less the time until the next one (a bound that stays
+//! safe although events run up to one SysTick period, 10,000 instructions, after their wake
+//! time: a slack that never goes below zero proves the queue never ran dry). Runs without an
+//! underrun execute the same steps at the same ticks as the accelerated clock.
+//!
 //! # Simulated heaters
 //! [`Plant`] is a first-order thermal model of the hotend and the bed (ambient 25 °C) driven by
 //! the duties the controller writes, read back as 16-conversion ADC sums through the
@@ -56,12 +70,13 @@ use core::convert::Infallible;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use cortex_m::interrupt::{self, Mutex};
+use cortex_m::peripheral::scb::SystemHandler;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::exception;
 use embedded_hal::digital::{ErrorType, OutputPin};
 use strata::machine::AXES;
-use strata::step::{is_before, Pins, StepConfig, StepTimer};
+use strata::step::{Pins, StepConfig, StepTimer};
 
 use strata::thermal::{PidGains, Temp, ThermalConfig};
 
@@ -210,7 +225,43 @@ static WATCH: Mutex<RefCell<IsrWatch>> = Mutex::new(RefCell::new(IsrWatch::new()
 static WATCH_TRIPPED: AtomicBool = AtomicBool::new(false);
 
 pub use super::qemu_machine::RELOAD;
-/// Executor events (`on_timer` calls) per interrupt at most.
+
+/// `digits` as a number (a build-time setting; `default` when unset or not a number).
+#[cfg(feature = "qemu-realtime")]
+const fn parse_or(digits: Option<&str>, default: u64) -> u64 {
+    let Some(d) = digits else { return default };
+    let b = d.as_bytes();
+    if b.is_empty() {
+        return default;
+    }
+    let (mut i, mut v) = (0, 0u64);
+    while i < b.len() {
+        if !b[i].is_ascii_digit() || v > u32::MAX as u64 {
+            return default;
+        }
+        v = v * 10 + (b[i] - b'0') as u64;
+        i += 1;
+    }
+    v
+}
+
+/// Cycles (72 MHz print ticks) per instruction x 10 of the real-time print clock
+/// (`qemu-realtime`); the step timer's reads within an executor call use it too (1.5 on the
+/// accelerated clock, the figure of the interrupt's cost budget).
+#[cfg(feature = "qemu-realtime")]
+pub const CPI_X10: u64 = {
+    let v = parse_or(option_env!("STRATA_QEMU_CPI_X10"), 20);
+    assert!(v >= 5 && v <= 100, "STRATA_QEMU_CPI_X10: 5 to 100 (0.5 to 10 cycles an instruction)");
+    v
+};
+#[cfg(not(feature = "qemu-realtime"))]
+pub const CPI_X10: u64 = 15;
+/// Executor events one SysTick interrupt runs at most on the real-time clock (more are due:
+/// the interrupt cannot keep up, counted as an overrun).
+#[cfg(feature = "qemu-realtime")]
+const RT_EVENTS_PER_TICK: u32 = 256;
+/// Executor events (`on_timer` calls) per interrupt at most (accelerated clock).
+#[cfg(not(feature = "qemu-realtime"))]
 pub const EVENTS_PER_TICK: u32 = 6;
 /// The virtual endstops trigger after this much homing travel, mm (X, Y, Z).
 const HOME_TRAVEL_MM: [u32; 3] = [5, 5, 2];
@@ -231,8 +282,10 @@ struct VBoard {
     now: u64,
     origin: u64,
     hash: u64,
-    steps: [u64; AXES],
-    position: [i64; AXES],
+    /// Steps per axis (4 G steps: 46 km of filament) and positions, u32 and i32 to keep the
+    /// 64 KB builds' statics inside their stack reserve.
+    steps: [u32; AXES],
+    position: [i32; AXES],
     dir_high: [bool; AXES],
     step_high: [bool; AXES],
     invert: [bool; AXES],
@@ -351,9 +404,9 @@ impl OutputPin for VPin {
     }
 }
 
-/// The step timer during an executor call, as a 72 MHz Cortex-M3 at 1.5 cycles per
-/// instruction would read it: the print clock at the call's start plus the instructions run
-/// since (SysTick counts of 5 instructions, 7.5 ticks each; mps2-an385: 40 and 60) without
+/// The step timer during an executor call, as a 72 MHz Cortex-M3 at [`CPI_X10`] / 10 cycles
+/// per instruction would read it: the print clock at the call's start plus the instructions
+/// run since (SysTick counts of 5 instructions, 7.5 ticks each at 1.5; mps2-an385: 40 and 60) without
 /// the virtual pins' bookkeeping (a real pin write is one store). The executor waits on it for the end of a
 /// STEP pulse, so the interrupt's cost includes that wait. This emulation costs more than
 /// the board's read of its cycle counter (one load): the cost figures leave that out for
@@ -388,9 +441,10 @@ impl StepTimer for EmuTimer {
         let c1 = SYST::get_current();
         let d = if c1 <= self.c0 { self.c0 - c1 } else { self.c0 + RELOAD - c1 };
         self.reads += 1;
-        // 1.5 cycles (72 MHz ticks) per instruction, `PERIOD_NS` instructions per count.
-        let ticks_x2 = 3 * PERIOD_NS.load(Ordering::Relaxed);
-        self.start.wrapping_add((d.saturating_sub(pin_counts_since(self.pins0)) * ticks_x2) >> 1)
+        // CPI_X10 / 10 cycles (72 MHz ticks) per instruction, `PERIOD_NS` instructions per
+        // count.
+        let ticks_x10 = CPI_X10 as u32 * PERIOD_NS.load(Ordering::Relaxed);
+        self.start.wrapping_add(d.saturating_sub(pin_counts_since(self.pins0)) * ticks_x10 / 10)
     }
 }
 
@@ -446,9 +500,64 @@ struct Isr {
     calls: u64,
     call_counts: u64,
     call_max: u32,
-    /// Non-zero while held at the horizon: the number of that wait.
+    /// Non-zero while held at the horizon: the number of that wait (accelerated clock).
+    #[cfg(not(feature = "qemu-realtime"))]
     blocked: u32,
+    #[cfg(not(feature = "qemu-realtime"))]
     epoch: u32,
+    /// The real-time clock's figures of this job.
+    #[cfg(feature = "qemu-realtime")]
+    rt: RtStats,
+}
+
+/// What thread mode is doing, for the real-time clock's underrun report ([`set_phase`]).
+static PHASE: AtomicU32 = AtomicU32::new(0);
+
+/// Thread mode's phase (`phase`: 0 other, 1 a `service` call (slicing, toolpaths), 2 a
+/// `poll` (planning, step generation)) and the slicer's layer, for the underrun report.
+pub fn set_phase(phase: u32, layer: u32) {
+    PHASE.store(phase << 24 | layer.min(0xFF_FFFF), Ordering::Relaxed);
+}
+
+/// The real-time clock's figures of a job (`qemu-realtime`), print ticks; [`NONE`] marks an
+/// absent clock value (48 B: the 64 KB build's stack reserve holds with them).
+#[cfg(feature = "qemu-realtime")]
+#[derive(Debug, Clone, Copy)]
+struct RtStats {
+    /// Print clock since which the executor is stalled (an underrun), or `NONE`.
+    stalled_since: u64,
+    stall_total: u64,
+    stall_max: u32,
+    /// The first underrun's [`PHASE`] and print clock from the job's first step (`NONE`
+    /// without one).
+    first_phase: u32,
+    first_tick: u64,
+    /// The unrested horizon at the last SysTick (absolute print clock), or `NONE`.
+    horizon: u64,
+    /// Minimum of that horizon less the print clock at the next SysTick (`i32::MAX`: none).
+    min_slack: i32,
+    /// SysTick interrupts that left due events for the next one (the interrupt fell behind).
+    overruns: u32,
+}
+
+/// An absent print clock value in [`RtStats`].
+#[cfg(feature = "qemu-realtime")]
+const NONE: u64 = u64::MAX;
+
+#[cfg(feature = "qemu-realtime")]
+impl RtStats {
+    const fn new() -> Self {
+        Self {
+            stalled_since: NONE,
+            stall_total: 0,
+            stall_max: 0,
+            first_phase: 0,
+            first_tick: NONE,
+            horizon: NONE,
+            min_slack: i32::MAX,
+            overruns: 0,
+        }
+    }
 }
 
 /// The wait at the horizon the interrupt is in (0: none), for thread mode.
@@ -473,6 +582,7 @@ impl Isr {
     /// underrun only accelerated time makes: the pipeline has not caught up yet), nor into a
     /// rest point while more blocks come (the host simulation's generator is always there
     /// first), unless thread mode allowed it for this wait (a true deadlock, or a pause).
+    #[cfg(not(feature = "qemu-realtime"))]
     fn may_run(&mut self, t: u32) -> bool {
         if self.motion.homing() {
             return true;
@@ -482,7 +592,7 @@ impl Isr {
             return true;
         }
         let (h, rest) = e.horizon();
-        if is_before(t, h) {
+        if strata::step::is_before(t, h) {
             return true;
         }
         if (rest && FINAL.load(Ordering::Acquire))
@@ -498,6 +608,7 @@ impl Isr {
         false
     }
 
+    #[cfg(not(feature = "qemu-realtime"))]
     fn run(&mut self, cs: &interrupt::CriticalSection) {
         for _ in 0..EVENTS_PER_TICK {
             // Idle or stalled: poll at the same instant (the print clock waits).
@@ -514,45 +625,115 @@ impl Isr {
             }
             // Straight to the next wake (wrap-aware, never backwards).
             let d = t.wrapping_sub(self.clock as u32) as i32;
-            self.clock += d.max(0) as u64;
-            VB.borrow(cs).borrow_mut().now = self.clock;
-            let homing = self.motion.homing();
-            let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
-            let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
-            // The timer set up before the count starts (the board's costs nothing to set up).
-            let mut timer = EmuTimer { start: self.clock as u32, c0: 0, pins0: p0, reads: 0 };
-            let c0 = SYST::get_current();
-            timer.c0 = c0;
-            self.next = self.motion.event(self.clock as u32, &mut timer);
-            let c1 = SYST::get_current();
-            let pins = pin_counts_since(p0) + timer.overhead_counts();
-            let idle_poll = was_idle && self.next == Next::Idle;
-            if !homing && !idle_poll {
-                let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
-                // Without the virtual pins' bookkeeping (a real pin write is one store) and
-                // the timer emulation (a real read is one load).
-                let d = d.saturating_sub(pins);
-                self.calls += 1;
-                self.call_counts += d as u64;
-                self.call_max = self.call_max.max(d);
-                if was_idle && self.start.is_none() {
-                    // The print clock of the job starts where the executor first leaves
-                    // idle (as the host simulation's `first_step`); steps hash from there.
-                    self.start = Some(self.clock);
-                    let mut vb = VB.borrow(cs).borrow_mut();
-                    vb.origin = self.clock;
-                    vb.hash = FNV_OFFSET;
-                    vb.steps = [0; AXES];
-                    vb.position = [0; AXES];
-                    vb.last_rise = 0;
-                }
-                if self.next == Next::Idle {
-                    self.end = self.clock;
-                }
-            }
+            self.fire(cs, self.clock + d.max(0) as u64);
             if matches!(self.next, Next::Idle | Next::Stalled(_)) {
                 break;
             }
+        }
+    }
+
+    /// Runs the executor's event at print clock `at` (not before the clock), with the
+    /// interrupt's cost figures and the job's start and end.
+    fn fire(&mut self, cs: &interrupt::CriticalSection, at: u64) {
+        self.clock = at;
+        VB.borrow(cs).borrow_mut().now = self.clock;
+        let homing = self.motion.homing();
+        let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
+        let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
+        // The timer set up before the count starts (the board's costs nothing to set up).
+        let mut timer = EmuTimer { start: self.clock as u32, c0: 0, pins0: p0, reads: 0 };
+        let c0 = SYST::get_current();
+        timer.c0 = c0;
+        self.next = self.motion.event(self.clock as u32, &mut timer);
+        let c1 = SYST::get_current();
+        let pins = pin_counts_since(p0) + timer.overhead_counts();
+        let idle_poll = was_idle && self.next == Next::Idle;
+        if !homing && !idle_poll {
+            let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
+            // Without the virtual pins' bookkeeping (a real pin write is one store) and
+            // the timer emulation (a real read is one load).
+            let d = d.saturating_sub(pins);
+            self.calls += 1;
+            self.call_counts += d as u64;
+            self.call_max = self.call_max.max(d);
+            if was_idle && self.start.is_none() {
+                // The print clock of the job starts where the executor first leaves
+                // idle (as the host simulation's `first_step`); steps hash from there.
+                self.start = Some(self.clock);
+                let mut vb = VB.borrow(cs).borrow_mut();
+                vb.origin = self.clock;
+                vb.hash = FNV_OFFSET;
+                vb.steps = [0; AXES];
+                vb.position = [0; AXES];
+                vb.last_rise = 0;
+            }
+            if self.next == Next::Idle {
+                self.end = self.clock;
+            }
+        }
+    }
+
+    /// The real-time clock (`qemu-realtime`): every event due by `now` (print ticks =
+    /// instructions x CPI) at its own wake time; idle and stalled polls at `now`. Underruns
+    /// and the queue's slack are recorded, nothing waits.
+    #[cfg(feature = "qemu-realtime")]
+    fn run_realtime(&mut self, cs: &interrupt::CriticalSection) {
+        let now = insns_now() * CPI_X10 / 10;
+        let running = |m: &BoardMotion| m.exec().is_some_and(|e| !e.is_idle()) && !m.homing();
+        // Slack: the horizon seen at the last interrupt against this one's clock.
+        let h = core::mem::replace(&mut self.rt.horizon, NONE);
+        if h != NONE && running(&self.motion) && self.start.is_some() {
+            let slack = (h as i64 - now as i64).clamp(i32::MIN as i64, i32::MAX as i64 - 1);
+            self.rt.min_slack = self.rt.min_slack.min(slack as i32);
+        }
+        let mut events = 0;
+        loop {
+            let at = match self.next {
+                Next::At(t) => {
+                    self.clock + (t.wrapping_sub(self.clock as u32) as i32).max(0) as u64
+                }
+                Next::Idle | Next::Stalled(_) => now.max(self.clock),
+            };
+            if at > now {
+                break;
+            }
+            if events == RT_EVENTS_PER_TICK {
+                self.rt.overruns += 1;
+                break;
+            }
+            events += 1;
+            self.fire(cs, at);
+            self.track_stall();
+            if matches!(self.next, Next::Idle | Next::Stalled(_)) {
+                break;
+            }
+        }
+        if running(&self.motion) {
+            let e = self.motion.exec().expect("running");
+            let (h, rest) = e.horizon();
+            if !rest && !e.is_stalled() {
+                self.rt.horizon =
+                    self.clock.wrapping_add(h.wrapping_sub(self.clock as u32) as i32 as i64 as u64);
+            }
+        }
+    }
+
+    /// Stall bookkeeping after an event (`qemu-realtime`).
+    #[cfg(feature = "qemu-realtime")]
+    fn track_stall(&mut self) {
+        let stalled = self.motion.exec().is_some_and(|e| e.is_stalled());
+        let since = self.rt.stalled_since;
+        if stalled && since == NONE {
+            self.rt.stalled_since = self.clock;
+            if self.rt.first_tick == NONE {
+                self.rt.first_tick = self.clock - self.start.unwrap_or(self.clock);
+                self.rt.first_phase = PHASE.load(Ordering::Relaxed);
+            }
+        } else if !stalled && since != NONE {
+            let d = self.clock - since;
+            self.rt.stall_total += d;
+            self.rt.stall_max = self.rt.stall_max.max(d.min(u32::MAX as u64) as u32);
+            self.rt.stalled_since = NONE;
         }
     }
 }
@@ -563,16 +744,21 @@ fn SysTick() {
     let wraps = WRAPS.fetch_add(1, Ordering::Relaxed).wrapping_add(1);
     interrupt::free(|cs| {
         if let Some(isr) = ISR.borrow(cs).borrow_mut().as_mut() {
+            #[cfg(not(feature = "qemu-realtime"))]
             isr.run(cs);
+            #[cfg(feature = "qemu-realtime")]
+            isr.run_realtime(cs);
         }
         // Every millisecond (100 wraps of 10 us): the main-loop watchdog.
-        if wraps % 100 == 0
+        if wraps % WRAPS_PER_WATCH_MS == 0
             && !WATCH.borrow(cs).borrow_mut().tick(1)
             && !WATCH_TRIPPED.swap(true, Ordering::Relaxed)
         {
             log!("HEAT WATCHDOG main loop stalled: heaters forced off");
         }
     });
+    // The feed interrupt tops the step queue up after this one (every 10,000 instructions).
+    crate::pipeline_motion::pend_feed();
     let c1 = SYST::get_current();
     let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
     // Only this handler writes these (thread mode reads them).
@@ -583,6 +769,18 @@ fn SysTick() {
     }
     ISR_COUNTS_LO.store(sum, Ordering::Relaxed);
 }
+
+/// Instructions in a millisecond of the firmware's clock (protocol, heaters, status): QEMU's
+/// virtual time (one a nanosecond) on the accelerated board; the chip's time at
+/// [`CPI_X10`] / 10 cycles an instruction on the real-time one (36,000 at 2.0), so that
+/// thread mode's periodic work comes as often per print second as on the board.
+#[cfg(not(feature = "qemu-realtime"))]
+const INSNS_PER_MS: u64 = 1_000_000;
+#[cfg(feature = "qemu-realtime")]
+const INSNS_PER_MS: u64 = 72_000 * 10 / CPI_X10;
+/// SysTick wraps (10,000 instructions) per millisecond of the main-loop watchdog, rounded up
+/// (the real-time board's at 2.0: 4 wraps, 1.11 ms: lenient by 11 %).
+const WRAPS_PER_WATCH_MS: u32 = INSNS_PER_MS.div_ceil(10_000) as u32;
 
 /// Instructions executed since start-up (SysTick counts x 5 ns, `-icount shift=0`).
 pub fn insns_now() -> u64 {
@@ -616,7 +814,7 @@ pub struct Board {
 impl Board {
     /// Milliseconds of virtual time (1,000,000 instructions each).
     pub fn now_ms(&mut self) -> u32 {
-        (insns_now() / 1_000_000) as u32
+        (insns_now() / INSNS_PER_MS) as u32
     }
 
     /// Bytes waiting in the UART's receive FIFO, up to `buf.len()`.
@@ -697,10 +895,20 @@ pub fn init(cfg: &StepConfig) -> Board {
             calls: 0,
             call_counts: 0,
             call_max: 0,
+            #[cfg(not(feature = "qemu-realtime"))]
             blocked: 0,
+            #[cfg(not(feature = "qemu-realtime"))]
             epoch: 0,
+            #[cfg(feature = "qemu-realtime")]
+            rt: RtStats::new(),
         }));
     });
+    // SAFETY: priorities are set before either interrupt is enabled: SysTick (the executor
+    // and the clock) highest, PendSV (the feed) lowest; see `pipeline_motion`.
+    unsafe {
+        cp.SCB.set_priority(SystemHandler::SysTick, 0);
+        cp.SCB.set_priority(SystemHandler::PendSV, crate::pipeline_motion::FEED_PRIORITY);
+    }
     cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(RELOAD - 1);
     cp.SYST.clear_current();
@@ -721,7 +929,7 @@ pub fn init(cfg: &StepConfig) -> Board {
     log!(
         "CLOCK wraps_at={} wrap_ns={}",
         &WRAPS as *const AtomicU32 as u32,
-        RELOAD * PERIOD_NS.load(Ordering::Relaxed)
+        RELOAD as u64 * PERIOD_NS.load(Ordering::Relaxed) as u64 * 1_000_000 / INSNS_PER_MS
     );
     Board { _syst: cp.SYST, plant: Plant::new() }
 }
@@ -762,6 +970,10 @@ pub fn job_started() {
             isr.calls = 0;
             isr.call_counts = 0;
             isr.call_max = 0;
+            #[cfg(feature = "qemu-realtime")]
+            {
+                isr.rt = RtStats::new();
+            }
         }
         FINAL.store(false, Ordering::Release);
     });
@@ -791,7 +1003,7 @@ pub fn job_ended() {
         calls,
         counts * ns,
         max as u64 * ns,
-        steps.iter().sum::<u64>()
+        steps.iter().map(|&s| u64::from(s)).sum::<u64>()
     );
     log!(
         "STEPS x={} y={} z={} e={} pos_x={} pos_y={} pos_z={} pos_e={} hash={:016x} print_ticks={} waits={} steps_disabled={}",
@@ -808,6 +1020,34 @@ pub fn job_ended() {
         underruns,
         bad
     );
+    #[cfg(feature = "qemu-realtime")]
+    realtime_report(underruns);
+}
+
+/// The real-time clock's line of a job: `RT cpi_x10=.. underruns=.. stall_ticks=..
+/// stall_max_ticks=.. slack_samples=.. min_slack_ticks=.. first_underrun_tick=..
+/// first_underrun_phase=.. first_underrun_layer=.. overruns=..` (print ticks; the minimum
+/// slack means something when `slack_samples=1`, the first underrun's fields when
+/// `underruns` is not 0).
+#[cfg(feature = "qemu-realtime")]
+fn realtime_report(underruns: u32) {
+    let rt = interrupt::free(|cs| ISR.borrow(cs).borrow().as_ref().expect("board::init ran").rt);
+    let (tick, phase) =
+        if rt.first_tick == NONE { (0, 0) } else { (rt.first_tick, rt.first_phase) };
+    let sampled = rt.min_slack != i32::MAX;
+    log!(
+        "RT cpi_x10={} underruns={} stall_ticks={} stall_max_ticks={} slack_samples={} min_slack_ticks={} first_underrun_tick={} first_underrun_phase={} first_underrun_layer={} overruns={}",
+        CPI_X10,
+        underruns,
+        rt.stall_total,
+        rt.stall_max,
+        sampled as u32,
+        if sampled { rt.min_slack } else { 0 },
+        tick,
+        phase >> 24,
+        phase & 0xFF_FFFF,
+        rt.overruns
+    );
 }
 
 /// A debug line about the motion (`HB ...`).
@@ -819,7 +1059,7 @@ pub fn heartbeat(prod: &Producer) {
         let (h, rest) = e.map_or((0, false), |e| e.horizon());
         (
             isr.clock,
-            isr.blocked,
+            BLOCKED.load(Ordering::Relaxed),
             isr.motion.homing() as u32,
             e.map_or(1, |e| e.is_idle() as u32),
             e.map_or(0, |e| e.is_stalled() as u32),
