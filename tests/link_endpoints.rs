@@ -59,11 +59,12 @@ struct Run {
     error: Option<LinkError>,
 }
 
-/// Sends `count` messages from A (8 slots) to B (4 slots, the application takes one every
-/// other millisecond) over channels with `loss` per mille of each fault.
+/// Sends `count` messages from A (8 slots, the host's timers) to B (4 slots, the device's
+/// timers, the application takes one every other millisecond) over channels with `loss` per
+/// mille of each fault.
 fn transfer(count: u32, loss: u64, seed: u64, cut_at: Option<u32>) -> Run {
     let mut a: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
-    let mut b: Endpoint<4, 4> = Endpoint::new(LinkConfig::default());
+    let mut b: Endpoint<4, 4> = Endpoint::new(LinkConfig::device());
     let mut ab = Channel { rng: Rng::new(seed), loss, queue: Vec::new(), cut: false };
     let mut ba = Channel { rng: Rng::new(seed ^ 0xdead_beef), loss, queue: Vec::new(), cut: false };
     let mut frame = [0u8; MAX_WIRE];
@@ -124,7 +125,7 @@ fn lossy_links_deliver_everything_once_in_order() {
     for (loss, seed) in [(10, 1), (50, 2), (50, 3), (100, 4), (200, 5)] {
         let r = transfer(1_000, loss, seed, None);
         eprintln!("loss {loss}/1000: {} ms, A {:?}, B {:?}", r.end_ms, r.a, r.b);
-        assert_eq!(r.delivered, 1_000, "loss {loss}");
+        assert_eq!(r.delivered, 1_000, "loss {loss}: {:?}", r.error);
         assert!(r.b.bad_frames > 0 && r.a.retransmits > 0);
         assert_eq!(r.b.delivered, 1_000);
     }
@@ -137,4 +138,81 @@ fn dead_link_is_reported_in_bounded_time() {
     assert!(matches!(e, LinkError::Dead { silent_ms } if silent_ms >= 3000));
     assert!(r.end_ms <= 500 + 3_001, "{}", r.end_ms);
     eprintln!("{e} at {} ms", r.end_ms);
+}
+
+/// Bytes the Creality board buffers for a busy thread mode (`RX_RING` in
+/// `firmware/src/board/creality.rs`: a 512-slot heapless queue holds 511).
+const DEVICE_RX_RING: usize = 511;
+
+/// The host (8 slots, its timers) streams full messages ([`MAX_PAYLOAD`] bytes) to the
+/// firmware's endpoint (2 transmit slots, 1 receive slot, the device's timers) on a clean
+/// link at 250000 baud; the device's thread
+/// mode stops reading for `busy_ms` every other second (a large layer's computation): the
+/// bytes that arrive meanwhile wait in a ring of [`DEVICE_RX_RING`] bytes. None may be lost
+/// to a full ring, and every message arrives. Returns the ring's highest fill.
+fn busy_device(busy_ms: u32) -> usize {
+    const COUNT: u32 = 200;
+    let full =
+        |i: u32| -> Vec<u8> { (0..MAX_PAYLOAD).map(|k| (i as usize * 31 + k) as u8).collect() };
+    // 250000 baud: 25 bytes a millisecond.
+    const BYTES_PER_MS: usize = 25;
+    let mut host: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
+    let mut dev: Endpoint<2, 1> = Endpoint::new(LinkConfig::device());
+    let (mut wire_in, mut ring, mut wire_out) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut sent, mut got, mut fill_max, mut dropped) = (0u32, 0u32, 0usize, 0usize);
+    let mut frame = [0u8; MAX_WIRE];
+    let mut now = 0u32;
+    while got < COUNT && now < 600_000 {
+        now += 1;
+        // The UART: 25 bytes a millisecond each way; the device's interrupt fills the ring.
+        for b in wire_in.drain(..wire_in.len().min(BYTES_PER_MS)) {
+            if ring.len() < DEVICE_RX_RING {
+                ring.push(b);
+            } else {
+                dropped += 1;
+            }
+        }
+        fill_max = fill_max.max(ring.len());
+        let back: Vec<u8> = wire_out.drain(..wire_out.len().min(BYTES_PER_MS)).collect();
+        host.receive(&back, now);
+        assert!(host.check(now).is_ok(), "the host gave the busy device up at {now} ms");
+        while sent < COUNT && host.send(&full(sent)).is_ok() {
+            sent += 1;
+        }
+        loop {
+            let n = host.poll_transmit(now, &mut frame);
+            if n == 0 {
+                break;
+            }
+            wire_in.extend_from_slice(&frame[..n]);
+        }
+        // Thread mode: busy for `busy_ms` out of every 2 s, else a turn a millisecond.
+        if now % 2000 < busy_ms {
+            continue;
+        }
+        dev.receive(&std::mem::take(&mut ring), now);
+        if let Some(p) = dev.peek() {
+            assert_eq!(p, &full(got)[..], "message {got} altered or out of order");
+            got += 1;
+            dev.pop();
+        }
+        loop {
+            let n = dev.poll_transmit(now, &mut frame);
+            if n == 0 {
+                break;
+            }
+            wire_out.extend_from_slice(&frame[..n]);
+        }
+    }
+    assert_eq!(dropped, 0, "{busy_ms} ms busy: {dropped} bytes lost to a full ring");
+    assert_eq!(got, COUNT, "{busy_ms} ms busy: not every message arrived");
+    fill_max
+}
+
+#[test]
+fn a_busy_device_buffers_no_more_than_its_receive_ring() {
+    for busy_ms in [50, 430, 1000, 1900] {
+        let fill = busy_device(busy_ms);
+        eprintln!("thread mode busy {busy_ms} ms: the ring held at most {fill} B");
+    }
 }

@@ -153,9 +153,12 @@ impl MainLoop {
         }
         let finished = self.printer.motion_finished() || !self.printer.is_active();
         let paused = self.printer.state() == DeviceState::Paused;
-        self.motion.peek(|m, prod| {
+        // The interrupt's wait at the horizon before the generator runs once more: see
+        // `board::after_poll`.
+        let waiting = board::waiting();
+        self.motion.peek_fed(|m, prod| {
             let gen_blocked = m.generator().waits_on_a_full_queue();
-            board::after_poll(prod, finished, paused, gen_blocked);
+            board::after_poll(prod, finished, paused, gen_blocked, waiting);
         });
         transmit(&mut self.board, self.ep, now);
         if self.job_open {

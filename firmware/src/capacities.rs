@@ -54,9 +54,12 @@ strata::printer_type! {
 /// simulation's).
 pub const STEP_QUEUE: usize = 64;
 
-/// The device's protocol endpoint: 2 frames in flight, 2 receive slots (the host simulation's
-/// device has 4 and 4; the link adapts through its credits).
-pub type FwEndpoint = Endpoint<2, 2>;
+/// The device's protocol endpoint: 2 frames in flight, 1 receive slot (the host simulation's
+/// device has 4 and 4; the link adapts through its credits). One slot keeps the host to one
+/// data frame in flight: while thread mode computes a layer and reads nothing, the Creality's
+/// 512-byte receive ring takes that frame and the host's probes and keepalives for seconds
+/// (`tests/link_endpoints.rs`, `a_busy_device_buffers_no_more_than_its_receive_ring`).
+pub type FwEndpoint = Endpoint<2, 1>;
 
 /// `Printer::poll` calls per main-loop turn (each is bounded work).
 pub const POLLS_PER_LOOP: usize = 16;

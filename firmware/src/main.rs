@@ -53,7 +53,7 @@ fn main() -> ! {
     // `Printer::empty` is unconfigured (zero limits and steps/mm): configure it in place
     // before anything reads its step configuration.
     printer.configure(&app::MACHINE);
-    let ep = ENDPOINT.init_with(|| Endpoint::new(LinkConfig::default()));
+    let ep = ENDPOINT.init_with(|| Endpoint::new(LinkConfig::device()));
     let board = board::init(printer.step_config());
     app::run(board, printer, MOTION.take(), ep)
 }

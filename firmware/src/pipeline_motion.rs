@@ -190,6 +190,18 @@ impl FwMotion {
         });
     }
 
+    /// Runs a feed as PendSV's, then `f` on the motion half and the producer, in one
+    /// section: what `f` reads of the generator (blocked on a full queue or not) is up to
+    /// date with the queue, not as of the last PendSV (the accelerated QEMU board decides
+    /// from it whether the executor must stall).
+    pub fn peek_fed<R>(&self, f: impl FnOnce(&FwMotionHalf, &Producer) -> R) -> R {
+        locked(|s| {
+            feed(s);
+            let m = s.motion.as_deref().expect("the motion half is set up");
+            f(m, s.prod.as_ref().expect("the step queue is set up"))
+        })
+    }
+
     /// Runs `f` on the motion half and the step queue's producer (feed masked).
     pub fn peek<R>(&self, f: impl FnOnce(&FwMotionHalf, &Producer) -> R) -> R {
         locked(|s| {

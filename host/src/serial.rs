@@ -224,7 +224,7 @@ impl ServeOptions {
     /// A device announcing `capacities`, its motion `speedup` times faster than its clock, on
     /// the protocol's default link timers.
     pub fn new(capacities: Capacities, speedup: u64) -> Self {
-        Self { capacities, speedup, link: LinkConfig::default(), stall_reads_ms: 0 }
+        Self { capacities, speedup, link: LinkConfig::device(), stall_reads_ms: 0 }
     }
 }
 
@@ -388,7 +388,7 @@ mod tests {
     /// keepalive received).
     fn loaded_endpoint() -> HostEndpoint {
         let mut ep = HostEndpoint::new(LinkConfig::default());
-        let mut device: DeviceEndpoint = Endpoint::new(LinkConfig::default());
+        let mut device: DeviceEndpoint = Endpoint::new(LinkConfig::device());
         let mut frame = [0u8; MAX_WIRE];
         device.poll_transmit(0, &mut frame);
         let n = device.poll_transmit(LinkConfig::default().keepalive_ms, &mut frame);

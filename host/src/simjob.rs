@@ -335,7 +335,7 @@ fn run(
     let mut motion: Box<SimMotion<'_, STEP_QUEUE>> = Box::new(MotionHalf::new(prod));
 
     let mut host_ep: HostEndpoint = Endpoint::new(LinkConfig::default());
-    let mut dev_ep: DeviceEndpoint = Endpoint::new(LinkConfig::default());
+    let mut dev_ep: DeviceEndpoint = Endpoint::new(LinkConfig::device());
     let mut host = HostJob::new(tris, job);
     if opts.check_delivery {
         host.sent_log = Some(Vec::new());

@@ -69,6 +69,9 @@ const BAUD: u32 = 250_000;
 /// Budget of one QEMU job in emulated time, ms (the longest, embodier_hotend_v2 through the
 /// lossy relay, takes 16 s of QEMU's clock: each job's line below says how long it took).
 const QEMU_JOB_MS: u32 = 600_000;
+/// The same on the real-time board, whose clock is the chip's: the print itself takes its
+/// print time there (the longest sample model, embodier_hotend_v2, about 50 minutes).
+const REALTIME_JOB_MS: u32 = 4 * 3_600_000;
 /// Budget of the firmware's closing lines after the job's last report, ms of emulated time.
 const CLOSING_LINES_MS: u32 = 30_000;
 /// Stack bytes a job must leave untouched (painted) below its deepest use: the statics and the
@@ -263,8 +266,9 @@ fn qemu_job_on(
             None => (None, uart),
         };
         let mut port = Port::new(port);
+        let budget = if board == Some("qemu-rt") { REALTIME_JOB_MS } else { QEMU_JOB_MS };
         let (run, r) =
-            run_job(&label, &mut port, clock.clone(), tris, job, QEMU_JOB_MS, reference.is_none());
+            run_job(&label, &mut port, clock.clone(), tris, job, budget, reference.is_none());
         if let Some(r) = r {
             reference = Some(r.unwrap_or_else(|e| panic!("{label}: reference simulation: {e}")));
         }
@@ -409,7 +413,8 @@ fn qemu_mps2_embodier_lm8uu() {
 // Every job must run without an underrun (no executor stall, no interrupt that fell behind),
 // its queue slack never below zero, and equal the simulation bit for bit as above (which the
 // accelerated board equals too). CI runs the first layers of each model
-// ([`REALTIME_CI_LAYERS`]); the whole models are the ignored `qemu_realtime_models`.
+// ([`REALTIME_CI_LAYERS`]) and a heavy part; the whole models are ignored tests
+// (`cargo test --release -p strata-host --test hil_qemu -- --ignored qemu_realtime_`).
 
 /// Layers of each model the CI's real-time runs print (bottom skins, the first perimeters
 /// and infill: the layers whose computation runs while the first moves print).
@@ -498,13 +503,35 @@ fn qemu_realtime_heavy_layers() {
     qemu_realtime("a 48-tooth gear (192 edges a layer)", &tris, job);
 }
 
+/// A whole sample model in real time (the ignored tests below: the print takes its print
+/// time of the device's clock, 10 to 50 minutes, about as long in wall time).
+fn qemu_realtime_model(name: &str) {
+    let (tris, job) = load(name);
+    qemu_realtime(name, &tris, job);
+}
+
 #[test]
-#[ignore = "whole models in real time: about N minutes; run with --ignored"]
-fn qemu_realtime_models() {
-    for name in MODELS {
-        let (tris, job) = load(name);
-        qemu_realtime(name, &tris, job);
-    }
+#[ignore = "a whole model in real time: run with --ignored"]
+fn qemu_realtime_embodier_asc() {
+    qemu_realtime_model("embodier_asc.stl");
+}
+
+#[test]
+#[ignore = "a whole model in real time: run with --ignored"]
+fn qemu_realtime_xyz_20mm_cube() {
+    qemu_realtime_model("xyz_20mm_cube.stl");
+}
+
+#[test]
+#[ignore = "a whole model in real time: run with --ignored"]
+fn qemu_realtime_embodier_hotend_v2() {
+    qemu_realtime_model("embodier_hotend_v2.stl");
+}
+
+#[test]
+#[ignore = "a whole model in real time: run with --ignored"]
+fn qemu_realtime_embodier_lm8uu() {
+    qemu_realtime_model("embodier_LM8UU_8p2pi.stl");
 }
 
 /// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm),

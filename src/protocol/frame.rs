@@ -24,6 +24,9 @@ pub const MAX_RAW: usize = HEADER_LEN + MAX_PAYLOAD + CRC_LEN;
 /// Largest encoded frame on the wire: COBS adds one byte per 254 and the leading code byte;
 /// plus the `0x00` delimiter.
 pub const MAX_WIRE: usize = MAX_RAW + MAX_RAW / 254 + 2;
+/// An encoded frame with no payload (an ack, a probe): 8 bytes, COBS' code byte and the
+/// delimiter (no zero run can need a second code byte in 8 bytes).
+pub const MIN_WIRE: usize = HEADER_LEN + CRC_LEN + 2;
 
 const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
@@ -257,6 +260,16 @@ mod tests {
                 let d = cobs_decode_in_place(&mut enc[..n]).unwrap();
                 assert_eq!(&enc[..d], &src[..len]);
             }
+        }
+    }
+
+    #[test]
+    fn an_empty_frame_takes_min_wire_bytes() {
+        // Every header and CRC value, zeros included: 8 bytes need one COBS code byte.
+        for (kind, v) in [(FrameType::Ack, 0u8), (FrameType::Data, 0xFF), (FrameType::Data, 0)] {
+            let mut out = [0u8; MAX_WIRE];
+            let n = encode(kind, v, v, v, &[], &mut out).unwrap();
+            assert_eq!(n, MIN_WIRE, "{kind:?} {v}");
         }
     }
 }

@@ -9,7 +9,14 @@
 //!   sender's free receive slots (credits): a peer sends sequence number `s` only while
 //!   `s - ack < credits`, so the receive buffer never overflows;
 //! - unacknowledged frames are sent again, all of them from the oldest, when no ack advanced
-//!   for [`LinkConfig::retransmit_ms`];
+//!   for [`LinkConfig::retransmit_ms`] and the peer has been heard since (any valid frame
+//!   at or after that point). Until it is, a **probe** goes out instead: an empty data frame
+//!   with the sequence number before the window, which a live peer answers at once with an
+//!   ack (a duplicate); the probes' interval doubles from `retransmit_ms` up to
+//!   [`LinkConfig::keepalive_ms`] (a probe is a keepalive too). A silent peer is busy or gone, and resending to it would only fill its
+//!   receive buffer: a peer that stops reading for a while (the device slicing a large
+//!   layer) receives its credits' worth of data frames and then only probes and keepalives,
+//!   [`PROBE_WIRE`] bytes each;
 //! - an ack frame goes out when one is due and no data frame can carry it, and at least
 //!   every [`LinkConfig::keepalive_ms`]; hearing nothing for [`LinkConfig::dead_ms`] makes
 //!   the link [`LinkError::Dead`].
@@ -23,12 +30,22 @@ use super::frame::{self, Decoder, FrameType, MAX_PAYLOAD, MAX_WIRE};
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub struct LinkConfig {
-    /// Resend unacknowledged frames after this long without ack progress.
+    /// Resend unacknowledged frames after this long without ack progress, once the peer is
+    /// heard from after that.
     pub retransmit_ms: u32,
     /// Send an ack (with the current credits) at least this often.
     pub keepalive_ms: u32,
     /// The link is dead after this long without any valid frame from the peer.
     pub dead_ms: u32,
+}
+
+impl LinkConfig {
+    /// The device's timers: the defaults with an ack at least every 100 ms, so that the host
+    /// hears a live device often (its probes and resends wait for that, see the module docs)
+    /// while the host's own keepalives, which a busy device buffers unread, stay at 250 ms.
+    pub const fn device() -> Self {
+        Self { retransmit_ms: 100, keepalive_ms: 100, dead_ms: 3000 }
+    }
 }
 
 impl Default for LinkConfig {
@@ -79,6 +96,9 @@ impl core::fmt::Display for SendError {
     }
 }
 
+/// Wire bytes of a probe or an ack (a frame with no payload).
+pub const PROBE_WIRE: usize = frame::MIN_WIRE;
+
 /// Counters of an endpoint.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -89,6 +109,8 @@ pub struct LinkStats {
     pub bytes_sent: u64,
     /// Data frames sent again.
     pub retransmits: u64,
+    /// Probes sent to a silent peer (see the module docs).
+    pub probes: u64,
     /// Valid frames received.
     pub frames_received: u64,
     /// Frames discarded by the decoder (CRC, COBS, length, version, type).
@@ -138,6 +160,9 @@ pub struct Endpoint<const TX: usize, const RX: usize> {
     peer_credits: u8,
     /// Time the retransmission timer started (last ack progress or window restart).
     tx_timer_ms: u32,
+    /// The last probe and the interval to the next one, ms.
+    probe_ms: u32,
+    probe_every_ms: u32,
     rx: [Slot; RX],
     rx_head: usize,
     rx_len: usize,
@@ -168,6 +193,8 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
             tx_base: 0,
             peer_credits: 1,
             tx_timer_ms: 0,
+            probe_ms: 0,
+            probe_every_ms: 0,
             rx: [EMPTY; RX],
             rx_head: 0,
             rx_len: 0,
@@ -180,6 +207,7 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
                 frames_sent: 0,
                 bytes_sent: 0,
                 retransmits: 0,
+                probes: 0,
                 frames_received: 0,
                 bad_frames: 0,
                 duplicates: 0,
@@ -329,14 +357,33 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
         if !self.started {
             self.start(now_ms);
         }
-        if self.tx_sent > 0 && now_ms.wrapping_sub(self.tx_timer_ms) >= self.cfg.retransmit_ms {
+        let credits = (RX - self.rx_len) as u8;
+        let expired =
+            self.tx_sent > 0 && now_ms.wrapping_sub(self.tx_timer_ms) >= self.cfg.retransmit_ms;
+        // The peer spoke at or after the timer expired, without acking the window.
+        let heard_since =
+            self.last_rx_ms.wrapping_sub(self.tx_timer_ms) as i32 >= self.cfg.retransmit_ms as i32;
+        let mut probe = false;
+        if expired && heard_since {
             // Go back N: resend the window from its oldest frame.
             self.stats.retransmits += self.tx_sent as u64;
             self.tx_sent = 0;
             self.tx_timer_ms = now_ms;
+            self.probe_every_ms = 0;
+        } else if expired {
+            let since_probe = now_ms.wrapping_sub(self.probe_ms);
+            if self.probe_every_ms == 0 || since_probe >= self.probe_every_ms {
+                probe = true;
+                self.probe_ms = now_ms;
+                let (first, most) = (self.cfg.retransmit_ms.max(1), self.cfg.keepalive_ms);
+                self.probe_every_ms = (self.probe_every_ms * 2).clamp(first, most.max(first));
+            }
         }
-        let credits = (RX - self.rx_len) as u8;
-        let n = if self.tx_sent < self.tx_len && self.tx_sent < self.peer_credits as usize {
+        let n = if probe {
+            self.stats.probes += 1;
+            let seq = self.tx_base.wrapping_sub(1);
+            frame::encode(FrameType::Data, seq, self.rx_next, credits, &[], out)
+        } else if self.tx_sent < self.tx_len && self.tx_sent < self.peer_credits as usize {
             let slot = &self.tx[(self.tx_head + self.tx_sent) % TX];
             let seq = self.tx_base.wrapping_add(self.tx_sent as u8);
             if self.tx_sent == 0 {

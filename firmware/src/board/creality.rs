@@ -141,8 +141,13 @@ const PRIORITY_STEP: u8 = 0x00;
 const PRIORITY_UART: u8 = 0x40;
 const PRIORITY_SYSTICK: u8 = 0x80;
 
-/// Events handled per interrupt at most (then the interrupt comes back at once).
-const EVENTS_PER_IRQ: u32 = 8;
+/// Events handled per interrupt at most (then the interrupt comes back after [`MIN_ARM`],
+/// letting USART1 in): USART1 must read each byte within one byte time (40 us at 250000 baud,
+/// 2,880 cycles) or the next one overruns it, and TIM2 sits above it: 3 events of the worst
+/// executor call measured (712 cycles, `tools/job-cost`) take 2,136 cycles, 8 would take
+/// 5,696. One call serves every axis due at its time, so more than one event an interrupt
+/// happens only when the interrupt came late.
+const EVENTS_PER_IRQ: u32 = 3;
 /// Longest compare step of the 16-bit timer, ticks.
 const MAX_ARM: u32 = 60_000;
 /// Shortest compare step (the handler's own latency), ticks.
@@ -330,7 +335,13 @@ pub fn after_poll(
     _finished: bool,
     _paused: bool,
     _gen_blocked: bool,
+    _waiting: u32,
 ) {
+}
+
+/// No wait at a horizon on real time (see [`after_poll`]).
+pub fn waiting() -> u32 {
+    0
 }
 
 /// Clocks, pins, USART1, TIM2 and the cycle counter.

@@ -866,12 +866,23 @@ pub fn executor_config(cfg: &StepConfig) -> StepConfig {
 /// paused. A queue that is merely full while the generator waits for blocks (the host is
 /// slow) is no deadlock: the motion waits at the horizon, as the host simulation's never
 /// runs dry there.
-pub fn after_poll(prod: &Producer, finished: bool, paused: bool, gen_blocked: bool) {
+///
+/// `waiting` is [`waiting`] read before the generator last ran (`gen_blocked`): a wait
+/// still on then froze the queue before that run, so `gen_blocked` is that queue's (one
+/// read after the run could come from a wait that began after it, the executor having
+/// freed room the generator has not seen yet: a stall the simulation does not have).
+pub fn after_poll(prod: &Producer, finished: bool, paused: bool, gen_blocked: bool, waiting: u32) {
     FINAL.store(finished, Ordering::Release);
     let b = BLOCKED.load(Ordering::Acquire);
-    if b != 0 && (paused || (gen_blocked && (0..AXES).any(|a| prod.free(a) == 0))) {
+    let deadlock = gen_blocked && (0..AXES).any(|a| prod.free(a) == 0);
+    if b != 0 && b == waiting && (paused || deadlock) {
         ALLOW.store(b, Ordering::Release);
     }
+}
+
+/// The wait at the horizon the interrupt is in (0: none; a new number for each wait).
+pub fn waiting() -> u32 {
+    BLOCKED.load(Ordering::Acquire)
 }
 
 /// Brings up the UART, the clock and the SysTick-driven virtual motion.
