@@ -151,42 +151,32 @@ pub struct FwMotion {
 impl FwMotion {
     /// The motion half `motion` with a fresh step queue (see [`FwMotion::reset_queue`]).
     pub fn new(motion: &'static mut FwMotionHalf, cfg: &StepConfig) -> Self {
-        locked(|s| {
-            let prod = board::with_motion(|m| {
-                let _old_exec = m.halt();
-                // SAFETY: no producer or executor exists yet (this is the first queue; the
-                // interrupt's executor was just taken).
-                let (p, e) = unsafe { fresh_queue(cfg) };
-                m.install(e);
-                p
-            });
-            s.motion = Some(motion);
-            s.prod = Some(prod);
-        });
-        Self {
+        locked(|s| s.motion = Some(motion));
+        let mut m = Self {
             #[cfg(feature = "qemu")]
             generation: Generation::default(),
-        }
+        };
+        m.reset_queue(cfg);
+        m
     }
 
     /// A fresh step queue: the interrupt's executor and this producer are replaced together
-    /// (the old ones are dropped first); the motion halts, drivers off.
+    /// (the old ones are dropped first); the motion halts, drivers off. The interrupts are
+    /// off only to take the executor out and to put the new one in, not while the queue is
+    /// cleared (3 KB: the UART's byte must not wait for it).
     pub fn reset_queue(&mut self, cfg: &StepConfig) {
         locked(|s| {
-            let slot = &mut s.prod;
-            board::with_motion(|m| {
-                // Both ends of the old queue go away here (neither has a destructor; what
-                // matters is that no borrow of the queue outlives this point).
-                {
-                    let _old_exec = m.halt();
-                    let _old_prod = slot.take();
-                }
-                // SAFETY: the previous executor and producer are dropped above, inside this
-                // critical section, so nothing borrows the queue any more.
-                let (p, e) = unsafe { fresh_queue(cfg) };
-                m.install(e);
-                *slot = Some(p);
-            });
+            // Both ends of the old queue go away here (neither has a destructor; what matters
+            // is that no borrow of the queue outlives this point).
+            {
+                let _old_exec = board::with_motion(|m| m.halt());
+                let _old_prod = s.prod.take();
+            }
+            // SAFETY: the previous executor and producer are dropped above, and the
+            // interrupt has none (`halt`): nothing borrows the queue any more.
+            let (p, e) = unsafe { fresh_queue(cfg) };
+            board::with_motion(|m| m.install(e));
+            s.prod = Some(p);
         });
     }
 

@@ -1,5 +1,5 @@
 //! Fuzz target for the protocol's receive path: `strata::protocol::Decoder` (frames) and
-//! `Message::decode` (payloads), and a device-side `Endpoint` fed the same bytes.
+//! `Message::decode` (payloads), and the firmware's `Endpoint` fed the same bytes.
 //!
 //! Checks: no panic; every frame the decoder accepts re-encodes to a wire frame that decodes
 //! to the same frame (so it passed length, CRC, version and type checks); every payload that
@@ -33,14 +33,23 @@ fuzz_target!(|data: &[u8]| {
     }
     check_message(data);
 
-    let mut ep: Endpoint<2, 4> = Endpoint::new(LinkConfig::default());
-    ep.receive(data, 1);
-    for i in 0..ep.rx_len() {
-        let p = ep.get(i).expect("delivered");
-        assert!(accepted.iter().any(|a| a.as_slice() == p), "delivered a payload never accepted");
-    }
+    // The firmware's endpoint (one receive slot, the device's timers) with a message of its
+    // own in flight: the bytes in two halves, 250 ms apart, transmitting around them (the
+    // retransmission timer expires, the peer is heard or not: probes and resends).
+    let mut ep: Endpoint<2, 1> = Endpoint::new(LinkConfig::device());
     let mut out = [0u8; MAX_WIRE];
-    while ep.poll_transmit(2, &mut out) != 0 {}
+    let _ = ep.send(b"status");
+    while ep.poll_transmit(0, &mut out) != 0 {}
+    let (first, second) = data.split_at(data.len() / 2);
+    for (bytes, at) in [(first, 1), (second, 250)] {
+        while ep.poll_transmit(at - 1, &mut out) != 0 {}
+        ep.receive(bytes, at);
+        for i in 0..ep.rx_len() {
+            let p = ep.get(i).expect("delivered");
+            assert!(accepted.iter().any(|a| a.as_slice() == p), "delivered a payload never accepted");
+        }
+        while ep.poll_transmit(at + 120, &mut out) != 0 {}
+    }
 });
 
 fn check_message(bytes: &[u8]) {

@@ -534,6 +534,57 @@ fn qemu_realtime_embodier_lm8uu() {
     qemu_realtime_model("embodier_LM8UU_8p2pi.stl");
 }
 
+/// An abort in the middle of a job on the 64 KB firmware (thread mode resets the step queue
+/// while the feed interrupt generates steps and the step interrupt executes them): the
+/// printer confirms it, the job ends `Aborted`, no step comes with the drivers off, and the
+/// motion stops short of the whole job's steps (the simulation's).
+#[test]
+fn qemu_abort_mid_job_stops_the_motion() {
+    let Some((qemu, elf)) = qemu_or_skip("hil_qemu abort", None) else { return };
+    let tris = banded_cylinder(8_000.0, 3_000, 32, 200);
+    let job = job_spec(&tris);
+    let whole = simulate(&tris, &MachineConfig::default(), job, &SimOptions::default())
+        .unwrap_or_else(|(e, _)| panic!("simulation: {e}"));
+    let (mut q, uart) = Qemu::start(&qemu, &elf, false).unwrap_or_else(|e| panic!("{e}"));
+    let mut clock = q.clock().unwrap_or_else(|e| panic!("{e}"));
+    let mut port = Port::new(uart);
+    port.get_mut().set_read_timeout(Some(Duration::from_millis(1))).unwrap();
+    port.get_mut().set_write_timeout(Some(Duration::from_millis(1))).unwrap();
+    let mut conn = hil::connect(&mut port, &mut clock).unwrap_or_else(|e| panic!("{e}"));
+    let abort = std::sync::atomic::AtomicBool::new(false);
+    let r = hil::print_job_or_abort(
+        &mut port,
+        &mut conn,
+        clock.clone(),
+        &tris,
+        job,
+        QEMU_JOB_MS,
+        &abort,
+        |p| {
+            if p.layer_hashes.len() >= 3 {
+                abort.store(true, std::sync::atomic::Ordering::Relaxed);
+            }
+        },
+    );
+    let e = r.expect_err("the job was aborted");
+    assert!(e.contains("the printer confirmed"), "{e}");
+    q.wait_for(&mut clock, CLOSING_LINES_MS, |l| l.iter().any(|l| l.starts_with("MEM ")))
+        .unwrap_or_else(|e| panic!("waiting for the closing lines: {e}"));
+    let lines = q.lines();
+    let aborted = DeviceState::Aborted as u32;
+    assert!(
+        lines.iter().any(|l| l.starts_with(&format!("JOB end state={aborted} "))),
+        "no `JOB end state={aborted}` line: {:?}",
+        lines.iter().filter(|l| l.starts_with("JOB")).collect::<Vec<_>>()
+    );
+    let costs = Costs::parse(&lines);
+    let steps = costs.steps().expect("a STEPS line");
+    assert_eq!(costs.get("STEPS", &["steps_disabled"]), Some(0), "steps with the drivers off");
+    let (done, all): (u64, u64) = (steps.steps.iter().sum(), whole.steps.iter().sum());
+    assert!(done > 0 && done < all, "{done} steps of the whole job's {all}");
+    eprintln!("aborted after {done} of {all} steps");
+}
+
 /// A closed cylinder of radius `r` and height `h` um with `n` sides at (100 mm, 100 mm),
 /// zmin-sorted.
 fn cylinder(r: f64, h: i32, n: usize) -> Vec<Triangle> {

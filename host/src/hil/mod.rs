@@ -121,13 +121,29 @@ pub fn print_job<P: Read + Write>(
     tris: &[Triangle],
     job: JobSpec,
     budget_ms: u32,
+    on_progress: impl FnMut(&Progress),
+) -> Result<Progress, String> {
+    let never = std::sync::atomic::AtomicBool::new(false);
+    print_job_or_abort(port, conn, clock, tris, job, budget_ms, &never, on_progress)
+}
+
+/// [`print_job`]; once `abort` is set (say by `on_progress`) the host aborts the job as
+/// `strata print` does on Ctrl-C.
+#[allow(clippy::too_many_arguments)]
+pub fn print_job_or_abort<P: Read + Write>(
+    port: &mut Port<P>,
+    conn: &mut Connected,
+    clock: impl LinkClock,
+    tris: &[Triangle],
+    job: JobSpec,
+    budget_ms: u32,
+    abort: &std::sync::atomic::AtomicBool,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<Progress, String> {
     let mut last = Progress::default();
-    let never = std::sync::atomic::AtomicBool::new(false);
     let mut clock = Budget::new(clock, budget_ms);
     let r =
-        crate::serial::print(port, &mut conn.ep, &mut clock, conn.caps, tris, job, &never, |p| {
+        crate::serial::print(port, &mut conn.ep, &mut clock, conn.caps, tris, job, abort, |p| {
             last = p.clone();
             on_progress(p);
         });
