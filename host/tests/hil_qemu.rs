@@ -28,7 +28,8 @@
 //! `scripts/build_firmware.sh qemu-mps2`), with the same comparison. Every job's stack must
 //! stay [`STACK_HEADROOM`] clear of the statics.
 //!
-//! `STRATA_QEMU` and `STRATA_FIRMWARE_ELF` override where QEMU and the image are looked for;
+//! `STRATA_QEMU` and `STRATA_FIRMWARE_ELF` override where QEMU and the image are looked for
+//! (`STRATA_HIL_RT_ELF` the real-time image's, say one built at another CPI);
 //! `STRATA_HIL_ECHO=1` copies QEMU's output (the firmware's `COST`/`MEM` lines) to stderr as
 //! it comes. Without QEMU or the image the QEMU tests fail when `CI` is set and are skipped
 //! with the reason printed otherwise. The harness itself (relay, timeouts, comparison) also
@@ -84,9 +85,10 @@ const MODELS: [&str; 4] =
 /// QEMU and the image of the 64 KB build (or, with `Some(board)`, of that build), or `None`
 /// (skip) with the reason printed; under CI a missing piece fails the test.
 fn qemu_or_skip(test: &str, board: Option<&str>) -> Option<(PathBuf, PathBuf)> {
-    let found = match board {
-        None => hil::locate(),
-        Some(b) => hil::locate_image(hil::build_output(b), b),
+    let found = match (board, std::env::var_os("STRATA_HIL_RT_ELF")) {
+        (None, _) => hil::locate(),
+        (Some(b @ "qemu-rt"), Some(elf)) => hil::locate_image(elf.into(), b),
+        (Some(b), _) => hil::locate_image(hil::build_output(b), b),
     };
     match found {
         Ok(x) => Some(x),
