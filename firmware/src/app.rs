@@ -1,6 +1,7 @@
 //! The main loop shared by every board (the firmware twin of the host's `serve_device`):
 //! UART bytes into the protocol endpoint, `Printer::service`, bounded `Printer::poll` into the
-//! step queue, frames back out; the executor runs in the board's timer interrupt.
+//! step queue, frames back out; the executor runs in the board's timer interrupt, planning and
+//! step generation also in the feed interrupt below it (`pipeline_motion`).
 
 use strata::machine::{MachineConfig, AXES};
 use strata::protocol::{DeviceState, Message, MAX_WIRE};
