@@ -198,6 +198,52 @@ fn pause_holds_motion_and_resume_finishes_the_same_job() {
     assert_eq!((h1, s1), (h0, s0));
 }
 
+/// A motion half that records the job's gates the runner gives it (a board's feed interrupt
+/// releases blocks by them).
+struct Gates<'a, 'q> {
+    motion: &'a mut SmallMotion<'q>,
+    seen: Vec<bool>,
+}
+
+impl MotionAccess<{ Sizes::SMALL.move_buffer_bytes }, { Sizes::SMALL.lookahead_moves }, 32>
+    for Gates<'_, '_>
+{
+    fn with<R>(
+        &mut self,
+        f: impl FnOnce(
+            &mut Motion<{ Sizes::SMALL.move_buffer_bytes }, { Sizes::SMALL.lookahead_moves }>,
+            &mut StepProducer<'_, 32>,
+        ) -> R,
+    ) -> R {
+        self.motion.with(f)
+    }
+
+    fn gate(&mut self, allowed: bool, _toolpath_done: bool) {
+        self.seen.push(allowed);
+    }
+}
+
+#[test]
+fn a_pause_closes_the_gate_before_the_state_changes_and_resume_opens_it() {
+    let mut p = new_printer();
+    let (mut paused, mut resumed) = (None, None);
+    run(&mut p, |p, m, i| {
+        let mut g = Gates { motion: m, seen: Vec::new() };
+        if i == 20 {
+            p.handle(&Message::Pause, &mut g);
+            paused = Some(g.seen);
+        } else if i == 21 {
+            p.handle(&Message::Resume, &mut g);
+            resumed = Some(g.seen);
+        }
+    });
+    // Closed before the message is handled (a feeder elsewhere releases nothing after it),
+    // and still closed after; reopened by the resume alone.
+    assert_eq!(paused, Some(vec![false, false]));
+    assert_eq!(resumed, Some(vec![true]));
+    assert_eq!(p.state(), DeviceState::Done);
+}
+
 #[test]
 fn abort_and_emergency_stop_end_the_job() {
     let mut p = new_printer();

@@ -438,6 +438,11 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
         lend: bool,
     ) -> Accept {
+        // A message that stops the motion closes the gate first, so that a feeder elsewhere
+        // releases no block after it (its own state change follows).
+        if matches!(msg, Message::Pause | Message::Abort | Message::EmergencyStop) {
+            motion.gate(false, self.toolpath_done);
+        }
         let accept = self.handle_message(msg, motion, lend);
         let (allowed, toolpath_done) = self.motion_gate();
         motion.gate(allowed, toolpath_done);
