@@ -208,23 +208,27 @@ impl MotionAccess<MOVE_BUFFER_BYTES, LOOKAHEAD_MOVES, STEP_QUEUE> for FwMotion {
     ) -> R {
         #[cfg(feature = "qemu")]
         let t0 = crate::cost::thread_now();
-        let (r, generated) = locked(|s| {
+        let (r, _generated) = locked(|s| {
             let m = s.motion.as_deref_mut().expect("the motion half is set up");
             let prod = s.prod.as_mut().expect("the step queue is set up");
+            // Whether `f` generated steps: the QEMU build's cost figures only.
+            #[cfg(feature = "qemu")]
             let s0 = m.generator().steps_generated();
             let r = f(m, prod);
-            (r, m.generator().steps_generated() != s0)
+            #[cfg(feature = "qemu")]
+            let generated = m.generator().steps_generated() != s0;
+            #[cfg(not(feature = "qemu"))]
+            let generated = ();
+            (r, generated)
         });
         #[cfg(feature = "qemu")]
-        if self.generation.measuring && generated {
+        if self.generation.measuring && _generated {
             let g = &mut self.generation;
             let t1 = crate::cost::thread_now();
             g.gap_max = g.gap_max.max(t0 - g.generated_at.min(t0));
             g.lent += t1 - t0;
             g.generated_at = t1;
         }
-        #[cfg(not(feature = "qemu"))]
-        let _ = generated;
         r
     }
 
