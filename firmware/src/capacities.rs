@@ -50,9 +50,8 @@ strata::printer_type! {
     };
 }
 
-/// Commands per axis in the step queue (a power of two; 12 B each, 4 axes; the host
-/// simulation's).
-pub const STEP_QUEUE: usize = 64;
+/// Commands per axis in the step queue (the host simulation's; see there).
+pub use strata::printer::board::STEP_QUEUE_COMMANDS as STEP_QUEUE;
 
 /// The device's protocol endpoint: 2 frames in flight, 1 receive slot (the host simulation's
 /// device has 4 and 4; the link adapts through its credits). One slot keeps the host to one

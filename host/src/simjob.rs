@@ -55,7 +55,7 @@ pub type SimMotion<'q, const N: usize> = MotionHalf<'q, SIM_MOVE_BYTES, LOOKAHEA
 pub type DeviceEndpoint = Endpoint<4, 4>;
 
 const STACK_BYTES: usize = 512 << 20;
-const STEP_QUEUE: usize = 64;
+const STEP_QUEUE: usize = strata::printer::board::STEP_QUEUE_COMMANDS;
 
 /// Seeded faults on each direction of the link.
 #[derive(Debug, Clone, Copy, Default)]

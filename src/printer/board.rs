@@ -62,6 +62,15 @@ pub const WINDOW_SPANS: usize = 48;
 /// segments) carry the motion through the next layer's cut and build (about 0.5 s for a large layer
 /// on the Cortex-M3), lent the motion half at its progress points.
 pub const MOVE_BUFFER_BYTES: usize = 2_304;
+/// Commands per axis in the step queue between the generator and the step interrupt (a power
+/// of two; 12 B each, 4 axes: 1.5 KB; the host simulation's).
+///
+/// The queue's size does not change the commands (the generator's output depends on the blocks
+/// only), only how far ahead of the executor the generator may run: the board's feed interrupt
+/// refills it at least every millisecond, above thread mode, so a few milliseconds of commands
+/// are enough. The real-time HIL test (`qemu_realtime_first_layers`, its `RT ... min_slack`)
+/// shows the margin.
+pub const STEP_QUEUE_COMMANDS: usize = 32;
 /// Planner lookahead, moves (the host simulation plans with the same).
 pub const LOOKAHEAD_MOVES: usize = 32;
 
