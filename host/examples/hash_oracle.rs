@@ -11,7 +11,7 @@ use std::hash::Hasher;
 use strata::machine::MachineConfig;
 use strata::printer::BOARD_CAPACITIES;
 use strata::protocol::Capacities;
-use strata_host::admission::{admit_job, Admission};
+use strata_host::admission::{admit_job_paced, Admission};
 use strata_host::model;
 use strata_host::simjob::{simulate, SimOptions};
 use strata_testkit::drive::job_spec;
@@ -37,7 +37,7 @@ fn run(name: &str, label: &str, caps: Option<Capacities>, path: &std::path::Path
     let mut opts = SimOptions::default();
     if let Some(caps) = caps {
         let job = job_spec(&tris);
-        match admit_job(&tris, &machine, &job, &caps, 0.02) {
+        match admit_job_paced(&tris, &machine, &job, &caps, 0.02, opts.baud).map(|p| p.admission) {
             Ok(Admission::Unchanged(_)) => {}
             Ok(Admission::Simplified(s)) => tris = s.triangles,
             Err(e) => {

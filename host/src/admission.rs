@@ -37,6 +37,7 @@ use strata::protocol::{Capacities, JobSpec};
 use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer};
 use strata::toolpath::{Room, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
+use crate::pace::{self, LayerClock, Pace};
 use crate::stages::{HostScratch, HostSlicer, HostToolpath};
 
 /// What a model needs against what the device has.
@@ -80,6 +81,16 @@ pub enum Admission {
     Simplified(Simplified),
 }
 
+impl Admission {
+    /// The triangles to stream: `original` unchanged, or the simplification.
+    pub fn triangles<'a>(&'a self, original: &'a [Triangle]) -> &'a [Triangle] {
+        match self {
+            Self::Unchanged(_) => original,
+            Self::Simplified(s) => &s.triangles,
+        }
+    }
+}
+
 /// Admits `tris` (placed, sorted by lowest z) for `job` on a device with `caps` and `machine`.
 ///
 /// The slicer's needs as [`admit`] (simplified within `max_deviation_mm` if need be), then the
@@ -103,19 +114,55 @@ pub fn admit_job_peaks(
     caps: &Capacities,
     max_deviation_mm: f64,
 ) -> Result<(Admission, ToolpathPeaks), String> {
+    admit_job_timed(tris, machine, job, caps, max_deviation_mm).map(|(a, p, _)| (a, p))
+}
+
+/// [`admit_job_peaks`], and the print time of every layer.
+pub fn admit_job_timed(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+    caps: &Capacities,
+    max_deviation_mm: f64,
+) -> Result<(Admission, ToolpathPeaks, LayerTimes), String> {
     let config = SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
     let admission = admit(tris, &config, caps, max_deviation_mm)?;
-    let streamed = match &admission {
-        Admission::Unchanged(_) => tris,
-        Admission::Simplified(s) => &s.triangles,
-    };
+    match toolpath_fit(admission.triangles(tris), machine, job, caps)? {
+        Ok((peaks, times)) => Ok((admission, peaks, times)),
+        Err(short) => {
+            let simplified = match &admission {
+                Admission::Unchanged(_) => String::new(),
+                Admission::Simplified(s) => {
+                    format!(" (simplified to {} triangles for the slicer)", s.triangles.len())
+                }
+            };
+            Err(format!(
+                "the model does not fit the printer's toolpath memory{simplified}:\n  - {}",
+                short.join("\n  - ")
+            ))
+        }
+    }
+}
+
+/// The toolpath needs of `streamed` on a device with `caps` and the layers' print times, or
+/// what does not fit (`Ok(Err(shortfalls))`).
+fn toolpath_fit(
+    streamed: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+    caps: &Capacities,
+) -> Result<Result<(ToolpathPeaks, LayerTimes), Vec<String>>, String> {
     // Offsets as the device does them: in bands where its engine holds less than one needs.
     // If even that fails, the needs of offsets done whole say what does not fit.
     let limit = caps.toolpath_points as usize;
-    let (peaks, short) = match toolpath_peaks_limited(streamed, machine, job, Some(limit)) {
-        Ok(peaks) => {
+    Ok(match toolpath_pass(streamed, machine, job, Some(limit)) {
+        Ok((peaks, times)) => {
             let short = toolpath_shortfalls(&peaks, caps);
-            (peaks, short)
+            if short.is_empty() {
+                Ok((peaks, times))
+            } else {
+                Err(short)
+            }
         }
         Err(banded) => {
             let peaks = toolpath_peaks(streamed, machine, job)?;
@@ -123,22 +170,92 @@ pub fn admit_job_peaks(
             if short.is_empty() {
                 short.push(banded);
             }
-            (peaks, short)
+            Err(short)
         }
+    })
+}
+
+/// A job admitted for the device's memory and for the link's speed.
+#[derive(Debug, Clone)]
+pub struct Paced {
+    /// The model as it will be streamed.
+    pub admission: Admission,
+    /// Its toolpath needs.
+    pub peaks: ToolpathPeaks,
+    /// Its layers' print times.
+    pub times: LayerTimes,
+    /// How the link keeps up with its print ([`Pace::keeps_ahead`] false: the printer will
+    /// wait for the link that long; no simplification within the bound avoids it).
+    pub pace: Pace,
+}
+
+/// Simplifications tried for the link's sake (each cuts the triangles by the ratio the worst
+/// layer's lag asks for).
+const PACE_STEPS: usize = 6;
+/// Share of the ratio a pacing step asks for that it takes: a margin for the print times and
+/// the frames, which change a little with the mesh.
+const PACE_MARGIN: f64 = 0.8;
+
+/// [`admit_job_timed`], and a model the link at `baud` streams ahead of the print.
+///
+/// A model whose triangles the link cannot deliver as fast as the printer prints them
+/// ([`crate::pace`]) is simplified (within `max_deviation_mm`, measured, as for the device's
+/// memory) until it can: fewer triangles in the ratio of the time the link has to the time it
+/// needs at the worst layer. If no simplification within the bound keeps ahead, the one that
+/// lags least is taken and its [`Pace`] says by how much (the caller warns).
+pub fn admit_job_paced(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+    caps: &Capacities,
+    max_deviation_mm: f64,
+    baud: u32,
+) -> Result<Paced, String> {
+    let config = SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
+    let (admission, peaks, times) = admit_job_timed(tris, machine, job, caps, max_deviation_mm)?;
+    let pace_of = |streamed: &[Triangle], times: &LayerTimes| {
+        pace::pace(&pace::stream_bytes(streamed, &config), &times.starts_s, times.total_s, baud)
     };
-    if !short.is_empty() {
-        let simplified = match &admission {
-            Admission::Unchanged(_) => String::new(),
-            Admission::Simplified(s) => {
-                format!(" (simplified to {} triangles for the slicer)", s.triangles.len())
-            }
-        };
-        return Err(format!(
-            "the model does not fit the printer's toolpath memory{simplified}:\n  - {}",
-            short.join("\n  - ")
-        ));
+    let pace = pace_of(admission.triangles(tris), &times);
+    let mut best = Paced { admission, peaks, times, pace };
+    if best.pace.keeps_ahead() {
+        return Ok(best);
     }
-    Ok((admission, peaks))
+    let mesh = Indexed::weld(tris);
+    for _ in 0..PACE_STEPS {
+        let streamed = best.admission.triangles(tris);
+        let layer = best.pace.layer as usize;
+        let has = best.times.starts_s.get(layer).copied().unwrap_or(0.0).max(0.0);
+        let needs = best.pace.worst_lag_s + has;
+        let ratio = (has / needs * PACE_MARGIN).clamp(0.0, PACE_MARGIN);
+        let target = (streamed.len() as f64 * ratio) as usize;
+        if target < 4 {
+            break;
+        }
+        let mut out = mesh.simplify(target);
+        out.sort_by_key(Triangle::z_min);
+        let fit = check(&out, &config, caps)?;
+        let dev = deviation(&mesh, tris, &out);
+        if !fit.fits || dev > max_deviation_mm || out.len() >= streamed.len() {
+            break;
+        }
+        let Ok((peaks, times)) = toolpath_fit(&out, machine, job, caps)? else {
+            break;
+        };
+        let pace = pace_of(&out, &times);
+        let admission = Admission::Simplified(Simplified {
+            triangles_in: tris.len(),
+            error_bound_mm: max_deviation_mm,
+            max_deviation_mm: dev,
+            needs: fit.needs,
+            triangles: out,
+        });
+        best = Paced { admission, peaks, times, pace };
+        if pace.keeps_ahead() {
+            break;
+        }
+    }
+    Ok(best)
 }
 
 /// Admits `tris` (placed, sorted by lowest z) on a device with `caps`.
@@ -326,6 +443,26 @@ pub fn toolpath_peaks_limited(
     job: &JobSpec,
     offset_limit: Option<usize>,
 ) -> Result<ToolpathPeaks, String> {
+    toolpath_pass(tris, machine, job, offset_limit).map(|(peaks, _)| peaks)
+}
+
+/// Print time of each layer's start and of the whole job, s (a [`LayerClock`]'s).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LayerTimes {
+    /// Print time before each layer's first move (index = layer), s.
+    pub starts_s: Vec<f64>,
+    /// Print time of the whole job, s.
+    pub total_s: f64,
+}
+
+/// [`toolpath_peaks_limited`] and the print time of every layer (the moves through the device's
+/// planner: [`LayerClock`]).
+pub fn toolpath_pass(
+    tris: &[Triangle],
+    machine: &MachineConfig,
+    job: &JobSpec,
+    offset_limit: Option<usize>,
+) -> Result<(ToolpathPeaks, LayerTimes), String> {
     let slice_cfg =
         SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
     let cfg = strata::printer::job_toolpath_config(machine, job);
@@ -333,7 +470,7 @@ pub fn toolpath_peaks_limited(
         std::thread::Builder::new()
             .name("admission".into())
             .stack_size(256 << 20)
-            .spawn_scoped(scope, || measure(tris, slice_cfg, cfg, offset_limit))
+            .spawn_scoped(scope, || measure(tris, slice_cfg, cfg, offset_limit, machine))
             .map_err(|e| format!("cannot start the admission thread: {e}"))?
             .join()
             .map_err(|_| "the admission thread panicked".to_string())?
@@ -345,7 +482,9 @@ fn measure(
     slice_cfg: SliceConfig,
     cfg: ToolpathConfig,
     offset_limit: Option<usize>,
-) -> Result<ToolpathPeaks, String> {
+    machine: &MachineConfig,
+) -> Result<(ToolpathPeaks, LayerTimes), String> {
+    let clock = std::cell::RefCell::new(LayerClock::new(machine));
     let mut slicer = Box::new(HostSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
     let mut tp = Box::new(HostToolpath::new(cfg).map_err(|e| e.to_string())?);
     if let Some(limit) = offset_limit {
@@ -360,6 +499,7 @@ fn measure(
     let meter = Cell::new(MoveMeter::default());
     let coded = Cell::new(0u64);
     let events = &mut |e: &ToolEvent<'_>| {
+        clock.borrow_mut().event(e);
         let mut m = meter.get();
         coded.set(coded.get() + m.event(e) as u64);
         meter.set(m);
@@ -453,7 +593,8 @@ fn measure(
             coded.get()
         ));
     }
-    Ok(p)
+    let (starts_s, total_s) = clock.into_inner().finish();
+    Ok((p, LayerTimes { starts_s, total_s }))
 }
 
 /// A room without bound that passes the events on to `events` and measures each unit by

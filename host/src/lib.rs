@@ -8,6 +8,7 @@ pub mod clock;
 #[cfg(unix)]
 pub mod hil;
 pub mod model;
+pub mod pace;
 pub mod preview;
 pub mod serial;
 pub mod session;

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use strata::protocol::{DeviceState, LinkConfig, Status};
-use strata_host::admission::{admit_job, Admission};
+use strata_host::admission::{admit_job_paced, Admission};
 use strata_host::clock::WallClock;
 use strata_host::model;
 use strata_host::serial::{self, Port};
@@ -81,16 +81,20 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     let job = job_of(&args.print, &tris)?;
     // Admission can take longer than the link's dead time (3 s): keep the link alive.
     let admitted = serial::keeping_link_alive(&mut port, &mut ep, &mut clock, || {
-        admit_job(&tris, &machine, &job, &caps, args.max_deviation)
+        admit_job_paced(&tris, &machine, &job, &caps, args.max_deviation, args.baud)
     })?;
     if abort.load(Ordering::Relaxed) {
         return Err("aborted by the user (Ctrl-C) before the job started".into());
     }
-    let tris = match admitted.map_err(|e| format!("{}: {e}", args.model.display()))? {
+    let paced = admitted.map_err(|e| format!("{}: {e}", args.model.display()))?;
+    if !paced.pace.keeps_ahead() {
+        eprintln!("{}", paced.pace.warning(&args.model, args.baud));
+    }
+    let tris = match paced.admission {
         Admission::Unchanged(_) => tris,
         Admission::Simplified(s) => {
             eprintln!(
-                "{}: simplified from {} to {} triangles to fit the printer (error bound {} mm, \
+                "{}: simplified from {} to {} triangles to fit the printer and its link (error bound {} mm, \
                  measured deviation {:.3} mm)",
                 args.model.display(),
                 s.triangles_in,

@@ -8,6 +8,7 @@ use serde::Serialize;
 use strata::protocol::JobSpec;
 use strata_host::admission::{self, Admission};
 use strata_host::model;
+use strata_host::pace::Pace;
 use strata_host::preview;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
 
@@ -98,6 +99,9 @@ struct Summary {
     layer_hashes: Vec<String>,
     triangles: usize,
     stream_time_s: f64,
+    /// Admission's estimate of how long the printer waits for the link at its worst layer, s
+    /// (0 or less: never; `strata_host::pace`).
+    link_lag_s: f64,
     underruns: u32,
     retransmits: u64,
 }
@@ -114,15 +118,25 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
         preview: args.preview.is_some(),
         ..SimOptions::default()
     };
-    let (admitted, peaks) =
-        admission::admit_job_peaks(&tris, &machine, &job, &opts.capacities, args.max_deviation)
-            .map_err(|e| format!("{}: {e}", args.model.display()))?;
+    let paced = admission::admit_job_paced(
+        &tris,
+        &machine,
+        &job,
+        &opts.capacities,
+        args.max_deviation,
+        args.baud,
+    )
+    .map_err(|e| format!("{}: {e}", args.model.display()))?;
+    let (admitted, peaks, pace) = (paced.admission, paced.peaks, paced.pace);
+    if !pace.keeps_ahead() && !args.json {
+        println!("{}", pace.warning(&args.model, args.baud));
+    }
     let (tris, simplified, slicer) = match admitted {
         Admission::Unchanged(needs) => (tris, None, needs),
         Admission::Simplified(s) => {
             if !args.json {
                 println!(
-                    "{}: simplified from {} to {} triangles to fit the printer \
+                    "{}: simplified from {} to {} triangles to fit the printer and its link \
                      (error bound {} mm, measured deviation {:.3} mm, peak active triangles \
                      {}, contour points {})",
                     args.model.display(),
@@ -166,7 +180,7 @@ pub fn run(args: &SimulateArgs) -> Result<(), String> {
             println!("preview: {n} layer pictures and {}", dir.join("index.html").display());
         }
     }
-    report(args, &rep, simplified, needs)
+    report(args, &rep, simplified, needs, &pace)
 }
 
 fn report(
@@ -174,6 +188,7 @@ fn report(
     rep: &SimReport,
     simplified: Option<Simplified>,
     needs: DeviceNeeds,
+    pace: &Pace,
 ) -> Result<(), String> {
     if args.json {
         let s = Summary {
@@ -191,6 +206,7 @@ fn report(
             layer_hashes: rep.layer_hashes.iter().map(|h| format!("{h:016x}")).collect(),
             triangles: rep.triangles,
             stream_time_s: rep.stream_time_s,
+            link_lag_s: pace.worst_lag_s,
             underruns: rep.underruns,
             retransmits: rep.host_link.retransmits,
         };

@@ -66,7 +66,7 @@ use strata_testkit::drive::job_spec;
 /// Faults of the lossy runs: 3 % of frames each dropped, corrupted, shortened by a byte,
 /// duplicated and delayed (up to 50 ms), on both directions, at 250000 baud.
 const LOSS: f64 = 0.03;
-const BAUD: u32 = 250_000;
+const BAUD: u32 = hil::BAUD;
 /// Budget of one QEMU job in emulated time, ms (the longest, embodier_hotend_v2 through the
 /// lossy relay, takes 16 s of QEMU's clock: each job's line below says how long it took).
 const QEMU_JOB_MS: u32 = 600_000;

@@ -24,7 +24,7 @@ use std::io::{Read, Write};
 use strata::geom::{Point3, Triangle};
 use strata::protocol::{Capacities, JobSpec, LinkConfig};
 
-use crate::admission::{admit_job, Admission};
+use crate::admission::{admit_job_paced, Admission};
 use crate::clock::{Budget, LinkClock};
 use crate::serial::Port;
 use crate::session::{HostEndpoint, Progress};
@@ -78,11 +78,15 @@ pub fn admitted_on_link<P: Read + Write>(
     })?
 }
 
+/// The link's baud rate in the hardware-in-the-loop runs (the relay's; `strata print`'s default).
+pub const BAUD: u32 = 250_000;
+
 /// The triangles to stream for `tris` to a device with `caps`, the job for them, and a note when
 /// they were simplified, decided as `strata print` decides.
 ///
-/// [`admit_job`]: the slicer's needs, simplified within the measured deviation
-/// `max_deviation_mm` if need be, then the toolpath stage's needs and the moves per layer.
+/// [`admit_job_paced`]: the slicer's needs, simplified within the measured deviation
+/// `max_deviation_mm` if need be, then the toolpath stage's needs and the moves per layer, then
+/// the link's pace at [`BAUD`].
 ///
 /// A refusal is an error: the hardware-in-the-loop test streams exactly what the real tool would.
 pub fn admitted(
@@ -92,7 +96,8 @@ pub fn admitted(
     max_deviation_mm: f64,
 ) -> Result<(Vec<Triangle>, JobSpec, Option<String>), String> {
     let machine = strata::machine::MachineConfig::default();
-    let (t, note) = match admit_job(tris, &machine, &job, caps, max_deviation_mm)? {
+    let paced = admit_job_paced(tris, &machine, &job, caps, max_deviation_mm, BAUD)?;
+    let (t, note) = match paced.admission {
         Admission::Unchanged(_) => (tris.to_vec(), None),
         Admission::Simplified(s) => {
             let note = format!(
