@@ -40,6 +40,7 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
+use rstar::{RTree, RTreeObject, AABB};
 use strata::geom::{Point3, Triangle};
 
 type V = [f64; 3];
@@ -165,6 +166,21 @@ impl Quadric {
     }
 }
 
+/// An original triangle (its index, corners in mm) in the R-tree by its box.
+struct OrigTri(u32, [V; 3]);
+
+impl RTreeObject for OrigTri {
+    type Envelope = AABB<V>;
+
+    fn envelope(&self) -> AABB<V> {
+        let [a, b, c] = self.1;
+        AABB::from_corners(
+            [0, 1, 2].map(|k| a[k].min(b[k]).min(c[k])),
+            [0, 1, 2].map(|k| a[k].max(b[k]).max(c[k])),
+        )
+    }
+}
+
 /// A candidate collapse in the heap: cheapest first, ties by vertex index.
 #[derive(Debug, Clone, Copy)]
 struct Entry {
@@ -197,8 +213,12 @@ impl Ord for Entry {
 pub struct Stats {
     /// Collapses done.
     pub collapses: usize,
-    /// Candidates refused (topology, shape or bound).
-    pub refused: usize,
+    /// Candidates refused for the topology (non-manifold, link condition, valence).
+    pub refused_topology: usize,
+    /// Candidates whose every placement was refused for a shape (normal, area, angle).
+    pub refused_shape: usize,
+    /// Candidates whose every placement with good shapes was refused for the bound.
+    pub refused_bound: usize,
 }
 
 /// A mesh being simplified (see the module docs).
@@ -215,9 +235,9 @@ pub struct Simplifier {
     alive_f: Vec<bool>,
     /// Original vertices each face stands for.
     pts: Vec<Vec<u32>>,
-    /// Original triangles each face stands for.
-    tris: Vec<Vec<u32>>,
     orig_tris: Vec<[V; 3]>,
+    /// The original triangles' boxes.
+    index: RTree<OrigTri>,
     bbox: (V, V),
     opts: Options,
     live: usize,
@@ -257,8 +277,14 @@ impl Simplifier {
             version: vec![0; n],
             alive_f: vec![true; faces.len()],
             pts: vec![Vec::new(); faces.len()],
-            tris: (0..faces.len() as u32).map(|i| vec![i]).collect(),
             orig_tris: faces.iter().map(|f| f.map(|i| pos[i as usize])).collect(),
+            index: RTree::bulk_load(
+                faces
+                    .iter()
+                    .enumerate()
+                    .map(|(i, f)| OrigTri(i as u32, f.map(|v| pos[v as usize])))
+                    .collect(),
+            ),
             bbox: bbox(&pos),
             live: faces.len(),
             faces,
@@ -388,7 +414,7 @@ impl Simplifier {
                             self.push(&mut heap, v.min(w), v.max(w));
                         }
                     }
-                    None => self.stats.refused += 1,
+                    None => {}
                 }
             }
             if self.stats.collapses == before {
@@ -495,6 +521,31 @@ impl Simplifier {
     fn try_collapse(&mut self, a: u32, b: u32, bound: f64) -> Option<u32> {
         let (keep, _) = self.direction(a, b)?;
         let gone = a ^ b ^ keep;
+        if !self.topology_ok(keep, gone) {
+            self.stats.refused_topology += 1;
+            return None;
+        }
+        let mut shaped = false;
+        for (_, p) in self.placements(keep, gone) {
+            let ring = self.ring(keep, gone, p);
+            if self.shapes_ok(&ring, keep, gone, p) {
+                shaped = true;
+                if self.within(&ring, bound) {
+                    self.commit(keep, gone, p, &ring);
+                    return Some(keep);
+                }
+            }
+        }
+        if shaped {
+            self.stats.refused_bound += 1;
+        } else {
+            self.stats.refused_shape += 1;
+        }
+        None
+    }
+
+    /// Manifold edge, boundary rules, link condition, valence, no duplicate face.
+    fn topology_ok(&self, keep: u32, gone: u32) -> bool {
         let (k, g) = (keep as usize, gone as usize);
         // Faces with both ends: 1 on a boundary edge, 2 inside; else non-manifold.
         let shared: Vec<u32> = self.vfaces[g]
@@ -505,13 +556,13 @@ impl Simplifier {
         let boundary_edge = match shared.len() {
             1 => true,
             2 => false,
-            _ => return None,
+            _ => return false,
         };
         if self.boundary[k] && self.boundary[g] && !boundary_edge {
-            return None;
+            return false;
         }
         if boundary_edge && !(self.boundary[k] && self.boundary[g]) {
-            return None;
+            return false;
         }
         // Link condition: the common neighbours are the opposite corners.
         let (nk, ng) = (self.neighbours(keep), self.neighbours(gone));
@@ -523,23 +574,13 @@ impl Simplifier {
         opposite.sort_unstable();
         let common: Vec<u32> = nk.iter().copied().filter(|w| ng.binary_search(w).is_ok()).collect();
         if common != opposite {
-            return None;
+            return false;
         }
         // Valence left to the kept vertex.
         if nk.len() + ng.len() - common.len() - 2 < 3 {
-            return None;
+            return false;
         }
-        if self.duplicates_a_face(keep, gone) {
-            return None;
-        }
-        for (_, p) in self.placements(keep, gone) {
-            let ring = self.ring(keep, gone, p);
-            if self.shapes_ok(&ring, keep, gone, p) && self.within(&ring, bound) {
-                self.commit(keep, gone, p, &ring);
-                return Some(keep);
-            }
-        }
-        None
+        !self.duplicates_a_face(keep, gone)
     }
 
     /// A face of `gone` (without `keep`) would become one `keep` has already.
@@ -579,15 +620,20 @@ impl Simplifier {
     /// Normals, areas and angles of the changed faces.
     fn shapes_ok(&self, ring: &Ring, keep: u32, gone: u32, p: V) -> bool {
         let cos_turn = self.opts.max_normal_turn_deg.to_radians().cos();
-        let sin_min = self.opts.min_angle_deg.to_radians().sin();
         let moved = p != self.pos[keep as usize];
+        let corners = |f: u32| self.faces[f as usize].map(|v| self.pos[v as usize]);
+        // The worst angle around before: a collapse may keep a sliver, not make a new one.
+        let worst = ring
+            .removed
+            .iter()
+            .chain(ring.kept.iter().map(|(f, _)| f))
+            .map(|&f| min_sine(corners(f)))
+            .fold(self.opts.min_angle_deg.to_radians().sin(), f64::min);
         ring.kept.iter().all(|(f, new)| {
-            let face = self.faces[*f as usize];
-            if !moved && !face.contains(&gone) {
+            if !moved && !self.faces[*f as usize].contains(&gone) {
                 return true;
             }
-            let old = face.map(|v| self.pos[v as usize]);
-            let (n0, n1) = (normal(old), normal(*new));
+            let (n0, n1) = (normal(corners(*f)), normal(*new));
             let (l0, l1) = (dot(n0, n0), dot(n1, n1));
             if l1 <= TINY_AREA2 {
                 return false;
@@ -595,7 +641,7 @@ impl Simplifier {
             if l0 > TINY_AREA2 && dot(n0, n1) < cos_turn * (l0 * l1).sqrt() {
                 return false;
             }
-            min_sine(*new) >= sin_min.min(min_sine(old))
+            min_sine(*new) >= worst
         })
     }
 
@@ -617,21 +663,26 @@ impl Simplifier {
                 }
             }
         }
-        // Samples of the changed faces: the face's own originals first, then any around.
-        let pool: Vec<u32> = all().flat_map(|&f| self.tris[f as usize].iter().copied()).collect();
+        // Samples of the changed faces: the original triangle the last one was near first,
+        // then those whose boxes come within the bound.
+        let mut last = None;
         for (f, c) in &ring.kept {
             if self.faces[*f as usize].map(|v| self.pos[v as usize]) == *c {
                 continue;
             }
-            let own = &self.tris[*f as usize];
             for w in BARY {
                 let s = [0, 1, 2].map(|k| w[0] * c[0][k] + w[1] * c[1][k] + w[2] * c[2][k]);
-                let near = |t: &u32| {
-                    let o = &self.orig_tris[*t as usize];
+                let near = |t: &OrigTri| {
+                    let o = &self.orig_tris[t.0 as usize];
                     dist2_point_triangle(s, o[0], o[1], o[2]) <= b2
                 };
-                if !own.iter().any(near) && !pool.iter().any(near) {
-                    return false;
+                if last.is_some_and(near) {
+                    continue;
+                }
+                let reach = AABB::from_corners(s.map(|x| x - bound), s.map(|x| x + bound));
+                match self.index.locate_in_envelope_intersecting(&reach).find(|t| near(t)) {
+                    Some(t) => last = Some(t),
+                    None => return false,
                 }
             }
         }
@@ -641,10 +692,8 @@ impl Simplifier {
     fn commit(&mut self, keep: u32, gone: u32, p: V, ring: &Ring) {
         let (k, g) = (keep as usize, gone as usize);
         let mut pts = Vec::new();
-        let mut tris = Vec::new();
         for &f in ring.removed.iter().chain(ring.kept.iter().map(|(f, _)| f)) {
             pts.append(&mut self.pts[f as usize]);
-            tris.append(&mut self.tris[f as usize]);
         }
         for &f in &ring.removed {
             self.alive_f[f as usize] = false;
@@ -667,7 +716,7 @@ impl Simplifier {
         self.quad[k].add(&q);
         self.pos[k] = p;
         self.version[k] = self.version[k].wrapping_add(1);
-        // Each original to the nearest face around (its vertex) or its centroid's.
+        // Each original vertex to the nearest face around.
         let nearest = |x: V| {
             ring.kept
                 .iter()
@@ -678,13 +727,6 @@ impl Simplifier {
         for q in pts {
             if let Some(f) = nearest(self.orig[q as usize]) {
                 self.pts[f].push(q);
-            }
-        }
-        for t in tris {
-            let o = self.orig_tris[t as usize];
-            let c = [0, 1, 2].map(|j| (o[0][j] + o[1][j] + o[2][j]) / 3.0);
-            if let Some(f) = nearest(c) {
-                self.tris[f].push(t);
             }
         }
     }
