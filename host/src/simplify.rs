@@ -407,14 +407,11 @@ impl Simplifier {
                 {
                     continue;
                 }
-                match self.try_collapse(e.a, e.b, bound_mm) {
-                    Some(v) => {
-                        self.stats.collapses += 1;
-                        for w in self.neighbours(v) {
-                            self.push(&mut heap, v.min(w), v.max(w));
-                        }
+                if let Some(v) = self.try_collapse(e.a, e.b, bound_mm) {
+                    self.stats.collapses += 1;
+                    for w in self.neighbours(v) {
+                        self.push(&mut heap, v.min(w), v.max(w));
                     }
-                    None => {}
                 }
             }
             if self.stats.collapses == before {
