@@ -37,6 +37,7 @@ use strata::protocol::{Capacities, JobSpec};
 use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer};
 use strata::toolpath::{Room, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
+use crate::simplify::{self, Simplifier};
 use crate::stages::{HostScratch, HostSlicer, HostToolpath};
 
 /// What a model needs against what the device has.
@@ -156,7 +157,19 @@ pub fn admit(
         return Ok(Admission::Unchanged(fit.needs));
     }
     let mesh = Indexed::weld(tris);
-    let Some((out, needs)) = largest_fit(&mesh, tris, config, caps)? else {
+    // meshopt's largest fit, then the quadric simplifier's smallest bound that fits: the one
+    // with the smaller measured deviation.
+    let meshopt = match largest_fit(&mesh, tris, config, caps)? {
+        Some((out, needs)) => {
+            let dev = deviation(&mesh, tris, &out);
+            Some(Candidate { triangles: out, needs, dev })
+        }
+        None => None,
+    };
+    let limit = meshopt.as_ref().map_or(max_deviation_mm * QEM_REACH, |m| m.dev);
+    let qem = qem_fit(&mesh, tris, config, caps, max_deviation_mm, limit)?;
+    let best = [meshopt, qem].into_iter().flatten().min_by(|a, b| a.dev.total_cmp(&b.dev));
+    let Some(Candidate { triangles: out, needs, dev }) = best else {
         return Err(format!(
             "the model does not fit the printer even simplified to a few triangles: it needs \
              {} active triangles and {} contour points per layer, the printer holds {} and {}",
@@ -166,7 +179,6 @@ pub fn admit(
             caps.contour_points
         ));
     };
-    let dev = deviation(&mesh, tris, &out);
     if dev > max_deviation_mm {
         return Err(format!(
             "the model does not fit the printer: it needs {} active triangles and {} contour \
@@ -189,6 +201,53 @@ pub fn admit(
         needs,
         triangles: out,
     }))
+}
+
+/// A simplification that fits, with its measured deviation (mm).
+struct Candidate {
+    triangles: Vec<Triangle>,
+    needs: PeakNeeds,
+    dev: f64,
+}
+
+/// The quadric simplifier's bound as a share of the allowed deviation (the rest is slack for
+/// the float arithmetic; the deviation is measured anyway).
+const QEM_SHARE: f64 = 0.98;
+/// Bounds the quadric simplifier runs through, as shares of its bound at the allowed
+/// deviation, smallest first: the first that fits deviates least.
+const QEM_STAGES: [f64; 6] = [0.2, 0.35, 0.5, 0.65, 0.8, 1.0];
+/// Beyond the allowed deviation (for the refusal's figure): each bound this much larger...
+const QEM_GROWTH: f64 = 1.25;
+/// ... up to this many times the allowed deviation when meshopt found nothing that fits.
+const QEM_REACH: f64 = 16.0;
+
+/// The quadric simplifier's fit with the smallest bound among [`QEM_STAGES`] (each stage goes
+/// on from the last), measured; if none fits within `max_deviation_mm`, larger bounds up to
+/// `limit_mm` (only a fit deviating less than `limit_mm` is of use); `None` when nothing fits.
+fn qem_fit(
+    mesh: &Indexed,
+    tris: &[Triangle],
+    config: &SliceConfig,
+    caps: &Capacities,
+    max_deviation_mm: f64,
+    limit_mm: f64,
+) -> Result<Option<Candidate>, String> {
+    let top = max_deviation_mm * QEM_SHARE;
+    let beyond = std::iter::successors(Some(top * QEM_GROWTH), |b| Some(b * QEM_GROWTH))
+        .take_while(|b| *b < limit_mm * QEM_SHARE);
+    let bounds = QEM_STAGES.iter().map(|s| s * top).chain(beyond);
+    let mut s = Simplifier::new(&mesh.points, &mesh.indices, simplify::Options::default());
+    for bound in bounds {
+        s.run(bound);
+        let mut out = s.triangles();
+        out.sort_by_key(Triangle::z_min);
+        let fit = check(&out, config, caps)?;
+        if fit.fits {
+            let dev = deviation(mesh, tris, &out);
+            return Ok(Some(Candidate { triangles: out, needs: fit.needs, dev }));
+        }
+    }
+    Ok(None)
 }
 
 /// Bisection steps between a fitting and a non-fitting triangle count.

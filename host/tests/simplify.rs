@@ -211,4 +211,3 @@ fn degenerate_and_empty_input_give_no_panic_and_same_output_twice() {
     assert!(a.len() < tris.len());
     assert!(simplify(&tris, f64::NAN, Options::default()).len() >= tris.len() - 1);
 }
-
