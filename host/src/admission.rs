@@ -3,15 +3,20 @@
 //!
 //! The model's peak needs come from `strata::slice::peak_needs` (the largest active set and
 //! the most contour points of any layer) and are compared with the capacities the device
-//! announced. A model that does not fit is simplified with `meshopt` (edge collapses onto
-//! existing vertices). meshopt's error parameter is a quadric estimate that can be several
-//! times below the real distance, so the deviation is measured, not assumed: a two-sided
-//! Hausdorff estimate between the original and the simplified surface (original vertices to
-//! the simplified mesh, and points sampled on the simplified triangles to the original, exact
-//! point-triangle distances through an R-tree). The simplification keeping the most
-//! triangles that fits is searched (bisection on meshopt's target count); it is taken only if
-//! its measured deviation is within the stated bound, else the model is refused with that
-//! deviation in the message (so the user can allow it knowingly).
+//! announced. A model that does not fit is simplified two ways, and the deviation is measured,
+//! not assumed: a two-sided Hausdorff estimate between the original and the simplified surface
+//! (original vertices to the simplified mesh, and points sampled on the simplified triangles
+//! to the original, exact point-triangle distances through an R-tree).
+//! - The quadric simplifier ([`crate::simplify`]: edge collapses held within a distance bound,
+//!   vertices placed where the surface's planes meet) at growing bounds up to just under the
+//!   allowed deviation, each run going on from the last; the first that fits is taken.
+//! - `meshopt` (edge collapses onto existing vertices) towards a triangle count: its error
+//!   parameter is a quadric estimate that can be several times below the real distance, so the
+//!   simplification keeping the most triangles that fits is searched (bisection on the count).
+//!
+//! The fit that deviates less is taken if its measured deviation is within the stated bound,
+//! else the model is refused with that deviation in the message (so the user can allow it
+//! knowingly; the quadric simplifier then goes on past the bound up to meshopt's deviation).
 //!
 //! [`admit_job`] checks the whole pipeline: after the slicer, the model (as it will be
 //! streamed) runs through a host-sized toolpath stage with the job's settings, exactly as the
@@ -24,8 +29,6 @@
 //! the mesh only reduces the slicer's needs, so a toolpath need that does not fit refuses the
 //! model, naming the resource, the layer where it peaks, the need and the capacity.
 
-use std::collections::HashMap;
-
 use std::cell::Cell;
 
 use meshopt::{simplify_decoder, SimplifyOptions};
@@ -37,7 +40,7 @@ use strata::protocol::{Capacities, JobSpec};
 use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer};
 use strata::toolpath::{Room, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
-use crate::simplify::{self, Simplifier};
+use crate::simplify::{self, Simplifier, BARY};
 use crate::stages::{HostScratch, HostSlicer, HostToolpath};
 
 /// What a model needs against what the device has.
@@ -615,18 +618,7 @@ struct Indexed {
 
 impl Indexed {
     fn weld(tris: &[Triangle]) -> Self {
-        let mut map: HashMap<Point3, u32> = HashMap::new();
-        let mut points = Vec::new();
-        let mut indices = Vec::with_capacity(tris.len() * 3);
-        for t in tris {
-            for p in t.v {
-                let i = *map.entry(p).or_insert_with(|| {
-                    points.push(p);
-                    points.len() as u32 - 1
-                });
-                indices.push(i);
-            }
-        }
+        let (points, indices) = simplify::weld(tris);
         let positions =
             points.iter().map(|p| [p.x as f32 / 1e3, p.y as f32 / 1e3, p.z as f32 / 1e3]).collect();
         Self { points, positions, indices }
@@ -744,23 +736,6 @@ impl Surface {
         self.0.nearest_neighbor(&p).map_or(f64::INFINITY, |t| t.distance_2(&p).sqrt())
     }
 }
-
-/// Sample points of a triangle (barycentric): corners, edge midpoints, centroid, 6 interior.
-const BARY: [[f64; 3]; 13] = [
-    [1.0, 0.0, 0.0],
-    [0.0, 1.0, 0.0],
-    [0.0, 0.0, 1.0],
-    [0.5, 0.5, 0.0],
-    [0.0, 0.5, 0.5],
-    [0.5, 0.0, 0.5],
-    [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0],
-    [0.6, 0.2, 0.2],
-    [0.2, 0.6, 0.2],
-    [0.2, 0.2, 0.6],
-    [0.1, 0.45, 0.45],
-    [0.45, 0.1, 0.45],
-    [0.45, 0.45, 0.1],
-];
 
 /// Two-sided Hausdorff estimate between two surfaces, mm: every vertex of `a` against `b`,
 /// and 13 sample points of every triangle of `b` (corners, edge midpoints, centroid, 6

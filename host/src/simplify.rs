@@ -10,16 +10,18 @@
 //!
 //! # Bound
 //!
-//! The quadric is not a distance, so every collapse is checked against the original surface,
-//! conservatively: each face of the simplified mesh keeps the original vertices and the
-//! original triangles it stands for. A collapse is taken only if every original vertex of the
-//! faces around it lies within the bound of one of the new faces there (and is reassigned to
-//! the nearest), and every sample point of the changed faces (corners, edge midpoints,
-//! centroid, 6 interior points: those admission's measurement takes) lies within the bound of
-//! one of the original triangles those faces stand for. Distances to a subset of a surface
-//! are never smaller than to the whole, so both sides of the two-sided Hausdorff estimate
-//! stay within the bound. Positions are snapped to the um grid before they are checked: the
-//! triangles given back are the ones checked.
+//! The quadric is not a distance, so every collapse is checked against the original surface
+//! before it is done, on both sides of the two-sided Hausdorff estimate admission measures:
+//! - original to simplified: each face of the simplified mesh keeps the original vertices
+//!   nearest to it; every original vertex of the faces around a collapse must lie within the
+//!   bound of one of the new faces there (and is reassigned to the nearest). Faces elsewhere do
+//!   not change, so every original vertex stays within the bound of its face.
+//! - simplified to original: every sample point of the changed faces (corners, edge midpoints,
+//!   centroid, 6 interior points: those admission's measurement takes) must lie within the
+//!   bound of an original triangle (an R-tree of their boxes, exact distances).
+//!
+//! Positions are snapped to the um grid before they are checked: the triangles given back are
+//! the ones checked.
 //!
 //! # Guards
 //!
@@ -30,7 +32,8 @@
 //! corners), a minimum remaining valence of 3 and no duplicate faces keep the topology (genus
 //! and manifoldness). A changed face may not turn its normal by more than
 //! [`Options::max_normal_turn_deg`], lose its area, or get an angle below
-//! [`Options::min_angle_deg`] (unless it had one already).
+//! [`Options::min_angle_deg`] (or below the smallest angle around the edge before, when that
+//! is smaller: a collapse may keep a sliver, not make one).
 //!
 //! # Placement
 //!
@@ -823,7 +826,7 @@ fn dist2_point_segment(p: V, a: V, b: V) -> f64 {
 
 /// Squared distance from `p` to triangle `abc` (Voronoi regions of the corners and edges,
 /// else the plane; a triangle without area by its edges).
-pub(crate) fn dist2_point_triangle(p: V, a: V, b: V, c: V) -> f64 {
+fn dist2_point_triangle(p: V, a: V, b: V, c: V) -> f64 {
     let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
     let (d1, d2) = (dot(ab, ap), dot(ac, ap));
     let at = |q: V| {
@@ -855,4 +858,73 @@ pub(crate) fn dist2_point_triangle(p: V, a: V, b: V, c: V) -> f64 {
     }
     let (v, w) = (vb / sum, vc / sum);
     at([a[0] + ab[0] * v + ac[0] * w, a[1] + ab[1] * v + ac[1] * w, a[2] + ab[2] * v + ac[2] * w])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn three_planes_meet_at_the_quadric_optimum() {
+        let mut q = Quadric::default();
+        // x = 1, y = 2, z = 3.
+        for (n, d) in [([1.0, 0.0, 0.0], -1.0), ([0.0, 1.0, 0.0], -2.0), ([0.0, 0.0, 1.0], -3.0)] {
+            q.add(&Quadric::plane(n, d, 1.0));
+        }
+        let x = q.optimum().unwrap();
+        assert!(x.iter().zip([1.0, 2.0, 3.0]).all(|(a, b)| (a - b).abs() < 1e-12), "{x:?}");
+        assert!(q.eval(x) < 1e-12);
+        assert!((q.eval([2.0, 2.0, 3.0]) - 1.0).abs() < 1e-12);
+        // Two planes: a line of minima, no single optimum; along a segment across it.
+        let mut crease = Quadric::plane([1.0, 0.0, 0.0], -1.0, 1.0);
+        crease.add(&Quadric::plane([0.0, 1.0, 0.0], 0.0, 1.0));
+        assert!(crease.optimum().is_none());
+        let m = crease.on_segment([0.0, 0.0, 5.0], [2.0, 0.0, 5.0]);
+        assert!((m[0] - 1.0).abs() < 1e-12 && m[2] == 5.0, "{m:?}");
+    }
+
+    #[test]
+    fn distances_to_degenerate_triangles_are_their_edges() {
+        let (a, b, c) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]);
+        assert!((dist2_point_triangle([1.5, 1.0, 0.0], a, b, c) - 1.0).abs() < 1e-12);
+        assert!((dist2_point_triangle([3.0, 0.0, 0.0], a, a, a) - 9.0).abs() < 1e-12);
+        let (a, b, c) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        assert!((dist2_point_triangle([0.2, 0.2, 0.5], a, b, c) - 0.25).abs() < 1e-12);
+        assert!((dist2_point_triangle([1.0, 1.0, 0.0], a, b, c) - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_smallest_angle_of_a_right_isosceles_triangle_is_45_degrees() {
+        let s = min_sine([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        assert!((s - 45f64.to_radians().sin()).abs() < 1e-12);
+        assert_eq!(min_sine([[0.0; 3]; 3]), 0.0);
+    }
+
+    #[test]
+    fn a_bent_sheet_keeps_its_crease_within_the_bound() {
+        // Two 10 x 10 mm squares of 1 mm cells meeting at a right angle along x = 10 (um).
+        let mut tris = Vec::new();
+        let p = |x: i32, y: i32, z: i32| Point3::new(x * 1000, y * 1000, z * 1000);
+        for i in 0..10 {
+            for j in 0..10 {
+                let (a, b, c, d) = (p(i, j, 0), p(i + 1, j, 0), p(i + 1, j + 1, 0), p(i, j + 1, 0));
+                tris.push(Triangle { v: [a, b, c] });
+                tris.push(Triangle { v: [a, c, d] });
+                let (a, b, c, d) =
+                    (p(10, j, i), p(10, j + 1, i), p(10, j + 1, i + 1), p(10, j, i + 1));
+                // Wound the other way: the crease edge runs once each way.
+                tris.push(Triangle { v: [a, c, b] });
+                tris.push(Triangle { v: [a, d, c] });
+            }
+        }
+        let out = simplify(&tris, 0.01, Options::default());
+        assert!(out.len() <= 8, "{} triangles", out.len());
+        // Every corner stays on one of the two planes, inside the squares.
+        for t in &out {
+            for q in t.v {
+                assert!(q.z == 0 || q.x == 10_000, "{q:?}");
+                assert!((0..=10_000).contains(&q.x) && (0..=10_000).contains(&q.z), "{q:?}");
+            }
+        }
+    }
 }
