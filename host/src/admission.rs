@@ -3,15 +3,20 @@
 //!
 //! The model's peak needs come from `strata::slice::peak_needs` (the largest active set and
 //! the most contour points of any layer) and are compared with the capacities the device
-//! announced. A model that does not fit is simplified with `meshopt` (edge collapses onto
-//! existing vertices). meshopt's error parameter is a quadric estimate that can be several
-//! times below the real distance, so the deviation is measured, not assumed: a two-sided
-//! Hausdorff estimate between the original and the simplified surface (original vertices to
-//! the simplified mesh, and points sampled on the simplified triangles to the original, exact
-//! point-triangle distances through an R-tree). The simplification keeping the most
-//! triangles that fits is searched (bisection on meshopt's target count); it is taken only if
-//! its measured deviation is within the stated bound, else the model is refused with that
-//! deviation in the message (so the user can allow it knowingly).
+//! announced. A model that does not fit is simplified two ways, and the deviation is measured,
+//! not assumed: a two-sided Hausdorff estimate between the original and the simplified surface
+//! (original vertices to the simplified mesh, and points sampled on the simplified triangles
+//! to the original, exact point-triangle distances through an R-tree).
+//! - The quadric simplifier ([`crate::simplify`]: edge collapses held within a distance bound,
+//!   vertices placed where the surface's planes meet) at growing bounds up to just under the
+//!   allowed deviation, each run going on from the last; the first that fits is taken.
+//! - `meshopt` (edge collapses onto existing vertices) towards a triangle count: its error
+//!   parameter is a quadric estimate that can be several times below the real distance, so the
+//!   simplification keeping the most triangles that fits is searched (bisection on the count).
+//!
+//! The fit that deviates less is taken if its measured deviation is within the stated bound,
+//! else the model is refused with that deviation in the message (so the user can allow it
+//! knowingly; the quadric simplifier then goes on past the bound up to meshopt's deviation).
 //!
 //! [`admit_job`] checks the whole pipeline: after the slicer, the model (as it will be
 //! streamed) runs through a host-sized toolpath stage with the job's settings, exactly as the
@@ -23,8 +28,6 @@
 //! buffer. Simplifying
 //! the mesh only reduces the slicer's needs, so a toolpath need that does not fit refuses the
 //! model, naming the resource, the layer where it peaks, the need and the capacity.
-
-use std::collections::HashMap;
 
 use std::cell::Cell;
 
@@ -38,6 +41,7 @@ use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer};
 use strata::toolpath::{Room, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
 use crate::pace::{self, LayerClock, Pace};
+use crate::simplify::{self, Simplifier, BARY};
 use crate::stages::{HostScratch, HostSlicer, HostToolpath};
 
 /// What a model needs against what the device has.
@@ -273,7 +277,19 @@ pub fn admit(
         return Ok(Admission::Unchanged(fit.needs));
     }
     let mesh = Indexed::weld(tris);
-    let Some((out, needs)) = largest_fit(&mesh, tris, config, caps)? else {
+    // meshopt's largest fit, then the quadric simplifier's smallest bound that fits: the one
+    // with the smaller measured deviation.
+    let meshopt = match largest_fit(&mesh, tris, config, caps)? {
+        Some((out, needs)) => {
+            let dev = deviation(&mesh, tris, &out);
+            Some(Candidate { triangles: out, needs, dev })
+        }
+        None => None,
+    };
+    let limit = meshopt.as_ref().map_or(max_deviation_mm * QEM_REACH, |m| m.dev);
+    let qem = qem_fit(&mesh, tris, config, caps, max_deviation_mm, limit)?;
+    let best = [meshopt, qem].into_iter().flatten().min_by(|a, b| a.dev.total_cmp(&b.dev));
+    let Some(Candidate { triangles: out, needs, dev }) = best else {
         return Err(format!(
             "the model does not fit the printer even simplified to a few triangles: it needs \
              {} active triangles and {} contour points per layer, the printer holds {} and {}",
@@ -283,7 +299,6 @@ pub fn admit(
             caps.contour_points
         ));
     };
-    let dev = deviation(&mesh, tris, &out);
     if dev > max_deviation_mm {
         return Err(format!(
             "the model does not fit the printer: it needs {} active triangles and {} contour \
@@ -306,6 +321,53 @@ pub fn admit(
         needs,
         triangles: out,
     }))
+}
+
+/// A simplification that fits, with its measured deviation (mm).
+struct Candidate {
+    triangles: Vec<Triangle>,
+    needs: PeakNeeds,
+    dev: f64,
+}
+
+/// The quadric simplifier's bound as a share of the allowed deviation (the rest is slack for
+/// the float arithmetic; the deviation is measured anyway).
+const QEM_SHARE: f64 = 0.98;
+/// Bounds the quadric simplifier runs through, as shares of its bound at the allowed
+/// deviation, smallest first: the first that fits deviates least.
+const QEM_STAGES: [f64; 6] = [0.2, 0.35, 0.5, 0.65, 0.8, 1.0];
+/// Beyond the allowed deviation (for the refusal's figure): each bound this much larger...
+const QEM_GROWTH: f64 = 1.25;
+/// ... up to this many times the allowed deviation when meshopt found nothing that fits.
+const QEM_REACH: f64 = 16.0;
+
+/// The quadric simplifier's fit with the smallest bound among [`QEM_STAGES`] (each stage goes
+/// on from the last), measured; if none fits within `max_deviation_mm`, larger bounds up to
+/// `limit_mm` (only a fit deviating less than `limit_mm` is of use); `None` when nothing fits.
+fn qem_fit(
+    mesh: &Indexed,
+    tris: &[Triangle],
+    config: &SliceConfig,
+    caps: &Capacities,
+    max_deviation_mm: f64,
+    limit_mm: f64,
+) -> Result<Option<Candidate>, String> {
+    let top = max_deviation_mm * QEM_SHARE;
+    let beyond = std::iter::successors(Some(top * QEM_GROWTH), |b| Some(b * QEM_GROWTH))
+        .take_while(|b| *b < limit_mm * QEM_SHARE);
+    let bounds = QEM_STAGES.iter().map(|s| s * top).chain(beyond);
+    let mut s = Simplifier::new(&mesh.points, &mesh.indices, simplify::Options::default());
+    for bound in bounds {
+        s.run(bound);
+        let mut out = s.triangles();
+        out.sort_by_key(Triangle::z_min);
+        let fit = check(&out, config, caps)?;
+        if fit.fits {
+            let dev = deviation(mesh, tris, &out);
+            return Ok(Some(Candidate { triangles: out, needs: fit.needs, dev }));
+        }
+    }
+    Ok(None)
 }
 
 /// Bisection steps between a fitting and a non-fitting triangle count.
@@ -697,18 +759,7 @@ struct Indexed {
 
 impl Indexed {
     fn weld(tris: &[Triangle]) -> Self {
-        let mut map: HashMap<Point3, u32> = HashMap::new();
-        let mut points = Vec::new();
-        let mut indices = Vec::with_capacity(tris.len() * 3);
-        for t in tris {
-            for p in t.v {
-                let i = *map.entry(p).or_insert_with(|| {
-                    points.push(p);
-                    points.len() as u32 - 1
-                });
-                indices.push(i);
-            }
-        }
+        let (points, indices) = simplify::weld(tris);
         let positions =
             points.iter().map(|p| [p.x as f32 / 1e3, p.y as f32 / 1e3, p.z as f32 / 1e3]).collect();
         Self { points, positions, indices }
@@ -826,23 +877,6 @@ impl Surface {
         self.0.nearest_neighbor(&p).map_or(f64::INFINITY, |t| t.distance_2(&p).sqrt())
     }
 }
-
-/// Sample points of a triangle (barycentric): corners, edge midpoints, centroid, 6 interior.
-const BARY: [[f64; 3]; 13] = [
-    [1.0, 0.0, 0.0],
-    [0.0, 1.0, 0.0],
-    [0.0, 0.0, 1.0],
-    [0.5, 0.5, 0.0],
-    [0.0, 0.5, 0.5],
-    [0.5, 0.0, 0.5],
-    [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0],
-    [0.6, 0.2, 0.2],
-    [0.2, 0.6, 0.2],
-    [0.2, 0.2, 0.6],
-    [0.1, 0.45, 0.45],
-    [0.45, 0.1, 0.45],
-    [0.45, 0.45, 0.1],
-];
 
 /// Two-sided Hausdorff estimate between two surfaces, mm: every vertex of `a` against `b`,
 /// and 13 sample points of every triangle of `b` (corners, edge midpoints, centroid, 6

@@ -13,4 +13,5 @@ pub mod preview;
 pub mod serial;
 pub mod session;
 pub mod simjob;
+pub mod simplify;
 pub mod stages;
