@@ -29,7 +29,7 @@ pub enum Buffer {
     PathPoints,
     /// Paths of one layer (2 `PATH` entries each).
     Paths,
-    /// Path points whose y lies beyond the packed range (+-2^27 um, see [`paths`]).
+    /// Path points beyond the packed range (x or y outside +-2^21 um, see [`paths`]).
     PathRange,
     /// Stored contours of the skin window's layers, in words (`RING`).
     RingPoints,
@@ -51,7 +51,7 @@ impl fmt::Display for Buffer {
             Self::LineSegments => "infill line segments per layer",
             Self::LineIntervals => "infill intervals per scanline",
             Self::PathPoints => "path points per layer",
-            Self::PathRange => "path points beyond the packed y range (um)",
+            Self::PathRange => "path points beyond the packed range (um)",
             Self::Paths => "paths per layer",
             Self::RingPoints => "stored contour words of the skin window",
             Self::WindowSpans => "skin window crossings on one scanline",

@@ -75,8 +75,8 @@
 //! - 3 loop buffers of `PTS` points and `LOOPS` loops (the layer, one offset result, the
 //!   infill domain): [`ToolpathNeeds::PTS_BYTES`] per `PTS` (the offset result's points are
 //!   in the working memory, beside the engine), [`ToolpathNeeds::LOOPS_BYTES`] per `LOOPS`;
-//! - the layer's paths: [`ToolpathNeeds::PATH_BYTES`] per `PATH` (a point, its feature in
-//!   y's low bits; a path's record takes two);
+//! - the layer's paths: [`ToolpathNeeds::PATH_BYTES`] per `PATH` (a point and its feature
+//!   in 48 bits; a path's record takes two);
 //! - the window: [`ToolpathNeeds::RING_BYTES`] per `RING` word (the simplified contours of
 //!   up to `bottom + top + 2` layers, 3 to 4 bytes a point (9 for a far jump) and four words a
 //!   loop: [`window::StoredRings`]) and [`ToolpathNeeds::SPAN_BYTES`] per `SPANS` (the
@@ -393,7 +393,7 @@ impl<
             Buffer::Crossings | Buffer::LineSegments => CROSS,
             Buffer::LineIntervals => 64,
             Buffer::PathPoints | Buffer::Paths => PATH,
-            Buffer::PathRange => 1 << 27,
+            Buffer::PathRange => 1 << 21,
             Buffer::RingPoints => RING,
             Buffer::WindowSpans => SPANS,
             Buffer::WindowLayers => window::MAX_BLOCKS,
@@ -1119,7 +1119,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::ENGINE_BYTES, 46);
         assert_eq!(ToolpathNeeds::LOOPS_BYTES, 123);
         assert_eq!(ToolpathNeeds::CROSS_BYTES, 22);
-        assert_eq!(ToolpathNeeds::PATH_BYTES, 8);
+        assert_eq!(ToolpathNeeds::PATH_BYTES, 6);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
         assert!(fixed < 1536, "{fixed}");

@@ -1,10 +1,10 @@
 //! One layer's extrusion paths before ordering: points with the feature of the move that
 //! reaches each point, grouped into closed loops (perimeters, skirt) and open runs (infill).
 //!
-//! Points fill the point array from the front and the path records its end, two points'
-//! room each (`(start, len)`, `(island, kind + flags x 2^16)`), so a layer of many short
-//! runs and one of a few long loops share one capacity. A path point keeps its feature in the
-//! low 4 bits of its stored y (`y x 16 + feature`): 8 bytes a point, y within +-2^27 um.
+//! Points fill the slot array from the front and the path records its end, two slots each
+//! (start, length, island, kind and flags), so a layer of many short runs and one of a few
+//! long loops share one capacity. A slot is 48 bits in three `u16`s (6 bytes): a point's x
+//! and y as 22-bit signed um (+-2.09 m) and the feature of the move reaching it in 4 bits.
 
 use crate::geom::Point2;
 
@@ -56,9 +56,9 @@ impl PathRec {
     };
 }
 
-/// Bounded path storage: `N` points, path records included (2 each).
+/// Bounded path storage: `N` slots of points, path records included (2 each).
 pub struct PathBuf<const N: usize> {
-    pts: [Point2; N],
+    pts: [Slot; N],
     n: usize,
     nr: usize,
     open: usize,
@@ -76,28 +76,56 @@ impl<const N: usize> Default for PathBuf<N> {
     }
 }
 
-/// Record flags (above the kind code).
-const CLOSED: i32 = 1 << 16;
-const REVERSIBLE: i32 = 2 << 16;
-const DONE: i32 = 4 << 16;
+/// One stored point (or half a record): 48 bits, low word first.
+pub type Slot = [u16; 3];
 
-/// Bits of a stored path point's y holding its feature.
+/// Record flags (above the kind code, whose largest value `2 + 255` takes 9 bits).
+const CLOSED: u16 = 1 << 12;
+const REVERSIBLE: u16 = 1 << 13;
+const DONE: u16 = 1 << 14;
+/// The kind code's bits in a record's last word.
+const KIND_MASK: u16 = (1 << 12) - 1;
+
+/// Bits of a stored point holding its feature (the lowest ones).
 const FEATURE_BITS: u32 = 4;
-/// Path point y range that packs with its feature, um.
-const Y_RANGE: core::ops::RangeInclusive<i32> = -(1 << 27)..=(1 << 27) - 1;
+/// Bits of each stored coordinate (signed).
+const COORD_BITS: u32 = 22;
+/// Path point coordinates that pack, um (both x and y).
+const COORD_RANGE: core::ops::RangeInclusive<i32> =
+    -(1 << (COORD_BITS - 1))..=(1 << (COORD_BITS - 1)) - 1;
 
-/// `p` with `feature` in its y's low bits; `None` outside [`Y_RANGE`].
-fn pack(p: Point2, feature: Feature) -> Option<Point2> {
-    Y_RANGE.contains(&p.y).then(|| Point2::new(p.x, p.y << FEATURE_BITS | feature as i32))
+fn slot_of(bits: u64) -> Slot {
+    [bits as u16, (bits >> 16) as u16, (bits >> 32) as u16]
+}
+
+fn bits_of(s: Slot) -> u64 {
+    u64::from(s[0]) | u64::from(s[1]) << 16 | u64::from(s[2]) << 32
+}
+
+/// `p` with `feature` (y in bits 4..26, x in 26..48); `None` outside [`COORD_RANGE`].
+fn pack(p: Point2, feature: Feature) -> Option<Slot> {
+    let mask = (1u64 << COORD_BITS) - 1;
+    (COORD_RANGE.contains(&p.x) && COORD_RANGE.contains(&p.y)).then(|| {
+        slot_of(
+            (p.x as u64 & mask) << (FEATURE_BITS + COORD_BITS)
+                | (p.y as u64 & mask) << FEATURE_BITS
+                | feature as u64,
+        )
+    })
 }
 
 /// The point of a stored path point.
-fn unpack(s: Point2) -> Point2 {
-    Point2::new(s.x, s.y >> FEATURE_BITS)
+fn unpack(s: Slot) -> Point2 {
+    // Shift the field to the top of an i64, then back with sign extension.
+    let b = bits_of(s) as i64;
+    let top = 64 - FEATURE_BITS - 2 * COORD_BITS;
+    let x = b << top >> (64 - COORD_BITS);
+    let y = b << (top + COORD_BITS) >> (64 - COORD_BITS);
+    Point2::new(x as i32, y as i32)
 }
 
 /// The feature of a stored path point.
-fn unpack_feature(s: Point2) -> Feature {
+fn unpack_feature(s: Slot) -> Feature {
     const ALL: [Feature; 9] = [
         Feature::ExternalPerimeter,
         Feature::Perimeter,
@@ -109,15 +137,16 @@ fn unpack_feature(s: Point2) -> Feature {
         Feature::Retract,
         Feature::Unretract,
     ];
-    ALL.get((s.y & ((1 << FEATURE_BITS) - 1)) as usize).copied().unwrap_or(Feature::Travel)
+    ALL.get((s[0] & ((1 << FEATURE_BITS) - 1)) as usize).copied().unwrap_or(Feature::Travel)
 }
 
-// Every feature's code fits the bits.
+// Every feature's code fits the bits; a point's fields fill the slot.
 const _: () = assert!((Feature::Unretract as u32) < 1 << FEATURE_BITS);
+const _: () = assert!(FEATURE_BITS + 2 * COORD_BITS == 48);
 
 /// The points of one path, unpacked on access.
 #[derive(Clone, Copy)]
-pub struct PathPoints<'a>(&'a [Point2]);
+pub struct PathPoints<'a>(&'a [Slot]);
 
 impl PathPoints<'_> {
     /// Number of points.
@@ -161,15 +190,15 @@ impl PathPoints<'_> {
 
 impl PathKind {
     /// 0 skirt, 1 infill, `2 + depth` perimeter.
-    fn code(self) -> i32 {
+    fn code(self) -> u16 {
         match self {
             Self::Skirt => 0,
             Self::Infill => 1,
-            Self::Perimeter(d) => 2 + i32::from(d),
+            Self::Perimeter(d) => 2 + u16::from(d),
         }
     }
 
-    fn from_code(c: i32) -> Self {
+    fn from_code(c: u16) -> Self {
         match c {
             0 => Self::Skirt,
             1 => Self::Infill,
@@ -182,7 +211,7 @@ impl<const N: usize> PathBuf<N> {
     /// Empty.
     pub const fn new() -> Self {
         Self {
-            pts: [Point2::new(0, 0); N],
+            pts: [[0; 3]; N],
             n: 0,
             nr: 0,
             open: 0,
@@ -207,8 +236,9 @@ impl<const N: usize> PathBuf<N> {
         let flags = if r.closed { CLOSED } else { 0 }
             | if r.reversible { REVERSIBLE } else { 0 }
             | if r.done { DONE } else { 0 };
-        self.pts[k] = Point2::new(r.start as i32, r.len as i32);
-        self.pts[k + 1] = Point2::new(i32::from(r.island), r.kind.code() | flags);
+        let (start, len) = (r.start, r.len);
+        self.pts[k] = [start as u16, (start >> 16) as u16, len as u16];
+        self.pts[k + 1] = [(len >> 16) as u16, r.island, r.kind.code() | flags];
     }
 
     /// Path `i`.
@@ -216,13 +246,13 @@ impl<const N: usize> PathBuf<N> {
         let k = self.slot(i)?;
         let (a, b) = (self.pts[k], self.pts[k + 1]);
         Some(PathRec {
-            start: a.x as u32,
-            len: a.y as u32,
-            island: b.x as u16,
-            kind: PathKind::from_code(b.y & 0xFFFF),
-            closed: b.y & CLOSED != 0,
-            reversible: b.y & REVERSIBLE != 0,
-            done: b.y & DONE != 0,
+            start: u32::from(a[0]) | u32::from(a[1]) << 16,
+            len: u32::from(a[2]) | u32::from(b[0]) << 16,
+            island: b[1],
+            kind: PathKind::from_code(b[2] & KIND_MASK),
+            closed: b[2] & CLOSED != 0,
+            reversible: b[2] & REVERSIBLE != 0,
+            done: b[2] & DONE != 0,
         })
     }
 
@@ -264,7 +294,7 @@ impl<const N: usize> PathBuf<N> {
     }
 
     /// Appends a point reached by a move of `feature` to the path being built (a repeat of
-    /// the previous point is skipped). Fails when full or with `p.y` outside +-2^27 um.
+    /// the previous point is skipped). Fails when full or with a coordinate outside +-2^21 um.
     pub fn push(&mut self, p: Point2, feature: Feature) -> Result<(), Buffer> {
         if self.n > self.open && unpack(self.pts[self.n - 1]) == p {
             return Ok(());
@@ -355,7 +385,7 @@ impl<const N: usize> PathBuf<N> {
     /// Marks path `i` printed.
     pub fn set_done(&mut self, i: usize) {
         if let Some(k) = self.slot(i) {
-            self.pts[k + 1].y |= DONE;
+            self.pts[k + 1][2] |= DONE;
         }
     }
 
@@ -432,13 +462,46 @@ mod tests {
     }
 
     #[test]
-    fn points_beyond_the_packed_y_range_are_refused() {
+    fn a_slot_gives_back_every_point_and_feature_in_range() {
+        let features = [
+            Feature::ExternalPerimeter,
+            Feature::Perimeter,
+            Feature::InternalInfill,
+            Feature::SolidInfill,
+            Feature::TopSolidInfill,
+            Feature::Skirt,
+            Feature::Travel,
+            Feature::Retract,
+            Feature::Unretract,
+        ];
+        let (lo, hi) = (*COORD_RANGE.start(), *COORD_RANGE.end());
+        let mut coords = vec![lo, lo + 1, -1, 0, 1, hi - 1, hi, 220_000, -12_345];
+        // A xorshift walk over the whole range.
+        let mut r = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..200 {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            coords.push(lo + (r % (1 << COORD_BITS)) as i32);
+        }
+        for (i, &x) in coords.iter().enumerate() {
+            for (j, &y) in coords.iter().enumerate() {
+                let f = features[(i + j) % features.len()];
+                let s = pack(Point2::new(x, y), f).unwrap();
+                assert_eq!((unpack(s), unpack_feature(s)), (Point2::new(x, y), f));
+            }
+        }
+    }
+
+    #[test]
+    fn points_beyond_the_packed_range_are_refused() {
         let mut b = PathBuf::<16>::new();
-        let far = Point2::new(0, 1 << 27);
+        let far = Point2::new(0, 1 << 21);
         assert_eq!(b.push(far, Feature::Skirt), Err(Buffer::PathRange));
-        let edge = Point2::new(-5, -(1 << 27));
+        let edge = Point2::new(-(1 << 21), -(1 << 21));
         b.push(edge, Feature::TopSolidInfill).unwrap();
-        b.push(Point2::new(7, (1 << 27) - 1), Feature::Unretract).unwrap();
+        b.push(Point2::new((1 << 21) - 1, (1 << 21) - 1), Feature::Unretract).unwrap();
+        assert_eq!(b.push(Point2::new(1 << 21, 0), Feature::Skirt), Err(Buffer::PathRange));
         assert_eq!(b.open_point_from_end(1), Some(edge));
         // A moved point out of range fails the path's end, which drops it.
         b.set_open_point(0, true, far);

@@ -107,7 +107,7 @@ impl ToolpathNeeds {
     pub const CROSS_BYTES: usize =
         core::mem::size_of::<Crossing>() + core::mem::size_of::<u16>() + POOL_WORDS * 4;
     /// Bytes per `PATH`: a point, its feature packed in (a path record takes two).
-    pub const PATH_BYTES: usize = core::mem::size_of::<Point2>();
+    pub const PATH_BYTES: usize = core::mem::size_of::<super::paths::Slot>();
     /// Bytes per `RING` word (a stored point takes 3 to 9 bytes of them, see
     /// [`window::StoredRings`]).
     pub const RING_BYTES: usize = core::mem::size_of::<u32>();
@@ -164,7 +164,7 @@ const _: () = assert!(
         && ToolpathNeeds::ENGINE_BYTES == 46
         && ToolpathNeeds::LOOPS_BYTES == 123
         && ToolpathNeeds::CROSS_BYTES == 22
-        && ToolpathNeeds::PATH_BYTES == 8
+        && ToolpathNeeds::PATH_BYTES == 6
         && ToolpathNeeds::RING_BYTES == 4
         && ToolpathNeeds::SPAN_BYTES == 8
 );
