@@ -134,6 +134,33 @@ pub fn admit_job_timed(
     match toolpath_fit(admission.triangles(tris), machine, job, caps)? {
         Ok((peaks, times)) => Ok((admission, peaks, times)),
         Err(short) => {
+            // Fewer contour points mean fewer loop points, path points and stored contours:
+            // the quadric simplifier's bounds, the first whose slicer and toolpath needs both
+            // fit.
+            let mesh = Indexed::weld(tris);
+            let mut s = Simplifier::new(&mesh.points, &mesh.indices, simplify::Options::default());
+            for bound in QEM_STAGES.iter().map(|k| k * max_deviation_mm * QEM_SHARE) {
+                s.run(bound);
+                let mut out = s.triangles();
+                out.sort_by_key(Triangle::z_min);
+                let fit = check(&out, &config, caps)?;
+                if !fit.fits {
+                    continue;
+                }
+                if let Ok((peaks, times)) = toolpath_fit(&out, machine, job, caps)? {
+                    let dev = deviation(&mesh, tris, &out);
+                    if dev <= max_deviation_mm {
+                        let admission = Admission::Simplified(Simplified {
+                            triangles_in: tris.len(),
+                            error_bound_mm: max_deviation_mm,
+                            max_deviation_mm: dev,
+                            needs: fit.needs,
+                            triangles: out,
+                        });
+                        return Ok((admission, peaks, times));
+                    }
+                }
+            }
             let simplified = match &admission {
                 Admission::Unchanged(_) => String::new(),
                 Admission::Simplified(s) => {
