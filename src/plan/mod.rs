@@ -272,15 +272,15 @@ impl Geom {
 }
 
 /// A queued move and its current plan.
+///
+/// Its start is the previous entry's end (the head's is the planner's `head_start_um`) and
+/// its `2 a L` is recomputed ([`Entry::delta_v2`]): neither is stored per move.
 #[derive(Debug, Clone, Copy)]
 struct Entry {
-    start_um: [i32; AXES],
     end_um: [i32; AXES],
     len_q32: u64,
     accel_q16: u64,
     cruise_v2: u64,
-    /// v^2 gained (or lost) over the whole move at full acceleration: 2 a L.
-    delta_v2: u64,
     /// Junction limit of the start speed (includes both cruise limits).
     max_start_v2: u64,
     /// Largest start speed from which the rest of the queue can still stop.
@@ -291,16 +291,19 @@ struct Entry {
 
 impl Entry {
     const EMPTY: Self = Self {
-        start_um: [0; AXES],
         end_um: [0; AXES],
         len_q32: 0,
         accel_q16: 0,
         cruise_v2: 0,
-        delta_v2: 0,
         max_start_v2: 0,
         back_v2: 0,
         start_v2: 0,
     };
+
+    /// v^2 gained (or lost) over the whole move at full acceleration: 2 a L, um^2/s^2 q16.
+    fn delta_v2(&self) -> u64 {
+        sat_u64((2 * self.accel_q16 as u128 * self.len_q32 as u128) >> 32).min(V2_MAX)
+    }
 }
 
 /// A planned move: trapezoidal speed profile with exact phase times.
@@ -338,11 +341,19 @@ pub struct Block {
 }
 
 impl Block {
-    /// The block of `e` ending at `end_v2`; `start_v` is `sqrt_q16(e.start_v2)` when the
-    /// caller already has it (the previous block's end speed).
-    fn new(e: &Entry, end_v2: u64, timer_hz: u32, start_v: Option<u64>) -> Self {
+    /// The block of `e` from `start_um`, ending at `end_v2`.
+    ///
+    /// `start_v` is `sqrt_q16(e.start_v2)` when the caller already has it (the previous block's
+    /// end speed).
+    fn new(
+        e: &Entry,
+        start_um: [i32; AXES],
+        end_v2: u64,
+        timer_hz: u32,
+        start_v: Option<u64>,
+    ) -> Self {
         let (s2, e2) = (e.start_v2, end_v2);
-        let peak = (s2 + e2 + e.delta_v2) / 2;
+        let peak = (s2 + e2 + e.delta_v2()) / 2;
         let c2 = e.cruise_v2.min(peak).max(s2).max(e2);
         // Both ramps' distances and the per-step reciprocal divide by a.
         let by_a = Divisor::new(e.accel_q16.max(1));
@@ -378,7 +389,7 @@ impl Block {
         let k = by_v1.div(f << 64);
         let extra = (128 - k.leading_zeros()).saturating_sub(63);
         Self {
-            start_um: e.start_um,
+            start_um,
             end_um: e.end_um,
             len_q32: len,
             accel_q16: e.accel_q16,
@@ -544,7 +555,11 @@ pub struct Planner<const N: usize> {
     ring: [Entry; N],
     head: usize,
     len: usize,
-    position_um: [i32; AXES],
+    /// Start of the head, X, Y, Z, E in um.
+    ///
+    /// The end of the last released block (the reset position before any); each later entry
+    /// starts at the end of the one before it.
+    head_start_um: [i32; AXES],
     /// Geometry of the last pushed move, for the junction with the next one.
     last: Option<Geom>,
     /// End speed^2 of the last released block: the fixed start of the head.
@@ -554,6 +569,10 @@ pub struct Planner<const N: usize> {
     released_q16: u64,
     released: u32,
 }
+
+// Planner<32> (the board's) on thumbv7m, bytes: 64 per entry, 4-byte usize, 8-aligned i128.
+#[cfg(all(target_arch = "arm", target_pointer_width = "32"))]
+const _: [(); 2280] = [(); core::mem::size_of::<Planner<32>>()];
 
 impl<const N: usize> Planner<N> {
     const CAPACITY_OK: () = assert!(N >= 1, "the planner needs room for at least one move");
@@ -571,7 +590,7 @@ impl<const N: usize> Planner<N> {
         self.lim = Limits::new(config);
         self.head = 0;
         self.len = 0;
-        self.position_um = position_um;
+        self.head_start_um = position_um;
         self.last = None;
         self.exit_v2 = 0;
         self.exit_v = 0;
@@ -588,7 +607,7 @@ impl<const N: usize> Planner<N> {
             ring: [Entry::EMPTY; N],
             head: 0,
             len: 0,
-            position_um: [0; AXES],
+            head_start_um: [0; AXES],
             last: None,
             exit_v2: 0,
             exit_v: 0,
@@ -619,7 +638,10 @@ impl<const N: usize> Planner<N> {
 
     /// The end of the last pushed move (where the next move starts), X, Y, Z, E in um.
     pub fn position_um(&self) -> [i32; AXES] {
-        self.position_um
+        match self.len {
+            0 => self.head_start_um,
+            n => self.at(n - 1).end_um,
+        }
     }
 
     /// Blocks released so far.
@@ -638,7 +660,8 @@ impl<const N: usize> Planner<N> {
             .map(|i| {
                 let end = if i + 1 < self.len { self.at(i + 1).start_v2 } else { 0 };
                 let start_v = (i == 0).then_some(self.exit_v);
-                Block::new(self.at(i), end, self.lim.timer_hz, start_v).t_total_q16
+                let from = self.start_um_of(i);
+                Block::new(self.at(i), from, end, self.lim.timer_hz, start_v).t_total_q16
             })
             .fold(0, u64::saturating_add)
     }
@@ -667,6 +690,14 @@ impl<const N: usize> Planner<N> {
         &mut self.ring[k]
     }
 
+    /// Start of queued move `i` (the end of move `i - 1`), X, Y, Z, E in um.
+    fn start_um_of(&self, i: usize) -> [i32; AXES] {
+        match i {
+            0 => self.head_start_um,
+            _ => self.at(i - 1).end_um,
+        }
+    }
+
     /// Queues a move from the current position to `mv.target_um`. A move that goes nowhere is
     /// accepted and dropped.
     pub fn push(&mut self, mv: Move) -> Result<(), PlanError> {
@@ -676,9 +707,10 @@ impl<const N: usize> Planner<N> {
         if mv.feed_mm_s == 0 {
             return Err(PlanError::ZeroFeed);
         }
+        let from = self.position_um();
         let mut d = [0i64; AXES];
         for (axis, dst) in d.iter_mut().enumerate() {
-            *dst = mv.target_um[axis] as i64 - self.position_um[axis] as i64;
+            *dst = mv.target_um[axis] as i64 - from[axis] as i64;
             if dst.abs() > MAX_AXIS_DELTA_UM {
                 return Err(PlanError::MoveTooLong { axis: axis as u8 });
             }
@@ -694,12 +726,10 @@ impl<const N: usize> Planner<N> {
             _ => 0,
         };
         let entry = Entry {
-            start_um: self.position_um,
             end_um: mv.target_um,
             len_q32: g.len_q32,
             accel_q16: g.accel_q16,
             cruise_v2: g.cruise_v2,
-            delta_v2: sat_u64((2 * g.accel_q16 as u128 * g.len_q32 as u128) >> 32).min(V2_MAX),
             max_start_v2,
             back_v2: self.exit_v2,
             start_v2: self.exit_v2,
@@ -708,7 +738,6 @@ impl<const N: usize> Planner<N> {
         *self.at_mut(n) = entry;
         self.len += 1;
         self.replan(n);
-        self.position_um = mv.target_um;
         self.last = Some(g);
         Ok(())
     }
@@ -724,7 +753,7 @@ impl<const N: usize> Planner<N> {
         let mut i = n;
         loop {
             let e = self.at_mut(i);
-            let b = e.max_start_v2.min(next_back + e.delta_v2);
+            let b = e.max_start_v2.min(next_back + e.delta_v2());
             if i < n && b == e.back_v2 {
                 break;
             }
@@ -738,7 +767,7 @@ impl<const N: usize> Planner<N> {
         }
         for i in first..=n {
             let prev = self.at(i - 1);
-            let reach = prev.start_v2 + prev.delta_v2;
+            let reach = prev.start_v2 + prev.delta_v2();
             let e = self.at_mut(i);
             e.start_v2 = e.back_v2.min(reach);
         }
@@ -751,7 +780,7 @@ impl<const N: usize> Planner<N> {
             return false;
         }
         let (h, n) = (self.at(0), self.at(1));
-        n.start_v2 == n.max_start_v2.min(h.start_v2 + h.delta_v2)
+        n.start_v2 == n.max_start_v2.min(h.start_v2 + h.delta_v2())
     }
 
     /// Releases the head if its plan can no longer change.
@@ -772,7 +801,9 @@ impl<const N: usize> Planner<N> {
         let end_v2 = if self.len >= 2 { self.at(1).start_v2 } else { 0 };
         // The head starts where the last block ended (replan never changes it).
         debug_assert!(self.at(0).start_v2 == self.exit_v2 && self.exit_v == sqrt_q16(self.exit_v2));
-        let block = Block::new(self.at(0), end_v2, self.lim.timer_hz, Some(self.exit_v));
+        let (from, hz) = (self.head_start_um, self.lim.timer_hz);
+        let block = Block::new(self.at(0), from, end_v2, hz, Some(self.exit_v));
+        self.head_start_um = block.end_um;
         self.head = (self.head + 1) % N;
         self.len -= 1;
         self.exit_v2 = end_v2;
@@ -971,6 +1002,36 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn entry_holds_end_length_accel_and_four_speeds() {
+        // 16 B end, 6 u64 (len, accel, cruise, junction, back, start): the same on thumbv7m.
+        assert_eq!(core::mem::size_of::<Entry>(), 64);
+    }
+
+    #[test]
+    fn each_block_starts_where_the_one_before_ended() {
+        let start = [1_000, -2_000, 300, 40];
+        let mut p: Planner<3> = Planner::new(&PlanConfig::default(), start);
+        let targets = [[5_000, 0, 300, 90], [5_000, 0, 300, -910], [0, 7_000, 500, -910]];
+        let mut from = start;
+        for (k, to) in targets.into_iter().cycle().take(12).enumerate() {
+            if p.is_full() {
+                let b = p.pop_forced().unwrap();
+                assert_eq!(b.start_um(), from);
+                from = b.end_um();
+            }
+            let to = to.map(|c| c + k as i32);
+            p.push(Move::new(to, mm(50), MoveKind::Print)).unwrap();
+            assert_eq!(p.position_um(), to);
+        }
+        let last = p.position_um();
+        while let Some(b) = p.pop_forced() {
+            assert_eq!(b.start_um(), from);
+            from = b.end_um();
+        }
+        assert_eq!((from, p.position_um()), (last, last));
     }
 
     #[test]
