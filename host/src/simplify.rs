@@ -35,6 +35,16 @@
 //! [`Options::min_angle_deg`] (or below the smallest angle around the edge before, when that
 //! is smaller: a collapse may keep a sliver, not make one).
 //!
+//! # Slices
+//!
+//! What the device holds per layer is the triangles crossing a plane (`z_min < p <= z_max`),
+//! about `2 L / w` for contour length `L` and triangles `w` wide along it; their count does not
+//! depend on the triangles' heights. With [`Options::layers`] the simplifier counts each
+//! plane's crossings as it goes and orders the heap by the quadric cost divided by
+//! `1 + slice_weight * gain` (gain: crossings a collapse removes, each weighted by its plane's
+//! crowding `(count / peak)^heat_power`): collapses along the contours of the crowded planes,
+//! which widen their triangles, spend the bound first. The checks are the same.
+//!
 //! # Placement
 //!
 //! The quadric's minimum (the 3x3 system) when it is well conditioned and near the edge; the
