@@ -383,7 +383,13 @@ fn qem_fit(
     let beyond = std::iter::successors(Some(top * QEM_GROWTH), |b| Some(b * QEM_GROWTH))
         .take_while(|b| *b < limit_mm * QEM_SHARE);
     let bounds = QEM_STAGES.iter().map(|s| s * top).chain(beyond);
-    let mut s = Simplifier::new(&mesh.points, &mesh.indices, simplify::Options::default());
+    // Collapses that lower the most crowded of the job's planes go first.
+    let layers = simplify::Layers {
+        first_um: config.first_layer_height_um,
+        height_um: config.layer_height_um,
+    };
+    let opts = simplify::Options { layers: Some(layers), ..simplify::Options::default() };
+    let mut s = Simplifier::new(&mesh.points, &mesh.indices, opts);
     for bound in bounds {
         s.run(bound);
         let mut out = s.triangles();

@@ -35,6 +35,16 @@
 //! [`Options::min_angle_deg`] (or below the smallest angle around the edge before, when that
 //! is smaller: a collapse may keep a sliver, not make one).
 //!
+//! # Slices
+//!
+//! What the device holds per layer is the triangles crossing a plane (`z_min < p <= z_max`),
+//! about `2 L / w` for contour length `L` and triangles `w` wide along it; their count does not
+//! depend on the triangles' heights. With [`Options::layers`] the simplifier counts each
+//! plane's crossings as it goes and orders the heap by the quadric cost divided by
+//! `1 + slice_weight * gain` (gain: crossings a collapse removes, each weighted by its plane's
+//! crowding `(count / peak)^heat_power`): collapses along the contours of the crowded planes,
+//! which widen their triangles, spend the bound first. The checks are the same.
+//!
 //! # Placement
 //!
 //! The quadric's minimum (the 3x3 system) when it is well conditioned and near the edge; the
@@ -45,6 +55,8 @@ use std::collections::BinaryHeap;
 
 use rstar::{RTree, RTreeObject, AABB};
 use strata::geom::{Point3, Triangle};
+use strata::machine::PrintSettings;
+use strata::slice::SliceConfig;
 
 type V = [f64; 3];
 
@@ -58,13 +70,50 @@ pub struct Options {
     pub max_normal_turn_deg: f64,
     /// Stop at this many triangles (0: only the bound stops).
     pub target_triangles: usize,
+    /// The layers the mesh will be sliced at (`None`: the plain quadric order).
+    pub layers: Option<Layers>,
+    /// How much a collapse that removes crossings of crowded planes is preferred: its cost is
+    /// divided by `1 + slice_weight * gain` (gain: crossings removed, each weighted by its
+    /// plane's crowding, see [`Options::heat_power`]), one that adds some multiplied likewise.
+    pub slice_weight: f64,
+    /// A plane's crowding is `(crossings / peak crossings)^heat_power`: the larger, the more
+    /// only the planes near the peak count.
+    pub heat_power: i32,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Self { min_angle_deg: 2.0, max_normal_turn_deg: 60.0, target_triangles: 0 }
+        Self {
+            min_angle_deg: 2.0,
+            max_normal_turn_deg: 60.0,
+            target_triangles: 0,
+            layers: Some(Layers::default()),
+            slice_weight: SLICE_WEIGHT,
+            heat_power: HEAT_POWER,
+        }
     }
 }
+
+/// Layer heights, um, as the slicer takes them (`strata::slice::SliceConfig`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layers {
+    /// First layer height (its plane at half of it).
+    pub first_um: i32,
+    /// Every further layer's height.
+    pub height_um: i32,
+}
+
+impl Default for Layers {
+    fn default() -> Self {
+        let s = PrintSettings::default();
+        Self { first_um: s.first_layer_height_um, height_um: s.layer_height_um }
+    }
+}
+
+/// Default [`Options::slice_weight`].
+pub const SLICE_WEIGHT: f64 = 10.0;
+/// Default [`Options::heat_power`].
+pub const HEAT_POWER: i32 = 8;
 
 /// Sample points of a triangle (barycentric): corners, edge midpoints, centroid, 6 interior.
 pub(crate) const BARY: [[f64; 3]; 13] = [
@@ -245,6 +294,12 @@ pub struct Simplifier {
     opts: Options,
     live: usize,
     stats: Stats,
+    /// Slicing planes' heights, um, ascending (empty: the plain quadric order).
+    planes: Vec<i64>,
+    /// Live faces crossing each plane (`z_min < p <= z_max`, as the slicer counts them).
+    crossings: Vec<u32>,
+    /// The largest of `crossings`.
+    peak: u32,
 }
 
 /// The faces around a collapse, as they would be.
@@ -294,6 +349,9 @@ impl Simplifier {
             pos,
             opts,
             stats: Stats::default(),
+            planes: Vec::new(),
+            crossings: Vec::new(),
+            peak: 0,
         };
         for (fi, f) in s.faces.iter().enumerate() {
             for &v in f {
@@ -315,7 +373,92 @@ impl Simplifier {
             }
         }
         s.mark_edges();
+        if let Some(layers) = opts.layers {
+            s.set_planes(planes_um(points, layers));
+        }
         s
+    }
+
+    /// Counts the crossings of `planes` (um, ascending) and prefers collapses that lower the
+    /// crowded ones from now on.
+    pub fn set_planes(&mut self, planes: Vec<i64>) {
+        self.planes = planes;
+        self.crossings = vec![0; self.planes.len()];
+        for f in 0..self.faces.len() {
+            if self.alive_f[f] {
+                let (a, b) = self.span(&self.corners(f as u32));
+                for k in a..b {
+                    self.crossings[k] += 1;
+                }
+            }
+        }
+        self.peak = self.crossings.iter().copied().max().unwrap_or(0);
+    }
+
+    /// The most faces crossing one plane (0 without planes).
+    pub fn peak_crossings(&self) -> u32 {
+        self.peak
+    }
+
+    /// Live faces crossing each plane.
+    pub fn crossings(&self) -> &[u32] {
+        &self.crossings
+    }
+
+    fn corners(&self, f: u32) -> [V; 3] {
+        self.faces[f as usize].map(|v| self.pos[v as usize])
+    }
+
+    /// The planes `first..after` a face with corners `c` (mm) crosses: `z_min < p <= z_max`.
+    fn span(&self, c: &[V; 3]) -> (usize, usize) {
+        let z = c.map(|p| (p[2] * 1e3).round() as i64);
+        let (lo, hi) = (z[0].min(z[1]).min(z[2]), z[0].max(z[1]).max(z[2]));
+        (self.planes.partition_point(|&p| p <= lo), self.planes.partition_point(|&p| p <= hi))
+    }
+
+    /// Crossings the collapse `ring` removes (negative: adds), each weighted by its plane's
+    /// crowding `(crossings / peak)^heat_power`.
+    fn slice_gain(&self, ring: &Ring) -> f64 {
+        if self.peak == 0 {
+            return 0.0;
+        }
+        let peak = f64::from(self.peak);
+        let heat = |(a, b): (usize, usize)| -> f64 {
+            (a..b).map(|k| (f64::from(self.crossings[k]) / peak).powi(self.opts.heat_power)).sum()
+        };
+        let removed: f64 = ring.removed.iter().map(|&f| heat(self.span(&self.corners(f)))).sum();
+        let changed: f64 = ring
+            .kept
+            .iter()
+            .map(|(f, new)| heat(self.span(&self.corners(*f))) - heat(self.span(new)))
+            .sum();
+        removed + changed
+    }
+
+    /// Moves the crossing counts from the faces of `ring` as they are to as they will be.
+    fn recount(&mut self, ring: &Ring) {
+        if self.planes.is_empty() {
+            return;
+        }
+        let mut lowered_peak = false;
+        let old = ring.removed.iter().chain(ring.kept.iter().map(|(f, _)| f));
+        let spans: Vec<(usize, usize)> = old.map(|&f| self.span(&self.corners(f))).collect();
+        for (a, b) in spans {
+            for k in a..b {
+                lowered_peak |= self.crossings[k] == self.peak;
+                self.crossings[k] -= 1;
+            }
+        }
+        for (_, new) in &ring.kept {
+            let (a, b) = self.span(new);
+            for k in a..b {
+                self.crossings[k] += 1;
+                self.peak = self.peak.max(self.crossings[k]);
+            }
+        }
+        if lowered_peak {
+            self.peak = self.crossings.iter().copied().max().unwrap_or(0);
+        }
     }
 
     /// Marks boundary and locked vertices and adds the boundary planes.
@@ -447,8 +590,20 @@ impl Simplifier {
         let Some((keep, _)) = self.direction(a, b) else {
             return;
         };
-        let Some(&(cost, _)) = self.placements(keep, a ^ b ^ keep).first() else {
+        let gone = a ^ b ^ keep;
+        let Some(&(cost, p)) = self.placements(keep, gone).first() else {
             return;
+        };
+        let w = self.opts.slice_weight;
+        let cost = if self.peak > 0 && w > 0.0 {
+            let gain = self.slice_gain(&self.ring(keep, gone, p));
+            if gain >= 0.0 {
+                cost / (1.0 + w * gain)
+            } else {
+                cost * (1.0 - w * gain)
+            }
+        } else {
+            cost
         };
         heap.push(Entry {
             cost,
@@ -690,6 +845,7 @@ impl Simplifier {
     }
 
     fn commit(&mut self, keep: u32, gone: u32, p: V, ring: &Ring) {
+        self.recount(ring);
         let (k, g) = (keep as usize, gone as usize);
         let mut pts = Vec::new();
         for &f in ring.removed.iter().chain(ring.kept.iter().map(|(f, _)| f)) {
@@ -755,6 +911,19 @@ pub fn weld(tris: &[Triangle]) -> (Vec<Point3>, Vec<u32>) {
         }
     }
     (points, indices)
+}
+
+/// The slicing planes' heights (um) of a mesh over `points` sliced at `layers`: those strictly
+/// below its top, as `SliceConfig::plane_z_um` places them.
+pub fn planes_um(points: &[Point3], layers: Layers) -> Vec<i64> {
+    let top = points.iter().map(|p| p.z).max().unwrap_or(0);
+    let mut settings = PrintSettings::default();
+    settings.first_layer_height_um = layers.first_um;
+    settings.layer_height_um = layers.height_um;
+    match SliceConfig::new(&settings, top.max(0)) {
+        Ok(c) => (0..c.layer_count()).map(|k| c.plane_z_um(k)).collect(),
+        Err(_) => Vec::new(),
+    }
 }
 
 fn bbox(pos: &[V]) -> (V, V) {
