@@ -30,7 +30,7 @@ RAM_HEADROOM=2048
 # RAM_HEADROOM free.
 # The Creality builds run the same code under a main loop whose frame is 712 B smaller (552 B
 # against 1,264: no instruction counter), so they need that much less.
-STACK_RESERVE_QEMU=5004
+STACK_RESERVE_QEMU=5044
 STACK_RESERVE_CREALITY=$((STACK_RESERVE_QEMU - 712))
 board="${1:-}"
 case "$board" in

@@ -398,6 +398,35 @@ fn qemu_embodier_lm8uu() {
     qemu_model("embodier_LM8UU_8p2pi.stl");
 }
 
+// 3DBenchy on the 64 KB build: admission simplifies it within 0.05 mm (225,135 triangles to
+// about 4,400, with the quadric simplifier); CI prints its first layers up to and including
+// the layer of each peak need ([`BENCHY_CI_LAYERS`]), the whole model is an ignored test.
+
+const BENCHY: &str = "3DBenchy.stl";
+/// The deviation 3DBenchy is admitted within, mm.
+const BENCHY_DEVIATION_MM: f64 = 0.05;
+/// 3DBenchy's layers in CI: its peak needs on the 64 KB board lie in layer 0 (active triangles,
+/// contour points and loops, loop points, path points, the largest move unit), 43 (scanline
+/// crossings) and 55 (the skin window's words) (`host/examples/layer_needs.rs`).
+const BENCHY_CI_LAYERS: i32 = 56;
+
+#[test]
+fn qemu_3dbenchy_first_layers() {
+    let (tris, job) = load(BENCHY);
+    let (tris, job) = first_layers_within(&tris, job, BENCHY_CI_LAYERS, BENCHY_DEVIATION_MM);
+    qemu_job(&format!("{BENCHY} (first {BENCHY_CI_LAYERS} layers)"), &tris, job, true);
+}
+
+#[test]
+#[ignore = "the whole 3DBenchy (an hour and a quarter of print): run with --ignored"]
+fn qemu_3dbenchy() {
+    let (tris, job) = load(BENCHY);
+    let caps = &strata::printer::BOARD_CAPACITIES;
+    let (tris, job, _) = hil::admitted(&tris, job, caps, BENCHY_DEVIATION_MM)
+        .unwrap_or_else(|e| panic!("admission for the 64 KB board: {e}"));
+    qemu_job(BENCHY, &tris, job, true);
+}
+
 // LM8UU also prints unsimplified, its offsets whole, on the same firmware built for QEMU's
 // mps2-an385 (`scripts/build_firmware.sh qemu-mps2`: the same Cortex-M3 instruction set with
 // 4 MB of RAM and capacities to match): the pipeline on the device's instruction set equals
@@ -429,7 +458,18 @@ const REALTIME_CI_LAYERS: i32 = 4;
 /// model stays the same one), the model's height there (the slicer cuts the same sections;
 /// the last layers get top skins, as a part cut there would).
 fn first_layers(tris: &[Triangle], job: JobSpec, layers: i32) -> (Vec<Triangle>, JobSpec) {
-    let (tris, job, _) = hil::admitted(tris, job, &strata::printer::BOARD_CAPACITIES, 0.02)
+    first_layers_within(tris, job, layers, 0.02)
+}
+
+/// [`first_layers`] of the model as admitted within `max_deviation_mm`.
+fn first_layers_within(
+    tris: &[Triangle],
+    job: JobSpec,
+    layers: i32,
+    max_deviation_mm: f64,
+) -> (Vec<Triangle>, JobSpec) {
+    let caps = &strata::printer::BOARD_CAPACITIES;
+    let (tris, job, _) = hil::admitted(tris, job, caps, max_deviation_mm)
         .unwrap_or_else(|e| panic!("admission for the 64 KB board: {e}"));
     let s = &job.settings;
     let top = s.first_layer_height_um + (layers - 1) * s.layer_height_um;
@@ -476,6 +516,11 @@ fn qemu_realtime_first_layers() {
         let (tris, job) = first_layers(&tris, job, REALTIME_CI_LAYERS);
         qemu_realtime(&format!("{name} (first {REALTIME_CI_LAYERS} layers)"), &tris, job);
     }
+    // 3DBenchy's first layers hold the most active triangles and contour points of the whole
+    // model (the walls of the lettering under its hull).
+    let (tris, job) = load(BENCHY);
+    let (tris, job) = first_layers_within(&tris, job, REALTIME_CI_LAYERS, BENCHY_DEVIATION_MM);
+    qemu_realtime(&format!("{BENCHY} (first {REALTIME_CI_LAYERS} layers)"), &tris, job);
 }
 
 /// A gear prism with `teeth` teeth (outer radius 25 mm, 2 mm deep) at the bed's middle,

@@ -3,9 +3,11 @@
 //! announces [`BOARD_CAPACITIES`].
 //!
 //! The capacities are the largest of what embodier_hotend_v2 needs at the default settings
-//! (it prints unsimplified) and what embodier_LM8UU_8p2pi needs simplified for the slicer
-//! (742 active triangles unsimplified; admission simplifies it to 388 with a measured
-//! deviation of 0.0135 mm, under the default 0.02 mm) with its offsets done in bands;
+//! (it prints unsimplified), what embodier_LM8UU_8p2pi needs simplified for the slicer (742
+//! active triangles unsimplified; admission simplifies it within the default 0.02 mm) with its
+//! offsets done in bands, and what 3DBenchy needs admitted within 0.05 mm (225,135 triangles
+//! simplified to 4,375, measured deviation 0.049 mm: `strata simulate
+//! ../shared/models/3DBenchy.stl --max-deviation 0.05 --json`, its `device_needs`);
 //! embodier_asc and xyz_20mm_cube need far less of each. RAM on the board = the `Printer`
 //! (slicer + toolpath + their scratch + move buffer + planner + generator) + the protocol
 //! endpoint, the step queue, the executor and the UART buffers + the stack; the firmware
@@ -28,25 +30,26 @@ use crate::machine::MachineConfig;
 use crate::protocol::{Capacities, JobSpec};
 use crate::toolpath::{Seam, ToolpathConfig};
 
-/// Slicer: active triangles (embodier_hotend_v2: 388).
-pub const ACTIVE_TRIANGLES: usize = 388;
-/// Slicer: segments and contour points per layer (hotend: 388).
-pub const CONTOUR_POINTS: usize = 388;
-/// Slicer: loops per layer.
-pub const CONTOUR_LOOPS: usize = 8;
+/// Slicer: active triangles (3DBenchy within 0.05 mm: 426, the walls of the lettering under its
+/// hull; embodier_hotend_v2: 388).
+pub const ACTIVE_TRIANGLES: usize = 432;
+/// Slicer: segments and contour points per layer (3DBenchy: 426; hotend: 388).
+pub const CONTOUR_POINTS: usize = 432;
+/// Slicer: loops per layer (3DBenchy: 10).
+pub const CONTOUR_LOOPS: usize = 10;
 /// Toolpath.
 ///
-/// Loop points per layer and offset edges per island (embodier_LM8UU_8p2pi simplified for the
-/// slicer's capacities: 269 loop points; an island's offset that needs more edges is done in bands;
-/// hotend: 207 edges, whole).
+/// Loop points per layer and offset edges per island (3DBenchy within 0.05 mm: 270 loop points
+/// in its first layer, its offsets in bands; an island's offset that needs more edges is done in
+/// bands; hotend: 202 edges, whole).
 pub const TOOLPATH_POINTS: usize = 271;
 /// Toolpath: loops per layer (LM8UU: 14; hotend: 6).
 pub const TOOLPATH_LOOPS: usize = 14;
 /// Toolpath: scanline crossings, infill segments and paths per layer (hotend: 512).
 pub const SCAN_CROSSINGS: usize = 512;
-/// Toolpath: path points per layer (hotend: 1,010).
-pub const PATH_POINTS: usize = 1_010;
-/// Toolpath: words of the skin window's stored contours (hotend: 1,755).
+/// Toolpath: path points per layer (3DBenchy: 1,010; hotend: 1,000).
+pub const PATH_POINTS: usize = 1_040;
+/// Toolpath: words of the skin window's stored contours (hotend: 1,737; 3DBenchy: 1,370).
 pub const WINDOW_RING_WORDS: usize = 1_755;
 /// Toolpath: the skin window's crossings with one scanline (hotend 27; the banded
 /// cylinders of the HIL test more).
@@ -114,6 +117,14 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
     window_spans: 1 << 16,
 };
 
+/// Contour simplification of the printer's toolpath stage, um (the host's G-code export keeps
+/// `ToolpathConfig`'s 10 um).
+///
+/// CuraEngine's default maximum deviation, two X/Y steps: fewer loop points, path points and
+/// stored contours per layer in the same RAM (3DBenchy admitted within 0.05 mm: 270 loop points
+/// in its worst layer instead of 329 at 10 um, `host/examples` probe of the session note).
+pub const SIMPLIFY_TOLERANCE_UM: i32 = 25;
+
 /// The toolpath settings the printer derives from `job` (the host's admission control sizes
 /// the job with the same).
 pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathConfig {
@@ -125,5 +136,6 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     // The thin-area figures are a host report (`strata slice`); the printer makes the same
     // toolpaths without them and saves an offset per island and layer.
     cfg.measure_thin_area = false;
+    cfg.simplify_tolerance_um = SIMPLIFY_TOLERANCE_UM;
     cfg
 }
