@@ -365,3 +365,48 @@ fn travels_inside_the_part_need_no_retraction_and_leaving_it_retracts() {
         }
     }
 }
+
+/// Each layer's extrusions: time at their feeds (f64, from the moves' lengths), the slowest
+/// and the fastest feed, mm/s.
+fn extrusion_time_s(l: &TpLayer, start: Point2) -> (f64, f64, f64) {
+    let (mut t, mut slow, mut fast, mut at) = (0.0, f64::MAX, 0.0f64, start);
+    for m in &l.moves {
+        let feed = m.feed_mm_s.to_num::<f64>();
+        if m.e_um > 0 && m.to != at {
+            let (a, b) = (pt(at), pt(m.to));
+            t += ((b.0 - a.0).hypot(b.1 - a.1) / 1000.0) / feed;
+            (slow, fast) = (slow.min(feed), fast.max(feed));
+        }
+        at = m.to;
+    }
+    (t, slow, fast)
+}
+
+#[test]
+fn a_small_layer_is_slowed_to_the_minimum_layer_time() {
+    // A 6 mm cube (its layers print in about 2 s at full speed) and a 40 mm plate (about 40 s).
+    let settings = PrintSettings::default();
+    let machine = MachineConfig::default();
+    let min_s = 5.0;
+    let mut cfg = ToolpathConfig::new(&machine, &settings);
+    cfg.min_layer_time_ms = 5_000;
+    let floor = cfg.min_print_speed_mm_s.to_num::<f64>();
+    let small = to_um(&cuboid([107.0, 107.0, 0.0], [113.0, 113.0, 2.0]));
+    let (fast, slow) = (run(&small, &settings), run_cfg(&small, &settings, cfg).unwrap());
+    let (starts_fast, starts_slow) = (layer_starts(&fast), layer_starts(&slow));
+    for k in 1..fast.layers.len() {
+        let (t_full, _, full_feed) = extrusion_time_s(&fast.layers[k], starts_fast[k]);
+        let (t, lowest, highest) = extrusion_time_s(&slow.layers[k], starts_slow[k]);
+        assert!(t_full < min_s, "layer {k}: the cube's layer takes {t_full:.2} s at full speed");
+        // Slowed to the minimum time (its estimate leaves travels out: at least as long), or to
+        // the floor feed; never faster than at full speed.
+        assert!(t >= min_s * 0.999 || lowest <= floor * 1.001, "layer {k}: {t:.2} s");
+        assert!(t < min_s * 1.2, "layer {k}: slowed more than asked, {t:.2} s");
+        assert!(lowest >= floor * 0.999 && highest <= full_feed * 1.001, "layer {k}");
+    }
+    let plate = to_um(&cuboid([90.0, 90.0, 0.0], [130.0, 130.0, 1.0]));
+    let (a, b) = (run(&plate, &settings), run_cfg(&plate, &settings, cfg).unwrap());
+    for (la, lb) in a.layers.iter().zip(&b.layers) {
+        assert_eq!(la.moves, lb.moves, "a layer longer than the minimum time is not slowed");
+    }
+}

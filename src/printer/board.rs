@@ -125,6 +125,16 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
 /// in its worst layer instead of 329 at 10 um, `host/examples` probe of the session note).
 pub const SIMPLIFY_TOLERANCE_UM: i32 = 25;
 
+/// The printer's minimum layer time, ms: a smaller layer's extrusions are slowed (not below
+/// `ToolpathConfig`'s 10 mm/s) to take this long.
+///
+/// PrusaSlicer's default (`slowdown_below_layer_time`, and 10 mm/s its `min_print_speed`): the
+/// layer below cools, and the top of a small part no longer prints faster than the board
+/// computes the next layer 20 times over (3DBenchy's chimney top, layers 201 and 203, printed in
+/// 1.26 s and 0.89 s at full speed: 11.3x and 13.8x, `tools/job-cost/run.sh --max-deviation 0.05
+/// ../shared/models/3DBenchy.stl`).
+pub const MIN_LAYER_TIME_MS: u32 = 5_000;
+
 /// The toolpath settings the printer derives from `job` (the host's admission control sizes
 /// the job with the same).
 pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathConfig {
@@ -137,5 +147,6 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     // toolpaths without them and saves an offset per island and layer.
     cfg.measure_thin_area = false;
     cfg.simplify_tolerance_um = SIMPLIFY_TOLERANCE_UM;
+    cfg.min_layer_time_ms = MIN_LAYER_TIME_MS;
     cfg
 }

@@ -67,6 +67,12 @@ pub struct ToolpathConfig {
     pub min_retract_travel_um: i32,
     /// Travel inside the part without retraction.
     pub comb: bool,
+    /// A layer whose extrusions would take less than this is printed slower, its extrusion
+    /// feeds scaled down (not below `min_print_speed_mm_s`) so that they take this long, ms
+    /// (0: never): the layer below cools and the layer's computing stays far ahead of it.
+    pub min_layer_time_ms: u32,
+    /// The slowest extrusion feed the minimum layer time may ask for, mm/s.
+    pub min_print_speed_mm_s: Rate,
     /// Measure each island's area thinner than a line ([`LayerStats::thin_area_um2`]): one
     /// more offset per island and layer, for reports only (the toolpaths do not depend on
     /// it); the printer leaves it out.
@@ -103,6 +109,8 @@ impl ToolpathConfig {
             simplify_tolerance_um: 10,
             min_retract_travel_um: 1_500,
             comb: true,
+            min_layer_time_ms: 0,
+            min_print_speed_mm_s: Rate::from_num(10),
             measure_thin_area: true,
         }
     }
@@ -130,6 +138,8 @@ impl ToolpathConfig {
             ("infill_speed_mm_s", self.infill_speed_mm_s > 0),
             ("first_layer_speed_mm_s", self.first_layer_speed_mm_s > 0),
             ("retract_speed_mm_s", self.retract_speed_mm_s > 0),
+            ("min_layer_time_ms", self.min_layer_time_ms <= 600_000),
+            ("min_print_speed_mm_s", self.min_print_speed_mm_s > 0),
         ];
         match checks.iter().find(|(_, ok)| !ok) {
             Some(&(field, _)) => Err(ToolpathError::InvalidConfig { field }),
@@ -204,5 +214,7 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     simplify_tolerance_um: 0,
     min_retract_travel_um: 0,
     comb: false,
+    min_layer_time_ms: 0,
+    min_print_speed_mm_s: Rate::ZERO,
     measure_thin_area: false,
 };

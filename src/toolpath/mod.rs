@@ -81,7 +81,7 @@
 //!   up to `bottom + top + 2` layers, 3 to 4 bytes a point (9 for a far jump) and four words a
 //!   loop: [`window::StoredRings`]) and [`ToolpathNeeds::SPAN_BYTES`] per `SPANS` (the
 //!   crossings, then spans, of those layers with the scanline being filled);
-//! - about 1 KB of fixed state (settings, counters, the window's block table).
+//! - about 1.5 KB of fixed state (settings, counters, the window's block table).
 //!
 //! It works in working memory lent to every call that computes layers ([`ToolpathSpace`]: a
 //! [`ToolpathScratch`] when used alone; the slicer's sink hands on the memory the layer was
@@ -105,7 +105,7 @@ use crate::slice::{CutSpace, Layer, SlicedLayer};
 
 use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
 use offset::Join;
-use order::{Ctx, Emission, Emitter};
+use order::{Ctx, Emission, Emitter, FEED_SCALE_ONE};
 use paths::{PathBuf, PathKind};
 use poly::{LoopBuf, LoopMeta, Loops, Ring};
 use scan::{Angle, Crossing};
@@ -224,6 +224,8 @@ pub struct Toolpath<
     island_map: [u16; LOOPS],
     island_stage: [u8; LOOPS],
     em: Emitter,
+    /// The built layer's extrusion feed scale for its minimum time, q16.
+    feed_scale_q16: u32,
     /// Where the built layer's emission stands.
     emission: Emission,
     next_in: u32,
@@ -277,6 +279,7 @@ impl<
             island_map: [0; LOOPS],
             island_stage: [0; LOOPS],
             em: Emitter::new(),
+            feed_scale_q16: FEED_SCALE_ONE,
             emission: Emission::new(),
             next_in: 0,
             next_out: 0,
@@ -533,6 +536,7 @@ impl<
             rings: self.contour.rings(),
             height_um: self.cfg.layer_height_of(l),
             first_layer: l == FIRST_LAYER,
+            feed_scale_q16: self.feed_scale_q16,
         };
         // The infill pool is free since the layer was built: the nearest-path grid's cells
         // and entries, untouched until the layer is complete (without it: scans).
@@ -795,8 +799,48 @@ impl<
         });
         // The infill scratch keeps the place (the nearest-path grid goes into its pool).
         self.park_engine(work);
+        self.feed_scale_q16 = self.min_time_scale(l == FIRST_LAYER);
         self.emission.begin(&self.cfg, &self.paths, &mut self.island_stage);
         Ok(())
+    }
+
+    /// The extrusion feed scale (q16) that makes the built layer's extrusions take at least the
+    /// minimum layer time ([`ToolpathConfig::min_layer_time_ms`]), from their lengths at full
+    /// feed (travels and acceleration left out: the layer takes at least that long).
+    fn min_time_scale(&self, first_layer: bool) -> u32 {
+        let min_us = u64::from(self.cfg.min_layer_time_ms) * 1_000;
+        if min_us == 0 {
+            return FEED_SCALE_ONE;
+        }
+        let ctx = Ctx {
+            cfg: &self.cfg,
+            points: &[],
+            rings: &[],
+            height_um: 0,
+            first_layer,
+            feed_scale_q16: FEED_SCALE_ONE,
+        };
+        let mut us: u64 = 0;
+        for i in 0..self.paths.len() {
+            let r = self.paths.rec(i);
+            let pts = self.paths.points(&r);
+            let n = pts.len();
+            let segs = if r.closed { n } else { n.saturating_sub(1) };
+            for k in 0..segs {
+                let (a, b) = (pts.at(k), pts.at((k + 1) % n));
+                let (dx, dy) = (i64::from(b.x) - i64::from(a.x), i64::from(b.y) - i64::from(a.y));
+                let len_um = crate::math::isqrt_u64((dx * dx + dy * dy) as u64);
+                // The feed's bits are mm/s x 2^32: us = um x 1000 / (mm/s).
+                let bits = ctx.full_feed(pts.feature((k + 1) % n)).to_bits().max(1);
+                let t = ((u128::from(len_um) * 1_000) << 32) / u128::from(bits);
+                us = us.saturating_add(t as u64);
+            }
+        }
+        if us >= min_us {
+            FEED_SCALE_ONE
+        } else {
+            ((us << 16) / min_us) as u32
+        }
     }
 
     /// Layer `l`'s last unit was emitted: its end event and counters.
@@ -1122,7 +1166,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::PATH_BYTES, 6);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
-        assert!(fixed < 1536, "{fixed}");
+        assert!(fixed < 1600, "{fixed}");
         let needs = ToolpathNeeds {
             layer_points: 64,
             layer_loops: 8,

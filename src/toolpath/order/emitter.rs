@@ -74,10 +74,32 @@ pub struct Ctx<'a> {
     pub height_um: i32,
     /// First layer: every extrusion at the first-layer speed.
     pub first_layer: bool,
+    /// Extrusion feeds scaled by this for the layer's minimum time, q16 (`FEED_SCALE_ONE`:
+    /// full speed).
+    pub feed_scale_q16: u32,
 }
+
+/// [`Ctx::feed_scale_q16`] at full speed.
+pub const FEED_SCALE_ONE: u32 = 1 << 16;
 
 impl Ctx<'_> {
     pub(super) fn feed(&self, f: Feature) -> Rate {
+        let full = self.full_feed(f);
+        match f {
+            Feature::Travel | Feature::Retract | Feature::Unretract => full,
+            _ if self.feed_scale_q16 >= FEED_SCALE_ONE => full,
+            // Slower for the layer's minimum time, not below the slowest print feed.
+            _ => {
+                let scaled = Rate::from_bits(
+                    ((u128::from(full.to_bits()) * u128::from(self.feed_scale_q16)) >> 16) as u64,
+                );
+                scaled.max(self.cfg.min_print_speed_mm_s).min(full)
+            }
+        }
+    }
+
+    /// The feed of a move of `f` at full speed.
+    pub(crate) fn full_feed(&self, f: Feature) -> Rate {
         let c = self.cfg;
         match f {
             Feature::Travel => c.travel_speed_mm_s,

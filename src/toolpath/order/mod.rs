@@ -28,7 +28,7 @@ pub mod emitter;
 pub use comb::CombFn;
 use comb::*;
 use emitter::*;
-pub use emitter::{filament_um, Ctx, Emitter};
+pub use emitter::{filament_um, Ctx, Emitter, FEED_SCALE_ONE};
 
 use super::near::{GridShape, NearGrid};
 use super::paths;
@@ -675,8 +675,14 @@ mod tests {
             depth: 0,
             parent: Ring::NO_PARENT,
         };
-        let ctx =
-            Ctx { cfg: &cfg, points: &points, rings: &[wall], height_um: 200, first_layer: false };
+        let ctx = Ctx {
+            cfg: &cfg,
+            points: &points,
+            rings: &[wall],
+            height_um: 200,
+            first_layer: false,
+            feed_scale_q16: FEED_SCALE_ONE,
+        };
         let to = Point2::new(20_000, 0);
         for n in [3, ROUTE_POINTS, ROUTE_POINTS + 1, 2 * ROUTE_POINTS] {
             // Up 5 mm, along above the wall in `n - 2` steps, down to `to`.
