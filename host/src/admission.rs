@@ -76,6 +76,26 @@ pub struct Simplified {
     pub needs: PeakNeeds,
 }
 
+impl Simplified {
+    /// `out` (sorted by lowest z), simplified from `original` within `bound_mm`, measured
+    /// `dev_mm`, with its slicer `needs`.
+    fn of(
+        original: &[Triangle],
+        out: Vec<Triangle>,
+        bound_mm: f64,
+        dev_mm: f64,
+        needs: PeakNeeds,
+    ) -> Self {
+        Self {
+            triangles_in: original.len(),
+            error_bound_mm: bound_mm,
+            max_deviation_mm: dev_mm,
+            needs,
+            triangles: out,
+        }
+    }
+}
+
 /// The admission decision.
 #[derive(Debug, Clone)]
 pub enum Admission {
@@ -150,14 +170,8 @@ pub fn admit_job_timed(
                 if let Ok((peaks, times)) = toolpath_fit(&out, machine, job, caps)? {
                     let dev = deviation(&mesh, tris, &out);
                     if dev <= max_deviation_mm {
-                        let admission = Admission::Simplified(Simplified {
-                            triangles_in: tris.len(),
-                            error_bound_mm: max_deviation_mm,
-                            max_deviation_mm: dev,
-                            needs: fit.needs,
-                            triangles: out,
-                        });
-                        return Ok((admission, peaks, times));
+                        let s = Simplified::of(tris, out, max_deviation_mm, dev, fit.needs);
+                        return Ok((Admission::Simplified(s), peaks, times));
                     }
                 }
             }
@@ -274,13 +288,8 @@ pub fn admit_job_paced(
             break;
         };
         let pace = pace_of(&out, &times);
-        let admission = Admission::Simplified(Simplified {
-            triangles_in: tris.len(),
-            error_bound_mm: max_deviation_mm,
-            max_deviation_mm: dev,
-            needs: fit.needs,
-            triangles: out,
-        });
+        let admission =
+            Admission::Simplified(Simplified::of(tris, out, max_deviation_mm, dev, fit.needs));
         best = Paced { admission, peaks, times, pace };
         if pace.keeps_ahead() {
             break;
@@ -341,13 +350,7 @@ pub fn admit(
             (dev * 1000.0).ceil() / 1000.0
         ));
     }
-    Ok(Admission::Simplified(Simplified {
-        triangles_in: tris.len(),
-        error_bound_mm: max_deviation_mm,
-        max_deviation_mm: dev,
-        needs,
-        triangles: out,
-    }))
+    Ok(Admission::Simplified(Simplified::of(tris, out, max_deviation_mm, dev, needs)))
 }
 
 /// A simplification that fits, with its measured deviation (mm).

@@ -28,9 +28,9 @@ fn underruns(tris: &[Triangle]) -> u32 {
 
 #[test]
 fn a_dense_bead_is_simplified_until_the_link_keeps_ahead() {
-    // 14,400 triangles (20 B each on the wire: 25 s at 115200 baud) for a 3 mm bead that
-    // prints in seconds.
-    let tris = to_um(&sphere(C_MM, R_MM, 120, 60));
+    // 57,600 triangles (20 B each on the wire: 100 s at 115200 baud) for a 3 mm bead that
+    // prints in about a minute (15 layers, each slowed to the printer's 5 s minimum).
+    let tris = to_um(&sphere(C_MM, R_MM, 240, 120));
     let machine = MachineConfig::default();
     let job = job_spec(&tris);
     assert!(underruns(&tris) > 0, "streamed whole, the printer must wait for the link");

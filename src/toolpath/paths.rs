@@ -124,20 +124,22 @@ fn unpack(s: Slot) -> Point2 {
     Point2::new(x as i32, y as i32)
 }
 
+/// Every feature, at the index of its code.
+const FEATURES: [Feature; 9] = [
+    Feature::ExternalPerimeter,
+    Feature::Perimeter,
+    Feature::InternalInfill,
+    Feature::SolidInfill,
+    Feature::TopSolidInfill,
+    Feature::Skirt,
+    Feature::Travel,
+    Feature::Retract,
+    Feature::Unretract,
+];
+
 /// The feature of a stored path point.
 fn unpack_feature(s: Slot) -> Feature {
-    const ALL: [Feature; 9] = [
-        Feature::ExternalPerimeter,
-        Feature::Perimeter,
-        Feature::InternalInfill,
-        Feature::SolidInfill,
-        Feature::TopSolidInfill,
-        Feature::Skirt,
-        Feature::Travel,
-        Feature::Retract,
-        Feature::Unretract,
-    ];
-    ALL.get((s[0] & ((1 << FEATURE_BITS) - 1)) as usize).copied().unwrap_or(Feature::Travel)
+    FEATURES.get((s[0] & ((1 << FEATURE_BITS) - 1)) as usize).copied().unwrap_or(Feature::Travel)
 }
 
 // Every feature's code fits the bits; a point's fields fill the slot.
@@ -463,17 +465,8 @@ mod tests {
 
     #[test]
     fn a_slot_gives_back_every_point_and_feature_in_range() {
-        let features = [
-            Feature::ExternalPerimeter,
-            Feature::Perimeter,
-            Feature::InternalInfill,
-            Feature::SolidInfill,
-            Feature::TopSolidInfill,
-            Feature::Skirt,
-            Feature::Travel,
-            Feature::Retract,
-            Feature::Unretract,
-        ];
+        let features = FEATURES;
+        assert!(features.iter().enumerate().all(|(i, &f)| f as usize == i));
         let (lo, hi) = (*COORD_RANGE.start(), *COORD_RANGE.end());
         let mut coords = vec![lo, lo + 1, -1, 0, 1, hi - 1, hi, 220_000, -12_345];
         // A xorshift walk over the whole range.
