@@ -279,7 +279,9 @@ impl<
             island_map: [0; LOOPS],
             island_stage: [0; LOOPS],
             em: Emitter::new(),
-            feed_scale_q16: FEED_SCALE_ONE,
+            // Set when a layer is built, before its first unit goes out; zero keeps an empty stage
+            // all zero bytes (`.bss`).
+            feed_scale_q16: 0,
             emission: Emission::new(),
             next_in: 0,
             next_out: 0,
