@@ -39,6 +39,15 @@ case "$board" in
 esac
 features="$board"
 [ "$board" = qemu-rt ] && features=qemu-realtime
+out="target/firmware/$board"
+# A build that fails leaves no image: the HIL tests must not run one from an earlier build.
+image=("$out/strata-firmware.elf" "$out/firmware.bin")
+rm -f "${image[@]}"
+fail() {
+  echo "error: $board: $*" >&2
+  rm -f "${image[@]}"
+  exit 1
+}
 rustup target list --installed 2>/dev/null | grep -qx thumbv7m-none-eabi || rustup target add thumbv7m-none-eabi
 rustup component list --installed 2>/dev/null | grep -q '^llvm-tools' || rustup component add llvm-tools
 export CARGO_PROFILE_RELEASE_LTO=true
@@ -51,7 +60,6 @@ cargo build -p strata-firmware --target thumbv7m-none-eabi --release --features 
 bin_dir="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
 objcopy="$(command -v rust-objcopy || echo "$bin_dir/llvm-objcopy")"
 size="$(command -v rust-size || echo "$bin_dir/llvm-size")"
-out="target/firmware/$board"
 mkdir -p "$out"
 cp target/thumbv7m-none-eabi/release/strata-firmware "$out/strata-firmware.elf"
 # The PRINTER static must be zero-initialised (llvm-nm type b/B: .bss). A non-zero byte in
@@ -60,8 +68,8 @@ nm="$(command -v rust-nm || echo "$bin_dir/llvm-nm")"
 printer_type="$("$nm" "$out/strata-firmware.elf" | awk '$3 ~ /15strata_firmware7PRINTER/ { print $2 }')"
 case "$printer_type" in
   b|B) ;;
-  *) echo "error: the PRINTER static is not in .bss (llvm-nm type '${printer_type:-missing}'):" \
-       "Printer::empty() has a non-zero byte; see src/slot.rs for the usual cause" >&2; exit 1 ;;
+  *) fail "the PRINTER static is not in .bss (llvm-nm type '${printer_type:-missing}'):" \
+       "Printer::empty() has a non-zero byte; see src/slot.rs for the usual cause" ;;
 esac
 "$objcopy" -O binary "$out/strata-firmware.elf" "$out/firmware.bin"
 read -r flash ram < <("$size" -A "$out/strata-firmware.elf" | awk '
@@ -80,9 +88,8 @@ case "$board" in
 esac
 reserve=$((stack + headroom))
 if [ $((ram_size - ram)) -lt "$reserve" ]; then
-  echo "error: $board: the statics leave $((ram_size - ram)) B of RAM, under the $reserve B the" \
-    "deepest stack and the headroom need (STACK_RESERVE_*, RAM_HEADROOM in $0)" >&2
-  exit 1
+  fail "the statics leave $((ram_size - ram)) B of RAM, under the $reserve B the" \
+    "deepest stack and the headroom need (STACK_RESERVE_*, RAM_HEADROOM in $0)"
 fi
 echo "$board: RAM left after the statics and the deepest stack: $((ram_size - ram - stack)) B"
 echo "wrote $out/strata-firmware.elf and $out/firmware.bin ($(stat -c %s "$out/firmware.bin") bytes)"

@@ -41,7 +41,7 @@ use strata::slice::{peak_needs, PeakNeeds, SliceConfig, SlicedLayer};
 use strata::toolpath::{Room, ToolEvent, ToolpathConfig, ToolpathError, ToolpathNeeds};
 
 use crate::pace::{self, LayerClock, Pace};
-use crate::simplify::{self, Simplifier, BARY};
+use crate::simplify::{self, dist2_point_triangle, mm, Simplifier, BARY, V};
 use crate::stages::{HostScratch, HostSlicer, HostToolpath};
 
 /// What a model needs against what the device has.
@@ -821,62 +821,6 @@ impl Indexed {
             .map(|c| Triangle { v: [0, 1, 2].map(|k| self.points[c[k] as usize]) })
             .collect()
     }
-}
-
-type V = [f64; 3];
-
-fn sub(a: V, b: V) -> V {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: V, b: V) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn mm(p: Point3) -> V {
-    [p.x as f64 / 1e3, p.y as f64 / 1e3, p.z as f64 / 1e3]
-}
-
-/// Squared distance from `p` to triangle `abc` (Ericson, Real-Time Collision Detection 5.1.5).
-fn dist2_point_triangle(p: V, a: V, b: V, c: V) -> f64 {
-    let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
-    let (d1, d2) = (dot(ab, ap), dot(ac, ap));
-    let closest = |q: V| {
-        let d = sub(p, q);
-        dot(d, d)
-    };
-    let lerp = |o: V, d: V, t: f64| [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return closest(a);
-    }
-    let bp = sub(p, b);
-    let (d3, d4) = (dot(ab, bp), dot(ac, bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return closest(b);
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return closest(lerp(a, ab, d1 / (d1 - d3)));
-    }
-    let cp = sub(p, c);
-    let (d5, d6) = (dot(ab, cp), dot(ac, cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return closest(c);
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return closest(lerp(a, ac, d2 / (d2 - d6)));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return closest(lerp(b, sub(c, b), w));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let (v, w) = (vb * denom, vc * denom);
-    closest([
-        a[0] + ab[0] * v + ac[0] * w,
-        a[1] + ab[1] * v + ac[1] * w,
-        a[2] + ab[2] * v + ac[2] * w,
-    ])
 }
 
 /// A triangle in mm for the R-tree.

@@ -58,7 +58,8 @@ use strata::geom::{Point3, Triangle};
 use strata::machine::PrintSettings;
 use strata::slice::SliceConfig;
 
-type V = [f64; 3];
+/// A point or vector in mm.
+pub(crate) type V = [f64; 3];
 
 /// Options of the simplifier.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -957,7 +958,8 @@ fn lerp(o: V, d: V, t: f64) -> V {
 fn normal(c: [V; 3]) -> V {
     cross(sub(c[1], c[0]), sub(c[2], c[0]))
 }
-fn mm(p: Point3) -> V {
+/// `p` in mm.
+pub(crate) fn mm(p: Point3) -> V {
     [p.x as f64 / 1e3, p.y as f64 / 1e3, p.z as f64 / 1e3]
 }
 fn um(x: V) -> Point3 {
@@ -995,7 +997,7 @@ fn dist2_point_segment(p: V, a: V, b: V) -> f64 {
 
 /// Squared distance from `p` to triangle `abc` (Voronoi regions of the corners and edges,
 /// else the plane; a triangle without area by its edges).
-fn dist2_point_triangle(p: V, a: V, b: V, c: V) -> f64 {
+pub(crate) fn dist2_point_triangle(p: V, a: V, b: V, c: V) -> f64 {
     let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
     let (d1, d2) = (dot(ab, ap), dot(ac, ap));
     let at = |q: V| {

@@ -57,6 +57,7 @@ use strata::geom::Triangle;
 use strata::machine::MachineConfig;
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::{DeviceState, JobSpec};
+use strata::step::StepConfig;
 use strata_host::hil::{self, banded_cylinder, Costs, Qemu, Relay, SimDevice};
 use strata_host::model;
 use strata_host::session::Progress;
@@ -228,6 +229,12 @@ fn assert_same(what: &str, reference: &SimReport, p: &Progress, fw: Option<&Cost
         assert_eq!(total, reference.steps.iter().sum::<u64>(), "{what}: COST steps");
     }
     assert_eq!(steps.print_ticks, Some(reference.print_ticks), "{what}: print time, ticks");
+    // The generator leaves every reversal room for the edge's latency: none is later than
+    // the allowance, so DIR's setup delays no step (the simulation's edges have none).
+    let allowed = StepConfig::default().edge_latency_ticks() as u64;
+    let latency = steps.edge_ticks_max.expect("the STEPS line gives the edge latency");
+    assert!(latency <= allowed, "{what}: an edge {latency} ticks late, beyond {allowed}");
+    assert_eq!(steps.late_dir_steps, Some(0), "{what}: steps delayed for DIR's setup");
     // Every step edge at the same tick relative to the first step.
     assert_eq!(steps.hash, Some(reference.board_hash), "{what}: step hash (axis, direction, tick)");
 }

@@ -2,7 +2,7 @@
 //! direction setup and enable handling, checked edge by edge.
 
 use super::{SimBoard, SimTiming};
-use crate::step::{pack_horizon, DriverTiming, StepQueue};
+use crate::step::{is_before, pack_horizon, DriverTiming, StepQueue};
 use crate::step::{Executor, Pins, StepCmd, StepConfig, StepTimer, Wake};
 
 /// The rig of a test: `board` (timing of `cfg`, clock at `start`, `observer`), its `pins`, the
@@ -432,4 +432,87 @@ fn pulses_count_from_the_timer_read_after_the_edge() {
         assert_eq!(pulses.len(), 30);
         assert!(pulses.iter().all(|&(r, f)| f - r >= 72), "axis {axis}: {pulses:?}");
     }
+}
+
+/// Runs a reversal at the shortest gap the generator leaves ([`StepConfig::min_reversal_ticks`])
+/// with every call entered `lag` ticks after its tick (the board's clock, and so its edges,
+/// run late; the executor is told the tick); returns the driver timing violations, the late
+/// DIR steps and the rises, less the lag.
+fn reversal_with_edge_lag(lag: u64) -> (u32, u32, std::vec::Vec<u64>) {
+    let cfg = StepConfig::default();
+    rig!(cfg, 0, Edges::default(), 16 => board, pins, p, e);
+    let rev = cfg.min_reversal_ticks();
+    queue_seqs(&mut p, 0, &[(0, 1_000, 3, 0), (0, rev, 3, 0)], &[true, false]);
+    p.publish(pack_horizon(100_000, true));
+    let mut tick = board.now_u32();
+    loop {
+        board.advance_to(tick as u64 + lag);
+        match e.on_timer_with(tick, &mut pins, &mut &board).unwrap() {
+            Wake::At(t) => tick = t,
+            Wake::Idle => break,
+        }
+    }
+    let rises = board.observer().pulses(0).iter().map(|p| p.0 - lag).collect();
+    (board.violation_count(), e.stats().late_dir_steps, rises)
+}
+
+#[test]
+fn edges_as_late_as_the_latency_allowance_keep_a_reversal_on_time() {
+    let cfg = StepConfig::default();
+    let lead = cfg.start_lead_ticks as u64;
+    let rev = cfg.min_reversal_ticks() as u64;
+    // Three steps 1,000 ticks apart, then three back `rev` apart.
+    let want: std::vec::Vec<u64> =
+        [1_000, 2_000, 3_000, 3_000 + rev, 3_000 + 2 * rev, 3_000 + 3 * rev]
+            .iter()
+            .map(|t| t + lead)
+            .collect();
+    let allowed = cfg.edge_latency_ticks() as u64;
+    for lag in [0, allowed / 2, allowed] {
+        assert_eq!(reversal_with_edge_lag(lag), (0, 0, want.clone()), "edges {lag} ticks late");
+    }
+    // Beyond the allowance, DIR's setup after the late fall delays the first step back.
+    let (_, late, rises) = reversal_with_edge_lag(allowed + 100);
+    assert_eq!(late, 1);
+    assert!(rises[3] > want[3], "{rises:?}");
+}
+
+#[test]
+fn a_direction_change_taken_at_the_horizon_keeps_its_step_on_time() {
+    let cfg = StepConfig::default();
+    rig!(cfg, 0, Edges::default(), 16 => board, pins, p, e);
+    // Y steps up three times; the generator's next step for it goes down, due at `exact`,
+    // and bounds the horizon it publishes.
+    let exact = 8_000;
+    queue_seqs(&mut p, 1, &[(0, 1_000, 3, 0)], &[true]);
+    p.publish(pack_horizon((exact - cfg.horizon_margin_ticks()) as u64, false));
+    // The executor runs up to the horizon, Y idle since its last step, and waits there
+    // (the accelerated board's clock: the call due there is made once it has moved on).
+    let mut tick = board.now_u32();
+    let wake = loop {
+        board.advance_to_u32(tick);
+        match e.on_timer_with(tick, &mut pins, &mut &board).unwrap() {
+            Wake::At(t) if is_before(t, e.horizon().0) => tick = t,
+            w => break w,
+        }
+    };
+    let Wake::At(wake) = wake else { panic!("the executor idled at {tick}") };
+    // The step back, compressed as early as the error bound lets it run, and the rest.
+    let early = exact - cfg.max_error_ticks;
+    p.enqueue(1, StepCmd::Dir(false)).unwrap();
+    p.enqueue(1, StepCmd::Steps { interval: early - 3_000, count: 1, add: 0 }).unwrap();
+    p.publish(pack_horizon(100_000, true));
+    let mut tick = wake;
+    loop {
+        board.advance_to_u32(tick);
+        match e.on_timer_with(tick, &mut pins, &mut &board).unwrap() {
+            Wake::At(t) => tick = t,
+            Wake::Idle => break,
+        }
+    }
+    assert_eq!(board.violation_count(), 0, "{:?}", board.first_violation());
+    assert_eq!(e.stats().late_dir_steps, 0, "the step back waited for DIR");
+    let lead = cfg.start_lead_ticks as u64;
+    let rises: std::vec::Vec<u64> = board.observer().pulses(1).iter().map(|p| p.0).collect();
+    assert_eq!(rises, [1_000, 2_000, 3_000, early as u64].map(|t| t + lead));
 }

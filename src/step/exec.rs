@@ -99,7 +99,8 @@ pub struct ExecStats {
     /// Tick of the first underrun.
     pub first_underrun_tick: Option<u32>,
     /// Steps delayed because DIR changed less than the setup time before them (only after
-    /// an underrun-late direction command).
+    /// an underrun-late direction command, or a rising edge later after its tick than
+    /// [`StepConfig::edge_latency_ns`]).
     pub late_dir_steps: u32,
     /// Starts from idle.
     pub starts: u32,

@@ -104,6 +104,8 @@ impl AxisRun {
 #[derive(Debug, Clone)]
 pub struct StepGenerator<const B: usize = 64> {
     tune: Tune,
+    /// [`StepConfig::horizon_margin_ticks`].
+    horizon_margin: u64,
     pending_ticks: u64,
     steps_per_mm: [Rate; AXES],
     comp: [Compressor<B>; AXES],
@@ -164,6 +166,7 @@ impl<const B: usize> StepGenerator<B> {
             min_step: config.min_step_ticks() as i64,
             min_rev: config.min_reversal_ticks() as i64,
         };
+        self.horizon_margin = config.horizon_margin_ticks() as u64;
         self.pending_ticks = config.max_pending_ticks as u64;
         self.steps_per_mm = spm;
         self.comp.iter_mut().for_each(Compressor::reset);
@@ -196,6 +199,7 @@ impl<const B: usize> StepGenerator<B> {
         let () = Self::CAPACITY_OK;
         Self {
             tune: Tune { tol: 0, min_step: 0, min_rev: 0 },
+            horizon_margin: 0,
             pending_ticks: 0,
             steps_per_mm: [Rate::ZERO; AXES],
             comp: [Compressor::new(), Compressor::new(), Compressor::new(), Compressor::new()],
@@ -467,8 +471,7 @@ impl<const B: usize> StepGenerator<B> {
                 h = h.min(self.axes[axis].next_key >> 2);
             }
         }
-        // A compressed step may run up to `tol` before its exact time.
-        out.publish(pack_horizon(h.saturating_sub(self.tune.tol as u64 + 2), false));
+        out.publish(pack_horizon(h.saturating_sub(self.horizon_margin), false));
     }
 
     fn start_block(&mut self, b: Block) {

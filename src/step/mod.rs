@@ -102,6 +102,11 @@ pub struct StepConfig {
     pub start_lead_ticks: u32,
     /// While stalled (underrun), the executor polls the queue at this interval, ticks.
     pub stall_poll_ticks: u32,
+    /// Longest delay from a step's commanded tick to its rising edge on the board (interrupt
+    /// entry and the executor's pass up to that pin write), ns. STEP's high time and DIR's
+    /// setup count from the real edge, so a reversal leaves room for it: DIR never delays the
+    /// step after it ([`ExecStats::late_dir_steps`](crate::step::ExecStats) stays 0).
+    pub edge_latency_ns: u32,
 }
 
 impl StepConfig {
@@ -117,6 +122,7 @@ impl StepConfig {
         enable_active_low: false,
         start_lead_ticks: 0,
         stall_poll_ticks: 0,
+        edge_latency_ns: 0,
     };
 
     /// The steps/mm of `machine`, a 72 MHz timer, A4988 timing, 0.5 us compression error.
@@ -131,6 +137,9 @@ impl StepConfig {
             enable_active_low: true,
             start_lead_ticks: 72_000_000 / 1000,
             stall_poll_ticks: 72_000_000 / 10_000,
+            // The 64 KB QEMU build measures 4.6 us at 1.5 cycles an instruction (HIL
+            // `edge_ticks_max`, asserted below this): twice that and some.
+            edge_latency_ns: 10_000,
         }
     }
 
@@ -150,10 +159,26 @@ impl StepConfig {
     }
 
     /// Shortest interval between the last step before a direction change and the first one
-    /// after it, ticks: DIR changes when STEP falls, then needs the low time and the setup.
+    /// after it, ticks: the edge comes up to the latency after its tick, DIR changes when
+    /// STEP falls, then needs the low time and the setup.
     pub fn min_reversal_ticks(&self) -> u32 {
         let low = self.ns_to_ticks(self.driver.step_low_ns).max(1);
-        self.step_high_ticks() + low.max(self.ns_to_ticks(self.driver.dir_setup_ns))
+        self.edge_latency_ticks()
+            + self.step_high_ticks()
+            + low.max(self.ns_to_ticks(self.driver.dir_setup_ns))
+    }
+
+    /// How far the generator's published horizon stays before the earliest step it has not
+    /// sent, ticks: a compressed step may run up to `max_error_ticks` before its exact time,
+    /// and an axis the executor left idle takes a direction change as late as the horizon,
+    /// so DIR's setup must end before that step.
+    pub fn horizon_margin_ticks(&self) -> u32 {
+        self.max_error_ticks + self.ns_to_ticks(self.driver.dir_setup_ns) + 2
+    }
+
+    /// [`StepConfig::edge_latency_ns`] in ticks.
+    pub fn edge_latency_ticks(&self) -> u32 {
+        self.ns_to_ticks(self.edge_latency_ns)
     }
 }
 
@@ -434,10 +459,12 @@ mod tests {
         let c = StepConfig::default();
         assert_eq!(c.step_high_ticks(), 72);
         assert_eq!(c.min_step_ticks(), 144);
-        assert_eq!(c.min_reversal_ticks(), 144);
+        // 10 us of edge latency, 1 us high, 1 us low (above the 0.2 us setup).
+        assert_eq!(c.edge_latency_ticks(), 720);
+        assert_eq!(c.min_reversal_ticks(), 720 + 72 + 72);
         let mut t = c;
         t.driver = DriverTiming::TMC2208;
         assert_eq!(t.step_high_ticks(), 8);
-        assert_eq!(t.min_reversal_ticks(), 16);
+        assert_eq!(t.min_reversal_ticks(), 720 + 8 + 8);
     }
 }

@@ -226,27 +226,34 @@ pub fn carry<const A: usize, const B: usize, const C: usize, const D: usize>(
 }
 
 /// An executor on a simulated board: the board's clock as its step timer (pulses end in
-/// the call that raises them).
+/// the call that raises them). Its clock waits at the horizon as the accelerated QEMU
+/// board's does: the call due there is made once the horizon has moved past it.
 struct Board<'q, const N: usize> {
     board: SimBoard,
     exec: Executor<'q, N>,
+    /// The executor's wake-up that waits for the horizon (`None`: call at the clock).
+    wake: Option<u32>,
 }
 
 impl<const N: usize> Board<'_, N> {
-    /// Runs every event up to the horizon (to idle when the motion rests there).
+    /// Runs every event before the horizon (to idle when the motion rests there).
     fn run(&mut self) {
         let mut pins = self.board.pins();
         loop {
+            if let Some(t) = self.wake {
+                let (horizon, at_rest) = self.exec.horizon();
+                if !at_rest && !is_before(t, horizon) {
+                    return;
+                }
+                self.board.advance_to_u32(t);
+            }
             let now = self.board.now_u32();
             match self.exec.on_timer_with(now, &mut pins, &mut &self.board) {
-                Ok(Wake::At(t)) => {
-                    let (horizon, at_rest) = self.exec.horizon();
-                    if !at_rest && !is_before(t, horizon) {
-                        return;
-                    }
-                    self.board.advance_to_u32(t);
+                Ok(Wake::At(t)) => self.wake = Some(t),
+                Ok(Wake::Idle) => {
+                    self.wake = None;
+                    return;
                 }
-                Ok(Wake::Idle) => return,
                 Err(never) => match never {},
             }
         }
@@ -309,7 +316,7 @@ impl<'q, const M: usize, const P: usize, const N: usize> Rig<'q, M, P, N> {
         let (prod, cons) = queue.split();
         let board = SimBoard::new(SimTiming::from_config(config), START_TICK, ());
         let exec = Executor::new(config, cons);
-        Self::new(prod, Sink::Execute(Box::new(Board { board, exec })))
+        Self::new(prod, Sink::Execute(Box::new(Board { board, exec, wake: None })))
     }
 
     /// Dequeues at most `limit(turn, axis)` commands per axis a turn (counting and recording
@@ -463,6 +470,10 @@ mod tests {
                 if let Some(board) = rig.board() {
                     assert_eq!(board.violation_count(), 0);
                     assert_eq!(board.axes().map(|a| a.steps), rig.steps);
+                    // The executor catches up with the generator every turn, yet no
+                    // direction change came too late for its step.
+                    let late = rig.executor().map(|e| e.stats().late_dir_steps);
+                    assert_eq!(late, Some(0), "steps delayed for DIR's setup");
                 }
                 (rig.hashes, rig.steps)
             };

@@ -421,6 +421,10 @@ struct EmuTimer {
     pins0: u32,
     /// Reads so far.
     reads: u32,
+    /// In [`StepTimer::wait_until`]: reads there are not edges.
+    waiting: bool,
+    /// The latest read right after a rising edge, ticks after the call's start.
+    edge_max: u32,
 }
 
 /// What an [`EmuTimer::now`] costs beyond one instruction, SysTick counts x 16: calibrated
@@ -444,7 +448,17 @@ impl StepTimer for EmuTimer {
         // CPI_X10 / 10 cycles (72 MHz ticks) per instruction, `PERIOD_NS` instructions per
         // count.
         let ticks_x10 = CPI_X10 as u32 * PERIOD_NS.load(Ordering::Relaxed);
-        self.start.wrapping_add(d.saturating_sub(pin_counts_since(self.pins0)) * ticks_x10 / 10)
+        let since = d.saturating_sub(pin_counts_since(self.pins0)) * ticks_x10 / 10;
+        if !self.waiting {
+            self.edge_max = self.edge_max.max(since);
+        }
+        self.start.wrapping_add(since)
+    }
+
+    fn wait_until(&mut self, t: u32) {
+        self.waiting = true;
+        while strata::step::is_before(self.now(), t) {}
+        self.waiting = false;
     }
 }
 
@@ -458,6 +472,8 @@ fn calibrate_timer() {
         c0: SYST::get_current(),
         pins0: PIN_COUNTS_X16.load(Ordering::Relaxed),
         reads: 0,
+        waiting: false,
+        edge_max: 0,
     };
     let a0 = SYST::get_current();
     for _ in 0..64 {
@@ -500,6 +516,8 @@ struct Isr {
     calls: u64,
     call_counts: u64,
     call_max: u32,
+    /// The longest a rising edge came after its call's start (its commanded tick), ticks.
+    edge_max: u32,
     /// Non-zero while held at the horizon: the number of that wait (accelerated clock).
     #[cfg(not(feature = "qemu-realtime"))]
     blocked: u32,
@@ -641,11 +659,19 @@ impl Isr {
         let was_idle = self.motion.exec().map_or(true, |e| e.is_idle());
         let p0 = PIN_COUNTS_X16.load(Ordering::Relaxed);
         // The timer set up before the count starts (the board's costs nothing to set up).
-        let mut timer = EmuTimer { start: self.clock as u32, c0: 0, pins0: p0, reads: 0 };
+        let mut timer = EmuTimer {
+            start: self.clock as u32,
+            c0: 0,
+            pins0: p0,
+            reads: 0,
+            waiting: false,
+            edge_max: 0,
+        };
         let c0 = SYST::get_current();
         timer.c0 = c0;
         self.next = self.motion.event(self.clock as u32, &mut timer);
         let c1 = SYST::get_current();
+        self.edge_max = self.edge_max.max(timer.edge_max);
         let pins = pin_counts_since(p0) + timer.overhead_counts();
         let idle_poll = was_idle && self.next == Next::Idle;
         if !homing && !idle_poll {
@@ -906,6 +932,7 @@ pub fn init(cfg: &StepConfig) -> Board {
             calls: 0,
             call_counts: 0,
             call_max: 0,
+            edge_max: 0,
             #[cfg(not(feature = "qemu-realtime"))]
             blocked: 0,
             #[cfg(not(feature = "qemu-realtime"))]
@@ -981,6 +1008,7 @@ pub fn job_started() {
             isr.calls = 0;
             isr.call_counts = 0;
             isr.call_max = 0;
+            isr.edge_max = 0;
             #[cfg(feature = "qemu-realtime")]
             {
                 isr.rt = RtStats::new();
@@ -996,13 +1024,14 @@ fn last_rise_tick(cs: &interrupt::CriticalSection) -> u64 {
 
 /// A job ended: the executor's cost and the virtual pins' record.
 pub fn job_ended() {
-    let (calls, counts, max, print_ticks, underruns) = interrupt::free(|cs| {
+    let (calls, counts, max, print_ticks, underruns, late_dir, edge_max) = interrupt::free(|cs| {
         let isr = ISR.borrow(cs).borrow();
         let isr = isr.as_ref().expect("board::init ran");
-        let underruns = isr.motion.exec().map_or(0, |e| e.stats().underruns);
+        let stats = isr.motion.exec().map(|e| e.stats());
+        let (underruns, late_dir) = stats.map_or((0, 0), |s| (s.underruns, s.late_dir_steps));
         // From the executor's first start to the last rising STEP edge (as the simulation).
         let ticks = isr.start.map_or(0, |s| last_rise_tick(cs).saturating_sub(s));
-        (isr.calls, isr.call_counts, isr.call_max, ticks, underruns)
+        (isr.calls, isr.call_counts, isr.call_max, ticks, underruns, late_dir, isr.edge_max)
     });
     let (steps, pos, hash, bad) = interrupt::free(|cs| {
         let vb = VB.borrow(cs).borrow();
@@ -1017,7 +1046,7 @@ pub fn job_ended() {
         steps.iter().map(|&s| u64::from(s)).sum::<u64>()
     );
     log!(
-        "STEPS x={} y={} z={} e={} pos_x={} pos_y={} pos_z={} pos_e={} hash={:016x} print_ticks={} waits={} steps_disabled={}",
+        "STEPS x={} y={} z={} e={} pos_x={} pos_y={} pos_z={} pos_e={} hash={:016x} print_ticks={} waits={} steps_disabled={} late_dir_steps={} edge_ticks_max={}",
         steps[0],
         steps[1],
         steps[2],
@@ -1029,7 +1058,9 @@ pub fn job_ended() {
         hash,
         print_ticks,
         underruns,
-        bad
+        bad,
+        late_dir,
+        edge_max
     );
     #[cfg(feature = "qemu-realtime")]
     realtime_report(underruns);

@@ -107,6 +107,8 @@ impl Costs {
         }
         s.print_ticks = self.get("STEPS", &["print_ticks"]);
         s.hash = self.text("STEPS", &["hash"]).and_then(|h| u64::from_str_radix(h, 16).ok());
+        s.late_dir_steps = self.get("STEPS", &["late_dir_steps"]);
+        s.edge_ticks_max = self.get("STEPS", &["edge_ticks_max"]);
         Some(s)
     }
 }
@@ -122,6 +124,10 @@ pub struct StepsLine {
     pub print_ticks: Option<u64>,
     /// Hash of every step (axis, direction, tick).
     pub hash: Option<u64>,
+    /// Steps the executor delayed for DIR's setup time.
+    pub late_dir_steps: Option<u64>,
+    /// The longest a rising edge came after its commanded tick, timer ticks.
+    pub edge_ticks_max: Option<u64>,
 }
 
 fn first(r: &Record, keys: &[&str]) -> Option<u64> {
