@@ -427,11 +427,58 @@ fn qemu_3dbenchy_first_layers() {
 #[test]
 #[ignore = "the whole 3DBenchy (an hour and a quarter of print): run with --ignored"]
 fn qemu_3dbenchy() {
-    let (tris, job) = load(BENCHY);
+    qemu_whole_within(BENCHY, BENCHY_DEVIATION_MM);
+}
+
+// Organic scaled models on the 64 KB build, admitted within 0.05 mm as 3DBenchy: the bunny
+// (60 mm tall) and the genus-4 fertility statue (80 mm). CI prints each up to and including the
+// layer of its last peak need; the whole models are ignored tests.
+
+const BUNNY: &str = "scaled_mm/stanford_bunny_x60.stl";
+/// The bunny's layers in CI: its peak toolpath needs on the 64 KB board lie in layers 103
+/// (offset edges), 155 (scanline crossings), 165 (window spans), 267 (path points), 268 (loop
+/// points) and 272 (the skin window's words) (`host/examples/layer_needs.rs`), near its ears.
+const BUNNY_CI_LAYERS: i32 = 273;
+const FERTILITY: &str = "scaled_mm/fertility_genus4_x80.stl";
+/// Fertility's layers in CI: peaks in layers 54 (loop points, path points), 58 (the skin
+/// window), 59 (scanline crossings) and 91 (window spans).
+const FERTILITY_CI_LAYERS: i32 = 92;
+/// The deviation the organic models are admitted within, mm.
+const ORGANIC_DEVIATION_MM: f64 = 0.05;
+
+#[test]
+fn qemu_stanford_bunny_x60_to_its_ears() {
+    let (tris, job) = load(BUNNY);
+    let (tris, job) = first_layers_within(&tris, job, BUNNY_CI_LAYERS, ORGANIC_DEVIATION_MM);
+    qemu_job(&format!("{BUNNY} (first {BUNNY_CI_LAYERS} layers)"), &tris, job, true);
+}
+
+#[test]
+fn qemu_fertility_genus4_x80_first_layers() {
+    let (tris, job) = load(FERTILITY);
+    let (tris, job) = first_layers_within(&tris, job, FERTILITY_CI_LAYERS, ORGANIC_DEVIATION_MM);
+    qemu_job(&format!("{FERTILITY} (first {FERTILITY_CI_LAYERS} layers)"), &tris, job, true);
+}
+
+#[test]
+#[ignore = "the whole stanford_bunny_x60: run with --ignored"]
+fn qemu_stanford_bunny_x60() {
+    qemu_whole_within(BUNNY, ORGANIC_DEVIATION_MM);
+}
+
+#[test]
+#[ignore = "the whole fertility_genus4_x80: run with --ignored"]
+fn qemu_fertility_genus4_x80() {
+    qemu_whole_within(FERTILITY, ORGANIC_DEVIATION_MM);
+}
+
+/// A whole model admitted within `max_deviation_mm` for the 64 KB board, clean and lossy.
+fn qemu_whole_within(name: &str, max_deviation_mm: f64) {
+    let (tris, job) = load(name);
     let caps = &strata::printer::BOARD_CAPACITIES;
-    let (tris, job, _) = hil::admitted(&tris, job, caps, BENCHY_DEVIATION_MM)
+    let (tris, job, _) = hil::admitted(&tris, job, caps, max_deviation_mm)
         .unwrap_or_else(|e| panic!("admission for the 64 KB board: {e}"));
-    qemu_job(BENCHY, &tris, job, true);
+    qemu_job(name, &tris, job, true);
 }
 
 // LM8UU also prints unsimplified, its offsets whole, on the same firmware built for QEMU's

@@ -5,10 +5,12 @@
 //! The capacities are the largest of what embodier_hotend_v2 needs at the default settings
 //! (it prints unsimplified), what embodier_LM8UU_8p2pi needs simplified for the slicer (742
 //! active triangles unsimplified; admission simplifies it within the default 0.02 mm) with its
-//! offsets done in bands, and what 3DBenchy needs admitted within 0.05 mm (225,135 triangles
+//! offsets done in bands, and what 3DBenchy, scaled_mm/stanford_bunny_x60 and
+//! scaled_mm/fertility_genus4_x80 need admitted within 0.05 mm (3DBenchy: 225,135 triangles
 //! simplified to 4,375, measured deviation 0.049 mm: `strata simulate
-//! ../shared/models/3DBenchy.stl --max-deviation 0.05 --json`, its `device_needs`);
-//! embodier_asc and xyz_20mm_cube need far less of each. RAM on the board = the `Printer`
+//! ../shared/models/3DBenchy.stl --max-deviation 0.05 --json`, its `device_needs`; every model's
+//! peaks with their layers: `host/examples/layer_needs.rs`); embodier_asc and xyz_20mm_cube need
+//! far less of each. RAM on the board = the `Printer`
 //! (slicer + toolpath + their scratch + move buffer + planner + generator) + the protocol
 //! endpoint, the step queue, the executor and the UART buffers + the stack; the firmware
 //! prints `.data + .bss` and the stack's high-water mark after every job, and
@@ -39,18 +41,24 @@ pub const CONTOUR_POINTS: usize = 432;
 pub const CONTOUR_LOOPS: usize = 10;
 /// Toolpath.
 ///
-/// Loop points per layer and offset edges per island (3DBenchy within 0.05 mm: 270 loop points
-/// in its first layer, its offsets in bands; an island's offset that needs more edges is done in
-/// bands; hotend: 202 edges, whole).
-pub const TOOLPATH_POINTS: usize = 271;
+/// Loop points per layer and offset edges per island (scaled_mm/stanford_bunny_x60 within
+/// 0.05 mm: 290 loop points at 53.8 mm; 3DBenchy: 270 in its first layer, its offsets in bands;
+/// an island's offset that needs more edges is done in bands; hotend: 202 edges, whole).
+pub const TOOLPATH_POINTS: usize = 290;
 /// Toolpath: loops per layer (LM8UU: 14; hotend: 6).
 pub const TOOLPATH_LOOPS: usize = 14;
-/// Toolpath: scanline crossings, infill segments and paths per layer (hotend: 512).
-pub const SCAN_CROSSINGS: usize = 512;
-/// Toolpath: path points per layer (3DBenchy: 1,010; hotend: 1,000).
-pub const PATH_POINTS: usize = 1_040;
-/// Toolpath: words of the skin window's stored contours (hotend: 1,737; 3DBenchy: 1,370).
-pub const WINDOW_RING_WORDS: usize = 1_755;
+/// Toolpath: scanline crossings, infill segments and paths per layer
+/// (scaled_mm/fertility_genus4_x80 within 0.05 mm: 598 in layer 59; hotend: 512).
+pub const SCAN_CROSSINGS: usize = 598;
+/// Toolpath: path points per layer (stanford_bunny_x60: 1,110 in layer 267; 3DBenchy: 1,010;
+/// hotend: 1,000).
+pub const PATH_POINTS: usize = 1_110;
+/// Toolpath: words of the skin window's stored contours.
+///
+/// Its built layers are kept within half a line ([`job_toolpath_config`]): stanford_bunny_x60
+/// 1,719 at layer 272 (2,217 with every layer at 25 um), fertility_genus4_x80 1,658, hotend
+/// 1,409, 3DBenchy 1,201.
+pub const WINDOW_RING_WORDS: usize = 1_728;
 /// Toolpath: the skin window's crossings with one scanline (hotend 27; the banded
 /// cylinders of the HIL test more).
 pub const WINDOW_SPANS: usize = 48;
@@ -147,6 +155,10 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     // toolpaths without them and saves an offset per island and layer.
     cfg.measure_thin_area = false;
     cfg.simplify_tolerance_um = SIMPLIFY_TOLERANCE_UM;
+    // Built layers stay in the skin window for the bottom skins above only: their regions
+    // within half a line, the infill's reach into the perimeters (3DBenchy's window: 1,370
+    // words at 25 um, 1,201 so; stanford_bunny_x60: 2,217, 1,750 at 200 um).
+    cfg.below_tolerance_um = cfg.line_width_um / 2;
     cfg.min_layer_time_ms = MIN_LAYER_TIME_MS;
     cfg
 }

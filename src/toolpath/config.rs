@@ -63,6 +63,10 @@ pub struct ToolpathConfig {
     pub seam: Seam,
     /// Contour simplification tolerance, um.
     pub simplify_tolerance_um: i32,
+    /// Once a layer is built, its contours stay in the skin window only for the bottom skins
+    /// of the layers above; they are simplified again within this tolerance there, um (0 or
+    /// not above `simplify_tolerance_um`: kept as they are).
+    pub below_tolerance_um: i32,
     /// Travels that leave the part retract only from this length on, um.
     pub min_retract_travel_um: i32,
     /// Travel inside the part without retraction.
@@ -107,6 +111,7 @@ impl ToolpathConfig {
             skirt_loops: 1,
             seam: Seam::Rear,
             simplify_tolerance_um: 10,
+            below_tolerance_um: 0,
             min_retract_travel_um: 1_500,
             comb: true,
             min_layer_time_ms: 0,
@@ -132,6 +137,7 @@ impl ToolpathConfig {
             ("skirt_distance_um", (0..=100_000).contains(&self.skirt_distance_um)),
             ("skirt_loops", self.skirt_loops <= 20),
             ("simplify_tolerance_um", (0..=200).contains(&self.simplify_tolerance_um)),
+            ("below_tolerance_um", (0..=self.line_width_um).contains(&self.below_tolerance_um)),
             ("min_retract_travel_um", self.min_retract_travel_um >= 0),
             ("travel_speed_mm_s", self.travel_speed_mm_s > 0),
             ("perimeter_speed_mm_s", self.perimeter_speed_mm_s > 0),
@@ -212,6 +218,7 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     skirt_loops: 0,
     seam: Seam::Rear,
     simplify_tolerance_um: 0,
+    below_tolerance_um: 0,
     min_retract_travel_um: 0,
     comb: false,
     min_layer_time_ms: 0,

@@ -67,7 +67,10 @@
 //! The skin window costs the simplified contours of `bottom + top + 1` layers (the `top`
 //! layers that wait for the layers above them and the `bottom` ones below the layer being
 //! built) and the crossings of all of them with one scanline
-//! ([`ToolpathNeeds::window_bytes`]: 9 KB for 3DBenchy, 1.7 KB for a 20 mm cube).
+//! ([`ToolpathNeeds::window_bytes`]: 9 KB for 3DBenchy, 1.7 KB for a 20 mm cube). A built
+//! layer stays only for the bottom skins above it, its contours simplified again within
+//! [`ToolpathConfig::below_tolerance_um`] in its own block, which gives the words it frees to
+//! the newer blocks (the printer keeps them within half a line).
 //!
 //! # Memory
 //!
@@ -867,10 +870,61 @@ impl<
         st.max_unit_moves = st.max_unit_moves.max(ls.max_unit_moves);
         // Drop what no later layer needs (the next one looks `bottom` layers down).
         let bottom = u32::from(self.cfg.bottom_layers);
+        if bottom > 0 {
+            self.coarsen_below(l);
+        }
         while self.ring.block(0).is_some_and(|b| b.layer + bottom <= l) {
             self.ring.pop();
         }
         self.next_out = l + 1;
+    }
+
+    /// Layer `l` is built and its contours (still in `contour`) stay in the window only for
+    /// the bottom skins above: stores them again within
+    /// [`below_tolerance_um`](ToolpathConfig::below_tolerance_um) in their own block, which
+    /// gives up the words it no longer needs (a loop that would vanish keeps its points).
+    fn coarsen_below(&mut self, l: u32) {
+        let tol = i64::from(self.cfg.below_tolerance_um);
+        if tol <= i64::from(self.cfg.simplify_tolerance_um) {
+            return;
+        }
+        let Some(blk) = self.ring.find(l) else { return };
+        let (old, islands) = (blk.len as usize, StoredRings::islands(self.ring.data(&blk)));
+        let contour = &self.contour;
+        // A loop's points within `tol`, or all of them when fewer than three would remain.
+        let each = |r: &Ring, f: &mut dyn FnMut(Point2)| {
+            let pts = contour.ring_points(r);
+            if simplify::simplify_closed_each(pts, tol, |_| {}) >= 3 {
+                simplify::simplify_closed_each(pts, tol, &mut *f);
+            } else {
+                pts.iter().for_each(|&p| f(p));
+            }
+        };
+        let words = 2 + contour
+            .rings()
+            .iter()
+            .map(|r| {
+                let mut w = LoopWords::default();
+                each(r, &mut |p| w.add(p));
+                w.words
+            })
+            .sum::<usize>();
+        if words >= old {
+            return;
+        }
+        let Some((k, out)) = self.ring.rewrite(l) else { return };
+        let mut out = Encoder::new(out);
+        let mut written = Ok(());
+        for r in contour.rings() {
+            written = written.and_then(|()| out.begin(r.island));
+            each(r, &mut |p| written = written.and_then(|()| out.push(p)));
+            out.end(true);
+        }
+        let w = out.finish(contour.rings().len() as u32, islands);
+        // Counted first: the words fit the block.
+        if written.is_ok() {
+            self.ring.shrink(k, w);
+        }
     }
 
     /// The skirt: convex hull of the first layer, offset outwards with round joins.

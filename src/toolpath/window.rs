@@ -169,6 +169,46 @@ impl<T: Copy, const N: usize> Fifo<T, N> {
         &self.data
     }
 
+    /// The block of `layer` to be rewritten in place (none while a block is reserved): its
+    /// storage, to be ended by [`shrink`](Self::shrink).
+    pub fn rewrite(&mut self, layer: u32) -> Option<(usize, PartsMut<'_, T>)> {
+        if self.open.is_some() {
+            return None;
+        }
+        let k =
+            (0..self.count).find(|&k| self.blocks[(self.head + k) % MAX_BLOCKS].layer == layer)?;
+        let b = self.blocks[(self.head + k) % MAX_BLOCKS];
+        let (a, w) = Self::span(b.start as usize, b.len as usize);
+        let (lo, hi) = self.data.split_at_mut((b.start as usize).min(N));
+        Some((k, PartsMut { a: &mut hi[..a.len()], b: &mut lo[w] }))
+    }
+
+    /// Keeps the first `len` elements of the `k`-th oldest block and moves the newer blocks
+    /// down onto the room it gave up (one pass over their elements, wrapping).
+    pub fn shrink(&mut self, k: usize, len: usize) {
+        if k >= self.count || N == 0 {
+            return;
+        }
+        let i = (self.head + k) % MAX_BLOCKS;
+        let b = self.blocks[i];
+        let d = (b.len as usize).saturating_sub(len);
+        if d == 0 {
+            return;
+        }
+        self.blocks[i].len = len as u32;
+        let newer = (k + 1..self.count).map(|j| self.blocks[(self.head + j) % MAX_BLOCKS].len);
+        let moved: usize = newer.map(|l| l as usize).sum();
+        let src = (b.start as usize + b.len as usize) % N;
+        let dst = (b.start as usize + len) % N;
+        for j in 0..moved {
+            self.data[(dst + j) % N] = self.data[(src + j) % N];
+        }
+        for j in k + 1..self.count {
+            let nb = &mut self.blocks[(self.head + j) % MAX_BLOCKS];
+            nb.start = ((nb.start as usize + N - d) % N) as u32;
+        }
+    }
+
     /// Drops the oldest block.
     pub fn pop(&mut self) {
         if self.count > 0 {
@@ -956,5 +996,45 @@ mod tests {
         assert!(f.reserve(5).is_ok());
         f.commit(4, 1);
         assert_eq!(f.peak, 10);
+    }
+
+    #[test]
+    fn a_block_shrunk_in_place_gives_its_room_to_the_newer_ones() {
+        let mut f = Fifo::<u8, 10>::new(0);
+        let fill = |f: &mut Fifo<u8, 10>, layer: u32, n: usize| {
+            let mut w = f.reserve(n).unwrap();
+            for i in 0..n {
+                *w.get_mut(i).unwrap() = (10 * layer as usize + i) as u8;
+            }
+            f.commit(layer, n);
+        };
+        // Blocks 0 (at 0..3), 1 (3..7), 2 (7..10): full; after dropping 0, block 3 wraps.
+        fill(&mut f, 0, 3);
+        fill(&mut f, 1, 4);
+        fill(&mut f, 2, 3);
+        f.pop();
+        fill(&mut f, 3, 2);
+        assert_eq!(f.reserve(2).err(), Some(Buffer::RingPoints));
+        // Layer 1 keeps its first element (rewritten) and gives up three.
+        let (k, mut w) = f.rewrite(1).unwrap();
+        *w.get_mut(0).unwrap() = 99;
+        f.shrink(k, 1);
+        let elements = |f: &Fifo<u8, 10>, layer: u32| {
+            let d = f.data(&f.find(layer).unwrap());
+            d.a.iter().chain(d.b).copied().collect::<std::vec::Vec<u8>>()
+        };
+        assert_eq!(elements(&f, 1), [99]);
+        assert_eq!(elements(&f, 2), [20, 21, 22]);
+        assert_eq!(elements(&f, 3), [30, 31]);
+        assert_eq!(f.find(2).unwrap().start, 4);
+        assert_eq!(f.find(3).unwrap().start, 7);
+        // The room is free again, after the newest block.
+        fill(&mut f, 4, 3);
+        assert_eq!(elements(&f, 4), [40, 41, 42]);
+        assert_eq!(f.find(4).unwrap().start, 9);
+        // No rewrite while a block is reserved.
+        f.pop();
+        let _ = f.reserve(1).unwrap();
+        assert!(f.rewrite(2).is_none());
     }
 }
