@@ -441,16 +441,20 @@ const BUNNY: &str = "scaled_mm/stanford_bunny_x60.stl";
 const BUNNY_CI_LAYERS: i32 = 273;
 const FERTILITY: &str = "scaled_mm/fertility_genus4_x80.stl";
 /// Fertility's layers in CI: peaks in layers 54 (loop points, path points), 58 (the skin
-/// window), 59 (scanline crossings) and 91 (window spans).
-const FERTILITY_CI_LAYERS: i32 = 92;
+/// window), 59 (scanline crossings) and 91 (window spans). A prefix's last layers are top
+/// skins: ending at layers 60 to 96 they would cover the statue's widest part solid, 1,112 to
+/// 1,243 path points in a layer, more than the board holds; ending at 100 they fit.
+const FERTILITY_CI_LAYERS: i32 = 100;
 /// The deviation the organic models are admitted within, mm.
 const ORGANIC_DEVIATION_MM: f64 = 0.05;
 
+/// Clean only: its layers print for 2.8 hours, about 10 minutes of QEMU on 2 cores (the
+/// lossy relay, which doubles that, runs with fertility here and with the whole bunny).
 #[test]
 fn qemu_stanford_bunny_x60_to_its_ears() {
     let (tris, job) = load(BUNNY);
     let (tris, job) = first_layers_within(&tris, job, BUNNY_CI_LAYERS, ORGANIC_DEVIATION_MM);
-    qemu_job(&format!("{BUNNY} (first {BUNNY_CI_LAYERS} layers)"), &tris, job, true);
+    qemu_job(&format!("{BUNNY} (first {BUNNY_CI_LAYERS} layers)"), &tris, job, false);
 }
 
 #[test]
