@@ -157,7 +157,7 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     cfg.simplify_tolerance_um = SIMPLIFY_TOLERANCE_UM;
     // Built layers stay in the skin window for the bottom skins above only: their regions
     // within half a line, the infill's reach into the perimeters (3DBenchy's window: 1,370
-    // words at 25 um, 1,201 so; stanford_bunny_x60: 2,217, 1,750 at 200 um).
+    // words at 25 um, 1,201 so; stanford_bunny_x60: 2,217, 1,719 so).
     cfg.below_tolerance_um = cfg.line_width_um / 2;
     cfg.min_layer_time_ms = MIN_LAYER_TIME_MS;
     cfg
