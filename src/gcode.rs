@@ -158,7 +158,7 @@ pub fn type_name(f: Feature) -> &'static str {
         Feature::SolidInfill => "Solid infill",
         Feature::TopSolidInfill => "Top solid infill",
         Feature::Skirt => "Skirt",
-        Feature::Travel | Feature::Retract | Feature::Unretract => "Custom",
+        Feature::Travel | Feature::Retract | Feature::Unretract | Feature::Dwell => "Custom",
     }
 }
 
@@ -362,6 +362,12 @@ impl<W: Write> GcodeWriter<W> {
                 self.feed_word(m.feed_mm_s);
                 self.emit()
             }
+            Feature::Dwell => {
+                // s 2^32 to whole ms, rounded.
+                let ms = (u128::from(m.feed_mm_s.to_bits()) * 1_000 + (1 << 31)) >> 32;
+                self.line.s("G4 P").int(ms.min(i64::MAX as u128) as i64).s(" ; minimum layer time");
+                self.emit()
+            }
             Feature::Travel => {
                 self.stats.travel_moves += 1;
                 self.line.s("G0");
@@ -452,6 +458,25 @@ mod tests {
         assert_eq!(num(42, 0), "42");
         assert_eq!(num(-42, 0), "-42");
         assert_eq!(num(i64::MIN + 1, 3), "-9223372036854775.807");
+    }
+
+    #[test]
+    fn a_dwell_is_a_g4_in_whole_milliseconds() {
+        use crate::machine::{MachineConfig, PrintSettings};
+        let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+        let mut w = GcodeWriter::new(String::new(), GcodeOptions::default(), &cfg);
+        for (seconds, ms) in [(1.2345, 1_235), (4.0, 4_000), (0.0004, 0)] {
+            let m = ToolMove {
+                to: Point2::new(0, 0),
+                z_um: 0,
+                e_um: 0,
+                feed_mm_s: Rate::from_num(seconds),
+                feature: Feature::Dwell,
+            };
+            w.event(&ToolEvent::Move(m)).unwrap();
+            let line = format!("G4 P{ms} ; minimum layer time\n");
+            assert!(w.out.ends_with(&line), "{seconds} s: {:?}", w.out);
+        }
     }
 
     #[test]

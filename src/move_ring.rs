@@ -5,7 +5,7 @@
 //! record relative to the move before it, so a move takes a few bytes instead of 24 (5.0 to
 //! 6.3 on average over the sample models, at most [`MAX_RECORD`]):
 //!
-//! - a header byte: bits 0-1 the kind (0 print, 1 travel, 2 retract), bit 2 the layer
+//! - a header byte: bits 0-1 the kind (0 print, 1 travel, 2 retract, 3 dwell), bit 2 the layer
 //!   changed, bit 3 the feed changed, bits 4-7 which of the X, Y, Z, E deltas follow;
 //! - the non-zero deltas of X, Y, Z, E (um, in that order), the layer delta when the layer
 //!   changed, each a zigzag LEB128 varint (deltas taken in `i64`: no overflow at the `i32`
@@ -37,7 +37,7 @@
 
 use crate::machine::{Rate, AXES};
 use crate::plan::{Move, MoveKind};
-use crate::toolpath::{Room, ToolEvent, ToolMove};
+use crate::toolpath::{Feature, Room, ToolEvent, ToolMove};
 
 /// A toolpath move waiting for the planner.
 ///
@@ -102,8 +102,12 @@ impl MoveStream {
     }
 
     /// `m` as a planner move with absolute E: a retraction when the head stays in place, a
-    /// print move when it extrudes, a travel otherwise.
+    /// print move when it extrudes, a travel otherwise; a dwell where the head is.
     pub fn next(&mut self, m: &ToolMove) -> PackedMove {
+        if m.feature == Feature::Dwell {
+            let at = [self.xyz[0], self.xyz[1], self.xyz[2], self.e_um];
+            return PackedMove::pack(self.layer, &Move::dwell(at, m.feed_mm_s));
+        }
         self.e_um = self.e_um.wrapping_add(m.e_um);
         let xyz = [m.to.x, m.to.y, m.z_um];
         let kind = if xyz == self.xyz {
@@ -156,6 +160,7 @@ impl MoveEncoder {
             MoveKind::Print => 0,
             MoveKind::Travel => 1,
             MoveKind::Retract => 2,
+            MoveKind::Dwell => 3,
         };
         for (axis, (&to, &from)) in mv.target_um.iter().zip(&self.prev.target_um).enumerate() {
             let delta = i64::from(to) - i64::from(from);
@@ -238,7 +243,7 @@ fn decode(prev: &PackedMove, bytes: &mut impl Iterator<Item = u8>) -> Option<Pac
         0 => MoveKind::Print,
         1 => MoveKind::Travel,
         2 => MoveKind::Retract,
-        _ => return None,
+        _ => MoveKind::Dwell,
     };
     let mut mv = PackedMove { kind, ..*prev };
     for (axis, target) in mv.target_um.iter_mut().enumerate() {
@@ -635,7 +640,8 @@ mod tests {
     use crate::toolpath::Feature;
     use std::collections::VecDeque;
 
-    const KINDS: [MoveKind; 3] = [MoveKind::Print, MoveKind::Travel, MoveKind::Retract];
+    const KINDS: [MoveKind; 4] =
+        [MoveKind::Print, MoveKind::Travel, MoveKind::Retract, MoveKind::Dwell];
 
     fn record(prev: &PackedMove, mv: &PackedMove) -> Vec<u8> {
         let mut enc = MoveEncoder { prev: *prev };
@@ -675,7 +681,7 @@ mod tests {
             3 => prev.layer.wrapping_add(1),
             _ => prev.layer,
         };
-        mv.kind = KINDS[(next() % 3) as usize];
+        mv.kind = KINDS[(next() % 4) as usize];
         mv
     }
 
@@ -935,8 +941,6 @@ mod tests {
     #[test]
     fn malformed_records_decode_to_none() {
         let o = PackedMove::ORIGIN;
-        // Kind 3 does not exist.
-        assert_eq!(decoded(&o, &[0x03]), None);
         // A delta announced but missing, a varint cut short.
         assert_eq!(decoded(&o, &[0x10]), None);
         assert_eq!(decoded(&o, &[0x10, 0x80]), None);

@@ -283,3 +283,32 @@ fn block_time_at_distance_is_the_trapezoid() {
         }
     }
 }
+
+#[test]
+fn a_dwell_stops_the_head_and_waits_its_exact_time() {
+    let cfg = JobConfig::default();
+    // Collinear prints that would run through at speed, a 1.25 s dwell after the second.
+    let line: Vec<Move> = (1..=4).map(|k| mv([k * 10_000, 0, 0, k * 400], 60.0, Print)).collect();
+    let wait = strata::machine::Rate::from_num(1.25);
+    let mut moves = line[..2].to_vec();
+    moves.push(Move::dwell([0; 4], wait));
+    moves.extend_from_slice(&line[2..]);
+    let blocks = plan_all::<8>(&moves, &cfg);
+    assert_eq!(blocks.len(), 5);
+    let d = &blocks[2];
+    assert!(d.is_dwell() && !blocks.iter().enumerate().any(|(i, b)| i != 2 && b.is_dwell()));
+    // 1.25 s at the planner's clock, exactly, in ticks q16.
+    let hz = u64::from(cfg.plan.timer_hz);
+    assert_eq!(d.duration_ticks_q16(), hz * 5 / 4 * 65_536);
+    // In place (its own target is not read), at rest on both sides.
+    assert_eq!((d.start_um(), d.end_um()), (blocks[1].end_um(), blocks[1].end_um()));
+    assert!(blocks[1].ends_at_rest() && v(blocks[3].start_speed_mm_s()) == 0.0);
+    // Either side is the plan of its own job, from rest to rest.
+    let after = JobConfig { start_um: blocks[1].end_um(), ..JobConfig::default() };
+    assert_same_plan(&blocks[..2], &reference::plan(&line[..2], &cfg));
+    assert_same_plan(&blocks[3..], &reference::plan(&line[2..], &after));
+    // A dwell of no time is no block.
+    let mut p: Planner<4> = Planner::new(&cfg.plan, [0; 4]);
+    p.push(Move::dwell([0; 4], strata::machine::Rate::ZERO)).unwrap();
+    assert!(p.is_empty());
+}

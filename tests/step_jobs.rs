@@ -5,6 +5,7 @@ mod motion_support;
 
 use motion_support::measure::{check_limits, compare_steps, STEP_TOL_S};
 use motion_support::{assert_clean, mv, reference, run_job, JobConfig};
+use strata::plan::Move;
 use strata::plan::MoveKind::{Print, Retract, Travel};
 
 #[test]
@@ -127,4 +128,34 @@ fn the_generator_says_when_it_waits_on_a_full_step_queue() {
     }
     assert_eq!(status, GenStatus::Idle, "the move is generated and ends at rest");
     assert!(!gen.waits_on_a_full_queue());
+}
+
+#[test]
+fn a_dwell_holds_every_axis_still_for_its_time() {
+    let cfg = JobConfig::default();
+    let wait_s = 0.35;
+    let moves = [
+        mv([20_000, 5_000, 0, 0], 120.0, Travel),
+        mv([30_000, 15_000, 0, 600], 40.0, Print),
+        // Its target is not read by the planner: the reference reads none either.
+        Move::dwell([0; 4], strata::machine::Rate::from_num(wait_s)),
+        mv([40_000, 15_000, 0, 1_000], 40.0, Print),
+    ];
+    let r = run_job(&moves, &cfg);
+    assert_clean(&r, &cfg, &moves);
+    let plan = reference::plan(&moves, &cfg);
+    let t = compare_steps(&r, &plan, &cfg);
+    assert!(t.max_err_s <= STEP_TOL_S, "{t:?}");
+    // No step of any axis inside the wait: the last before ends the second move, the first
+    // after starts the third.
+    let (d0, d1) = (plan[2].t0, plan[2].t0 + wait_s);
+    let hz = f64::from(cfg.step.timer_hz);
+    for steps in &r.rec.steps {
+        for s in steps {
+            let at = (s.tick - r.gen0_tick) as f64 / hz;
+            assert!(at <= d0 + STEP_TOL_S || at >= d1 - STEP_TOL_S, "a step at {at} s");
+        }
+    }
+    let total = reference::total_time(&plan);
+    assert!((r.planned_s - total).abs() < 1e-6, "planned {} vs {total}", r.planned_s);
 }

@@ -410,3 +410,53 @@ fn a_small_layer_is_slowed_to_the_minimum_layer_time() {
         assert_eq!(la.moves, lb.moves, "a layer longer than the minimum time is not slowed");
     }
 }
+
+#[test]
+fn a_layer_too_small_for_the_minimum_time_waits_the_rest_lifted_off_the_part() {
+    // A 2 mm square column: about 1.5 s of extrusion per layer at the 10 mm/s floor.
+    let settings = PrintSettings::default();
+    let machine = MachineConfig::default();
+    let mut cfg = ToolpathConfig::new(&machine, &settings);
+    cfg.min_layer_time_ms = 5_000;
+    let min_s = 5.0;
+    let column = to_um(&cuboid([109.0, 109.0, 0.0], [111.0, 111.0, 2.0]));
+    let r = run_cfg(&column, &settings, cfg).unwrap();
+    let starts = layer_starts(&r);
+    let floor = cfg.min_print_speed_mm_s.to_num::<f64>();
+    for (k, l) in r.layers.iter().enumerate() {
+        let (t, lowest, _) = extrusion_time_s(l, starts[k]);
+        assert!(lowest <= floor * 1.001, "layer {k}: not at the floor feed ({lowest} mm/s)");
+        // The layer ends: retraction, lift, wait.
+        let n = l.moves.len();
+        let [retract, lift, wait] = [l.moves[n - 3], l.moves[n - 2], l.moves[n - 1]];
+        assert_eq!((retract.feature, retract.e_um), (Feature::Retract, -cfg.retract_length_um));
+        assert_eq!(
+            (lift.feature, lift.to, lift.z_um),
+            (Feature::Travel, retract.to, l.z_um + 3_000)
+        );
+        assert_eq!(
+            (wait.feature, wait.to, wait.z_um, wait.e_um),
+            (Feature::Dwell, lift.to, lift.z_um, 0)
+        );
+        // Extrusions at their feeds plus the wait: the minimum time, more by at most the whole
+        // ms the wait is rounded up to and the um each segment's length is rounded down to in
+        // the estimate (at the floor feed).
+        let total = t + wait.feed_mm_s.to_num::<f64>();
+        let segments = l.moves.iter().filter(|m| m.e_um > 0).count() as f64;
+        let over = 0.001 + segments * 0.001 / floor;
+        assert!(total >= min_s - 1e-6 && total <= min_s + over, "layer {k}: {total:.4} s");
+        // The next layer goes back down before it extrudes.
+        if let Some(next) = r.layers.get(k + 1) {
+            let first_print =
+                next.moves.iter().find(|m| m.e_um > 0 && m.feature != Feature::Unretract);
+            assert_eq!(first_print.map(|m| m.z_um), Some(next.z_um));
+        }
+    }
+    // Below the build volume's top: the lift stops there.
+    cfg.max_z_um = 1_000;
+    let r = run_cfg(&column, &settings, cfg).unwrap();
+    for l in &r.layers {
+        let top = l.moves.iter().map(|m| m.z_um).max().unwrap();
+        assert_eq!(top, (l.z_um + 3_000).min(1_000).max(l.z_um), "layer {}", l.index);
+    }
+}

@@ -213,10 +213,10 @@ impl MotionAccess<MOVE_BUFFER_BYTES, LOOKAHEAD_MOVES, STEP_QUEUE> for FwMotion {
             let prod = s.prod.as_mut().expect("the step queue is set up");
             // Whether `f` generated steps: the QEMU build's cost figures only.
             #[cfg(feature = "qemu")]
-            let s0 = m.generator().steps_generated();
+            let s0 = m.generator().progress();
             let r = f(m, prod);
             #[cfg(feature = "qemu")]
-            let generated = m.generator().steps_generated() != s0;
+            let generated = m.generator().progress() != s0;
             #[cfg(not(feature = "qemu"))]
             let generated = ();
             (r, generated)

@@ -73,6 +73,9 @@ pub enum MoveKind {
     Travel,
     /// Retraction or unretraction (usually extruder only): travel acceleration.
     Retract,
+    /// The head waits where it is, at rest, for the move's duration (G-code's `G4`): see
+    /// [`Move::dwell`].
+    Dwell,
 }
 
 /// One straight move to an absolute target.
@@ -80,7 +83,8 @@ pub enum MoveKind {
 pub struct Move {
     /// Target X, Y, Z, E in um.
     pub target_um: [i32; AXES],
-    /// Requested speed along the path (XYZ, or E for an extruder-only move), mm/s.
+    /// Requested speed along the path (XYZ, or E for an extruder-only move), mm/s; for a
+    /// [`MoveKind::Dwell`], the wait in seconds.
     pub feed_mm_s: Rate,
     /// Print, travel or retract.
     pub kind: MoveKind,
@@ -103,6 +107,11 @@ impl Move {
     /// A move to `target_um` at `feed_mm_s`.
     pub const fn new(target_um: [i32; AXES], feed_mm_s: Rate, kind: MoveKind) -> Self {
         Self { target_um, feed_mm_s, kind }
+    }
+
+    /// A wait of `seconds` at `at_um` (where the previous move ended).
+    pub const fn dwell(at_um: [i32; AXES], seconds: Rate) -> Self {
+        Self { target_um: at_um, feed_mm_s: seconds, kind: MoveKind::Dwell }
     }
 }
 
@@ -278,8 +287,11 @@ impl Geom {
 #[derive(Debug, Clone, Copy)]
 struct Entry {
     end_um: [i32; AXES],
+    /// Path length, um q32: at least 2^32 (1 um) for a move, 0 for a dwell.
     len_q32: u64,
     accel_q16: u64,
+    /// Cruise speed squared, um^2/s^2 q16; a dwell's duration, ticks q16 (no field of its
+    /// own: 8 bytes more per queued move).
     cruise_v2: u64,
     /// Junction limit of the start speed (includes both cruise limits).
     max_start_v2: u64,
@@ -299,6 +311,11 @@ impl Entry {
         back_v2: 0,
         start_v2: 0,
     };
+
+    /// A wait in place: no length (every move has some).
+    fn is_dwell(&self) -> bool {
+        self.len_q32 == 0
+    }
 
     /// v^2 gained (or lost) over the whole move at full acceleration: 2 a L, um^2/s^2 q16.
     fn delta_v2(&self) -> u64 {
@@ -352,6 +369,9 @@ impl Block {
         timer_hz: u32,
         start_v: Option<u64>,
     ) -> Self {
+        if e.is_dwell() {
+            return Self::dwell(start_um, e.cruise_v2, timer_hz);
+        }
         let (s2, e2) = (e.start_v2, end_v2);
         let peak = (s2 + e2 + e.delta_v2()) / 2;
         let c2 = e.cruise_v2.min(peak).max(s2).max(e2);
@@ -408,6 +428,34 @@ impl Block {
             ticks_per_um: (k >> extra) as u64,
             cruise_shift: 64 - extra,
         }
+    }
+
+    /// A wait of `ticks_q16` at `at_um`: no length, at rest throughout.
+    fn dwell(at_um: [i32; AXES], ticks_q16: u64, timer_hz: u32) -> Self {
+        Self {
+            start_um: at_um,
+            end_um: at_um,
+            len_q32: 0,
+            accel_q16: 0,
+            v2: [0; 3],
+            v: [0; 3],
+            accel_end_q32: 0,
+            decel_start_q32: 0,
+            t_accel_q16: 0,
+            t_decel_q16: 0,
+            t_total_q16: ticks_q16,
+            timer_hz,
+            v_fine: [0; 3],
+            fine_shift: 0,
+            ticks_per_dv: 0,
+            ticks_per_um: 0,
+            cruise_shift: 0,
+        }
+    }
+
+    /// A wait in place ([`MoveKind::Dwell`]): no length, at rest for its duration.
+    pub fn is_dwell(&self) -> bool {
+        self.len_q32 == 0
     }
 
     /// Start position X, Y, Z, E in um.
@@ -699,10 +747,26 @@ impl<const N: usize> Planner<N> {
     }
 
     /// Queues a move from the current position to `mv.target_um`. A move that goes nowhere is
-    /// accepted and dropped.
+    /// accepted and dropped. A dwell ([`Move::dwell`]) stops the head where the last move
+    /// ends (its target is not read) and waits there; one of no time is dropped.
     pub fn push(&mut self, mv: Move) -> Result<(), PlanError> {
         if self.len == N {
             return Err(PlanError::QueueFull);
+        }
+        if mv.kind == MoveKind::Dwell {
+            // s 2^32 x f / 2^16: ticks q16.
+            let f = u128::from(self.lim.timer_hz);
+            let ticks_q16 = sat_u64((u128::from(mv.feed_mm_s.to_bits()) * f) >> 16);
+            if ticks_q16 > 0 {
+                self.push_entry(Entry {
+                    end_um: self.position_um(),
+                    cruise_v2: ticks_q16,
+                    ..Entry::EMPTY
+                });
+                // The move after it starts at rest.
+                self.last = None;
+            }
+            return Ok(());
         }
         if mv.feed_mm_s == 0 {
             return Err(PlanError::ZeroFeed);
@@ -734,12 +798,18 @@ impl<const N: usize> Planner<N> {
             back_v2: self.exit_v2,
             start_v2: self.exit_v2,
         };
+        self.push_entry(entry);
+        self.last = Some(g);
+        Ok(())
+    }
+
+    /// Appends `entry` (room checked) and replans. A dwell's junction limit and ramp are 0:
+    /// the move before it ends at rest and the one after starts so.
+    fn push_entry(&mut self, entry: Entry) {
         let n = self.len;
         *self.at_mut(n) = entry;
         self.len += 1;
         self.replan(n);
-        self.last = Some(g);
-        Ok(())
     }
 
     /// Backward pass from the new tail `n` while the reachable start speeds change, then the
@@ -823,7 +893,7 @@ impl<const N: usize> Planner<N> {
         let mut cruise_v2 = square_q16(rate_to_q16(mv.feed_mm_s, MAX_SPEED_Q16));
         let mut accel_q16 = match mv.kind {
             MoveKind::Print => lim.print_accel_q16,
-            MoveKind::Travel | MoveKind::Retract => lim.travel_accel_q16,
+            MoveKind::Travel | MoveKind::Retract | MoveKind::Dwell => lim.travel_accel_q16,
         };
         // Axis speed v |d|/L <= vmax: v^2 <= vmax^2 L^2 / d^2 (L^2 exact); axis acceleration
         // a |d|/L <= amax: a <= amax L / |d|. Only the tightest axis of each needs dividing

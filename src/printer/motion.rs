@@ -108,9 +108,9 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
     /// Steps into `out`; true when one was generated (see [`Motion::plan_moves`]).
     #[inline(never)]
     fn generate<const Q: usize>(&mut self, out: &mut StepProducer<'_, Q>) -> bool {
-        let steps_before = self.gen.steps_generated();
+        let before = self.gen.progress();
         let _ = self.gen.run(out);
-        self.gen.steps_generated() != steps_before
+        self.gen.progress() != before
     }
 
     /// Moves from the buffer into the planner while it has room; true when one went in.

@@ -141,6 +141,8 @@ pub struct StepGenerator<const B: usize = 64> {
     /// The last run stopped at a full step queue.
     queue_blocked: bool,
     blocks: u32,
+    /// Steps generated, wrapping: [`progress`](Self::progress).
+    progress: u32,
     /// Steps per axis of the blocks completed and the current one: a block's steps are
     /// counted when it starts, those of its axes' `remaining` are still to generate.
     steps: [u64; AXES],
@@ -190,6 +192,7 @@ impl<const B: usize> StepGenerator<B> {
         self.at_rest = true;
         self.queue_blocked = false;
         self.blocks = 0;
+        self.progress = 0;
         self.steps = [0; AXES];
     }
 
@@ -220,6 +223,7 @@ impl<const B: usize> StepGenerator<B> {
             at_rest: false,
             queue_blocked: false,
             blocks: 0,
+            progress: 0,
             steps: [0; AXES],
         }
     }
@@ -277,6 +281,12 @@ impl<const B: usize> StepGenerator<B> {
     /// waits for the executor (not for a block, nor for room for layer marks).
     pub fn waits_on_a_full_queue(&self) -> bool {
         self.queue_blocked
+    }
+
+    /// A count of the steps generated that wraps at 2^32: it changed if and only if a step
+    /// was generated since it was read (unless 2^32 were), one load.
+    pub fn progress(&self) -> u32 {
+        self.progress
     }
 
     /// Steps generated so far, all axes (cheaper than [`stats`](Self::stats)).
@@ -353,6 +363,7 @@ impl<const B: usize> StepGenerator<B> {
                 return GenStatus::QueueFull;
             }
             self.axes[axis].advance(axis, self.block_start_q16, block);
+            self.progress = self.progress.wrapping_add(1);
             self.last_tick = tick;
             // The axis' first pending step changed only if it is this one (an emit inside
             // `push_step` moves it later, which leaves `settle_at` a valid lower bound).

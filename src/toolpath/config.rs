@@ -7,6 +7,10 @@ use super::ToolpathError;
 #[allow(unused_imports)]
 use super::*;
 
+/// The nozzle's lift while a small layer waits out its minimum time, um: Cura's 3 mm
+/// ("Lift Head"), clear of the part's tip.
+pub const COOL_LIFT_UM: i32 = 3_000;
+
 /// Where loops start.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -77,6 +81,12 @@ pub struct ToolpathConfig {
     pub min_layer_time_ms: u32,
     /// The slowest extrusion feed the minimum layer time may ask for, mm/s.
     pub min_print_speed_mm_s: Rate,
+    /// A layer still shorter than `min_layer_time_ms` at `min_print_speed_mm_s` waits for
+    /// the rest at its end, retracted and with the nozzle lifted this much off the part
+    /// (Cura's "lift head"), um.
+    pub cool_lift_um: i32,
+    /// The build volume's height, um: the lift stays below it.
+    pub max_z_um: i32,
     /// Measure each island's area thinner than a line ([`LayerStats::thin_area_um2`]): one
     /// more offset per island and layer, for reports only (the toolpaths do not depend on
     /// it); the printer leaves it out.
@@ -116,6 +126,8 @@ impl ToolpathConfig {
             comb: true,
             min_layer_time_ms: 0,
             min_print_speed_mm_s: Rate::from_num(10),
+            cool_lift_um: COOL_LIFT_UM,
+            max_z_um: machine.build_volume_um[2],
             measure_thin_area: true,
         }
     }
@@ -146,6 +158,8 @@ impl ToolpathConfig {
             ("retract_speed_mm_s", self.retract_speed_mm_s > 0),
             ("min_layer_time_ms", self.min_layer_time_ms <= 600_000),
             ("min_print_speed_mm_s", self.min_print_speed_mm_s > 0),
+            ("cool_lift_um", (0..=50_000).contains(&self.cool_lift_um)),
+            ("max_z_um", self.max_z_um > 0),
         ];
         match checks.iter().find(|(_, ok)| !ok) {
             Some(&(field, _)) => Err(ToolpathError::InvalidConfig { field }),
@@ -223,5 +237,7 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     comb: false,
     min_layer_time_ms: 0,
     min_print_speed_mm_s: Rate::ZERO,
+    cool_lift_um: 0,
+    max_z_um: 0,
     measure_thin_area: false,
 };

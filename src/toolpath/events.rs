@@ -32,7 +32,34 @@ pub enum Feature {
     Retract,
     /// Filament pushed forward again after a retraction.
     Unretract,
+    /// The head waits in place (`G4`), its move's feed the wait in seconds.
+    Dwell,
 }
+
+impl Feature {
+    /// Every feature, at the index of its code (`as u8`).
+    pub const ALL: [Feature; 10] = [
+        Feature::ExternalPerimeter,
+        Feature::Perimeter,
+        Feature::InternalInfill,
+        Feature::SolidInfill,
+        Feature::TopSolidInfill,
+        Feature::Skirt,
+        Feature::Travel,
+        Feature::Retract,
+        Feature::Unretract,
+        Feature::Dwell,
+    ];
+}
+
+// Each feature sits at its code.
+const _: () = {
+    let mut i = 0;
+    while i < Feature::ALL.len() {
+        assert!(Feature::ALL[i] as usize == i);
+        i += 1;
+    }
+};
 
 /// What [`Toolpath::emit_next`] left.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -117,7 +144,8 @@ pub struct ToolMove {
     pub z_um: i32,
     /// Filament fed during the move, um (negative for a retraction).
     pub e_um: i32,
-    /// Feed rate, mm/s (filament speed for retractions).
+    /// Feed rate, mm/s (filament speed for retractions; the wait in seconds for a
+    /// [`Feature::Dwell`]).
     pub feed_mm_s: Rate,
     /// What the move is.
     pub feature: Feature,

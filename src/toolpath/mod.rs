@@ -103,7 +103,8 @@
 //! [`ToolpathNeeds::work_bytes`] what a stage sized to them and its tenants take.
 
 use crate::geom::Point2;
-use crate::machine::InfillPattern;
+use crate::machine::{InfillPattern, Rate};
+use crate::math;
 use crate::slice::{CutSpace, Layer, SlicedLayer};
 
 use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
@@ -229,6 +230,8 @@ pub struct Toolpath<
     em: Emitter,
     /// The built layer's extrusion feed scale for its minimum time, q16.
     feed_scale_q16: u32,
+    /// The built layer's wait at its end for the rest of its minimum time, ms.
+    cool_wait_ms: u32,
     /// Where the built layer's emission stands.
     emission: Emission,
     next_in: u32,
@@ -285,6 +288,7 @@ impl<
             // Set when a layer is built, before its first unit goes out; zero keeps an empty stage
             // all zero bytes (`.bss`).
             feed_scale_q16: 0,
+            cool_wait_ms: 0,
             emission: Emission::new(),
             next_in: 0,
             next_out: 0,
@@ -542,6 +546,7 @@ impl<
             height_um: self.cfg.layer_height_of(l),
             first_layer: l == FIRST_LAYER,
             feed_scale_q16: self.feed_scale_q16,
+            cool_wait_ms: self.cool_wait_ms,
         };
         // The infill pool is free since the layer was built: the nearest-path grid's cells
         // and entries, untouched until the layer is complete (without it: scans).
@@ -804,48 +809,78 @@ impl<
         });
         // The infill scratch keeps the place (the nearest-path grid goes into its pool).
         self.park_engine(work);
-        self.feed_scale_q16 = self.min_time_scale(l == FIRST_LAYER);
+        (self.feed_scale_q16, self.cool_wait_ms) = self.min_time_plan(l == FIRST_LAYER);
         self.emission.begin(&self.cfg, &self.paths, &mut self.island_stage);
         Ok(())
     }
 
     /// The extrusion feed scale (q16) that makes the built layer's extrusions take at least the
-    /// minimum layer time ([`ToolpathConfig::min_layer_time_ms`]), from their lengths at full
-    /// feed (travels and acceleration left out: the layer takes at least that long).
-    fn min_time_scale(&self, first_layer: bool) -> u32 {
+    /// minimum layer time ([`ToolpathConfig::min_layer_time_ms`]), from their lengths (travels
+    /// and acceleration left out: the layer takes at least that long), and the wait (ms) at
+    /// the layer's end for what the slowest print feed still leaves of that time (0 for a
+    /// layer without extrusion: nothing to cool).
+    fn min_time_plan(&self, first_layer: bool) -> (u32, u32) {
         let min_us = u64::from(self.cfg.min_layer_time_ms) * 1_000;
         if min_us == 0 {
-            return FEED_SCALE_ONE;
+            return (FEED_SCALE_ONE, 0);
         }
-        let ctx = Ctx {
+        let mut ctx = Ctx {
             cfg: &self.cfg,
             points: &[],
             rings: &[],
             height_um: 0,
             first_layer,
             feed_scale_q16: FEED_SCALE_ONE,
+            cool_wait_ms: 0,
         };
-        let mut us: u64 = 0;
+        // Most layers take longer: shown without a square root per segment, from each
+        // segment's longer side (at most its length).
+        let sides = self.extrusion_lengths(|dx, dy| dx.max(dy));
+        if time_us(&sides, |f| ctx.full_feed(f)) >= min_us {
+            return (FEED_SCALE_ONE, 0);
+        }
+        let lengths = self.extrusion_lengths(|dx, dy| math::isqrt_u64(dx * dx + dy * dy));
+        let us = time_us(&lengths, |f| ctx.full_feed(f));
+        if us >= min_us {
+            return (FEED_SCALE_ONE, 0);
+        }
+        ctx.feed_scale_q16 = ((us << 16) / min_us) as u32;
+        if us == 0 {
+            return (ctx.feed_scale_q16, 0);
+        }
+        // Short of the minimum (by more than the sums' rounding, 1 us a feature) only where
+        // the slowest print feed binds.
+        let short_us = min_us.saturating_sub(time_us(&lengths, |f| ctx.feed(f)));
+        if short_us <= lengths.len() as u64 {
+            return (ctx.feed_scale_q16, 0);
+        }
+        // Whole ms, rounded up: the layer takes at least its minimum.
+        (ctx.feed_scale_q16, short_us.div_ceil(1_000).min(u64::from(u32::MAX)) as u32)
+    }
+
+    /// The built layer's extrusion lengths per feature (index: the feature's code), um:
+    /// `len(|dx|, |dy|)` summed over their segments.
+    fn extrusion_lengths(&self, len: impl Fn(u64, u64) -> u64) -> [u64; Feature::ALL.len()] {
+        let mut per_feature = [0u64; Feature::ALL.len()];
         for i in 0..self.paths.len() {
             let r = self.paths.rec(i);
             let pts = self.paths.points(&r);
             let n = pts.len();
             let segs = if r.closed { n } else { n.saturating_sub(1) };
-            for k in 0..segs {
-                let (a, b) = (pts.at(k), pts.at((k + 1) % n));
-                let (dx, dy) = (i64::from(b.x) - i64::from(a.x), i64::from(b.y) - i64::from(a.y));
-                let len_um = crate::math::isqrt_u64((dx * dx + dy * dy) as u64);
-                // The feed's bits are mm/s x 2^32: us = um x 1000 / (mm/s).
-                let bits = ctx.full_feed(pts.feature((k + 1) % n)).to_bits().max(1);
-                let t = ((u128::from(len_um) * 1_000) << 32) / u128::from(bits);
-                us = us.saturating_add(t as u64);
+            if segs == 0 {
+                continue;
+            }
+            let mut a = pts.at(0);
+            for k in 1..=segs {
+                let b = pts.at(k % n);
+                let d = len(u64::from(a.x.abs_diff(b.x)), u64::from(a.y.abs_diff(b.y)));
+                if let Some(sum) = per_feature.get_mut(pts.feature(k % n) as usize) {
+                    *sum = sum.saturating_add(d);
+                }
+                a = b;
             }
         }
-        if us >= min_us {
-            FEED_SCALE_ONE
-        } else {
-            ((us << 16) / min_us) as u32
-        }
+        per_feature
     }
 
     /// Layer `l`'s last unit was emitted: its end event and counters.
@@ -892,11 +927,23 @@ impl<
         let (old, islands) = (blk.len as usize, StoredRings::islands(self.ring.data(&blk)));
         let contour = &self.contour;
         // A loop's points within `tol`, or all of them when fewer than three would remain.
+        // One simplification per call: its first two points wait until a third shows.
         let each = |r: &Ring, f: &mut dyn FnMut(Point2)| {
             let pts = contour.ring_points(r);
-            if simplify::simplify_closed_each(pts, tol, |_| {}) >= 3 {
-                simplify::simplify_closed_each(pts, tol, &mut *f);
-            } else {
+            let (mut head, mut seen) = ([Point2::new(0, 0); 2], 0usize);
+            simplify::simplify_closed_each(pts, tol, |p| {
+                match seen {
+                    0 | 1 => head[seen] = p,
+                    2 => {
+                        f(head[0]);
+                        f(head[1]);
+                        f(p);
+                    }
+                    _ => f(p),
+                }
+                seen += 1;
+            });
+            if seen < 3 {
                 pts.iter().for_each(|&p| f(p));
             }
         };
@@ -1108,6 +1155,21 @@ fn decode<const P: usize, const L: usize>(
         out.close(island, 0, Ring::NO_PARENT)?;
     }
     Ok(())
+}
+
+/// The time of `lengths` (um per feature, [`Toolpath::extrusion_lengths`]) at the feeds `feed`
+/// gives, us, rounded down per feature.
+fn time_us(lengths: &[u64; Feature::ALL.len()], feed: impl Fn(Feature) -> Rate) -> u64 {
+    let mut us: u64 = 0;
+    for (&f, &um) in Feature::ALL.iter().zip(lengths) {
+        if um > 0 {
+            // The feed's bits are mm/s x 2^32: us = um x 1000 / (mm/s).
+            let bits = feed(f).to_bits().max(1);
+            us = us
+                .saturating_add(math::sat_u64(((u128::from(um) * 1_000) << 32) / u128::from(bits)));
+        }
+    }
+    us
 }
 
 #[cfg(test)]

@@ -124,26 +124,16 @@ fn unpack(s: Slot) -> Point2 {
     Point2::new(x as i32, y as i32)
 }
 
-/// Every feature, at the index of its code.
-const FEATURES: [Feature; 9] = [
-    Feature::ExternalPerimeter,
-    Feature::Perimeter,
-    Feature::InternalInfill,
-    Feature::SolidInfill,
-    Feature::TopSolidInfill,
-    Feature::Skirt,
-    Feature::Travel,
-    Feature::Retract,
-    Feature::Unretract,
-];
-
 /// The feature of a stored path point.
 fn unpack_feature(s: Slot) -> Feature {
-    FEATURES.get((s[0] & ((1 << FEATURE_BITS) - 1)) as usize).copied().unwrap_or(Feature::Travel)
+    Feature::ALL
+        .get((s[0] & ((1 << FEATURE_BITS) - 1)) as usize)
+        .copied()
+        .unwrap_or(Feature::Travel)
 }
 
 // Every feature's code fits the bits; a point's fields fill the slot.
-const _: () = assert!((Feature::Unretract as u32) < 1 << FEATURE_BITS);
+const _: () = assert!((Feature::Dwell as u32) < 1 << FEATURE_BITS);
 const _: () = assert!(FEATURE_BITS + 2 * COORD_BITS == 48);
 
 /// The points of one path, unpacked on access.
@@ -465,7 +455,7 @@ mod tests {
 
     #[test]
     fn a_slot_gives_back_every_point_and_feature_in_range() {
-        let features = FEATURES;
+        let features = Feature::ALL;
         assert!(features.iter().enumerate().all(|(i, &f)| f as usize == i));
         let (lo, hi) = (*COORD_RANGE.start(), *COORD_RANGE.end());
         let mut coords = vec![lo, lo + 1, -1, 0, 1, hi - 1, hi, 220_000, -12_345];

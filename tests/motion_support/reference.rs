@@ -34,11 +34,13 @@ pub struct RefMove {
     pub sa: f64,
     pub sc: f64,
     pub sd: f64,
+    /// A dwell's wait, s (0 for a move).
+    pub wait: f64,
 }
 
 impl RefMove {
     pub fn duration(&self) -> f64 {
-        self.ta + self.tc + self.td
+        self.ta + self.tc + self.td + self.wait
     }
 
     /// Path distance per axis distance.
@@ -91,6 +93,35 @@ pub fn plan(moves: &[Move], cfg: &JobConfig) -> Vec<RefMove> {
     let mut out: Vec<RefMove> = Vec::new();
     let mut pos = cfg.start_um;
     for (index, m) in moves.iter().enumerate() {
+        if m.kind == MoveKind::Dwell {
+            // At rest where the head is, for the wait (its target is not read).
+            let wait = f(m.feed_mm_s);
+            out.push(RefMove {
+                index,
+                start_um: pos,
+                end_um: pos,
+                kind: m.kind,
+                d: [0.0; AXES],
+                len: 0.0,
+                kinematic: false,
+                feed: 0.0,
+                accel: 1.0,
+                max_cruise_v2: 0.0,
+                max_start_v2: 0.0,
+                v0: 0.0,
+                vc: 0.0,
+                v1: 0.0,
+                t0: 0.0,
+                ta: 0.0,
+                tc: 0.0,
+                td: 0.0,
+                sa: 0.0,
+                sc: 0.0,
+                sd: 0.0,
+                wait,
+            });
+            continue;
+        }
         let d: [f64; AXES] = std::array::from_fn(|i| (m.target_um[i] - pos[i]) as f64 / 1000.0);
         if d.iter().all(|&x| x == 0.0) {
             continue;
@@ -139,6 +170,7 @@ pub fn plan(moves: &[Move], cfg: &JobConfig) -> Vec<RefMove> {
             sa: 0.0,
             sc: 0.0,
             sd: 0.0,
+            wait: 0.0,
         });
         pos = m.target_um;
     }
@@ -154,6 +186,9 @@ pub fn plan(moves: &[Move], cfg: &JobConfig) -> Vec<RefMove> {
     for i in 1..n {
         let p = &out[i - 1];
         start[i] = back[i].min(start[i - 1] + 2.0 * p.accel * p.len);
+        if p.kind == MoveKind::Dwell {
+            start[i] = 0.0;
+        }
     }
     start[0] = 0.0;
     let mut t = 0.0;
@@ -238,7 +273,7 @@ pub fn start_steps(cfg: &JobConfig) -> [i64; AXES] {
 pub fn expected_positions(moves: &[Move], cfg: &JobConfig) -> [i64; AXES] {
     let s = spm(cfg);
     let mut m = start_steps(cfg);
-    for mv in moves {
+    for mv in moves.iter().filter(|m| m.kind != MoveKind::Dwell) {
         for a in 0..AXES {
             let n1 = mv.target_um[a] as i64 * s[a];
             while n1 > 1000 * m[a] + 500 {

@@ -77,16 +77,19 @@ pub struct Ctx<'a> {
     /// Extrusion feeds scaled by this for the layer's minimum time, q16 (`FEED_SCALE_ONE`:
     /// full speed).
     pub feed_scale_q16: u32,
+    /// The wait at the layer's end for the rest of its minimum time, ms (0: none).
+    pub cool_wait_ms: u32,
 }
 
 /// [`Ctx::feed_scale_q16`] at full speed.
 pub const FEED_SCALE_ONE: u32 = 1 << 16;
 
 impl Ctx<'_> {
-    pub(super) fn feed(&self, f: Feature) -> Rate {
+    /// The feed of a move of `f` in this layer (scaled for its minimum time).
+    pub(crate) fn feed(&self, f: Feature) -> Rate {
         let full = self.full_feed(f);
         match f {
-            Feature::Travel | Feature::Retract | Feature::Unretract => full,
+            Feature::Travel | Feature::Retract | Feature::Unretract | Feature::Dwell => full,
             _ if self.feed_scale_q16 >= FEED_SCALE_ONE => full,
             // Slower for the layer's minimum time, not below the slowest print feed.
             _ => {
@@ -102,7 +105,7 @@ impl Ctx<'_> {
     pub(crate) fn full_feed(&self, f: Feature) -> Rate {
         let c = self.cfg;
         match f {
-            Feature::Travel => c.travel_speed_mm_s,
+            Feature::Travel | Feature::Dwell => c.travel_speed_mm_s,
             Feature::Retract | Feature::Unretract => c.retract_speed_mm_s,
             _ if self.first_layer => c.first_layer_speed_mm_s,
             Feature::ExternalPerimeter | Feature::Perimeter | Feature::Skirt => {
@@ -309,6 +312,60 @@ impl Emitter {
         self.pos = to;
         let m = ToolMove { to, z_um: self.z, e_um: e, feed_mm_s: ctx.feed(feature), feature };
         self.send(sink, m);
+    }
+
+    /// Waits out the rest of the layer's minimum time ([`Ctx::cool_wait_ms`]) off the part:
+    /// retracts, lifts the nozzle by [`ToolpathConfig::cool_lift_um`] (below the build
+    /// volume's top) and dwells; the next layer's height change brings it back down.
+    pub(super) fn cool(&mut self, ctx: &Ctx<'_>, sink: &mut impl FnMut(&ToolEvent<'_>)) {
+        if !self.retracted && ctx.cfg.retract_length_um > 0 {
+            self.retracted = true;
+            self.layer.retractions += 1;
+            let m = ToolMove {
+                to: self.pos,
+                z_um: self.z,
+                e_um: -ctx.cfg.retract_length_um,
+                feed_mm_s: ctx.feed(Feature::Retract),
+                feature: Feature::Retract,
+            };
+            self.send(sink, m);
+        }
+        let lifted = self.lifted_z(ctx);
+        if lifted != self.z {
+            self.z = lifted;
+            self.layer.travel_moves += 1;
+            let m = ToolMove {
+                to: self.pos,
+                z_um: lifted,
+                e_um: 0,
+                feed_mm_s: ctx.feed(Feature::Travel),
+                feature: Feature::Travel,
+            };
+            self.send(sink, m);
+        }
+        // ms to s 2^32.
+        let seconds = Rate::from_bits((u64::from(ctx.cool_wait_ms) << 32) / 1_000);
+        let m = ToolMove {
+            to: self.pos,
+            z_um: self.z,
+            e_um: 0,
+            feed_mm_s: seconds,
+            feature: Feature::Dwell,
+        };
+        self.send(sink, m);
+        self.extruding = false;
+    }
+
+    /// The moves [`cool`](Self::cool) emits from here.
+    pub(super) fn cool_moves(&self, ctx: &Ctx<'_>) -> u32 {
+        let retracts = !self.retracted && ctx.cfg.retract_length_um > 0;
+        1 + u32::from(retracts) + u32::from(self.lifted_z(ctx) != self.z)
+    }
+
+    /// The nozzle's height while the layer cools: lifted, never above the build volume nor
+    /// below where it is.
+    fn lifted_z(&self, ctx: &Ctx<'_>) -> i32 {
+        self.z.saturating_add(ctx.cfg.cool_lift_um).min(ctx.cfg.max_z_um).max(self.z)
     }
 
     /// Total filament extruded so far, um.

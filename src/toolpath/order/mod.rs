@@ -158,6 +158,7 @@ fn run_unit<const N: usize>(
             let r = paths.rec(p.index);
             print_path(em, ctx, paths, &r, p.start, p.reversed, unit.travel, route, sink);
         }
+        None if unit.cool => em.cool(ctx, sink),
         None => {
             let here = em.pos;
             em.travel(ctx, here, unit.travel, route, &|_, _, _| false, sink);
@@ -355,8 +356,10 @@ impl<'g> Finder<'g> {
 /// layer's closing move to its height.
 #[derive(Debug, Clone, Copy)]
 struct Unit {
-    /// The path, or `None` for the closing move.
+    /// The path, or `None` for the cooling wait or the closing move.
     path: Option<PathUnit>,
+    /// The cooling wait ([`Emitter::cool`]; no path).
+    cool: bool,
     /// The travel to the path's start (to where the nozzle is, for the closing move).
     travel: Travel,
     /// Moves the unit emits, exactly.
@@ -394,6 +397,8 @@ enum Phase {
     Skirt { from: usize },
     /// The islands, nearest first (`None`: between two islands).
     Islands(Option<IslandCursor>),
+    /// The wait for the rest of the layer's minimum time is next.
+    Cooling,
     /// The closing move is next.
     Closing,
     /// Every unit was emitted.
@@ -403,8 +408,9 @@ enum Phase {
 /// The emission of one layer's paths, resumable between units.
 ///
 /// The skirt first (in order), then the islands nearest first, in each the stages in order and the
-/// nearest path first (see the [module docs](self)), then a move to the layer's height if none went
-/// there. Each [`emit`](Self::emit) call emits whole units while the room it was given takes them
+/// nearest path first (see the [module docs](self)), then the wait for the rest of the layer's
+/// minimum time if it has one ([`Ctx::cool_wait_ms`]), then a move to the layer's height if none
+/// went there. Each [`emit`](Self::emit) call emits whole units while the room it was given takes them
 /// (each opened with its exact moves, kept or undone at its end); the state between calls is this
 /// value, the [`Emitter`], the layer's paths (their done flags, the rear seams rotated, the records
 /// grouped by island), `island_stage` and the nearest-path grid's buffers, which the owner keeps
@@ -545,7 +551,8 @@ impl Emission {
             |paths: &PathBuf<N>, index: usize, start: usize, reversed: bool, stage: u8| {
                 let r = paths.rec(index);
                 let (travel, moves) = plan_path(em, ctx, paths, &r, start, reversed, route);
-                Some(Unit { path: Some(PathUnit { index, start, reversed, stage }), travel, moves })
+                let path = Some(PathUnit { index, start, reversed, stage });
+                Some(Unit { path, cool: false, travel, moves })
             };
         loop {
             match &mut self.phase {
@@ -582,7 +589,7 @@ impl Emission {
                     let Some((_, first, _, _)) =
                         finder.find(paths, seam, em.pos, &everything, &first_stage)
                     else {
-                        self.phase = Phase::Closing;
+                        self.phase = Phase::Cooling;
                         continue;
                     };
                     let island = paths.rec(first).island;
@@ -633,11 +640,19 @@ impl Emission {
                         _ => self.phase = Phase::Islands(None),
                     }
                 }
+                Phase::Cooling => {
+                    self.phase = Phase::Closing;
+                    if ctx.cool_wait_ms > 0 {
+                        let travel = Travel { retract: false, routed: false, moves: 0 };
+                        let moves = em.cool_moves(ctx);
+                        return Some(Unit { path: None, cool: true, travel, moves });
+                    }
+                }
                 Phase::Closing => {
                     // A layer without extrusion still moves to its height.
                     self.phase = Phase::Closed;
                     let travel = em.plan_travel(ctx, em.pos, &|_, _, _| false, route);
-                    return Some(Unit { path: None, travel, moves: travel.moves });
+                    return Some(Unit { path: None, cool: false, travel, moves: travel.moves });
                 }
             }
         }
@@ -682,6 +697,7 @@ mod tests {
             height_um: 200,
             first_layer: false,
             feed_scale_q16: FEED_SCALE_ONE,
+            cool_wait_ms: 0,
         };
         let to = Point2::new(20_000, 0);
         for n in [3, ROUTE_POINTS, ROUTE_POINTS + 1, 2 * ROUTE_POINTS] {
