@@ -396,6 +396,26 @@ fn qemu_embodier_hotend_v2() {
     qemu_model("embodier_hotend_v2.stl");
 }
 
+/// The M3 nut's layers are too small for the printer's 5 s minimum layer time even at the
+/// 10 mm/s floor: a layer waits for the rest lifted 3 mm off the part, a dwell the firmware
+/// must time exactly as the simulation does.
+#[test]
+fn qemu_prusashape_m3_hex_nut() {
+    let name = "prusashape_M3_hex_nut.stl";
+    let (tris, job) = load(name);
+    let Some(costs) = qemu_job_on(None, name, &tris, job, true) else { return };
+    let steps = costs.steps().expect("a STEPS line");
+    // Z steps beyond the rise to the last layer: at least one lift up and down (3 mm at
+    // 400 steps/mm each way).
+    let lift_steps = 2 * 3 * 400;
+    assert!(
+        steps.steps[2] >= steps.positions[2].unsigned_abs() + lift_steps,
+        "no wait lifted the nozzle: Z steps {} for a rise of {}",
+        steps.steps[2],
+        steps.positions[2]
+    );
+}
+
 // embodier_LM8UU on the 64 KB build: admission simplifies it for the slicer (742 active
 // triangles to 388, measured deviation 0.0135 mm, under the default 0.02 mm), and the
 // device offsets its fins in bands (710 edges for an island, the engine holds 271).

@@ -124,13 +124,12 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         // the time: peeking at the head first would decode it on every call).
         while !self.planner.is_full() {
             let Some(t) = self.moves.pop_front() else { break };
-            let before = self.planner.position_um();
-            let mv = t.unpack();
+            let queued = self.planner.len();
             // The planner had room: any refusal is the move's fault and fails the job.
-            self.planner.push(mv).map_err(|_| u32::from(t.layer))?;
+            self.planner.push(t.unpack()).map_err(|_| u32::from(t.layer))?;
             worked = true;
-            // A move that goes nowhere makes no block and has no tag.
-            if mv.target_um != before {
+            // A move that goes nowhere makes no block and has no tag (a dwell makes one).
+            if self.planner.len() > queued {
                 let _ = self.tags.push_back(u32::from(t.layer));
             }
         }
