@@ -134,13 +134,15 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
 pub const SIMPLIFY_TOLERANCE_UM: i32 = 25;
 
 /// The printer's minimum layer time, ms: a smaller layer's extrusions are slowed (not below
-/// `ToolpathConfig`'s 10 mm/s) to take this long.
+/// `ToolpathConfig`'s 10 mm/s) to take this long, and one still shorter waits the rest at its
+/// end, retracted with the nozzle lifted off the part.
 ///
-/// PrusaSlicer's default (`slowdown_below_layer_time`, and 10 mm/s its `min_print_speed`): the
-/// layer below cools, and the top of a small part no longer prints faster than the board
-/// computes the next layer 20 times over (3DBenchy's chimney top, layers 201 and 203, printed in
-/// 1.26 s and 0.89 s at full speed: 11.3x and 13.8x, `tools/job-cost/run.sh --max-deviation 0.05
-/// ../shared/models/3DBenchy.stl`).
+/// PrusaSlicer's default (`slowdown_below_layer_time`, and 10 mm/s its `min_print_speed`; the
+/// wait is Cura's "lift head"): the layer below cools, and the top of a small part no longer
+/// prints faster than the board computes the next layer 20 times over (3DBenchy's chimney top,
+/// layers 201 and 203, printed in 1.26 s and 0.89 s at full speed: 11.3x and 13.8x; the
+/// slowdown alone left stanford_bunny_x60's ear tip, layer 309, at 0.28 s and 2.1x, the wait
+/// at 5.35 s and 46x: `tools/job-cost/run.sh --max-deviation 0.05 MODEL`).
 pub const MIN_LAYER_TIME_MS: u32 = 5_000;
 
 /// The toolpath settings the printer derives from `job` (the host's admission control sizes
