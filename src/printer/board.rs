@@ -133,9 +133,11 @@ pub const CREALITY_CAPACITIES: Capacities = Capacities {
 /// in its worst layer instead of 329 at 10 um, `host/examples` probe of the session note).
 pub const SIMPLIFY_TOLERANCE_UM: i32 = 25;
 
-/// The printer's minimum layer time, ms: a smaller layer's extrusions are slowed (not below
-/// `ToolpathConfig`'s 10 mm/s) to take this long, and one still shorter waits the rest at its
-/// end, retracted with the nozzle lifted off the part.
+/// The printer's minimum layer time, ms.
+///
+/// A smaller layer's extrusions are slowed (not below `ToolpathConfig`'s 10 mm/s) to take this
+/// long, and one still shorter waits the rest at its end, retracted with the nozzle lifted off
+/// the part.
 ///
 /// PrusaSlicer's default (`slowdown_below_layer_time`, and 10 mm/s its `min_print_speed`; the
 /// wait is Cura's "lift head"): the layer below cools, and the top of a small part no longer
