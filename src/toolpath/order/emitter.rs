@@ -218,16 +218,7 @@ impl Emitter {
         }
         let from = self.pos;
         if plan.retract && !self.retracted {
-            self.retracted = true;
-            self.layer.retractions += 1;
-            let m = ToolMove {
-                to: self.pos,
-                z_um: self.z,
-                e_um: -ctx.cfg.retract_length_um,
-                feed_mm_s: ctx.feed(Feature::Retract),
-                feature: Feature::Retract,
-            };
-            self.send(sink, m);
+            self.retract(ctx, sink);
         }
         if let Some(z) = self.pending_z.take() {
             self.z = z;
@@ -252,6 +243,20 @@ impl Emitter {
             self.travel_leg(ctx, to, sink);
         }
         self.extruding = false;
+    }
+
+    /// Pulls the filament back where the nozzle is.
+    fn retract(&mut self, ctx: &Ctx<'_>, sink: &mut impl FnMut(&ToolEvent<'_>)) {
+        self.retracted = true;
+        self.layer.retractions += 1;
+        let m = ToolMove {
+            to: self.pos,
+            z_um: self.z,
+            e_um: -ctx.cfg.retract_length_um,
+            feed_mm_s: ctx.feed(Feature::Retract),
+            feature: Feature::Retract,
+        };
+        self.send(sink, m);
     }
 
     pub(super) fn travel_leg(
@@ -319,16 +324,7 @@ impl Emitter {
     /// volume's top) and dwells; the next layer's height change brings it back down.
     pub(super) fn cool(&mut self, ctx: &Ctx<'_>, sink: &mut impl FnMut(&ToolEvent<'_>)) {
         if !self.retracted && ctx.cfg.retract_length_um > 0 {
-            self.retracted = true;
-            self.layer.retractions += 1;
-            let m = ToolMove {
-                to: self.pos,
-                z_um: self.z,
-                e_um: -ctx.cfg.retract_length_um,
-                feed_mm_s: ctx.feed(Feature::Retract),
-                feature: Feature::Retract,
-            };
-            self.send(sink, m);
+            self.retract(ctx, sink);
         }
         let lifted = self.lifted_z(ctx);
         if lifted != self.z {
