@@ -6,14 +6,16 @@
 //!   `service` call between two step generations: slicing and toolpaths hold the step
 //!   generator that long), and the board's `COST isr_calls=...`. The steps generated at
 //!   the toolpath stage's progress points inside a `service` call (the printer lends its
-//!   motion half there) count with that call's layer but not as slicing.
+//!   motion half there) count with the layer whose blocks they are (the generator's tag at
+//!   the last of them), not as slicing.
 //!
 //! Approximations:
 //! - `compute_insns` are the thread-mode instructions (SysTick handler time taken out) spent
 //!   in `Printer::service` calls that had a message to handle, attributed to the layer the
 //!   *slicer* is on when the call starts (slicing and toolpaths: the toolpath stage runs in
 //!   the slicer's layer sink; a batch that completes several layers is counted to the first),
-//!   plus the `Printer::poll` calls that did work, attributed to the layer being *planned*
+//!   less the step generation lent inside them (counted to the layer being *generated*), plus
+//!   the `Printer::poll` calls that did work, attributed to the layer being *planned*
 //!   (planning and step generation);
 //! - `print_ticks` is the growth of the planner's released print time (72 MHz ticks) between
 //!   the reports of layer K-1 and layer K (a layer closes when the first block of the next
@@ -119,7 +121,13 @@ impl Cost {
             let layer = p.slicer().stats().layers;
             strata_counted_on();
             let t = thread_now();
-            *g = Generation { measuring: true, lent: 0, generated_at: t, gap_max: 0 };
+            *g = Generation {
+                measuring: true,
+                lent: 0,
+                generated_at: t,
+                gap_max: 0,
+                lent_layer: layer,
+            };
             (t, layer, before)
         })
     }
@@ -145,7 +153,9 @@ impl Cost {
             let service = d - g.lent.min(d);
             self.slice_insns += service;
             self.gap_max = self.gap_max.max(g.gap_max).max(now - g.generated_at.max(t));
-            self.add(layer, d, service);
+            self.add(layer, service, service);
+            // The steps generated meanwhile are the work of the layer whose blocks they are.
+            self.add(g.lent_layer, d - service, 0);
         }
         self.report(p, motion);
     }

@@ -54,6 +54,9 @@ pub struct Generation {
     pub generated_at: u64,
     /// The longest stretch without step generation, instructions.
     pub gap_max: u64,
+    /// The layer of the blocks the last lent access generated steps for (the generator's
+    /// tag).
+    pub lent_layer: u32,
 }
 
 /// What thread mode and the feed interrupt share.
@@ -211,23 +214,27 @@ impl MotionAccess<MOVE_BUFFER_BYTES, LOOKAHEAD_MOVES, STEP_QUEUE> for FwMotion {
         let (r, _generated) = locked(|s| {
             let m = s.motion.as_deref_mut().expect("the motion half is set up");
             let prod = s.prod.as_mut().expect("the step queue is set up");
-            // Whether `f` generated steps: the QEMU build's cost figures only.
+            // Whether `f` generated steps, and for which layer: the QEMU build's cost
+            // figures only.
             #[cfg(feature = "qemu")]
             let s0 = m.generator().progress();
             let r = f(m, prod);
             #[cfg(feature = "qemu")]
-            let generated = m.generator().progress() != s0;
+            let generated = (m.generator().progress() != s0).then(|| m.generator().tag());
             #[cfg(not(feature = "qemu"))]
             let generated = ();
             (r, generated)
         });
         #[cfg(feature = "qemu")]
-        if self.generation.measuring && _generated {
+        if let (true, Some(tag)) = (self.generation.measuring, _generated) {
             let g = &mut self.generation;
             let t1 = crate::cost::thread_now();
             g.gap_max = g.gap_max.max(t0 - g.generated_at.min(t0));
             g.lent += t1 - t0;
             g.generated_at = t1;
+            if let Some(layer) = tag {
+                g.lent_layer = layer;
+            }
         }
         r
     }
