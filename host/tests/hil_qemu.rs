@@ -405,9 +405,10 @@ fn qemu_prusashape_m3_hex_nut() {
     let (tris, job) = load(name);
     let Some(costs) = qemu_job_on(None, name, &tris, job, true) else { return };
     let steps = costs.steps().expect("a STEPS line");
-    // Z steps beyond the rise to the last layer: at least one lift of 3 mm up (400 steps/mm)
-    // and down to the next layer, which stands 0.2 mm higher.
-    let lift_steps = 2 * 3 * 400 - 80;
+    // Z steps beyond the rise to the last layer: at least one lift of 3 mm up (400 steps/mm:
+    // 1,200 steps) and down to the next layer, 0.2 mm higher (1,120), in place of the
+    // 80-step rise between the two.
+    let lift_steps = 1_200 + 1_120 - 80;
     assert!(
         steps.steps[2] >= steps.positions[2].unsigned_abs() + lift_steps,
         "no wait lifted the nozzle: Z steps {} for a rise of {}",
