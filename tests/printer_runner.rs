@@ -447,9 +447,9 @@ impl MotionAccess<BUFFERED, 16, 32> for Lent<'_, '_> {
         &mut self,
         f: impl FnOnce(&mut Motion<BUFFERED, 16>, &mut StepProducer<'_, 32>) -> R,
     ) -> R {
-        let before = self.rig.motion.motion.generator().steps_generated();
+        let before = self.rig.motion.motion.generator().progress();
         let r = self.rig.motion.with(f);
-        let generated = self.rig.motion.motion.generator().steps_generated() != before;
+        let generated = self.rig.motion.motion.generator().progress() != before;
         if self.inside && generated {
             self.with_steps += 1;
             self.rig.drain();

@@ -39,6 +39,35 @@ pub struct RefMove {
 }
 
 impl RefMove {
+    /// Move `index` of `kind` standing at `at`, nothing planned yet (every figure 0; an
+    /// acceleration of 1 so that no ramp divides by 0).
+    fn still(index: usize, at: [i32; AXES], kind: MoveKind) -> Self {
+        Self {
+            index,
+            start_um: at,
+            end_um: at,
+            kind,
+            d: [0.0; AXES],
+            len: 0.0,
+            kinematic: false,
+            feed: 0.0,
+            accel: 1.0,
+            max_cruise_v2: 0.0,
+            max_start_v2: 0.0,
+            v0: 0.0,
+            vc: 0.0,
+            v1: 0.0,
+            t0: 0.0,
+            ta: 0.0,
+            tc: 0.0,
+            td: 0.0,
+            sa: 0.0,
+            sc: 0.0,
+            sd: 0.0,
+            wait: 0.0,
+        }
+    }
+
     pub fn duration(&self) -> f64 {
         self.ta + self.tc + self.td + self.wait
     }
@@ -95,31 +124,7 @@ pub fn plan(moves: &[Move], cfg: &JobConfig) -> Vec<RefMove> {
     for (index, m) in moves.iter().enumerate() {
         if m.kind == MoveKind::Dwell {
             // At rest where the head is, for the wait (its target is not read).
-            let wait = f(m.feed_mm_s);
-            out.push(RefMove {
-                index,
-                start_um: pos,
-                end_um: pos,
-                kind: m.kind,
-                d: [0.0; AXES],
-                len: 0.0,
-                kinematic: false,
-                feed: 0.0,
-                accel: 1.0,
-                max_cruise_v2: 0.0,
-                max_start_v2: 0.0,
-                v0: 0.0,
-                vc: 0.0,
-                v1: 0.0,
-                t0: 0.0,
-                ta: 0.0,
-                tc: 0.0,
-                td: 0.0,
-                sa: 0.0,
-                sc: 0.0,
-                sd: 0.0,
-                wait,
-            });
+            out.push(RefMove { wait: f(m.feed_mm_s), ..RefMove::still(index, pos, m.kind) });
             continue;
         }
         let d: [f64; AXES] = std::array::from_fn(|i| (m.target_um[i] - pos[i]) as f64 / 1000.0);
@@ -149,10 +154,7 @@ pub fn plan(moves: &[Move], cfg: &JobConfig) -> Vec<RefMove> {
             }
         }
         out.push(RefMove {
-            index,
-            start_um: pos,
             end_um: m.target_um,
-            kind: m.kind,
             d,
             len,
             kinematic,
@@ -160,17 +162,7 @@ pub fn plan(moves: &[Move], cfg: &JobConfig) -> Vec<RefMove> {
             accel,
             max_cruise_v2,
             max_start_v2,
-            v0: 0.0,
-            vc: 0.0,
-            v1: 0.0,
-            t0: 0.0,
-            ta: 0.0,
-            tc: 0.0,
-            td: 0.0,
-            sa: 0.0,
-            sc: 0.0,
-            sd: 0.0,
-            wait: 0.0,
+            ..RefMove::still(index, pos, m.kind)
         });
         pos = m.target_um;
     }

@@ -221,16 +221,7 @@ impl Emitter {
             self.retract(ctx, sink);
         }
         if let Some(z) = self.pending_z.take() {
-            self.z = z;
-            self.layer.travel_moves += 1;
-            let m = ToolMove {
-                to: self.pos,
-                z_um: z,
-                e_um: 0,
-                feed_mm_s: ctx.feed(Feature::Travel),
-                feature: Feature::Travel,
-            };
-            self.send(sink, m);
+            self.move_z(ctx, z, sink);
         }
         if plan.routed {
             match route.points() {
@@ -243,6 +234,20 @@ impl Emitter {
             self.travel_leg(ctx, to, sink);
         }
         self.extruding = false;
+    }
+
+    /// A Z-only travel to `z` where the nozzle is.
+    fn move_z(&mut self, ctx: &Ctx<'_>, z: i32, sink: &mut impl FnMut(&ToolEvent<'_>)) {
+        self.z = z;
+        self.layer.travel_moves += 1;
+        let m = ToolMove {
+            to: self.pos,
+            z_um: z,
+            e_um: 0,
+            feed_mm_s: ctx.feed(Feature::Travel),
+            feature: Feature::Travel,
+        };
+        self.send(sink, m);
     }
 
     /// Pulls the filament back where the nozzle is.
@@ -328,16 +333,7 @@ impl Emitter {
         }
         let lifted = self.lifted_z(ctx);
         if lifted != self.z {
-            self.z = lifted;
-            self.layer.travel_moves += 1;
-            let m = ToolMove {
-                to: self.pos,
-                z_um: lifted,
-                e_um: 0,
-                feed_mm_s: ctx.feed(Feature::Travel),
-                feature: Feature::Travel,
-            };
-            self.send(sink, m);
+            self.move_z(ctx, lifted, sink);
         }
         // ms to s 2^32.
         let seconds = Rate::from_bits((u64::from(ctx.cool_wait_ms) << 32) / 1_000);
