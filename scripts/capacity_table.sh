@@ -3,8 +3,8 @@
 # ../shared/models/scaled_mm through `strata simulate --max-deviation MM` (admission against the
 # 64 KB build's capacities, then the whole job in simulation), one table row each: admitted or
 # not, triangles streamed, measured deviation, the peak per-layer needs (active triangles,
-# contour points, offset edges, loops, scanline crossings, path points), underruns and print
-# time; a refused model gets the refusal's first words.
+# contour points, offset edges, loops, scanline crossings, path points), underruns, stops
+# waiting for the link and print time; a refused model gets the refusal's first words.
 #
 #   scripts/capacity_table.sh [MM]        (default 0.05; STRATA_TABLE_TIMEOUT=S per model, 600)
 set -euo pipefail
@@ -13,8 +13,8 @@ mm="${1:-0.05}"
 limit="${STRATA_TABLE_TIMEOUT:-600}"
 cargo build --release -q -p strata-host
 models_dir="${STRATA_MODELS:-../shared/models}"
-printf '%-32s %-9s %8s %7s %7s %7s %6s %5s %6s %6s %4s %9s\n' model result tris dev_mm active \
-  points edges loops cross path und print_s
+printf '%-32s %-9s %8s %7s %7s %7s %6s %5s %6s %6s %4s %4s %9s\n' model result tris dev_mm \
+  active points edges loops cross path und wait print_s
 for f in "$models_dir"/*.stl "$models_dir"/scaled_mm/*.stl; do
   name="$(basename "$f" .stl)"
   [ "$(dirname "$f")" = "$models_dir/scaled_mm" ] && name="scaled_mm/$name"
@@ -36,6 +36,6 @@ res, dev = ("simplif.", s["max_deviation_mm"]) if s else ("whole", 0.0)
 print(f"{name:<32} {res:<9} {d['triangles']:>8} {dev:>7.3f} {n['active_triangles']:>7} "
       f"{n['contour_points']:>7} {n['toolpath_points']:>6} {n['toolpath_loops']:>5} "
       f"{n['scan_crossings']:>6} {n['path_points']:>6} {d['underruns']:>4} "
-      f"{d['print_time_s']:>9.0f}")
+      f"{d['rest_waits']:>4} {d['print_time_s']:>9.0f}")
 PY
 done

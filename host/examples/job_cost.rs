@@ -25,9 +25,9 @@ use strata::geom::Triangle;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::protocol::{DeviceState, JobOptions, JobSpec};
 use strata_host::hil::{self, CostSummary, Costs, Qemu, CPU_HZ, CYCLES_PER_INSN};
-use strata_host::model;
 use strata_host::serial::Port;
 use strata_host::simjob::Faults;
+use strata_host::{admission, model};
 
 const RTF_TARGET: f64 = 20.0;
 const ISR_MEAN_TARGET: f64 = 150.0;
@@ -127,11 +127,14 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
     })?;
     let costs = Costs::parse(&q.lines());
     let timer_hz = strata::step::StepConfig::from_machine(&machine).timer_hz as f64;
+    // Which layers extrude: the host's toolpath stage on the triangles streamed (the
+    // device's, bit for bit).
+    let (_, times) = admission::toolpath_pass(&tris, &machine, &job, None)?;
     Ok(Row {
         name,
         layers: st.layers,
         note,
-        s: CostSummary::of(&costs, timer_hz),
+        s: CostSummary::of(&costs, timer_hz, &times.extrudes),
         print_s: st.done_ms as f64 / 1000.0,
         wall_s: t0.elapsed().as_secs_f64(),
         layers_cost: costs.layers,
@@ -158,6 +161,18 @@ fn print_worst_layers(r: &Row, k: usize, timer_hz: f64) {
             l.compute_insns - l.service_insns.min(l.compute_insns)
         );
     }
+}
+
+/// The layers left out of the worst factor, if any.
+fn idle_note(s: &CostSummary) -> String {
+    if s.idle_layers == 0 {
+        return String::new();
+    }
+    format!(
+        " over the layers that extrude; {} layers extrude nothing (only their height change: \
+         {:.2} s of print, {:.3} s of compute)",
+        s.idle_layers, s.idle_print_s, s.idle_compute_s
+    )
 }
 
 fn main() {
@@ -268,7 +283,7 @@ fn main() {
         let verdict = |ok: bool| if ok { "ok" } else { "MISSED" };
         println!(
             "{}: {} steps in {} interrupts, printed {:.0} s (device clock), {:.0} s wall{}; worst layer {:.1}x \
-             (target >= {RTF_TARGET}x: {}); ISR {:.1} insns/step (target <= {ISR_MEAN_TARGET}: \
+             (target >= {RTF_TARGET}x: {}){}; ISR {:.1} insns/step (target <= {ISR_MEAN_TARGET}: \
              {}); worst ISR {:.0} cycles (40 kHz on X and Y needs < {ISR_WORST_CYCLES:.0}: {}); \
              longest slicing/toolpath stretch without step generation {:.1} ms at {} MHz (the \
              step queue must cover it)",
@@ -280,6 +295,7 @@ fn main() {
             r.note.as_ref().map(|n| format!(", {n}")).unwrap_or_default(),
             s.worst_rtf,
             verdict(s.worst_rtf >= RTF_TARGET),
+            idle_note(s),
             s.isr_insns_per_step,
             verdict(s.isr_insns_per_step <= ISR_MEAN_TARGET),
             worst_cycles,

@@ -551,6 +551,8 @@ pub struct LayerTimes {
     pub starts_s: Vec<f64>,
     /// Print time of the whole job, s.
     pub total_s: f64,
+    /// Whether each layer extrudes (index = layer).
+    pub extrudes: Vec<bool>,
 }
 
 /// [`toolpath_peaks_limited`] and the print time of every layer (the moves through the device's
@@ -691,8 +693,8 @@ fn measure(
             coded.get()
         ));
     }
-    let (starts_s, total_s) = clock.into_inner().finish();
-    Ok((p, LayerTimes { starts_s, total_s }))
+    let (starts_s, total_s, extrudes) = clock.into_inner().finish();
+    Ok((p, LayerTimes { starts_s, total_s, extrudes }))
 }
 
 /// A room without bound that passes the events on to `events` and measures each unit by

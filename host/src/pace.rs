@@ -22,7 +22,7 @@ use strata::plan::{PlanConfig, Planner};
 use strata::printer::board::LOOKAHEAD_MOVES;
 use strata::protocol::{frame, BatchBuilder};
 use strata::slice::SliceConfig;
-use strata::toolpath::ToolEvent;
+use strata::toolpath::{Feature, ToolEvent};
 
 /// Share of the baud rate's bytes the triangle frames are assumed to get.
 ///
@@ -38,13 +38,16 @@ pub struct LayerClock {
     planner: Box<Planner<LOOKAHEAD_MOVES>>,
     /// Print time before each layer's first move, s (index = layer).
     starts_s: Vec<f64>,
+    /// Whether each layer extrudes (index = layer): some have only their height change (a
+    /// mesh thinner than a line, a part that ends below the layer's plane).
+    extrudes: Vec<bool>,
 }
 
 impl LayerClock {
     /// A clock at the job's start (the origin, at rest), planning with `machine`'s limits.
     pub fn new(machine: &MachineConfig) -> Self {
         let planner = Box::new(Planner::new(&PlanConfig::from_machine(machine), [0; 4]));
-        Self { stream: MoveStream::new(), planner, starts_s: Vec::new() }
+        Self { stream: MoveStream::new(), planner, starts_s: Vec::new(), extrudes: Vec::new() }
     }
 
     /// Takes one event of the toolpath stage (as the device's move buffer takes it).
@@ -56,9 +59,15 @@ impl LayerClock {
                 let layer = *index as usize;
                 if self.starts_s.len() <= layer {
                     self.starts_s.resize(layer + 1, now);
+                    self.extrudes.resize(layer + 1, false);
                 }
             }
             ToolEvent::Move(m) => {
+                if m.e_um > 0 && m.feature != Feature::Unretract {
+                    if let Some(x) = self.extrudes.last_mut() {
+                        *x = true;
+                    }
+                }
                 let mv = self.stream.next(m).unpack();
                 while self.planner.pop().is_some() {}
                 if self.planner.is_full() {
@@ -76,10 +85,11 @@ impl LayerClock {
         self.planner.total_time_s().to_num::<f64>()
     }
 
-    /// Print time before each layer's first move (index = layer) and of the whole job, s.
-    pub fn finish(self) -> (Vec<f64>, f64) {
+    /// Print time before each layer's first move (index = layer), of the whole job (s), and
+    /// whether each layer extrudes.
+    pub fn finish(self) -> (Vec<f64>, f64, Vec<bool>) {
         let total = self.now_s();
-        (self.starts_s, total)
+        (self.starts_s, total, self.extrudes)
     }
 }
 

@@ -166,7 +166,8 @@ pub struct SimReport {
     pub wire_time_s: f64,
     /// Time until the last triangle was acknowledged, s.
     pub stream_time_s: f64,
-    /// Executor underruns (the link or the pipeline fell behind the print).
+    /// Executor underruns: the commands ran out mid-motion (the link or the pipeline fell
+    /// behind a move the planner had to hold).
     pub underruns: u32,
     /// Executor starts (1 when motion never came to rest waiting for data).
     pub starts: u32,
@@ -186,6 +187,14 @@ pub struct SimReport {
     pub end_ms: u64,
     /// The nozzle path per layer (with [`SimOptions::preview`]).
     pub path: Option<PathRecorder>,
+}
+
+impl SimReport {
+    /// Times the print came to a stop (at a rest point of its plan) waiting for commands:
+    /// the link fell behind without an underrun.
+    pub fn rest_waits(&self) -> u32 {
+        self.starts.saturating_sub(1)
+    }
 }
 
 struct Rng(u64);

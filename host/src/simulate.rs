@@ -103,6 +103,8 @@ struct Summary {
     /// (0 or less: never; `strata_host::pace`).
     link_lag_s: f64,
     underruns: u32,
+    /// Stops at a rest point waiting for the link ([`strata_host::simjob::SimReport::rest_waits`]).
+    rest_waits: u32,
     retransmits: u64,
 }
 
@@ -208,6 +210,7 @@ fn report(
             stream_time_s: rep.stream_time_s,
             link_lag_s: pace.worst_lag_s,
             underruns: rep.underruns,
+            rest_waits: rep.rest_waits(),
             retransmits: rep.host_link.retransmits,
         };
         println!("{}", serde_json::to_string_pretty(&s).map_err(|e| e.to_string())?);
@@ -226,7 +229,8 @@ fn report(
         );
         println!(
             "steps X {} Y {} Z {} E {}, each within {:.2} us; peak active triangles {}, \
-             peak contour points {}, device RAM needed {:.1} KB; underruns {}",
+             peak contour points {}, device RAM needed {:.1} KB; underruns {}, waits for the \
+             link {}",
             rep.steps[0],
             rep.steps[1],
             rep.steps[2],
@@ -235,7 +239,8 @@ fn report(
             rep.peak_active_triangles,
             rep.peak_contour_points,
             rep.device_ram_bytes as f64 / 1024.0,
-            rep.underruns
+            rep.underruns,
+            rep.rest_waits()
         );
     }
     Ok(())

@@ -1,13 +1,13 @@
 //! Admission for the link (`strata_host::admission::admit_job_paced`): a model whose triangles
 //! the link cannot stream as fast as the printer prints them is simplified until it can, and the
-//! simulated printer (its executor's underruns: the independent judge) confirms both the
-//! problem and the cure. A model the link keeps ahead of is left alone.
+//! simulated printer (its executor's underruns and stops for want of commands: the independent
+//! judge) confirms both the problem and the cure. A model the link keeps ahead of is left alone.
 
 use strata::geom::Triangle;
 use strata::machine::MachineConfig;
 use strata::printer::board::BOARD_CAPACITIES;
 use strata_host::admission::{admit_job_paced, Admission};
-use strata_host::simjob::{simulate, SimOptions};
+use strata_host::simjob::{simulate, SimOptions, SimReport};
 use strata_testkit::drive::job_spec;
 use strata_testkit::mesh::{cuboid, sphere, to_um};
 
@@ -19,21 +19,28 @@ const R_MM: f64 = 1.5;
 /// Allowed deviation, mm (the acceptance's).
 const MAX_DEVIATION_MM: f64 = 0.05;
 
-fn underruns(tris: &[Triangle]) -> u32 {
+/// Times the printer waited for the link: the executor reached the end of the queued
+/// commands mid-motion (an underrun) or at a stop with the print not done (a restart).
+fn link_waits(tris: &[Triangle]) -> u32 {
+    let r = sim(tris);
+    r.underruns + r.rest_waits()
+}
+
+fn sim(tris: &[Triangle]) -> SimReport {
     let machine = MachineConfig::default();
     let opts = SimOptions { baud: BAUD, capacities: BOARD_CAPACITIES, ..SimOptions::default() };
     let job = strata::protocol::JobSpec { triangles: tris.len() as u32, ..job_spec(tris) };
-    simulate(tris, &machine, job, &opts).map_err(|(e, _)| e).unwrap().underruns
+    simulate(tris, &machine, job, &opts).map_err(|(e, _)| e).unwrap()
 }
 
 #[test]
 fn a_dense_bead_is_simplified_until_the_link_keeps_ahead() {
     // 57,600 triangles (20 B each on the wire: 100 s at 115200 baud) for a 3 mm bead that
     // prints in about a minute (15 layers, each slowed to the printer's 5 s minimum).
-    let tris = to_um(&sphere(C_MM, R_MM, 240, 120));
+    let tris = to_um(&sphere(C_MM, R_MM, 360, 180));
     let machine = MachineConfig::default();
     let job = job_spec(&tris);
-    assert!(underruns(&tris) > 0, "streamed whole, the printer must wait for the link");
+    assert!(link_waits(&tris) > 0, "streamed whole, the printer must wait for the link");
     let paced =
         admit_job_paced(&tris, &machine, &job, &BOARD_CAPACITIES, MAX_DEVIATION_MM, BAUD).unwrap();
     assert!(paced.pace.keeps_ahead(), "{:?}", paced.pace);
@@ -52,7 +59,7 @@ fn a_dense_bead_is_simplified_until_the_link_keeps_ahead() {
             .sqrt();
         assert!((d - R_MM).abs() < 2e-3, "a corner {d} mm from the centre");
     }
-    assert_eq!(underruns(&s.triangles), 0, "the simplified bead must stream ahead of its print");
+    assert_eq!(link_waits(&s.triangles), 0, "the simplified bead must stream ahead of its print");
 }
 
 #[test]
@@ -74,4 +81,24 @@ fn a_model_the_link_keeps_ahead_of_is_streamed_unchanged() {
     // The whole print's time from the planner: 100 layers of a 20 mm cube take minutes.
     assert!(paced.times.total_s > 60.0 && paced.times.starts_s.len() == 100, "{:?}", paced.pace);
     assert!(paced.times.starts_s.windows(2).all(|w| w[0] <= w[1]));
+}
+
+#[test]
+fn a_bead_whose_layers_wait_out_their_minimum_time_streams_ahead_of_its_waits() {
+    // A 2 mm bead: 10 layers, each short of the 5 s minimum even at the 10 mm/s floor, so each
+    // ends lifted off the part, waiting (retract, lift, dwell). The device holds a layer's
+    // last moves until the next layer's arrive only where their plan can still change: the
+    // wait is final, so the admission's per-layer print times (which count it) hold.
+    let tris = to_um(&sphere([110.0, 110.0, 1.0], 1.0, 240, 120));
+    let machine = MachineConfig::default();
+    let job = job_spec(&tris);
+    let paced =
+        admit_job_paced(&tris, &machine, &job, &BOARD_CAPACITIES, MAX_DEVIATION_MM, BAUD).unwrap();
+    assert!(paced.pace.keeps_ahead(), "{:?}", paced.pace);
+    let rep = sim(paced.admission.triangles(&tris));
+    // Z steps (400 per mm): the 2 mm rise, and each waiting layer's lift up and back down.
+    let (rise, lift) = (2 * 400, 2 * 3 * 400);
+    assert!(rep.steps[2] >= rise + 5 * lift, "layers must wait lifted: Z steps {}", rep.steps[2]);
+    let waits = rep.underruns + rep.rest_waits();
+    assert_eq!(waits, 0, "a link that keeps ahead must never hold the print: {rep:?}");
 }

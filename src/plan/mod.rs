@@ -844,8 +844,11 @@ impl<const N: usize> Planner<N> {
     }
 
     /// Whether the head's plan is final: its exit speed already equals the most it could
-    /// ever be.
+    /// ever be (a dwell always ends at rest).
     pub fn head_is_final(&self) -> bool {
+        if self.len >= 1 && self.at(0).is_dwell() {
+            return true;
+        }
         if self.len < 2 {
             return false;
         }

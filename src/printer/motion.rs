@@ -88,15 +88,21 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         Ok(self.generate(out) || planned || released)
     }
 
-    /// Blocks from the planner into the generator while it wants one and the planner may
-    /// release them (full, or the input is done); true when one went (see
-    /// [`Motion::plan_moves`]).
+    /// Blocks from the planner into the generator while it wants one: any head when the
+    /// planner is full or the input is done, otherwise a head whose plan is final (so a
+    /// link that falls behind stalls the print only where the lookahead truly waits, not a
+    /// whole queue early); true when one went (see [`Motion::plan_moves`]).
     #[inline(never)]
     fn release_blocks(&mut self, toolpath_done: bool) -> bool {
         let input_done = toolpath_done && self.moves.is_empty();
         let mut released = false;
-        while self.gen.wants_block() && (input_done || self.planner.is_full()) {
-            let Some(b) = self.planner.pop_forced() else { break };
+        while self.gen.wants_block() {
+            let block = if input_done || self.planner.is_full() {
+                self.planner.pop_forced()
+            } else {
+                self.planner.pop()
+            };
+            let Some(b) = block else { break };
             let layer = self.tags.pop_front().unwrap_or(0);
             // `wants_block` was true: the generator takes it.
             let _ = self.gen.load_tagged(b, layer);

@@ -167,6 +167,13 @@ pub struct CostSummary {
     pub worst_rtf: f64,
     /// Which layer.
     pub worst_rtf_layer: u64,
+    /// Layers that extrude nothing (only their height change: nothing to print in real
+    /// time, so left out of the worst factor), their print time and compute time, s.
+    pub idle_layers: usize,
+    /// Print time of those layers, s.
+    pub idle_print_s: f64,
+    /// Compute time of those layers at [`CPU_HZ`] and [`CYCLES_PER_INSN`], s.
+    pub idle_compute_s: f64,
     /// The longest stretch of slicing and toolpath work without step generation in thread
     /// mode (the step queue must cover it), instructions.
     pub gen_gap_max_insns: u64,
@@ -177,8 +184,9 @@ pub struct CostSummary {
 }
 
 impl CostSummary {
-    /// The figures of `c`, with print ticks at `timer_hz`.
-    pub fn of(c: &Costs, timer_hz: f64) -> Self {
+    /// The figures of `c`, with print ticks at `timer_hz`; `extrudes[k]` false marks layer
+    /// `k` as extruding nothing (layers beyond `extrudes` count as extruding).
+    pub fn of(c: &Costs, timer_hz: f64, extrudes: &[bool]) -> Self {
         let triangles = c.get("COST", &["triangles"]).unwrap_or(0);
         let slice = c.get("COST", &["slice_insns"]).unwrap_or(0);
         let steps = c.get("COST", &["steps"]).unwrap_or(0);
@@ -187,10 +195,15 @@ impl CostSummary {
         let n = c.layers.len();
         let total: u64 = c.layers.iter().map(|l| l.compute_insns).sum();
         let mut worst = (f64::INFINITY, 0);
+        let (mut idle_layers, mut idle_print_s, mut idle_compute_s) = (0, 0.0, 0.0);
         for l in &c.layers {
             let compute_s = l.compute_insns as f64 * CYCLES_PER_INSN / CPU_HZ;
             let print_s = l.print_ticks as f64 / timer_hz;
-            if compute_s > 0.0 && print_s / compute_s < worst.0 {
+            if extrudes.get(l.layer as usize) == Some(&false) {
+                idle_layers += 1;
+                idle_print_s += print_s;
+                idle_compute_s += compute_s;
+            } else if compute_s > 0.0 && print_s / compute_s < worst.0 {
                 worst = (print_s / compute_s, l.layer);
             }
         }
@@ -207,6 +220,9 @@ impl CostSummary {
             steps,
             worst_rtf: worst.0,
             worst_rtf_layer: worst.1,
+            idle_layers,
+            idle_print_s,
+            idle_compute_s,
             gen_gap_max_insns: c.get("COST", &["gen_gap_max_insns"]).unwrap_or(0),
             data_bss: c.get("MEM", &["data_bss"]),
             stack_hwm: c.get("MEM", &["stack_hwm"]),
@@ -234,7 +250,7 @@ mod tests {
         .collect();
         let c = Costs::parse(&lines);
         assert_eq!(c.layers.len(), 2);
-        let s = CostSummary::of(&c, 72e6);
+        let s = CostSummary::of(&c, 72e6, &[]);
         assert_eq!(s.triangles, 12);
         assert_eq!(s.insns_per_triangle, 100.0);
         assert_eq!(s.layer_insns_max, 4000);
@@ -244,6 +260,14 @@ mod tests {
         // Layer 1: 0.1 s of print over 4000 * 1.5 / 72e6 s of compute.
         assert_eq!(s.worst_rtf_layer, 1);
         assert!((s.worst_rtf - 1200.0).abs() < 1e-6, "{}", s.worst_rtf);
+        assert_eq!(s.idle_layers, 0);
+        // Layer 1 marked as extruding nothing: the worst is layer 0, 1 s over 1000 * 1.5 /
+        // 72e6 s; layer 1's figures go to the idle sums.
+        let s = CostSummary::of(&c, 72e6, &[true, false]);
+        assert_eq!(s.worst_rtf_layer, 0);
+        assert!((s.worst_rtf - 48_000.0).abs() < 1e-6, "{}", s.worst_rtf);
+        assert_eq!(s.idle_layers, 1);
+        assert!((s.idle_print_s - 0.1).abs() < 1e-12 && s.idle_compute_s > 0.0);
         assert_eq!(s.data_bss, Some(60000));
         let st = c.steps().unwrap();
         assert_eq!(st.steps, [5, 3, 0, 0]);
