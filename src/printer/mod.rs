@@ -35,12 +35,14 @@
 //! first unit. A unit whose bytes exceed the whole buffer could never go in: a typed error
 //! ([`ErrorCode::Moves`], detail: the layer), never a silent drop or a wait forever.
 //!
-//! Planner blocks are released only when the planner queue is full or the model has ended
-//! (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
-//! the job, not on the link's timing, and the step generator's commands depend only on the
-//! blocks. The step commands generated for each layer's blocks are hashed (FNV-1a over axis
-//! and command, see [`StepProducer::take_hash`](crate::step::StepProducer::take_hash)) and reported with [`Message::LayerDone`]:
-//! identical jobs give identical hashes on the host simulation and on the firmware.
+//! Planner blocks are released when their plan is final, or with their current plan only when
+//! the planner queue is full or the model has ended (`pop_forced`), never earlier because data
+//! happened to be late: the blocks depend only on the job, not on the link's timing, and the
+//! step generator's commands depend only on the blocks ([`Motion`]). The step commands
+//! generated for each layer's blocks are hashed (FNV-1a over axis and command, see
+//! [`StepProducer::take_hash`](crate::step::StepProducer::take_hash)) and reported with
+//! [`Message::LayerDone`]: identical jobs give identical hashes on the host simulation and on
+//! the firmware.
 
 pub mod board;
 mod failure;

@@ -13,10 +13,13 @@ use crate::step::{StepConfig, StepGenerator, StepProducer};
 /// The moves are delta-coded into `MOVE_BYTES` bytes ([`MoveRing`]); the planner holds `P` moves
 /// of lookahead and the layer of each of its moves that makes a block.
 ///
-/// Planner blocks are released only when the planner queue is full or the model has ended
+/// A planner block goes to the generator when its plan is final ([`Planner::pop`]: its exit
+/// speed is already the most any later move could allow, and a dwell always ends at rest), or
+/// with its current plan when the planner queue is full or the model has ended
 /// (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
 /// the job, not on when [`feed`](Self::feed) runs, and the step generator's commands depend
-/// only on the blocks.
+/// only on the blocks. A link that falls behind stops the motion at the last final block,
+/// which ends at rest (a retraction, a wait), not mid-move.
 pub struct Motion<const MOVE_BYTES: usize, const P: usize> {
     moves: MoveRing<MOVE_BYTES>,
     planner: Planner<P>,
