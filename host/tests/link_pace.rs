@@ -6,7 +6,7 @@
 use strata::geom::Triangle;
 use strata::machine::MachineConfig;
 use strata::printer::board::BOARD_CAPACITIES;
-use strata_host::admission::{admit_job_paced, Admission};
+use strata_host::admission::{self, admit_job_paced, Admission};
 use strata_host::simjob::{simulate, SimOptions, SimReport};
 use strata_testkit::drive::job_spec;
 use strata_testkit::mesh::{cuboid, sphere, to_um};
@@ -81,6 +81,23 @@ fn a_model_the_link_keeps_ahead_of_is_streamed_unchanged() {
     // The whole print's time from the planner: 100 layers of a 20 mm cube take minutes.
     assert!(paced.times.total_s > 60.0 && paced.times.starts_s.len() == 100, "{:?}", paced.pace);
     assert!(paced.times.starts_s.windows(2).all(|w| w[0] <= w[1]));
+    assert!(paced.times.extrudes.iter().all(|&x| x), "every layer of a cube extrudes");
+}
+
+#[test]
+fn a_wall_thinner_than_a_line_has_layers_that_extrude_nothing() {
+    // 0.1 mm thick: less than the narrowest line the printer lays (thin walls are reported,
+    // not printed), on a 20 mm cube so that the job has extruding layers too.
+    let mut tris = to_um(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 2.0]));
+    tris.extend(to_um(&cuboid([100.0, 125.0, 0.0], [120.0, 125.1, 4.0])));
+    tris.sort_by_key(Triangle::z_min);
+    let job = job_spec(&tris);
+    let (_, times) =
+        admission::toolpath_pass(&tris, &MachineConfig::default(), &job, None).unwrap();
+    // Layers of 0.2 mm: the cube's 10 extrude, the wall's 10 above it do not.
+    assert_eq!(times.extrudes.len(), 20, "{:?}", times.extrudes);
+    assert!(times.extrudes[..10].iter().all(|&x| x), "{:?}", times.extrudes);
+    assert!(!times.extrudes[10..].iter().any(|&x| x), "{:?}", times.extrudes);
 }
 
 #[test]
