@@ -18,8 +18,9 @@ use crate::step::{StepConfig, StepGenerator, StepProducer};
 /// with its current plan when the planner queue is full or the model has ended
 /// (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
 /// the job, not on when [`feed`](Self::feed) runs, and the step generator's commands depend
-/// only on the blocks. A link that falls behind stops the motion at the last final block,
-/// which ends at rest (a retraction, a wait), not mid-move.
+/// only on the blocks. A link that falls behind holds the motion only where the plan still
+/// waits for later moves, not a whole lookahead queue early: a layer that ends in a
+/// retraction or a wait runs to rest there.
 pub struct Motion<const MOVE_BYTES: usize, const P: usize> {
     moves: MoveRing<MOVE_BYTES>,
     planner: Planner<P>,
@@ -92,9 +93,8 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
     }
 
     /// Blocks from the planner into the generator while it wants one: any head when the
-    /// planner is full or the input is done, otherwise a head whose plan is final (so a
-    /// link that falls behind stalls the print only where the lookahead truly waits, not a
-    /// whole queue early); true when one went (see [`Motion::plan_moves`]).
+    /// planner is full or the input is done, otherwise a head whose plan is final; true when
+    /// one went (see [`Motion::plan_moves`]).
     #[inline(never)]
     fn release_blocks(&mut self, toolpath_done: bool) -> bool {
         let input_done = toolpath_done && self.moves.is_empty();
