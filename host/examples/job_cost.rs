@@ -168,9 +168,10 @@ fn idle_note(s: &CostSummary) -> String {
     if s.idle_layers == 0 {
         return String::new();
     }
+    let what = if s.idle_layers == 1 { "layer extrudes" } else { "layers extrude" };
     format!(
-        " over the layers that extrude; {} layers extrude nothing (only their height change: \
-         {:.2} s of print, {:.3} s of compute)",
+        " over the layers that extrude; {} {what} nothing (only their height change: {:.2} s \
+         of print, {:.3} s of compute)",
         s.idle_layers, s.idle_print_s, s.idle_compute_s
     )
 }
