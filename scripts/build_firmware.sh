@@ -31,8 +31,8 @@ RAM_HEADROOM=2048
 # RAM_HEADROOM free.
 # The Creality builds run the same code under a main loop whose frame is 712 B smaller (552 B
 # against 1,264: no instruction counter), so they need that much less.
-STACK_RESERVE_QEMU=5080
-STACK_RESERVE_CREALITY=$((STACK_RESERVE_QEMU - 712))
+STACK_RESERVE_QEMU=4880
+STACK_RESERVE_CREALITY=$((STACK_RESERVE_QEMU - 512))
 board="${1:-}"
 case "$board" in
   creality-v422|creality-v427|qemu|qemu-mps2|qemu-rt) ;;

@@ -10,13 +10,15 @@
 //!   the last of them), not as slicing.
 //!
 //! Approximations:
-//! - `compute_insns` are the thread-mode instructions (SysTick handler time taken out) spent
-//!   in `Printer::service` calls that had a message to handle, attributed to the layer the
-//!   *slicer* is on when the call starts (slicing and toolpaths: the toolpath stage runs in
-//!   the slicer's layer sink; a batch that completes several layers is counted to the first),
-//!   less the step generation lent inside them (counted to the layer being *generated*), plus
-//!   the `Printer::poll` calls that did work, attributed to the layer being *planned*
-//!   (planning and step generation);
+//! - `compute_insns` are the thread-mode instructions (SysTick's and the feed interrupt's
+//!   taken out) spent in `Printer::service` calls that had a message to handle, attributed to
+//!   the layer the *slicer* is on when the call starts (slicing and toolpaths: the toolpath
+//!   stage runs in the slicer's layer sink; a batch that completes several layers is counted
+//!   to the first), less the step generation lent inside them (counted to the layer being
+//!   *generated*), plus the `Printer::poll` calls that did work, attributed to the layer
+//!   being *planned* (planning and step generation), plus every feed interrupt (PendSV:
+//!   planning and step generation wherever it preempts thread mode), attributed to the layer
+//!   whose blocks the generator had at its end;
 //! - `print_ticks` is the growth of the planner's released print time (72 MHz ticks) between
 //!   the reports of layer K-1 and layer K (a layer closes when the first block of the next
 //!   one is released, which is counted with the earlier layer);
@@ -38,9 +40,22 @@ use crate::board;
 use crate::capacities::FwPrinter;
 use crate::pipeline_motion::{FwMotion, Generation};
 
-/// Thread-mode instructions so far (all instructions minus the SysTick handler's).
+/// Instructions so far outside the SysTick handler (one consistent reading: a SysTick
+/// between the two counters' reads retries).
+pub fn outside_systick_now() -> u64 {
+    loop {
+        let isr = board::isr_insns_total();
+        let now = board::insns_now();
+        if board::isr_insns_total() == isr {
+            return now - isr;
+        }
+    }
+}
+
+/// Thread-mode instructions so far (all instructions minus the SysTick handler's and the
+/// feed interrupt's).
 pub fn thread_now() -> u64 {
-    board::insns_now() - board::isr_insns_total()
+    outside_systick_now() - crate::pipeline_motion::feed_insns_total()
 }
 use crate::log;
 
@@ -73,10 +88,11 @@ const RING: usize = 32;
 
 /// Cost accounting of one job.
 pub struct Cost {
-    ring: [u64; RING],
+    /// Instructions per layer (a layer's stay below 2^32: hundreds of millions at most).
+    ring: [u32; RING],
     /// The `service` part of each layer's bucket (slicing and toolpaths, lent motion work
     /// left out).
-    ring_service: [u64; RING],
+    ring_service: [u32; RING],
     /// Next layer to report.
     reported: u32,
     /// Released print time at the last report, ticks.
@@ -134,8 +150,9 @@ impl Cost {
 
     fn add(&mut self, layer: u32, insns: u64, service: u64) {
         let l = layer.clamp(self.reported, self.reported + RING as u32 - 1) as usize % RING;
-        self.ring[l] += insns;
-        self.ring_service[l] += service;
+        let sat = |v: u64| u32::try_from(v).unwrap_or(u32::MAX);
+        self.ring[l] = self.ring[l].saturating_add(sat(insns));
+        self.ring_service[l] = self.ring_service[l].saturating_add(sat(service));
     }
 
     /// Ends a `service` measurement.
@@ -182,6 +199,12 @@ impl Cost {
         }
     }
 
+    /// Counts the feed interrupt's work since the last call to the layers it generated.
+    fn take_feed(&mut self) {
+        let (layer, insns) = crate::pipeline_motion::take_feed_work();
+        self.add(layer, u64::from(insns), 0);
+    }
+
     /// Prints the layers the planner has closed.
     fn report(&mut self, p: &FwPrinter, motion: &mut FwMotion) {
         let closed = p.status(motion, 0).layer;
@@ -193,6 +216,7 @@ impl Cost {
         if !self.active {
             return;
         }
+        self.take_feed();
         while self.reported < closed {
             let ticks = (p.planned_s(motion) * 72e6) as u64;
             let k = self.reported as usize % RING;
@@ -214,6 +238,7 @@ impl Cost {
     pub fn job_started(&mut self) {
         *self = Self::new();
         crate::pipeline_motion::take_lock_max();
+        crate::pipeline_motion::take_feed_work();
         self.active = true;
     }
 

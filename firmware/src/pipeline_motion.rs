@@ -9,8 +9,8 @@
 //!    except by the short `interrupt::free` sections of `board::with_motion`;
 //! 2. the feed interrupt, PendSV at [`FEED_PRIORITY`] (the lowest): planning and step
 //!    generation until the step queue is full or the planner has nothing to release
-//!    ([`feed`]); the board pends it periodically while a job runs (QEMU: every SysTick,
-//!    10,000 instructions; Creality: at least every millisecond from TIM2 and SysTick);
+//!    ([`feed`]); the board pends it periodically while a job runs (both boards: about once a
+//!    millisecond of the chip, QEMU from its SysTick, the Creality from TIM2 and SysTick);
 //! 3. thread mode: the protocol, slicing, toolpaths, the heaters. It reaches the motion half
 //!    only through [`locked`], which raises BASEPRI to [`FEED_PRIORITY`]: the feed waits, the
 //!    executor does not. A thread-mode access holds it for as long as its closure runs (a move
@@ -71,7 +71,57 @@ struct Shared {
     toolpath_done: bool,
     /// The longest thread-mode hold of the lock, instructions (QEMU).
     #[cfg(feature = "qemu")]
-    lock_max: u64,
+    lock_max: u32,
+    /// The feed interrupt's instructions since thread mode last took them and the layer
+    /// whose blocks it generated first (the generator's tag; thread mode takes them often,
+    /// so they seldom span a layer's end) (QEMU).
+    #[cfg(feature = "qemu")]
+    feed_work: (u32, u32),
+}
+
+/// The feed interrupt's instructions since start-up (QEMU), SysTick's taken out: written by
+/// PendSV only, read by thread mode ([`feed_insns_total`]).
+#[cfg(feature = "qemu")]
+static FEED_INSNS: [core::sync::atomic::AtomicU32; 2] =
+    [core::sync::atomic::AtomicU32::new(0), core::sync::atomic::AtomicU32::new(0)];
+
+/// The feed interrupt's instructions so far (QEMU).
+#[cfg(feature = "qemu")]
+pub fn feed_insns_total() -> u64 {
+    use core::sync::atomic::Ordering::Acquire;
+    // Low word, high word: PendSV may run between the reads; a changed high word retries.
+    loop {
+        let hi = FEED_INSNS[1].load(Acquire);
+        let lo = FEED_INSNS[0].load(Acquire);
+        if FEED_INSNS[1].load(Acquire) == hi {
+            return (hi as u64) << 32 | lo as u64;
+        }
+    }
+}
+
+/// Counts `d` feed-interrupt instructions of which `work` for `layer` (QEMU; PendSV only).
+#[cfg(feature = "qemu")]
+fn count_feed(s: &mut Shared, layer: u32, work: u64, d: u64) {
+    use core::sync::atomic::Ordering::{Relaxed, Release};
+    let (sum, carry) = FEED_INSNS[0].load(Relaxed).overflowing_add(d as u32);
+    if carry {
+        FEED_INSNS[1].fetch_add(1, Release);
+    }
+    FEED_INSNS[0].store(sum, Release);
+    if work == 0 {
+        return;
+    }
+    let w = &mut s.feed_work;
+    if w.1 == 0 {
+        w.0 = layer;
+    }
+    w.1 = w.1.saturating_add(work as u32);
+}
+
+/// The feed interrupt's instructions since the last call and their layer (QEMU).
+#[cfg(feature = "qemu")]
+pub fn take_feed_work() -> (u32, u32) {
+    locked(|s| core::mem::take(&mut s.feed_work))
 }
 
 struct SharedCell(UnsafeCell<Shared>);
@@ -87,6 +137,8 @@ static SHARED: SharedCell = SharedCell(UnsafeCell::new(Shared {
     toolpath_done: false,
     #[cfg(feature = "qemu")]
     lock_max: 0,
+    #[cfg(feature = "qemu")]
+    feed_work: (0, 0),
 }));
 
 /// Runs `f` on the shared state with the feed interrupt masked (BASEPRI), the step interrupt
@@ -103,7 +155,8 @@ fn locked<R>(f: impl FnOnce(&mut Shared) -> R) -> R {
     let r = f(shared);
     #[cfg(feature = "qemu")]
     {
-        shared.lock_max = shared.lock_max.max(board::insns_now() - t0);
+        let held = u32::try_from(board::insns_now() - t0).unwrap_or(u32::MAX);
+        shared.lock_max = shared.lock_max.max(held);
     }
     // SAFETY: restores the level this call found.
     unsafe { basepri::write(old) };
@@ -114,22 +167,37 @@ fn locked<R>(f: impl FnOnce(&mut Shared) -> R) -> R {
 /// takes and generates until the queue is full; one that does nothing ends the run).
 const FEEDS_PER_PENDSV: u32 = 64;
 
-/// Planning and step generation until there is nothing to do.
-fn feed(s: &mut Shared) {
-    let (Some(m), Some(p)) = (s.motion.as_deref_mut(), s.prod.as_mut()) else { return };
+/// Planning and step generation until there is nothing to do; true when something was done.
+fn feed(s: &mut Shared) -> bool {
+    let (Some(m), Some(p)) = (s.motion.as_deref_mut(), s.prod.as_mut()) else { return false };
+    let mut worked = false;
     for _ in 0..FEEDS_PER_PENDSV {
         // A planning error stays in place for the printer's next poll to report.
         if m.feed(s.allowed, s.toolpath_done, p) != Ok(true) {
             break;
         }
+        worked = true;
     }
+    worked
 }
 
 #[exception]
 fn PendSV() {
     // SAFETY: thread mode reaches `SHARED` only with PendSV masked (`locked`); no other
     // handler reaches it.
-    feed(unsafe { &mut *SHARED.0.get() });
+    let s = unsafe { &mut *SHARED.0.get() };
+    #[cfg(feature = "qemu")]
+    let t0 = crate::cost::outside_systick_now();
+    let _worked = feed(s);
+    // A call that did work counts with its layer; the others (the board pends one once a
+    // millisecond whatever the queue holds) are the feed's polling, left out of the figures as
+    // thread mode's idle turns are.
+    #[cfg(feature = "qemu")]
+    {
+        let d = crate::cost::outside_systick_now().saturating_sub(t0);
+        let layer = s.motion.as_deref().and_then(|m| m.generator().tag()).unwrap_or(0);
+        count_feed(s, layer, if _worked { d } else { 0 }, d);
+    }
 }
 
 /// Asks for a feed (PendSV runs once no higher level is active).
@@ -140,7 +208,7 @@ pub fn pend_feed() {
 /// The longest thread-mode hold of the motion half's lock so far, instructions (QEMU); the
 /// measure restarts.
 #[cfg(feature = "qemu")]
-pub fn take_lock_max() -> u64 {
+pub fn take_lock_max() -> u32 {
     locked(|s| core::mem::take(&mut s.lock_max))
 }
 

@@ -783,8 +783,11 @@ fn SysTick() {
             log!("HEAT WATCHDOG main loop stalled: heaters forced off");
         }
     });
-    // The feed interrupt tops the step queue up after this one (every 10,000 instructions).
-    crate::pipeline_motion::pend_feed();
+    // The feed interrupt tops the step queue up after this one, once a millisecond of the
+    // chip as the Creality's TIM2 pends it.
+    if wraps % WRAPS_PER_FEED == 0 {
+        crate::pipeline_motion::pend_feed();
+    }
     let c1 = SYST::get_current();
     let d = if c1 <= c0 { c0 - c1 } else { c0 + RELOAD - c1 };
     // Only this handler writes these (thread mode reads them).
@@ -804,6 +807,10 @@ fn SysTick() {
 const INSNS_PER_MS: u64 = 1_000_000;
 #[cfg(feature = "qemu-realtime")]
 const INSNS_PER_MS: u64 = 72_000 * 10 / CPI_X10;
+/// SysTick wraps (10,000 instructions) between two feed interrupts: a millisecond of the
+/// 72 MHz chip at [`CPI_X10`] / 10 cycles an instruction, rounded down (48,000 instructions at
+/// 1.5: 4 wraps; 36,000 at 2.0: 3), as the Creality board feeds once a millisecond.
+const WRAPS_PER_FEED: u32 = (72_000 * 10 / CPI_X10 / 10_000) as u32;
 /// SysTick wraps (10,000 instructions) per millisecond of the main-loop watchdog, rounded up
 /// (the real-time board's at 2.0: 4 wraps, 1.11 ms: lenient by 11 %).
 const WRAPS_PER_WATCH_MS: u32 = INSNS_PER_MS.div_ceil(10_000) as u32;
