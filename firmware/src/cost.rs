@@ -53,9 +53,15 @@ pub fn outside_systick_now() -> u64 {
 }
 
 /// Thread-mode instructions so far (all instructions minus the SysTick handler's and the
-/// feed interrupt's).
+/// feed interrupt's; a feed interrupt between the two counters' reads retries).
 pub fn thread_now() -> u64 {
-    outside_systick_now() - crate::pipeline_motion::feed_insns_total()
+    loop {
+        let feed = crate::pipeline_motion::feed_insns_total();
+        let outside = outside_systick_now();
+        if crate::pipeline_motion::feed_insns_total() == feed {
+            return outside - feed;
+        }
+    }
 }
 use crate::log;
 
