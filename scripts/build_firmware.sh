@@ -26,11 +26,13 @@ cd "$(dirname "$0")/.."
 # (`RAM_HEADROOM` in host/tests/hil_qemu.rs, against the stack's high-water mark).
 RAM_HEADROOM=2048
 # The deepest stack of the sample jobs on the 64 KB QEMU build (`MEM ... stack_hwm` after each
-# job: 5,080 B, scaled_mm/stanford_bunny_x60 to its ears, `qemu_stanford_bunny_x60_to_its_ears` in
-# host/tests/hil_qemu.rs; the whole 3DBenchy 5,056 B), bytes. The statics must leave it and
-# RAM_HEADROOM free.
-# The Creality builds run the same code under a main loop whose frame is 712 B smaller (552 B
-# against 1,264: no instruction counter), so they need that much less.
+# job, the `stack` column of tools/job-cost/run.sh: 4,844 B for 3DBenchy, xyz_20mm_cube and the
+# scaled fertility, rockerarm, bunny and torus, whole, at 0.05 mm), bytes, with 36 B to spare.
+# The statics must leave it and RAM_HEADROOM free.
+# The Creality builds run the same code under a main loop whose frame is 456 B smaller (552 B
+# against 1,008: no instruction counter and its per-layer figures) and without the QEMU build's
+# feed-interrupt figures (28 B), so they need 484 B less; 512 B less is reserved for them (the
+# same 4,368 B as before the QEMU figures changed).
 STACK_RESERVE_QEMU=4880
 STACK_RESERVE_CREALITY=$((STACK_RESERVE_QEMU - 512))
 board="${1:-}"
