@@ -99,9 +99,10 @@ pub fn feed_insns_total() -> u64 {
     }
 }
 
-/// Counts `d` feed-interrupt instructions of which `work` for `layer` (QEMU; PendSV only).
+/// Counts `d` feed-interrupt instructions, of which `work` for the layer whose blocks the
+/// generator holds (QEMU; PendSV only).
 #[cfg(feature = "qemu")]
-fn count_feed(s: &mut Shared, layer: u32, work: u64, d: u64) {
+fn count_feed(s: &mut Shared, work: u64, d: u64) {
     use core::sync::atomic::Ordering::{Relaxed, Release};
     let (sum, carry) = FEED_INSNS[0].load(Relaxed).overflowing_add(d as u32);
     if carry {
@@ -113,7 +114,7 @@ fn count_feed(s: &mut Shared, layer: u32, work: u64, d: u64) {
     }
     let w = &mut s.feed_work;
     if w.1 == 0 {
-        w.0 = layer;
+        w.0 = s.motion.as_deref().and_then(|m| m.generator().tag()).unwrap_or(0);
     }
     w.1 = w.1.saturating_add(work as u32);
 }
@@ -195,8 +196,7 @@ fn PendSV() {
     #[cfg(feature = "qemu")]
     {
         let d = crate::cost::outside_systick_now().saturating_sub(t0);
-        let layer = s.motion.as_deref().and_then(|m| m.generator().tag()).unwrap_or(0);
-        count_feed(s, layer, if _worked { d } else { 0 }, d);
+        count_feed(s, if _worked { d } else { 0 }, d);
     }
 }
 

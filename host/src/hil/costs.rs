@@ -168,7 +168,7 @@ pub struct CostSummary {
     /// Which layer.
     pub worst_rtf_layer: u64,
     /// Layers that extrude nothing (only their height change: nothing to print in real
-    /// time, so left out of the worst factor), their print time and compute time, s.
+    /// time, so left out of the worst factor).
     pub idle_layers: usize,
     /// Print time of those layers, s.
     pub idle_print_s: f64,
