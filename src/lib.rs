@@ -12,7 +12,7 @@
 //! - [`step`]: exact step times compressed to `(interval, count, add)` sequences, and the
 //!   timer-interrupt executor driving `embedded-hal` step/dir/enable pins.
 //! - [`toolpath`]: perimeters, infill, skins, skirt, ordering and retraction as a stream of moves.
-//! - [`gcode`]: Marlin-flavoured G-code writer (PrusaSlicer-compatible comments).
+//! - [`gcode`]: Marlin-flavoured G-code writer (PrusaSlicer-compatible comments) and reader.
 //! - [`protocol`]: the host-device link: COBS frames with CRC-32, sequence numbers, acks,
 //!   credits and retransmission; messages and the compact triangle encoding.
 //! - [`printer`]: the device-side job runner: protocol messages in, slicer, toolpaths,
