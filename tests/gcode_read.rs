@@ -267,7 +267,8 @@ fn layer_markers_of_prusaslicer_cura_and_strata() {
 
 #[test]
 fn the_splitter_cuts_lines_across_chunks_and_refuses_long_ones() {
-    let text = format!("G1 X1\r\nG1 X2\n{}\nG1 X3", "X".repeat(LINE_BYTES + 1));
+    let long_comment = format!("G1 X4 ;{}", "c".repeat(LINE_BYTES));
+    let text = format!("G1 X1\r\nG1 X2\n{}\n{long_comment}\nG1 X3", "X".repeat(LINE_BYTES + 1));
     // Every chunk size gives the same lines.
     for chunk in [1, 2, 7, 64, 1000] {
         let mut s = LineSplitter::new();
@@ -290,6 +291,8 @@ fn the_splitter_cuts_lines_across_chunks_and_refuses_long_ones() {
             Ok("".into()),
             Ok("G1 X2".into()),
             Err(LineError::TooLong),
+            // A long comment is cut to the line's bytes; a long command is refused.
+            Ok(long_comment[..LINE_BYTES].into()),
             Ok("G1 X3".into()),
         ];
         assert_eq!(lines, want, "chunks of {chunk}");

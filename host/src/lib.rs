@@ -5,6 +5,7 @@
 
 pub mod admission;
 pub mod clock;
+pub mod gcode_job;
 #[cfg(unix)]
 pub mod hil;
 pub mod model;

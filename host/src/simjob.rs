@@ -46,7 +46,7 @@ strata::printer_type! {
 }
 
 /// The simulated device's move buffer, bytes (room for any job's moves).
-const SIM_MOVE_BYTES: usize = 1 << 17;
+pub const SIM_MOVE_BYTES: usize = 1 << 17;
 
 /// The simulated device's motion half (move buffer, planner, generator) and the step queue's
 /// producer.

@@ -2,11 +2,12 @@
 //! (`strata_host::simjob`), with admission control first, a summary (`--json`) and pictures
 //! (`--preview`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use strata::protocol::JobSpec;
 use strata_host::admission::{self, Admission};
+use strata_host::gcode_job::{run_gcode, GcodeOptions};
 use strata_host::model;
 use strata_host::pace::Pace;
 use strata_host::preview;
@@ -17,7 +18,7 @@ use crate::settings::{job_of, machine_of, PrintArgs};
 /// Options of `strata simulate`.
 #[derive(Debug, clap::Args)]
 pub struct SimulateArgs {
-    /// The STL model.
+    /// The STL model, or a G-code file (`.gcode`, `.gco`, `.g`) from any slicer.
     pub model: PathBuf,
     /// Print a machine-readable summary (JSON).
     #[arg(long)]
@@ -111,6 +112,9 @@ struct Summary {
 /// Runs `strata simulate`.
 pub fn run(args: &SimulateArgs) -> Result<(), String> {
     let machine = machine_of(&args.print)?;
+    if is_gcode(&args.model) {
+        return run_gcode_file(args, &machine);
+    }
     let loaded = model::load(&args.model)?;
     let tris = loaded.placed_sorted(&machine)?;
     let job = job_of(&args.print, &tris)?;
@@ -249,4 +253,91 @@ fn report(
 fn hms(s: f64) -> String {
     let t = s.round() as u64;
     format!("{}:{:02}:{:02}", t / 3600, t / 60 % 60, t % 60)
+}
+
+/// A G-code file by its extension (`.gcode`, `.gco`, `.g`, any case).
+pub fn is_gcode(path: &Path) -> bool {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    matches!(ext.as_str(), "gcode" | "gco" | "g")
+}
+
+#[derive(Serialize)]
+struct GcodeSummary {
+    lines: u32,
+    moves: u32,
+    layers: u32,
+    /// The planner's print time (motion and dwells; heating is not simulated), s.
+    print_time_s: f64,
+    filament_mm: f64,
+    steps: Steps,
+    /// Final motor positions X, Y, Z, E, steps.
+    positions: [i64; 4],
+    layer_hashes: Vec<String>,
+    /// Commands the printer skips, with their counts.
+    skipped: std::collections::BTreeMap<String, u32>,
+    /// Lines refused (malformed, out of range, bad checksum), with the first ones' numbers.
+    refused: u32,
+    refusals: Vec<String>,
+    /// Moves whose target was clamped to the build volume.
+    clamped: u32,
+    underruns: u32,
+    violations: u32,
+}
+
+/// `strata simulate FILE.gcode`: the file through the printer's reader, planner and step
+/// generator on the simulated board.
+fn run_gcode_file(
+    args: &SimulateArgs,
+    machine: &strata::machine::MachineConfig,
+) -> Result<(), String> {
+    let name = args.model.display();
+    let text = std::fs::read(&args.model).map_err(|e| format!("{name}: {e}"))?;
+    let rep =
+        run_gcode(&text, machine, GcodeOptions::default()).map_err(|e| format!("{name}: {e}"))?;
+    let refusals: Vec<String> =
+        rep.refusals.iter().map(|(n, e)| format!("line {n}: {e}")).collect();
+    if args.json {
+        let s = GcodeSummary {
+            lines: rep.lines,
+            moves: rep.moves,
+            layers: rep.layers,
+            print_time_s: rep.planned_s,
+            filament_mm: rep.filament_mm,
+            steps: Steps { x: rep.steps[0], y: rep.steps[1], z: rep.steps[2], e: rep.steps[3] },
+            positions: rep.positions,
+            layer_hashes: rep.layer_hashes.iter().map(|(_, h)| format!("{h:016x}")).collect(),
+            skipped: rep.skipped.clone(),
+            refused: rep.refused,
+            refusals,
+            clamped: rep.clamped,
+            underruns: rep.underruns,
+            violations: rep.violations,
+        };
+        println!("{}", serde_json::to_string_pretty(&s).map_err(|e| e.to_string())?);
+        return Ok(());
+    }
+    println!(
+        "{name}: {} lines, {} moves, {} layers, print time {} (heating not included), {:.1} mm of \
+         filament",
+        rep.lines,
+        rep.moves,
+        rep.layers,
+        hms(rep.planned_s),
+        rep.filament_mm
+    );
+    println!(
+        "steps X {} Y {} Z {} E {}; underruns {}, timing violations {}",
+        rep.steps[0], rep.steps[1], rep.steps[2], rep.steps[3], rep.underruns, rep.violations
+    );
+    if !rep.skipped.is_empty() {
+        let list: Vec<String> = rep.skipped.iter().map(|(c, n)| format!("{c} x{n}")).collect();
+        println!("skipped (not run by this printer): {}", list.join(", "));
+    }
+    if rep.clamped > 0 {
+        println!("warning: {} moves went beyond the bed and were stopped at its edge", rep.clamped);
+    }
+    if rep.refused > 0 {
+        println!("warning: {} lines refused and skipped: {}", rep.refused, refusals.join("; "));
+    }
+    Ok(())
 }

@@ -96,3 +96,31 @@ fn simulate_refuses_a_model_off_the_bed() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("build volume"), "{err}");
 }
+
+/// A G-code file whose motion has a closed form: one 100 mm travel at 10 mm/s from rest to
+/// rest, then a 2 s dwell; an unknown command and a malformed line are reported, not fatal.
+#[test]
+fn simulate_runs_a_gcode_file_with_a_closed_form_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("line.gcode");
+    let text = "G28\nG90\nM201 X500\nG1 X100 F600\nG1 Y1e5\nG4 P2000\n";
+    std::fs::write(&file, text).unwrap();
+    let out = Command::cargo_bin("strata")
+        .unwrap()
+        .args(["simulate", file.to_str().unwrap(), "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    // L / v + v / a: 100 mm at 10 mm/s, the travel acceleration lowered to X's 500 mm/s^2
+    // (accelerating and braking each take v / 2a longer than cruising), plus the dwell.
+    let want = 100.0 / 10.0 + 10.0 / 500.0 + 2.0;
+    let got = v["print_time_s"].as_f64().unwrap();
+    assert!((got - want).abs() < 1e-6, "{got} s, want {want} s");
+    // 100 mm at 80 steps/mm.
+    assert_eq!(v["steps"]["x"], 8000);
+    assert_eq!(v["positions"][0], 8000);
+    assert_eq!(v["skipped"]["M201"], 1);
+    assert_eq!(v["refused"], 1);
+    assert_eq!(v["refusals"][0], "line 5: Y has a malformed number");
+}

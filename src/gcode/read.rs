@@ -4,7 +4,8 @@
 //! Two parts, both `no_std` without allocation:
 //! - [`LineSplitter`] cuts a byte stream (a file read in chunks, frames off the link) into lines
 //!   of at most [`LINE_BYTES`] bytes (Marlin's `MAX_CMD_SIZE`); a longer line is reported as
-//!   [`LineError::TooLong`] and skipped to its end, never truncated into a different command;
+//!   [`LineError::TooLong`] and skipped to its end, never truncated into a different command
+//!   (a long `;` comment is cut instead: slicers write their settings in such comments);
 //! - [`Reader`] interprets one line at a time with Marlin's modal state (absolute or relative
 //!   axes and extruder, millimetres or inches, the feed rate, `G92` offsets, the `M220` speed
 //!   and `M221` flow factors) and returns at most one [`Action`].
@@ -215,6 +216,9 @@ pub struct LineSplitter {
     len: usize,
     /// The current line ran past the buffer: its bytes are dropped until its end.
     overlong: bool,
+    /// The current line's comment has begun (`;`): what does not fit is dropped, the line
+    /// stays (Marlin ignores comments as it reads them).
+    comment: bool,
     /// The last call ended a line: the next starts a new one.
     ended: bool,
 }
@@ -228,7 +232,7 @@ impl Default for LineSplitter {
 impl LineSplitter {
     /// An empty splitter.
     pub const fn new() -> Self {
-        Self { buf: [0; LINE_BYTES], len: 0, overlong: false, ended: false }
+        Self { buf: [0; LINE_BYTES], len: 0, overlong: false, comment: false, ended: false }
     }
 
     /// Takes bytes of `input` up to and including the end of the next line. Returns how many it
@@ -242,12 +246,13 @@ impl LineSplitter {
             if b == b'\n' || b == b'\r' {
                 return (i + 1, Some(self.end()));
             }
+            self.comment |= b == b';';
             match self.buf.get_mut(self.len) {
                 Some(slot) if !self.overlong => {
                     *slot = b;
                     self.len += 1;
                 }
-                _ => self.overlong = true,
+                _ => self.overlong |= !self.comment,
             }
         }
         (input.len(), None)
@@ -270,6 +275,7 @@ impl LineSplitter {
     pub fn clear(&mut self) {
         self.len = 0;
         self.overlong = false;
+        self.comment = false;
         self.ended = false;
     }
 

@@ -1,0 +1,139 @@
+//! PrusaSlicer's and CuraEngine's G-code of `xyz_20mm_cube.stl` (`tests/data/gcode/`, made by
+//! `make_fixtures.sh` there) on the simulated printer: every move ends exactly on the step an
+//! independent f64 reading of the file puts it, the board's steps and timing check out, and
+//! the print time is the planner's.
+
+use std::path::PathBuf;
+
+use strata::machine::MachineConfig;
+use strata_host::gcode_job::{run_gcode, GcodeOptions, GcodeReport};
+
+const ENDER3: MachineConfig = MachineConfig::ENDER3;
+
+fn fixture(name: &str) -> Vec<u8> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/data/gcode").join(name);
+    std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// The motor position (steps) after every move of `text`, read with f64 and Marlin's rules
+/// for the commands slicers write: G0/G1, G28, G90/G91 (every axis), M82/M83, G92, targets
+/// clamped to the bed.
+fn reference_positions(text: &str) -> Vec<[i64; 4]> {
+    let spm = ENDER3.steps_per_mm.map(|r| r.to_num::<f64>());
+    let volume = ENDER3.build_volume_um.map(|um| f64::from(um) / 1000.0);
+    let (mut logical, mut machine) = ([0.0f64; 4], [0.0f64; 4]);
+    let (mut absolute, mut absolute_e) = (true, true);
+    let mut out = Vec::new();
+    for line in text.lines() {
+        let code = line.split(';').next().unwrap_or("");
+        let mut words = code.split_whitespace();
+        let Some(cmd) = words.next() else { continue };
+        let params: Vec<(usize, f64)> = words
+            .filter_map(|w| {
+                let axis = "XYZE".find(w.chars().next()?)?;
+                Some((axis, w[1..].parse::<f64>().unwrap_or(0.0)))
+            })
+            .collect();
+        match cmd {
+            "G0" | "G1" => {
+                for &(a, v) in &params {
+                    let relative = if a == 3 { !absolute_e } else { !absolute };
+                    let target = if relative { logical[a] + v } else { v };
+                    machine[a] += target - logical[a];
+                    if a < 3 {
+                        machine[a] = machine[a].clamp(0.0, volume[a]);
+                    }
+                    logical[a] = target;
+                }
+                if !params.is_empty() {
+                    out.push(core::array::from_fn(|a| (machine[a] * spm[a]).round() as i64));
+                }
+            }
+            "G28" => {
+                let named: Vec<usize> = params.iter().map(|p| p.0).filter(|&a| a < 3).collect();
+                for a in if named.is_empty() { vec![0, 1, 2] } else { named } {
+                    (logical[a], machine[a]) = (0.0, 0.0);
+                }
+                out.push(core::array::from_fn(|a| (machine[a] * spm[a]).round() as i64));
+            }
+            "G90" => (absolute, absolute_e) = (true, true),
+            "G91" => (absolute, absolute_e) = (false, false),
+            "M82" => absolute_e = true,
+            "M83" => absolute_e = false,
+            "G92" => params.iter().for_each(|&(a, v)| logical[a] = v),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// `positions` with each run of equal positions kept once, from the origin.
+fn distinct(positions: impl IntoIterator<Item = [i64; 4]>) -> Vec<[i64; 4]> {
+    let mut out = vec![[0; 4]];
+    for p in positions {
+        if out.last() != Some(&p) {
+            out.push(p);
+        }
+    }
+    out
+}
+
+fn check(name: &str, slicer_estimate_s: f64) -> GcodeReport {
+    let text = fixture(name);
+    let rep = run_gcode(&text, &ENDER3, GcodeOptions { block_ends: true }).expect(name);
+    let want = distinct(reference_positions(std::str::from_utf8(&text).unwrap()));
+    let got = distinct(rep.block_ends.iter().copied());
+    let first_difference = want.iter().zip(&got).position(|(w, g)| w != g);
+    if let Some(i) = first_difference {
+        let around = |v: &[[i64; 4]]| v[i.saturating_sub(2)..(i + 3).min(v.len())].to_vec();
+        eprintln!("{name}: expected {:?}, ran {:?}", around(&want), around(&got));
+        eprintln!(
+            "{} lines, {} moves, {} blocks, refused {:?}",
+            rep.lines,
+            rep.moves,
+            rep.block_ends.len(),
+            rep.refusals
+        );
+    }
+    assert_eq!(first_difference, None, "{name}: first differing position");
+    assert_eq!(want.len(), got.len(), "{name}: positions");
+    assert_eq!(rep.positions, *want.last().unwrap(), "{name}: the board's final position");
+    assert_eq!(rep.refusals, []);
+    assert_eq!((rep.refused, rep.violations, rep.underruns, rep.step_check_failures), (0, 0, 0, 0));
+    // The board ran the planner's time: from the first step to the last is the plan but for
+    // the half steps at either end (5 ms at most: Z's 1.25 um from rest at 100 mm/s^2).
+    assert!(
+        (rep.print_time_s - rep.planned_s).abs() < 10e-3,
+        "{} vs {}",
+        rep.print_time_s,
+        rep.planned_s
+    );
+    // The slicers estimate with their own motion models (PrusaSlicer: Marlin's jerk; Cura:
+    // its own): the same print within a quarter.
+    let ratio = rep.planned_s / slicer_estimate_s;
+    assert!(
+        (0.75..1.25).contains(&ratio),
+        "{name}: {} s planned, slicer {slicer_estimate_s} s",
+        rep.planned_s
+    );
+    assert_eq!(rep.layers, 100, "{name}: 20 mm in 0.2 mm layers");
+    assert_eq!(rep.layer_hashes.len(), 100, "{name}: a hash per layer");
+    eprintln!(
+        "{name}: {} lines, {} moves, planned {:.1} s (slicer {slicer_estimate_s} s), filament {:.1} mm, skipped {:?}",
+        rep.lines, rep.moves, rep.planned_s, rep.filament_mm, rep.skipped
+    );
+    rep
+}
+
+#[test]
+fn prusaslicer_cube_ends_every_move_on_its_step() {
+    // `; estimated printing time (normal mode) = 41m 3s` (tests/data/gcode/README.md).
+    let rep = check("xyz_20mm_cube_prusaslicer.gcode", 2463.0);
+    assert!(rep.skipped.contains_key("M201") && rep.skipped.contains_key("M204"));
+}
+
+#[test]
+fn cura_cube_ends_every_move_on_its_step() {
+    // CuraEngine's `Print time (s): 1797` (tests/data/gcode/README.md).
+    check("xyz_20mm_cube_cura.gcode", 1797.0);
+}
