@@ -1,6 +1,6 @@
 //! The per-layer working memory that the slicer and the toolpath stage take turns in.
 //!
-//! Three tenants never work at once:
+//! Three tenants of a sliced job never work at once:
 //! - the slicer's cut of a layer (its segments, their links and flags, the endpoint hash:
 //!   [`CUT_BYTES`] per `SEGMENTS`) and, in the place of the hash once the segments are
 //!   linked, the layer's loop points: the slicer's output, handed on in the scratch
@@ -13,6 +13,9 @@
 //!   unit, so an owner cuts the next layer only once the stage is no longer
 //!   [`emitting`](crate::toolpath::Toolpath::emitting); a grid lost anyway is replaced by
 //!   scans, in the same order).
+//!
+//! A G-code job ([`GcodeInput`]) has the place to itself: it neither slices nor builds
+//! toolpaths.
 //!
 //! A [`Scratch`] holds whichever works now, so an owner of both stages (the
 //! [`Printer`](crate::printer::Printer)) pays for the largest one only. Each stage states what
@@ -28,7 +31,9 @@
 
 use core::mem::size_of;
 
+use crate::gcode::input::GcodeInput;
 use crate::geom::Point2;
+use crate::machine::MachineConfig;
 use crate::slice::{CutScratch, CutSpace};
 use crate::toolpath::offset::Offsetter;
 use crate::toolpath::{Engine, FillScratch, ToolpathNeeds, ToolpathSpace};
@@ -76,10 +81,13 @@ pub struct Scratch<const SEGMENTS: usize, const PTS: usize, const CROSS: usize> 
 /// Who has the place. No `repr`: the largest tenant is stored without a tag (a niche in it
 /// tells the others apart), and switching tenants writes the cleared value in place (with
 /// `repr(u8)` the optimised build copies it through a stack temporary of several KB).
+// The tenants differ in size by design: they overlay one another (no allocator to box one).
+#[allow(clippy::large_enum_variant)]
 enum Tenant<const S: usize, const P: usize, const C: usize> {
     Cut(CutScratch<S>),
     Offset(Engine<P>),
     Fill(FillScratch<C>),
+    Gcode(GcodeInput),
 }
 
 impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C> {
@@ -111,6 +119,30 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
             Tenant::Cut(CutScratch::EMPTY)
         };
         Self { tenant }
+    }
+}
+
+impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
+    /// A G-code job's input takes the place, new for `machine` (a G-code job neither slices
+    /// nor builds toolpaths).
+    pub fn start_gcode(&mut self, machine: &MachineConfig) {
+        self.tenant = Tenant::Gcode(GcodeInput::new(machine));
+    }
+
+    /// The G-code job's input, while it has the place.
+    pub fn gcode(&mut self) -> Option<&mut GcodeInput> {
+        match self.tenant {
+            Tenant::Gcode(ref mut g) => Some(g),
+            _ => None,
+        }
+    }
+
+    /// The G-code job's input, while it has the place.
+    pub fn gcode_ref(&self) -> Option<&GcodeInput> {
+        match self.tenant {
+            Tenant::Gcode(ref g) => Some(g),
+            _ => None,
+        }
     }
 }
 
@@ -172,10 +204,11 @@ impl<const S: usize, const P: usize, const C: usize> ToolpathSpace<P, C> for Scr
 /// RAM of a [`Scratch`] whose tenants have these capacities (`segments` cut segments and loop
 /// points, `pts` offset edges, `cross` infill crossings).
 ///
-/// The largest tenant, bytes (the value adds at most a tag and alignment padding).
+/// The largest tenant, bytes (the value adds at most a tag and alignment padding); a G-code
+/// job's input at least.
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
-    cut.max(ToolpathNeeds::work_bytes_of(pts, cross))
+    cut.max(ToolpathNeeds::work_bytes_of(pts, cross)).max(size_of::<GcodeInput>())
 }
 
 // The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build

@@ -7,8 +7,8 @@ use strata::machine::PrintSettings;
 use strata::protocol::frame::{self, FrameType, MAX_WIRE};
 use strata::protocol::msg::{decode_triangle, encode_triangle};
 use strata::protocol::{
-    BatchBuilder, Capacities, Decoder, DeviceState, ErrorCode, FrameError, JobOptions, JobSpec,
-    Message, Status, MAX_PAYLOAD, VERSION,
+    BatchBuilder, Capacities, Decoder, DeviceState, ErrorCode, FrameError, GcodeSpec, JobOptions,
+    JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
 };
 
 fn wire(kind: FrameType, seq: u8, ack: u8, credits: u8, payload: &[u8]) -> Vec<u8> {
@@ -33,32 +33,32 @@ fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
 
 #[test]
 fn golden_ack_frame() {
-    // [0x41 (v4, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
-    assert_eq!(VERSION, 4);
+    // [0x51 (v5, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    assert_eq!(VERSION, 5);
     let w = wire(FrameType::Ack, 0, 3, 4, &[]);
-    let crc = crc32(&[0x41, 0x00, 0x03, 0x04]);
-    let mut raw = vec![0x41, 0x00, 0x03, 0x04];
+    let crc = crc32(&[0x51, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x51, 0x00, 0x03, 0x04];
     raw.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(w, cobs(&raw));
     assert_eq!(w, GOLDEN_ACK.to_vec());
 }
 
 // Derived with Python's zlib.crc32 (CRC-32/ISO-HDLC) and a hand COBS.
-// CRC 0x2eac779e; COBS: [0x41] then the five non-zero bytes after the zero seq byte.
-const GOLDEN_ACK: [u8; 10] = [2, 65, 7, 3, 4, 158, 119, 172, 46, 0];
+// CRC 0x7eb52001; COBS: [0x51] then the five non-zero bytes after the zero seq byte.
+const GOLDEN_ACK: [u8; 10] = [2, 81, 7, 3, 4, 1, 32, 181, 126, 0];
 
 #[test]
 fn golden_hello_frame() {
     let mut buf = [0u8; 8];
     let n = Message::Hello { version: VERSION }.encode(&mut buf).unwrap();
-    assert_eq!(&buf[..n], &[0x01, 0x04]);
+    assert_eq!(&buf[..n], &[0x01, 0x05]);
     let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
     assert_eq!(w, GOLDEN_HELLO.to_vec());
 }
 
-// [0x40 (v4, data), seq 7, ack 0, credits 8, 0x01 Hello, version 4, CRC 0x1cdfd33f] COBS: the
+// [0x50 (v5, data), seq 7, ack 0, credits 8, 0x01 Hello, version 5, CRC 0x680ee132] COBS: the
 // zero ack byte becomes a code byte.
-const GOLDEN_HELLO: [u8; 12] = [3, 64, 7, 8, 8, 1, 4, 63, 211, 223, 28, 0];
+const GOLDEN_HELLO: [u8; 12] = [3, 80, 7, 8, 8, 1, 5, 50, 225, 14, 104, 0];
 
 /// Capacities used by the golden and round-trip tests.
 const SAMPLE_CAPS: Capacities = Capacities {
@@ -83,15 +83,15 @@ fn golden_capabilities() {
     let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
     assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
     let back = Message::decode(&GOLDEN_CAPABILITIES).unwrap();
-    assert_eq!(back, Message::Capabilities { version: 4, capacities: caps });
+    assert_eq!(back, Message::Capabilities { version: 5, capacities: caps });
 }
 
-// Type 0x02, version 4, then little-endian: active triangles 1024, contour points 768, loops 48,
+// Type 0x02, version 5, then little-endian: active triangles 1024, contour points 768, loops 48,
 // move buffer bytes 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
 // PTS 80, LOOPS 4, CROSS 128, PATH 320, RING 192, SPANS 64 (u32 each): 48 bytes.
 #[rustfmt::skip]
 const GOLDEN_CAPABILITIES: [u8; 48] = [
-    0x02, 4,
+    0x02, 5,
     0x00, 0x04, 0, 0,  0x00, 0x03, 0, 0,  48, 0, 0, 0,  0x00, 0x10, 0, 0,
     4, 0,
     0x00, 0x00, 0x01, 0,
@@ -390,4 +390,30 @@ fn golden_failure_words() {
     // A text longer than a payload does not encode.
     let long = "x".repeat(MAX_PAYLOAD);
     assert!(Message::Failure(&long).encode(&mut b).is_err());
+}
+
+/// A G-code job: its start (type 0x13, then the text's bytes and layers as little-endian u32),
+/// its text (type 0x14, then the bytes to the payload's end; at least one).
+#[test]
+fn golden_gcode_messages() {
+    let spec = GcodeSpec { bytes: 436_313, layers: 100 };
+    let mut b = [0u8; MAX_PAYLOAD];
+    let n = Message::GcodeStart(spec).encode(&mut b).unwrap();
+    // 436,313 = 0x0006_A859.
+    assert_eq!(&b[..n], &[0x13, 0x59, 0xa8, 0x06, 0x00, 100, 0, 0, 0]);
+    assert_eq!(Message::decode(&b[..n]).unwrap(), Message::GcodeStart(spec));
+    for cut in 0..n {
+        assert!(Message::decode(&b[..cut]).is_err());
+    }
+    let text = b"G1 X10 Y2";
+    let n = Message::Gcode(text).encode(&mut b).unwrap();
+    assert_eq!(b[0], 0x14);
+    assert_eq!(&b[1..n], text);
+    assert_eq!(Message::decode(&b[..n]).unwrap(), Message::Gcode(text));
+    // No text is no message; a frame's worth is the most.
+    assert!(Message::decode(&[0x14]).is_err());
+    assert!(Message::Gcode(b"").encode(&mut b).is_err());
+    let full = vec![b'G'; MAX_PAYLOAD - 1];
+    assert_eq!(Message::Gcode(&full).encode(&mut b), Ok(MAX_PAYLOAD));
+    assert!(Message::Gcode(&[b'G'; MAX_PAYLOAD]).encode(&mut b).is_err());
 }

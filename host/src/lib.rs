@@ -5,7 +5,7 @@
 
 pub mod admission;
 pub mod clock;
-pub mod gcode_job;
+pub mod gcode_file;
 #[cfg(unix)]
 pub mod hil;
 pub mod model;

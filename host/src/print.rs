@@ -13,7 +13,7 @@ use strata_host::admission::{admit_job_paced, Admission};
 use strata_host::clock::WallClock;
 use strata_host::model;
 use strata_host::serial::{self, Port};
-use strata_host::session::{HostEndpoint, Progress};
+use strata_host::session::{HostEndpoint, Progress, Source};
 
 use crate::settings::{job_of, machine_of, PrintArgs};
 
@@ -118,19 +118,27 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     );
     let total = tris.len();
     let mut last_line: Option<(usize, u32)> = None;
-    let result = serial::print(&mut port, &mut ep, &mut clock, caps, &tris, job, &abort, |p| {
-        let text = progress_text(p, total);
-        if terminal {
-            bar.set_position(p.triangles_sent as u64);
-            bar.set_message(text);
-        } else {
-            let key = (p.triangles_sent * 10 / total.max(1), p.status.map_or(0, |s| s.layer));
-            if last_line != Some(key) {
-                last_line = Some(key);
-                eprintln!("progress: {text}");
+    let result = serial::print(
+        &mut port,
+        &mut ep,
+        &mut clock,
+        caps,
+        Source::Model(&tris, job),
+        &abort,
+        |p| {
+            let text = progress_text(p, total);
+            if terminal {
+                bar.set_position(p.triangles_sent as u64);
+                bar.set_message(text);
+            } else {
+                let key = (p.triangles_sent * 10 / total.max(1), p.status.map_or(0, |s| s.layer));
+                if last_line != Some(key) {
+                    last_line = Some(key);
+                    eprintln!("progress: {text}");
+                }
             }
-        }
-    });
+        },
+    );
     bar.finish_and_clear();
     let result = result.map_err(|e| {
         if abort.load(Ordering::Relaxed) {

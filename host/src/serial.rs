@@ -10,15 +10,14 @@ use std::io::{ErrorKind, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
-use strata::geom::Triangle;
 use strata::machine::MachineConfig;
 use strata::printer::MotionHalf;
-use strata::protocol::{Capacities, DeviceState, Endpoint, JobSpec, LinkConfig, MAX_WIRE};
+use strata::protocol::{Capacities, DeviceState, Endpoint, LinkConfig, MAX_WIRE};
 use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepQueue, Wake};
 
 use crate::clock::LinkClock;
-use crate::session::{handshake, HostEndpoint, HostJob, Phase, Progress};
+use crate::session::{handshake, HostEndpoint, HostJob, Phase, Progress, Source};
 use crate::simjob::{announce_posed, device_turn, DeviceEndpoint, SimMotion, SimPrinter};
 
 /// Whether an I/O error means "not now" rather than "never".
@@ -151,12 +150,11 @@ pub fn print<P: Read + Write>(
     ep: &mut HostEndpoint,
     clock: &mut impl LinkClock,
     caps: Capacities,
-    tris: &[Triangle],
-    job: JobSpec,
+    source: Source<'_>,
     abort: &AtomicBool,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<Progress, String> {
-    let mut host = HostJob::after_hello(tris, job, caps);
+    let mut host = HostJob::after_hello(source, caps);
     let mut last_report = 0u32;
     let mut abort_at: Option<u32> = None;
     let confirm_ms = ABORT_CONFIRM_MS.max(ep.config().dead_ms);
@@ -296,7 +294,7 @@ pub fn serve_device<P: Read + Write>(
         ep.receive(&buf[..n], now);
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
         announce_posed(&opts.capacities, &mut ep);
-        device_turn(&mut printer, &mut ep, &mut motion, now, done_ms, 200, |f| {
+        device_turn(&mut printer, &mut ep, &mut motion, &mut None, now, done_ms, 200, |f| {
             let _ = port.write_all(f);
         });
         let end_tick = start_tick + now as u64 * opts.speedup * ticks_per_ms;

@@ -7,8 +7,8 @@
 use strata::geom::Triangle;
 use strata::protocol::frame::wire_len;
 use strata::protocol::{
-    BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, LinkError,
-    Message, Status, MAX_PAYLOAD, VERSION,
+    BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, GcodeSpec, JobReport, JobSpec,
+    LinkError, Message, Status, MAX_PAYLOAD, VERSION,
 };
 use strata::thermal::ThermalFault;
 
@@ -33,6 +33,8 @@ pub enum Phase {
 pub struct Progress {
     /// Triangles handed to the link.
     pub triangles_sent: usize,
+    /// Bytes of G-code text handed to the link.
+    pub gcode_bytes_sent: usize,
     /// Wire bytes of the triangle frames (first transmission).
     pub triangle_wire_bytes: u64,
     /// Device capacities, once known.
@@ -49,10 +51,18 @@ pub struct Progress {
     pub failure: Option<String>,
 }
 
+/// What a job sends.
+#[derive(Debug, Clone, Copy)]
+pub enum Source<'a> {
+    /// A model: placed triangles, sorted by lowest z, sliced on the device with these settings.
+    Model(&'a [Triangle], JobSpec),
+    /// G-code text, run as it is.
+    Gcode(&'a [u8], GcodeSpec),
+}
+
 /// The host side of one job.
 pub struct HostJob<'a> {
-    tris: &'a [Triangle],
-    job: JobSpec,
+    source: Source<'a>,
     phase: Phase,
     next: usize,
     batch: BatchBuilder,
@@ -69,9 +79,13 @@ pub struct HostJob<'a> {
 impl<'a> HostJob<'a> {
     /// A job streaming `tris` (placed, sorted by lowest z) with `job`.
     pub fn new(tris: &'a [Triangle], job: JobSpec) -> Self {
+        Self::of(Source::Model(tris, job))
+    }
+
+    /// A job sending `source`.
+    pub fn of(source: Source<'a>) -> Self {
         Self {
-            tris,
-            job,
+            source,
             phase: Phase::Hello,
             next: 0,
             batch: BatchBuilder::new(),
@@ -85,8 +99,8 @@ impl<'a> HostJob<'a> {
     }
 
     /// A job on a link whose hello was already answered with `caps` (see [`handshake`]).
-    pub fn after_hello(tris: &'a [Triangle], job: JobSpec, caps: Capacities) -> Self {
-        let mut j = Self::new(tris, job);
+    pub fn after_hello(source: Source<'a>, caps: Capacities) -> Self {
+        let mut j = Self::of(source);
         j.hello_sent = true;
         j.progress.capacities = Some(caps);
         j
@@ -122,12 +136,17 @@ impl<'a> HostJob<'a> {
     /// for the user.
     pub fn poll(&mut self, now_ms: u32, ep: &mut HostEndpoint) -> Result<Phase, String> {
         if let Err(LinkError::Dead { silent_ms }) = ep.check(now_ms) {
+            let sent = match self.source {
+                Source::Model(tris, _) => {
+                    format!("{} of {} triangles sent", self.progress.triangles_sent, tris.len())
+                }
+                Source::Gcode(text, _) => {
+                    format!("{} of {} bytes sent", self.progress.gcode_bytes_sent, text.len())
+                }
+            };
             return Err(format!(
-                "the printer stopped answering: no valid frame for {:.1} s (link dead); \
-                 {} of {} triangles sent",
+                "the printer stopped answering: no valid frame for {:.1} s (link dead); {sent}",
                 silent_ms as f64 / 1000.0,
-                self.progress.triangles_sent,
-                self.tris.len()
             ));
         }
         while let Some(p) = ep.peek() {
@@ -180,16 +199,55 @@ impl<'a> HostJob<'a> {
         if !self.hello_sent {
             self.hello_sent = self.send_msg(ep, &Message::Hello { version: VERSION });
         }
+        let start = match self.source {
+            Source::Model(_, job) => Message::JobStart(job),
+            Source::Gcode(_, spec) => Message::GcodeStart(spec),
+        };
         if self.phase == Phase::Hello
             && self.progress.capacities.is_some()
-            && self.send_msg(ep, &Message::JobStart(self.job))
+            && self.send_msg(ep, &start)
         {
             self.phase = Phase::Streaming;
         }
+        if let Source::Gcode(text, _) = self.source {
+            self.stream_text(text, ep);
+        } else if let Source::Model(tris, _) = self.source {
+            self.stream_triangles(tris, ep)?;
+        }
+        if self.end_queued && self.phase == Phase::Streaming && ep.all_acked() {
+            self.phase = Phase::Printing;
+            self.progress.stream_done_ms = Some(now_ms);
+        }
+        Ok(self.phase)
+    }
+
+    /// The text in messages as large as a frame takes, then the end.
+    fn stream_text(&mut self, text: &[u8], ep: &mut HostEndpoint) {
         while self.phase == Phase::Streaming && ep.tx_free() > 0 {
-            if self.next < self.tris.len() {
-                while self.next < self.tris.len() && self.batch.push(&self.tris[self.next]).is_ok()
-                {
+            let rest = &text[self.next..];
+            if !rest.is_empty() {
+                let chunk = &rest[..rest.len().min(MAX_PAYLOAD - 1)];
+                let mut buf = [0u8; MAX_PAYLOAD];
+                let n = Message::Gcode(chunk).encode(&mut buf).expect("a chunk fits a frame");
+                if !self.send(ep, &buf[..n]) {
+                    break;
+                }
+                self.next += chunk.len();
+                self.progress.gcode_bytes_sent += chunk.len();
+                self.progress.triangle_wire_bytes += wire_len(&buf[..n]) as u64;
+            } else if !self.end_queued {
+                self.end_queued = self.send_msg(ep, &Message::EndOfModel);
+            } else {
+                break;
+            }
+        }
+    }
+
+    /// Triangle batches as large as a frame takes, then the end of the model.
+    fn stream_triangles(&mut self, tris: &[Triangle], ep: &mut HostEndpoint) -> Result<(), String> {
+        while self.phase == Phase::Streaming && ep.tx_free() > 0 {
+            if self.next < tris.len() {
+                while self.next < tris.len() && self.batch.push(&tris[self.next]).is_ok() {
                     self.next += 1;
                 }
                 if self.batch.is_empty() {
@@ -215,11 +273,7 @@ impl<'a> HostJob<'a> {
                 break;
             }
         }
-        if self.end_queued && self.phase == Phase::Streaming && ep.all_acked() {
-            self.phase = Phase::Printing;
-            self.progress.stream_done_ms = Some(now_ms);
-        }
-        Ok(self.phase)
+        Ok(())
     }
 }
 

@@ -24,7 +24,7 @@ use strata::step::{is_before, Executor, StepQueue, Wake};
 use strata::toolpath::ToolpathNeeds;
 
 use crate::preview::PathRecorder;
-use crate::session::{HostEndpoint, HostJob, Phase};
+use crate::session::{HostEndpoint, HostJob, Phase, Source};
 
 strata::printer_type! {
     /// The simulated device: host-sized buffers and the board's lookahead. What it
@@ -109,6 +109,8 @@ pub struct SimOptions {
     pub check_delivery: bool,
     /// Record the nozzle path for a preview ([`SimReport::path`]).
     pub preview: bool,
+    /// Record the motors' position at the end of every block ([`SimReport::block_ends`]).
+    pub block_ends: bool,
 }
 
 impl Default for SimOptions {
@@ -120,6 +122,7 @@ impl Default for SimOptions {
             max_ms: 48 * 3600 * 1000,
             check_delivery: false,
             preview: false,
+            block_ends: false,
         }
     }
 }
@@ -187,6 +190,9 @@ pub struct SimReport {
     pub end_ms: u64,
     /// The nozzle path per layer (with [`SimOptions::preview`]).
     pub path: Option<PathRecorder>,
+    /// The motor positions at the end of each block that moves a motor, as the generator
+    /// starts it (with [`SimOptions::block_ends`]).
+    pub block_ends: Vec<[i64; AXES]>,
 }
 
 impl SimReport {
@@ -309,11 +315,21 @@ pub fn simulate(
     job: JobSpec,
     opts: &SimOptions,
 ) -> Result<SimReport, (String, Box<SimReport>)> {
+    simulate_source(Source::Model(tris, job), machine, opts)
+}
+
+/// Runs a job of a model or of G-code ([`Source`]) through the simulated printer on a thread
+/// with a large stack.
+pub fn simulate_source(
+    source: Source<'_>,
+    machine: &MachineConfig,
+    opts: &SimOptions,
+) -> Result<SimReport, (String, Box<SimReport>)> {
     std::thread::scope(|scope| {
         std::thread::Builder::new()
             .name("simulated-printer".into())
             .stack_size(STACK_BYTES)
-            .spawn_scoped(scope, || run(tris, machine, job, opts))
+            .spawn_scoped(scope, || run(source, machine, opts))
             .expect("cannot start the simulation thread")
             .join()
             .unwrap_or_else(|_| Err(("the simulation panicked".into(), Box::default())))
@@ -321,9 +337,8 @@ pub fn simulate(
 }
 
 fn run(
-    tris: &[Triangle],
+    source: Source<'_>,
     machine: &MachineConfig,
-    job: JobSpec,
     opts: &SimOptions,
 ) -> Result<SimReport, (String, Box<SimReport>)> {
     let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
@@ -345,7 +360,7 @@ fn run(
 
     let mut host_ep: HostEndpoint = Endpoint::new(LinkConfig::default());
     let mut dev_ep: DeviceEndpoint = Endpoint::new(LinkConfig::device());
-    let mut host = HostJob::new(tris, job);
+    let mut host = HostJob::of(source);
     if opts.check_delivery {
         host.sent_log = Some(Vec::new());
     }
@@ -359,6 +374,7 @@ fn run(
     let mut outcome: Result<(), String> = Ok(());
     let mut now_ms: u64 = 0;
     let mut done_at: Option<u64> = None;
+    let mut block_ends = opts.block_ends.then(Vec::new);
 
     loop {
         now_ms += 1;
@@ -397,9 +413,16 @@ fn run(
         // Device.
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
         announce_posed(&opts.capacities, &mut dev_ep);
-        device_turn(&mut printer, &mut dev_ep, &mut motion, t, done_ms, 500, |f| {
-            d2h.send_frame(now_ms, f)
-        });
+        device_turn(
+            &mut printer,
+            &mut dev_ep,
+            &mut motion,
+            &mut block_ends,
+            t,
+            done_ms,
+            500,
+            |f| d2h.send_frame(now_ms, f),
+        );
         // Motion up to the end of this millisecond.
         let end_tick = start_tick + now_ms * ticks_per_ms;
         let stopped = printer.state() == strata::protocol::DeviceState::Stopped;
@@ -422,6 +445,7 @@ fn run(
                 }
                 next_wake = wake(exec.on_timer(board.now_u32(), &mut pins));
                 printer.poll(&mut *motion);
+                note_block_end(&mut block_ends, &motion.motion);
             }
         }
         board.advance_to(end_tick.max(board.now()));
@@ -447,7 +471,11 @@ fn run(
     };
     rep.print_time_s = rep.print_ticks as f64 / timer_hz as f64;
     rep.planned_s = printer.planned_s(&mut *motion);
-    rep.filament_mm = tp.filament_um as f64 / 1000.0;
+    rep.filament_mm = match source {
+        Source::Model(..) => tp.filament_um as f64 / 1000.0,
+        Source::Gcode(..) => rep.positions[3] as f64 / machine.steps_per_mm[3].to_num::<f64>(),
+    };
+    rep.block_ends = block_ends.unwrap_or_default();
     rep.max_step_error_us = step_cfg.max_error_ticks as f64 * 1e6 / timer_hz as f64;
     rep.step_check_failures = gen.check_failures;
     rep.peak_active_triangles = slice.peak_active;
@@ -512,10 +540,12 @@ pub(crate) fn announce_posed(capacities: &Capacities, ep: &mut DeviceEndpoint) {
 /// runner (status every `status_every_ms`; steps generated at the toolpath stage's progress
 /// points as the firmware does), up to 64 bounded `poll`s into the step queue, then every
 /// frame due out through `send`.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn device_turn<const N: usize>(
     printer: &mut SimPrinter,
     ep: &mut DeviceEndpoint,
     motion: &mut SimMotion<'_, N>,
+    block_ends: &mut Option<Vec<[i64; AXES]>>,
     now_ms: u32,
     done_ms: u32,
     status_every_ms: u32,
@@ -523,7 +553,9 @@ pub(crate) fn device_turn<const N: usize>(
 ) {
     printer.service(ep, motion, now_ms, done_ms, status_every_ms, true);
     for _ in 0..64 {
-        if !printer.poll(motion) {
+        let worked = printer.poll(motion);
+        note_block_end(block_ends, &motion.motion);
+        if !worked {
             break;
         }
     }
@@ -534,6 +566,21 @@ pub(crate) fn device_turn<const N: usize>(
             break;
         }
         send(&frame[..n]);
+    }
+}
+
+/// The generator's motor positions when they changed (into `ends`, when recording): it sets
+/// them to a block's end as it starts the block, and starts at most one per `feed` (it holds
+/// one block waiting), so each change is one block's end.
+fn note_block_end<const M: usize, const P: usize>(
+    ends: &mut Option<Vec<[i64; AXES]>>,
+    motion: &strata::printer::Motion<M, P>,
+) {
+    if let Some(ends) = ends {
+        let motor = motion.generator().motor_steps();
+        if ends.last().unwrap_or(&[0; AXES]) != &motor {
+            ends.push(motor);
+        }
     }
 }
 

@@ -5,13 +5,15 @@
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
+use strata::machine::MachineConfig;
 use strata::protocol::JobSpec;
 use strata_host::admission::{self, Admission};
-use strata_host::gcode_job::{run_gcode, GcodeOptions};
+use strata_host::gcode_file;
 use strata_host::model;
 use strata_host::pace::Pace;
 use strata_host::preview;
-use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
+use strata_host::session::Source;
+use strata_host::simjob::{simulate, simulate_source, Faults, SimOptions, SimReport};
 
 use crate::settings::{job_of, machine_of, PrintArgs};
 
@@ -266,8 +268,10 @@ struct GcodeSummary {
     lines: u32,
     moves: u32,
     layers: u32,
-    /// The planner's print time (motion and dwells; heating is not simulated), s.
+    /// From the first step to the last, s (heating is not simulated).
     print_time_s: f64,
+    /// The planner's print time, s.
+    planned_s: f64,
     filament_mm: f64,
     steps: Steps,
     /// Final motor positions X, Y, Z, E, steps.
@@ -280,64 +284,79 @@ struct GcodeSummary {
     refusals: Vec<String>,
     /// Moves whose target was clamped to the build volume.
     clamped: u32,
+    stream_time_s: f64,
     underruns: u32,
+    rest_waits: u32,
     violations: u32,
 }
 
-/// `strata simulate FILE.gcode`: the file through the printer's reader, planner and step
-/// generator on the simulated board.
-fn run_gcode_file(
-    args: &SimulateArgs,
-    machine: &strata::machine::MachineConfig,
-) -> Result<(), String> {
+/// `strata simulate FILE.gcode`: the file streamed through the real protocol into the
+/// simulated printer, which reads it with its G-code reader and runs it on its planner, step
+/// generator and simulated steppers.
+fn run_gcode_file(args: &SimulateArgs, machine: &MachineConfig) -> Result<(), String> {
     let name = args.model.display();
     let text = std::fs::read(&args.model).map_err(|e| format!("{name}: {e}"))?;
-    let rep =
-        run_gcode(&text, machine, GcodeOptions::default()).map_err(|e| format!("{name}: {e}"))?;
-    let refusals: Vec<String> =
-        rep.refusals.iter().map(|(n, e)| format!("line {n}: {e}")).collect();
+    let scan = gcode_file::scan(&text, machine).map_err(|e| format!("{name}: {e}"))?;
+    let opts = SimOptions {
+        baud: args.baud,
+        faults: Faults::uniform(args.loss, args.seed),
+        preview: args.preview.is_some(),
+        ..SimOptions::default()
+    };
+    let rep = simulate_source(Source::Gcode(&text, scan.spec), machine, &opts)
+        .map_err(|(e, _)| format!("{name}: {e}"))?;
+    if let (Some(dir), Some(path)) = (&args.preview, &rep.path) {
+        let n = preview::write(dir, path, &format!("strata simulate {name}"))?;
+        if !args.json {
+            println!("preview: {n} layer pictures and {}", dir.join("index.html").display());
+        }
+    }
     if args.json {
         let s = GcodeSummary {
-            lines: rep.lines,
-            moves: rep.moves,
-            layers: rep.layers,
-            print_time_s: rep.planned_s,
+            lines: scan.lines,
+            moves: scan.moves,
+            layers: scan.spec.layers,
+            print_time_s: rep.print_time_s,
+            planned_s: rep.planned_s,
             filament_mm: rep.filament_mm,
             steps: Steps { x: rep.steps[0], y: rep.steps[1], z: rep.steps[2], e: rep.steps[3] },
             positions: rep.positions,
-            layer_hashes: rep.layer_hashes.iter().map(|(_, h)| format!("{h:016x}")).collect(),
-            skipped: rep.skipped.clone(),
-            refused: rep.refused,
-            refusals,
-            clamped: rep.clamped,
+            layer_hashes: rep.layer_hashes.iter().map(|h| format!("{h:016x}")).collect(),
+            skipped: scan.skipped.clone(),
+            refused: scan.refused,
+            refusals: scan.refusals.iter().map(|(n, e)| format!("line {n}: {e}")).collect(),
+            clamped: scan.clamped,
+            stream_time_s: rep.stream_time_s,
             underruns: rep.underruns,
+            rest_waits: rep.rest_waits(),
             violations: rep.violations,
         };
         println!("{}", serde_json::to_string_pretty(&s).map_err(|e| e.to_string())?);
         return Ok(());
     }
     println!(
-        "{name}: {} lines, {} moves, {} layers, print time {} (heating not included), {:.1} mm of \
-         filament",
-        rep.lines,
-        rep.moves,
-        rep.layers,
-        hms(rep.planned_s),
-        rep.filament_mm
+        "{name}: {} lines, {} moves, {} layers, print time {} (heating not included), {:.1} mm \
+         of filament, streamed in {:.1} s at {} baud",
+        scan.lines,
+        scan.moves,
+        scan.spec.layers,
+        hms(rep.print_time_s),
+        rep.filament_mm,
+        rep.stream_time_s,
+        args.baud
     );
     println!(
-        "steps X {} Y {} Z {} E {}; underruns {}, timing violations {}",
-        rep.steps[0], rep.steps[1], rep.steps[2], rep.steps[3], rep.underruns, rep.violations
+        "steps X {} Y {} Z {} E {}; underruns {}, waits for the link {}, timing violations {}",
+        rep.steps[0],
+        rep.steps[1],
+        rep.steps[2],
+        rep.steps[3],
+        rep.underruns,
+        rep.rest_waits(),
+        rep.violations
     );
-    if !rep.skipped.is_empty() {
-        let list: Vec<String> = rep.skipped.iter().map(|(c, n)| format!("{c} x{n}")).collect();
-        println!("skipped (not run by this printer): {}", list.join(", "));
-    }
-    if rep.clamped > 0 {
-        println!("warning: {} moves went beyond the bed and were stopped at its edge", rep.clamped);
-    }
-    if rep.refused > 0 {
-        println!("warning: {} lines refused and skipped: {}", rep.refused, refusals.join("; "));
+    for w in scan.warnings() {
+        println!("warning: {w}");
     }
     Ok(())
 }

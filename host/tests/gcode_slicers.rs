@@ -1,12 +1,14 @@
 //! PrusaSlicer's and CuraEngine's G-code of `xyz_20mm_cube.stl` (`tests/data/gcode/`, made by
-//! `make_fixtures.sh` there) on the simulated printer: every move ends exactly on the step an
-//! independent f64 reading of the file puts it, the board's steps and timing check out, and
-//! the print time is the planner's.
+//! `make_fixtures.sh` there) streamed through the protocol into the simulated printer: every
+//! move ends exactly on the step an independent f64 reading of the file puts it, the board's
+//! steps and timing check out, and the print time is the planner's.
 
 use std::path::PathBuf;
 
 use strata::machine::MachineConfig;
-use strata_host::gcode_job::{run_gcode, GcodeOptions, GcodeReport};
+use strata_host::gcode_file;
+use strata_host::session::Source;
+use strata_host::simjob::{simulate_source, SimOptions, SimReport};
 
 const ENDER3: MachineConfig = MachineConfig::ENDER3;
 
@@ -78,28 +80,28 @@ fn distinct(positions: impl IntoIterator<Item = [i64; 4]>) -> Vec<[i64; 4]> {
     out
 }
 
-fn check(name: &str, slicer_estimate_s: f64) -> GcodeReport {
+fn check(name: &str, slicer_estimate_s: f64) -> (SimReport, gcode_file::GcodeScan) {
     let text = fixture(name);
-    let rep = run_gcode(&text, &ENDER3, GcodeOptions { block_ends: true }).expect(name);
+    let scan = gcode_file::scan(&text, &ENDER3).unwrap();
+    let opts = SimOptions { block_ends: true, ..SimOptions::default() };
+    let rep = simulate_source(Source::Gcode(&text, scan.spec), &ENDER3, &opts)
+        .unwrap_or_else(|(e, _)| panic!("{name}: {e}"));
     let want = distinct(reference_positions(std::str::from_utf8(&text).unwrap()));
     let got = distinct(rep.block_ends.iter().copied());
     let first_difference = want.iter().zip(&got).position(|(w, g)| w != g);
     if let Some(i) = first_difference {
         let around = |v: &[[i64; 4]]| v[i.saturating_sub(2)..(i + 3).min(v.len())].to_vec();
         eprintln!("{name}: expected {:?}, ran {:?}", around(&want), around(&got));
-        eprintln!(
-            "{} lines, {} moves, {} blocks, refused {:?}",
-            rep.lines,
-            rep.moves,
-            rep.block_ends.len(),
-            rep.refusals
-        );
+        eprintln!("{} moves, {} block ends", scan.moves, rep.block_ends.len());
     }
     assert_eq!(first_difference, None, "{name}: first differing position");
     assert_eq!(want.len(), got.len(), "{name}: positions");
     assert_eq!(rep.positions, *want.last().unwrap(), "{name}: the board's final position");
-    assert_eq!(rep.refusals, []);
-    assert_eq!((rep.refused, rep.violations, rep.underruns, rep.step_check_failures), (0, 0, 0, 0));
+    assert_eq!(scan.refusals, []);
+    assert_eq!(
+        (scan.refused, rep.violations, rep.underruns, rep.step_check_failures),
+        (0, 0, 0, 0)
+    );
     // The board ran the planner's time: from the first step to the last is the plan but for
     // the half steps at either end (5 ms at most: Z's 1.25 um from rest at 100 mm/s^2).
     assert!(
@@ -116,20 +118,20 @@ fn check(name: &str, slicer_estimate_s: f64) -> GcodeReport {
         "{name}: {} s planned, slicer {slicer_estimate_s} s",
         rep.planned_s
     );
-    assert_eq!(rep.layers, 100, "{name}: 20 mm in 0.2 mm layers");
+    assert_eq!(scan.spec.layers, 100, "{name}: 20 mm in 0.2 mm layers");
     assert_eq!(rep.layer_hashes.len(), 100, "{name}: a hash per layer");
     eprintln!(
         "{name}: {} lines, {} moves, planned {:.1} s (slicer {slicer_estimate_s} s), filament {:.1} mm, skipped {:?}",
-        rep.lines, rep.moves, rep.planned_s, rep.filament_mm, rep.skipped
+        scan.lines, scan.moves, rep.planned_s, rep.filament_mm, scan.skipped
     );
-    rep
+    (rep, scan)
 }
 
 #[test]
 fn prusaslicer_cube_ends_every_move_on_its_step() {
     // `; estimated printing time (normal mode) = 41m 3s` (tests/data/gcode/README.md).
-    let rep = check("xyz_20mm_cube_prusaslicer.gcode", 2463.0);
-    assert!(rep.skipped.contains_key("M201") && rep.skipped.contains_key("M204"));
+    let (_, scan) = check("xyz_20mm_cube_prusaslicer.gcode", 2463.0);
+    assert!(scan.skipped.contains_key("M201") && scan.skipped.contains_key("M204"));
 }
 
 #[test]

@@ -115,7 +115,7 @@ fn simulate_runs_a_gcode_file_with_a_closed_form_time() {
     // L / v + v / a: 100 mm at 10 mm/s, the travel acceleration lowered to X's 500 mm/s^2
     // (accelerating and braking each take v / 2a longer than cruising), plus the dwell.
     let want = 100.0 / 10.0 + 10.0 / 500.0 + 2.0;
-    let got = v["print_time_s"].as_f64().unwrap();
+    let got = v["planned_s"].as_f64().unwrap();
     assert!((got - want).abs() < 1e-6, "{got} s, want {want} s");
     // 100 mm at 80 steps/mm.
     assert_eq!(v["steps"]["x"], 8000);

@@ -2,6 +2,7 @@
 //! the reader that turns any slicer's G-code into planner moves and printer actions
 //! ([`read`]).
 
+pub mod input;
 pub mod read;
 mod write;
 

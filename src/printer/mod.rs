@@ -51,13 +51,14 @@ mod pipeline;
 
 use heapless::Deque;
 
+use crate::gcode::input::{GcodeSink, Hold};
 use crate::geom::Triangle;
 use crate::machine::MachineConfig;
 use crate::move_ring::{PackedMove, RingFull};
 use crate::plan::PlanConfig;
 use crate::protocol::{
-    Capacities, DeviceState, Endpoint, ErrorCode, JobReport, JobSpec, Message, Status, MAX_PAYLOAD,
-    VERSION,
+    Capacities, DeviceState, Endpoint, ErrorCode, GcodeSpec, JobReport, JobSpec, Message, Status,
+    MAX_PAYLOAD, VERSION,
 };
 use crate::slot::Slot;
 use crate::step::StepConfig;
@@ -164,7 +165,12 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     /// Measured temperatures, 0.1 degC.
     temps_c_x10: (i16, i16),
     layers: u32,
+    /// The job runs G-code (its input has the pipeline's scratch), not a sliced model.
+    gcode_job: bool,
+    /// Every triangle, or the whole G-code text, was taken.
     model_ended: bool,
+    /// The model's last moves are in the move buffer (a G-code job's: and its last settings
+    /// are in effect): once the motion half is idle, the job is done.
     toolpath_done: bool,
     /// Step-command hashes of completed layers, waiting to be reported.
     done: Deque<(u32, u64), 8>,
@@ -206,6 +212,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             heat_wait_since_ms: None,
             temps_c_x10: (0, 0),
             layers: 0,
+            gcode_job: false,
             model_ended: false,
             toolpath_done: false,
             done: Deque::new(),
@@ -318,8 +325,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// it prints or is paused, 0 otherwise (idle, done, failed, aborted, stopped), so a board
     /// that applies them every update turns the heaters off when a job ends.
     pub fn heater_targets(&self) -> (i16, i16) {
-        match (self.job.get(), self.is_active()) {
-            (Some(j), true) => (j.settings.hotend_temp_c, j.settings.bed_temp_c),
+        if !self.is_active() {
+            return (0, 0);
+        }
+        match (self.job.get(), self.pipeline.gcode_ref()) {
+            (_, Some(g)) if self.gcode_job => g.targets(),
+            (Some(j), _) => (j.settings.hotend_temp_c, j.settings.bed_temp_c),
             _ => (0, 0),
         }
     }
@@ -328,6 +339,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// (the layer whose blocks are being turned into steps), off on the first layer (for bed
     /// adhesion, like slicers' defaults) and without an active job.
     pub fn fan_duty<const Q: usize>(&self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) -> u8 {
+        if self.gcode_job {
+            let fan = self.pipeline.gcode_ref().map_or(0, |g| g.fan());
+            return if self.state == DeviceState::Printing { fan } else { 0 };
+        }
         let layer = motion.with(|m, _| m.generator().tag());
         if self.state == DeviceState::Printing && layer.is_some_and(|layer| layer >= 1) {
             255
@@ -343,6 +358,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     pub fn set_thermal(&mut self, at_target: bool, hotend_c_x10: i16, bed_c_x10: i16) {
         self.heaters = true;
         self.temps_c_x10 = (hotend_c_x10, bed_c_x10);
+        if let (true, Some(g)) = (self.gcode_job, self.pipeline.gcode()) {
+            g.thermal(at_target);
+        }
         if at_target && self.is_active() {
             self.heated = true;
         }
@@ -367,13 +385,22 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         now_ms: u32,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) {
-        if !(self.state == DeviceState::Printing && self.heaters && !self.heated) {
+        if !(self.state == DeviceState::Printing && self.heaters && self.waits_for_heat()) {
             self.heat_wait_since_ms = None;
             return;
         }
         let since = *self.heat_wait_since_ms.get_or_insert(now_ms);
         if now_ms.wrapping_sub(since) > HEAT_WAIT_LIMIT_MS {
             self.thermal_fault(ThermalFault::HeatingTimeout.code(), motion);
+        }
+    }
+
+    /// The job waits for its heaters: a sliced job until they reach its targets once, a
+    /// G-code job at a heater wait (`M109`, `M190`).
+    fn waits_for_heat(&self) -> bool {
+        match self.pipeline.gcode_ref() {
+            Some(g) if self.gcode_job => g.hold() == Hold::Heat,
+            _ => !self.heated,
         }
     }
 
@@ -401,17 +428,40 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 return;
             }
         }
+        self.begin(motion);
+        self.job = Slot::Full(*job);
+    }
+
+    /// Starts a G-code job: its input takes the pipeline's scratch (see [`start`](Self::start)
+    /// for why this is not inlined).
+    #[inline(never)]
+    fn start_gcode<const Q: usize>(
+        &mut self,
+        spec: &GcodeSpec,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
+        self.failure = Slot::Empty;
+        self.failure_sent = false;
+        self.pipeline.start_gcode(&self.machine);
+        self.layers = spec.layers;
+        self.begin(motion);
+        self.job = Slot::Empty;
+        self.gcode_job = true;
+    }
+
+    /// The motion half and the job's state from the start, printing.
+    fn begin<const Q: usize>(&mut self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) {
         motion.with(|m, _| m.reset(&self.plan_cfg, &self.step_cfg));
         self.triangles = 0;
         self.batch_pos = 0;
         self.report_sent = false;
         self.heated = false;
         self.heat_wait_since_ms = None;
+        self.gcode_job = false;
         self.model_ended = false;
         self.toolpath_done = false;
         self.done.clear();
         self.layers_planned = 0;
-        self.job = Slot::Full(*job);
         self.state = DeviceState::Printing;
     }
 
@@ -443,7 +493,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         // A message that stops the motion closes the gate first, so that a feeder elsewhere
         // releases no block after it (its own state change follows).
         if matches!(msg, Message::Pause | Message::Abort | Message::EmergencyStop) {
-            motion.gate(false, self.toolpath_done);
+            motion.gate(false, self.flush());
         }
         let accept = self.handle_message(msg, motion, lend);
         let (allowed, toolpath_done) = self.motion_gate();
@@ -471,15 +521,30 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             {
                 self.start(job, motion)
             }
+            (Message::GcodeStart(spec), s)
+                if !matches!(s, DeviceState::Printing | DeviceState::Paused) =>
+            {
+                self.start_gcode(spec, motion)
+            }
+            (Message::Gcode(text), DeviceState::Printing | DeviceState::Paused)
+                if self.gcode_job && !self.model_ended =>
+            {
+                return self.take_gcode(text, false, motion);
+            }
+            (Message::EndOfModel, DeviceState::Printing | DeviceState::Paused)
+                if self.gcode_job && !self.model_ended =>
+            {
+                return self.take_gcode(&[], true, motion);
+            }
             (Message::Pause, DeviceState::Printing) => self.state = DeviceState::Paused,
             (Message::Resume, DeviceState::Paused) => self.state = DeviceState::Printing,
             (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
-                if !self.model_ended =>
+                if !self.model_ended && !self.gcode_job =>
             {
                 return self.take_batch(batch, motion, lend);
             }
             (Message::EndOfModel, DeviceState::Printing | DeviceState::Paused)
-                if !self.model_ended =>
+                if !self.model_ended && !self.gcode_job =>
             {
                 return self.end_model(motion, lend);
             }
@@ -519,6 +584,31 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             self.push_triangle(&t, motion, lend);
         }
         self.batch_pos = 0;
+        Accept::Taken
+    }
+
+    /// Reads a G-code job's `text` from where it stopped (`end`: the text has ended) into the
+    /// move buffer; busy (offered again) while the input waits for room, the motion or the
+    /// heaters.
+    fn take_gcode<const Q: usize>(
+        &mut self,
+        text: &[u8],
+        end: bool,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> Accept {
+        let heaters = self.heaters;
+        let Some(input) = self.pipeline.gcode() else {
+            self.refuse_unexpected(crate::protocol::msg::ty::GCODE);
+            return Accept::Taken;
+        };
+        let mut pos = self.batch_pos as usize;
+        let all = input.take(text, &mut pos, end, &mut GcodeMotion { motion, heaters });
+        if !all {
+            self.batch_pos = pos as u32;
+            return Accept::Busy;
+        }
+        self.batch_pos = 0;
+        self.model_ended |= end;
         Accept::Taken
     }
 
@@ -637,13 +727,33 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Blocks may go to the step generator: printing (not paused) and the heaters reached
     /// the job's targets once (or the board has none).
     fn motion_allowed(&self) -> bool {
-        self.state == DeviceState::Printing && (self.heated || !self.heaters)
+        self.state == DeviceState::Printing && (self.heated || !self.heaters || self.gcode_job)
+    }
+
+    /// The planner may release every block it holds: the model's last moves are in the move
+    /// buffer, or a G-code job's input has ended or holds until the motion is done.
+    fn flush(&self) -> bool {
+        let holds = || self.pipeline.gcode_ref().is_some_and(|g| g.hold() != Hold::None);
+        self.toolpath_done || (self.gcode_job && (self.model_ended || holds()))
     }
 
     /// Whether the motion half may release blocks, and whether the model's last moves are in
     /// the move buffer: what a board's motion interrupt passes to [`Motion::feed`].
     pub fn motion_gate(&self) -> (bool, bool) {
-        (self.is_active() && self.motion_allowed(), self.toolpath_done)
+        (self.is_active() && self.motion_allowed(), self.flush())
+    }
+
+    /// A G-code job's settings whose moves are done take effect; once its text has ended and
+    /// its last setting is in effect, its last moves are in the buffer.
+    fn apply_gcode_settings<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
+        let done = motion.with(|m, _| m.generator().blocks_done());
+        if let Some(g) = self.pipeline.gcode() {
+            g.apply_due(done);
+            self.toolpath_done |= self.model_ended && g.finished();
+        }
     }
 
     /// Layer hashes completed since the last call.
@@ -662,17 +772,20 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         if !self.is_active() {
             return false;
         }
-        let (allowed, toolpath_done) = (self.motion_allowed(), self.toolpath_done);
-        motion.gate(allowed, toolpath_done);
-        let mut worked = match motion.with(|m, out| m.feed(allowed, toolpath_done, out)) {
+        let (allowed, flush) = (self.motion_allowed(), self.flush());
+        motion.gate(allowed, flush);
+        let mut worked = match motion.with(|m, out| m.feed(allowed, flush, out)) {
             Ok(w) => w,
             Err(layer) => {
                 self.fail(Failure::Plan { layer });
                 return true;
             }
         };
+        if self.gcode_job {
+            self.apply_gcode_settings(motion);
+        }
         // The toolpath stage's next paths, as far as the room the planner made allows.
-        if self.pipeline.emitting() {
+        if !self.gcode_job && self.pipeline.emitting() {
             let before = motion.with(|m, _| m.moves().used_bytes());
             worked |=
                 self.emit_moves(motion) || motion.with(|m, _| m.moves().used_bytes()) != before;
@@ -758,7 +871,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             detail,
             hotend_c_x10: self.temps_c_x10.0,
             bed_c_x10: self.temps_c_x10.1,
-            heating: self.is_active() && self.heaters && !self.heated,
+            heating: self.is_active() && self.heaters && self.waits_for_heat(),
         }
     }
 
@@ -812,7 +925,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     ) {
         while ep.tx_free() > 1 {
             let Some(p) = ep.peek() else { break };
-            if self.waiting_for_room && self.is_active() && !self.emit_moves(motion) {
+            let emitting = self.is_active() && !self.gcode_job;
+            if self.waiting_for_room && emitting && !self.emit_moves(motion) {
                 break;
             }
             self.waiting_for_room = false;
@@ -880,6 +994,33 @@ impl<
                 let _ = m.feed(allowed, false, out);
             });
         }
+    }
+}
+
+/// The motion half as a G-code job's input sees it: the move buffer, the generator's finished
+/// blocks, and whether the board has heaters.
+struct GcodeMotion<'a, A, const MOVE_BYTES: usize, const P: usize, const Q: usize> {
+    motion: &'a mut A,
+    heaters: bool,
+}
+
+impl<
+        A: MotionAccess<MOVE_BYTES, P, Q>,
+        const MOVE_BYTES: usize,
+        const P: usize,
+        const Q: usize,
+    > GcodeSink for GcodeMotion<'_, A, MOVE_BYTES, P, Q>
+{
+    fn push_move(&mut self, mv: &PackedMove) -> Result<(), RingFull> {
+        self.motion.with(|m, _| m.moves_mut().push(mv))
+    }
+
+    fn blocks_done(&mut self) -> u32 {
+        self.motion.with(|m, _| m.generator().blocks_done())
+    }
+
+    fn has_heaters(&self) -> bool {
+        self.heaters
     }
 }
 

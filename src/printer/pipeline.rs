@@ -1,6 +1,7 @@
 //! The computing half of the job runner: the slicer and the toolpath stage in their shared
 //! scratch, and the toolpath stream that codes their moves into the move buffer.
 
+use crate::gcode::input::GcodeInput;
 use crate::geom::{Point2, Triangle};
 use crate::machine::MachineConfig;
 use crate::move_ring::{MoveRing, MoveStream, PackedMove, RingFull, RoomMemory};
@@ -61,6 +62,12 @@ pub trait Stages {
     fn set_offset_limit(&mut self, edges: usize);
     /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
     fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure>;
+    /// Starts a G-code job on `machine`: its input takes the scratch (nothing is sliced).
+    fn start_gcode(&mut self, machine: &MachineConfig);
+    /// The G-code job's input, while one runs.
+    fn gcode(&mut self) -> Option<&mut GcodeInput>;
+    /// The G-code job's input, while one runs.
+    fn gcode_ref(&self) -> Option<&GcodeInput>;
     /// The triangle into the slicer; the layers it completes through the toolpath stage.
     fn push_triangle(&mut self, t: &Triangle, motion: &mut impl Computing) -> Result<(), Failure>;
     /// Cuts the slicer's next plane, its layer through the toolpath stage; whether a plane
@@ -169,6 +176,19 @@ impl<
 
     fn set_offset_limit(&mut self, edges: usize) {
         self.tp.set_offset_limit(edges);
+    }
+
+    #[inline(never)]
+    fn start_gcode(&mut self, machine: &MachineConfig) {
+        self.scratch.start_gcode(machine);
+    }
+
+    fn gcode(&mut self) -> Option<&mut GcodeInput> {
+        self.scratch.gcode()
+    }
+
+    fn gcode_ref(&self) -> Option<&GcodeInput> {
+        self.scratch.gcode_ref()
     }
 
     /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.

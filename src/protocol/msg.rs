@@ -29,6 +29,8 @@ pub mod ty {
     pub const JOB_START: u8 = 0x10;
     pub const TRIANGLES: u8 = 0x11;
     pub const END_OF_MODEL: u8 = 0x12;
+    pub const GCODE_START: u8 = 0x13;
+    pub const GCODE: u8 = 0x14;
     pub const PAUSE: u8 = 0x20;
     pub const RESUME: u8 = 0x21;
     pub const ABORT: u8 = 0x22;
@@ -268,8 +270,13 @@ pub enum Message<'a> {
     JobStart(JobSpec),
     /// Triangles, in zmin order.
     Triangles(TriangleBatch<'a>),
-    /// Every triangle was sent.
+    /// Every triangle (or the whole G-code text) was sent.
     EndOfModel,
+    /// A G-code job begins: the printer runs the text that follows ([`Message::Gcode`]) as
+    /// it is, no slicing.
+    GcodeStart(GcodeSpec),
+    /// The next bytes of a G-code job's text (lines may run on into the next message).
+    Gcode(&'a [u8]),
     /// Pause after the queued motion.
     Pause,
     /// Resume.
@@ -293,6 +300,16 @@ pub enum Message<'a> {
     /// active triangles in layer 37 (capacity 388)"), sent once before the status saying
     /// so; the status keeps its code and detail.
     Failure(&'a str),
+}
+
+/// A G-code job, as the host measured its text.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GcodeSpec {
+    /// Bytes of text that will be sent.
+    pub bytes: u32,
+    /// Layers the text marks (`;LAYER_CHANGE`, `;LAYER:n`); 0 when it marks none.
+    pub layers: u32,
 }
 
 /// What a finished job did: every step sent to the motors, where they ended and how long
@@ -528,6 +545,18 @@ impl<'a> Message<'a> {
                 w.u8(ty::FAILURE)?;
                 w.put(text.as_bytes())?;
             }
+            Self::GcodeStart(g) => {
+                w.u8(ty::GCODE_START)?;
+                w.u32(g.bytes)?;
+                w.u32(g.layers)?;
+            }
+            Self::Gcode(text) => {
+                if text.is_empty() {
+                    return Err(EncodeError::OutOfRange);
+                }
+                w.u8(ty::GCODE)?;
+                w.put(text)?;
+            }
         }
         Ok(w.len)
     }
@@ -548,6 +577,8 @@ impl<'a> Message<'a> {
             Self::LayerDone { .. } => ty::LAYER_DONE,
             Self::JobReport(_) => ty::JOB_REPORT,
             Self::Failure(_) => ty::FAILURE,
+            Self::GcodeStart(_) => ty::GCODE_START,
+            Self::Gcode(_) => ty::GCODE,
         }
     }
 
@@ -668,6 +699,14 @@ impl<'a> Message<'a> {
             ty::FAILURE => {
                 let text = r.take(r.bytes.len())?;
                 Self::Failure(core::str::from_utf8(text).map_err(|_| bad)?)
+            }
+            ty::GCODE_START => Self::GcodeStart(GcodeSpec { bytes: r.u32()?, layers: r.u32()? }),
+            ty::GCODE => {
+                let text = r.take(r.bytes.len())?;
+                if text.is_empty() {
+                    return Err(DecodeError::Length(t));
+                }
+                Self::Gcode(text)
             }
             other => return Err(DecodeError::UnknownType(other)),
         };

@@ -261,6 +261,11 @@ impl<const B: usize> StepGenerator<B> {
         self.motor
     }
 
+    /// Blocks whose every step was generated since the reset (wraps at 2^32).
+    pub fn blocks_done(&self) -> u32 {
+        self.blocks
+    }
+
     /// Generator time at the end of the completed blocks, ticks q16.
     pub fn time_q16(&self) -> u64 {
         self.block_start_q16

@@ -27,7 +27,7 @@ use strata::protocol::{Capacities, JobSpec, LinkConfig};
 use crate::admission::{admit_job_paced, Admission};
 use crate::clock::{Budget, LinkClock};
 use crate::serial::Port;
-use crate::session::{HostEndpoint, Progress};
+use crate::session::{HostEndpoint, Progress, Source};
 
 pub use costs::{
     parse_record, CostSummary, Costs, LayerCost, Record, StepsLine, CPU_HZ, CYCLES_PER_INSN,
@@ -147,11 +147,18 @@ pub fn print_job_or_abort<P: Read + Write>(
 ) -> Result<Progress, String> {
     let mut last = Progress::default();
     let mut clock = Budget::new(clock, budget_ms);
-    let r =
-        crate::serial::print(port, &mut conn.ep, &mut clock, conn.caps, tris, job, abort, |p| {
+    let r = crate::serial::print(
+        port,
+        &mut conn.ep,
+        &mut clock,
+        conn.caps,
+        Source::Model(tris, job),
+        abort,
+        |p| {
             last = p.clone();
             on_progress(p);
-        });
+        },
+    );
     r.map_err(|e| {
         format!(
             "{e}; last seen: {} of {} triangles sent, {} layer reports, status {:?}, host link {:?}",

@@ -1,0 +1,107 @@
+//! A G-code job on the device-side job runner: its text in small messages (lines run on
+//! across them), settings that take effect where the motion reaches them, heater waits that
+//! hold the reading (the motion before them still runs) and leave the step hashes as they are
+//! without heaters, and messages out of place refused.
+
+use strata::machine::{MachineConfig, AXES};
+use strata::printer::MotionHalf;
+use strata::protocol::{DeviceState, ErrorCode, GcodeSpec, Message};
+use strata::step::StepQueue;
+use strata_testkit::drive::{batch, encode, Rig, Sizes};
+use strata_testkit::mesh::{cuboid, to_um};
+use strata_testkit::small_printer;
+
+small_printer! {
+    type Small = {};
+}
+
+type SmallMotion<'q> =
+    MotionHalf<'q, { Sizes::SMALL.move_buffer_bytes }, { Sizes::SMALL.lookahead_moves }, 32>;
+
+/// Heaters on, a move, a wait for both heaters, then fan changes between moves.
+const JOB: &str = "M140 S60\nM104 S200\nG28\nG1 X10 F3000\nM109 S200\nM190 S60\nG1 X20 Y5 E1 F1200\nM106 S128\nG1 X30\nM107\nG1 X40\n";
+
+/// The job's payloads: its start, the text in messages of `chunk` bytes, the end.
+fn payloads(text: &str, chunk: usize) -> Vec<Vec<u8>> {
+    let spec = GcodeSpec { bytes: text.len() as u32, layers: 0 };
+    let mut out = vec![encode(&Message::GcodeStart(spec))];
+    out.extend(text.as_bytes().chunks(chunk).map(|c| encode(&Message::Gcode(c))));
+    out.push(encode(&Message::EndOfModel));
+    out
+}
+
+/// What a run saw at each turn.
+#[derive(Default)]
+struct Seen {
+    hashes: Vec<(u32, u64)>,
+    positions: [i64; AXES],
+    /// Turns at which the heaters were waited for.
+    heating_turns: u32,
+}
+
+/// Runs [`JOB`] in messages of `chunk` bytes; `heaters`: the board reports heaters that reach
+/// their targets at turn 300.
+fn run(chunk: usize, heaters: bool) -> Seen {
+    let mut p = Box::new(Small::new(&MachineConfig::default()));
+    let mut q: StepQueue<32> = StepQueue::new();
+    let mut rig = Rig::executing(&mut q, p.step_config());
+    let mut seen = Seen::default();
+    rig.drive(&mut *p, &payloads(JOB, chunk), 1_000_000, |p, m: &mut SmallMotion<'_>, turn| {
+        let gen = m.motion.generator();
+        let (done, x) = (gen.blocks_done(), gen.motor_steps()[0]);
+        // The fan follows the motion: on from the end of the second block (X20) to the end
+        // of the third (X30), never where it was read.
+        assert_eq!(p.fan_duty(m) == 128, (2..3).contains(&done), "blocks done {done}");
+        if !heaters {
+            return;
+        }
+        let at_target = turn >= 300;
+        if p.status(m, 0).heating {
+            seen.heating_turns += 1;
+            // Held at the wait: the first move (X10 = 800 steps) ran to its end, no further.
+            assert!(x <= 800, "moved past the heater wait: X {x}");
+            assert_eq!(p.heater_targets(), (200, 60));
+        }
+        p.set_thermal(at_target, if at_target { 2000 } else { 250 }, 600);
+    });
+    assert_eq!(p.state(), DeviceState::Done);
+    assert_eq!(p.heater_targets(), (0, 0), "a finished job turns the heaters off");
+    seen.hashes = rig.hashes.clone();
+    seen.positions = rig.motion.motion.generator().motor_steps();
+    let board = rig.board().expect("an executing rig");
+    assert_eq!(board.violation_count(), 0);
+    assert_eq!(board.positions(), seen.positions, "the board ran every step");
+    seen
+}
+
+#[test]
+fn a_gcode_job_runs_its_moves_with_settings_timed_to_the_motion() {
+    let seen = run(7, true);
+    // X 40 mm, Y 5 mm at 80 steps/mm; E 1 mm at 93.
+    assert_eq!(seen.positions, [3200, 400, 0, 93]);
+    assert!(seen.heating_turns > 200, "waited {} turns", seen.heating_turns);
+}
+
+#[test]
+fn heater_waits_and_message_sizes_leave_the_steps_as_they_are() {
+    let with = run(7, true);
+    for (chunk, heaters) in [(7, false), (1, false), (200, false), (3, true)] {
+        let other = run(chunk, heaters);
+        assert_eq!(other.hashes, with.hashes, "chunks of {chunk}, heaters {heaters}");
+        assert_eq!(other.positions, with.positions);
+    }
+}
+
+#[test]
+fn triangles_in_a_gcode_job_fail_it() {
+    let mut p = Box::new(Small::new(&MachineConfig::default()));
+    let mut q: StepQueue<32> = StepQueue::new();
+    let mut rig = Rig::executing(&mut q, p.step_config());
+    let tris = to_um(&cuboid([100.0, 100.0, 0.0], [106.0, 106.0, 0.8]));
+    let mut msgs = payloads("G1 X5 F600\n", 64);
+    msgs.insert(2, batch(&tris));
+    rig.drive(&mut *p, &msgs, 100_000, |_, _: &mut SmallMotion<'_>, _| {});
+    assert_eq!(p.state(), DeviceState::Failed);
+    let triangles = strata::protocol::msg::ty::TRIANGLES;
+    assert_eq!(p.error(), (ErrorCode::Unexpected, u32::from(triangles)));
+}
