@@ -4,9 +4,9 @@
 //! without heaters, and messages out of place refused.
 
 use strata::machine::{MachineConfig, AXES};
-use strata::printer::MotionHalf;
+use strata::printer::{Accept, Motion, MotionAccess, MotionHalf};
 use strata::protocol::{DeviceState, ErrorCode, GcodeSpec, Message};
-use strata::step::StepQueue;
+use strata::step::{StepProducer, StepQueue};
 use strata_testkit::drive::{batch, encode, Rig, Sizes};
 use strata_testkit::mesh::{cuboid, to_um};
 use strata_testkit::small_printer;
@@ -90,6 +90,70 @@ fn heater_waits_and_message_sizes_leave_the_steps_as_they_are() {
         assert_eq!(other.hashes, with.hashes, "chunks of {chunk}, heaters {heaters}");
         assert_eq!(other.positions, with.positions);
     }
+}
+
+/// A motion half that is also fed elsewhere, as a board's feed interrupt feeds it: before
+/// every access of the job runner, with the gate the runner last set.
+struct Interrupted<'q> {
+    half: SmallMotion<'q>,
+    gate: (bool, bool),
+}
+
+impl<'q> MotionAccess<{ Sizes::SMALL.move_buffer_bytes }, { Sizes::SMALL.lookahead_moves }, 32>
+    for Interrupted<'q>
+{
+    fn with<R>(
+        &mut self,
+        f: impl FnOnce(
+            &mut Motion<{ Sizes::SMALL.move_buffer_bytes }, { Sizes::SMALL.lookahead_moves }>,
+            &mut StepProducer<'_, 32>,
+        ) -> R,
+    ) -> R {
+        let (allowed, flush) = self.gate;
+        let _ = self.half.motion.feed(allowed, flush, &mut self.half.out);
+        f(&mut self.half.motion, &mut self.half.out)
+    }
+
+    fn gate(&mut self, allowed: bool, flush: bool) {
+        self.gate = (allowed, flush);
+    }
+}
+
+/// The blocks do not depend on when a feeder elsewhere runs: the gate leaves its flush at a
+/// hold's end before the next move goes in (a stale flush would plan the move after a heater
+/// wait as the last of the job).
+#[test]
+fn a_feed_interrupt_gives_the_same_steps() {
+    let reference = run(7, true);
+    let mut p = Box::new(Small::new(&MachineConfig::default()));
+    let mut q: StepQueue<32> = StepQueue::new();
+    let (prod, mut cons) = q.split();
+    let mut m = Interrupted { half: MotionHalf::new(prod), gate: (false, false) };
+    // The whole text in one message: the moves after the wait go in within the call that
+    // ends it, before the runner sets the gate again.
+    let msgs = payloads(JOB, JOB.len());
+    let (mut next, mut hashes) = (0, Vec::new());
+    for turn in 0..1_000_000u32 {
+        while next < msgs.len() {
+            let msg = Message::decode(&msgs[next]).unwrap();
+            match p.handle(&msg, &mut m) {
+                Accept::Taken => next += 1,
+                Accept::Busy => break,
+            }
+        }
+        p.poll(&mut m);
+        p.set_thermal(turn >= 300, if turn >= 300 { 2000 } else { 250 }, 600);
+        hashes.extend(std::iter::from_fn(|| p.take_layer_done()));
+        for axis in 0..AXES {
+            while cons.dequeue(axis).is_some() {}
+        }
+        if !p.is_active() && next == msgs.len() {
+            break;
+        }
+    }
+    assert_eq!(p.state(), DeviceState::Done);
+    assert_eq!(hashes, reference.hashes);
+    assert_eq!(m.half.motion.generator().motor_steps(), reference.positions);
 }
 
 #[test]

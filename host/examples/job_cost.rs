@@ -26,6 +26,7 @@ use strata::machine::{MachineConfig, PrintSettings};
 use strata::protocol::{DeviceState, JobOptions, JobSpec};
 use strata_host::hil::{self, CostSummary, Costs, Qemu, CPU_HZ, CYCLES_PER_INSN};
 use strata_host::serial::Port;
+use strata_host::session::Source;
 use strata_host::simjob::Faults;
 use strata_host::{admission, model};
 
@@ -107,7 +108,8 @@ fn run(qemu: &Path, elf: &Path, arg: &str, o: &Opts) -> Result<Row, String> {
         hil::admitted_on_link(&mut port, &mut conn, &mut clock, &tris, job, o.max_deviation)?;
     let mut next = 10.0;
     let budget_ms = o.timeout.as_millis() as u32;
-    let progress = hil::print_job(&mut port, &mut conn, &mut clock, &tris, job, budget_ms, |p| {
+    let source = Source::Model(&tris, job);
+    let progress = hil::print_job(&mut port, &mut conn, &mut clock, source, budget_ms, |p| {
         if echo && t0.elapsed().as_secs_f64() > next {
             next += 10.0;
             eprintln!("{name}: {} triangles sent, status {:?}", p.triangles_sent, p.status);

@@ -58,10 +58,11 @@ use strata::machine::MachineConfig;
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::{DeviceState, JobSpec};
 use strata::step::StepConfig;
+use strata_host::gcode_file;
 use strata_host::hil::{self, banded_cylinder, Costs, Qemu, Relay, SimDevice};
 use strata_host::model;
-use strata_host::session::Progress;
-use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
+use strata_host::session::{Progress, Source};
+use strata_host::simjob::{simulate, simulate_source, Faults, SimOptions, SimReport};
 use strata_testkit::drive::job_spec;
 
 /// Faults of the lossy runs: 3 % of frames each dropped, corrupted, shortened by a byte,
@@ -111,11 +112,17 @@ fn load(name: &str) -> (Vec<Triangle>, JobSpec) {
     (tris, job)
 }
 
+/// A job for the harness: a model (admitted as `strata print` admits it) or G-code text.
+#[derive(Clone, Copy)]
+enum Work<'a> {
+    Model(&'a [Triangle], JobSpec),
+    Gcode(&'a [u8]),
+}
+
 /// What one job over a port gave.
 struct Run {
-    /// The admitted triangles and their job (the reference simulates exactly these).
-    tris: Vec<Triangle>,
-    job: JobSpec,
+    /// What was sent: triangles of the admitted model, or bytes of G-code.
+    sent: String,
     note: Option<String>,
     result: Result<Progress, String>,
     link: strata::protocol::LinkStats,
@@ -130,8 +137,7 @@ fn run_job<C: LinkClock>(
     label: &str,
     port: &mut Port<UnixStream>,
     mut clock: C,
-    tris: &[Triangle],
-    job: JobSpec,
+    work: Work<'_>,
     budget_ms: u32,
     want_reference: bool,
 ) -> (Run, Option<Result<SimReport, String>>) {
@@ -142,8 +148,7 @@ fn run_job<C: LinkClock>(
         Ok(c) => c,
         Err(e) => {
             let run = Run {
-                tris: tris.to_vec(),
-                job,
+                sent: String::new(),
                 note: None,
                 result: Err(format!("handshake: {e}")),
                 link: Default::default(),
@@ -153,22 +158,41 @@ fn run_job<C: LinkClock>(
             return (run, None);
         }
     };
-    let admitted = hil::admitted_on_link(port, &mut conn, &mut clock, tris, job, 0.02);
-    let (tris, job, note) = admitted.unwrap_or_else(|e| {
-        panic!(
-            "{label}: refused by admission control against the device's capacities {:?}: {e}",
-            conn.caps
-        )
-    });
+    let machine = MachineConfig::default();
+    let (tris, job, note, text) = match work {
+        Work::Model(tris, job) => {
+            let admitted = hil::admitted_on_link(port, &mut conn, &mut clock, tris, job, 0.02);
+            let (tris, job, note) = admitted.unwrap_or_else(|e| {
+                panic!(
+                    "{label}: refused by admission control against the device's capacities \
+                     {:?}: {e}",
+                    conn.caps
+                )
+            });
+            assert_eq!(job.triangles as usize, tris.len());
+            (tris, job, note, None)
+        }
+        Work::Gcode(text) => {
+            let scan = gcode_file::scan(text, &machine).unwrap_or_else(|e| panic!("{label}: {e}"));
+            (Vec::new(), job_spec(&[]), None, Some((text, scan.spec)))
+        }
+    };
+    let source = match text {
+        Some((text, spec)) => Source::Gcode(text, spec),
+        None => Source::Model(&tris, job),
+    };
+    let sent = match source {
+        Source::Model(t, _) => format!("{} triangles", t.len()),
+        Source::Gcode(t, _) => format!("{} bytes of G-code", t.len()),
+    };
     // The simulated printer poses as the device: it offsets in bands where the device's
     // engine is too small for an island.
     let opts = SimOptions { capacities: conn.caps, ..SimOptions::default() };
     std::thread::scope(|s| {
-        let reference = want_reference.then(|| {
-            s.spawn(|| simulate(&tris, &MachineConfig::default(), job, &opts).map_err(|(e, _)| e))
-        });
+        let reference = want_reference
+            .then(|| s.spawn(|| simulate_source(source, &machine, &opts).map_err(|(e, _)| e)));
         let mut next_report = Duration::from_secs(30);
-        let result = hil::print_job(port, &mut conn, &mut clock, &tris, job, budget_ms, |p| {
+        let result = hil::print_job(port, &mut conn, &mut clock, source, budget_ms, |p| {
             // A line every 30 s of a long job: where it stands.
             if t0.elapsed() > next_report {
                 next_report += Duration::from_secs(30);
@@ -182,8 +206,7 @@ fn run_job<C: LinkClock>(
             }
         });
         let run = Run {
-            tris: tris.clone(),
-            job,
+            sent,
             note: note.clone(),
             result,
             link: *conn.ep.stats(),
@@ -258,6 +281,11 @@ fn qemu_job_on(
     job: JobSpec,
     lossy: bool,
 ) -> Option<Costs> {
+    qemu_work_on(board, name, Work::Model(tris, job), lossy)
+}
+
+/// [`qemu_job_on`] of a model or G-code.
+fn qemu_work_on(board: Option<&str>, name: &str, work: Work<'_>, lossy: bool) -> Option<Costs> {
     let test = format!("hil_qemu {name}");
     let (qemu, elf) = qemu_or_skip(&test, board)?;
     let mut clean = None;
@@ -278,8 +306,7 @@ fn qemu_job_on(
         };
         let mut port = Port::new(port);
         let budget = if board == Some("qemu-rt") { REALTIME_JOB_MS } else { QEMU_JOB_MS };
-        let (run, r) =
-            run_job(&label, &mut port, clock.clone(), tris, job, budget, reference.is_none());
+        let (run, r) = run_job(&label, &mut port, clock.clone(), work, budget, reference.is_none());
         if let Some(r) = r {
             reference = Some(r.unwrap_or_else(|e| panic!("{label}: reference simulation: {e}")));
         }
@@ -304,13 +331,13 @@ fn qemu_job_on(
             "{label}: the stack used {used} of its {size} B, less than {RAM_HEADROOM} B from the \
              statics"
         );
-        // The heaters (QEMU's simulated plant) reached the job's targets before the first
-        // step, and nothing tripped.
+        // The heaters (QEMU's simulated plant) reached the job's targets (a model's before
+        // the first step; G-code moves where its own waits say), and nothing tripped.
         let heat = lines.iter().find(|l| l.starts_with("HEAT at_target")).unwrap_or_else(|| {
             panic!("{label}: no `HEAT at_target` line: the job never reached its heater targets")
         });
         assert!(
-            heat.contains("motion_started=0"),
+            heat.contains("motion_started=0") || matches!(work, Work::Gcode(_)),
             "{label}: the motion started before the heaters were at target: {heat}"
         );
         if let Some(fault) = lines.iter().find(|l| l.starts_with("HEAT FAULT")) {
@@ -320,10 +347,10 @@ fn qemu_job_on(
         let relay_stats = relay.map(|r| r.finish());
         let rf = reference.as_ref().unwrap();
         eprintln!(
-            "{label}: {} triangles{}, {} layers, planned {:.1} s, executed {:.1} s (simulation \
+            "{label}: {}{}, {} layers, planned {:.1} s, executed {:.1} s (simulation \
              {:.1} s), firmware {:?} (simulation steps {:?} positions {:?} print ticks {} \
              board hash {:016x}), {:.1} s wall, {:.1} s of QEMU's clock, host link {:?}, relay {:?}",
-            run.tris.len(),
+            run.sent,
             run.note.map(|n| format!(" ({n})")).unwrap_or_default(),
             rf.layers,
             progress.status.map_or(0, |s| s.planned_ms) as f64 / 1000.0,
@@ -339,7 +366,6 @@ fn qemu_job_on(
             run.link,
             relay_stats
         );
-        assert_eq!(run.job.triangles as usize, run.tris.len());
         assert_same(&label, rf, &progress, Some(&costs));
         if faults.is_some() {
             let l = run.link;
@@ -387,6 +413,19 @@ fn qemu_embodier_asc() {
 #[test]
 fn qemu_xyz_20mm_cube() {
     qemu_model("xyz_20mm_cube.stl");
+}
+
+/// PrusaSlicer's G-code of the cube (`tests/data/gcode/`), streamed: the printer reads it with
+/// its own G-code reader, heats as its `M190`/`M109` say, and its steps equal the host
+/// simulation's of the same text. Clean only: the lossy relay carries its 436 KB at a
+/// fifth of the clean run's pace in wall time (8 minutes), and the lossy link is the STL
+/// runs' to prove.
+#[test]
+fn qemu_prusaslicer_cube_gcode() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/data/gcode/xyz_20mm_cube_prusaslicer.gcode");
+    let text = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    qemu_work_on(None, "xyz_20mm_cube_prusaslicer.gcode", Work::Gcode(&text), false);
 }
 
 #[test]
@@ -684,8 +723,7 @@ fn qemu_abort_mid_job_stops_the_motion() {
         &mut port,
         &mut conn,
         clock.clone(),
-        &tris,
-        job,
+        Source::Model(&tris, job),
         QEMU_JOB_MS,
         &abort,
         |p| {
@@ -741,8 +779,9 @@ fn harness_against_the_in_process_printer() {
             None => (None, uart),
         };
         let mut port = Port::new(port);
+        let work = Work::Model(&tris, job);
         let (run, r) =
-            run_job(label, &mut port, dev.clock(), &tris, job, SIM_JOB_MS, reference.is_none());
+            run_job(label, &mut port, dev.clock(), work, SIM_JOB_MS, reference.is_none());
         if let Some(r) = r {
             reference = Some(r.unwrap());
         }
@@ -779,7 +818,8 @@ fn harness_in_process_models() {
         let (tris, job) = load(name);
         let (dev, port) = SimDevice::start(ServeOptions::new(CREALITY_CAPACITIES, 1000)).unwrap();
         let mut port = Port::new(port);
-        let (run, r) = run_job(name, &mut port, dev.clock(), &tris, job, SIM_JOB_MS, true);
+        let work = Work::Model(&tris, job);
+        let (run, r) = run_job(name, &mut port, dev.clock(), work, SIM_JOB_MS, true);
         let progress = run.result.unwrap_or_else(|e| panic!("{name}: {e}"));
         drop(port);
         dev.finish().unwrap();

@@ -57,6 +57,10 @@ pub trait GcodeSink {
     fn blocks_done(&mut self) -> u32;
     /// The board has heaters (a heater wait waits for them; without, it does not).
     fn has_heaters(&self) -> bool;
+    /// The reading begins (`true`) or ends a hold: the planner flushes while it holds. Called
+    /// before the next move goes in, so a feeder elsewhere (a board's feed interrupt) never
+    /// flushes a plan that more moves will follow: the blocks stay the same on every board.
+    fn holding(&mut self, holds: bool);
 }
 
 /// What the input stage has read.
@@ -197,6 +201,7 @@ impl GcodeInput {
                     return false;
                 }
                 self.hold = Hold::None;
+                sink.holding(false);
             }
             if self.settings.is_full() {
                 self.apply_due(sink.blocks_done());
@@ -216,7 +221,12 @@ impl GcodeInput {
                 return true;
             };
             match line {
-                Some(Ok(())) => self.read_line(),
+                Some(Ok(())) => {
+                    self.read_line();
+                    if self.hold != Hold::None {
+                        sink.holding(true);
+                    }
+                }
                 Some(Err(e)) => {
                     let e = self.reader.refuse(e);
                     self.refused(e);

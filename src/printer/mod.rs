@@ -596,13 +596,14 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         end: bool,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) -> Accept {
-        let heaters = self.heaters;
+        let (heaters, allowed, ended) = (self.heaters, self.motion_allowed(), self.model_ended);
         let Some(input) = self.pipeline.gcode() else {
             self.refuse_unexpected(crate::protocol::msg::ty::GCODE);
             return Accept::Taken;
         };
         let mut pos = self.batch_pos as usize;
-        let all = input.take(text, &mut pos, end, &mut GcodeMotion { motion, heaters });
+        let mut sink = GcodeMotion { motion, heaters, allowed, ended };
+        let all = input.take(text, &mut pos, end, &mut sink);
         if !all {
             self.batch_pos = pos as u32;
             return Accept::Busy;
@@ -998,10 +999,12 @@ impl<
 }
 
 /// The motion half as a G-code job's input sees it: the move buffer, the generator's finished
-/// blocks, and whether the board has heaters.
+/// blocks, whether the board has heaters, and the motion's gate (`allowed`; the text `ended`).
 struct GcodeMotion<'a, A, const MOVE_BYTES: usize, const P: usize, const Q: usize> {
     motion: &'a mut A,
     heaters: bool,
+    allowed: bool,
+    ended: bool,
 }
 
 impl<
@@ -1021,6 +1024,10 @@ impl<
 
     fn has_heaters(&self) -> bool {
         self.heaters
+    }
+
+    fn holding(&mut self, holds: bool) {
+        self.motion.gate(self.allowed, self.ended || holds);
     }
 }
 

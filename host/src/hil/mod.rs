@@ -123,13 +123,12 @@ pub fn print_job<P: Read + Write>(
     port: &mut Port<P>,
     conn: &mut Connected,
     clock: impl LinkClock,
-    tris: &[Triangle],
-    job: JobSpec,
+    source: Source<'_>,
     budget_ms: u32,
     on_progress: impl FnMut(&Progress),
 ) -> Result<Progress, String> {
     let never = std::sync::atomic::AtomicBool::new(false);
-    print_job_or_abort(port, conn, clock, tris, job, budget_ms, &never, on_progress)
+    print_job_or_abort(port, conn, clock, source, budget_ms, &never, on_progress)
 }
 
 /// [`print_job`]; once `abort` is set (say by `on_progress`) the host aborts the job as
@@ -139,31 +138,26 @@ pub fn print_job_or_abort<P: Read + Write>(
     port: &mut Port<P>,
     conn: &mut Connected,
     clock: impl LinkClock,
-    tris: &[Triangle],
-    job: JobSpec,
+    source: Source<'_>,
     budget_ms: u32,
     abort: &std::sync::atomic::AtomicBool,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<Progress, String> {
     let mut last = Progress::default();
     let mut clock = Budget::new(clock, budget_ms);
-    let r = crate::serial::print(
-        port,
-        &mut conn.ep,
-        &mut clock,
-        conn.caps,
-        Source::Model(tris, job),
-        abort,
-        |p| {
-            last = p.clone();
-            on_progress(p);
-        },
-    );
+    let r = crate::serial::print(port, &mut conn.ep, &mut clock, conn.caps, source, abort, |p| {
+        last = p.clone();
+        on_progress(p);
+    });
     r.map_err(|e| {
+        let sent = match source {
+            Source::Model(tris, _) => {
+                format!("{} of {} triangles", last.triangles_sent, tris.len())
+            }
+            Source::Gcode(text, _) => format!("{} of {} bytes", last.gcode_bytes_sent, text.len()),
+        };
         format!(
-            "{e}; last seen: {} of {} triangles sent, {} layer reports, status {:?}, host link {:?}",
-            last.triangles_sent,
-            tris.len(),
+            "{e}; last seen: {sent} sent, {} layer reports, status {:?}, host link {:?}",
             last.layer_hashes.len(),
             last.status,
             conn.ep.stats()
