@@ -11,16 +11,17 @@ use indicatif::{ProgressBar, ProgressStyle};
 use strata::protocol::{DeviceState, LinkConfig, Status};
 use strata_host::admission::{admit_job_paced, Admission};
 use strata_host::clock::WallClock;
-use strata_host::model;
 use strata_host::serial::{self, Port};
 use strata_host::session::{HostEndpoint, Progress, Source};
+use strata_host::{gcode_file, model};
 
 use crate::settings::{job_of, machine_of, PrintArgs};
+use crate::simulate::is_gcode;
 
 /// Options of `strata print`.
 #[derive(Debug, clap::Args)]
 pub struct PrintCmdArgs {
-    /// The STL model.
+    /// The STL model, or a G-code file (`.gcode`, `.gco`, `.g`) from any slicer.
     pub model: PathBuf,
     /// Serial port of the printer (e.g. /dev/ttyUSB0).
     #[arg(long)]
@@ -40,11 +41,28 @@ pub struct PrintCmdArgs {
     pub print: Box<PrintArgs>,
 }
 
+/// What `strata print` sends, read and checked before the printer is contacted.
+enum Prepared {
+    /// A placed model, sliced on the printer.
+    Model(Vec<strata::geom::Triangle>),
+    /// G-code as the printer's reader reads it.
+    Gcode(Vec<u8>, gcode_file::GcodeScan),
+}
+
 /// Runs `strata print`.
 pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     let machine = machine_of(&args.print)?;
-    let loaded = model::load(&args.model)?;
-    let tris = loaded.placed_sorted(&machine)?;
+    let name = args.model.display();
+    let prepared = if is_gcode(&args.model) {
+        let text = std::fs::read(&args.model).map_err(|e| format!("{name}: {e}"))?;
+        let scan = gcode_file::scan(&text, &machine).map_err(|e| format!("{name}: {e}"))?;
+        for w in scan.warnings() {
+            eprintln!("{name}: warning: {w}");
+        }
+        Prepared::Gcode(text, scan)
+    } else {
+        Prepared::Model(model::load(&args.model)?.placed_sorted(&machine)?)
+    };
     if !(args.link_timeout.is_finite() && (0.5..=3600.0).contains(&args.link_timeout)) {
         return Err(format!("--link-timeout {}: expected 0.5 to 3600 s", args.link_timeout));
     }
@@ -78,67 +96,47 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         caps.move_buffer_bytes,
         caps.ram_bytes / 1024
     );
-    let job = job_of(&args.print, &tris)?;
-    // Admission can take longer than the link's dead time (3 s): keep the link alive.
-    let admitted = serial::keeping_link_alive(&mut port, &mut ep, &mut clock, || {
-        admit_job_paced(&tris, &machine, &job, &caps, args.max_deviation, args.baud)
-    })?;
-    if abort.load(Ordering::Relaxed) {
-        return Err("aborted by the user (Ctrl-C) before the job started".into());
-    }
-    let paced = admitted.map_err(|e| format!("{}: {e}", args.model.display()))?;
-    if !paced.pace.keeps_ahead() {
-        eprintln!("{}", paced.pace.warning(&args.model, args.baud));
-    }
-    let tris = match paced.admission {
-        Admission::Unchanged(_) => tris,
-        Admission::Simplified(s) => {
-            eprintln!(
-                "{}: simplified from {} to {} triangles to fit the printer and its link (error bound {} mm, \
-                 measured deviation {:.3} mm)",
-                args.model.display(),
-                s.triangles_in,
-                s.triangles.len(),
-                s.error_bound_mm,
-                s.max_deviation_mm
-            );
-            s.triangles
+    let model;
+    let (source, unit) = match &prepared {
+        Prepared::Gcode(text, scan) => (Source::Gcode(text, scan.spec), "bytes"),
+        Prepared::Model(tris) => {
+            model = admitted(args, &machine, tris, &caps, &mut port, &mut ep, &mut clock, &abort)?;
+            (Source::Model(&model.0, model.1), "triangles")
         }
     };
-    let job = strata::protocol::JobSpec { triangles: tris.len() as u32, ..job };
+    let total = match source {
+        Source::Model(t, _) => t.len(),
+        Source::Gcode(t, _) => t.len(),
+    };
+    let sent_of = |p: &Progress| match source {
+        Source::Model(..) => p.triangles_sent,
+        Source::Gcode(..) => p.gcode_bytes_sent,
+    };
     // A bar on a terminal; plain lines otherwise (logs, CI), at every tenth of the stream
     // and every layer the printer completes.
     let terminal = std::io::stderr().is_terminal();
-    let bar = ProgressBar::new(tris.len() as u64);
+    let bar = ProgressBar::new(total as u64);
     bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} triangles {msg}",
-        )
+        ProgressStyle::with_template(&format!(
+            "{{spinner}} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} {unit} {{msg}}"
+        ))
         .map_err(|e| e.to_string())?,
     );
-    let total = tris.len();
     let mut last_line: Option<(usize, u32)> = None;
-    let result = serial::print(
-        &mut port,
-        &mut ep,
-        &mut clock,
-        caps,
-        Source::Model(&tris, job),
-        &abort,
-        |p| {
-            let text = progress_text(p, total);
-            if terminal {
-                bar.set_position(p.triangles_sent as u64);
-                bar.set_message(text);
-            } else {
-                let key = (p.triangles_sent * 10 / total.max(1), p.status.map_or(0, |s| s.layer));
-                if last_line != Some(key) {
-                    last_line = Some(key);
-                    eprintln!("progress: {text}");
-                }
+    let result = serial::print(&mut port, &mut ep, &mut clock, caps, source, &abort, |p| {
+        let sent = sent_of(p);
+        let text = progress_text(p, sent, total, unit);
+        if terminal {
+            bar.set_position(sent as u64);
+            bar.set_message(text);
+        } else {
+            let key = (sent * 10 / total.max(1), p.status.map_or(0, |s| s.layer));
+            if last_line != Some(key) {
+                last_line = Some(key);
+                eprintln!("progress: {text}");
             }
-        },
-    );
+        }
+    });
     bar.finish_and_clear();
     let result = result.map_err(|e| {
         if abort.load(Ordering::Relaxed) {
@@ -150,14 +148,14 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
             e
         }
     });
-    let progress = result.map_err(|e| format!("{}: {e}", args.model.display()))?;
+    let progress = result.map_err(|e| format!("{name}: {e}"))?;
     let s = progress.status.unwrap_or_default();
+    let sent = sent_of(&progress);
     println!(
-        "{}: printed {} layers ({} triangles streamed, {:.1} bytes per triangle), state {:?}",
-        args.model.display(),
+        "{name}: printed {} layers ({sent} {unit} streamed, {:.1} wire bytes per {}), state {:?}",
         s.layers,
-        progress.triangles_sent,
-        progress.triangle_wire_bytes as f64 / progress.triangles_sent.max(1) as f64,
+        progress.triangle_wire_bytes as f64 / sent.max(1) as f64,
+        unit.trim_end_matches('s'),
         s.state
     );
     if s.state != DeviceState::Done {
@@ -166,14 +164,57 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     Ok(())
 }
 
-/// One progress report: triangles and bytes streamed, the printer's layer, state, print time
-/// and the time left (estimated from the print time of the layers planned so far).
-fn progress_text(p: &Progress, total: usize) -> String {
+/// The model's triangles and job as admission control lets them go to a printer with `caps`
+/// (simplified if need be), the link kept alive meanwhile.
+#[allow(clippy::too_many_arguments)]
+fn admitted(
+    args: &PrintCmdArgs,
+    machine: &strata::machine::MachineConfig,
+    tris: &[strata::geom::Triangle],
+    caps: &strata::protocol::Capacities,
+    port: &mut Port<Box<dyn serialport::SerialPort>>,
+    ep: &mut HostEndpoint,
+    clock: &mut WallClock,
+    abort: &AtomicBool,
+) -> Result<(Vec<strata::geom::Triangle>, strata::protocol::JobSpec), String> {
+    let job = job_of(&args.print, tris)?;
+    // Admission can take longer than the link's dead time (3 s): keep the link alive.
+    let admitted = serial::keeping_link_alive(port, ep, clock, || {
+        admit_job_paced(tris, machine, &job, caps, args.max_deviation, args.baud)
+    })?;
+    if abort.load(Ordering::Relaxed) {
+        return Err("aborted by the user (Ctrl-C) before the job started".into());
+    }
+    let paced = admitted.map_err(|e| format!("{}: {e}", args.model.display()))?;
+    if !paced.pace.keeps_ahead() {
+        eprintln!("{}", paced.pace.warning(&args.model, args.baud));
+    }
+    let tris = match paced.admission {
+        Admission::Unchanged(_) => tris.to_vec(),
+        Admission::Simplified(s) => {
+            eprintln!(
+                "{}: simplified from {} to {} triangles to fit the printer and its link (error \
+                 bound {} mm, measured deviation {:.3} mm)",
+                args.model.display(),
+                s.triangles_in,
+                s.triangles.len(),
+                s.error_bound_mm,
+                s.max_deviation_mm
+            );
+            s.triangles
+        }
+    };
+    let job = strata::protocol::JobSpec { triangles: tris.len() as u32, ..job };
+    Ok((tris, job))
+}
+
+/// One progress report: triangles (or G-code bytes: the `unit`) and wire bytes streamed, the
+/// printer's layer, state, print time and the time left (estimated from the print time of the
+/// layers planned so far).
+fn progress_text(p: &Progress, sent: usize, total: usize, unit: &str) -> String {
     let mut text = format!(
-        "{}/{} triangles ({}%), {} B sent",
-        p.triangles_sent,
-        total,
-        p.triangles_sent * 100 / total.max(1),
+        "{sent}/{total} {unit} ({}%), {} B sent",
+        sent * 100 / total.max(1),
         p.triangle_wire_bytes
     );
     if let Some(s) = p.status {

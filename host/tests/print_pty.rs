@@ -285,3 +285,22 @@ fn a_printer_that_takes_no_data_past_the_link_timeout_ends_the_print_with_a_clea
     assert!(!out.status.success(), "{stderr}");
     assert!(stderr.contains("the printer took no data for 2."), "{stderr}");
 }
+
+/// A G-code file prints as it is: streamed in text messages, run by the printer's G-code
+/// reader; the skipped command is named before the print starts.
+#[test]
+fn print_streams_a_gcode_file_to_the_simulated_printer_over_a_pty() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("square.gcode");
+    let square = "G28\nM201 X500\nG1 Z0.2 F600\n;LAYER_CHANGE\nG1 X10 Y10 F3000\n\
+                  G1 X20 E1 F1200\nG1 Y20 E2\n;LAYER_CHANGE\nG1 Z0.4\nG1 X10 E3\nG1 Y10 E4\n";
+    std::fs::write(&file, square).unwrap();
+    let (out, state) = print_over_pty(&[file.to_str().unwrap()], CREALITY_CAPACITIES);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "stdout {stdout}\nstderr {stderr}");
+    assert!(stdout.contains("printed 2 layers"), "{stdout}");
+    assert!(stdout.contains(&format!("{} bytes streamed", square.len())), "{stdout}");
+    assert!(stderr.contains("skipped (not run by this printer): M201 x1"), "{stderr}");
+    assert_eq!(state, DeviceState::Done);
+}
