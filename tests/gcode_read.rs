@@ -316,3 +316,12 @@ proptest! {
         prop_assert!((um as i64 * 1000 - nm).abs() <= 2_500, "{} um for {} nm", um, nm);
     }
 }
+
+#[test]
+fn the_slowest_feed_is_marlins_slowest_planned_speed() {
+    let mut r = Reader::new(&ENDER3);
+    // F0.000001 mm/min would take 2 years a mm; Marlin plans nothing slower than 0.05 mm/s.
+    let m = moved(&mut r, "G1 X1 F0.000001");
+    assert!((mm_s(m.feed_mm_s) - 0.05).abs() < 1e-9, "{}", mm_s(m.feed_mm_s));
+    assert!((mm_s(moved(&mut r, "G1 X2 F3.6").feed_mm_s) - 0.06).abs() < 1e-9);
+}

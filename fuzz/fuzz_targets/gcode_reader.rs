@@ -1,14 +1,49 @@
-//! Fuzz target for `strata::gcode::read` (the line splitter and the reader).
+//! Fuzz target for `strata::gcode::read` (the line splitter and the reader) and the printer's
+//! G-code input stage (`strata::gcode::input`).
 //!
 //! The first input byte picks a chunk size, the rest is the file. Checks: no panic; chunked
 //! splitting gives the lines whole splitting gives; every line is within `LINE_BYTES`; every
 //! move's target is inside the build volume on X, Y, Z; a refused line changes no position;
-//! the counts add up.
+//! the counts add up. Then the input stage takes the file in those chunks against a move
+//! buffer that is full at times and a generator that finishes blocks in bursts: it reads to
+//! the end, every move it gives is inside the build volume, and it gives as many as it says.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
+use strata::gcode::input::{GcodeInput, GcodeSink};
 use strata::gcode::read::{Action, LineError, LineSplitter, Reader, LINE_BYTES};
 use strata::machine::MachineConfig;
+use strata::move_ring::{PackedMove, RingFull};
+
+/// A move buffer that refuses every `period`-th offer, and a generator that has finished
+/// every block pushed.
+struct Sink {
+    moves: Vec<PackedMove>,
+    offers: u32,
+    period: u32,
+    heaters: bool,
+}
+
+impl GcodeSink for Sink {
+    fn push_move(&mut self, mv: &PackedMove) -> Result<(), RingFull> {
+        self.offers += 1;
+        if self.offers % self.period == 0 {
+            return Err(RingFull);
+        }
+        self.moves.push(*mv);
+        Ok(())
+    }
+
+    fn blocks_done(&mut self) -> u32 {
+        self.moves.len() as u32
+    }
+
+    fn has_heaters(&self) -> bool {
+        self.heaters
+    }
+
+    fn holding(&mut self, _holds: bool) {}
+}
 
 /// Every line of `file` split in chunks of `size` bytes.
 fn lines(file: &[u8], size: usize) -> Vec<Result<Vec<u8>, LineError>> {
@@ -72,4 +107,31 @@ fuzz_target!(|data: &[u8]| {
     let stats = reader.stats();
     assert_eq!(stats.lines as usize, whole.len());
     assert_eq!((stats.moves, stats.refused), (moves, refused));
+
+    // The input stage, chunk by chunk, offered again while it waits.
+    let mut input = GcodeInput::new(&machine);
+    let period = u32::from(selector % 5) + 2;
+    let mut sink = Sink { moves: Vec::new(), offers: 0, period, heaters: selector & 0x80 != 0 };
+    let chunks: Vec<&[u8]> = file.chunks(size).collect();
+    let last = chunks.len();
+    for (i, chunk) in chunks.iter().copied().chain([&[][..]]).enumerate() {
+        let mut pos = 0;
+        let mut tries = 0u32;
+        while !input.take(chunk, &mut pos, i == last, &mut sink) {
+            tries += 1;
+            // The heaters come to their targets after a few offers; a full buffer drains.
+            input.thermal(tries > 3);
+            input.apply_due(sink.blocks_done());
+            assert!(tries < 1_000, "the input stage never finished a chunk");
+        }
+    }
+    input.apply_due(sink.blocks_done());
+    assert!(input.finished());
+    assert_eq!(input.stats().moves as usize, sink.moves.len());
+    assert_eq!(input.stats().lines as usize, whole.len());
+    for m in &sink.moves {
+        for axis in 0..3 {
+            assert!((0..=volume[axis]).contains(&m.target_um[axis]), "{m:?}");
+        }
+    }
 });

@@ -50,6 +50,9 @@ const MAX_INTEGER_DIGITS: u32 = 9;
 /// Feed rate of a homing move, mm/s (Marlin's Ender-3 `HOMING_FEEDRATE_MM_M` for X and Y;
 /// the planner lowers it to each axis' limit).
 const HOMING_FEED_MM_S: u32 = 50;
+/// Slowest feed rate of a move, mm/s x 100 (Marlin's `MINIMUM_PLANNER_SPEED`, 0.05 mm/s): a
+/// file's `F0.001` neither stalls the print for days nor packs to a feed of zero.
+const MIN_FEED_MM_S_X100: i128 = 5;
 /// Speed (`M220`) and flow (`M221`) factors accepted, percent (Marlin's range).
 const FACTOR_PERCENT: core::ops::RangeInclusive<i64> = 10..=999;
 
@@ -738,10 +741,12 @@ impl Reader {
             (false, true) => MoveKind::Retract,
             _ => MoveKind::Travel,
         };
-        // mm/min in millionths times the speed factor, to mm/s in 32.32.
+        // mm/min in millionths times the speed factor, to mm/s in 32.32, at least Marlin's
+        // slowest planned speed.
         let bits = (self.feed as i128 * self.speed_percent as i128) << 32;
+        let slowest = (MIN_FEED_MM_S_X100 << 32) / 100;
         let feed = Rate::from_bits(
-            (bits / (60 * NM_PER_MM as i128 * 100)).clamp(1, u64::MAX as i128) as u64,
+            (bits / (60 * NM_PER_MM as i128 * 100)).clamp(slowest, u64::MAX as i128) as u64,
         );
         Ok(Some(Action::Move(Move::new(self.target(), feed, kind))))
     }
