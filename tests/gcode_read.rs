@@ -325,3 +325,85 @@ fn the_slowest_feed_is_marlins_slowest_planned_speed() {
     assert!((mm_s(m.feed_mm_s) - 0.05).abs() < 1e-9, "{}", mm_s(m.feed_mm_s));
     assert!((mm_s(moved(&mut r, "G1 X2 F3.6").feed_mm_s) - 0.06).abs() < 1e-9);
 }
+
+/// Every segment of the arc `line` (after `setup`), as (x, y, z, e) in mm.
+fn arc_points(setup: &str, line: &str) -> Vec<[f64; 4]> {
+    let mut r = Reader::new(&ENDER3);
+    run(&mut r, setup);
+    let first = moved(&mut r, line);
+    let mut out = vec![first];
+    out.extend(std::iter::from_fn(|| r.continuation()));
+    out.iter().map(|m| m.target_um.map(|um| f64::from(um) / 1000.0)).collect()
+}
+
+/// The point lies on the circle of `radius` mm around (`cx`, `cy`) to within the um the
+/// targets are rounded to and the half step they are moved by (6.25 um at 80 steps/mm).
+fn assert_on_circle(p: &[f64; 4], cx: f64, cy: f64, radius: f64) {
+    let d = ((p[0] - cx).powi(2) + (p[1] - cy).powi(2)).sqrt();
+    assert!((d - radius).abs() < 0.008, "{p:?} is {d} mm from the centre");
+}
+
+#[test]
+fn arcs_are_cut_into_millimetre_segments_on_their_circle() {
+    // Half a circle of radius 10 mm anticlockwise over the top: pi x 10 mm, 31 segments.
+    let up = arc_points("G1 X110 Y100 F3000", "G3 X90 Y100 I-10 J0");
+    assert_eq!(up.len(), 31);
+    let mut last_angle = 0.0;
+    for p in &up {
+        assert_on_circle(p, 100.0, 100.0, 10.0);
+        assert!(p[1] >= 100.0 - 0.007, "{p:?} below the centre");
+        let angle = (p[1] - 100.0).atan2(p[0] - 100.0).rem_euclid(std::f64::consts::TAU);
+        assert!(angle + 1e-6 >= last_angle, "not anticlockwise: {angle} after {last_angle}");
+        last_angle = angle;
+    }
+    assert_eq!(up.last().unwrap()[..2], [90.0, 100.0]);
+    // Clockwise between the same points: under the centre.
+    let down = arc_points("G1 X110 Y100 F3000", "G2 X90 Y100 I-10 J0");
+    assert_eq!(down.len(), 31);
+    assert!(down.iter().all(|p| p[1] <= 100.0 + 0.007));
+    // The same start and end: a whole circle, 2 pi x 10 mm.
+    let whole = arc_points("G1 X110 Y100 F3000", "G2 X110 Y100 I-10 J0");
+    assert_eq!(whole.len(), 62);
+    whole.iter().for_each(|p| assert_on_circle(p, 100.0, 100.0, 10.0));
+    assert!(whole.iter().any(|p| p[1] < 91.0) && whole.iter().any(|p| p[1] > 109.0));
+}
+
+#[test]
+fn a_helix_rises_and_extrudes_in_proportion() {
+    // A quarter circle of radius 20 mm (31.4 mm of arc, 31 segments) rising 1 mm with 2 mm
+    // of filament, relative extrusion.
+    let pts = arc_points("G1 X120 Y100 Z1 F3000\nM83", "G3 X100 Y120 Z2 E2 I-20 J0");
+    let n = pts.len();
+    assert_eq!(n, 31);
+    for (k, p) in pts.iter().enumerate() {
+        let share = (k + 1) as f64 / n as f64;
+        assert_on_circle(p, 100.0, 100.0, 20.0);
+        // Z within a step (2.5 um), E within a step (10.8 um) of the proportion.
+        assert!((p[2] - (1.0 + share)).abs() < 0.0026, "Z {} at {share}", p[2]);
+        assert!((p[3] - 2.0 * share).abs() < 0.011, "E {} at {share}", p[3]);
+    }
+}
+
+#[test]
+fn the_radius_form_takes_the_short_way_unless_negative() {
+    // From (110, 100) to (100, 110), radius 10: anticlockwise the short way is around
+    // (100, 100), a quarter circle (15.7 mm, 15 segments); R-10 goes the long way round
+    // (110, 110): three quarters (47.1 mm, 47 segments).
+    let short = arc_points("G1 X110 Y100 F3000", "G3 X100 Y110 R10");
+    assert_eq!(short.len(), 15);
+    short.iter().for_each(|p| assert_on_circle(p, 100.0, 100.0, 10.0));
+    let long = arc_points("G1 X110 Y100 F3000", "G3 X100 Y110 R-10");
+    assert_eq!(long.len(), 47);
+    long.iter().for_each(|p| assert_on_circle(p, 110.0, 110.0, 10.0));
+    // Clockwise, the short way is around (110, 110).
+    let cw = arc_points("G1 X110 Y100 F3000", "G2 X100 Y110 R10");
+    assert_eq!(cw.len(), 15);
+    cw.iter().for_each(|p| assert_on_circle(p, 110.0, 110.0, 10.0));
+    // Ends further apart than the diameter: refused, nothing moves.
+    let mut r = Reader::new(&ENDER3);
+    run(&mut r, "G1 X110 Y100 F3000");
+    assert_eq!(one(&mut r, "G2 X80 Y100 R10"), Err(LineError::OutOfRange { letter: b'R' }));
+    assert_eq!(one(&mut r, "G2 X80 Y100"), Err(LineError::MissingValue { letter: b'I' }));
+    assert_eq!(r.continuation(), None);
+    assert_eq!(&moved(&mut r, "G1 Z1").target_um[..2], &[110_000, 100_000]);
+}

@@ -169,3 +169,21 @@ fn triangles_in_a_gcode_job_fail_it() {
     let triangles = strata::protocol::msg::ty::TRIANGLES;
     assert_eq!(p.error(), (ErrorCode::Unexpected, u32::from(triangles)));
 }
+
+/// An arc on the printer: its segments go into the move buffer one by one, each a block,
+/// and the motors end where the arc does.
+#[test]
+fn an_arc_runs_as_its_segments() {
+    let mut p = Box::new(Small::new(&MachineConfig::default()));
+    let mut q: StepQueue<32> = StepQueue::new();
+    let mut rig = Rig::executing(&mut q, p.step_config());
+    // A move, then a whole circle of radius 10 mm (62 segments) extruding 5 mm.
+    let text = "G1 X110 Y100 F3000\nM83\nG2 X110 Y100 I-10 J0 E5\n";
+    rig.drive(&mut *p, &payloads(text, 16), 1_000_000, |_, _: &mut SmallMotion<'_>, _| {});
+    assert_eq!(p.state(), DeviceState::Done);
+    let gen = rig.motion.motion.generator();
+    assert_eq!(gen.blocks_done(), 1 + 62);
+    // X 110 mm, Y 100 mm at 80 steps/mm; E 5 mm at 93.
+    assert_eq!(gen.motor_steps(), [8800, 8000, 0, 465]);
+    assert_eq!(rig.board().unwrap().positions(), [8800, 8000, 0, 465]);
+}

@@ -93,6 +93,16 @@ fuzz_target!(|data: &[u8]| {
                 for axis in 0..3 {
                     assert!((0..=volume[axis]).contains(&m.target_um[axis]), "{m:?}");
                 }
+                // An arc's further segments: inside the bed too, and finite in number.
+                let mut segments = 0;
+                while let Some(m) = reader.continuation() {
+                    moves += 1;
+                    segments += 1;
+                    assert!(segments < 4096, "an arc of too many segments");
+                    for axis in 0..3 {
+                        assert!((0..=volume[axis]).contains(&m.target_um[axis]), "{m:?}");
+                    }
+                }
             }
             Ok(Some(Action::Home { travel, .. })) => {
                 assert!(travel.target_um[..3].iter().all(|&v| v >= 0));

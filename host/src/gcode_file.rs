@@ -89,6 +89,8 @@ pub fn scan(text: &[u8], machine: &MachineConfig) -> Result<GcodeScan, String> {
             Err(e) if out.refusals.len() < REFUSALS_KEPT => out.refusals.push((number, e)),
             Err(_) => {}
         }
+        // An arc's segments are moves too.
+        while reader.continuation().is_some() {}
     }
     let stats = reader.stats();
     out.lines = stats.lines;

@@ -20,7 +20,7 @@ use heapless::Deque;
 use super::read::{Action, Heater, LineError, LineSplitter, Reader};
 use crate::machine::{MachineConfig, AXES};
 use crate::move_ring::{PackedMove, RingFull};
-use crate::plan::MoveKind;
+use crate::plan::{Move, MoveKind};
 
 /// Settings read ahead of the motion and waiting for it; a full queue holds the reading.
 pub const SETTINGS: usize = 8;
@@ -209,6 +209,11 @@ impl GcodeInput {
                     return false;
                 }
             }
+            // An arc's segments, one at a time, before the next line.
+            if let Some(m) = self.reader.continuation() {
+                self.queue_move(&m);
+                continue;
+            }
             let rest = text.get(*pos..).unwrap_or(&[]);
             let line = if !rest.is_empty() {
                 let (taken, line) = self.splitter.take(rest);
@@ -241,12 +246,7 @@ impl GcodeInput {
         let line = self.splitter.line();
         let mut setting = None;
         match self.reader.line(line) {
-            Ok(Some(Action::Move(m) | Action::Home { travel: m, .. })) => {
-                if m.kind == MoveKind::Dwell || m.target_um != self.last_target {
-                    self.last_target = m.target_um;
-                    self.pending = Some(PackedMove::pack(self.layer, &m));
-                }
-            }
+            Ok(Some(Action::Move(m) | Action::Home { travel: m, .. })) => self.queue_move(&m),
             Ok(Some(Action::Layer(l))) => self.layer = l,
             Ok(Some(Action::Heat { heater, target_c, wait, .. })) => {
                 setting = Some(match heater {
@@ -267,6 +267,14 @@ impl GcodeInput {
             // After the moves in the buffer (no move is pending when a line is read); the
             // queue had room (checked before the line was read).
             let _ = self.settings.push_back((self.stats.moves, s));
+        }
+    }
+
+    /// `m` waits to go into the move buffer, unless it goes nowhere (not a dwell).
+    fn queue_move(&mut self, m: &Move) {
+        if m.kind == MoveKind::Dwell || m.target_um != self.last_target {
+            self.last_target = m.target_um;
+            self.pending = Some(PackedMove::pack(self.layer, m));
         }
     }
 

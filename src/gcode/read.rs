@@ -22,7 +22,9 @@
 //! rounding to um.
 //!
 //! # Commands
-//! `G0`/`G1` (X Y Z E F), `G4` (P ms, S s), `G20`/`G21`, `G28` (home: the machine position goes
+//! `G0`/`G1` (X Y Z E F), `G2`/`G3` (arcs in the XY plane around `I` `J` or of radius `R`, cut
+//! into 1 mm segments as Marlin's `ARC_SUPPORT` does, each given by [`Reader::continuation`]),
+//! `G4` (P ms, S s), `G17`, `G20`/`G21`, `G28` (home: the machine position goes
 //! to 0), `G90`/`G91` (all axes, the extruder too, as Marlin 2), `G92`, `M82`/`M83`,
 //! `M104`/`M109`, `M140`/`M190` (S, or R for `M109`/`M190`), `M106`/`M107`, `M84`/`M18`,
 //! `M105`, `M114`, `M115`, `M117`, `M220`/`M221`, `M400`, `M73`, `M110`. Targets beyond the
@@ -35,6 +37,7 @@
 use core::fmt;
 
 use crate::machine::{MachineConfig, Rate, AXES};
+use crate::math::isqrt_u128;
 use crate::plan::{Move, MoveKind};
 use crate::step::{nearest_step, step_position_q32};
 
@@ -53,6 +56,13 @@ const HOMING_FEED_MM_S: u32 = 50;
 /// Slowest feed rate of a move, mm/s x 100 (Marlin's `MINIMUM_PLANNER_SPEED`, 0.05 mm/s): a
 /// file's `F0.001` neither stalls the print for days nor packs to a feed of zero.
 const MIN_FEED_MM_S_X100: i128 = 5;
+/// Length of an arc's segments, nm (Marlin's `MAX_ARC_SEGMENT_MM`, 1 mm).
+const ARC_SEGMENT_NM: i64 = NM_PER_MM;
+/// Segments of one arc at most (longer segments beyond: a whole circle across the bed is 700).
+const MAX_ARC_SEGMENTS: i64 = 2_048;
+/// How far an arc's end may lie off the bed before it is clamped, nm (10 m: its centre and
+/// radius stay well inside the CORDIC's range).
+const MAX_ARC_REACH_NM: i64 = 10_000 * NM_PER_MM;
 /// Speed (`M220`) and flow (`M221`) factors accepted, percent (Marlin's range).
 const FACTOR_PERCENT: core::ops::RangeInclusive<i64> = 10..=999;
 
@@ -294,13 +304,16 @@ impl LineSplitter {
 }
 
 /// Letters whose values a command reads, in [`Words`]' slots.
-const LETTERS: &[u8; 8] = b"XYZEFSPR";
+const LETTERS: &[u8; 10] = b"XYZEFSPRIJ";
 const X: usize = 0;
+const Y: usize = 1;
 const E: usize = 3;
 const F: usize = 4;
 const S: usize = 5;
 const P: usize = 6;
 const R: usize = 7;
+const I: usize = 8;
+const J: usize = 9;
 
 /// A word's value: absent, present without a number (`G28 X`), or a number in millionths.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -533,7 +546,30 @@ pub struct Reader {
     next_line: u32,
     /// The layer of the last marker.
     layer: Option<u32>,
+    /// The arc being cut into segments.
+    arc: Option<ArcCut>,
     stats: ReadStats,
+}
+
+/// An arc (`G2`/`G3`) cut into straight segments of about [`ARC_SEGMENT_NM`].
+#[derive(Debug, Clone, Copy)]
+struct ArcCut {
+    /// Centre X, Y, machine nm.
+    centre: [i64; 2],
+    radius: i64,
+    /// Angle of the start, q30 rad.
+    start: i64,
+    /// Angle turned, q30 rad (negative clockwise).
+    travel: i64,
+    /// Machine position at the start and at the end, nm.
+    from: [i64; AXES],
+    to: [i64; AXES],
+    segments: u32,
+    /// Segments given.
+    done: u32,
+    /// The last segment's end, nm.
+    last: [i64; AXES],
+    feed: Rate,
 }
 
 impl Reader {
@@ -557,6 +593,7 @@ impl Reader {
             flow_percent: 100,
             next_line: 1,
             layer: None,
+            arc: None,
             stats: ReadStats::default(),
         }
     }
@@ -582,6 +619,7 @@ impl Reader {
     /// a modal change, a move that goes nowhere is still returned).
     pub fn line<'l>(&mut self, line: &'l [u8]) -> Result<Option<Action<'l>>, LineError> {
         self.stats.lines += 1;
+        self.arc = None;
         let saved = (self.logical_nm, self.machine_nm, self.feed);
         let r = self.read(line);
         match r {
@@ -590,6 +628,7 @@ impl Reader {
             Err(_) => {
                 self.stats.refused += 1;
                 (self.logical_nm, self.machine_nm, self.feed) = saved;
+                self.arc = None;
             }
             _ => {}
         }
@@ -617,6 +656,9 @@ impl Reader {
         let words = || parse_words(rest);
         let action = match (letter, code_number) {
             (b'G', 0 | 1) => self.linear(&words()?)?,
+            (b'G', 2 | 3) => self.arc(&words()?, code_number == 2)?,
+            // The XY plane only: arcs in another plane are not run.
+            (b'G', 17) => None,
             (b'G', 4) => self.dwell(&words()?)?,
             (b'G', 20) => self.set(|r| r.inches = true),
             (b'G', 21) => self.set(|r| r.inches = false),
@@ -695,13 +737,42 @@ impl Reader {
 
     /// `G0`/`G1`: the new positions and the move to them.
     fn linear<'l>(&mut self, w: &Words) -> Result<Option<Action<'l>>, LineError> {
+        self.set_feed(w)?;
+        let before = self.machine_nm;
+        if !self.advance(w, true)? {
+            return Ok(None);
+        }
+        if self.feed == 0 {
+            return Err(LineError::MissingValue { letter: b'F' });
+        }
+        let kind = kind_between(&before, &self.machine_nm);
+        Ok(Some(Action::Move(Move::new(self.target(), self.feed_rate(), kind))))
+    }
+
+    /// The modal feed rate from `F`, when given.
+    fn set_feed(&mut self, w: &Words) -> Result<(), LineError> {
         if let Some(f) = w.num(F)? {
             if f <= 0 {
                 return Err(LineError::OutOfRange { letter: b'F' });
             }
             self.feed = self.length_nm(f);
         }
-        let before = self.machine_nm;
+        Ok(())
+    }
+
+    /// The feed rate of a move: mm/min in millionths times the speed factor, to mm/s in 32.32,
+    /// at least Marlin's slowest planned speed.
+    fn feed_rate(&self) -> Rate {
+        let bits = (self.feed as i128 * self.speed_percent as i128) << 32;
+        let slowest = (MIN_FEED_MM_S_X100 << 32) / 100;
+        Rate::from_bits(
+            (bits / (60 * NM_PER_MM as i128 * 100)).clamp(slowest, u64::MAX as i128) as u64
+        )
+    }
+
+    /// The logical and machine positions of the axes `w` names (X, Y, Z and Z clamped to the
+    /// build volume, X and Y only with `clamp_xy`); whether it named any.
+    fn advance(&mut self, w: &Words, clamp_xy: bool) -> Result<bool, LineError> {
         let mut any = false;
         let mut clamped = false;
         for axis in 0..AXES {
@@ -709,46 +780,133 @@ impl Reader {
             any = true;
             let v = self.length_nm(v);
             let relative = if axis == E { !self.absolute_e } else { !self.absolute };
-            let logical = if relative { self.logical_nm[axis] + v } else { v };
-            let mut delta = logical - self.logical_nm[axis];
+            let logical = if relative { self.logical_nm[axis].saturating_add(v) } else { v };
+            let mut delta = logical.saturating_sub(self.logical_nm[axis]);
             if axis == E {
                 delta = delta.saturating_mul(self.flow_percent) / 100;
             }
             let mut machine = self.machine_nm[axis].saturating_add(delta);
-            if let Some(&max) = self.limits.volume_nm.get(axis) {
-                if !(0..=max).contains(&machine) {
+            match self.limits.volume_nm.get(axis) {
+                Some(&max) if (clamp_xy || axis == 2) && !(0..=max).contains(&machine) => {
                     machine = machine.clamp(0, max);
                     clamped = true;
                 }
-            } else if machine.unsigned_abs() > i32::MAX as u64 * NM_PER_UM as u64 {
-                return Err(LineError::OutOfRange { letter: b'E' });
+                Some(_) if clamp_xy || axis == 2 => {}
+                // An arc's end is clamped segment by segment; never beyond the numbers' range.
+                Some(_) => machine = machine.clamp(-MAX_ARC_REACH_NM, MAX_ARC_REACH_NM),
+                None if machine.unsigned_abs() > i32::MAX as u64 * NM_PER_UM as u64 => {
+                    return Err(LineError::OutOfRange { letter: b'E' });
+                }
+                None => {}
             }
             self.logical_nm[axis] = logical;
             self.machine_nm[axis] = machine;
         }
-        if !any {
-            return Ok(None);
-        }
         if clamped {
             self.stats.clamped += 1;
         }
+        Ok(any)
+    }
+
+    /// `G2` (clockwise) / `G3`: an arc in the XY plane around the centre `I` `J` from the start
+    /// (or of radius `R`), Z and E in proportion; its first segment (the others:
+    /// [`continuation`](Self::continuation)).
+    fn arc<'l>(&mut self, w: &Words, clockwise: bool) -> Result<Option<Action<'l>>, LineError> {
+        let (i, j, r) = (w.num(I)?, w.num(J)?, w.num(R)?);
+        self.set_feed(w)?;
+        let from = self.machine_nm;
+        self.advance(w, false)?;
         if self.feed == 0 {
             return Err(LineError::MissingValue { letter: b'F' });
         }
-        let moved = |a: usize| self.machine_nm[a] != before[a];
-        let kind = match ((0..E).any(moved), moved(E)) {
-            (true, true) => MoveKind::Print,
-            (false, true) => MoveKind::Retract,
-            _ => MoveKind::Travel,
+        let to = self.machine_nm;
+        let (dx, dy) = (to[X] - from[X], to[Y] - from[Y]);
+        let centre = match (i, j, r) {
+            (None, None, Some(r)) => {
+                let r = self.length_nm(r);
+                centre_of(from, dx, dy, r, clockwise)
+                    .ok_or(LineError::OutOfRange { letter: b'R' })?
+            }
+            (None, None, None) => return Err(LineError::MissingValue { letter: b'I' }),
+            _ => {
+                let (i, j) = (self.length_nm(i.unwrap_or(0)), self.length_nm(j.unwrap_or(0)));
+                [from[X] + i, from[Y] + j]
+            }
         };
-        // mm/min in millionths times the speed factor, to mm/s in 32.32, at least Marlin's
-        // slowest planned speed.
-        let bits = (self.feed as i128 * self.speed_percent as i128) << 32;
-        let slowest = (MIN_FEED_MM_S_X100 << 32) / 100;
-        let feed = Rate::from_bits(
-            (bits / (60 * NM_PER_MM as i128 * 100)).clamp(slowest, u64::MAX as i128) as u64,
-        );
-        Ok(Some(Action::Move(Move::new(self.target(), feed, kind))))
+        let (sx, sy) = (from[X] - centre[0], from[Y] - centre[1]);
+        let radius = isqrt_u128((sx as i128 * sx as i128 + sy as i128 * sy as i128) as u128) as i64;
+        if radius == 0 {
+            return Err(LineError::OutOfRange { letter: b'I' });
+        }
+        let start = cordic::atan2(sy, sx);
+        let end = cordic::atan2(to[Y] - centre[1], to[X] - centre[0]);
+        // Clockwise turns negative; the same start and end make a whole circle.
+        let mut travel = end - start;
+        if clockwise && travel >= 0 {
+            travel -= cordic::TAU;
+        } else if !clockwise && travel <= 0 {
+            travel += cordic::TAU;
+        }
+        let flat = ((travel.unsigned_abs() as u128 * radius as u128) >> cordic::ONE_BITS) as i128;
+        let rise = (to[2] - from[2]) as i128;
+        let length = isqrt_u128((flat * flat + rise * rise) as u128) as i64;
+        let segments = (length / ARC_SEGMENT_NM).clamp(1, MAX_ARC_SEGMENTS);
+        // Where the arc leaves the machine: its end, clamped as its last segment is.
+        for (axis, max) in self.limits.volume_nm.iter().enumerate().take(2) {
+            self.machine_nm[axis] = self.machine_nm[axis].clamp(0, *max);
+        }
+        let arc = ArcCut {
+            centre,
+            radius,
+            start,
+            travel,
+            from,
+            to,
+            segments: segments as u32,
+            done: 0,
+            last: from,
+            feed: self.feed_rate(),
+        };
+        self.arc = Some(arc);
+        Ok(self.next_segment().map(Action::Move))
+    }
+
+    /// The next segment of the arc being cut, counted as a move; `None` once it is whole
+    /// (call until then before the next [`line`](Self::line), which drops what is left).
+    pub fn continuation(&mut self) -> Option<Move> {
+        let m = self.next_segment()?;
+        self.stats.moves += 1;
+        Some(m)
+    }
+
+    fn next_segment(&mut self) -> Option<Move> {
+        let arc = self.arc.as_mut()?;
+        arc.done += 1;
+        let (k, n) = (i64::from(arc.done), i64::from(arc.segments));
+        let mut at = arc.to;
+        if k < n {
+            let angle = arc.start + (arc.travel as i128 * k as i128 / n as i128) as i64;
+            let (sin, cos) = cordic::sin_cos(angle);
+            at[X] = arc.centre[0] + ((arc.radius as i128 * cos as i128) >> cordic::ONE_BITS) as i64;
+            at[Y] = arc.centre[1] + ((arc.radius as i128 * sin as i128) >> cordic::ONE_BITS) as i64;
+            for ((a, from), to) in at.iter_mut().zip(arc.from).zip(arc.to).skip(2) {
+                *a = from + ((to - from) as i128 * k as i128 / n as i128) as i64;
+            }
+        }
+        let before = if k == 1 { arc.from } else { arc.last };
+        let feed = arc.feed;
+        let mut clamped = false;
+        for (axis, max) in self.limits.volume_nm.iter().enumerate().take(2) {
+            clamped |= !(0..=*max).contains(&at[axis]);
+            at[axis] = at[axis].clamp(0, *max);
+        }
+        arc.last = at;
+        if k >= n {
+            self.arc = None;
+        }
+        self.stats.clamped += u32::from(clamped);
+        let target = core::array::from_fn(|a| target_um(at[a], self.limits.steps_per_mm[a]));
+        Some(Move::new(target, feed, kind_between(&before, &at)))
     }
 
     /// The planner target of the machine position: each axis in um on the step nearest the
@@ -825,6 +983,141 @@ impl Reader {
             set(self, v);
         }
         Ok(None)
+    }
+}
+
+/// Print when the extruder moves with XYZ, retract when it moves alone, travel otherwise.
+fn kind_between(before: &[i64; AXES], after: &[i64; AXES]) -> MoveKind {
+    let moved = |a: usize| after[a] != before[a];
+    match ((0..E).any(moved), moved(E)) {
+        (true, true) => MoveKind::Print,
+        (false, true) => MoveKind::Retract,
+        _ => MoveKind::Travel,
+    }
+}
+
+/// The centre of the arc of radius `r` (nm; negative: the longer way round) from `from` by
+/// (`dx`, `dy`), turning clockwise or not; `None` when the ends are further apart than the
+/// diameter or the same (Marlin's `R` form).
+fn centre_of(from: [i64; AXES], dx: i64, dy: i64, r: i64, clockwise: bool) -> Option<[i64; 2]> {
+    let d2 = dx as i128 * dx as i128 + dy as i128 * dy as i128;
+    let r2 = r as i128 * r as i128;
+    if d2 == 0 || 4 * r2 < d2 {
+        return None;
+    }
+    let d = isqrt_u128(d2 as u128) as i128;
+    // Distance of the centre from the chord's middle, on its left (anticlockwise) for a
+    // clockwise arc shorter than a half circle.
+    let h = isqrt_u128((4 * r2 - d2) as u128) as i128 / 2;
+    let left = clockwise != (r > 0);
+    let sign: i128 = if left { 1 } else { -1 };
+    let cx = from[X] as i128 + dx as i128 / 2 - sign * h * dy as i128 / d;
+    let cy = from[Y] as i128 + dy as i128 / 2 + sign * h * dx as i128 / d;
+    Some([cx as i64, cy as i64])
+}
+
+/// Fixed-point trigonometry for arcs (CORDIC, no floating point): angles in q30 radians.
+mod cordic {
+    /// Fraction bits of angles and of sine and cosine.
+    pub const ONE_BITS: u32 = 30;
+    /// pi in q30.
+    pub const PI: i64 = 3_373_259_426;
+    /// 2 pi in q30.
+    pub const TAU: i64 = 2 * PI;
+    /// atan(2^-i) in q30.
+    const ATAN: [i64; 31] = [
+        843_314_857,
+        497_837_829,
+        263_043_837,
+        133_525_159,
+        67_021_687,
+        33_543_516,
+        16_775_851,
+        8_388_437,
+        4_194_283,
+        2_097_149,
+        1_048_576,
+        524_288,
+        262_144,
+        131_072,
+        65_536,
+        32_768,
+        16_384,
+        8_192,
+        4_096,
+        2_048,
+        1_024,
+        512,
+        256,
+        128,
+        64,
+        32,
+        16,
+        8,
+        4,
+        2,
+        1,
+    ];
+    /// The rotations' gain 1 / prod sqrt(1 + 2^-2i) in q30.
+    const GAIN: i64 = 652_032_874;
+
+    /// The angle of (`x`, `y`) in (-pi, pi], q30; 0 for the origin. |x|, |y| < 2^62.
+    pub fn atan2(y: i64, x: i64) -> i64 {
+        if x == 0 && y == 0 {
+            return 0;
+        }
+        // Into the right half plane, then rotate onto the X axis.
+        let (mut x, mut y, mut z) = if x < 0 {
+            if y >= 0 {
+                (y, -x, PI / 2)
+            } else {
+                (-y, x, -PI / 2)
+            }
+        } else {
+            (x, y, 0)
+        };
+        // Room for the gain's growth: the vector at 2^52 or below.
+        while x.abs() > 1 << 52 || y.abs() > 1 << 52 {
+            (x, y) = (x >> 1, y >> 1);
+        }
+        for (i, a) in ATAN.iter().enumerate() {
+            let (dx, dy) = (y >> i, x >> i);
+            if y > 0 {
+                (x, y, z) = (x + dx, y - dy, z + a);
+            } else {
+                (x, y, z) = (x - dx, y + dy, z - a);
+            }
+        }
+        z
+    }
+
+    /// Sine and cosine of `angle` (q30 rad, any), q30.
+    pub fn sin_cos(angle: i64) -> (i64, i64) {
+        // Into [-pi, pi], then into [-pi/2, pi/2] (a half turn flips both signs).
+        let mut a = angle.rem_euclid(TAU);
+        if a > PI {
+            a -= TAU;
+        }
+        let flip = !(-PI / 2..=PI / 2).contains(&a);
+        if a > PI / 2 {
+            a -= PI;
+        } else if a < -PI / 2 {
+            a += PI;
+        }
+        let (mut x, mut y, mut z) = (GAIN, 0i64, a);
+        for (i, t) in ATAN.iter().enumerate() {
+            let (dx, dy) = (y >> i, x >> i);
+            if z >= 0 {
+                (x, y, z) = (x - dx, y + dy, z - t);
+            } else {
+                (x, y, z) = (x + dx, y - dy, z + t);
+            }
+        }
+        if flip {
+            (-y, -x)
+        } else {
+            (y, x)
+        }
     }
 }
 
