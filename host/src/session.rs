@@ -305,9 +305,11 @@ fn describe_code(code: ErrorCode, detail: u32) -> String {
              printer's move buffer holds",
             detail
         ),
-        ErrorCode::LinkDead => {
-            format!("the printer lost the link after {} ms of silence", detail)
-        }
+        ErrorCode::LinkDead => format!(
+            "the printer lost the link after {} ms of silence: it printed what it had, parked \
+             and paused",
+            detail
+        ),
         ErrorCode::Thermal => match u8::try_from(detail).ok().and_then(ThermalFault::from_code) {
             Some(f) => format!("heater fault {f}: heaters off, motion stopped"),
             None => format!("heater fault (code {}): heaters off, motion stopped", detail),

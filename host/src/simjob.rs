@@ -111,6 +111,11 @@ pub struct SimOptions {
     pub preview: bool,
     /// Record the motors' position at the end of every block ([`SimReport::block_ends`]).
     pub block_ends: bool,
+    /// The device runs on after the host gave up (a dead link): until it has parked and its
+    /// heaters have gone off ([`SimReport::parked_ms`], [`SimReport::heaters_off_ms`]).
+    pub device_outlives_host: bool,
+    /// How long an orphaned job's heaters hold their targets once parked, ms.
+    pub heat_hold_ms: u32,
 }
 
 impl Default for SimOptions {
@@ -123,6 +128,8 @@ impl Default for SimOptions {
             check_delivery: false,
             preview: false,
             block_ends: false,
+            device_outlives_host: false,
+            heat_hold_ms: strata::printer::DEFAULT_HEAT_HOLD_MS,
         }
     }
 }
@@ -193,6 +200,14 @@ pub struct SimReport {
     /// The motor positions at the end of each block that moves a motor, as the generator
     /// starts it (with [`SimOptions::block_ends`]).
     pub block_ends: Vec<[i64; AXES]>,
+    /// The device's state at the end.
+    pub device_state: Option<strata::protocol::DeviceState>,
+    /// Where an orphaned job's input ended (its host went silent).
+    pub resume: Option<strata::printer::ResumePoint>,
+    /// When an orphaned job had parked and paused, ms of virtual time.
+    pub parked_ms: Option<u64>,
+    /// When its heaters went off after that, ms of virtual time.
+    pub heaters_off_ms: Option<u64>,
 }
 
 impl SimReport {
@@ -375,6 +390,8 @@ fn run(
     let mut now_ms: u64 = 0;
     let mut done_at: Option<u64> = None;
     let mut block_ends = opts.block_ends.then(Vec::new);
+    let mut host_gone = false;
+    printer.set_heat_hold_ms(opts.heat_hold_ms);
 
     loop {
         now_ms += 1;
@@ -395,9 +412,14 @@ fn run(
             }
         }
         // Host.
-        match host.poll(t, &mut host_ep) {
+        let polled = if host_gone { Ok(Phase::Printing) } else { host.poll(t, &mut host_ep) };
+        match polled {
             Ok(Phase::Done) if done_at.is_none() => done_at = Some(now_ms),
             Ok(_) => {}
+            Err(e) if opts.device_outlives_host => {
+                outcome = Err(e);
+                host_gone = true;
+            }
             Err(e) => {
                 outcome = Err(e);
                 break;
@@ -452,8 +474,22 @@ fn run(
         if done_at.is_some() && exec.is_idle() && printer.motion_finished() {
             break;
         }
+        if host_gone {
+            let paused = printer.state() == strata::protocol::DeviceState::Paused;
+            if paused && rep.parked_ms.is_none() {
+                rep.parked_ms = Some(now_ms);
+            }
+            if paused && printer.heater_targets() == (0, 0) {
+                rep.heaters_off_ms = Some(now_ms);
+            }
+            if (!printer.is_active() || rep.heaters_off_ms.is_some()) && exec.is_idle() {
+                break;
+            }
+        }
         if now_ms >= opts.max_ms {
-            outcome = Err(format!("the job did not finish within {} s", opts.max_ms / 1000));
+            if !host_gone {
+                outcome = Err(format!("the job did not finish within {} s", opts.max_ms / 1000));
+            }
             break;
         }
     }
@@ -476,6 +512,8 @@ fn run(
         Source::Gcode(..) => rep.positions[3] as f64 / machine.steps_per_mm[3].to_num::<f64>(),
     };
     rep.block_ends = block_ends.unwrap_or_default();
+    rep.device_state = Some(printer.state());
+    rep.resume = printer.resume_point();
     rep.max_step_error_us = step_cfg.max_error_ticks as f64 * 1e6 / timer_hz as f64;
     rep.step_check_failures = gen.check_failures;
     rep.peak_active_triangles = slice.peak_active;

@@ -6,9 +6,12 @@
 use std::path::PathBuf;
 
 use strata::machine::MachineConfig;
+use strata::printer::{GCODE_PARK_RETRACT_UM, PARK_LIFT_UM, PARK_XY_UM};
+use strata::protocol::DeviceState;
+use strata::step::{nearest_step, step_position_q32};
 use strata_host::gcode_file;
 use strata_host::session::Source;
-use strata_host::simjob::{simulate_source, SimOptions, SimReport};
+use strata_host::simjob::{simulate_source, Faults, SimOptions, SimReport};
 
 const ENDER3: MachineConfig = MachineConfig::ENDER3;
 
@@ -138,4 +141,54 @@ fn prusaslicer_cube_ends_every_move_on_its_step() {
 fn cura_cube_ends_every_move_on_its_step() {
     // CuraEngine's `Print time (s): 1797` (tests/data/gcode/README.md).
     check("xyz_20mm_cube_cura.gcode", 1797.0);
+}
+
+/// The host dies 35 s into streaming PrusaSlicer's cube (its start code waits 23 s): the printer runs every complete line
+/// it received, exactly as the file says, then parks (retract 5 mm, lift 10 mm, back left
+/// corner) and pauses; the resume point is the end of a move of the file.
+#[test]
+fn a_gcode_print_whose_host_dies_runs_what_it_has_then_parks() {
+    let name = "xyz_20mm_cube_prusaslicer.gcode";
+    let text = fixture(name);
+    let scan = gcode_file::scan(&text, &ENDER3).unwrap();
+    let opts = SimOptions {
+        faults: Faults { cut_at_ms: Some(35_000), ..Faults::default() },
+        device_outlives_host: true,
+        heat_hold_ms: 10_000,
+        block_ends: true,
+        ..SimOptions::default()
+    };
+    let (e, rep) = simulate_source(Source::Gcode(&text, scan.spec), &ENDER3, &opts).unwrap_err();
+    assert!(e.contains("link dead"), "{e}");
+    assert_eq!(rep.device_state, Some(DeviceState::Paused));
+    let resume = rep.resume.expect("a resume point");
+    let steps = |um: [i32; 4]| {
+        core::array::from_fn(|a| nearest_step(step_position_q32(um[a], ENDER3.steps_per_mm[a])))
+    };
+    // What ran before parking is the file's beginning, move for move.
+    let want = distinct(reference_positions(std::str::from_utf8(&text).unwrap()));
+    let got = distinct(rep.block_ends.iter().copied());
+    let (ran, park) = got.split_at(got.len() - 3);
+    assert!(ran.len() > 100 && ran.len() < want.len(), "{} of {} positions", ran.len(), want.len());
+    assert_eq!(ran, &want[..ran.len()]);
+    assert_eq!(*ran.last().unwrap(), steps(resume.position_um));
+    // Then: retract, lift, park.
+    let mut at = resume.position_um;
+    at[3] -= GCODE_PARK_RETRACT_UM;
+    assert_eq!(park[0], steps(at));
+    at[2] += PARK_LIFT_UM;
+    assert_eq!(park[1], steps(at));
+    at[0] = PARK_XY_UM[0];
+    at[1] = ENDER3.build_volume_um[1] - PARK_XY_UM[1];
+    assert_eq!(park[2], steps(at));
+    assert_eq!(rep.positions, steps(at));
+    assert_eq!((rep.underruns, rep.violations), (0, 0));
+    eprintln!(
+        "{name}: the host died at 35 s; {} of {} positions ran, paused at layer {}, heaters off \
+         {} ms after parking",
+        ran.len(),
+        want.len(),
+        resume.layer,
+        rep.heaters_off_ms.unwrap() - rep.parked_ms.unwrap()
+    );
 }

@@ -1,11 +1,14 @@
 //! The simulated printer over a lossy link: seeded drop/corrupt/duplicate/byte-loss/delay on
 //! both directions; the job completes with the clean run's per-layer hashes (and the same
 //! step counts, no underrun) up to 5 % loss, no corrupted or foreign payload reaches the device's job
-//! runner, and a dead link ends the job with a clear error within bounded virtual time.
+//! runner, and a dead link ends the job with a clear error within bounded virtual time on the
+//! host, while the printer parks and pauses.
 
 use strata::geom::Triangle;
 use strata::machine::MachineConfig;
-use strata::protocol::JobSpec;
+use strata::printer::{PARK_LIFT_UM, PARK_XY_UM};
+use strata::protocol::{DeviceState, JobSpec};
+use strata::step::{nearest_step, step_position_q32};
 use strata_host::hil::banded_cylinder;
 use strata_host::simjob::{simulate, Faults, SimOptions, SimReport};
 use strata_testkit::drive::job_spec;
@@ -69,4 +72,60 @@ fn a_dead_link_ends_the_job_with_a_clear_error() {
     eprintln!("{e} (at {} ms)", rep.end_ms);
     assert!(e.contains("link dead"), "{e}");
     assert!(rep.end_ms <= cut as u64 + 3_500, "{}", rep.end_ms);
+}
+
+/// The host dies while streaming: the printer prints the layers it has, parks the nozzle off
+/// the part (retracted, lifted, at the back left) and pauses, holding its heaters for the
+/// hold time, then cools. Where the input ended is kept for a resume.
+#[test]
+fn a_dead_host_leaves_the_print_parked_and_paused() {
+    let (tris, job) = small_job();
+    let hold_ms = 30_000;
+    let opts = SimOptions {
+        faults: Faults { cut_at_ms: Some(300), ..Faults::default() },
+        device_outlives_host: true,
+        heat_hold_ms: hold_ms,
+        ..SimOptions::default()
+    };
+    let machine = MachineConfig::default();
+    let (e, rep) = simulate(&tris, &machine, job, &opts).unwrap_err();
+    assert!(e.contains("link dead"), "{e}");
+    assert_eq!(rep.device_state, Some(DeviceState::Paused));
+    let resume = rep.resume.expect("a resume point");
+    assert!(resume.layer + 1 < rep.layers, "layer {} of {}", resume.layer, rep.layers);
+    // Parked 10 mm in from the back left corner (80 steps/mm), 10 mm above where the print
+    // stopped (400 steps/mm), the filament retracted by the job's retraction (93 steps/mm).
+    let steps =
+        |um: i32, axis: usize| nearest_step(step_position_q32(um, machine.steps_per_mm[axis]));
+    let y_park = machine.build_volume_um[1] - PARK_XY_UM[1];
+    let z_park = resume.position_um[2] + PARK_LIFT_UM;
+    let e_park = resume.position_um[3] - job.settings.retract_length_um;
+    assert_eq!(
+        rep.positions,
+        [steps(PARK_XY_UM[0], 0), steps(y_park, 1), steps(z_park, 2), steps(e_park, 3)]
+    );
+    assert_eq!(resume.retracted_um, job.settings.retract_length_um);
+    assert_eq!((rep.underruns, rep.violations), (0, 0));
+    // The heaters hold for the hold time after parking, then go off.
+    let (parked, off) = (rep.parked_ms.unwrap(), rep.heaters_off_ms.unwrap());
+    assert!(off - parked >= hold_ms as u64 && off - parked <= hold_ms as u64 + 2, "{parked} {off}");
+}
+
+/// A host that dies after sending the whole model loses nothing: the job ends as usual.
+#[test]
+fn a_host_that_dies_after_the_whole_model_loses_nothing() {
+    let clean = run(Faults::default()).unwrap();
+    let (tris, job) = small_job();
+    let opts = SimOptions {
+        faults: Faults {
+            cut_at_ms: Some(clean.stream_time_s as u32 * 1000 + 1_000),
+            ..Faults::default()
+        },
+        device_outlives_host: true,
+        ..SimOptions::default()
+    };
+    let (_, rep) = simulate(&tris, &MachineConfig::default(), job, &opts).unwrap_err();
+    assert_eq!(rep.device_state, Some(DeviceState::Done));
+    assert_eq!(rep.positions, clean.positions);
+    assert_eq!(rep.resume, None);
 }

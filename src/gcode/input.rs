@@ -157,6 +157,15 @@ impl GcodeInput {
         self.ended && self.pending.is_none() && self.settings.is_empty() && self.hold == Hold::None
     }
 
+    /// The text ends here, where its source went away: a line cut short is dropped (never
+    /// run), a hold is let go (nothing follows it); the move of the last complete line still
+    /// goes in ([`take`](Self::take) with no text).
+    pub fn abandon(&mut self) {
+        self.splitter.clear();
+        self.ended = true;
+        self.hold = Hold::None;
+    }
+
     /// The settings whose moves are done take effect (`blocks_done`: blocks the generator
     /// has finished). A new heater target is not reached until measured so.
     pub fn apply_due(&mut self, blocks_done: u32) {

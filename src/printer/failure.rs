@@ -60,11 +60,6 @@ pub enum Failure {
         /// Its first byte.
         first_byte: u8,
     },
-    /// The host went silent.
-    LinkDead {
-        /// For this long, ms.
-        silent_ms: u32,
-    },
     /// A heater fault (heaters off, motion stopped).
     Thermal {
         /// The fault's code ([`ThermalFault::code`]).
@@ -84,7 +79,6 @@ impl Failure {
             Self::Plan { layer } => (ErrorCode::Plan, layer),
             Self::Unexpected { message } => (ErrorCode::Unexpected, u32::from(message)),
             Self::BadMessage { first_byte } => (ErrorCode::BadMessage, u32::from(first_byte)),
-            Self::LinkDead { silent_ms } => (ErrorCode::LinkDead, silent_ms),
             Self::Thermal { code } => (ErrorCode::Thermal, u32::from(code)),
         }
     }
@@ -107,9 +101,6 @@ impl fmt::Display for Failure {
             }
             Self::BadMessage { first_byte } => {
                 write!(f, "link: a message of type 0x{first_byte:02x} did not decode")
-            }
-            Self::LinkDead { silent_ms } => {
-                write!(f, "link: the host was silent for {silent_ms} ms")
             }
             Self::Thermal { code } => match ThermalFault::from_code(*code) {
                 Some(fault) => write!(f, "heaters: {fault}"),

@@ -47,6 +47,7 @@
 pub mod board;
 mod failure;
 mod motion;
+mod orphan;
 mod pipeline;
 
 use heapless::Deque;
@@ -67,6 +68,10 @@ use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 pub use board::{job_toolpath_config, BoardPrinter, BOARD_CAPACITIES, CREALITY_CAPACITIES};
 pub use failure::{Failure, Refusal};
 pub use motion::{Motion, MotionAccess, MotionHalf};
+use orphan::Orphan;
+pub use orphan::{
+    ResumePoint, DEFAULT_HEAT_HOLD_MS, GCODE_PARK_RETRACT_UM, PARK_LIFT_UM, PARK_XY_UM,
+};
 pub use pipeline::{Computing, Emit, Pipeline, Stages};
 
 /// A [`Printer`] type with every capacity named at the point of use (the names of
@@ -176,6 +181,15 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     done: Deque<(u32, u64), 8>,
     layers_planned: u32,
     status_due_ms: u32,
+    /// The host went silent during the job: where it stands since ([`orphan`]).
+    orphan: Slot<Orphan>,
+    /// For how long the host was silent when the job was orphaned, ms.
+    orphan_silent_ms: u32,
+    /// Where an orphaned job's input ended.
+    resume: Slot<ResumePoint>,
+    /// How long an orphaned job's heaters hold their targets once parked, ms, when the board
+    /// set it (empty: [`DEFAULT_HEAT_HOLD_MS`]).
+    heat_hold_ms: Slot<u32>,
 }
 
 impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES, P> {
@@ -218,6 +232,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             done: Deque::new(),
             layers_planned: 0,
             status_due_ms: 0,
+            orphan: Slot::Empty,
+            orphan_silent_ms: 0,
+            resume: Slot::Empty,
+            heat_hold_ms: Slot::Empty,
         }
     }
 
@@ -262,10 +280,15 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.failure.get().copied()
     }
 
-    /// Error code and detail of the status report (`None, 0` unless failed).
+    /// Error code and detail of the status report (`None, 0` unless failed; a job whose host
+    /// went silent: `LinkDead` and the silence, ms, while it parks and waits).
     pub fn error(&self) -> (ErrorCode, u32) {
         let layers_cut = self.pipeline.layers_cut();
-        self.failure().map_or((ErrorCode::None, 0), |f| f.code(layers_cut))
+        match (self.failure(), self.orphan.get()) {
+            (Some(f), _) => f.code(layers_cut),
+            (None, Some(_)) => (ErrorCode::LinkDead, self.orphan_silent_ms),
+            (None, None) => (ErrorCode::None, 0),
+        }
     }
 
     /// The step configuration the generator uses (the executor must use the same).
@@ -325,7 +348,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// it prints or is paused, 0 otherwise (idle, done, failed, aborted, stopped), so a board
     /// that applies them every update turns the heaters off when a job ends.
     pub fn heater_targets(&self) -> (i16, i16) {
-        if !self.is_active() {
+        if !self.is_active() || self.orphan.get() == Some(&Orphan::Cooled) {
             return (0, 0);
         }
         match (self.job.get(), self.pipeline.gcode_ref()) {
@@ -404,11 +427,6 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         }
     }
 
-    /// Ends the job on a dead link.
-    pub fn link_lost(&mut self, silent_ms: u32) {
-        self.fail(Failure::LinkDead { silent_ms });
-    }
-
     /// Starts `job`: every stage set up for it, or the job refused. Never inlined, as the
     /// other cold paths of [`handle_with`](Self::handle_with): their frames stay off the
     /// deepest stack (a batch's layer computation under `handle_with`).
@@ -462,6 +480,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.toolpath_done = false;
         self.done.clear();
         self.layers_planned = 0;
+        self.orphan = Slot::Empty;
+        self.resume = Slot::Empty;
         self.state = DeviceState::Printing;
     }
 
@@ -735,7 +755,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// buffer, or a G-code job's input has ended or holds until the motion is done.
     fn flush(&self) -> bool {
         let holds = || self.pipeline.gcode_ref().is_some_and(|g| g.hold() != Hold::None);
-        self.toolpath_done || (self.gcode_job && (self.model_ended || holds()))
+        self.toolpath_done
+            || self.orphan.get().is_some()
+            || (self.gcode_job && (self.model_ended || holds()))
     }
 
     /// Whether the motion half may release blocks, and whether the model's last moves are in
@@ -795,10 +817,16 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             }
         }
         worked |= self.take_layer_marks(motion);
+        if self.orphan.get().is_some() {
+            // No host to report to: the layers' reports are dropped, the generator never
+            // waits for them.
+            self.done.clear();
+        }
         if self.done.is_full() {
             return worked;
         }
-        let done = self.toolpath_done;
+        // An orphaned job does not end: it parks and waits.
+        let done = self.toolpath_done && self.orphan.get().is_none();
         let end = motion.with(|m, out| {
             let idle =
                 done && m.moves().is_empty() && m.planner().is_empty() && m.generator().is_idle();
@@ -879,7 +907,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Pumps the link: decodes delivered messages (a message that does not decode is
     /// reported and dropped, never executed), answers `Hello`, sends layer hashes, the
     /// failure in words once a job failed, and a status every `status_every_ms` and at once
-    /// on a state change. A dead link fails the job. `lend`: the motion half generates steps
+    /// on a state change. A dead link orphans the job (it parks and waits: [`Self::link_lost`]). `lend`: the motion half generates steps
     /// at the progress points of the layers the messages make the toolpath stage compute (a
     /// board whose interrupt generates them does not need it).
     pub fn service<const TX: usize, const RX: usize, const Q: usize>(
@@ -892,11 +920,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         lend: bool,
     ) {
         if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
-            self.link_lost(silent_ms);
+            self.link_lost(silent_ms, now_ms);
         }
         self.check_heat_wait(now_ms, motion);
         let before = self.state;
         self.take_messages(ep, motion, lend);
+        self.tend_orphan(now_ms, ep.peek().is_none(), motion);
         while ep.tx_free() > 1 {
             let Some((layer, hash)) = self.take_layer_done() else { break };
             send(ep, &Message::LayerDone { layer, hash });
@@ -924,7 +953,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
         lend: bool,
     ) {
-        while ep.tx_free() > 1 {
+        // An orphaned job takes what it received without room for answers (none go out).
+        while ep.tx_free() > 1 || self.orphan.get().is_some() {
             let Some(p) = ep.peek() else { break };
             let emitting = self.is_active() && !self.gcode_job;
             if self.waiting_for_room && emitting && !self.emit_moves(motion) {

@@ -154,7 +154,7 @@ pub enum ErrorCode {
     /// A path (with the travel before it) needs more bytes of coded moves than the whole move
     /// buffer holds, or the buffer overflowed (detail: layer).
     Moves = 7,
-    /// The link went silent (detail: ms).
+    /// The link went silent (detail: ms): the job printed what it had, parked and paused.
     LinkDead = 8,
     /// A heater fault (detail: the fault's code, `strata::thermal::ThermalFault`): heaters
     /// off, motion stopped.

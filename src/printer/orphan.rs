@@ -1,0 +1,194 @@
+//! A streamed job whose host went silent: it prints what it has, parks, and waits.
+//!
+//! A dead link no longer ends the job on the spot (the nozzle would stay on the part, the
+//! heaters go off and the print is lost). The messages already received are taken as usual;
+//! then the job's input ends: a G-code job's at its last complete line (a line cut short is
+//! dropped, never run), a sliced job's with the layers its triangles completed (the slicer
+//! cuts nothing more). The motion runs to the end
+//! of that input, then the nozzle parks off the part: the filament is retracted by
+//! [`GCODE_PARK_RETRACT_UM`] (a sliced job: its own retraction), the nozzle lifts
+//! [`PARK_LIFT_UM`] (within the build volume) and goes to [`PARK_XY_UM`] from the back left
+//! corner, as Marlin's `NOZZLE_PARK_FEATURE` does. The job is then paused: the heaters hold
+//! their targets for [`DEFAULT_HEAT_HOLD_MS`] (or what the board set) so that it can be
+//! resumed, then go off. Where the input ended (the layer and the position before parking)
+//! is kept ([`ResumePoint`]). A job the user had paused stays where it is, paused, with the
+//! same heater hold.
+
+use super::{MotionAccess, Printer, Stages};
+use crate::gcode::input::GcodeSink;
+use crate::machine::{Rate, AXES};
+use crate::move_ring::PackedMove;
+use crate::plan::{Move, MoveKind};
+use crate::protocol::DeviceState;
+use crate::slot::Slot;
+
+/// Lift of the nozzle when it parks, um (Marlin's `NOZZLE_PARK_Z_RAISE_MIN` is 2 mm; 10 mm
+/// clears any blob and a part's top).
+pub const PARK_LIFT_UM: i32 = 10_000;
+/// Where the nozzle parks, um from X's minimum and from Y's maximum (Marlin's Ender-3
+/// `NOZZLE_PARK_POINT`: 10 mm in from the back left corner, clear of the part).
+pub const PARK_XY_UM: [i32; 2] = [10_000, 10_000];
+/// Retraction before parking in a G-code job (it names none), um: the Ender-3's Bowden
+/// retraction of its slicer profiles.
+pub const GCODE_PARK_RETRACT_UM: i32 = 5_000;
+/// Speeds of the park moves in a G-code job, mm/s: retraction, lift (Z's limit lowers it),
+/// travel.
+const GCODE_PARK_SPEEDS_MM_S: [u32; 3] = [45, 5, 100];
+/// How long the heaters hold their targets once parked, ms, unless the board sets another.
+pub const DEFAULT_HEAT_HOLD_MS: u32 = 10 * 60 * 1000;
+
+/// Where an orphaned job stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Orphan {
+    /// The messages received before the link died are taken.
+    Receiving,
+    /// The input has ended; the motion runs to its end.
+    Draining,
+    /// The park moves run.
+    Parking,
+    /// Paused since this time (ms of `service`'s clock), the heaters holding.
+    Parked {
+        /// When it parked.
+        since_ms: u32,
+    },
+    /// Paused, the heaters off.
+    Cooled,
+}
+
+/// Where an orphaned job's input ended: a resume starts there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ResumePoint {
+    /// The layer of the last move printed.
+    pub layer: u32,
+    /// The position before parking, um (X, Y, Z, E as the planner had them).
+    pub position_um: [i32; AXES],
+    /// Filament retracted for parking, um.
+    pub retracted_um: i32,
+}
+
+impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES, P> {
+    /// The host went silent for `silent_ms`: an active job takes the messages it received,
+    /// prints what they hold, parks the nozzle off the part ([`PARK_LIFT_UM`],
+    /// [`PARK_XY_UM`]) and pauses, its heaters holding their targets for the hold time
+    /// ([`set_heat_hold_ms`](Self::set_heat_hold_ms)); where its input ended is kept
+    /// ([`resume_point`](Self::resume_point)). A job whose whole input came runs to its end;
+    /// anything else has nothing to lose.
+    pub fn link_lost(&mut self, silent_ms: u32, now_ms: u32) {
+        if self.orphan.get().is_some() || !self.is_active() || self.model_ended {
+            return;
+        }
+        self.orphan_silent_ms = silent_ms;
+        self.orphan = Slot::Full(if self.state == DeviceState::Paused {
+            Orphan::Parked { since_ms: now_ms }
+        } else {
+            Orphan::Receiving
+        });
+    }
+
+    /// Where an orphaned job's input ended (once it parked).
+    pub fn resume_point(&self) -> Option<ResumePoint> {
+        self.resume.get().copied()
+    }
+
+    /// How long the heaters hold their targets once an orphaned job parked, ms.
+    pub fn set_heat_hold_ms(&mut self, ms: u32) {
+        self.heat_hold_ms = Slot::Full(ms);
+    }
+
+    /// The orphaned job's next step: its input ends once no message is left
+    /// (`received_all`), it parks once the input has run, pauses once parked, and its heaters
+    /// go off once the hold is over.
+    pub(super) fn tend_orphan<const Q: usize>(
+        &mut self,
+        now_ms: u32,
+        received_all: bool,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
+        let hold_ms = self.heat_hold_ms.get().copied().unwrap_or(DEFAULT_HEAT_HOLD_MS);
+        match self.orphan.get().copied() {
+            // The whole input came before the link died: nothing is lost, the job ends as
+            // it would have.
+            Some(Orphan::Receiving) if self.model_ended => self.orphan = Slot::Empty,
+            Some(Orphan::Receiving) if self.is_active() && received_all => {
+                if let (true, Some(g)) = (self.gcode_job, self.pipeline.gcode()) {
+                    g.abandon();
+                }
+                self.model_ended = true;
+                self.orphan = Slot::Full(Orphan::Draining);
+            }
+            Some(Orphan::Draining) if self.is_active() => {
+                if !self.input_drained(motion) || !motion_idle(motion) {
+                    return;
+                }
+                self.park(motion);
+                self.orphan = Slot::Full(Orphan::Parking);
+            }
+            Some(Orphan::Parking) if self.is_active() && motion_idle(motion) => {
+                self.state = DeviceState::Paused;
+                self.orphan = Slot::Full(Orphan::Parked { since_ms: now_ms });
+            }
+            Some(Orphan::Parked { since_ms }) if now_ms.wrapping_sub(since_ms) >= hold_ms => {
+                self.orphan = Slot::Full(Orphan::Cooled);
+            }
+            _ => {}
+        }
+    }
+
+    /// Every move the input had is in the move buffer: a G-code job's pending move went in,
+    /// a sliced job's layer is all emitted.
+    fn input_drained<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> bool {
+        if !self.gcode_job {
+            return !self.pipeline.emitting();
+        }
+        let (heaters, allowed) = (self.heaters, self.motion_allowed());
+        let Some(input) = self.pipeline.gcode() else { return true };
+        let mut sink = super::GcodeMotion { motion, heaters, allowed, ended: true };
+        input.take(&[], &mut 0, false, &mut sink) && {
+            input.apply_due(sink.blocks_done());
+            true
+        }
+    }
+
+    /// The park moves into the move buffer (it is empty: they fit), the resume point kept.
+    fn park<const Q: usize>(&mut self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) {
+        let (retract_um, speeds) = match self.job.get() {
+            Some(j) if !self.gcode_job => {
+                let s = &j.settings;
+                (
+                    s.retract_length_um,
+                    [s.retract_speed_mm_s, Rate::from_num(5), s.travel_speed_mm_s],
+                )
+            }
+            _ => (GCODE_PARK_RETRACT_UM, GCODE_PARK_SPEEDS_MM_S.map(Rate::from_num)),
+        };
+        let volume = self.machine.build_volume_um;
+        let (at, layer) = motion.with(|m, _| (m.planner().position_um(), m.generator().tag()));
+        let layer = layer.unwrap_or(0);
+        self.resume = Slot::Full(ResumePoint { layer, position_um: at, retracted_um: retract_um });
+        let mut to = at;
+        to[3] = to[3].saturating_sub(retract_um);
+        let retract = Move::new(to, speeds[0], MoveKind::Retract);
+        to[2] = to[2].saturating_add(PARK_LIFT_UM).min(volume[2]).max(at[2]);
+        let lift = Move::new(to, speeds[1], MoveKind::Travel);
+        to[0] = PARK_XY_UM[0];
+        to[1] = volume[1] - PARK_XY_UM[1];
+        let travel = Move::new(to, speeds[2], MoveKind::Travel);
+        motion.with(|m, _| {
+            for mv in [retract, lift, travel] {
+                // The buffer is empty; three records fit any buffer a job can run with.
+                let _ = m.moves_mut().push(&PackedMove::pack(layer, &mv));
+            }
+        });
+    }
+}
+
+/// Every move in the buffer, the planner and the generator is done.
+fn motion_idle<const MOVE_BYTES: usize, const P: usize, const Q: usize>(
+    motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+) -> bool {
+    motion.with(|m, _| m.moves().is_empty() && m.planner().is_empty() && m.generator().is_idle())
+}
