@@ -5,7 +5,7 @@
 
 use strata::machine::{MachineConfig, AXES};
 use strata::printer::{Accept, Motion, MotionAccess, MotionHalf};
-use strata::protocol::{DeviceState, ErrorCode, GcodeSpec, Message};
+use strata::protocol::{DeviceState, Endpoint, ErrorCode, GcodeSpec, LinkConfig, Message};
 use strata::step::{StepProducer, StepQueue};
 use strata_testkit::drive::{batch, encode, Rig, Sizes};
 use strata_testkit::mesh::{cuboid, to_um};
@@ -186,4 +186,34 @@ fn an_arc_runs_as_its_segments() {
     // X 110 mm, Y 100 mm at 80 steps/mm; E 5 mm at 93.
     assert_eq!(gen.motor_steps(), [8800, 8000, 0, 465]);
     assert_eq!(rig.board().unwrap().positions(), [8800, 8000, 0, 465]);
+}
+
+/// A job the user had paused stays where it is when its host dies: paused, its heaters held
+/// for the hold time, then off; the status says why.
+#[test]
+fn a_paused_job_whose_host_dies_holds_its_heaters_then_cools() {
+    let mut p = Box::new(Small::new(&MachineConfig::default()));
+    let mut q: StepQueue<32> = StepQueue::new();
+    let mut m: Box<SmallMotion<'_>> = Box::new(MotionHalf::new(q.split().0));
+    let msgs = payloads(JOB, JOB.len());
+    for msg in &msgs[..2] {
+        p.handle(&Message::decode(msg).unwrap(), &mut *m);
+    }
+    for _ in 0..10 {
+        p.poll(&mut *m);
+    }
+    assert_eq!(p.heater_targets(), (200, 60));
+    p.handle(&Message::Pause, &mut *m);
+    let hold_ms = 60_000;
+    p.set_heat_hold_ms(hold_ms);
+    p.link_lost(3_000, 1_000);
+    let mut ep: Endpoint<4, 4> = Endpoint::new(LinkConfig::device());
+    for now in [1_000, 1_000 + hold_ms - 1] {
+        p.service(&mut ep, &mut *m, now, 0, 500, false);
+        assert_eq!((p.state(), p.heater_targets()), (DeviceState::Paused, (200, 60)), "{now} ms");
+    }
+    p.service(&mut ep, &mut *m, 1_000 + hold_ms, 0, 500, false);
+    assert_eq!((p.state(), p.heater_targets()), (DeviceState::Paused, (0, 0)));
+    assert_eq!(p.error(), (ErrorCode::LinkDead, 3_000));
+    assert_eq!(p.resume_point(), None, "it never parked");
 }
