@@ -556,6 +556,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             {
                 return self.take_gcode(&[], true, motion);
             }
+            // An orphaned job (its host went silent) parks and waits on its own: a pause or
+            // resume still in its receive queue is not for it.
+            (Message::Pause | Message::Resume, _) if self.orphan.get().is_some() => {}
             (Message::Pause, DeviceState::Printing) => self.state = DeviceState::Paused,
             (Message::Resume, DeviceState::Paused) => self.state = DeviceState::Printing,
             (Message::Triangles(batch), DeviceState::Printing | DeviceState::Paused)
@@ -907,9 +910,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Pumps the link: decodes delivered messages (a message that does not decode is
     /// reported and dropped, never executed), answers `Hello`, sends layer hashes, the
     /// failure in words once a job failed, and a status every `status_every_ms` and at once
-    /// on a state change. A dead link orphans the job (it parks and waits: [`Self::link_lost`]). `lend`: the motion half generates steps
-    /// at the progress points of the layers the messages make the toolpath stage compute (a
-    /// board whose interrupt generates them does not need it).
+    /// on a state change. A dead link orphans the job (it prints what it received, parks and
+    /// waits: [`Self::link_lost`]). `lend`: the motion half generates steps at the progress
+    /// points of the layers the messages make the toolpath stage compute (a board whose
+    /// interrupt generates them does not need it).
     pub fn service<const TX: usize, const RX: usize, const Q: usize>(
         &mut self,
         ep: &mut Endpoint<TX, RX>,
