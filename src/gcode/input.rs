@@ -73,7 +73,7 @@ pub struct InputStats {
     pub moves: u32,
     /// Commands skipped.
     pub skipped: u32,
-    /// Lines refused, and the first one's number and reason.
+    /// Lines refused.
     pub refused: u32,
     /// The first refused line (1-based) and why.
     pub first_refused: Option<(u32, LineError)>,
@@ -128,7 +128,13 @@ impl GcodeInput {
     /// What was read so far.
     pub fn stats(&self) -> InputStats {
         let read = self.reader.stats();
-        InputStats { lines: read.lines, clamped: read.clamped, ..self.stats }
+        InputStats {
+            lines: read.lines,
+            skipped: read.skipped,
+            refused: read.refused,
+            clamped: read.clamped,
+            ..self.stats
+        }
     }
 
     /// The heaters' measurement against the targets in effect (a board calls it after each
@@ -243,7 +249,7 @@ impl GcodeInput {
                 }
                 Some(Err(e)) => {
                     let e = self.reader.refuse(e);
-                    self.refused(e);
+                    self.note_refusal(e);
                 }
                 None => {}
             }
@@ -268,9 +274,8 @@ impl GcodeInput {
             }
             Ok(Some(Action::Fan(d))) => setting = Some(Setting::Fan(d)),
             Ok(Some(Action::Sync)) => self.hold = Hold::Motion,
-            Ok(Some(Action::Skipped { .. })) => self.stats.skipped += 1,
             Ok(_) => {}
-            Err(e) => self.refused(e),
+            Err(e) => self.note_refusal(e),
         }
         if let Some(s) = setting {
             // After the moves in the buffer (no move is pending when a line is read); the
@@ -287,8 +292,8 @@ impl GcodeInput {
         }
     }
 
-    fn refused(&mut self, e: LineError) {
-        self.stats.refused += 1;
+    /// The first refused line is kept (the reader counts them all).
+    fn note_refusal(&mut self, e: LineError) {
         if self.stats.first_refused.is_none() {
             self.stats.first_refused = Some((self.reader.stats().lines, e));
         }

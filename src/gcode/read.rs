@@ -444,7 +444,7 @@ fn parse_words(rest: &[u8]) -> Result<Words, LineError> {
             return Err(LineError::Unexpected { byte: b });
         }
         let (value, next) = parse_number(rest, i + 1, letter)?;
-        // Words this reader never reads (`I`, `J`, `A`, ...) are passed over.
+        // Words this reader never reads (`A`, `B`, `K`, ...) are passed over.
         if let Some(slot) = LETTERS.iter().position(|&l| l == letter) {
             words.values[slot] = value.map_or(Value::Bare, Value::Micro);
         }
@@ -567,7 +567,7 @@ struct ArcCut {
     segments: u32,
     /// Segments given.
     done: u32,
-    /// The last segment's end, nm.
+    /// The last segment's end (at first the start), nm.
     last: [i64; AXES],
     feed: Rate,
 }
@@ -628,7 +628,6 @@ impl Reader {
             Err(_) => {
                 self.stats.refused += 1;
                 (self.logical_nm, self.machine_nm, self.feed) = saved;
-                self.arc = None;
             }
             _ => {}
         }
@@ -893,8 +892,7 @@ impl Reader {
                 *a = from + ((to - from) as i128 * k as i128 / n as i128) as i64;
             }
         }
-        let before = if k == 1 { arc.from } else { arc.last };
-        let feed = arc.feed;
+        let (before, feed) = (arc.last, arc.feed);
         let mut clamped = false;
         for (axis, max) in self.limits.volume_nm.iter().enumerate().take(2) {
             clamped |= !(0..=*max).contains(&at[axis]);

@@ -619,7 +619,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         end: bool,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) -> Accept {
-        let (heaters, allowed, ended) = (self.heaters, self.motion_allowed(), self.model_ended);
+        // The gate's flush apart from the input's hold (see `flush`).
+        let ended = self.model_ended || self.orphan.get().is_some();
+        let (heaters, allowed) = (self.heaters, self.motion_allowed());
         let Some(input) = self.pipeline.gcode() else {
             self.refuse_unexpected(crate::protocol::msg::ty::GCODE);
             return Accept::Taken;
@@ -831,9 +833,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         // An orphaned job does not end: it parks and waits.
         let done = self.toolpath_done && self.orphan.get().is_none();
         let end = motion.with(|m, out| {
-            let idle =
-                done && m.moves().is_empty() && m.planner().is_empty() && m.generator().is_idle();
-            idle.then(|| m.generator().tag().map(|layer| (layer, out.take_hash())))
+            (done && m.is_idle()).then(|| m.generator().tag().map(|layer| (layer, out.take_hash())))
         });
         if let Some(last) = end {
             if let Some((layer, hash)) = last {

@@ -77,6 +77,11 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         &mut self.gen
     }
 
+    /// Every move in the buffer, the planner and the generator is done.
+    pub fn is_idle(&self) -> bool {
+        self.moves.is_empty() && self.planner.is_empty() && self.gen.is_idle()
+    }
+
     /// Moves into the planner, blocks into the generator (when `allowed`), steps into `out`;
     /// true when something happened. `toolpath_done`: the model's last moves are in the
     /// buffer, so the planner may release its blocks without being full. `Err(layer)`: the

@@ -15,7 +15,6 @@
 //! same heater hold.
 
 use super::{MotionAccess, Printer, Stages};
-use crate::gcode::input::GcodeSink;
 use crate::machine::{Rate, AXES};
 use crate::move_ring::PackedMove;
 use crate::plan::{Move, MoveKind};
@@ -118,13 +117,13 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 self.orphan = Slot::Full(Orphan::Draining);
             }
             Some(Orphan::Draining) if self.is_active() => {
-                if !self.input_drained(motion) || !motion_idle(motion) {
+                if !self.input_drained(motion) || !motion.with(|m, _| m.is_idle()) {
                     return;
                 }
                 self.park(motion);
                 self.orphan = Slot::Full(Orphan::Parking);
             }
-            Some(Orphan::Parking) if self.is_active() && motion_idle(motion) => {
+            Some(Orphan::Parking) if self.is_active() && motion.with(|m, _| m.is_idle()) => {
                 self.state = DeviceState::Paused;
                 self.orphan = Slot::Full(Orphan::Parked { since_ms: now_ms });
             }
@@ -147,10 +146,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let (heaters, allowed) = (self.heaters, self.motion_allowed());
         let Some(input) = self.pipeline.gcode() else { return true };
         let mut sink = super::GcodeMotion { motion, heaters, allowed, ended: true };
-        input.take(&[], &mut 0, false, &mut sink) && {
-            input.apply_due(sink.blocks_done());
-            true
-        }
+        input.take(&[], &mut 0, false, &mut sink)
     }
 
     /// The park moves into the move buffer (it is empty: they fit), the resume point kept.
@@ -184,11 +180,4 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             }
         });
     }
-}
-
-/// Every move in the buffer, the planner and the generator is done.
-fn motion_idle<const MOVE_BYTES: usize, const P: usize, const Q: usize>(
-    motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
-) -> bool {
-    motion.with(|m, _| m.moves().is_empty() && m.planner().is_empty() && m.generator().is_idle())
 }
