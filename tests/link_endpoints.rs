@@ -2,7 +2,7 @@
 //! truncate, delay frames): every message arrives exactly once, in order and unchanged; the
 //! sender never exceeds the receiver's credits; a dead link is reported within bounded time.
 
-use strata::protocol::{Endpoint, LinkConfig, LinkError, MAX_PAYLOAD, MAX_WIRE};
+use strata::protocol::{Endpoint, FrameType, LinkConfig, LinkError, MAX_PAYLOAD, MAX_WIRE};
 use strata_testkit::rng::Rng;
 
 /// One direction: whole frames with a delivery time; faults applied per frame.
@@ -214,5 +214,133 @@ fn a_busy_device_buffers_no_more_than_its_receive_ring() {
     for busy_ms in [50, 430, 1000, 1900] {
         let fill = busy_device(busy_ms);
         eprintln!("thread mode busy {busy_ms} ms: the ring held at most {fill} B");
+    }
+}
+
+/// Every frame `from` has due at `now` into `to`.
+fn pass<const A: usize, const B: usize, const C: usize, const D: usize>(
+    from: &mut Endpoint<A, B>,
+    to: &mut Endpoint<C, D>,
+    now: u32,
+) {
+    let mut frame = [0u8; MAX_WIRE];
+    loop {
+        let n = from.poll_transmit(now, &mut frame);
+        if n == 0 {
+            break;
+        }
+        to.receive(&frame[..n], now);
+    }
+}
+
+/// Both ways for `ms` milliseconds from `*now` on, the device's application taking nothing.
+fn exchange(host: &mut Endpoint<8, 8>, dev: &mut Endpoint<4, 4>, now: &mut u32, ms: u32) {
+    for _ in 0..ms {
+        *now += 1;
+        pass(host, dev, *now);
+        pass(dev, host, *now);
+    }
+}
+
+/// A host that died mid-session leaves the device's sequence numbers where they were; a new
+/// host opens its own session (a new nonce) and talks at once, without waiting for the
+/// device to notice the silence. Nothing of the old session crosses into the new one.
+#[test]
+fn a_new_host_opens_a_session_on_a_device_whose_last_host_died() {
+    let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::device());
+    let mut old: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
+    let mut now = 0;
+    old.open(7);
+    for m in [&b"one"[..], b"two", b"three"] {
+        old.send(m).unwrap();
+    }
+    exchange(&mut old, &mut dev, &mut now, 20);
+    assert!(old.is_open() && old.all_acked());
+    for want in [&b"one"[..], b"two", b"three"] {
+        assert_eq!(dev.peek(), Some(want));
+        dev.pop();
+    }
+    // The old host dies; the device queues answers it will never have acknowledged.
+    dev.send(b"stale").unwrap();
+    let mut new: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
+    new.open(9);
+    new.send(b"hello").unwrap();
+    exchange(&mut new, &mut dev, &mut now, 5);
+    assert!(new.is_open());
+    assert_eq!(dev.peek(), Some(&b"hello"[..]));
+    dev.pop();
+    dev.send(b"answer").unwrap();
+    exchange(&mut new, &mut dev, &mut now, 5);
+    assert_eq!(new.peek(), Some(&b"answer"[..]), "the old session's message crossed over");
+    new.pop();
+    assert_eq!(new.peek(), None);
+    // A stale duplicate of the new session's `Open` changes nothing.
+    let mut frame = [0u8; MAX_WIRE];
+    let n = strata::protocol::frame::encode(FrameType::Open, 9, 0, 8, &[], &mut frame).unwrap();
+    dev.receive(&frame[..n], now);
+    new.send(b"more").unwrap();
+    exchange(&mut new, &mut dev, &mut now, 5);
+    assert_eq!(dev.peek(), Some(&b"more"[..]));
+}
+
+/// A new session drops what the old one left untaken: the new host's first message is the
+/// first the application sees.
+#[test]
+fn a_new_session_drops_what_the_old_one_left() {
+    let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::device());
+    let mut old: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
+    let mut now = 0;
+    old.open(3);
+    old.send(b"last batch").unwrap();
+    exchange(&mut old, &mut dev, &mut now, 10);
+    assert_eq!((dev.peek(), dev.session()), (Some(&b"last batch"[..]), 3));
+    let mut new: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
+    new.open(4);
+    new.send(b"hello").unwrap();
+    exchange(&mut new, &mut dev, &mut now, 5);
+    assert!(new.is_open());
+    assert_eq!((dev.peek(), dev.session()), (Some(&b"hello"[..]), 4));
+}
+
+/// The opening handshake survives a lossy link: every message of the new session arrives
+/// once, in order.
+#[test]
+fn a_session_opens_over_a_lossy_link() {
+    for seed in 1..=20u64 {
+        let mut dev: Endpoint<4, 4> = Endpoint::new(LinkConfig::device());
+        let mut host: Endpoint<8, 8> = Endpoint::new(LinkConfig::default());
+        host.open(seed as u16);
+        let mut hd = Channel { rng: Rng::new(seed), loss: 100, queue: Vec::new(), cut: false };
+        let mut dh = Channel { rng: Rng::new(!seed), loss: 100, queue: Vec::new(), cut: false };
+        let mut frame = [0u8; MAX_WIRE];
+        let (mut sent, mut got, mut now) = (0u32, 0u32, 0u32);
+        while got < 50 && now < 100_000 {
+            now += 1;
+            host.receive(&dh.take(now), now);
+            dev.receive(&hd.take(now), now);
+            while sent < 50 && host.send(&payload(sent)).is_ok() {
+                sent += 1;
+            }
+            if let Some(p) = dev.peek() {
+                assert_eq!(p, &payload(got)[..], "seed {seed}: message {got}");
+                dev.pop();
+                got += 1;
+            }
+            loop {
+                let n = host.poll_transmit(now, &mut frame);
+                if n == 0 {
+                    break;
+                }
+                hd.send(now, &frame[..n]);
+            }
+            loop {
+                let n = dev.poll_transmit(now, &mut frame);
+                if n == 0 {
+                    break;
+                }
+                dh.send(now, &frame[..n]);
+            }
+        }
+        assert_eq!(got, 50, "seed {seed}");
     }
 }

@@ -7,8 +7,8 @@ use strata::machine::PrintSettings;
 use strata::protocol::frame::{self, FrameType, MAX_WIRE};
 use strata::protocol::msg::{decode_triangle, encode_triangle};
 use strata::protocol::{
-    BatchBuilder, Capacities, Decoder, DeviceState, ErrorCode, FrameError, GcodeSpec, JobOptions,
-    JobSpec, Message, Status, MAX_PAYLOAD, VERSION,
+    job_fingerprint, BatchBuilder, Capacities, Decoder, DeviceState, ErrorCode, FrameError,
+    GcodeSpec, JobOptions, JobSpec, Message, ParkedJob, Status, MAX_PAYLOAD, VERSION,
 };
 
 fn wire(kind: FrameType, seq: u8, ack: u8, credits: u8, payload: &[u8]) -> Vec<u8> {
@@ -33,32 +33,44 @@ fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
 
 #[test]
 fn golden_ack_frame() {
-    // [0x51 (v5, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
-    assert_eq!(VERSION, 5);
+    // [0x61 (v6, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    assert_eq!(VERSION, 6);
     let w = wire(FrameType::Ack, 0, 3, 4, &[]);
-    let crc = crc32(&[0x51, 0x00, 0x03, 0x04]);
-    let mut raw = vec![0x51, 0x00, 0x03, 0x04];
+    let crc = crc32(&[0x61, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x61, 0x00, 0x03, 0x04];
     raw.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(w, cobs(&raw));
     assert_eq!(w, GOLDEN_ACK.to_vec());
 }
 
 // Derived with Python's zlib.crc32 (CRC-32/ISO-HDLC) and a hand COBS.
-// CRC 0x7eb52001; COBS: [0x51] then the five non-zero bytes after the zero seq byte.
-const GOLDEN_ACK: [u8; 10] = [2, 81, 7, 3, 4, 1, 32, 181, 126, 0];
+// CRC 0x8e9ed8a0; COBS: [0x61] then the six non-zero bytes after the zero seq byte.
+const GOLDEN_ACK: [u8; 10] = [2, 97, 7, 3, 4, 160, 216, 158, 142, 0];
+
+#[test]
+fn golden_open_frame() {
+    let w = wire(FrameType::Open, 0xa5, 0, 4, &[]);
+    assert_eq!(w, GOLDEN_OPEN.to_vec());
+    let r = decode_all(&w);
+    assert_eq!(r, vec![Ok((FrameType::Open, 0xa5, 0, 4, vec![]))]);
+}
+
+// [0x62 (v6, open), nonce 0xa5, ack 0, credits 4, CRC 0x68b5bb06]: the zero ack byte ends
+// the first COBS run.
+const GOLDEN_OPEN: [u8; 10] = [3, 98, 165, 6, 4, 6, 187, 181, 104, 0];
 
 #[test]
 fn golden_hello_frame() {
     let mut buf = [0u8; 8];
     let n = Message::Hello { version: VERSION }.encode(&mut buf).unwrap();
-    assert_eq!(&buf[..n], &[0x01, 0x05]);
+    assert_eq!(&buf[..n], &[0x01, 0x06]);
     let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
     assert_eq!(w, GOLDEN_HELLO.to_vec());
 }
 
-// [0x50 (v5, data), seq 7, ack 0, credits 8, 0x01 Hello, version 5, CRC 0x680ee132] COBS: the
+// [0x60 (v6, data), seq 7, ack 0, credits 8, 0x01 Hello, version 6, CRC 0xf57db725] COBS: the
 // zero ack byte becomes a code byte.
-const GOLDEN_HELLO: [u8; 12] = [3, 80, 7, 8, 8, 1, 5, 50, 225, 14, 104, 0];
+const GOLDEN_HELLO: [u8; 12] = [3, 96, 7, 8, 8, 1, 6, 37, 183, 125, 245, 0];
 
 /// Capacities used by the golden and round-trip tests.
 const SAMPLE_CAPS: Capacities = Capacities {
@@ -83,15 +95,15 @@ fn golden_capabilities() {
     let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
     assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
     let back = Message::decode(&GOLDEN_CAPABILITIES).unwrap();
-    assert_eq!(back, Message::Capabilities { version: 5, capacities: caps });
+    assert_eq!(back, Message::Capabilities { version: 6, capacities: caps });
 }
 
-// Type 0x02, version 5, then little-endian: active triangles 1024, contour points 768, loops 48,
+// Type 0x02, version 6, then little-endian: active triangles 1024, contour points 768, loops 48,
 // move buffer bytes 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
 // PTS 80, LOOPS 4, CROSS 128, PATH 320, RING 192, SPANS 64 (u32 each): 48 bytes.
 #[rustfmt::skip]
 const GOLDEN_CAPABILITIES: [u8; 48] = [
-    0x02, 5,
+    0x02, 6,
     0x00, 0x04, 0, 0,  0x00, 0x03, 0, 0,  48, 0, 0, 0,  0x00, 0x10, 0, 0,
     4, 0,
     0x00, 0x00, 0x01, 0,
@@ -416,4 +428,18 @@ fn golden_gcode_messages() {
     let full = vec![b'G'; MAX_PAYLOAD - 1];
     assert_eq!(Message::Gcode(&full).encode(&mut b), Ok(MAX_PAYLOAD));
     assert!(Message::Gcode(&[b'G'; MAX_PAYLOAD]).encode(&mut b).is_err());
+}
+
+#[test]
+fn golden_parked() {
+    let parked = ParkedJob { layer: 41, taken: 1234, fingerprint: 0xdead_beef };
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = Message::Parked(parked).encode(&mut buf).unwrap();
+    // Type 0x34, then layer, triangles taken and fingerprint, u32 little-endian each.
+    let golden = [0x34, 41, 0, 0, 0, 0xd2, 0x04, 0, 0, 0xef, 0xbe, 0xad, 0xde];
+    assert_eq!(&buf[..n], &golden);
+    assert_eq!(Message::decode(&golden), Ok(Message::Parked(parked)));
+    assert!(Message::decode(&golden[..12]).is_err());
+    // A job's fingerprint is the CRC-32 of its start message (Python: zlib.crc32).
+    assert_eq!(job_fingerprint(&[0x10, 1, 2, 3]), 0xdba0_d18c);
 }

@@ -36,6 +36,11 @@ pub struct PrintCmdArgs {
     /// Largest geometric error simplification may introduce, mm.
     #[arg(long, value_name = "MM", default_value_t = 0.02)]
     pub max_deviation: f64,
+    /// Resume the job the printer parked when its host went silent: give the same model and
+    /// settings; the printer checks they are the same, reheats, brings the nozzle back and
+    /// prints on from the layer where it stopped.
+    #[arg(long)]
+    pub resume: bool,
     /// Print settings.
     #[command(flatten)]
     pub print: Box<PrintArgs>,
@@ -81,7 +86,14 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     let mut link = LinkConfig::default();
     link.dead_ms = (args.link_timeout * 1000.0).round() as u32;
     let mut ep = HostEndpoint::new(link);
-    let caps = serial::connect(&mut port, &mut ep, &mut clock)?;
+    let greeting = serial::connect(&mut port, &mut ep, &mut clock)?;
+    let caps = greeting.capacities;
+    if let Some(parked) = greeting.parked.filter(|_| args.resume) {
+        eprintln!(
+            "printer: resuming the job it parked at layer {} ({} triangles taken)",
+            parked.layer, parked.taken
+        );
+    }
     eprintln!(
         "printer: {} active triangles, {} contour points per layer, toolpath PTS {} LOOPS {} \
          CROSS {} PATH {} RING {} SPANS {}, {} B move buffer, {} KB RAM",
@@ -123,20 +135,29 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         .map_err(|e| e.to_string())?,
     );
     let mut last_line: Option<(usize, u32)> = None;
-    let result = serial::print(&mut port, &mut ep, &mut clock, caps, source, &abort, |p| {
-        let sent = sent_of(p);
-        let text = progress_text(p, sent, total, unit);
-        if terminal {
-            bar.set_position(sent as u64);
-            bar.set_message(text);
-        } else {
-            let key = (sent * 10 / total.max(1), p.status.map_or(0, |s| s.layer));
-            if last_line != Some(key) {
-                last_line = Some(key);
-                eprintln!("progress: {text}");
+    let result = serial::print(
+        &mut port,
+        &mut ep,
+        &mut clock,
+        &greeting,
+        source,
+        args.resume,
+        &abort,
+        |p| {
+            let sent = sent_of(p);
+            let text = progress_text(p, sent, total, unit);
+            if terminal {
+                bar.set_position(sent as u64);
+                bar.set_message(text);
+            } else {
+                let key = (sent * 10 / total.max(1), p.status.map_or(0, |s| s.layer));
+                if last_line != Some(key) {
+                    last_line = Some(key);
+                    eprintln!("progress: {text}");
+                }
             }
-        }
-    });
+        },
+    );
     bar.finish_and_clear();
     let result = result.map_err(|e| {
         if abort.load(Ordering::Relaxed) {

@@ -17,7 +17,9 @@ use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepQueue, Wake};
 
 use crate::clock::LinkClock;
-use crate::session::{handshake, HostEndpoint, HostJob, Phase, Progress, Source};
+use crate::session::{
+    handshake, session_nonce, Greeting, HostEndpoint, HostJob, Phase, Progress, Source,
+};
 use crate::simjob::{announce_posed, device_turn, DeviceEndpoint, SimMotion, SimPrinter};
 
 /// Whether an I/O error means "not now" rather than "never".
@@ -130,12 +132,14 @@ pub fn keeping_link_alive<P: Read + Write, T: Send>(
     })
 }
 
-/// Connects: hello and the device's capacities (within 5 s of the clock).
+/// Connects: a new session, hello, the device's capacities and status (within 5 s of the
+/// clock).
 pub fn connect<P: Read + Write>(
     port: &mut Port<P>,
     ep: &mut HostEndpoint,
     clock: &mut impl LinkClock,
-) -> Result<Capacities, String> {
+) -> Result<Greeting, String> {
+    ep.open(session_nonce());
     handshake(ep, 5_000, |ep| port.pump(ep, clock))
 }
 
@@ -149,12 +153,16 @@ pub fn print<P: Read + Write>(
     port: &mut Port<P>,
     ep: &mut HostEndpoint,
     clock: &mut impl LinkClock,
-    caps: Capacities,
+    greeting: &Greeting,
     source: Source<'_>,
+    resume: bool,
     abort: &AtomicBool,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<Progress, String> {
-    let mut host = HostJob::after_hello(source, caps);
+    let mut host = HostJob::after_hello(source, greeting);
+    if resume {
+        host = host.resuming();
+    }
     let mut last_report = 0u32;
     let mut abort_at: Option<u32> = None;
     let confirm_ms = ABORT_CONFIRM_MS.max(ep.config().dead_ms);
@@ -293,7 +301,7 @@ pub fn serve_device<P: Read + Write>(
         };
         ep.receive(&buf[..n], now);
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
-        announce_posed(&opts.capacities, &mut ep);
+        announce_posed(&opts.capacities, &mut ep, &mut printer, now);
         device_turn(&mut printer, &mut ep, &mut motion, &mut None, now, done_ms, 200, |f| {
             let _ = port.write_all(f);
         });

@@ -7,8 +7,8 @@
 use strata::geom::Triangle;
 use strata::protocol::frame::wire_len;
 use strata::protocol::{
-    BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, GcodeSpec, JobReport, JobSpec,
-    LinkError, Message, Status, MAX_PAYLOAD, VERSION,
+    job_fingerprint, BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, GcodeSpec,
+    JobReport, JobSpec, LinkError, Message, ParkedJob, Status, MAX_PAYLOAD, VERSION,
 };
 use strata::thermal::ThermalFault;
 
@@ -49,6 +49,8 @@ pub struct Progress {
     pub stream_done_ms: Option<u32>,
     /// Why the job failed, in the failing stage's words (`Message::Failure`).
     pub failure: Option<String>,
+    /// The device holds a job parked when its host went silent (`Message::Parked`).
+    pub parked: Option<ParkedJob>,
 }
 
 /// What a job sends.
@@ -70,6 +72,8 @@ pub struct HostJob<'a> {
     hello_sent: bool,
     abort: bool,
     abort_sent: bool,
+    /// The job resumes one the device parked when its host went silent.
+    resume: bool,
     /// What the host has seen.
     pub progress: Progress,
     /// Every payload sent, in order (for the lossy-link tests' delivery check).
@@ -93,17 +97,28 @@ impl<'a> HostJob<'a> {
             hello_sent: false,
             abort: false,
             abort_sent: false,
+            resume: false,
             progress: Progress::default(),
             sent_log: None,
         }
     }
 
-    /// A job on a link whose hello was already answered with `caps` (see [`handshake`]).
-    pub fn after_hello(source: Source<'a>, caps: Capacities) -> Self {
+    /// A job on a link whose hello was already answered (see [`handshake`]).
+    pub fn after_hello(source: Source<'a>, greeting: &Greeting) -> Self {
         let mut j = Self::of(source);
         j.hello_sent = true;
-        j.progress.capacities = Some(caps);
+        j.progress.capacities = Some(greeting.capacities);
+        j.progress.status = Some(greeting.status);
+        j.progress.parked = greeting.parked;
         j
+    }
+
+    /// The same job resumed: the device parked it when its host went silent; this host sends
+    /// the triangles after the ones it took (see [`Message::Parked`]), once it checked that
+    /// the parked job is this one.
+    pub fn resuming(mut self) -> Self {
+        self.resume = true;
+        self
     }
 
     /// Current phase.
@@ -169,6 +184,7 @@ impl<'a> HostJob<'a> {
                     self.progress.layer_hashes[l] = hash;
                 }
                 Message::JobReport(j) => self.progress.job_report = Some(j),
+                Message::Parked(p) => self.progress.parked = Some(p),
                 Message::Failure(text) => self.progress.failure = Some(text.to_string()),
                 Message::Status(s) => {
                     self.progress.status = Some(s);
@@ -199,15 +215,8 @@ impl<'a> HostJob<'a> {
         if !self.hello_sent {
             self.hello_sent = self.send_msg(ep, &Message::Hello { version: VERSION });
         }
-        let start = match self.source {
-            Source::Model(_, job) => Message::JobStart(job),
-            Source::Gcode(_, spec) => Message::GcodeStart(spec),
-        };
-        if self.phase == Phase::Hello
-            && self.progress.capacities.is_some()
-            && self.send_msg(ep, &start)
-        {
-            self.phase = Phase::Streaming;
+        if self.phase == Phase::Hello && self.progress.capacities.is_some() {
+            self.begin(ep)?;
         }
         if let Source::Gcode(text, _) = self.source {
             self.stream_text(text, ep);
@@ -219,6 +228,72 @@ impl<'a> HostJob<'a> {
             self.progress.stream_done_ms = Some(now_ms);
         }
         Ok(self.phase)
+    }
+
+    /// Starts the job once the device's first status came (a device answers a hello with
+    /// its capacities and a status): a new job on a device without one, or the parked job
+    /// resumed.
+    fn begin(&mut self, ep: &mut HostEndpoint) -> Result<(), String> {
+        let Some(status) = self.progress.status else { return Ok(()) };
+        let orphaned = status.error == ErrorCode::LinkDead;
+        let start = match self.source {
+            Source::Model(_, job) => Message::JobStart(job),
+            Source::Gcode(_, spec) => Message::GcodeStart(spec),
+        };
+        if !self.resume {
+            if matches!(status.state, DeviceState::Printing | DeviceState::Paused) && !orphaned {
+                return Err(format!(
+                    "the printer is busy: it is {} layer {} of {} of another job",
+                    state_words(status.state),
+                    status.layer,
+                    status.layers
+                ));
+            }
+            if orphaned {
+                return Err(format!(
+                    "the printer holds a job it parked at layer {} when its host went silent: \
+                     resume it with the same model and settings and `--resume`, or abort it",
+                    status.layer
+                ));
+            }
+            if self.send_msg(ep, &start) {
+                self.phase = Phase::Streaming;
+            }
+            return Ok(());
+        }
+        if !orphaned {
+            return Err(format!(
+                "the printer holds no parked job to resume (it is {})",
+                state_words(status.state)
+            ));
+        }
+        // An orphaned job still printing what it had parks first, then says so.
+        let Some(parked) = self.progress.parked else { return Ok(()) };
+        let Source::Model(tris, _) = self.source else {
+            return Err("a G-code job parked when its host went silent does not resume: \
+                 abort it and print the file again"
+                .into());
+        };
+        let mut buf = [0u8; MAX_PAYLOAD];
+        let n = start.encode(&mut buf).expect("a job start fits a frame");
+        if job_fingerprint(&buf[..n]) != parked.fingerprint {
+            return Err("the printer's parked job is not this model with these settings: \
+                 resume it with the same ones, or abort it"
+                .into());
+        }
+        let taken = parked.taken as usize;
+        if taken > tris.len() {
+            return Err(format!(
+                "the printer's parked job took {taken} triangles, this model has {}",
+                tris.len()
+            ));
+        }
+        if self.send_msg(ep, &Message::Resume) {
+            self.next = taken;
+            self.progress.triangles_sent = taken;
+            self.phase = Phase::Streaming;
+        }
+        Ok(())
     }
 
     /// The text in messages as large as a frame takes, then the end.
@@ -277,6 +352,19 @@ impl<'a> HostJob<'a> {
     }
 }
 
+/// A device state in words.
+fn state_words(state: DeviceState) -> &'static str {
+    match state {
+        DeviceState::Idle => "idle",
+        DeviceState::Printing => "printing",
+        DeviceState::Paused => "paused",
+        DeviceState::Done => "done",
+        DeviceState::Failed => "failed",
+        DeviceState::Aborted => "aborted",
+        DeviceState::Stopped => "in emergency stop",
+    }
+}
+
 /// The user-facing text of a failed status.
 pub fn describe_failure(s: &Status, words: Option<&str>) -> String {
     let what = match (words, s.error) {
@@ -317,13 +405,35 @@ fn describe_code(code: ErrorCode, detail: u32) -> String {
     }
 }
 
-/// Sends `Hello` and waits for the device's capacities: `poll_io(ep)` moves bytes both ways
-/// and returns the current time in ms; gives up after `timeout_ms`.
+/// What a device answers to a hello.
+#[derive(Debug, Clone, Copy)]
+pub struct Greeting {
+    /// Its capacities.
+    pub capacities: Capacities,
+    /// Its status (a parked job's: paused, error `LinkDead`).
+    pub status: Status,
+    /// The job it parked when its last host went silent, if it said so yet.
+    pub parked: Option<ParkedJob>,
+}
+
+/// A new session's nonce: from the clock and the process, so that a new host's session
+/// differs from the last one the device heard (see `strata::protocol::link`).
+pub fn session_nonce() -> u16 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let mixed = nanos ^ std::process::id().rotate_left(16);
+    (mixed ^ mixed >> 16) as u16
+}
+
+/// Opens a session, sends `Hello` and waits for the device's capacities and first status:
+/// `poll_io(ep)` moves bytes both ways and returns the current time in ms; gives up after
+/// `timeout_ms`.
 pub fn handshake(
     ep: &mut HostEndpoint,
     timeout_ms: u32,
     mut poll_io: impl FnMut(&mut HostEndpoint) -> Result<u32, String>,
-) -> Result<Capacities, String> {
+) -> Result<Greeting, String> {
     let placeholder = JobSpec {
         settings: strata::machine::PrintSettings::default(),
         options: strata::protocol::JobOptions::default(),
@@ -336,8 +446,8 @@ pub fn handshake(
         let now = poll_io(ep)?;
         // Only the hello goes out: the phase stays `Hello` until capacities arrive, and then
         // this loop ends before a job start could be queued.
-        if let Some(c) = job.progress.capacities {
-            return Ok(c);
+        if let (Some(capacities), Some(status)) = (job.progress.capacities, job.progress.status) {
+            return Ok(Greeting { capacities, status, parked: job.progress.parked });
         }
         job.poll_hello(now, ep)?;
         if now.wrapping_sub(start) > timeout_ms {
@@ -361,13 +471,21 @@ impl HostJob<'_> {
             ));
         }
         while let Some(p) = ep.peek() {
-            if let Ok(Message::Capabilities { version, capacities }) = Message::decode(p) {
-                if version != VERSION {
-                    return Err(format!(
-                        "the printer speaks protocol version {version}, this host {VERSION}"
-                    ));
+            match Message::decode(p) {
+                Ok(Message::Capabilities { version, capacities }) => {
+                    if version != VERSION {
+                        return Err(format!(
+                            "the printer speaks protocol version {version}, this host {VERSION}"
+                        ));
+                    }
+                    self.progress.capacities = Some(capacities);
                 }
-                self.progress.capacities = Some(capacities);
+                // The first status after the capacities (an older one is another host's).
+                Ok(Message::Status(s)) if self.progress.capacities.is_some() => {
+                    self.progress.status = Some(s);
+                }
+                Ok(Message::Parked(p)) => self.progress.parked = Some(p),
+                _ => {}
             }
             ep.pop();
         }
@@ -381,6 +499,68 @@ impl HostJob<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use strata::geom::{Point3, Triangle};
+
+    fn job_of(triangles: u32) -> JobSpec {
+        JobSpec {
+            settings: strata::machine::PrintSettings::default(),
+            options: strata::protocol::JobOptions::default(),
+            model_height_um: 200,
+            triangles,
+        }
+    }
+
+    /// What a device answers to a hello: a parked job (`fingerprint` of its start), or none.
+    fn greeting(parked: Option<ParkedJob>) -> Greeting {
+        let status = Status {
+            state: if parked.is_some() { DeviceState::Paused } else { DeviceState::Idle },
+            error: if parked.is_some() { ErrorCode::LinkDead } else { ErrorCode::None },
+            layer: parked.map_or(0, |p| p.layer),
+            ..Status::default()
+        };
+        Greeting { capacities: strata::printer::BOARD_CAPACITIES, status, parked }
+    }
+
+    fn fingerprint(job: JobSpec) -> u32 {
+        let mut buf = [0u8; MAX_PAYLOAD];
+        let n = Message::JobStart(job).encode(&mut buf).unwrap();
+        job_fingerprint(&buf[..n])
+    }
+
+    /// The first poll of a job after the greeting: what it decided.
+    fn first_poll(job: &mut HostJob<'_>) -> Result<Phase, String> {
+        let mut ep = HostEndpoint::new(strata::protocol::LinkConfig::default());
+        job.poll(0, &mut ep)
+    }
+
+    #[test]
+    fn a_parked_job_resumes_only_as_the_same_job() {
+        let t = Triangle {
+            v: [Point3::new(0, 0, 0), Point3::new(1_000, 0, 0), Point3::new(0, 1_000, 200)],
+        };
+        let tris = vec![t; 10];
+        let job = job_of(10);
+        let parked = ParkedJob { layer: 3, taken: 6, fingerprint: fingerprint(job) };
+        // The same job resumes from the triangles taken.
+        let mut same = HostJob::after_hello(Source::Model(&tris, job), &greeting(Some(parked)))
+            .resuming();
+        assert_eq!(first_poll(&mut same), Ok(Phase::Streaming));
+        assert_eq!(same.progress.triangles_sent, 10);
+        // Other settings (another fingerprint): refused.
+        let other = job_of(9);
+        let mut job2 = HostJob::after_hello(Source::Model(&tris, other), &greeting(Some(parked)))
+            .resuming();
+        let e = first_poll(&mut job2).unwrap_err();
+        assert!(e.contains("not this model with these settings"), "{e}");
+        // A new job on a printer holding a parked one: refused, with the way out.
+        let mut fresh = HostJob::after_hello(Source::Model(&tris, job), &greeting(Some(parked)));
+        let e = first_poll(&mut fresh).unwrap_err();
+        assert!(e.contains("parked at layer 3") && e.contains("--resume"), "{e}");
+        // Nothing to resume.
+        let mut none = HostJob::after_hello(Source::Model(&tris, job), &greeting(None)).resuming();
+        let e = first_poll(&mut none).unwrap_err();
+        assert!(e.contains("no parked job to resume (it is idle)"), "{e}");
+    }
 
     #[test]
     fn a_failure_reads_in_the_devices_words_when_it_sent_them() {

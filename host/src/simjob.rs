@@ -116,6 +116,9 @@ pub struct SimOptions {
     pub device_outlives_host: bool,
     /// How long an orphaned job's heaters hold their targets once parked, ms.
     pub heat_hold_ms: u32,
+    /// With `device_outlives_host`: this long after the orphaned job parked, a new host
+    /// opens a session on a sound link and resumes the job (`strata print --resume`).
+    pub resume_after_ms: Option<u64>,
 }
 
 impl Default for SimOptions {
@@ -130,6 +133,7 @@ impl Default for SimOptions {
             block_ends: false,
             device_outlives_host: false,
             heat_hold_ms: strata::printer::DEFAULT_HEAT_HOLD_MS,
+            resume_after_ms: None,
         }
     }
 }
@@ -208,6 +212,10 @@ pub struct SimReport {
     pub parked_ms: Option<u64>,
     /// When its heaters went off after that, ms of virtual time.
     pub heaters_off_ms: Option<u64>,
+    /// The layer hashes the host that went silent had received (index = layer; 0: none),
+    /// when a new host resumed the job ([`SimOptions::resume_after_ms`]); `layer_hashes`
+    /// are then the new host's.
+    pub first_host_hashes: Option<Vec<u64>>,
 }
 
 impl SimReport {
@@ -374,6 +382,7 @@ fn run(
     let mut motion: Box<SimMotion<'_, STEP_QUEUE>> = Box::new(MotionHalf::new(prod));
 
     let mut host_ep: HostEndpoint = Endpoint::new(LinkConfig::default());
+    host_ep.open(1);
     let mut dev_ep: DeviceEndpoint = Endpoint::new(LinkConfig::device());
     let mut host = HostJob::of(source);
     if opts.check_delivery {
@@ -434,7 +443,7 @@ fn run(
         }
         // Device.
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
-        announce_posed(&opts.capacities, &mut dev_ep);
+        announce_posed(&opts.capacities, &mut dev_ep, &mut printer, t);
         device_turn(
             &mut printer,
             &mut dev_ep,
@@ -478,11 +487,26 @@ fn run(
             let paused = printer.state() == strata::protocol::DeviceState::Paused;
             if paused && rep.parked_ms.is_none() {
                 rep.parked_ms = Some(now_ms);
+                rep.resume = rep.resume.or(printer.resume_point());
             }
             if paused && printer.heater_targets() == (0, 0) {
                 rep.heaters_off_ms = Some(now_ms);
             }
-            if (!printer.is_active() || rep.heaters_off_ms.is_some()) && exec.is_idle() {
+            let resume_at = opts.resume_after_ms.zip(rep.parked_ms).map(|(a, p)| a + p);
+            if resume_at.is_some_and(|at| now_ms >= at) && rep.first_host_hashes.is_none() {
+                // A new host on a sound link, resuming the job.
+                rep.first_host_hashes = Some(std::mem::take(&mut host.progress.layer_hashes));
+                host_ep = Endpoint::new(LinkConfig::default());
+                host_ep.open(2);
+                host = HostJob::of(source).resuming();
+                h2d = Wire::new(Faults::default(), 3, opts.baud);
+                d2h = Wire::new(Faults::default(), 4, opts.baud);
+                host_gone = false;
+                outcome = Ok(());
+            } else if resume_at.is_none()
+                && (!printer.is_active() || rep.heaters_off_ms.is_some())
+                && exec.is_idle()
+            {
                 break;
             }
         }
@@ -513,7 +537,7 @@ fn run(
     };
     rep.block_ends = block_ends.unwrap_or_default();
     rep.device_state = Some(printer.state());
-    rep.resume = printer.resume_point();
+    rep.resume = rep.resume.or(printer.resume_point());
     rep.max_step_error_us = step_cfg.max_error_ticks as f64 * 1e6 / timer_hz as f64;
     rep.step_check_failures = gen.check_failures;
     rep.peak_active_triangles = slice.peak_active;
@@ -559,7 +583,12 @@ fn last_step_tick<O: strata::sim::EdgeObserver>(board: &SimBoard<O>) -> Option<u
 /// Answers the `Hello`s at the head of the link with `capacities`: a simulated printer posing
 /// as another device announces that device's capacities (the printer would announce its
 /// own; its offset engine bands as that device's does: [`SimPrinter::set_offset_limit`]).
-pub(crate) fn announce_posed(capacities: &Capacities, ep: &mut DeviceEndpoint) {
+pub(crate) fn announce_posed(
+    capacities: &Capacities,
+    ep: &mut DeviceEndpoint,
+    printer: &mut SimPrinter,
+    now_ms: u32,
+) {
     while ep.tx_free() > 1 {
         let Some(p) = ep.peek() else { break };
         if !matches!(Message::decode(p), Ok(Message::Hello { .. })) {
@@ -570,6 +599,7 @@ pub(crate) fn announce_posed(capacities: &Capacities, ep: &mut DeviceEndpoint) {
         if let Ok(n) = m.encode(&mut buf) {
             let _ = ep.send(&buf[..n]);
         }
+        printer.greeted(now_ms);
         ep.pop();
     }
 }

@@ -847,3 +847,100 @@ fn a_missing_image_is_an_error_not_a_hang() {
     eprintln!("{e} ({:.1} s)", t0.elapsed().as_secs_f64());
     assert!(e.contains("strata-hil-no-such-image"), "{e}");
 }
+
+/// A host's clock that stops for good once `killed` is set: the host never talks again, as
+/// if its process had been killed.
+struct Killable<'a, C> {
+    clock: C,
+    killed: &'a std::sync::atomic::AtomicBool,
+}
+
+impl<C: LinkClock> LinkClock for Killable<'_, C> {
+    fn now_ms(&mut self) -> Result<u32, String> {
+        if self.killed.load(std::sync::atomic::Ordering::Relaxed) {
+            return Err("the host was killed".into());
+        }
+        self.clock.now_ms()
+    }
+}
+
+/// A streamed print whose host is killed mid-job, resumed at once by a new host (`strata
+/// print --resume`, a new link session): the firmware parks, reheats, brings the nozzle back
+/// and prints on. Every layer hash either host heard equals the host simulation of the
+/// uninterrupted job, the new host hears every layer after the one where the print stopped,
+/// and the motors end where the uninterrupted job's did.
+#[test]
+fn qemu_killed_host_resumed() {
+    let label = "hil_qemu killed host resumed";
+    let Some((qemu, elf)) = qemu_or_skip(label, None) else { return };
+    // 40 layers: the printer holds a few of them ahead of the motion, not the whole model.
+    let tris = banded_cylinder(4_000.0, 8_000, 16, 200);
+    let job = job_spec(&tris);
+    let machine = MachineConfig::default();
+    let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
+    let (mut q, uart) = Qemu::start(&qemu, &elf, echo).unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut clock = q.clock().unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut port = Port::new(uart);
+    port.get_mut().set_read_timeout(Some(Duration::from_millis(1))).unwrap();
+    port.get_mut().set_write_timeout(Some(Duration::from_millis(1))).unwrap();
+    let killed = std::sync::atomic::AtomicBool::new(false);
+    let mut first = {
+        let mut host_clock = Killable { clock: clock.clone(), killed: &killed };
+        let mut conn = hil::connect(&mut port, &mut host_clock).expect("handshake");
+        let opts = SimOptions { capacities: conn.caps, ..SimOptions::default() };
+        let reference = simulate(&tris, &machine, job, &opts).expect("reference simulation");
+        let mut last = Progress::default();
+        let source = Source::Model(&tris, job);
+        let r = hil::print_job(&mut port, &mut conn, &mut host_clock, source, QEMU_JOB_MS, |p| {
+            // Killed once the printer has printed two layers.
+            if p.status.is_some_and(|s| s.layer >= 2) {
+                killed.store(true, std::sync::atomic::Ordering::Relaxed);
+            }
+            last = p.clone();
+        });
+        let e = r.expect_err("the first host was killed");
+        assert!(e.contains("killed"), "{label}: {e}");
+        assert!(last.triangles_sent < tris.len(), "{label}: killed after the whole model");
+        (last, reference)
+    };
+    let reference = first.1;
+    let first_heard = std::mem::take(&mut first.0.layer_hashes);
+    // The new host, at once: it opens its own session and resumes.
+    let mut conn = hil::connect(&mut port, &mut clock).expect("the new host's handshake");
+    let source = Source::Model(&tris, job);
+    let resumed = hil::resume_job(&mut port, &mut conn, &mut clock, source, QEMU_JOB_MS, |_| {})
+        .unwrap_or_else(|e| {
+            panic!(
+                "{label}: resume: {e}\n  qemu output (last lines): {:?}",
+                q.lines().iter().rev().take(12).rev().collect::<Vec<_>>()
+            )
+        });
+    let parked = resumed.parked.expect("the printer said where it parked");
+    let stop = parked.layer as usize;
+    eprintln!(
+        "{label}: killed with {} of {} triangles sent and {} layers heard; parked after layer \
+         {stop} with {} triangles taken; the new host heard {} layers",
+        first.0.triangles_sent,
+        tris.len(),
+        first_heard.iter().filter(|&&h| h != 0).count(),
+        parked.taken,
+        resumed.layer_hashes.iter().filter(|&&h| h != 0).count(),
+    );
+    assert!(stop + 1 < reference.layers as usize, "{label}: stopped after the last layer");
+    for (layer, &want) in reference.layer_hashes.iter().enumerate() {
+        for heard in [&first_heard, &resumed.layer_hashes] {
+            let got = heard.get(layer).copied().unwrap_or(0);
+            assert!(got == 0 || got == want, "{label}: layer {layer}: {got:x} vs {want:x}");
+        }
+        if layer > stop {
+            assert_eq!(resumed.layer_hashes.get(layer), Some(&want), "{label}: layer {layer}");
+        }
+    }
+    assert_eq!(resumed.status.map(|s| s.state), Some(DeviceState::Done));
+    let report = resumed.job_report.expect("a job report");
+    assert_eq!(report.positions, reference.positions, "{label}: final positions");
+    q.wait_for(&mut clock, CLOSING_LINES_MS, |l| l.iter().any(|l| l.starts_with("MEM ")))
+        .unwrap_or_else(|e| panic!("{label}: waiting for the closing lines: {e}"));
+    let steps = Costs::parse(&q.lines()).steps().expect("a STEPS line");
+    assert_eq!(steps.positions, reference.positions, "{label}: the motors' final positions");
+}

@@ -304,3 +304,17 @@ fn print_streams_a_gcode_file_to_the_simulated_printer_over_a_pty() {
     assert!(stderr.contains("skipped (not run by this printer): M201 x1"), "{stderr}");
     assert_eq!(state, DeviceState::Done);
 }
+
+/// `--resume` with a printer that parked no job: a clear error, and the printer stays idle
+/// (nothing was sent to it but the hello).
+#[test]
+fn resume_with_no_parked_job_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("holed.stl");
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    let (out, state) = print_over_pty(&[model.to_str().unwrap(), "--resume"], CREALITY_CAPACITIES);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("holds no parked job to resume (it is idle)"), "{stderr}");
+    assert_eq!(state, DeviceState::Idle);
+}

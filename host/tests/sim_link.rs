@@ -129,3 +129,51 @@ fn a_host_that_dies_after_the_whole_model_loses_nothing() {
     assert_eq!(rep.positions, clean.positions);
     assert_eq!(rep.resume, None);
 }
+
+/// The host dies mid-job and a new host resumes it (`strata print --resume`): the printer
+/// reheats, brings the nozzle back and prints on. Every layer either host heard of has the
+/// uninterrupted run's hash, the new host hears of every layer after the one where the print
+/// stopped, and the motors end where the uninterrupted run's did (no filament or position
+/// lost: the park and unpark moves cancel exactly).
+#[test]
+fn a_resumed_job_ends_as_an_uninterrupted_one() {
+    let clean = run(Faults::default()).unwrap();
+    let (tris, job) = small_job();
+    for (cut_ms, resume_after_ms, hold_ms) in [(300, 2_000, 30_000), (700, 40_000, 30_000)] {
+        let opts = SimOptions {
+            faults: Faults { cut_at_ms: Some(cut_ms), ..Faults::default() },
+            device_outlives_host: true,
+            heat_hold_ms: hold_ms,
+            resume_after_ms: Some(resume_after_ms),
+            ..SimOptions::default()
+        };
+        let rep = simulate(&tris, &MachineConfig::default(), job, &opts).unwrap();
+        let first = rep.first_host_hashes.clone().expect("a new host resumed the job");
+        let stop = rep.resume.expect("a resume point").layer as usize;
+        eprintln!(
+            "cut {cut_ms} ms: stopped after layer {stop} of {}, first host heard {} layers, \
+             cooled {:?}",
+            clean.layers,
+            first.iter().filter(|&&h| h != 0).count(),
+            rep.heaters_off_ms
+        );
+        assert!(stop + 1 < clean.layers as usize, "the cut came after the last layer");
+        for (layer, &want) in clean.layer_hashes.iter().enumerate() {
+            for heard in [&first, &rep.layer_hashes] {
+                let got = heard.get(layer).copied().unwrap_or(0);
+                assert!(got == 0 || got == want, "layer {layer}: {got:x} vs {want:x}");
+            }
+            if layer > stop {
+                assert_eq!(rep.layer_hashes.get(layer), Some(&want), "layer {layer}");
+            }
+        }
+        assert_eq!(rep.layer_hashes.len(), clean.layer_hashes.len());
+        assert_eq!(rep.positions, clean.positions);
+        let report = rep.job_report.expect("a job report");
+        assert_eq!(report.positions, clean.positions);
+        assert_eq!((rep.underruns, rep.violations), (0, 0));
+        assert_eq!(rep.device_state, Some(DeviceState::Done));
+        // Cooled or not: the second run waited past the heaters' hold.
+        assert_eq!(rep.heaters_off_ms.is_some(), resume_after_ms > hold_ms as u64);
+    }
+}

@@ -803,6 +803,13 @@ impl<const N: usize> Planner<N> {
         Ok(())
     }
 
+    /// The next move starts at rest (the one before it ends so), as after a dwell: a layer
+    /// change is a rest point of the plan, so a layer's blocks never depend on the next
+    /// layer's moves.
+    pub fn rest_here(&mut self) {
+        self.last = None;
+    }
+
     /// Appends `entry` (room checked) and replans. A dwell's junction limit and ramp are 0:
     /// the move before it ends at rest and the one after starts so.
     fn push_entry(&mut self, entry: Entry) {

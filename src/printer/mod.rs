@@ -58,8 +58,8 @@ use crate::machine::MachineConfig;
 use crate::move_ring::{PackedMove, RingFull};
 use crate::plan::PlanConfig;
 use crate::protocol::{
-    Capacities, DeviceState, Endpoint, ErrorCode, GcodeSpec, JobReport, JobSpec, Message, Status,
-    MAX_PAYLOAD, VERSION,
+    job_fingerprint, Capacities, DeviceState, Endpoint, ErrorCode, GcodeSpec, JobReport, JobSpec,
+    Message, Status, MAX_PAYLOAD, VERSION,
 };
 use crate::slot::Slot;
 use crate::step::StepConfig;
@@ -70,7 +70,7 @@ pub use failure::{Failure, Refusal};
 pub use motion::{Motion, MotionAccess, MotionHalf};
 use orphan::Orphan;
 pub use orphan::{
-    ResumePoint, DEFAULT_HEAT_HOLD_MS, GCODE_PARK_RETRACT_UM, PARK_LIFT_UM, PARK_XY_UM,
+    ResumePoint, DEFAULT_HEAT_HOLD_MS, GCODE_PARK_RETRACT_UM, PARK_LIFT_UM, PARK_TAG, PARK_XY_UM,
 };
 pub use pipeline::{Computing, Emit, Pipeline, Stages};
 
@@ -190,6 +190,14 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     /// How long an orphaned job's heaters hold their targets once parked, ms, when the board
     /// set it (empty: [`DEFAULT_HEAT_HOLD_MS`]).
     heat_hold_ms: Slot<u32>,
+    /// The job's fingerprint ([`crate::protocol::job_fingerprint`] of its start message).
+    fingerprint: u32,
+    /// A new host said hello while the job was orphaned: it hears of the parked job once
+    /// the job has parked.
+    parked_due: bool,
+    /// The link session last seen (see [`crate::protocol::link`]): a new session means a
+    /// new host, so a running job's own host is gone.
+    session: u16,
 }
 
 impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES, P> {
@@ -236,6 +244,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             orphan_silent_ms: 0,
             resume: Slot::Empty,
             heat_hold_ms: Slot::Empty,
+            fingerprint: 0,
+            parked_due: false,
+            session: 0,
         }
     }
 
@@ -556,6 +567,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             {
                 return self.take_gcode(&[], true, motion);
             }
+            // A new host resumes a parked sliced job.
+            (Message::Resume, _) if self.parked() && !self.gcode_job => self.unpark(motion),
             // An orphaned job (its host went silent) parks and waits on its own: a pause or
             // resume still in its receive queue is not for it.
             (Message::Pause | Message::Resume, _) if self.orphan.get().is_some() => {}
@@ -822,11 +835,6 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             }
         }
         worked |= self.take_layer_marks(motion);
-        if self.orphan.get().is_some() {
-            // No host to report to: the layers' reports are dropped, the generator never
-            // waits for them.
-            self.done.clear();
-        }
         if self.done.is_full() {
             return worked;
         }
@@ -854,10 +862,21 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) -> bool {
         let mut took = false;
-        while !self.done.is_full() {
+        loop {
+            if self.done.is_full() {
+                // An orphaned job has no host to wait for: it keeps the latest reports.
+                if self.orphan.get().is_none() {
+                    break;
+                }
+                self.done.pop_front();
+            }
             let Some((layer, hash)) = motion.with(|m, _| m.generator_mut().take_mark()) else {
                 break;
             };
+            took = true;
+            if layer == PARK_TAG {
+                continue;
+            }
             let _ = self.done.push_back((layer, hash));
             self.layers_planned = layer + 1;
             took = true;
@@ -926,11 +945,19 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         if let Err(crate::protocol::LinkError::Dead { silent_ms }) = ep.check(now_ms) {
             self.link_lost(silent_ms, now_ms);
         }
+        if ep.session() != self.session {
+            self.new_session(ep.session(), now_ms);
+        }
         self.check_heat_wait(now_ms, motion);
         let before = self.state;
-        self.take_messages(ep, motion, lend);
+        self.take_messages(ep, motion, now_ms, lend);
         self.tend_orphan(now_ms, ep.peek().is_none(), motion);
-        while ep.tx_free() > 1 {
+        if let Some(parked) = self.parked_job().filter(|_| self.parked_due && ep.tx_free() > 1) {
+            self.parked_due = !send(ep, &Message::Parked(parked));
+        }
+        // An orphaned job keeps its layer reports for a new host.
+        let alive = ep.check(now_ms).is_ok();
+        while ep.tx_free() > 1 && alive {
             let Some((layer, hash)) = self.take_layer_done() else { break };
             send(ep, &Message::LayerDone { layer, hash });
         }
@@ -950,11 +977,31 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         }
     }
 
+    /// A new host opened link session `session`: the old session's messages that were not
+    /// taken are gone (a batch taken in part too: the triangles taken are counted), and a
+    /// running job's own host is gone, silent or not (the job parks: [`Self::link_lost`]).
+    #[inline(never)]
+    fn new_session(&mut self, session: u16, now_ms: u32) {
+        self.session = session;
+        self.batch_pos = 0;
+        self.waiting_for_room = false;
+        self.link_lost(0, now_ms);
+    }
+
+    /// A host said hello (at `now_ms`, the clock of [`service`](Self::service)): a status
+    /// goes out at once, so that it knows whether a job runs or is parked before it starts
+    /// one, and a parked job's news ([`Message::Parked`]) once the job has parked.
+    pub fn greeted(&mut self, now_ms: u32) {
+        self.status_due_ms = now_ms;
+        self.parked_due = self.orphan.get().is_some();
+    }
+
     /// Decodes and handles the delivered messages while the link has room for answers.
     fn take_messages<const TX: usize, const RX: usize, const Q: usize>(
         &mut self,
         ep: &mut Endpoint<TX, RX>,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        now_ms: u32,
         lend: bool,
     ) {
         // An orphaned job takes what it received without room for answers (none go out).
@@ -965,16 +1012,22 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 break;
             }
             self.waiting_for_room = false;
+            let starts = p.first() == Some(&crate::protocol::msg::ty::JOB_START);
+            let fingerprint = if starts { job_fingerprint(p) } else { 0 };
             match Message::decode(p) {
                 Ok(Message::Hello { .. }) => {
                     let caps = self.capacities();
                     let m = Message::Capabilities { version: VERSION, capacities: caps };
                     send(ep, &m);
+                    self.greeted(now_ms);
                 }
                 Ok(m) => {
                     if self.handle_with(&m, motion, lend) == Accept::Busy {
                         self.waiting_for_room = true;
                         break;
+                    }
+                    if starts {
+                        self.fingerprint = fingerprint;
                     }
                 }
                 Err(_) => {

@@ -26,6 +26,8 @@ pub struct Motion<const MOVE_BYTES: usize, const P: usize> {
     planner: Planner<P>,
     /// Layer of every move in the planner that makes a block.
     tags: Deque<u32, P>,
+    /// The layer of the last move into the planner, plus one (0: none yet).
+    planned_layer: u32,
     gen: StepGenerator,
 }
 
@@ -41,6 +43,7 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         moves: MoveRing::new(),
         planner: Planner::empty(),
         tags: Deque::new(),
+        planned_layer: 0,
         gen: StepGenerator::empty(),
     };
 
@@ -49,6 +52,7 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         self.moves.clear();
         self.planner.reset(plan, [0; AXES]);
         self.tags.clear();
+        self.planned_layer = 0;
         self.gen.reset(step, [0; AXES]);
     }
 
@@ -139,6 +143,16 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         while !self.planner.is_full() {
             let Some(t) = self.moves.pop_front() else { break };
             let queued = self.planner.len();
+            // A layer starts at rest: its steps depend on its own blocks only (the generator
+            // starts its commands afresh there), so a job paused between two layers resumes
+            // with the same steps.
+            let layer = u32::from(t.layer) + 1;
+            if self.planned_layer != layer {
+                if self.planned_layer != 0 {
+                    self.planner.rest_here();
+                }
+                self.planned_layer = layer;
+            }
             // The planner had room: any refusal is the move's fault and fails the job.
             self.planner.push(t.unpack()).map_err(|_| u32::from(t.layer))?;
             worked = true;

@@ -13,12 +13,26 @@
 //! resumed, then go off. Where the input ended (the layer and the position before parking)
 //! is kept ([`ResumePoint`]). A job the user had paused stays where it is, paused, with the
 //! same heater hold.
+//!
+//! A new host that opens a session hears of the parked job ([`Message::Parked`]: its layer,
+//! the triangles taken and the job's fingerprint) and may resume it with the rest of the
+//! same job ([`Message::Resume`]): the heaters reach their targets again, the nozzle goes
+//! back over the part, down and primes (the park moves undone), and the triangles after the
+//! ones taken continue the job as if nothing had happened. A sliced job's input ends with
+//! its last complete layer and a layer starts at rest with steps of its own
+//! ([`crate::step::StepGenerator`]); the park and unpark moves carry [`PARK_TAG`], whose
+//! steps are hashed apart and never reported: the resumed job's layers have the steps, and
+//! the hashes, of an uninterrupted run. (A G-code job stops at its last complete line,
+//! mid-layer; it parks the same way but does not resume.)
+//!
+//! [`Message::Parked`]: crate::protocol::Message::Parked
+//! [`Message::Resume`]: crate::protocol::Message::Resume
 
 use super::{MotionAccess, Printer, Stages};
 use crate::machine::{Rate, AXES};
 use crate::move_ring::PackedMove;
 use crate::plan::{Move, MoveKind};
-use crate::protocol::DeviceState;
+use crate::protocol::{DeviceState, ParkedJob};
 use crate::slot::Slot;
 
 /// Lift of the nozzle when it parks, um (Marlin's `NOZZLE_PARK_Z_RAISE_MIN` is 2 mm; 10 mm
@@ -33,6 +47,9 @@ pub const GCODE_PARK_RETRACT_UM: i32 = 5_000;
 /// Speeds of the park moves in a G-code job, mm/s: retraction, lift (Z's limit lowers it),
 /// travel.
 const GCODE_PARK_SPEEDS_MM_S: [u32; 3] = [45, 5, 100];
+/// The tag of the park and unpark moves in place of a layer: their steps are hashed apart
+/// and never reported (layers are below it: moves carry 16-bit layers).
+pub const PARK_TAG: u32 = u16::MAX as u32;
 /// How long the heaters hold their targets once parked, ms, unless the board sets another.
 pub const DEFAULT_HEAT_HOLD_MS: u32 = 10 * 60 * 1000;
 
@@ -149,9 +166,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         input.take(&[], &mut 0, false, &mut sink)
     }
 
-    /// The park moves into the move buffer (it is empty: they fit), the resume point kept.
-    fn park<const Q: usize>(&mut self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) {
-        let (retract_um, speeds) = match self.job.get() {
+    /// The retraction for parking, um, and the speeds of the park moves (retraction, lift,
+    /// travel), mm/s: a sliced job's own, a G-code job's defaults.
+    fn park_moves(&self) -> (i32, [Rate; 3]) {
+        match self.job.get() {
             Some(j) if !self.gcode_job => {
                 let s = &j.settings;
                 (
@@ -160,7 +178,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 )
             }
             _ => (GCODE_PARK_RETRACT_UM, GCODE_PARK_SPEEDS_MM_S.map(Rate::from_num)),
-        };
+        }
+    }
+
+    /// The park moves into the move buffer (it is empty: they fit), the resume point kept.
+    fn park<const Q: usize>(&mut self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) {
+        let (retract_um, speeds) = self.park_moves();
         let volume = self.machine.build_volume_um;
         let (at, layer) = motion.with(|m, _| (m.planner().position_um(), m.generator().tag()));
         let layer = layer.unwrap_or(0);
@@ -173,11 +196,56 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         to[0] = PARK_XY_UM[0];
         to[1] = volume[1] - PARK_XY_UM[1];
         let travel = Move::new(to, speeds[2], MoveKind::Travel);
-        motion.with(|m, _| {
-            for mv in [retract, lift, travel] {
-                // The buffer is empty; three records fit any buffer a job can run with.
-                let _ = m.moves_mut().push(&PackedMove::pack(layer, &mv));
-            }
-        });
+        push_park_moves(motion, [retract, lift, travel]);
     }
+
+    /// The orphaned job is parked and paused (its heaters holding or off).
+    pub(super) fn parked(&self) -> bool {
+        matches!(self.orphan.get(), Some(Orphan::Parked { .. } | Orphan::Cooled))
+    }
+
+    /// What a new host hears of a parked job (sliced jobs only: a G-code job does not
+    /// resume).
+    pub(super) fn parked_job(&self) -> Option<ParkedJob> {
+        let point = self.resume.get().filter(|_| self.parked())?;
+        Some(ParkedJob { layer: point.layer, taken: self.triangles, fingerprint: self.fingerprint })
+    }
+
+    /// A new host resumes the parked job: the park moves undone (over the part, down,
+    /// primed) once the heaters are back at their targets, then the job takes triangles
+    /// again from where its input ended.
+    pub(super) fn unpark<const Q: usize>(
+        &mut self,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
+        let Some(point) = self.resume.get().copied() else { return };
+        let (_, speeds) = self.park_moves();
+        let mut to = motion.with(|m, _| m.planner().position_um());
+        to[0] = point.position_um[0];
+        to[1] = point.position_um[1];
+        let travel = Move::new(to, speeds[2], MoveKind::Travel);
+        to[2] = point.position_um[2];
+        let lower = Move::new(to, speeds[1], MoveKind::Travel);
+        to[3] = point.position_um[3];
+        let prime = Move::new(to, speeds[0], MoveKind::Retract);
+        push_park_moves(motion, [travel, lower, prime]);
+        self.orphan = Slot::Empty;
+        self.resume = Slot::Empty;
+        self.model_ended = false;
+        self.heated = false;
+        self.state = DeviceState::Printing;
+    }
+}
+
+/// Park or unpark moves into the move buffer, tagged [`PARK_TAG`]. The buffer is empty (the
+/// motion is idle): three records fit any buffer a job can run with.
+fn push_park_moves<const MOVE_BYTES: usize, const P: usize, const Q: usize>(
+    motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    moves: [Move; 3],
+) {
+    motion.with(|m, _| {
+        for mv in moves {
+            let _ = m.moves_mut().push(&PackedMove::pack(PARK_TAG, &mv));
+        }
+    });
 }

@@ -13,7 +13,7 @@ use crc::{Crc, CRC_32_ISO_HDLC};
 /// 4: the capabilities' move buffer is in bytes of delta-coded moves, filled a path (with the
 /// travel before it) at a time: it must hold the job's largest such unit, not a layer.
 /// 5: G-code jobs (`GcodeStart`, `Gcode`).
-pub const VERSION: u8 = 5;
+pub const VERSION: u8 = 6;
 /// Header bytes before the payload.
 pub const HEADER_LEN: usize = 4;
 /// CRC bytes after the payload.
@@ -39,6 +39,11 @@ pub enum FrameType {
     Data = 0,
     /// Acknowledgement and credits only (no sequence number consumed, no payload).
     Ack = 1,
+    /// A session opens (no payload; the sequence and ack fields carry the session's 16-bit
+    /// nonce, low byte first): sent
+    /// by a host that starts talking to a device, echoed by the device once it started the
+    /// session afresh (see [`super::link`]).
+    Open = 2,
 }
 
 /// One decoded, checked frame.
@@ -189,6 +194,7 @@ pub fn parse(raw: &[u8]) -> Result<Frame<'_>, FrameError> {
     let kind = match body[0] & 0x0F {
         0 => FrameType::Data,
         1 if payload.is_empty() => FrameType::Ack,
+        2 if payload.is_empty() => FrameType::Open,
         t => return Err(FrameError::Type(t)),
     };
     Ok(Frame { kind, seq: body[1], ack: body[2], credits: body[3], payload })

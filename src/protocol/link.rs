@@ -21,6 +21,15 @@
 //!   every [`LinkConfig::keepalive_ms`]; hearing nothing for [`LinkConfig::dead_ms`] makes
 //!   the link [`LinkError::Dead`].
 //!
+//! - a host opens a **session** before its first data frame ([`Endpoint::open`]): it sends
+//!   an [`FrameType::Open`] frame with a nonzero 16-bit nonce every [`LinkConfig::retransmit_ms`]
+//!   until the device echoes it. A device that hears a new nonce starts afresh: sequence
+//!   numbers from 0, and what the old session left queued either way is dropped (frames
+//!   not acknowledged, messages the application had not taken: [`Endpoint::session`]
+//!   tells it that a new session began). The same nonce again is only echoed. So a new
+//!   host can talk at once to a device whose last host died mid-job, and a stale duplicate
+//!   of an `Open` never cuts a running session.
+//!
 //! Time is an argument (`now_ms`, wrapping `u32`); nothing here reads a clock.
 
 use super::frame::{self, Decoder, FrameType, MAX_PAYLOAD, MAX_WIRE};
@@ -172,6 +181,14 @@ pub struct Endpoint<const TX: usize, const RX: usize> {
     last_rx_ms: u32,
     last_tx_ms: u32,
     started: bool,
+    /// The session's nonce (0: none opened).
+    session: u16,
+    /// This end opens sessions (a host: [`Endpoint::open`]); the other echoes them.
+    opener: bool,
+    /// A host: the session is not yet echoed (its `Open` frames go out, no data).
+    opening: bool,
+    /// A device: the session's `Open` is to be echoed.
+    echo_due: bool,
     stats: LinkStats,
 }
 
@@ -203,6 +220,10 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
             last_rx_ms: 0,
             last_tx_ms: 0,
             started: false,
+            session: 0,
+            opener: false,
+            opening: false,
+            echo_due: false,
             stats: LinkStats {
                 frames_sent: 0,
                 bytes_sent: 0,
@@ -216,6 +237,42 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
                 delivered: 0,
             },
         }
+    }
+
+    /// Opens a session with nonce `nonce` (nonzero; a new host picks one its device's last
+    /// session is unlikely to have had): `Open` frames go out until the peer echoes it, and
+    /// data frames only after that.
+    pub fn open(&mut self, nonce: u16) {
+        self.session = nonce.max(1);
+        self.opener = true;
+        self.opening = true;
+    }
+
+    /// The current session's nonce (0: none opened): a device sees a new host as a new
+    /// session.
+    pub fn session(&self) -> u16 {
+        self.session
+    }
+
+    /// True once the session is open (or none was asked for).
+    pub fn is_open(&self) -> bool {
+        !self.opening
+    }
+
+    /// Starts over for a new session: sequence numbers from 0, nothing queued either way.
+    fn restart_session(&mut self, nonce: u16) {
+        self.session = nonce;
+        self.tx_head = 0;
+        self.tx_len = 0;
+        self.tx_sent = 0;
+        self.tx_ever = 0;
+        self.tx_base = 0;
+        self.peer_credits = 1;
+        self.probe_every_ms = 0;
+        self.rx_head = 0;
+        self.rx_len = 0;
+        self.rx_next = 0;
+        self.ack_due = false;
     }
 
     /// The timers.
@@ -293,6 +350,22 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
             };
             self.stats.frames_received += 1;
             self.last_rx_ms = now_ms;
+            if frame.kind == FrameType::Open {
+                let nonce = u16::from_le_bytes([frame.seq, frame.ack]);
+                if self.opener {
+                    // Our session is open once echoed: the peer starts from 0, as we do.
+                    self.opening &= nonce != self.session;
+                } else if nonce != 0 {
+                    if nonce != self.session {
+                        self.restart_session(nonce);
+                    }
+                    self.echo_due = true;
+                }
+                continue;
+            }
+            if self.opening {
+                continue;
+            }
             // Acknowledgement: frames before `ack` arrived; only sent frames can be acked.
             let acked = frame.ack.wrapping_sub(self.tx_base) as usize;
             if acked <= self.tx_ever {
@@ -358,6 +431,23 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
             self.start(now_ms);
         }
         let credits = (RX - self.rx_len) as u8;
+        if self.opening || self.echo_due {
+            let due = self.echo_due
+                || self.stats.frames_sent == 0
+                || now_ms.wrapping_sub(self.last_tx_ms) >= self.cfg.retransmit_ms;
+            if !due {
+                return 0;
+            }
+            self.echo_due = false;
+            let [lo, hi] = self.session.to_le_bytes();
+            let Some(n) = frame::encode(FrameType::Open, lo, hi, credits, &[], out) else {
+                return 0;
+            };
+            self.last_tx_ms = now_ms;
+            self.stats.frames_sent += 1;
+            self.stats.bytes_sent += n as u64;
+            return n;
+        }
         let expired =
             self.tx_sent > 0 && now_ms.wrapping_sub(self.tx_timer_ms) >= self.cfg.retransmit_ms;
         // The peer spoke at or after the timer expired, without acking the window.

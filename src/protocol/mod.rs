@@ -28,6 +28,6 @@ pub mod msg;
 pub use frame::{Decoder, Frame, FrameError, FrameType, MAX_PAYLOAD, MAX_WIRE, VERSION};
 pub use link::{Endpoint, LinkConfig, LinkError, LinkStats, SendError};
 pub use msg::{
-    BatchBuilder, Capacities, DecodeError, DeviceState, EncodeError, ErrorCode, GcodeSpec,
-    JobOptions, JobReport, JobSpec, Message, Status, TriangleBatch,
+    job_fingerprint, BatchBuilder, Capacities, DecodeError, DeviceState, EncodeError, ErrorCode,
+    GcodeSpec, JobOptions, JobReport, JobSpec, Message, ParkedJob, Status, TriangleBatch,
 };

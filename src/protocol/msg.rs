@@ -39,6 +39,7 @@ pub mod ty {
     pub const LAYER_DONE: u8 = 0x31;
     pub const JOB_REPORT: u8 = 0x32;
     pub const FAILURE: u8 = 0x33;
+    pub const PARKED: u8 = 0x34;
 }
 
 /// What a device holds: announced in [`Message::Capabilities`], used for admission control.
@@ -300,6 +301,29 @@ pub enum Message<'a> {
     /// active triangles in layer 37 (capacity 388)"), sent once before the status saying
     /// so; the status keeps its code and detail.
     Failure(&'a str),
+    /// The device holds a job whose host went silent, parked and paused: sent after the
+    /// capabilities to a new host, which may resume it ([`Message::Resume`]) by sending the
+    /// rest of the same job.
+    Parked(ParkedJob),
+}
+
+/// A job parked when its host went silent: where a new host resumes it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ParkedJob {
+    /// The layer of the last move printed.
+    pub layer: u32,
+    /// Triangles the device took (the resuming host sends the ones after them).
+    pub taken: u32,
+    /// The job's fingerprint ([`job_fingerprint`] of its start message): a host resumes
+    /// only the same job.
+    pub fingerprint: u32,
+}
+
+/// A job's fingerprint: the CRC-32 (ISO-HDLC) of its start message's payload (the type
+/// byte, settings, height and triangle count of [`Message::JobStart`]).
+pub fn job_fingerprint(start_payload: &[u8]) -> u32 {
+    crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(start_payload)
 }
 
 /// A G-code job, as the host measured its text.
@@ -545,6 +569,12 @@ impl<'a> Message<'a> {
                 w.u8(ty::FAILURE)?;
                 w.put(text.as_bytes())?;
             }
+            Self::Parked(p) => {
+                w.u8(ty::PARKED)?;
+                w.u32(p.layer)?;
+                w.u32(p.taken)?;
+                w.u32(p.fingerprint)?;
+            }
             Self::GcodeStart(g) => {
                 w.u8(ty::GCODE_START)?;
                 w.u32(g.bytes)?;
@@ -577,6 +607,7 @@ impl<'a> Message<'a> {
             Self::LayerDone { .. } => ty::LAYER_DONE,
             Self::JobReport(_) => ty::JOB_REPORT,
             Self::Failure(_) => ty::FAILURE,
+            Self::Parked(_) => ty::PARKED,
             Self::GcodeStart(_) => ty::GCODE_START,
             Self::Gcode(_) => ty::GCODE,
         }
@@ -685,6 +716,9 @@ impl<'a> Message<'a> {
                 },
             }),
             ty::LAYER_DONE => Self::LayerDone { layer: r.u32()?, hash: r.u64()? },
+            ty::PARKED => {
+                Self::Parked(ParkedJob { layer: r.u32()?, taken: r.u32()?, fingerprint: r.u32()? })
+            }
             ty::JOB_REPORT => {
                 let mut j = JobReport::default();
                 for v in &mut j.steps {

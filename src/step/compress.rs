@@ -217,6 +217,29 @@ impl<const B: usize> Compressor<B> {
         self.last
     }
 
+    /// The axis rests (nothing pending): its reference moves on to `t` (waits) and it starts
+    /// afresh, as at the start of a job: its next step queues its direction and is fitted
+    /// with no memory of the sequences before. Repeating the call after `Err` finishes it.
+    pub(crate) fn rest_at<const N: usize>(
+        &mut self,
+        axis: usize,
+        t: u64,
+        out: &mut StepProducer<'_, N>,
+    ) -> Result<(), Full> {
+        debug_assert!(self.is_empty(), "an axis rests with nothing pending");
+        let most = WAITS_PER_COMMAND * (MAX_INTERVAL_TICKS as u64 / 2);
+        while self.last < t {
+            let ticks = (t - self.last).min(most);
+            out.enqueue(axis, StepCmd::Wait(ticks as u32)).map_err(|_| Full)?;
+            self.last += ticks;
+        }
+        self.dir = QueuedDir::None;
+        self.after_dir = false;
+        self.prev_tick = t;
+        self.prev_count = 0;
+        Ok(())
+    }
+
     /// Accepts the step at exact time `tick` in direction `dir`. On `Err` nothing about the
     /// step was recorded and the same call may simply be repeated.
     pub(crate) fn push_step<const N: usize>(

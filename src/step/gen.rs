@@ -329,6 +329,11 @@ impl<const B: usize> StepGenerator<B> {
                         if self.marks.is_full() {
                             return GenStatus::QueueFull;
                         }
+                        // Between two tags at rest, the new tag's commands start afresh.
+                        if self.tag.is_some() && self.at_rest && self.rest_all(out).is_err() {
+                            self.queue_blocked = true;
+                            return GenStatus::QueueFull;
+                        }
                         // The commands so far belong to the previous tag.
                         let h = out.take_hash();
                         if let Some(prev) = self.tag {
@@ -381,6 +386,26 @@ impl<const B: usize> StepGenerator<B> {
                 self.overdue = (1 << AXES) - 1;
             }
         }
+    }
+
+    /// The motion rests between two tags: every axis' reference moves on to the rest time
+    /// (the first whole tick at or after the last block's end and every committed step) and
+    /// the axes start afresh there ([`Compressor::rest_at`]), so the next tag's commands
+    /// depend on its own blocks only, not on when it starts nor on the motion before (a job
+    /// paused between two layers, its nozzle parked and brought back, resumes with the steps
+    /// it would have made). Repeating the call after `Err` finishes it.
+    fn rest_all<const N: usize>(&mut self, out: &mut StepProducer<'_, N>) -> Result<(), Full> {
+        let end = self.block_start_q16.div_ceil(1 << 16);
+        let t = self.comp.iter().map(|c| c.last()).fold(end, u64::max);
+        for (axis, c) in self.comp.iter_mut().enumerate() {
+            c.rest_at(axis, t, out)?;
+        }
+        self.block_start_q16 = t << 16;
+        self.reach = t;
+        self.last_tick = t;
+        self.settle_at = u64::MAX;
+        self.overdue = 0;
+        Ok(())
     }
 
     /// Sends what is owed: per axis at most one sequence whose first step waited longer than

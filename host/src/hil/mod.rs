@@ -27,7 +27,7 @@ use strata::protocol::{Capacities, JobSpec, LinkConfig};
 use crate::admission::{admit_job_paced, Admission};
 use crate::clock::{Budget, LinkClock};
 use crate::serial::Port;
-use crate::session::{HostEndpoint, Progress, Source};
+use crate::session::{Greeting, HostEndpoint, Progress, Source};
 
 pub use costs::{
     parse_record, CostSummary, Costs, LayerCost, Record, StepsLine, CPU_HZ, CYCLES_PER_INSN,
@@ -51,6 +51,8 @@ pub struct Connected {
     pub ep: HostEndpoint,
     /// What the device announced.
     pub caps: Capacities,
+    /// Its whole answer to the hello (status, a parked job).
+    pub greeting: Greeting,
 }
 
 /// Hello and capacities over `port` (with a read timeout set, e.g. 1 ms), on `clock`.
@@ -59,8 +61,8 @@ pub fn connect<P: Read + Write>(
     clock: &mut impl LinkClock,
 ) -> Result<Connected, String> {
     let mut ep = HostEndpoint::new(hil_link());
-    let caps = crate::serial::connect(port, &mut ep, clock)?;
-    Ok(Connected { ep, caps })
+    let greeting = crate::serial::connect(port, &mut ep, clock)?;
+    Ok(Connected { ep, caps: greeting.capacities, greeting })
 }
 
 /// [`admitted`] while the link is kept alive, as `strata print` does.
@@ -141,14 +143,52 @@ pub fn print_job_or_abort<P: Read + Write>(
     source: Source<'_>,
     budget_ms: u32,
     abort: &std::sync::atomic::AtomicBool,
+    on_progress: impl FnMut(&Progress),
+) -> Result<Progress, String> {
+    run_job(port, conn, clock, source, false, budget_ms, abort, on_progress)
+}
+
+/// [`print_job`] of the job the device parked when its last host went silent, as
+/// `strata print --resume` does: the triangles after the ones it took.
+pub fn resume_job<P: Read + Write>(
+    port: &mut Port<P>,
+    conn: &mut Connected,
+    clock: impl LinkClock,
+    source: Source<'_>,
+    budget_ms: u32,
+    on_progress: impl FnMut(&Progress),
+) -> Result<Progress, String> {
+    let never = std::sync::atomic::AtomicBool::new(false);
+    run_job(port, conn, clock, source, true, budget_ms, &never, on_progress)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_job<P: Read + Write>(
+    port: &mut Port<P>,
+    conn: &mut Connected,
+    clock: impl LinkClock,
+    source: Source<'_>,
+    resume: bool,
+    budget_ms: u32,
+    abort: &std::sync::atomic::AtomicBool,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<Progress, String> {
     let mut last = Progress::default();
     let mut clock = Budget::new(clock, budget_ms);
-    let r = crate::serial::print(port, &mut conn.ep, &mut clock, conn.caps, source, abort, |p| {
-        last = p.clone();
-        on_progress(p);
-    });
+    let greeting = conn.greeting;
+    let r = crate::serial::print(
+        port,
+        &mut conn.ep,
+        &mut clock,
+        &greeting,
+        source,
+        resume,
+        abort,
+        |p| {
+            last = p.clone();
+            on_progress(p);
+        },
+    );
     r.map_err(|e| {
         let sent = match source {
             Source::Model(tris, _) => {
