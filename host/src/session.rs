@@ -269,28 +269,29 @@ impl<'a> HostJob<'a> {
         }
         // An orphaned job still printing what it had parks first, then says so.
         let Some(parked) = self.progress.parked else { return Ok(()) };
-        let Source::Model(tris, _) = self.source else {
-            return Err("a G-code job parked when its host went silent does not resume: \
-                 abort it and print the file again"
-                .into());
-        };
         let mut buf = [0u8; MAX_PAYLOAD];
         let n = start.encode(&mut buf).expect("a job start fits a frame");
         if job_fingerprint(&buf[..n]) != parked.fingerprint {
-            return Err("the printer's parked job is not this model with these settings: \
-                 resume it with the same ones, or abort it"
+            return Err("the printer's parked job is not this model or file with these \
+                 settings: resume it with the same ones, or abort it"
                 .into());
         }
         let taken = parked.taken as usize;
-        if taken > tris.len() {
+        let (total, unit) = match self.source {
+            Source::Model(tris, _) => (tris.len(), "triangles"),
+            Source::Gcode(text, _) => (text.len(), "bytes"),
+        };
+        if taken > total {
             return Err(format!(
-                "the printer's parked job took {taken} triangles, this model has {}",
-                tris.len()
+                "the printer's parked job took {taken} {unit}, this one has {total}"
             ));
         }
         if self.send_msg(ep, &Message::Resume) {
             self.next = taken;
-            self.progress.triangles_sent = taken;
+            match self.source {
+                Source::Model(..) => self.progress.triangles_sent = taken,
+                Source::Gcode(..) => self.progress.gcode_bytes_sent = taken,
+            }
             self.phase = Phase::Streaming;
         }
         Ok(())
@@ -542,16 +543,16 @@ mod tests {
         let job = job_of(10);
         let parked = ParkedJob { layer: 3, taken: 6, fingerprint: fingerprint(job) };
         // The same job resumes from the triangles taken.
-        let mut same = HostJob::after_hello(Source::Model(&tris, job), &greeting(Some(parked)))
-            .resuming();
+        let mut same =
+            HostJob::after_hello(Source::Model(&tris, job), &greeting(Some(parked))).resuming();
         assert_eq!(first_poll(&mut same), Ok(Phase::Streaming));
         assert_eq!(same.progress.triangles_sent, 10);
         // Other settings (another fingerprint): refused.
         let other = job_of(9);
-        let mut job2 = HostJob::after_hello(Source::Model(&tris, other), &greeting(Some(parked)))
-            .resuming();
+        let mut job2 =
+            HostJob::after_hello(Source::Model(&tris, other), &greeting(Some(parked))).resuming();
         let e = first_poll(&mut job2).unwrap_err();
-        assert!(e.contains("not this model with these settings"), "{e}");
+        assert!(e.contains("not this model or file with these settings"), "{e}");
         // A new job on a printer holding a parked one: refused, with the way out.
         let mut fresh = HostJob::after_hello(Source::Model(&tris, job), &greeting(Some(parked)));
         let e = first_poll(&mut fresh).unwrap_err();

@@ -192,3 +192,69 @@ fn a_gcode_print_whose_host_dies_runs_what_it_has_then_parks() {
         rep.heaters_off_ms.unwrap() - rep.parked_ms.unwrap()
     );
 }
+
+/// The host dies 35 s into streaming PrusaSlicer's cube and a new host resumes it: the
+/// printer reheats (after its heaters went off, or not), brings the nozzle back (over the
+/// part, down, primed) and reads on from the line after the last it had read. Every move of
+/// the file runs once, in order, at its step; the motors end where the uninterrupted run's
+/// did; every layer's hash is the uninterrupted run's but the one it stopped in (its motion
+/// came to rest mid-layer, as the uninterrupted run's did not).
+#[test]
+fn a_gcode_print_whose_host_dies_resumes_where_it_stopped() {
+    let name = "xyz_20mm_cube_prusaslicer.gcode";
+    let text = fixture(name);
+    let scan = gcode_file::scan(&text, &ENDER3).unwrap();
+    let source = Source::Gcode(&text, scan.spec);
+    let clean = simulate_source(source, &ENDER3, &SimOptions::default()).unwrap();
+    let want = distinct(reference_positions(std::str::from_utf8(&text).unwrap()));
+    let steps = |um: [i32; 4]| -> [i64; 4] {
+        core::array::from_fn(|a| nearest_step(step_position_q32(um[a], ENDER3.steps_per_mm[a])))
+    };
+    for resume_after_ms in [2_000, 20_000] {
+        let opts = SimOptions {
+            faults: Faults { cut_at_ms: Some(35_000), ..Faults::default() },
+            device_outlives_host: true,
+            heat_hold_ms: 10_000,
+            resume_after_ms: Some(resume_after_ms),
+            block_ends: true,
+            ..SimOptions::default()
+        };
+        let rep = simulate_source(source, &ENDER3, &opts).unwrap();
+        assert_eq!(rep.device_state, Some(DeviceState::Done));
+        assert_eq!(rep.heaters_off_ms.is_some(), resume_after_ms > 10_000);
+        let stop = rep.resume.expect("a resume point");
+        let got = distinct(rep.block_ends.iter().copied());
+        // The park (retract, lift, back left corner), then the unpark (over the part, down,
+        // primed: back where it stopped).
+        let mut retracted = stop.position_um;
+        retracted[3] -= GCODE_PARK_RETRACT_UM;
+        let k = got.iter().position(|p| *p == steps(retracted)).expect("the park");
+        assert_eq!(got[k - 1], steps(stop.position_um));
+        let mut lifted = retracted;
+        lifted[2] += PARK_LIFT_UM;
+        let mut over = lifted;
+        (over[0], over[1]) = (stop.position_um[0], stop.position_um[1]);
+        assert_eq!(got[k + 1], steps(lifted));
+        assert_eq!(&got[k + 3..k + 6], &[steps(over), steps(retracted), steps(stop.position_um)]);
+        // Every move of the file once, in order.
+        let ran: Vec<_> = got[..k].iter().chain(&got[k + 6..]).copied().collect();
+        assert_eq!(ran, want, "resumed after {resume_after_ms} ms");
+        assert_eq!(rep.positions, clean.positions);
+        let first = rep.first_host_hashes.clone().unwrap();
+        let differ: Vec<usize> = (0..clean.layer_hashes.len())
+            .filter(|&l| {
+                let heard = [first.get(l), rep.layer_hashes.get(l)];
+                heard.iter().flatten().any(|&&h| h != 0 && h != clean.layer_hashes[l])
+            })
+            .collect();
+        assert_eq!(differ, [stop.layer as usize], "layers whose hash differs");
+        for l in stop.layer as usize + 1..clean.layer_hashes.len() {
+            assert_eq!(rep.layer_hashes.get(l), Some(&clean.layer_hashes[l]), "layer {l}");
+        }
+        assert_eq!((rep.underruns, rep.violations), (0, 0));
+        eprintln!(
+            "{name}: stopped in layer {} of {}, resumed {resume_after_ms} ms after parking",
+            stop.layer, clean.layers
+        );
+    }
+}

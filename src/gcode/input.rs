@@ -103,6 +103,9 @@ pub struct GcodeInput {
     at_target: bool,
     /// The text's end was read ([`GcodeInput::take`] with `end`).
     ended: bool,
+    /// Bytes of text taken, and of them the current line's (not yet ended), wrapping.
+    bytes: u32,
+    line_bytes: u32,
     stats: InputStats,
 }
 
@@ -121,6 +124,8 @@ impl GcodeInput {
             fan: 0,
             at_target: false,
             ended: false,
+            bytes: 0,
+            line_bytes: 0,
             stats: InputStats::default(),
         }
     }
@@ -170,6 +175,21 @@ impl GcodeInput {
         self.splitter.clear();
         self.ended = true;
         self.hold = Hold::None;
+    }
+
+    /// Bytes of text in the lines read (a line not yet ended excluded): where a text that
+    /// was [abandoned](Self::abandon) resumes.
+    pub fn lines_bytes(&self) -> u32 {
+        self.bytes.wrapping_sub(self.line_bytes)
+    }
+
+    /// The abandoned text goes on ([`lines_bytes`](Self::lines_bytes) on): the reader's
+    /// state is as the last complete line left it.
+    pub fn resume(&mut self) {
+        self.bytes = self.lines_bytes();
+        self.line_bytes = 0;
+        self.splitter.clear();
+        self.ended = false;
     }
 
     /// The settings whose moves are done take effect (`blocks_done`: blocks the generator
@@ -233,6 +253,11 @@ impl GcodeInput {
             let line = if !rest.is_empty() {
                 let (taken, line) = self.splitter.take(rest);
                 *pos += taken;
+                self.bytes = self.bytes.wrapping_add(taken as u32);
+                self.line_bytes = match line {
+                    Some(_) => 0,
+                    None => self.line_bytes.wrapping_add(taken as u32),
+                };
                 line
             } else if end && !self.ended {
                 self.ended = true;

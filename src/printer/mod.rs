@@ -165,6 +165,9 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     heaters: bool,
     /// The heaters reached the job's targets once (motion waits until then).
     heated: bool,
+    /// A resumed job waits for its heaters to be back at their targets before it moves (a
+    /// G-code job too: its own waits were read long ago).
+    reheat: bool,
     /// When the job began waiting for its heaters, ms (the clock of [`Printer::service`]).
     heat_wait_since_ms: Option<u32>,
     /// Measured temperatures, 0.1 degC.
@@ -231,6 +234,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             report_sent: false,
             heaters: false,
             heated: false,
+            reheat: false,
             heat_wait_since_ms: None,
             temps_c_x10: (0, 0),
             layers: 0,
@@ -397,6 +401,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         }
         if at_target && self.is_active() {
             self.heated = true;
+            self.reheat = false;
         }
     }
 
@@ -433,8 +438,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// G-code job at a heater wait (`M109`, `M190`).
     fn waits_for_heat(&self) -> bool {
         match self.pipeline.gcode_ref() {
-            Some(g) if self.gcode_job => g.hold() == Hold::Heat,
-            _ => !self.heated,
+            Some(g) if self.gcode_job => g.hold() == Hold::Heat || self.reheat,
+            _ => !self.heated || self.reheat,
         }
     }
 
@@ -567,8 +572,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             {
                 return self.take_gcode(&[], true, motion);
             }
-            // A new host resumes a parked sliced job.
-            (Message::Resume, _) if self.parked() && !self.gcode_job => self.unpark(motion),
+            // A new host resumes a parked job.
+            (Message::Resume, _) if self.parked() => self.unpark(motion),
             // An orphaned job (its host went silent) parks and waits on its own: a pause or
             // resume still in its receive queue is not for it.
             (Message::Pause | Message::Resume, _) if self.orphan.get().is_some() => {}
@@ -766,7 +771,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Blocks may go to the step generator: printing (not paused) and the heaters reached
     /// the job's targets once (or the board has none).
     fn motion_allowed(&self) -> bool {
-        self.state == DeviceState::Printing && (self.heated || !self.heaters || self.gcode_job)
+        let heated = self.heated || self.gcode_job;
+        self.state == DeviceState::Printing && (!self.heaters || (heated && !self.reheat))
     }
 
     /// The planner may release every block it holds: the model's last moves are in the move
@@ -1012,7 +1018,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 break;
             }
             self.waiting_for_room = false;
-            let starts = p.first() == Some(&crate::protocol::msg::ty::JOB_START);
+            use crate::protocol::msg::ty;
+            let starts = matches!(p.first(), Some(&(ty::JOB_START | ty::GCODE_START)));
             let fingerprint = if starts { job_fingerprint(p) } else { 0 };
             match Message::decode(p) {
                 Ok(Message::Hello { .. }) => {

@@ -22,8 +22,10 @@
 //! its last complete layer and a layer starts at rest with steps of its own
 //! ([`crate::step::StepGenerator`]); the park and unpark moves carry [`PARK_TAG`], whose
 //! steps are hashed apart and never reported: the resumed job's layers have the steps, and
-//! the hashes, of an uninterrupted run. (A G-code job stops at its last complete line,
-//! mid-layer; it parks the same way but does not resume.)
+//! the hashes, of an uninterrupted run. A G-code job stops at its last complete line,
+//! mid-layer as a rule: its motion stops there as the uninterrupted run's does not, so the
+//! hash of that one layer differs; it resumes with the text after that line, its reader's
+//! state (positions, modes, feed) kept.
 //!
 //! [`Message::Parked`]: crate::protocol::Message::Parked
 //! [`Message::Resume`]: crate::protocol::Message::Resume
@@ -204,16 +206,20 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         matches!(self.orphan.get(), Some(Orphan::Parked { .. } | Orphan::Cooled))
     }
 
-    /// What a new host hears of a parked job (sliced jobs only: a G-code job does not
-    /// resume).
+    /// What a new host hears of a parked job.
     pub(super) fn parked_job(&self) -> Option<ParkedJob> {
         let point = self.resume.get().filter(|_| self.parked())?;
-        Some(ParkedJob { layer: point.layer, taken: self.triangles, fingerprint: self.fingerprint })
+        let taken = match self.pipeline.gcode_ref() {
+            Some(g) if self.gcode_job => g.lines_bytes(),
+            _ => self.triangles,
+        };
+        Some(ParkedJob { layer: point.layer, taken, fingerprint: self.fingerprint })
     }
 
     /// A new host resumes the parked job: the park moves undone (over the part, down,
-    /// primed) once the heaters are back at their targets, then the job takes triangles
-    /// again from where its input ended.
+    /// primed) once the heaters are back at their targets, then the job takes its input
+    /// again from where it ended (the triangles, or the G-code text after its last complete
+    /// line).
     pub(super) fn unpark<const Q: usize>(
         &mut self,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
@@ -229,10 +235,13 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         to[3] = point.position_um[3];
         let prime = Move::new(to, speeds[0], MoveKind::Retract);
         push_park_moves(motion, [travel, lower, prime]);
+        if let (true, Some(g)) = (self.gcode_job, self.pipeline.gcode()) {
+            g.resume();
+        }
         self.orphan = Slot::Empty;
         self.resume = Slot::Empty;
         self.model_ended = false;
-        self.heated = false;
+        self.reheat = true;
         self.state = DeviceState::Printing;
     }
 }

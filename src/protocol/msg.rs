@@ -313,15 +313,18 @@ pub enum Message<'a> {
 pub struct ParkedJob {
     /// The layer of the last move printed.
     pub layer: u32,
-    /// Triangles the device took (the resuming host sends the ones after them).
+    /// Triangles the device took, or bytes of G-code text in the lines it read (the
+    /// resuming host sends what follows).
     pub taken: u32,
     /// The job's fingerprint ([`job_fingerprint`] of its start message): a host resumes
     /// only the same job.
     pub fingerprint: u32,
 }
 
-/// A job's fingerprint: the CRC-32 (ISO-HDLC) of its start message's payload (the type
-/// byte, settings, height and triangle count of [`Message::JobStart`]).
+/// A job's fingerprint: the CRC-32 (ISO-HDLC) of its start message's payload.
+///
+/// The payload is the type byte, then the settings, height and triangle count of
+/// [`Message::JobStart`], or the bytes and layers of [`Message::GcodeStart`].
 pub fn job_fingerprint(start_payload: &[u8]) -> u32 {
     crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(start_payload)
 }
