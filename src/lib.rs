@@ -15,6 +15,7 @@
 //! - [`gcode`]: Marlin-flavoured G-code writer (PrusaSlicer-compatible comments) and reader.
 //! - [`protocol`]: the host-device link: COBS frames with CRC-32, sequence numbers, acks,
 //!   credits and retransmission; messages and the compact triangle encoding.
+//! - [`card`]: the printer's microSD card: a FAT16/FAT32 reader with no block buffer.
 //! - [`printer`]: the device-side job runner: protocol messages in, slicer, toolpaths,
 //!   planner and step generator driven with bounded work per poll, status reports out.
 //!
@@ -34,6 +35,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod card;
 pub mod gcode;
 pub mod geom;
 pub mod machine;

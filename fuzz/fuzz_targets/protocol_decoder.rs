@@ -5,7 +5,7 @@
 //! to the same frame (so it passed length, CRC, version and type checks); every payload that
 //! decodes as a message re-encodes to the same bytes (no field is accepted loosely), and a
 //! triangle batch yields exactly its count of triangles; the endpoint delivers only payloads
-//! of accepted frames.
+//! of accepted frames, before and after a session change, and so does a host's opening one.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -49,6 +49,18 @@ fuzz_target!(|data: &[u8]| {
             assert!(accepted.iter().any(|a| a.as_slice() == p), "delivered a payload never accepted");
         }
         while ep.poll_transmit(at + 120, &mut out) != 0 {}
+    }
+
+    // A host's endpoint opening a session, fed the same bytes: it sends no data before the
+    // device echoed its nonce, and delivers only accepted payloads.
+    let mut host: Endpoint<2, 1> = Endpoint::new(LinkConfig::default());
+    host.open(0x1234);
+    let _ = host.send(b"hello");
+    host.receive(data, 1);
+    while host.poll_transmit(2, &mut out) != 0 {}
+    for i in 0..host.rx_len() {
+        let p = host.get(i).expect("delivered");
+        assert!(accepted.iter().any(|a| a.as_slice() == p), "delivered a payload never accepted");
     }
 });
 

@@ -19,8 +19,9 @@ use crate::step::{StepConfig, StepGenerator, StepProducer};
 /// (`pop_forced`), never earlier because data happened to be late: the blocks depend only on
 /// the job, not on when [`feed`](Self::feed) runs, and the step generator's commands depend
 /// only on the blocks. A link that falls behind holds the motion only where the plan still
-/// waits for later moves, not a whole lookahead queue early: a layer that ends in a
-/// retraction or a wait runs to rest there.
+/// waits for later moves, not a whole lookahead queue early: every layer ends at rest (the
+/// planner stops at a layer change, about 27 ms a layer on the sample models), so a layer
+/// always runs to its end, and its blocks and steps never depend on the next layer's.
 pub struct Motion<const MOVE_BYTES: usize, const P: usize> {
     moves: MoveRing<MOVE_BYTES>,
     planner: Planner<P>,

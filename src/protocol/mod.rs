@@ -7,9 +7,11 @@
 //! - [`link`]: an [`Endpoint`] per side turns frames into a reliable, in-order message
 //!   stream: sequence numbers, cumulative acks, credit-based flow control (the receiver
 //!   announces its free slots in every frame; the sender never exceeds them), go-back-N
-//!   retransmission on a timeout, duplicate suppression, keepalives and dead-link detection;
+//!   retransmission on a timeout, duplicate suppression, keepalives and dead-link detection,
+//!   and sessions (a new host opens its own: a device whose host died talks to the next);
 //! - [`msg`]: the messages (hello/capabilities, job start, triangle batches, end of model,
-//!   pause/resume/abort/emergency stop, status, per-layer hashes) in little-endian fields,
+//!   pause/resume/abort/emergency stop, status, per-layer hashes, a parked job's news) in
+//!   little-endian fields,
 //!   every field checked on decode, and the compact triangle encoding (20 bytes for a
 //!   triangle whose edges are within 32 mm on every axis, else 24).
 //!

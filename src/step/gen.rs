@@ -1,6 +1,11 @@
 //! The step generator: exact step times of planned blocks, axis by axis in time order,
 //! compressed into the step queue incrementally (it stops whenever an axis' queue is full and
 //! resumes where it left off).
+//!
+//! Blocks carry a tag (the layer) and the commands of each tag are hashed apart. Where the
+//! tag changes at rest (the planner stops at every layer change), every axis starts afresh
+//! on a whole tick: a tag's commands depend on its own blocks only, not on when it starts
+//! nor on what moved before it.
 
 use super::compress::{Compressor, Full, Tune};
 use super::{motor_after, nearest_step, pack_horizon, step_position_q32, StepConfig, StepProducer};
