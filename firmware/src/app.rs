@@ -111,6 +111,7 @@ impl MainLoop {
             core::mem::size_of::<FwEndpoint>() as u32,
             crate::capacities::STEP_QUEUE as u32
         );
+        board::card_report();
         let (used, size) = stack::high_water();
         log!("BOOT stack_used={} stack_size={}", used, size);
         let heat = heat::Heat::new(board.now_ms());

@@ -1,7 +1,10 @@
-//! Fuzz target for the card's FAT reader: the input is a card image (blocks past its end
-//! fail to read). Mount it, list the root directory, open every entry by name and read it
-//! (at most 64 KiB of each of the first 256: a chain that loops within a huge size is
-//! read to that size, not detected).
+//! Fuzz target for the card's FAT reader. The card is a 4 MiB FAT16 volume (or, with the
+//! first input byte odd, 64 MiB FAT32) whose boot sector is a valid template with the next
+//! 64 input bytes XORed over its geometry (bytes 11..75) when the first byte's bit 1 is set,
+//! and whose every other block is the rest of the input, repeated: directories, long names,
+//! FATs and chains are all the fuzzer's. Mount it, list the root directory, open the first
+//! entries by name and read every listed file (at most 64 KiB of each of the first 256: a
+//! chain that loops within a huge size is read to that size, not detected).
 //!
 //! Checks: no panic; a listing ends; a file never yields more bytes than its size; reads stay
 //! within their block.
@@ -10,25 +13,70 @@
 use libfuzzer_sys::fuzz_target;
 use strata::card::fat::{BlockRead, File, Volume, BLOCK_BYTES};
 
-struct Image<'a>(&'a [u8]);
+struct Card {
+    boot: [u8; BLOCK_BYTES],
+    rest: Vec<u8>,
+}
 
-impl BlockRead for Image<'_> {
+impl BlockRead for Card {
     type Error = ();
 
     fn read(&mut self, block: u32, offset: usize, out: &mut [u8]) -> Result<(), ()> {
         assert!(offset + out.len() <= BLOCK_BYTES, "a read past its block");
-        let at = block as usize * BLOCK_BYTES + offset;
-        out.copy_from_slice(self.0.get(at..at + out.len()).ok_or(())?);
+        if block == 0 {
+            out.copy_from_slice(&self.boot[offset..offset + out.len()]);
+            return Ok(());
+        }
+        if self.rest.is_empty() {
+            return Err(());
+        }
+        let at = (block as usize - 1) * BLOCK_BYTES + offset;
+        for (i, b) in out.iter_mut().enumerate() {
+            *b = self.rest[(at + i) % self.rest.len()];
+        }
         Ok(())
     }
 }
 
-/// Bytes read of a file, and files opened, at most (a fuzzer's time, not the reader's).
+/// A boot sector: jump, 512-byte sectors, one sector per cluster, one reserved sector (32
+/// for FAT32), two FATs, 512 root entries (FAT16), the total and FAT
+/// sizes, the FAT32 root at cluster 2, the signature.
+fn template(fat32: bool) -> [u8; BLOCK_BYTES] {
+    let mut b = [0u8; BLOCK_BYTES];
+    b[0] = 0xEB;
+    b[11..13].copy_from_slice(&512u16.to_le_bytes());
+    b[13] = 1;
+    let reserved: u16 = if fat32 { 32 } else { 1 };
+    b[14..16].copy_from_slice(&reserved.to_le_bytes());
+    b[16] = 2;
+    if fat32 {
+        b[32..36].copy_from_slice(&131_072u32.to_le_bytes());
+        b[36..40].copy_from_slice(&1_024u32.to_le_bytes());
+        b[44..48].copy_from_slice(&2u32.to_le_bytes());
+    } else {
+        b[17..19].copy_from_slice(&512u16.to_le_bytes());
+        b[19..21].copy_from_slice(&8_192u16.to_le_bytes());
+        b[22..24].copy_from_slice(&32u16.to_le_bytes());
+    }
+    b[510] = 0x55;
+    b[511] = 0xAA;
+    b
+}
+
+/// Bytes read of a file, and files read, at most (a fuzzer's time, not the reader's).
 const MOST_BYTES: usize = 64 << 10;
 const MOST_FILES: usize = 256;
 
 fuzz_target!(|data: &[u8]| {
-    let mut card = Image(data);
+    let Some((&mode, data)) = data.split_first() else { return };
+    let mut boot = template(mode & 1 != 0);
+    let (geometry, rest) = data.split_at(data.len().min(64));
+    if mode & 2 != 0 {
+        for (b, g) in boot[11..].iter_mut().zip(geometry) {
+            *b ^= g;
+        }
+    }
+    let mut card = Card { boot, rest: rest.to_vec() };
     let Ok(vol) = Volume::mount(&mut card) else { return };
     let mut dir = vol.root();
     let mut entries = 0;

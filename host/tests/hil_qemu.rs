@@ -944,3 +944,88 @@ fn qemu_killed_host_resumed() {
     let steps = Costs::parse(&q.lines()).steps().expect("a STEPS line");
     assert_eq!(steps.positions, reference.positions, "{label}: the motors' final positions");
 }
+
+/// A card image made by the `fatfs` crate: `fat` in `mb` MB (a power of two, as QEMU wants)
+/// holding `files`; with `partition`, behind a master boot record at block 2048.
+fn card_image(fat: fatfs::FatType, mb: usize, files: &[(&str, &[u8])], partition: bool) -> Vec<u8> {
+    use std::io::Write;
+    let start = if partition { 2048 * 512 } else { 0 };
+    let mut vol = std::io::Cursor::new(vec![0u8; (mb << 20) - start]);
+    let opts = fatfs::FormatVolumeOptions::new().fat_type(fat).bytes_per_cluster(512);
+    fatfs::format_volume(&mut vol, opts).unwrap();
+    {
+        let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
+        fs.root_dir().create_dir("old prints").unwrap();
+        for (name, data) in files {
+            fs.root_dir().create_file(name).unwrap().write_all(data).unwrap();
+        }
+    }
+    let vol = vol.into_inner();
+    let mut card = vec![0u8; start];
+    if partition {
+        let entry = &mut card[446..462];
+        entry[4] = if fat == fatfs::FatType::Fat32 { 0x0C } else { 0x06 };
+        entry[8..12].copy_from_slice(&2048u32.to_le_bytes());
+        entry[12..16].copy_from_slice(&((vol.len() / 512) as u32).to_le_bytes());
+        card[510..512].copy_from_slice(&[0x55, 0xAA]);
+    }
+    card.extend_from_slice(&vol);
+    card
+}
+
+/// The firmware reads the QEMU board's SD card (SSI0, SPI mode) at start-up and lists its
+/// root directory as the image holds it (names long and short, sizes, a directory): FAT16
+/// and FAT32, with and without a partition table; a blank card and an empty slot are said so.
+#[test]
+fn qemu_card_listing() {
+    let label = "hil_qemu card listing";
+    let Some((qemu, elf)) = qemu_or_skip(label, None) else { return };
+    let models = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
+    let cube = std::fs::read(models.join("xyz_20mm_cube.stl")).expect("the cube model");
+    let gcode = std::fs::read(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../tests/data/gcode/xyz_20mm_cube_prusaslicer.gcode"),
+    )
+    .expect("the G-code fixture");
+    let files: [(&str, &[u8]); 3] = [
+        ("xyz_20mm_cube.stl", &cube),
+        ("xyz_20mm_cube_prusaslicer.gcode", &gcode),
+        ("EMPTY.TXT", b""),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        ("FAT16", Some(card_image(fatfs::FatType::Fat16, 32, &files, false)), "fat=16"),
+        ("FAT32 partitioned", Some(card_image(fatfs::FatType::Fat32, 64, &files, true)), "fat=32"),
+        ("blank", Some(vec![0u8; 32 << 20]), "not formatted"),
+        ("empty slot", None, "no card in the slot"),
+    ];
+    for (what, image, want) in cases {
+        let path = dir.path().join(format!("{what}.img"));
+        if let Some(image) = &image {
+            std::fs::write(&path, image).unwrap();
+        }
+        let card = image.as_ref().map(|_| path.as_path());
+        let (mut q, _uart) = Qemu::start_with_card(&qemu, &elf, false, card)
+            .unwrap_or_else(|e| panic!("{label} {what}: {e}"));
+        let mut clock = q.clock().unwrap_or_else(|e| panic!("{label} {what}: {e}"));
+        let done = |l: &[String]| {
+            l.iter().any(|l| l.starts_with("CARD end") || l.starts_with("CARD none"))
+        };
+        q.wait_for(&mut clock, 10_000, done).unwrap_or_else(|e| panic!("{label} {what}: {e}"));
+        let lines: Vec<String> = q.lines().into_iter().filter(|l| l.starts_with("CARD")).collect();
+        eprintln!("{label} {what}: {lines:?}");
+        let last = lines.last().unwrap();
+        assert!(last.contains(want), "{what}: {last}");
+        if image.is_none() || what == "blank" {
+            continue;
+        }
+        let mut listed = lines[..lines.len() - 1].to_vec();
+        listed.sort();
+        let mut expected: Vec<String> =
+            files.iter().map(|(name, data)| format!("CARD {} {name}", data.len())).collect();
+        expected.push("CARD dir old prints".into());
+        expected.sort();
+        assert_eq!(listed, expected, "{what}");
+        assert!(last.contains("files=3"), "{what}: {last}");
+    }
+}

@@ -958,9 +958,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let before = self.state;
         self.take_messages(ep, motion, now_ms, lend);
         self.tend_orphan(now_ms, ep.peek().is_none(), motion);
-        if let Some(parked) = self.parked_job().filter(|_| self.parked_due && ep.tx_free() > 1) {
-            self.parked_due = !send(ep, &Message::Parked(parked));
-        }
+        self.send_parked(ep);
         // An orphaned job keeps its layer reports for a new host.
         let alive = ep.check(now_ms).is_ok();
         while ep.tx_free() > 1 && alive {
@@ -1043,6 +1041,18 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 }
             }
             ep.pop();
+        }
+    }
+
+    /// A parked job's news to the host that said hello, once it parked (not inlined, as
+    /// [`send_failure`](Self::send_failure)).
+    #[inline(never)]
+    fn send_parked<const TX: usize, const RX: usize>(&mut self, ep: &mut Endpoint<TX, RX>) {
+        if !self.parked_due || ep.tx_free() <= 1 {
+            return;
+        }
+        if let Some(parked) = self.parked_job() {
+            self.parked_due = !send(ep, &Message::Parked(parked));
         }
     }
 

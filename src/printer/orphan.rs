@@ -184,6 +184,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     }
 
     /// The park moves into the move buffer (it is empty: they fit), the resume point kept.
+    /// Not inlined (nor is [`unpark`](Self::unpark)): cold paths stay off the deepest stack.
+    #[inline(never)]
     fn park<const Q: usize>(&mut self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) {
         let (retract_um, speeds) = self.park_moves();
         let volume = self.machine.build_volume_um;
@@ -220,6 +222,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// primed) once the heaters are back at their targets, then the job takes its input
     /// again from where it ended (the triangles, or the G-code text after its last complete
     /// line).
+    #[inline(never)]
     pub(super) fn unpark<const Q: usize>(
         &mut self,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,

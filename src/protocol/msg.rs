@@ -326,8 +326,12 @@ pub struct ParkedJob {
 /// The payload is the type byte, then the settings, height and triangle count of
 /// [`Message::JobStart`], or the bytes and layers of [`Message::GcodeStart`].
 pub fn job_fingerprint(start_payload: &[u8]) -> u32 {
-    crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(start_payload)
+    FINGERPRINT_CRC.checksum(start_payload)
 }
+
+/// The fingerprint's CRC, its table built at compile time (in flash: built at run time it
+/// would take 1 KB of the stack).
+const FINGERPRINT_CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// A G-code job, as the host measured its text.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -533,3 +533,6 @@ pub fn job_ended() {
     let steps = with_motion(|m| m.exec().map(|e| e.stats().steps).unwrap_or_default());
     log!("STEPS x={} y={} z={} e={}", steps[0], steps[1], steps[2], steps[3]);
 }
+
+/// The card is on SDIO here (PC8-PC12, PD2; detect PC7): not read yet.
+pub fn card_report() {}

@@ -979,6 +979,51 @@ pub fn init(cfg: &StepConfig) -> Board {
     Board { _syst: cp.SYST, plant: Plant::new() }
 }
 
+/// The SD card's root directory into the log at start-up: a `CARD <size> <name>` line per
+/// file (`CARD dir <name>` per directory), then `CARD end files=<n> fat=<16|32>
+/// high_capacity=<0|1>`; or `CARD none: <why>` (no card, not formatted, unreadable).
+#[cfg(not(feature = "qemu-mps2"))]
+#[inline(never)]
+pub fn card_report() {
+    use strata::card::fat::{FatType, Volume};
+    use strata::card::sd::SdCard;
+    let mut card = SdCard::new(qemu_machine::SdBus::new());
+    if let Err(e) = card.start() {
+        log!("CARD none: {}", e);
+        return;
+    }
+    let vol = match Volume::mount(&mut card) {
+        Ok(v) => v,
+        Err(e) => {
+            log!("CARD none: {}", e);
+            return;
+        }
+    };
+    let mut dir = vol.root();
+    let mut files = 0u32;
+    loop {
+        match dir.next(&vol, &mut card) {
+            Ok(Some(e)) if e.is_dir => log!("CARD dir {}", e.name()),
+            Ok(Some(e)) => {
+                files += 1;
+                log!("CARD {} {}", e.size, e.name());
+            }
+            Ok(None) => break,
+            Err(e) => {
+                log!("CARD none: {}", e);
+                return;
+            }
+        }
+    }
+    let fat = if vol.fat_type == FatType::Fat16 { 16 } else { 32 };
+    let hc = u32::from(card.is_high_capacity());
+    log!("CARD end files={} fat={} high_capacity={}", files, fat, hc);
+}
+
+/// The mps2-an385 board has no SD card.
+#[cfg(feature = "qemu-mps2")]
+pub fn card_report() {}
+
 /// Runs `f` on the interrupt's motion state (inside a critical section).
 pub fn with_motion<R>(f: impl FnOnce(&mut BoardMotion) -> R) -> R {
     interrupt::free(|cs| {

@@ -74,6 +74,52 @@ mod imp {
         while reg_read(UART_FR) & FR_TXFF != 0 {}
         reg_write(UART_DR, b as u32);
     }
+
+    /// The SD card's bus: SSI0 (a PL022 at 0x4000_8000) and its chip select, GPIO D0
+    /// (active low; QEMU wires the same line, active high, to the OLED's select).
+    pub struct SdBus;
+
+    const SSI0: usize = 0x4000_8000;
+    const SSI_CR0: usize = SSI0;
+    const SSI_CR1: usize = SSI0 + 0x004;
+    const SSI_DR: usize = SSI0 + 0x008;
+    const SSI_SR: usize = SSI0 + 0x00C;
+    const SSI_CPSR: usize = SSI0 + 0x010;
+    /// Receive FIFO not empty.
+    const SR_RNE: u32 = 1 << 2;
+    const GPIO_D: usize = 0x4000_7000;
+    /// GPIO D0's data (the address bits 9:2 mask the pins written: D0 only).
+    const GPIO_D0_DATA: usize = GPIO_D + (1 << 2);
+    const GPIO_DIR: usize = GPIO_D + 0x400;
+    const GPIO_DEN: usize = GPIO_D + 0x51C;
+
+    impl SdBus {
+        /// SSI0 as an SPI master, mode 0, 8-bit frames; D0 an output, the card released.
+        pub fn new() -> Self {
+            reg_write(GPIO_DIR, reg_read(GPIO_DIR) | 1);
+            reg_write(GPIO_DEN, reg_read(GPIO_DEN) | 1);
+            reg_write(GPIO_D0_DATA, 1);
+            reg_write(SSI_CR1, 0);
+            reg_write(SSI_CPSR, 2);
+            // SPI frame format, SPO = SPH = 0, 8 data bits.
+            reg_write(SSI_CR0, 7);
+            // Master, enabled.
+            reg_write(SSI_CR1, 1 << 1);
+            Self
+        }
+    }
+
+    impl strata::card::sd::SpiLink for SdBus {
+        fn transfer(&mut self, out: u8) -> u8 {
+            reg_write(SSI_DR, u32::from(out));
+            while reg_read(SSI_SR) & SR_RNE == 0 {}
+            reg_read(SSI_DR) as u8
+        }
+
+        fn select(&mut self, selected: bool) {
+            reg_write(GPIO_D0_DATA, u32::from(!selected));
+        }
+    }
 }
 
 #[cfg(feature = "qemu-mps2")]

@@ -139,6 +139,17 @@ impl Qemu {
     /// another) and connects to the UART within [`QEMU_ACCEPT_LIMIT`] of wall time. With
     /// `echo` every line QEMU prints is copied to standard error as it comes.
     pub fn start(qemu: &Path, elf: &Path, echo: bool) -> Result<(Self, UnixStream), String> {
+        Self::start_with_card(qemu, elf, echo, None)
+    }
+
+    /// [`Qemu::start`] with `card` (a raw image, its size a power of two) in the board's SD
+    /// card slot (`lm3s6965evb`: on SSI0).
+    pub fn start_with_card(
+        qemu: &Path,
+        elf: &Path,
+        echo: bool,
+        card: Option<&Path>,
+    ) -> Result<(Self, UnixStream), String> {
         let dir = scratch_dir()?;
         let sock = dir.join("uart0.sock");
         let monitor = dir.join("monitor.sock");
@@ -153,6 +164,10 @@ impl Qemu {
             .arg(format!("unix:{},server=on,wait=on", sock.display()))
             .arg("-monitor")
             .arg(format!("unix:{},server=on,wait=off", monitor.display()))
+            .args(
+                card.map(|c| format!("if=sd,format=raw,file={}", c.display()))
+                    .map_or(Vec::new(), |drive| vec!["-drive".to_string(), drive]),
+            )
             .arg("-kernel")
             .arg(elf)
             .stdin(Stdio::null())
