@@ -31,6 +31,7 @@
 
 use core::mem::size_of;
 
+use crate::card::OpenFile;
 use crate::gcode::input::GcodeInput;
 use crate::geom::Point2;
 use crate::machine::MachineConfig;
@@ -87,7 +88,8 @@ enum Tenant<const S: usize, const P: usize, const C: usize> {
     Cut(CutScratch<S>),
     Offset(Engine<P>),
     Fill(FillScratch<C>),
-    Gcode(GcodeInput),
+    /// A G-code job's input, and the card file it reads (a job from the card).
+    Gcode(GcodeInput, Option<OpenFile>),
 }
 
 impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C> {
@@ -124,15 +126,15 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
 
 impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     /// A G-code job's input takes the place, new for `machine` (a G-code job neither slices
-    /// nor builds toolpaths).
-    pub fn start_gcode(&mut self, machine: &MachineConfig) {
-        self.tenant = Tenant::Gcode(GcodeInput::new(machine));
+    /// nor builds toolpaths), with the card file it reads, if any.
+    pub fn start_gcode(&mut self, machine: &MachineConfig, card: Option<OpenFile>) {
+        self.tenant = Tenant::Gcode(GcodeInput::new(machine), card);
     }
 
     /// The G-code job's input, while it has the place.
     pub fn gcode(&mut self) -> Option<&mut GcodeInput> {
         match self.tenant {
-            Tenant::Gcode(ref mut g) => Some(g),
+            Tenant::Gcode(ref mut g, _) => Some(g),
             _ => None,
         }
     }
@@ -140,7 +142,15 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     /// The G-code job's input, while it has the place.
     pub fn gcode_ref(&self) -> Option<&GcodeInput> {
         match self.tenant {
-            Tenant::Gcode(ref g) => Some(g),
+            Tenant::Gcode(ref g, _) => Some(g),
+            _ => None,
+        }
+    }
+
+    /// The card file a G-code job reads, while its input has the place.
+    pub fn card_file(&mut self) -> Option<&mut OpenFile> {
+        match self.tenant {
+            Tenant::Gcode(_, Some(ref mut f)) => Some(f),
             _ => None,
         }
     }

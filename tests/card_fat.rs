@@ -72,16 +72,7 @@ fn volume(fat: fatfs::FatType, mb: usize, cluster: u32, partition: bool) -> Vec<
     if !partition {
         return vol;
     }
-    let start = 2048u32;
-    let mut card = vec![0u8; start as usize * BLOCK_BYTES];
-    let entry = &mut card[446..462];
-    entry[4] = if fat == fatfs::FatType::Fat32 { 0x0C } else { 0x06 };
-    entry[8..12].copy_from_slice(&start.to_le_bytes());
-    entry[12..16].copy_from_slice(&((vol.len() / BLOCK_BYTES) as u32).to_le_bytes());
-    card[510] = 0x55;
-    card[511] = 0xAA;
-    card.extend_from_slice(&vol);
-    card
+    strata_testkit::card::partitioned(vol, fat == fatfs::FatType::Fat32)
 }
 
 /// What `fatfs` lists in the root directory: name, size, directory.

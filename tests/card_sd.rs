@@ -1,9 +1,9 @@
 //! The SD card's SPI-mode driver against a scripted card: a standard card starts (SDSC and
-//! SDHC addressing) and reads block parts exactly; a missing, refusing, never-ready or
-//! failing card gives its typed error after a bounded number of bytes.
+//! SDHC addressing), reads block parts exactly and writes whole blocks; a missing, refusing,
+//! never-ready or failing card gives its typed error after a bounded number of bytes.
 
-use strata::card::fat::{BlockRead, BLOCK_BYTES};
-use strata::card::sd::{SdCard, SdError, SpiLink, INIT_TRIES, TOKEN_BYTES};
+use strata::card::fat::{BlockRead, BlockWrite, BLOCK_BYTES};
+use strata::card::sd::{SdCard, SdError, SpiLink, BUSY_BYTES, INIT_TRIES, TOKEN_BYTES};
 
 /// How the scripted card behaves.
 #[derive(Clone, Copy)]
@@ -16,9 +16,20 @@ struct Script {
     idle_for: usize,
     /// The data token of a block read.
     token: u8,
+    /// The data response to a block written (0x05: accepted).
+    write_response: u8,
+    /// Bytes the card stays busy after a block written.
+    busy_for: usize,
 }
 
-const SD: Script = Script { present: true, high_capacity: false, idle_for: 3, token: 0xFE };
+const SD: Script = Script {
+    present: true,
+    high_capacity: false,
+    idle_for: 3,
+    token: 0xFE,
+    write_response: 0x05,
+    busy_for: 40,
+};
 
 /// A card of 64 blocks whose byte `i` of block `b` is `b * 7 + i` (mod 256).
 struct Card {
@@ -30,6 +41,12 @@ struct Card {
     acmd41s: usize,
     bytes: usize,
     reads: Vec<u32>,
+    /// A CMD24's block, and its data token and bytes as they come.
+    writing: Option<(u32, Vec<u8>)>,
+    /// Blocks written, with their bytes.
+    written: Vec<(u32, Vec<u8>)>,
+    /// Bytes left of busy time (0x00) after a block written.
+    busy: usize,
 }
 
 impl Card {
@@ -43,6 +60,9 @@ impl Card {
             acmd41s: 0,
             bytes: 0,
             reads: Vec::new(),
+            writing: None,
+            written: Vec::new(),
+            busy: 0,
         }
     }
 
@@ -76,7 +96,31 @@ impl Card {
                     self.out.extend([0xAB, 0xCD]);
                 }
             }
+            (24, _) => {
+                let block = if self.script.high_capacity { arg } else { arg / 512 };
+                self.out.push_back(0x00);
+                self.writing = Some((block, Vec::new()));
+            }
             _ => self.out.push_back(0x04),
+        }
+    }
+
+    /// A byte of a block being written: the token first (bytes before it are gaps), then
+    /// 512 bytes and two of CRC; then the data response and the busy time.
+    fn take_written(&mut self, b: u8) {
+        let Some((block, data)) = &mut self.writing else { return };
+        if data.is_empty() && b != 0xFE {
+            return;
+        }
+        data.push(b);
+        if data.len() == 1 + 512 + 2 {
+            let (block, data) = (*block, data[1..513].to_vec());
+            self.writing = None;
+            self.out.push_back(self.script.write_response);
+            if self.script.write_response & 0x1F == 0x05 {
+                self.written.push((block, data));
+                self.busy = self.script.busy_for;
+            }
         }
     }
 }
@@ -89,6 +133,14 @@ impl SpiLink for Card {
         }
         if let Some(r) = self.out.pop_front() {
             return r;
+        }
+        if self.busy > 0 {
+            self.busy -= 1;
+            return 0x00;
+        }
+        if self.writing.is_some() {
+            self.take_written(b);
+            return 0xFF;
         }
         if self.cmd.is_empty() && b & 0xC0 != 0x40 {
             return 0xFF;
@@ -152,4 +204,33 @@ fn a_card_that_fails_says_how_within_bounded_bytes() {
         assert!(sd.release().bytes < TOKEN_BYTES + 1_000);
     }
     assert_eq!(BLOCK_BYTES, 512);
+}
+
+#[test]
+fn a_card_writes_whole_blocks_and_says_when_it_cannot() {
+    let data: [u8; BLOCK_BYTES] = core::array::from_fn(|i| (i * 13 + 5) as u8);
+    for high_capacity in [false, true] {
+        let mut sd = SdCard::new(Card::new(Script { high_capacity, ..SD }));
+        assert_eq!(sd.write(3, &data), Err(SdError::NotStarted));
+        sd.start().unwrap();
+        sd.write(3, &data).unwrap();
+        sd.write(60, &[0xA5; BLOCK_BYTES]).unwrap();
+        let card = sd.release();
+        assert_eq!(
+            card.written,
+            [(3, data.to_vec()), (60, vec![0xA5; 512])],
+            "SDHC {high_capacity}"
+        );
+    }
+    // A CRC error, a write error, a card that stays busy: typed errors, bounded bytes.
+    for (script, want) in [
+        (Script { write_response: 0x0B, ..SD }, SdError::WriteRefused { response: 0x0B }),
+        (Script { write_response: 0x0D, ..SD }, SdError::WriteRefused { response: 0x0D }),
+        (Script { busy_for: usize::MAX / 2, ..SD }, SdError::StaysBusy),
+    ] {
+        let mut sd = SdCard::new(Card::new(script));
+        sd.start().unwrap();
+        assert_eq!(sd.write(1, &data), Err(want));
+        assert!(sd.release().bytes < BUSY_BYTES + 2_000, "{want:?}");
+    }
 }

@@ -33,19 +33,19 @@ fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
 
 #[test]
 fn golden_ack_frame() {
-    // [0x61 (v6, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
-    assert_eq!(VERSION, 6);
+    // [0x71 (v7, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    assert_eq!(VERSION, 7);
     let w = wire(FrameType::Ack, 0, 3, 4, &[]);
-    let crc = crc32(&[0x61, 0x00, 0x03, 0x04]);
-    let mut raw = vec![0x61, 0x00, 0x03, 0x04];
+    let crc = crc32(&[0x71, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x71, 0x00, 0x03, 0x04];
     raw.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(w, cobs(&raw));
     assert_eq!(w, GOLDEN_ACK.to_vec());
 }
 
 // Derived with Python's zlib.crc32 (CRC-32/ISO-HDLC) and a hand COBS.
-// CRC 0x8e9ed8a0; COBS: [0x61] then the six non-zero bytes after the zero seq byte.
-const GOLDEN_ACK: [u8; 10] = [2, 97, 7, 3, 4, 160, 216, 158, 142, 0];
+// CRC 0xde878f3f; COBS: [0x71] then the six non-zero bytes after the zero seq byte.
+const GOLDEN_ACK: [u8; 10] = [2, 113, 7, 3, 4, 63, 143, 135, 222, 0];
 
 #[test]
 fn golden_open_frame() {
@@ -55,22 +55,22 @@ fn golden_open_frame() {
     assert_eq!(r, vec![Ok((FrameType::Open, 0xa5, 0, 4, vec![]))]);
 }
 
-// [0x62 (v6, open), nonce 0xa5, ack 0, credits 4, CRC 0x68b5bb06]: the zero ack byte ends
+// [0x72 (v7, open), nonce 0xa5, ack 0, credits 4, CRC 0x38acec99]: the zero ack byte ends
 // the first COBS run.
-const GOLDEN_OPEN: [u8; 10] = [3, 98, 165, 6, 4, 6, 187, 181, 104, 0];
+const GOLDEN_OPEN: [u8; 10] = [3, 114, 165, 6, 4, 153, 236, 172, 56, 0];
 
 #[test]
 fn golden_hello_frame() {
     let mut buf = [0u8; 8];
     let n = Message::Hello { version: VERSION }.encode(&mut buf).unwrap();
-    assert_eq!(&buf[..n], &[0x01, 0x06]);
+    assert_eq!(&buf[..n], &[0x01, 0x07]);
     let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
     assert_eq!(w, GOLDEN_HELLO.to_vec());
 }
 
-// [0x60 (v6, data), seq 7, ack 0, credits 8, 0x01 Hello, version 6, CRC 0xf57db725] COBS: the
+// [0x70 (v7, data), seq 7, ack 0, credits 8, 0x01 Hello, version 7, CRC 0x81ac8528] COBS: the
 // zero ack byte becomes a code byte.
-const GOLDEN_HELLO: [u8; 12] = [3, 96, 7, 8, 8, 1, 6, 37, 183, 125, 245, 0];
+const GOLDEN_HELLO: [u8; 12] = [3, 112, 7, 8, 8, 1, 7, 40, 133, 172, 129, 0];
 
 /// Capacities used by the golden and round-trip tests.
 const SAMPLE_CAPS: Capacities = Capacities {
@@ -95,15 +95,15 @@ fn golden_capabilities() {
     let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
     assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
     let back = Message::decode(&GOLDEN_CAPABILITIES).unwrap();
-    assert_eq!(back, Message::Capabilities { version: 6, capacities: caps });
+    assert_eq!(back, Message::Capabilities { version: 7, capacities: caps });
 }
 
-// Type 0x02, version 6, then little-endian: active triangles 1024, contour points 768, loops 48,
+// Type 0x02, version 7, then little-endian: active triangles 1024, contour points 768, loops 48,
 // move buffer bytes 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
 // PTS 80, LOOPS 4, CROSS 128, PATH 320, RING 192, SPANS 64 (u32 each): 48 bytes.
 #[rustfmt::skip]
 const GOLDEN_CAPABILITIES: [u8; 48] = [
-    0x02, 6,
+    0x02, 7,
     0x00, 0x04, 0, 0,  0x00, 0x03, 0, 0,  48, 0, 0, 0,  0x00, 0x10, 0, 0,
     4, 0,
     0x00, 0x00, 0x01, 0,
@@ -442,4 +442,43 @@ fn golden_parked() {
     assert!(Message::decode(&golden[..12]).is_err());
     // A job's fingerprint is the CRC-32 of its start message (Python: zlib.crc32).
     assert_eq!(job_fingerprint(&[0x10, 1, 2, 3]), 0xdba0_d18c);
+}
+
+#[test]
+fn golden_card_messages() {
+    use strata::protocol::{CardEntry, CardFault};
+    let entry = CardEntry { size: 0x0001_2345, is_dir: false, name: "cube.gcode" };
+    let mut with_name = vec![0x41, 0x45, 0x23, 0x01, 0x00, 0];
+    with_name.extend_from_slice(b"cube.gcode");
+    let mut print = vec![0x43];
+    print.extend_from_slice("würfel.gcode".as_bytes());
+    // Type byte, then little-endian fields; names are the rest of the payload, UTF-8.
+    let cases: [(Message<'_>, Vec<u8>); 6] = [
+        (Message::CardList { from: 0x0102 }, vec![0x40, 0x02, 0x01]),
+        (Message::CardEntry(entry), with_name),
+        (Message::CardListed { next: 7, done: true }, vec![0x42, 7, 0, 1]),
+        (Message::CardPrint("würfel.gcode"), print),
+        (Message::CardRefused(CardFault::Stl), vec![0x44, 9]),
+        (Message::CardStarted { bytes: 436_000 }, vec![0x45, 0x20, 0xa7, 0x06, 0x00]),
+    ];
+    for (m, golden) in cases {
+        let mut buf = [0u8; MAX_PAYLOAD];
+        let n = m.encode(&mut buf).unwrap();
+        assert_eq!(&buf[..n], &golden[..], "{m:?}");
+        assert_eq!(Message::decode(&golden), Ok(m));
+    }
+    // Refused: an unknown fault, a flag not 0/1, a name not UTF-8, an empty name, short fields.
+    for bad in [
+        &[0x44, 0][..],
+        &[0x44, 14],
+        &[0x42, 7, 0, 2],
+        &[0x43, 0xff, 0xfe],
+        &[0x43],
+        &[0x40, 1],
+        &[0x41, 1, 0, 0, 0],
+        &[0x45, 1, 2, 3],
+    ] {
+        assert!(Message::decode(bad).is_err(), "{bad:?}");
+    }
+    assert!(Message::CardPrint("").encode(&mut [0u8; 8]).is_err());
 }

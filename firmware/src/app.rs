@@ -111,7 +111,7 @@ impl MainLoop {
             core::mem::size_of::<FwEndpoint>() as u32,
             crate::capacities::STEP_QUEUE as u32
         );
-        board::card_report();
+        board::card_report(&mut board);
         let (used, size) = stack::high_water();
         log!("BOOT stack_used={} stack_size={}", used, size);
         let heat = heat::Heat::new(board.now_ms());
@@ -142,6 +142,9 @@ impl MainLoop {
         self.heartbeat(now);
         receive(&mut self.board, self.ep, now);
         self.serve(now);
+        if self.printer.wants_card(self.ep) {
+            self.card();
+        }
         self.heaters(now);
         let new = self.printer.state();
         if new != self.state {
@@ -202,6 +205,14 @@ impl MainLoop {
         self.cost.end_service(t0, self.printer, &mut self.motion);
         #[cfg(feature = "qemu")]
         board::set_phase(PHASE_OTHER, 0);
+    }
+
+    /// The card's requests and a job from the card ([`strata::printer::Printer::card_service`]),
+    /// beside `serve`: the card's code and buffer stay off the deepest stack.
+    #[inline(never)]
+    fn card(&mut self) {
+        let card = self.board.card();
+        self.printer.card_service(self.ep, card, &mut self.motion);
     }
 
     /// Heaters (10 Hz): a fault turns everything off in the controller at once; here the

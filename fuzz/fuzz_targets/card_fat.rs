@@ -6,16 +6,35 @@
 //! entries by name and read every listed file (at most 64 KiB of each of the first 256: a
 //! chain that loops within a huge size is read to that size, not detected).
 //!
+//! With the first byte's bit 2 set, the writer works on it too (its writes kept over the
+//! input): the first listed file removed, a new file created, written and closed, the root
+//! listed again.
+//!
 //! Checks: no panic; a listing ends; a file never yields more bytes than its size; reads stay
 //! within their block.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use strata::card::fat::{BlockRead, File, Volume, BLOCK_BYTES};
+use std::collections::HashMap;
+
+use strata::card::fat::{BlockRead, BlockWrite, File, Volume, BLOCK_BYTES};
+use strata::card::write::WriteBuffers;
 
 struct Card {
     boot: [u8; BLOCK_BYTES],
     rest: Vec<u8>,
+    written: HashMap<u32, [u8; BLOCK_BYTES]>,
+}
+
+impl BlockWrite for Card {
+    fn write(&mut self, block: u32, data: &[u8; BLOCK_BYTES]) -> Result<(), ()> {
+        // A bounded card: the writer's blocks up to 64 MiB.
+        if self.written.len() > 4096 && !self.written.contains_key(&block) {
+            return Err(());
+        }
+        self.written.insert(block, *data);
+        Ok(())
+    }
 }
 
 impl BlockRead for Card {
@@ -23,6 +42,10 @@ impl BlockRead for Card {
 
     fn read(&mut self, block: u32, offset: usize, out: &mut [u8]) -> Result<(), ()> {
         assert!(offset + out.len() <= BLOCK_BYTES, "a read past its block");
+        if let Some(b) = self.written.get(&block) {
+            out.copy_from_slice(&b[offset..offset + out.len()]);
+            return Ok(());
+        }
         if block == 0 {
             out.copy_from_slice(&self.boot[offset..offset + out.len()]);
             return Ok(());
@@ -76,7 +99,7 @@ fuzz_target!(|data: &[u8]| {
             *b ^= g;
         }
     }
-    let mut card = Card { boot, rest: rest.to_vec() };
+    let mut card = Card { boot, rest: rest.to_vec(), written: HashMap::new() };
     let Ok(vol) = Volume::mount(&mut card) else { return };
     let mut dir = vol.root();
     let mut entries = 0;
@@ -103,5 +126,25 @@ fuzz_target!(|data: &[u8]| {
             total += n;
         }
         assert!(total <= f.size() as usize);
+    }
+    if mode & 4 == 0 {
+        return;
+    }
+    let mut bufs = WriteBuffers::new();
+    let mut dir = vol.root();
+    if let Ok(Some(first)) = dir.next(&vol, &mut card) {
+        let _ = vol.remove(&mut card, &mut bufs, first.name());
+    }
+    if let Ok(mut w) = vol.create(&mut card, &mut bufs, "fuzzed file.gcode") {
+        let body = [b'G'; 1500];
+        if w.append(&vol, &mut card, &mut bufs, &body).is_ok() {
+            let _ = w.close(&vol, &mut card, &mut bufs);
+        }
+    }
+    let mut dir = vol.root();
+    let mut entries = 0;
+    while let Ok(Some(_)) = dir.next(&vol, &mut card) {
+        entries += 1;
+        assert!(entries <= 65_536, "a directory of more entries than FAT allows");
     }
 });

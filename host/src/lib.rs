@@ -4,6 +4,7 @@
 //! to the command line; the tests drive them directly.
 
 pub mod admission;
+pub mod card_image;
 pub mod clock;
 pub mod gcode_file;
 #[cfg(unix)]

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod card_cmd;
 mod inspect;
 mod print;
 mod settings;
@@ -41,6 +42,9 @@ enum Command {
     Print(print::PrintCmdArgs),
     /// List serial ports.
     Ports,
+    /// The printer's SD card.
+    #[command(subcommand)]
+    Card(card_cmd::CardCommand),
 }
 
 fn main() -> ExitCode {
@@ -51,6 +55,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(args),
         Command::Print(args) => print::run(args),
         Command::Ports => print::ports(),
+        Command::Card(c) => card_cmd::run(c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

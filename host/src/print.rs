@@ -22,7 +22,15 @@ use crate::simulate::is_gcode;
 #[derive(Debug, clap::Args)]
 pub struct PrintCmdArgs {
     /// The STL model, or a G-code file (`.gcode`, `.gco`, `.g`) from any slicer.
-    pub model: PathBuf,
+    #[arg(required_unless_present = "from_card")]
+    pub model: Option<PathBuf>,
+    /// Print this file of the printer's SD card instead (G-code; `strata card ls` lists
+    /// them): the printer reads it itself and needs no host once it started.
+    #[arg(long, value_name = "NAME", conflicts_with_all = ["model", "resume"])]
+    pub from_card: Option<String>,
+    /// With `--from-card`: leave once the printer started the job (it prints on alone).
+    #[arg(long, requires = "from_card")]
+    pub detach: bool,
     /// Serial port of the printer (e.g. /dev/ttyUSB0).
     #[arg(long)]
     pub port: String,
@@ -57,35 +65,22 @@ enum Prepared {
 /// Runs `strata print`.
 pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     let machine = machine_of(&args.print)?;
-    let name = args.model.display();
-    let prepared = if is_gcode(&args.model) {
-        let text = std::fs::read(&args.model).map_err(|e| format!("{name}: {e}"))?;
+    let Some(model) = &args.model else {
+        let card_name = args.from_card.as_deref().unwrap_or_default();
+        return from_card(args, card_name);
+    };
+    let name = model.display();
+    let prepared = if is_gcode(model) {
+        let text = std::fs::read(model).map_err(|e| format!("{name}: {e}"))?;
         let scan = gcode_file::scan(&text, &machine).map_err(|e| format!("{name}: {e}"))?;
         for w in scan.warnings() {
             eprintln!("{name}: warning: {w}");
         }
         Prepared::Gcode(text, scan)
     } else {
-        Prepared::Model(model::load(&args.model)?.placed_sorted(&machine)?)
+        Prepared::Model(model::load(model)?.placed_sorted(&machine)?)
     };
-    if !(args.link_timeout.is_finite() && (0.5..=3600.0).contains(&args.link_timeout)) {
-        return Err(format!("--link-timeout {}: expected 0.5 to 3600 s", args.link_timeout));
-    }
-    let port = serialport::new(&args.port, args.baud)
-        .timeout(Duration::from_millis(2))
-        .open()
-        .map_err(|e| format!("{}: {e}", args.port))?;
-    let mut port = Port::new(port);
-    let abort = Arc::new(AtomicBool::new(false));
-    {
-        let abort = abort.clone();
-        // A second handler cannot be installed (tests call `run` once per process).
-        let _ = ctrlc::set_handler(move || abort.store(true, Ordering::Relaxed));
-    }
-    let mut clock = WallClock::new();
-    let mut link = LinkConfig::default();
-    link.dead_ms = (args.link_timeout * 1000.0).round() as u32;
-    let mut ep = HostEndpoint::new(link);
+    let (mut port, mut ep, mut clock, abort) = open_port(&args.port, args.baud, args.link_timeout)?;
     let greeting = serial::connect(&mut port, &mut ep, &mut clock)?;
     let caps = greeting.capacities;
     if let Some(parked) = greeting.parked.filter(|_| args.resume) {
@@ -108,21 +103,23 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
         caps.move_buffer_bytes,
         caps.ram_bytes / 1024
     );
-    let model;
+    let admitted_model;
     let (source, unit) = match &prepared {
         Prepared::Gcode(text, scan) => (Source::Gcode(text, scan.spec), "bytes"),
         Prepared::Model(tris) => {
-            model = admitted(args, &machine, tris, &caps, &mut port, &mut ep, &mut clock, &abort)?;
-            (Source::Model(&model.0, model.1), "triangles")
+            admitted_model =
+                admitted(args, &machine, tris, &caps, &mut port, &mut ep, &mut clock, &abort)?;
+            (Source::Model(&admitted_model.0, admitted_model.1), "triangles")
         }
     };
     let total = match source {
         Source::Model(t, _) => t.len(),
         Source::Gcode(t, _) => t.len(),
+        Source::Card { .. } => 0,
     };
     let sent_of = |p: &Progress| match source {
         Source::Model(..) => p.triangles_sent,
-        Source::Gcode(..) => p.gcode_bytes_sent,
+        Source::Gcode(..) | Source::Card { .. } => p.gcode_bytes_sent,
     };
     // A bar on a terminal; plain lines otherwise (logs, CI), at every tenth of the stream
     // and every layer the printer completes.
@@ -185,6 +182,72 @@ pub fn run(args: &PrintCmdArgs) -> Result<(), String> {
     Ok(())
 }
 
+/// An open printer port: the port, its endpoint, the wall clock and the Ctrl-C flag.
+pub type OpenPort =
+    (Port<Box<dyn serialport::SerialPort>>, HostEndpoint, WallClock, Arc<AtomicBool>);
+
+/// The serial port open with the link's timeout checked, the endpoint, the clock and the
+/// Ctrl-C flag.
+pub fn open_port(path: &str, baud: u32, link_timeout_s: f64) -> Result<OpenPort, String> {
+    if !(link_timeout_s.is_finite() && (0.5..=3600.0).contains(&link_timeout_s)) {
+        return Err(format!("--link-timeout {link_timeout_s}: expected 0.5 to 3600 s"));
+    }
+    let port = serialport::new(path, baud)
+        .timeout(Duration::from_millis(2))
+        .open()
+        .map_err(|e| format!("{path}: {e}"))?;
+    let abort = Arc::new(AtomicBool::new(false));
+    {
+        let abort = abort.clone();
+        // A second handler cannot be installed (tests call `run` once per process).
+        let _ = ctrlc::set_handler(move || abort.store(true, Ordering::Relaxed));
+    }
+    let mut link = LinkConfig::default();
+    link.dead_ms = (link_timeout_s * 1000.0).round() as u32;
+    Ok((Port::new(port), HostEndpoint::new(link), WallClock::new(), abort))
+}
+
+/// `strata print --from-card NAME`: the printer prints its card's file; the host follows
+/// its layers (or leaves at once with `--detach`).
+fn from_card(args: &PrintCmdArgs, name: &str) -> Result<(), String> {
+    let (mut port, mut ep, mut clock, abort) = open_port(&args.port, args.baud, args.link_timeout)?;
+    let greeting = serial::connect(&mut port, &mut ep, &mut clock)?;
+    let source = Source::Card { name, detach: args.detach };
+    let mut last_layer = None;
+    let result =
+        serial::print(&mut port, &mut ep, &mut clock, &greeting, source, false, &abort, |p| {
+            let layer = p.status.map(|s| s.layer);
+            if let (Some(s), true) = (p.status, p.card_file_bytes.is_some() && layer != last_layer)
+            {
+                last_layer = layer;
+                let (hotend, bed) = (s.hotend_c_x10 as f64 / 10.0, s.bed_c_x10 as f64 / 10.0);
+                eprintln!(
+                "progress: layer {} | {:?} | printed {} s | hotend {hotend:.1} C bed {bed:.1} C",
+                s.layer,
+                s.state,
+                s.done_ms / 1000
+            );
+            }
+        });
+    let progress = result.map_err(|e| format!("{name}: {e}"))?;
+    let bytes = progress.card_file_bytes.unwrap_or(0);
+    if args.detach {
+        println!(
+            "{name}: the printer is printing it from its card ({bytes} bytes); it needs no host"
+        );
+        return Ok(());
+    }
+    let s = progress.status.unwrap_or_default();
+    println!(
+        "{name}: printed from the card ({bytes} bytes, {} layers), state {:?}",
+        s.layer, s.state
+    );
+    if s.state != DeviceState::Done {
+        return Err(format!("the printer ended in state {:?}", s.state));
+    }
+    Ok(())
+}
+
 /// The model's triangles and job as admission control lets them go to a printer with `caps`
 /// (simplified if need be), the link kept alive meanwhile.
 #[allow(clippy::too_many_arguments)]
@@ -198,6 +261,7 @@ fn admitted(
     clock: &mut WallClock,
     abort: &AtomicBool,
 ) -> Result<(Vec<strata::geom::Triangle>, strata::protocol::JobSpec), String> {
+    let model = args.model.as_deref().unwrap_or(std::path::Path::new("model"));
     let job = job_of(&args.print, tris)?;
     // Admission can take longer than the link's dead time (3 s): keep the link alive.
     let admitted = serial::keeping_link_alive(port, ep, clock, || {
@@ -206,9 +270,9 @@ fn admitted(
     if abort.load(Ordering::Relaxed) {
         return Err("aborted by the user (Ctrl-C) before the job started".into());
     }
-    let paced = admitted.map_err(|e| format!("{}: {e}", args.model.display()))?;
+    let paced = admitted.map_err(|e| format!("{}: {e}", model.display()))?;
     if !paced.pace.keeps_ahead() {
-        eprintln!("{}", paced.pace.warning(&args.model, args.baud));
+        eprintln!("{}", paced.pace.warning(model, args.baud));
     }
     let tris = match paced.admission {
         Admission::Unchanged(_) => tris.to_vec(),
@@ -216,7 +280,7 @@ fn admitted(
             eprintln!(
                 "{}: simplified from {} to {} triangles to fit the printer and its link (error \
                  bound {} mm, measured deviation {:.3} mm)",
-                args.model.display(),
+                model.display(),
                 s.triangles_in,
                 s.triangles.len(),
                 s.error_bound_mm,

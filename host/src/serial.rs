@@ -143,6 +143,22 @@ pub fn connect<P: Read + Write>(
     handshake(ep, 5_000, |ep| port.pump(ep, clock))
 }
 
+/// The printer's card's root directory, on a connected port.
+pub fn card_list<P: Read + Write>(
+    port: &mut Port<P>,
+    ep: &mut HostEndpoint,
+    clock: &mut impl LinkClock,
+) -> Result<Vec<crate::session::CardFile>, String> {
+    let mut listing = crate::session::CardListing::default();
+    loop {
+        let now = port.pump(ep, clock)?;
+        if listing.poll(now, ep)? {
+            return Ok(listing.entries);
+        }
+        port.pump(ep, clock)?;
+    }
+}
+
 /// Runs a job on a connected port until the device reports it done.
 ///
 /// `on_progress` is called about every 100 ms of the clock; `abort` (Ctrl-C) sends an abort and
@@ -245,7 +261,7 @@ pub enum DeviceClock<'a> {
 }
 
 /// A simulated printer serving `port` on `clock` (the link's timers and, `speedup` times faster,
-/// the board's motion).
+/// the board's motion), with `card` in its slot.
 ///
 /// Returns when the job ended (done, failed, aborted, stopped) and the last reports went out, or
 /// when `stop` is set. Runs on the calling thread, which needs a large stack (512 MB reserved).
@@ -255,6 +271,7 @@ pub fn serve_device<P: Read + Write>(
     opts: ServeOptions,
     clock: DeviceClock<'_>,
     stop: &AtomicBool,
+    mut card: Option<crate::card_image::ImageCard>,
 ) -> Result<DeviceState, String> {
     let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
     printer.set_offset_limit(opts.capacities.toolpath_points as usize);
@@ -302,7 +319,8 @@ pub fn serve_device<P: Read + Write>(
         ep.receive(&buf[..n], now);
         let done_ms = first_step.map_or(0, |f| ((board.now() - f) / ticks_per_ms) as u32);
         announce_posed(&opts.capacities, &mut ep, &mut printer, now);
-        device_turn(&mut printer, &mut ep, &mut motion, &mut None, now, done_ms, 200, |f| {
+        let card = card.as_mut();
+        device_turn(&mut printer, &mut ep, &mut motion, &mut None, card, now, done_ms, 200, |f| {
             let _ = port.write_all(f);
         });
         let end_tick = start_tick + now as u64 * opts.speedup * ticks_per_ms;

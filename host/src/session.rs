@@ -7,8 +7,8 @@
 use strata::geom::Triangle;
 use strata::protocol::frame::wire_len;
 use strata::protocol::{
-    job_fingerprint, BatchBuilder, Capacities, DeviceState, Endpoint, ErrorCode, GcodeSpec,
-    JobReport, JobSpec, LinkError, Message, ParkedJob, Status, MAX_PAYLOAD, VERSION,
+    job_fingerprint, BatchBuilder, Capacities, CardFault, DeviceState, Endpoint, ErrorCode,
+    GcodeSpec, JobReport, JobSpec, LinkError, Message, ParkedJob, Status, MAX_PAYLOAD, VERSION,
 };
 use strata::thermal::ThermalFault;
 
@@ -51,6 +51,8 @@ pub struct Progress {
     pub failure: Option<String>,
     /// The device holds a job parked when its host went silent (`Message::Parked`).
     pub parked: Option<ParkedJob>,
+    /// Bytes of the card file the device began printing (`Message::CardStarted`).
+    pub card_file_bytes: Option<u32>,
 }
 
 /// What a job sends.
@@ -60,6 +62,13 @@ pub enum Source<'a> {
     Model(&'a [Triangle], JobSpec),
     /// G-code text, run as it is.
     Gcode(&'a [u8], GcodeSpec),
+    /// The printer's card's file of this name, printed from the card (nothing streams).
+    Card {
+        /// The file's name on the card.
+        name: &'a str,
+        /// The host's part ends once the job started (the printer needs no host for it).
+        detach: bool,
+    },
 }
 
 /// The host side of one job.
@@ -158,6 +167,7 @@ impl<'a> HostJob<'a> {
                 Source::Gcode(text, _) => {
                     format!("{} of {} bytes sent", self.progress.gcode_bytes_sent, text.len())
                 }
+                Source::Card { name, .. } => format!("printing {name} from the card"),
             };
             return Err(format!(
                 "the printer stopped answering: no valid frame for {:.1} s (link dead); {sent}",
@@ -185,6 +195,18 @@ impl<'a> HostJob<'a> {
                 }
                 Message::JobReport(j) => self.progress.job_report = Some(j),
                 Message::Parked(p) => self.progress.parked = Some(p),
+                Message::CardRefused(fault) => {
+                    // Taken: the next job on this link does not hear it again.
+                    ep.pop();
+                    return Err(format!("card: {fault}"));
+                }
+                // The statuses after it are the card job's.
+                Message::CardStarted { bytes } if self.phase == Phase::Streaming => {
+                    let detach = matches!(self.source, Source::Card { detach: true, .. });
+                    self.phase = if detach { Phase::Done } else { Phase::Printing };
+                    self.progress.stream_done_ms = Some(now_ms);
+                    self.progress.card_file_bytes = Some(bytes);
+                }
                 Message::Failure(text) => self.progress.failure = Some(text.to_string()),
                 Message::Status(s) => {
                     self.progress.status = Some(s);
@@ -239,7 +261,11 @@ impl<'a> HostJob<'a> {
         let start = match self.source {
             Source::Model(_, job) => Message::JobStart(job),
             Source::Gcode(_, spec) => Message::GcodeStart(spec),
+            Source::Card { name, .. } => Message::CardPrint(name),
         };
+        if self.resume && matches!(self.source, Source::Card { .. }) {
+            return Err("a job from the card needs no host: there is nothing to resume".into());
+        }
         if !self.resume {
             if matches!(status.state, DeviceState::Printing | DeviceState::Paused) && !orphaned {
                 return Err(format!(
@@ -280,6 +306,7 @@ impl<'a> HostJob<'a> {
         let (total, unit) = match self.source {
             Source::Model(tris, _) => (tris.len(), "triangles"),
             Source::Gcode(text, _) => (text.len(), "bytes"),
+            Source::Card { .. } => (0, "bytes"),
         };
         if taken > total {
             return Err(format!(
@@ -290,7 +317,7 @@ impl<'a> HostJob<'a> {
             self.next = taken;
             match self.source {
                 Source::Model(..) => self.progress.triangles_sent = taken,
-                Source::Gcode(..) => self.progress.gcode_bytes_sent = taken,
+                Source::Gcode(..) | Source::Card { .. } => self.progress.gcode_bytes_sent = taken,
             }
             self.phase = Phase::Streaming;
         }
@@ -403,6 +430,69 @@ fn describe_code(code: ErrorCode, detail: u32) -> String {
             Some(f) => format!("heater fault {f}: heaters off, motion stopped"),
             None => format!("heater fault (code {}): heaters off, motion stopped", detail),
         },
+        ErrorCode::Card => match u8::try_from(detail).ok().and_then(CardFault::from_u8) {
+            Some(f) => format!("card: {f}"),
+            None => format!("card fault (code {detail})"),
+        },
+    }
+}
+
+/// An entry of the printer's card (its root directory).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CardFile {
+    /// Its name (long name).
+    pub name: String,
+    /// Bytes (0 for a directory).
+    pub size: u32,
+    /// A directory.
+    pub is_dir: bool,
+}
+
+/// The host side of listing the printer's card: asks for entries from where the last answer
+/// stopped until the printer says the directory ended.
+#[derive(Debug, Default)]
+pub struct CardListing {
+    next: u16,
+    asked: bool,
+    done: bool,
+    /// The entries so far.
+    pub entries: Vec<CardFile>,
+}
+
+impl CardListing {
+    /// Handles what arrived and asks for more; true once the whole directory came. `Err`:
+    /// the printer could not list its card (in words), or a bad message.
+    pub fn poll(&mut self, now_ms: u32, ep: &mut HostEndpoint) -> Result<bool, String> {
+        if let Err(LinkError::Dead { silent_ms }) = ep.check(now_ms) {
+            return Err(format!(
+                "the printer stopped answering: no valid frame for {:.1} s (link dead)",
+                silent_ms as f64 / 1000.0
+            ));
+        }
+        while let Some(p) = ep.peek() {
+            match Message::decode(p).map_err(|e| format!("the printer sent a bad message: {e}"))? {
+                Message::CardEntry(e) => self.entries.push(CardFile {
+                    name: e.name.to_string(),
+                    size: e.size,
+                    is_dir: e.is_dir,
+                }),
+                Message::CardListed { next, done } => {
+                    (self.next, self.done, self.asked) = (next, done, false);
+                }
+                Message::CardRefused(fault) => {
+                    ep.pop();
+                    return Err(format!("card: {fault}"));
+                }
+                _ => {}
+            }
+            ep.pop();
+        }
+        if !self.done && !self.asked {
+            let mut buf = [0u8; MAX_PAYLOAD];
+            let n = Message::CardList { from: self.next }.encode(&mut buf).expect("fits");
+            self.asked = ep.send(&buf[..n]).is_ok();
+        }
+        Ok(self.done)
     }
 }
 

@@ -23,6 +23,7 @@ use strata::sim::{SimBoard, SimTiming};
 use strata::step::{is_before, Executor, StepQueue, Wake};
 use strata::toolpath::ToolpathNeeds;
 
+use crate::card_image::ImageCard;
 use crate::preview::PathRecorder;
 use crate::session::{HostEndpoint, HostJob, Phase, Source};
 
@@ -348,11 +349,22 @@ pub fn simulate_source(
     machine: &MachineConfig,
     opts: &SimOptions,
 ) -> Result<SimReport, (String, Box<SimReport>)> {
+    simulate_with_card(source, machine, opts, None)
+}
+
+/// [`simulate_source`] on a printer with `card` in its slot (a [`Source::Card`] job prints
+/// from it).
+pub fn simulate_with_card(
+    source: Source<'_>,
+    machine: &MachineConfig,
+    opts: &SimOptions,
+    card: Option<ImageCard>,
+) -> Result<SimReport, (String, Box<SimReport>)> {
     std::thread::scope(|scope| {
         std::thread::Builder::new()
             .name("simulated-printer".into())
             .stack_size(STACK_BYTES)
-            .spawn_scoped(scope, || run(source, machine, opts))
+            .spawn_scoped(scope, || run(source, machine, opts, card))
             .expect("cannot start the simulation thread")
             .join()
             .unwrap_or_else(|_| Err(("the simulation panicked".into(), Box::default())))
@@ -363,6 +375,7 @@ fn run(
     source: Source<'_>,
     machine: &MachineConfig,
     opts: &SimOptions,
+    mut card: Option<ImageCard>,
 ) -> Result<SimReport, (String, Box<SimReport>)> {
     let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
     printer.set_offset_limit(opts.capacities.toolpath_points as usize);
@@ -449,6 +462,7 @@ fn run(
             &mut dev_ep,
             &mut motion,
             &mut block_ends,
+            card.as_mut(),
             t,
             done_ms,
             500,
@@ -533,7 +547,9 @@ fn run(
     rep.planned_s = printer.planned_s(&mut *motion);
     rep.filament_mm = match source {
         Source::Model(..) => tp.filament_um as f64 / 1000.0,
-        Source::Gcode(..) => rep.positions[3] as f64 / machine.steps_per_mm[3].to_num::<f64>(),
+        Source::Gcode(..) | Source::Card { .. } => {
+            rep.positions[3] as f64 / machine.steps_per_mm[3].to_num::<f64>()
+        }
     };
     rep.block_ends = block_ends.unwrap_or_default();
     rep.device_state = Some(printer.state());
@@ -606,7 +622,8 @@ pub(crate) fn announce_posed(
 
 /// One turn of a device's main loop (as the firmware's): the link's messages into the job
 /// runner (status every `status_every_ms`; steps generated at the toolpath stage's progress
-/// points as the firmware does), up to 64 bounded `poll`s into the step queue, then every
+/// points as the firmware does), its card's requests and a job from it (`card`: the slot's
+/// card, if any), up to 64 bounded `poll`s into the step queue, then every
 /// frame due out through `send`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn device_turn<const N: usize>(
@@ -614,12 +631,16 @@ pub(crate) fn device_turn<const N: usize>(
     ep: &mut DeviceEndpoint,
     motion: &mut SimMotion<'_, N>,
     block_ends: &mut Option<Vec<[i64; AXES]>>,
+    card: Option<&mut ImageCard>,
     now_ms: u32,
     done_ms: u32,
     status_every_ms: u32,
     mut send: impl FnMut(&[u8]),
 ) {
     printer.service(ep, motion, now_ms, done_ms, status_every_ms, true);
+    if printer.wants_card(ep) {
+        printer.card_service(ep, card, motion);
+    }
     for _ in 0..64 {
         let worked = printer.poll(motion);
         note_block_end(block_ends, &motion.motion);

@@ -184,6 +184,7 @@ fn run_job<C: LinkClock>(
     let sent = match source {
         Source::Model(t, _) => format!("{} triangles", t.len()),
         Source::Gcode(t, _) => format!("{} bytes of G-code", t.len()),
+        Source::Card { name, .. } => format!("the card's {name}"),
     };
     // The simulated printer poses as the device: it offsets in bands where the device's
     // engine is too small for an island.
@@ -945,34 +946,6 @@ fn qemu_killed_host_resumed() {
     assert_eq!(steps.positions, reference.positions, "{label}: the motors' final positions");
 }
 
-/// A card image made by the `fatfs` crate: `fat` in `mb` MB (a power of two, as QEMU wants)
-/// holding `files`; with `partition`, behind a master boot record at block 2048.
-fn card_image(fat: fatfs::FatType, mb: usize, files: &[(&str, &[u8])], partition: bool) -> Vec<u8> {
-    use std::io::Write;
-    let start = if partition { 2048 * 512 } else { 0 };
-    let mut vol = std::io::Cursor::new(vec![0u8; (mb << 20) - start]);
-    let opts = fatfs::FormatVolumeOptions::new().fat_type(fat).bytes_per_cluster(512);
-    fatfs::format_volume(&mut vol, opts).unwrap();
-    {
-        let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
-        fs.root_dir().create_dir("old prints").unwrap();
-        for (name, data) in files {
-            fs.root_dir().create_file(name).unwrap().write_all(data).unwrap();
-        }
-    }
-    let vol = vol.into_inner();
-    let mut card = vec![0u8; start];
-    if partition {
-        let entry = &mut card[446..462];
-        entry[4] = if fat == fatfs::FatType::Fat32 { 0x0C } else { 0x06 };
-        entry[8..12].copy_from_slice(&2048u32.to_le_bytes());
-        entry[12..16].copy_from_slice(&((vol.len() / 512) as u32).to_le_bytes());
-        card[510..512].copy_from_slice(&[0x55, 0xAA]);
-    }
-    card.extend_from_slice(&vol);
-    card
-}
-
 /// The firmware reads the QEMU board's SD card (SSI0, SPI mode) at start-up and lists its
 /// root directory as the image holds it (names long and short, sizes, a directory): FAT16
 /// and FAT32, with and without a partition table; a blank card and an empty slot are said so.
@@ -994,8 +967,16 @@ fn qemu_card_listing() {
     ];
     let dir = tempfile::tempdir().unwrap();
     let cases = [
-        ("FAT16", Some(card_image(fatfs::FatType::Fat16, 32, &files, false)), "fat=16"),
-        ("FAT32 partitioned", Some(card_image(fatfs::FatType::Fat32, 64, &files, true)), "fat=32"),
+        (
+            "FAT16",
+            Some(strata_testkit::card::image(fatfs::FatType::Fat16, 32, &files, false)),
+            "fat=16",
+        ),
+        (
+            "FAT32 partitioned",
+            Some(strata_testkit::card::image(fatfs::FatType::Fat32, 64, &files, true)),
+            "fat=32",
+        ),
         ("blank", Some(vec![0u8; 32 << 20]), "not formatted"),
         ("empty slot", None, "no card in the slot"),
     ];
@@ -1028,4 +1009,89 @@ fn qemu_card_listing() {
         assert_eq!(listed, expected, "{what}");
         assert!(last.contains("files=3"), "{what}: {last}");
     }
+}
+
+/// Printing from the card with no host (issue 22's acceptance): a FAT32 card holding
+/// `xyz_20mm_cube.stl` and PrusaSlicer's G-code of it. The host lists the card (every file,
+/// its size), is told in words that the STL prints through the host, starts the G-code with
+/// one command and goes silent for good (the cable pulled): the firmware reads the file from
+/// the card to its end, and every step edge (axis, direction, tick), the steps per axis, the
+/// final positions and the print time equal the host simulation of the same text streamed.
+#[test]
+fn qemu_gcode_from_card_host_gone() {
+    let label = "hil_qemu G-code from the card, host gone";
+    let Some((qemu, elf)) = qemu_or_skip(label, None) else { return };
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let stl = std::fs::read(root.join("../../shared/models/xyz_20mm_cube.stl")).expect("the cube");
+    let gcode_name = "xyz_20mm_cube_prusaslicer.gcode";
+    let gcode = std::fs::read(root.join("../tests/data/gcode").join(gcode_name)).expect("G-code");
+    let files: [(&str, &[u8]); 2] = [("xyz_20mm_cube.stl", &stl), (gcode_name, &gcode)];
+    let dir = tempfile::tempdir().unwrap();
+    let image = dir.path().join("card.img");
+    std::fs::write(&image, strata_testkit::card::image(fatfs::FatType::Fat32, 64, &files, true))
+        .unwrap();
+    let machine = MachineConfig::default();
+    let scan = gcode_file::scan(&gcode, &machine).unwrap();
+    let reference =
+        simulate_source(Source::Gcode(&gcode, scan.spec), &machine, &SimOptions::default())
+            .unwrap_or_else(|(e, _)| panic!("{label}: reference: {e}"));
+    let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
+    let (mut q, uart) = Qemu::start_with_card(&qemu, &elf, echo, Some(&image))
+        .unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut clock = q.clock().unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut port = Port::new(uart);
+    port.get_mut().set_read_timeout(Some(Duration::from_millis(1))).unwrap();
+    port.get_mut().set_write_timeout(Some(Duration::from_millis(1))).unwrap();
+    let mut conn = hil::connect(&mut port, &mut clock).unwrap_or_else(|e| panic!("{label}: {e}"));
+    let listed = strata_host::serial::card_list(&mut port, &mut conn.ep, &mut clock)
+        .unwrap_or_else(|e| panic!("{label}: card ls: {e}"));
+    let mut got: Vec<(String, u32, bool)> =
+        listed.into_iter().map(|e| (e.name, e.size, e.is_dir)).collect();
+    got.sort();
+    let mut want: Vec<(String, u32, bool)> =
+        files.iter().map(|(n, d)| (n.to_string(), d.len() as u32, false)).collect();
+    want.push(("old prints".into(), 0, true));
+    want.sort();
+    assert_eq!(got, want, "{label}: the card's listing");
+    let stl_job = Source::Card { name: "xyz_20mm_cube.stl", detach: false };
+    let e = hil::print_job(&mut port, &mut conn, &mut clock, stl_job, QEMU_JOB_MS, |_| {})
+        .expect_err("an STL does not print from the card");
+    assert!(e.contains("the file is an STL"), "{label}: {e}");
+    let start = Source::Card { name: gcode_name, detach: true };
+    let started = hil::print_job(&mut port, &mut conn, &mut clock, start, QEMU_JOB_MS, |_| {})
+        .unwrap_or_else(|e| panic!("{label}: start: {e}"));
+    assert_eq!(started.card_file_bytes, Some(gcode.len() as u32));
+    // The host says nothing more, as an unplugged cable: what the printer sends is lost (the
+    // socket is read and dropped: QEMU's UART would otherwise wait for room in it).
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let mut sink = port.get_mut().try_clone().unwrap();
+    let ended = std::thread::scope(|s| {
+        s.spawn(|| {
+            let mut buf = [0u8; 4096];
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let _ = std::io::Read::read(&mut sink, &mut buf);
+            }
+        });
+        let ended =
+            q.wait_for(&mut clock, QEMU_JOB_MS, |l| l.iter().any(|l| l.starts_with("MEM ")));
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        ended
+    })
+    .unwrap_or_else(|e| panic!("{label}: waiting for the job's end: {e}"));
+    let lines = q.lines();
+    let jobs: Vec<&String> = lines.iter().filter(|l| l.starts_with("JOB")).collect();
+    assert!(ended, "{label}: the job did not end: {jobs:?}");
+    let done = DeviceState::Done as u32;
+    assert!(jobs.iter().any(|l| l.starts_with(&format!("JOB end state={done} "))), "{jobs:?}");
+    let steps = Costs::parse(&lines).steps().expect("a STEPS line");
+    assert_eq!(steps.steps, reference.steps, "{label}: steps per axis X, Y, Z, E");
+    assert_eq!(steps.positions, reference.positions, "{label}: final positions");
+    assert_eq!(steps.print_ticks, Some(reference.print_ticks), "{label}: print time, ticks");
+    assert_eq!(steps.hash, Some(reference.board_hash), "{label}: every step edge");
+    eprintln!(
+        "{label}: {} bytes read from the card, {:.1} s of print, {} steps, as streamed",
+        gcode.len(),
+        reference.print_time_s,
+        steps.steps.iter().sum::<u64>()
+    );
 }

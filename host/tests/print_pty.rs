@@ -12,6 +12,7 @@ use serialport::{SerialPort, TTYPort};
 use strata::machine::MachineConfig;
 use strata::printer::CREALITY_CAPACITIES;
 use strata::protocol::{Capacities, DeviceState};
+use strata_host::card_image::ImageCard;
 use strata_host::serial::{serve_device, DeviceClock, ServeOptions};
 use strata_testkit::mesh::{holed_block, sphere};
 use strata_testkit::stl::write_mesh;
@@ -37,7 +38,7 @@ fn print_over_pty(args: &[&str], caps: Capacities) -> (std::process::Output, Dev
 
 /// [`print_over_pty`] with the device's options.
 fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Output, DeviceState) {
-    let (out, state) = serve_on_pty(opts, |name, _| {
+    let (out, state) = serve_on_pty(opts, None, |name, _| {
         let mut cmd = Command::cargo_bin("strata").unwrap();
         cmd.args(["print", "--port", name]).args(args);
         if !args.contains(&"--link-timeout") {
@@ -57,6 +58,7 @@ fn print_over_pty_with(args: &[&str], opts: ServeOptions) -> (std::process::Outp
 /// the device's final state.
 fn serve_on_pty<R>(
     opts: ServeOptions,
+    card: Option<ImageCard>,
     host: impl FnOnce(&str, &AtomicBool) -> R,
 ) -> (R, Result<DeviceState, String>) {
     let (mut master, slave) = TTYPort::pair().expect("pseudo-terminal pair");
@@ -69,7 +71,8 @@ fn serve_on_pty<R>(
         let device = std::thread::Builder::new()
             .stack_size(512 << 20)
             .spawn_scoped(s, || {
-                serve_device(&mut master, &MachineConfig::default(), opts, DeviceClock::Wall, &stop)
+                let machine = MachineConfig::default();
+                serve_device(&mut master, &machine, opts, DeviceClock::Wall, &stop, card)
             })
             .unwrap();
         let got = host(&name, &stop);
@@ -140,7 +143,7 @@ fn ctrl_c_aborts_the_print_and_the_printer() {
     let model = dir.path().join("holed.stl");
     write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let ((status, lines, stdout, sent), state) =
-        serve_on_pty(device(CREALITY_CAPACITIES, 5), |name, stop| {
+        serve_on_pty(device(CREALITY_CAPACITIES, 5), None, |name, stop| {
             let timeout = LINK_TIMEOUT_S.to_string();
             let mut child = Std::new(env!("CARGO_BIN_EXE_strata"))
                 .args(["print", model.to_str().unwrap(), "--port", name, "--skirt-loops", "0"])
@@ -317,4 +320,50 @@ fn resume_with_no_parked_job_says_so() {
     assert!(!out.status.success());
     assert!(stderr.contains("holds no parked job to resume (it is idle)"), "{stderr}");
     assert_eq!(state, DeviceState::Idle);
+}
+
+/// `strata card ls` and `strata print --from-card` against a simulated printer with a card
+/// (an image the `fatfs` crate wrote): the listing is the card's (names, sizes, the
+/// directory), the G-code file prints to the end from the card, and a missing file is
+/// refused in the printer's words.
+#[test]
+fn card_ls_and_print_from_card_over_a_pty() {
+    // Two layers of a 20 mm square, Marlin style.
+    let mut gcode = String::from("G28\nG90\nM83\n");
+    for layer in 0..2 {
+        let z = 0.2 * (layer + 1) as f64;
+        gcode += &format!(";LAYER_CHANGE\nG1 Z{z:.1} F600\nG1 X90 Y90 F6000\n");
+        for (x, y) in [(110, 90), (110, 110), (90, 110), (90, 90)] {
+            gcode += &format!("G1 X{x} Y{y} E0.8 F1800\n");
+        }
+    }
+    let files: [(&str, &[u8]); 1] = [("square.gcode", gcode.as_bytes())];
+    let image = strata_testkit::card::image(fatfs::FatType::Fat16, 32, &files, false);
+    let strata = |name: &str, args: &[&str]| {
+        let mut cmd = Command::cargo_bin("strata").unwrap();
+        cmd.args(args).args(["--port", name, "--link-timeout", &LINK_TIMEOUT_S.to_string()]);
+        cmd.timeout(hang_guard()).output().unwrap()
+    };
+    let opts = device(CREALITY_CAPACITIES, 50);
+    let ((ls, missing, print), state) =
+        serve_on_pty(opts, Some(ImageCard::new(image)), |name, _| {
+            let ls = strata(name, &["card", "ls"]);
+            let missing = strata(name, &["print", "--from-card", "nothing.gcode"]);
+            let print = strata(name, &["print", "--from-card", "square.gcode"]);
+            (ls, missing, print)
+        });
+    let text = |o: &std::process::Output| {
+        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    };
+    assert!(ls.status.success(), "{}", text(&ls));
+    let listing = String::from_utf8_lossy(&ls.stdout);
+    let line = format!("{:>10}  square.gcode", gcode.len());
+    assert!(listing.lines().any(|l| l == line), "{listing}");
+    assert!(listing.lines().any(|l| l.ends_with("old prints/")), "{listing}");
+    assert!(listing.contains("1 files"), "{listing}");
+    assert!(!missing.status.success());
+    assert!(text(&missing).contains("card: no such file on the SD card"), "{}", text(&missing));
+    assert!(print.status.success(), "{}", text(&print));
+    assert!(text(&print).contains("printed from the card"), "{}", text(&print));
+    assert_eq!(state.unwrap(), DeviceState::Done);
 }

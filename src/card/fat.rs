@@ -21,16 +21,18 @@ pub const BLOCK_BYTES: usize = 512;
 /// Characters of a name kept (longer long names are cut: [`DirEntry::name_cut`]).
 pub const NAME_BYTES: usize = 64;
 /// Bytes of a directory entry.
-const ENTRY_BYTES: u32 = 32;
+pub(super) const ENTRY_BYTES: u32 = 32;
 /// Attribute bits of a directory entry.
-const ATTR_VOLUME: u8 = 0x08;
-const ATTR_DIR: u8 = 0x10;
-const ATTR_LONG_NAME: u8 = 0x0F;
+pub(super) const ATTR_VOLUME: u8 = 0x08;
+pub(super) const ATTR_DIR: u8 = 0x10;
+pub(super) const ATTR_LONG_NAME: u8 = 0x0F;
 /// Characters in one long-name entry, and their byte offsets in it (UCS-2, little-endian).
-const LFN_CHARS: usize = 13;
-const LFN_OFFSETS: [usize; LFN_CHARS] = [1, 3, 5, 7, 9, 14, 16, 18, 20, 22, 24, 28, 30];
+pub(super) const LFN_CHARS: usize = 13;
+pub(super) const LFN_OFFSETS: [usize; LFN_CHARS] = [1, 3, 5, 7, 9, 14, 16, 18, 20, 22, 24, 28, 30];
 /// Entries a directory may have (the specification's limit: 2 MiB of entries).
 const MAX_DIR_ENTRIES: u32 = 65_536;
+/// Blocks such a directory takes.
+pub(super) const MAX_DIR_BLOCKS: u32 = MAX_DIR_ENTRIES * ENTRY_BYTES / BLOCK_BYTES as u32;
 /// Fewer clusters than this is FAT12, fewer than the next FAT16 (the specification's rule).
 const FAT16_MIN_CLUSTERS: u32 = 4085;
 const FAT32_MIN_CLUSTERS: u32 = 65525;
@@ -43,6 +45,12 @@ pub trait BlockRead {
     /// Reads `out.len()` bytes of block `block` from byte `offset` (`offset + out.len()` is
     /// at most [`BLOCK_BYTES`]).
     fn read(&mut self, block: u32, offset: usize, out: &mut [u8]) -> Result<(), Self::Error>;
+}
+
+/// A device of 512-byte blocks that is also written, a whole block at a time.
+pub trait BlockWrite: BlockRead {
+    /// Writes `data` to block `block`.
+    fn write(&mut self, block: u32, data: &[u8; BLOCK_BYTES]) -> Result<(), Self::Error>;
 }
 
 /// Why the card could not be read.
@@ -64,6 +72,14 @@ pub enum FatError<E> {
     NotFound,
     /// The name is a directory.
     IsDirectory,
+    /// No free cluster is left: the card is full.
+    Full,
+    /// The root directory has no room for another entry (FAT16's is fixed).
+    DirectoryFull,
+    /// A name a FAT volume cannot hold here: empty, longer than [`NAME_BYTES`], or with a
+    /// character other than printable ASCII or one of `"*/:<>?\|`, or ending in a dot or a
+    /// space.
+    BadName,
 }
 
 /// Volumes this reader does not read.
@@ -89,6 +105,9 @@ impl<E: fmt::Debug> fmt::Display for FatError<E> {
                 write!(f, "the card's file system is damaged (block {block})")
             }
             Self::NotFound => write!(f, "no such file"),
+            Self::Full => write!(f, "the card is full"),
+            Self::DirectoryFull => write!(f, "the card's root directory is full"),
+            Self::BadName => write!(f, "a name the card cannot hold"),
             Self::IsDirectory => write!(f, "a directory, not a file"),
         }
     }
@@ -110,37 +129,42 @@ pub struct Volume {
     /// FAT16 or FAT32.
     pub fat_type: FatType,
     /// First block of the first FAT.
-    fat_start: u32,
+    pub(super) fat_start: u32,
     /// Blocks per cluster.
-    cluster_blocks: u32,
+    pub(super) cluster_blocks: u32,
     /// Block of cluster 2.
-    data_start: u32,
+    pub(super) data_start: u32,
     /// Clusters on the volume (numbered from 2).
-    clusters: u32,
+    pub(super) clusters: u32,
     /// FAT16's root directory: its first block and blocks; FAT32's: its first cluster.
-    root_start: u32,
-    root_blocks: u32,
+    pub(super) root_start: u32,
+    pub(super) root_blocks: u32,
+    /// Copies of the FAT, and blocks of each.
+    pub(super) fats: u32,
+    pub(super) fat_blocks: u32,
+    /// FAT32's information block (its free-cluster count), 0 when none.
+    pub(super) info_block: u32,
 }
 
 /// Little-endian fields of a block read whole into a small buffer.
-fn le16(b: &[u8], at: usize) -> u16 {
+pub(super) fn le16(b: &[u8], at: usize) -> u16 {
     u16::from_le_bytes([b[at], b[at + 1]])
 }
 
-fn le32(b: &[u8], at: usize) -> u32 {
+pub(super) fn le32(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
 }
 
-/// The BIOS parameter block's fields this reader uses: bytes 11..=47 and 82..=89 of a boot
+/// The BIOS parameter block's fields this reader uses: bytes 11..=49 and 82..=89 of a boot
 /// sector, and its signature.
 struct Bpb {
-    head: [u8; 48],
+    head: [u8; 50],
     sig: [u8; 2],
 }
 
 impl Bpb {
     fn read<D: BlockRead>(dev: &mut D, block: u32) -> Result<Self, FatError<D::Error>> {
-        let mut head = [0u8; 48];
+        let mut head = [0u8; 50];
         let mut sig = [0u8; 2];
         dev.read(block, 0, &mut head).map_err(FatError::Device)?;
         dev.read(block, 510, &mut sig).map_err(FatError::Device)?;
@@ -233,6 +257,10 @@ impl Volume {
             FatType::Fat16 => (data_start - root_blocks, root_blocks),
             FatType::Fat32 => (le32(h, 44), 0),
         };
+        let info_block = match (fat_type, le16(h, 48)) {
+            (FatType::Fat32, n) if n != 0 && u32::from(n) < reserved => start + u32::from(n),
+            _ => 0,
+        };
         let vol = Self {
             fat_type,
             fat_start,
@@ -241,6 +269,9 @@ impl Volume {
             clusters,
             root_start,
             root_blocks,
+            fats,
+            fat_blocks,
+            info_block,
         };
         if fat_type == FatType::Fat32 && !vol.is_cluster(root_start) {
             return Err(corrupt());
@@ -248,17 +279,17 @@ impl Volume {
         Ok(vol)
     }
 
-    fn is_cluster(&self, c: u32) -> bool {
+    pub(super) fn is_cluster(&self, c: u32) -> bool {
         (2..self.clusters + 2).contains(&c)
     }
 
     /// Block `i` of cluster `c` (a valid cluster, `i` below the cluster's blocks).
-    fn block_of(&self, c: u32, i: u32) -> u32 {
+    pub(super) fn block_of(&self, c: u32, i: u32) -> u32 {
         self.data_start + (c - 2) * self.cluster_blocks + i
     }
 
     /// The cluster after `c` in its chain (`None`: the chain ends).
-    fn next_cluster<D: BlockRead>(
+    pub(super) fn next_cluster<D: BlockRead>(
         &self,
         dev: &mut D,
         c: u32,
@@ -314,9 +345,9 @@ impl Volume {
 /// Where a directory or file is read: a block of the fixed FAT16 root, or a cluster, and
 /// the byte within it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Cursor {
+pub(super) struct Cursor {
     /// The cluster (0: FAT16's fixed root region, from `block`).
-    cluster: u32,
+    pub(super) cluster: u32,
     /// The fixed region's first block.
     block: u32,
     /// Bytes into the cluster (or the fixed region).
@@ -324,16 +355,16 @@ struct Cursor {
 }
 
 impl Cursor {
-    fn fixed(block: u32) -> Self {
+    pub(super) fn fixed(block: u32) -> Self {
         Self { cluster: 0, block, offset: 0 }
     }
 
-    fn chain(cluster: u32) -> Self {
+    pub(super) fn chain(cluster: u32) -> Self {
         Self { cluster, block: 0, offset: 0 }
     }
 
     /// The block and byte the cursor is at, and the bytes left in that block.
-    fn place(&self, vol: &Volume) -> (u32, usize, usize) {
+    pub(super) fn place(&self, vol: &Volume) -> (u32, usize, usize) {
         let in_block = (self.offset % BLOCK_BYTES as u32) as usize;
         let i = self.offset / BLOCK_BYTES as u32;
         let block = if self.cluster == 0 { self.block + i } else { vol.block_of(self.cluster, i) };
@@ -341,14 +372,14 @@ impl Cursor {
     }
 
     /// Bytes in the cursor's cluster (or the fixed region).
-    fn extent(&self, vol: &Volume) -> u32 {
+    pub(super) fn extent(&self, vol: &Volume) -> u32 {
         let blocks = if self.cluster == 0 { vol.root_blocks } else { vol.cluster_blocks };
         blocks * BLOCK_BYTES as u32
     }
 
     /// Moves on `n` bytes (within the extent); at its end, to the next cluster. False when
     /// the chain (or the fixed region) ended.
-    fn advance<D: BlockRead>(
+    pub(super) fn advance<D: BlockRead>(
         &mut self,
         vol: &Volume,
         dev: &mut D,
@@ -386,6 +417,10 @@ pub struct DirEntry {
     pub size: u32,
     /// First cluster (0: empty).
     pub cluster: u32,
+    /// Where the entry's slots start (its first long-name entry, or its 8.3 entry), and
+    /// how many it has.
+    pub(super) slots_at: Cursor,
+    pub(super) slots: u8,
 }
 
 impl DirEntry {
@@ -441,7 +476,7 @@ fn ascii_or_mark(b: u8) -> u8 {
 }
 
 /// The 8.3 name's checksum that its long-name entries carry.
-fn short_checksum(raw: &[u8; 11]) -> u8 {
+pub(super) fn short_checksum(raw: &[u8; 11]) -> u8 {
     raw.iter().fold(0u8, |sum, &b| sum.rotate_right(1).wrapping_add(b))
 }
 
@@ -516,6 +551,7 @@ impl Dir {
         dev: &mut D,
     ) -> Result<Option<DirEntry>, FatError<D::Error>> {
         let mut long = LongName::new();
+        let mut run = (self.at, 0u8);
         loop {
             if self.at.cluster == 0 && self.at.offset >= self.at.extent(vol) {
                 return Ok(None);
@@ -527,6 +563,7 @@ impl Dir {
             }
             let mut e = [0u8; ENTRY_BYTES as usize];
             dev.read(block, in_block, &mut e).map_err(FatError::Device)?;
+            let here = self.at;
             if e[0] == 0 {
                 return Ok(None);
             }
@@ -537,7 +574,11 @@ impl Dir {
             let attr = e[11];
             if attr & ATTR_LONG_NAME == ATTR_LONG_NAME {
                 if e[0] != 0xE5 {
+                    if e[0] & 0x40 != 0 {
+                        run = (here, 0);
+                    }
                     long.part(&e);
+                    run.1 = run.1.saturating_add(1);
                 }
                 continue;
             }
@@ -555,11 +596,14 @@ impl Dir {
                 is_dir: attr & ATTR_DIR != 0,
                 size: le32(&e, 28),
                 cluster: u32::from(le16(&e, 26)) | u32::from(le16(&e, 20)) << 16,
+                slots_at: here,
+                slots: 1,
             };
             let len = match long.finish(&short) {
                 Some((name, cut)) => {
                     entry.name[..name.len()].copy_from_slice(name);
                     entry.name_cut = cut;
+                    (entry.slots_at, entry.slots) = (run.0, run.1.saturating_add(1));
                     name.len()
                 }
                 None => short_display(&short, e[12], &mut entry.name),
@@ -604,14 +648,43 @@ impl File {
         out: &mut [u8],
     ) -> Result<usize, FatError<D::Error>> {
         let mut n = 0;
-        while n < out.len() && self.pos < self.size {
+        self.walk(vol, dev, out.len() as u32, |dev, block, in_block, want| {
+            let part = &mut out[n..n + want];
+            n += want;
+            dev.read(block, in_block, part).map_err(FatError::Device)
+        })?;
+        Ok(n)
+    }
+
+    /// Moves on `n` bytes (at most to the end) without reading them; the bytes moved.
+    pub fn skip<D: BlockRead>(
+        &mut self,
+        vol: &Volume,
+        dev: &mut D,
+        n: u32,
+    ) -> Result<u32, FatError<D::Error>> {
+        let start = self.pos;
+        self.walk(vol, dev, n, |_, _, _, _| Ok(()))?;
+        Ok(self.pos - start)
+    }
+
+    /// Goes through the next `n` bytes (at most to the end) a block's part at a time:
+    /// `visit(dev, block, byte in the block, bytes)` for each part, before moving past it.
+    fn walk<D: BlockRead>(
+        &mut self,
+        vol: &Volume,
+        dev: &mut D,
+        n: u32,
+        mut visit: impl FnMut(&mut D, u32, usize, usize) -> Result<(), FatError<D::Error>>,
+    ) -> Result<(), FatError<D::Error>> {
+        let end = self.pos.saturating_add(n).min(self.size);
+        while self.pos < end {
             if !vol.is_cluster(self.at.cluster) {
                 return Err(FatError::Corrupt { block: vol.fat_start });
             }
             let (block, in_block, left) = self.at.place(vol);
-            let want = (out.len() - n).min(left).min((self.size - self.pos) as usize);
-            dev.read(block, in_block, &mut out[n..n + want]).map_err(FatError::Device)?;
-            n += want;
+            let want = ((end - self.pos) as usize).min(left);
+            visit(dev, block, in_block, want)?;
             self.pos += want as u32;
             let more = self.at.advance(vol, dev, want as u32)?;
             if !more && self.pos < self.size {
@@ -619,6 +692,6 @@ impl File {
                 return Err(FatError::Corrupt { block });
             }
         }
-        Ok(n)
+        Ok(())
     }
 }

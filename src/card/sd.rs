@@ -2,7 +2,7 @@
 //!
 //! Start-up is CMD0, CMD8, ACMD41, CMD58 and CMD16; block reads (CMD17) stream each block
 //! through and keep only the part asked for, so no 512-byte buffer is held (see
-//! [`super::fat`]). The board provides the bus ([`SpiLink`]: one byte each way, the chip select). Every wait
+//! [`super::fat`]); block writes (CMD24) take a whole block from the caller. The board provides the bus ([`SpiLink`]: one byte each way, the chip select). Every wait
 //! is a bounded number of bytes (the card answers within [`RESPONSE_BYTES`], sends a block
 //! within [`TOKEN_BYTES`], leaves its idle state within [`INIT_TRIES`] ACMD41s): a card
 //! that does not answer gives a typed error, never a hang. Commands go without CRC (SPI
@@ -10,7 +10,7 @@
 
 use core::fmt;
 
-use super::fat::{BlockRead, BLOCK_BYTES};
+use super::fat::{BlockRead, BlockWrite, BLOCK_BYTES};
 
 /// Bytes within which a command's response (R1) comes (the specification's NCR is 1 to 8).
 pub const RESPONSE_BYTES: usize = 16;
@@ -25,6 +25,12 @@ const R1_IDLE: u8 = 0x01;
 const R1_ILLEGAL: u8 = 0x04;
 /// The token that starts a block's data.
 const DATA_TOKEN: u8 = 0xFE;
+/// A data response's status bits (`xxx0sss1`), and the status of accepted data.
+const DATA_RESPONSE_MASK: u8 = 0x1F;
+const DATA_ACCEPTED: u8 = 0x05;
+/// Bytes within which a card finishes writing a block (it holds the line low meanwhile; 250
+/// ms at 25 MHz is about 780,000).
+pub const BUSY_BYTES: usize = 1 << 20;
 
 /// The card's bus: SPI mode 0, 8-bit frames, and its chip select.
 pub trait SpiLink {
@@ -59,8 +65,16 @@ pub enum SdError {
         /// The token.
         token: u8,
     },
-    /// A read before start-up succeeded.
+    /// A read or write before start-up succeeded.
     NotStarted,
+    /// The card did not take a block's data (`response` its data response: CRC or write
+    /// error), or gave none.
+    WriteRefused {
+        /// The data response.
+        response: u8,
+    },
+    /// The card stayed busy writing a block beyond [`BUSY_BYTES`].
+    StaysBusy,
 }
 
 impl fmt::Display for SdError {
@@ -76,6 +90,10 @@ impl fmt::Display for SdError {
                 write!(f, "the card failed a block read (token {token:#04x})")
             }
             Self::NotStarted => write!(f, "the card was not started"),
+            Self::WriteRefused { response } => {
+                write!(f, "the card refused a block write (response {response:#04x})")
+            }
+            Self::StaysBusy => write!(f, "the card stayed busy after a block write"),
         }
     }
 }
@@ -237,6 +255,53 @@ impl<S: SpiLink> SdCard<S> {
             }
         }
         Ok(())
+    }
+}
+
+impl<S: SpiLink> SdCard<S> {
+    /// Writes `data` to block `block` (CMD24) and waits until the card has written it.
+    fn write_block(&mut self, block: u32, data: &[u8; BLOCK_BYTES]) -> Result<(), SdError> {
+        if !self.started {
+            return Err(SdError::NotStarted);
+        }
+        let addr =
+            if self.block_addressing { block } else { block.wrapping_mul(BLOCK_BYTES as u32) };
+        let r1 = self.command(24, addr)?;
+        if r1 != 0 {
+            return Err(SdError::Refused { cmd: 24, r1 });
+        }
+        // A gap byte, the token, the data and a CRC the card ignores in SPI mode.
+        self.spi.transfer(0xFF);
+        self.spi.transfer(DATA_TOKEN);
+        for &b in data {
+            self.spi.transfer(b);
+        }
+        self.spi.transfer(0xFF);
+        self.spi.transfer(0xFF);
+        let mut response = 0xFF;
+        for _ in 0..RESPONSE_BYTES {
+            response = self.spi.transfer(0xFF);
+            if response != 0xFF {
+                break;
+            }
+        }
+        if response & DATA_RESPONSE_MASK != DATA_ACCEPTED {
+            return Err(SdError::WriteRefused { response });
+        }
+        for _ in 0..BUSY_BYTES {
+            if self.spi.transfer(0xFF) == 0xFF {
+                return Ok(());
+            }
+        }
+        Err(SdError::StaysBusy)
+    }
+}
+
+impl<S: SpiLink> BlockWrite for SdCard<S> {
+    fn write(&mut self, block: u32, data: &[u8; BLOCK_BYTES]) -> Result<(), SdError> {
+        let r = self.write_block(block, data);
+        self.release_bus();
+        r
     }
 }
 

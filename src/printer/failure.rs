@@ -4,7 +4,7 @@
 use core::fmt;
 
 use crate::machine::ConfigError;
-use crate::protocol::ErrorCode;
+use crate::protocol::{CardFault, ErrorCode};
 use crate::slice::SliceError;
 use crate::thermal::ThermalFault;
 use crate::toolpath::ToolpathError;
@@ -65,6 +65,8 @@ pub enum Failure {
         /// The fault's code ([`ThermalFault::code`]).
         code: u8,
     },
+    /// The card a job printed from failed (removed, unreadable).
+    Card(CardFault),
 }
 
 impl Failure {
@@ -80,6 +82,7 @@ impl Failure {
             Self::Unexpected { message } => (ErrorCode::Unexpected, u32::from(message)),
             Self::BadMessage { first_byte } => (ErrorCode::BadMessage, u32::from(first_byte)),
             Self::Thermal { code } => (ErrorCode::Thermal, u32::from(code)),
+            Self::Card(fault) => (ErrorCode::Card, fault as u32),
         }
     }
 }
@@ -106,6 +109,7 @@ impl fmt::Display for Failure {
                 Some(fault) => write!(f, "heaters: {fault}"),
                 None => write!(f, "heaters: fault code {code}"),
             },
+            Self::Card(fault) => write!(f, "card: {fault}"),
         }
     }
 }

@@ -45,6 +45,7 @@
 //! the firmware.
 
 pub mod board;
+mod card_job;
 mod failure;
 mod motion;
 mod orphan;
@@ -66,6 +67,7 @@ use crate::step::StepConfig;
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 
 pub use board::{job_toolpath_config, BoardPrinter, BOARD_CAPACITIES, CREALITY_CAPACITIES};
+pub use card_job::{file_kind, is_card_request, FileKind, CARD_CHUNK_BYTES};
 pub use failure::{Failure, Refusal};
 pub use motion::{Motion, MotionAccess, MotionHalf};
 use orphan::Orphan;
@@ -175,6 +177,8 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     layers: u32,
     /// The job runs G-code (its input has the pipeline's scratch), not a sliced model.
     gcode_job: bool,
+    /// The job's G-code comes from the card ([`card_job`]): it needs no host.
+    card_job: bool,
     /// Every triangle, or the whole G-code text, was taken.
     model_ended: bool,
     /// The model's last moves are in the move buffer (a G-code job's: and its last settings
@@ -239,6 +243,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             temps_c_x10: (0, 0),
             layers: 0,
             gcode_job: false,
+            card_job: false,
             model_ended: false,
             toolpath_done: false,
             done: Deque::new(),
@@ -472,11 +477,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     fn start_gcode<const Q: usize>(
         &mut self,
         spec: &GcodeSpec,
+        card: Option<crate::card::OpenFile>,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) {
         self.failure = Slot::Empty;
         self.failure_sent = false;
-        self.pipeline.start_gcode(&self.machine);
+        self.pipeline.start_gcode(&self.machine, card);
         self.layers = spec.layers;
         self.begin(motion);
         self.job = Slot::Empty;
@@ -492,6 +498,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.heated = false;
         self.heat_wait_since_ms = None;
         self.gcode_job = false;
+        self.card_job = false;
         self.model_ended = false;
         self.toolpath_done = false;
         self.done.clear();
@@ -560,7 +567,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             (Message::GcodeStart(spec), s)
                 if !matches!(s, DeviceState::Printing | DeviceState::Paused) =>
             {
-                self.start_gcode(spec, motion)
+                self.start_gcode(spec, None, motion)
             }
             (Message::Gcode(text), DeviceState::Printing | DeviceState::Paused)
                 if self.gcode_job && !self.model_ended =>
@@ -842,7 +849,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         }
         worked |= self.take_layer_marks(motion);
         if self.done.is_full() {
-            return worked;
+            // A job from the card ends without a host to take its reports (an orphaned job
+            // does not end: it parks).
+            if !self.card_job {
+                return worked;
+            }
+            self.done.pop_front();
         }
         // An orphaned job does not end: it parks and waits.
         let done = self.toolpath_done && self.orphan.get().is_none();
@@ -870,8 +882,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let mut took = false;
         loop {
             if self.done.is_full() {
-                // An orphaned job has no host to wait for: it keeps the latest reports.
-                if self.orphan.get().is_none() {
+                if !self.keeps_latest_reports() {
                     break;
                 }
                 self.done.pop_front();
@@ -888,6 +899,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             took = true;
         }
         took
+    }
+
+    /// The job waits for no host to take its layer reports, it keeps the latest ones: an
+    /// orphaned job (its host is gone) and a job from the card (it needs none).
+    fn keeps_latest_reports(&self) -> bool {
+        self.orphan.get().is_some() || self.card_job
     }
 
     /// What the job did so far (complete once it is done): steps per axis, final motor
@@ -1011,6 +1028,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         // An orphaned job takes what it received without room for answers (none go out).
         while ep.tx_free() > 1 || self.orphan.get().is_some() {
             let Some(p) = ep.peek() else { break };
+            // A card request waits for the card (`card_service`).
+            if is_card_request(p) {
+                break;
+            }
             let emitting = self.is_active() && !self.gcode_job;
             if self.waiting_for_room && emitting && !self.emit_moves(motion) {
                 break;

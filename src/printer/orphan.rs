@@ -90,10 +90,11 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// prints what they hold, parks the nozzle off the part ([`PARK_LIFT_UM`],
     /// [`PARK_XY_UM`]) and pauses, its heaters holding their targets for the hold time
     /// ([`set_heat_hold_ms`](Self::set_heat_hold_ms)); where its input ended is kept
-    /// ([`resume_point`](Self::resume_point)). A job whose whole input came runs to its end;
-    /// anything else has nothing to lose.
+    /// ([`resume_point`](Self::resume_point)). A job whose whole input came, or that reads
+    /// it from the card, runs to its end; anything else has nothing to lose.
     pub fn link_lost(&mut self, silent_ms: u32, now_ms: u32) {
-        if self.orphan.get().is_some() || !self.is_active() || self.model_ended {
+        let needs_host = !self.model_ended && !self.card_job;
+        if self.orphan.get().is_some() || !self.is_active() || !needs_host {
             return;
         }
         self.orphan_silent_ms = silent_ms;

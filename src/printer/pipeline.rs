@@ -1,6 +1,7 @@
 //! The computing half of the job runner: the slicer and the toolpath stage in their shared
 //! scratch, and the toolpath stream that codes their moves into the move buffer.
 
+use crate::card::OpenFile;
 use crate::gcode::input::GcodeInput;
 use crate::geom::{Point2, Triangle};
 use crate::machine::MachineConfig;
@@ -62,8 +63,11 @@ pub trait Stages {
     fn set_offset_limit(&mut self, edges: usize);
     /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
     fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure>;
-    /// Starts a G-code job on `machine`: its input takes the scratch (nothing is sliced).
-    fn start_gcode(&mut self, machine: &MachineConfig);
+    /// Starts a G-code job on `machine`: its input takes the scratch (nothing is sliced),
+    /// with the card file it reads, if any.
+    fn start_gcode(&mut self, machine: &MachineConfig, card: Option<OpenFile>);
+    /// The card file the G-code job reads, while one runs from the card.
+    fn card_file(&mut self) -> Option<&mut OpenFile>;
     /// The G-code job's input, while one runs.
     fn gcode(&mut self) -> Option<&mut GcodeInput>;
     /// The G-code job's input, while one runs.
@@ -179,8 +183,12 @@ impl<
     }
 
     #[inline(never)]
-    fn start_gcode(&mut self, machine: &MachineConfig) {
-        self.scratch.start_gcode(machine);
+    fn start_gcode(&mut self, machine: &MachineConfig, card: Option<OpenFile>) {
+        self.scratch.start_gcode(machine, card);
+    }
+
+    fn card_file(&mut self) -> Option<&mut OpenFile> {
+        self.scratch.card_file()
     }
 
     fn gcode(&mut self) -> Option<&mut GcodeInput> {

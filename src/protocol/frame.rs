@@ -13,7 +13,7 @@ use crc::{Crc, CRC_32_ISO_HDLC};
 /// 4: the capabilities' move buffer is in bytes of delta-coded moves, filled a path (with the
 /// travel before it) at a time: it must hold the job's largest such unit, not a layer.
 /// 5: G-code jobs (`GcodeStart`, `Gcode`).
-pub const VERSION: u8 = 6;
+pub const VERSION: u8 = 7;
 /// Header bytes before the payload.
 pub const HEADER_LEN: usize = 4;
 /// CRC bytes after the payload.

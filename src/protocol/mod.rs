@@ -30,6 +30,7 @@ pub mod msg;
 pub use frame::{Decoder, Frame, FrameError, FrameType, MAX_PAYLOAD, MAX_WIRE, VERSION};
 pub use link::{Endpoint, LinkConfig, LinkError, LinkStats, SendError};
 pub use msg::{
-    job_fingerprint, BatchBuilder, Capacities, DecodeError, DeviceState, EncodeError, ErrorCode,
-    GcodeSpec, JobOptions, JobReport, JobSpec, Message, ParkedJob, Status, TriangleBatch,
+    job_fingerprint, BatchBuilder, Capacities, CardEntry, CardFault, DecodeError, DeviceState,
+    EncodeError, ErrorCode, GcodeSpec, JobOptions, JobReport, JobSpec, Message, ParkedJob, Status,
+    TriangleBatch,
 };

@@ -40,6 +40,12 @@ pub mod ty {
     pub const JOB_REPORT: u8 = 0x32;
     pub const FAILURE: u8 = 0x33;
     pub const PARKED: u8 = 0x34;
+    pub const CARD_LIST: u8 = 0x40;
+    pub const CARD_ENTRY: u8 = 0x41;
+    pub const CARD_LISTED: u8 = 0x42;
+    pub const CARD_PRINT: u8 = 0x43;
+    pub const CARD_REFUSED: u8 = 0x44;
+    pub const CARD_STARTED: u8 = 0x45;
 }
 
 /// What a device holds: announced in [`Message::Capabilities`], used for admission control.
@@ -160,6 +166,9 @@ pub enum ErrorCode {
     /// A heater fault (detail: the fault's code, `strata::thermal::ThermalFault`): heaters
     /// off, motion stopped.
     Thermal = 9,
+    /// The card failed the job (detail: the [`CardFault`]'s code): removed or unreadable
+    /// mid-print.
+    Card = 10,
 }
 
 impl ErrorCode {
@@ -175,6 +184,7 @@ impl ErrorCode {
             7 => Self::Moves,
             8 => Self::LinkDead,
             9 => Self::Thermal,
+            10 => Self::Card,
             _ => return None,
         })
     }
@@ -305,6 +315,125 @@ pub enum Message<'a> {
     /// capabilities to a new host, which may resume it ([`Message::Resume`]) by sending the
     /// rest of the same job.
     Parked(ParkedJob),
+    /// List the card's root directory from its `from`-th entry: the device answers with the
+    /// entries that fit its send queue ([`Message::CardEntry`]), then [`Message::CardListed`]
+    /// (or [`Message::CardRefused`]).
+    CardList {
+        /// Entries to skip.
+        from: u16,
+    },
+    /// An entry of the card's root directory.
+    CardEntry(CardEntry<'a>),
+    /// The end of a listing's answer.
+    CardListed {
+        /// Entries listed so far (the `from` of the next [`Message::CardList`]).
+        next: u16,
+        /// The directory has no more entries.
+        done: bool,
+    },
+    /// Print the card's file of this name (in the root directory): the device starts a job
+    /// that needs no host, or answers [`Message::CardRefused`].
+    CardPrint(&'a str),
+    /// A card request could not be done.
+    CardRefused(CardFault),
+    /// The card's file began printing (the answer to [`Message::CardPrint`]; the statuses
+    /// after it are this job's).
+    CardStarted {
+        /// Bytes of the file.
+        bytes: u32,
+    },
+}
+
+/// An entry of the card's root directory ([`Message::CardEntry`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CardEntry<'a> {
+    /// Bytes of the file (0 for a directory).
+    pub size: u32,
+    /// A directory.
+    pub is_dir: bool,
+    /// Its name (the long name; a name longer than the card reader keeps is cut).
+    pub name: &'a str,
+}
+
+/// Why the card could not do what was asked (a request refused, or a card job failed).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CardFault {
+    /// No card in the slot (or it does not answer).
+    Absent = 1,
+    /// The card answered, then a read failed.
+    Unreadable = 2,
+    /// No FAT16 or FAT32 volume on the card.
+    Unformatted = 3,
+    /// A FAT the reader does not support (FAT12, sectors other than 512 bytes).
+    Unsupported = 4,
+    /// The file system is damaged.
+    Damaged = 5,
+    /// No file of that name.
+    NotFound = 6,
+    /// The name is a directory's.
+    IsDirectory = 7,
+    /// The file is neither G-code nor STL.
+    NotPrintable = 8,
+    /// The file is an STL: it prints through the host (slicing it on board from the card
+    /// is not built yet).
+    Stl = 9,
+    /// A job is running or paused.
+    Busy = 10,
+    /// The card went away (or a read failed) in the middle of a print.
+    Removed = 11,
+    /// The card (or its root directory) has no room left.
+    Full = 12,
+    /// A file name the card cannot hold.
+    BadName = 13,
+}
+
+impl CardFault {
+    /// The fault of code `v` (its `as u8`).
+    pub fn from_u8(v: u8) -> Option<Self> {
+        Some(match v {
+            1 => Self::Absent,
+            2 => Self::Unreadable,
+            3 => Self::Unformatted,
+            4 => Self::Unsupported,
+            5 => Self::Damaged,
+            6 => Self::NotFound,
+            7 => Self::IsDirectory,
+            8 => Self::NotPrintable,
+            9 => Self::Stl,
+            10 => Self::Busy,
+            11 => Self::Removed,
+            12 => Self::Full,
+            13 => Self::BadName,
+            _ => return None,
+        })
+    }
+}
+
+impl core::fmt::Display for CardFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::Absent => "no SD card in the printer",
+            Self::Unreadable => "the SD card could not be read",
+            Self::Unformatted => "the SD card is not formatted (FAT16 or FAT32 expected)",
+            Self::Unsupported => "the SD card's FAT is not supported (FAT16 or FAT32 expected)",
+            Self::Damaged => "the SD card's file system is damaged",
+            Self::NotFound => "no such file on the SD card",
+            Self::IsDirectory => "that name is a directory on the SD card",
+            Self::NotPrintable => "the file is neither G-code nor STL",
+            Self::Stl => {
+                "the file is an STL: the printer prints G-code from the card; print the STL \
+                 with `strata print FILE.stl` (it slices on board as it streams)"
+            }
+            Self::Busy => "the printer is busy with a job",
+            Self::Removed => "the SD card was removed or failed during the print",
+            Self::Full => "the SD card is full",
+            Self::BadName => {
+                "a name the SD card cannot hold (printable ASCII without \"*/:<>?\\| and at \
+                 most 64 characters)"
+            }
+        })
+    }
 }
 
 /// A job parked when its host went silent: where a new host resumes it.
@@ -582,6 +711,36 @@ impl<'a> Message<'a> {
                 w.u32(p.taken)?;
                 w.u32(p.fingerprint)?;
             }
+            Self::CardList { from } => {
+                w.u8(ty::CARD_LIST)?;
+                w.u16(*from)?;
+            }
+            Self::CardEntry(e) => {
+                w.u8(ty::CARD_ENTRY)?;
+                w.u32(e.size)?;
+                w.u8(e.is_dir as u8)?;
+                w.put(e.name.as_bytes())?;
+            }
+            Self::CardListed { next, done } => {
+                w.u8(ty::CARD_LISTED)?;
+                w.u16(*next)?;
+                w.u8(*done as u8)?;
+            }
+            Self::CardPrint(name) => {
+                if name.is_empty() {
+                    return Err(EncodeError::OutOfRange);
+                }
+                w.u8(ty::CARD_PRINT)?;
+                w.put(name.as_bytes())?;
+            }
+            Self::CardRefused(fault) => {
+                w.u8(ty::CARD_REFUSED)?;
+                w.u8(*fault as u8)?;
+            }
+            Self::CardStarted { bytes } => {
+                w.u8(ty::CARD_STARTED)?;
+                w.u32(*bytes)?;
+            }
             Self::GcodeStart(g) => {
                 w.u8(ty::GCODE_START)?;
                 w.u32(g.bytes)?;
@@ -617,6 +776,12 @@ impl<'a> Message<'a> {
             Self::Parked(_) => ty::PARKED,
             Self::GcodeStart(_) => ty::GCODE_START,
             Self::Gcode(_) => ty::GCODE,
+            Self::CardList { .. } => ty::CARD_LIST,
+            Self::CardEntry(_) => ty::CARD_ENTRY,
+            Self::CardListed { .. } => ty::CARD_LISTED,
+            Self::CardPrint(_) => ty::CARD_PRINT,
+            Self::CardRefused(_) => ty::CARD_REFUSED,
+            Self::CardStarted { .. } => ty::CARD_STARTED,
         }
     }
 
@@ -749,6 +914,23 @@ impl<'a> Message<'a> {
                 }
                 Self::Gcode(text)
             }
+            ty::CARD_LIST => Self::CardList { from: r.u16()? },
+            ty::CARD_ENTRY => {
+                let (size, is_dir) = (r.u32()?, r.bool()?);
+                let name = r.take(r.bytes.len())?;
+                let name = core::str::from_utf8(name).map_err(|_| bad)?;
+                Self::CardEntry(CardEntry { size, is_dir, name })
+            }
+            ty::CARD_LISTED => Self::CardListed { next: r.u16()?, done: r.bool()? },
+            ty::CARD_PRINT => {
+                let name = r.take(r.bytes.len())?;
+                if name.is_empty() {
+                    return Err(DecodeError::Length(t));
+                }
+                Self::CardPrint(core::str::from_utf8(name).map_err(|_| bad)?)
+            }
+            ty::CARD_REFUSED => Self::CardRefused(CardFault::from_u8(r.u8()?).ok_or(bad)?),
+            ty::CARD_STARTED => Self::CardStarted { bytes: r.u32()? },
             other => return Err(DecodeError::UnknownType(other)),
         };
         r.end()?;

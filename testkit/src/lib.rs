@@ -11,6 +11,7 @@
 //! - [`drive`]: the printer drive loop: a job's messages into a [`Printer`], polls, the
 //!   step queue drained (counted, recorded, or executed on a [`SimBoard`]), layer hashes out;
 //! - [`models`]: the shared model files (`../shared/models` beside the checkout), placed;
+//! - [`card`]: SD card images written by the `fatfs` crate;
 //! - [`check`]: `f64` geometry oracles independent of the core's integer code;
 //! - [`on_big_stack`]: a closure on a thread with room for host-sized pipeline values.
 //!
@@ -23,6 +24,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod card;
 pub mod check;
 pub mod drive;
 pub mod mesh;

@@ -842,9 +842,43 @@ pub fn isr_insns_total() -> u64 {
 pub struct Board {
     _syst: SYST,
     plant: Plant,
+    /// The SD card, once it answered.
+    card: Option<Card>,
 }
 
+/// The board's SD card (SSI0; the mps2-an385 board has none).
+#[cfg(not(feature = "qemu-mps2"))]
+pub type Card = strata::card::sd::SdCard<qemu_machine::SdBus>;
+/// The board's SD card (SSI0; the mps2-an385 board has none).
+#[cfg(feature = "qemu-mps2")]
+pub type Card = strata::card::NoCard;
+
 impl Board {
+    /// The SD card, started when it has not answered yet (it stays started: QEMU's card does
+    /// not answer a second start-up); `None` when the slot is empty or the card does not
+    /// answer.
+    #[cfg(not(feature = "qemu-mps2"))]
+    pub fn card(&mut self) -> Option<&mut Card> {
+        self.started_card().ok()
+    }
+
+    /// [`Board::card`], or why the card did not start.
+    #[cfg(not(feature = "qemu-mps2"))]
+    fn started_card(&mut self) -> Result<&mut Card, strata::card::sd::SdError> {
+        if self.card.is_none() {
+            let mut card = strata::card::sd::SdCard::new(qemu_machine::SdBus::new());
+            card.start()?;
+            self.card = Some(card);
+        }
+        self.card.as_mut().ok_or(strata::card::sd::SdError::NotStarted)
+    }
+
+    /// The mps2-an385 board has no SD card.
+    #[cfg(feature = "qemu-mps2")]
+    pub fn card(&mut self) -> Option<&mut Card> {
+        self.card.as_mut()
+    }
+
     /// Milliseconds of virtual time (1,000,000 instructions each).
     pub fn now_ms(&mut self) -> u32 {
         (insns_now() / INSNS_PER_MS) as u32
@@ -976,7 +1010,7 @@ pub fn init(cfg: &StepConfig) -> Board {
         &WRAPS as *const AtomicU32 as u32,
         RELOAD as u64 * PERIOD_NS.load(Ordering::Relaxed) as u64 * 1_000_000 / INSNS_PER_MS
     );
-    Board { _syst: cp.SYST, plant: Plant::new() }
+    Board { _syst: cp.SYST, plant: Plant::new(), card: None }
 }
 
 /// The SD card's root directory into the log at start-up: a `CARD <size> <name>` line per
@@ -984,15 +1018,16 @@ pub fn init(cfg: &StepConfig) -> Board {
 /// high_capacity=<0|1>`; or `CARD none: <why>` (no card, not formatted, unreadable).
 #[cfg(not(feature = "qemu-mps2"))]
 #[inline(never)]
-pub fn card_report() {
+pub fn card_report(board: &mut Board) {
     use strata::card::fat::{FatType, Volume};
-    use strata::card::sd::SdCard;
-    let mut card = SdCard::new(qemu_machine::SdBus::new());
-    if let Err(e) = card.start() {
-        log!("CARD none: {}", e);
-        return;
-    }
-    let vol = match Volume::mount(&mut card) {
+    let card = match board.started_card() {
+        Ok(card) => card,
+        Err(e) => {
+            log!("CARD none: {}", e);
+            return;
+        }
+    };
+    let vol = match Volume::mount(card) {
         Ok(v) => v,
         Err(e) => {
             log!("CARD none: {}", e);
@@ -1002,7 +1037,7 @@ pub fn card_report() {
     let mut dir = vol.root();
     let mut files = 0u32;
     loop {
-        match dir.next(&vol, &mut card) {
+        match dir.next(&vol, card) {
             Ok(Some(e)) if e.is_dir => log!("CARD dir {}", e.name()),
             Ok(Some(e)) => {
                 files += 1;
@@ -1022,7 +1057,7 @@ pub fn card_report() {
 
 /// The mps2-an385 board has no SD card.
 #[cfg(feature = "qemu-mps2")]
-pub fn card_report() {}
+pub fn card_report(_board: &mut Board) {}
 
 /// Runs `f` on the interrupt's motion state (inside a critical section).
 pub fn with_motion<R>(f: impl FnOnce(&mut BoardMotion) -> R) -> R {

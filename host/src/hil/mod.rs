@@ -195,6 +195,7 @@ fn run_job<P: Read + Write>(
                 format!("{} of {} triangles", last.triangles_sent, tris.len())
             }
             Source::Gcode(text, _) => format!("{} of {} bytes", last.gcode_bytes_sent, text.len()),
+            Source::Card { name, .. } => format!("the card's {name}: nothing"),
         };
         format!(
             "{e}; last seen: {sent} sent, {} layer reports, status {:?}, host link {:?}",

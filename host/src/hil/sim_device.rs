@@ -34,7 +34,14 @@ impl SimDevice {
             .stack_size(512 << 20)
             .spawn(move || {
                 let machine = strata::machine::MachineConfig::default();
-                let r = serve_device(&mut dev, &machine, opts, DeviceClock::Turns(&turns2), &stop2);
+                let r = serve_device(
+                    &mut dev,
+                    &machine,
+                    opts,
+                    DeviceClock::Turns(&turns2),
+                    &stop2,
+                    None,
+                );
                 ended2.store(true, Ordering::Release);
                 r
             })

@@ -1,0 +1,39 @@
+//! A card image in memory as the simulated printer's SD card (`strata simulate --card IMG`).
+
+use strata::card::fat::{BlockRead, BLOCK_BYTES};
+
+/// A card image: the bytes of a whole card (a partition table or a bare FAT volume).
+#[derive(Debug, Clone)]
+pub struct ImageCard {
+    bytes: Vec<u8>,
+}
+
+/// A read beyond the image's end.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BeyondImage {
+    /// The block asked for.
+    pub block: u32,
+}
+
+impl ImageCard {
+    /// The card holding `bytes`.
+    pub fn new(bytes: Vec<u8>) -> Self {
+        Self { bytes }
+    }
+
+    /// The image file at `path`.
+    pub fn open(path: &std::path::Path) -> Result<Self, String> {
+        std::fs::read(path).map(Self::new).map_err(|e| format!("{}: {e}", path.display()))
+    }
+}
+
+impl BlockRead for ImageCard {
+    type Error = BeyondImage;
+
+    fn read(&mut self, block: u32, offset: usize, out: &mut [u8]) -> Result<(), Self::Error> {
+        let at = block as usize * BLOCK_BYTES + offset;
+        let src = self.bytes.get(at..at + out.len()).ok_or(BeyondImage { block })?;
+        out.copy_from_slice(src);
+        Ok(())
+    }
+}

@@ -1,0 +1,120 @@
+//! Printing from the printer's SD card in the simulated printer: PrusaSlicer's G-code of
+//! `xyz_20mm_cube.stl` on a card image the `fatfs` crate wrote prints step for step as the
+//! same file streamed over the link (every layer hash, the job report, the board's step
+//! hash), with the host there to the end or gone after the start; what cannot print from the
+//! card is refused in words and starts nothing.
+
+use std::path::PathBuf;
+
+use strata::machine::MachineConfig;
+use strata::protocol::DeviceState;
+use strata_host::card_image::ImageCard;
+use strata_host::gcode_file;
+use strata_host::session::Source;
+use strata_host::simjob::{simulate_source, simulate_with_card, Faults, SimOptions, SimReport};
+
+const ENDER3: MachineConfig = MachineConfig::ENDER3;
+const GCODE: &str = "xyz_20mm_cube_prusaslicer.gcode";
+
+fn fixture(path: &str) -> Vec<u8> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path);
+    std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// A FAT32 card behind a partition table with the cube's G-code, the cube's STL, a binary
+/// file and a directory.
+fn card() -> ImageCard {
+    let gcode = fixture("../tests/data/gcode/xyz_20mm_cube_prusaslicer.gcode");
+    let stl = fixture("../../shared/models/xyz_20mm_cube.stl");
+    let files: [(&str, &[u8]); 3] = [
+        (GCODE, &gcode),
+        ("xyz_20mm_cube.stl", &stl),
+        ("photo.jpg", b"\xff\xd8\xff\xe0\0\x10JFIF"),
+    ];
+    ImageCard::new(strata_testkit::card::image(fatfs::FatType::Fat32, 64, &files, true))
+}
+
+/// The same file streamed over the link: the reference.
+fn streamed() -> SimReport {
+    let text = fixture("../tests/data/gcode/xyz_20mm_cube_prusaslicer.gcode");
+    let scan = gcode_file::scan(&text, &ENDER3).unwrap();
+    simulate_source(Source::Gcode(&text, scan.spec), &ENDER3, &SimOptions::default()).unwrap()
+}
+
+/// The motion of `got` is the reference's, step for step.
+fn assert_same_motion(what: &str, got: &SimReport, want: &SimReport) {
+    assert_eq!(got.device_state, Some(DeviceState::Done), "{what}: final state");
+    assert_eq!(got.steps, want.steps, "{what}: steps per axis");
+    assert_eq!(got.positions, want.positions, "{what}: final positions");
+    assert_eq!(got.print_ticks, want.print_ticks, "{what}: print time, ticks");
+    assert_eq!(got.board_hash, want.board_hash, "{what}: every step edge (axis, direction, tick)");
+    assert_eq!((got.underruns, got.violations), (0, 0), "{what}: underruns, violations");
+}
+
+#[test]
+fn a_gcode_file_prints_from_the_card_as_it_does_streamed() {
+    let want = streamed();
+    let source = Source::Card { name: GCODE, detach: false };
+    let got = simulate_with_card(source, &ENDER3, &SimOptions::default(), Some(card()))
+        .unwrap_or_else(|(e, _)| panic!("{e}"));
+    assert_same_motion("from the card", &got, &want);
+    assert!(want.layer_hashes.len() > 90, "{} layers", want.layer_hashes.len());
+    assert_eq!(got.layer_hashes, want.layer_hashes, "every layer's hash");
+    assert_eq!(got.job_report, want.job_report, "the job report");
+    eprintln!(
+        "{GCODE} from the card: {} layers, {:.1} s of print, as streamed",
+        got.layer_hashes.len(),
+        got.print_time_s
+    );
+}
+
+/// The host goes away 5 s after the start (its link cut): the job from the card prints to
+/// its end as if it were there (a streamed job would park).
+#[test]
+fn a_job_from_the_card_finishes_without_its_host() {
+    let want = streamed();
+    let opts = SimOptions {
+        faults: Faults { cut_at_ms: Some(5_000), ..Faults::default() },
+        device_outlives_host: true,
+        ..SimOptions::default()
+    };
+    let source = Source::Card { name: GCODE, detach: false };
+    let (e, got) = simulate_with_card(source, &ENDER3, &opts, Some(card())).unwrap_err();
+    assert!(e.contains("link dead"), "{e}");
+    assert_same_motion("host gone", &got, &want);
+    assert!(got.parked_ms.is_none(), "a job from the card does not park");
+    let seen = got.layer_hashes.len();
+    assert!(seen < want.layer_hashes.len(), "the host saw {seen} layers");
+    assert_eq!(got.layer_hashes[..seen], want.layer_hashes[..seen]);
+}
+
+/// `--detach`: the host's part ends once the printer says it started.
+#[test]
+fn a_detached_host_leaves_once_the_job_started() {
+    let want = streamed();
+    let source = Source::Card { name: GCODE, detach: true };
+    let got = simulate_with_card(source, &ENDER3, &SimOptions::default(), Some(card()))
+        .unwrap_or_else(|(e, _)| panic!("{e}"));
+    assert_same_motion("detached", &got, &want);
+}
+
+/// What cannot print from the card is refused in the printer's words, and nothing moves.
+#[test]
+fn what_cannot_print_from_the_card_is_refused_in_words() {
+    let blank = ImageCard::new(vec![0; 8 << 20]);
+    let cases: [(&str, Option<ImageCard>, &str); 5] = [
+        ("xyz_20mm_cube.stl", Some(card()), "the file is an STL"),
+        ("photo.jpg", Some(card()), "neither G-code nor STL"),
+        ("nothing.gcode", Some(card()), "no such file"),
+        (GCODE, Some(blank), "not formatted"),
+        (GCODE, None, "no SD card"),
+    ];
+    for (name, card, words) in cases {
+        let source = Source::Card { name, detach: false };
+        let opts = SimOptions { max_ms: 20_000, ..SimOptions::default() };
+        let (e, rep) = simulate_with_card(source, &ENDER3, &opts, card).unwrap_err();
+        assert!(e.starts_with("card: ") && e.contains(words), "{name}: {e}");
+        assert_eq!(rep.steps, [0; 4], "{name}: no step");
+        assert_eq!(rep.device_state, Some(DeviceState::Idle), "{name}");
+    }
+}

@@ -1,0 +1,317 @@
+//! Jobs from the printer's SD card: its listing, and G-code files printed with no host.
+//!
+//! A card request ([`Message::CardList`], [`Message::CardPrint`]) waits at the head of the
+//! link until the board lends the card ([`Printer::card_service`], called beside
+//! [`Printer::service`], not under it: the card's code and its read buffer stay off the
+//! deepest stack, a layer's computation inside `service`). A listing answers with the
+//! entries the send queue has room for and where it stopped; the host asks again from there
+//! (the device keeps no listing state).
+//!
+//! A G-code file prints as a streamed G-code job does: the same reader, planner and steps,
+//! its text read from the card up to a block at a time ([`CARD_CHUNK_BYTES`], a buffer on the
+//! stack) once the move buffer has room for most of it. The open file lives in the scratch
+//! the G-code job leaves free. Where the reader stops in a part (the move buffer is full, a
+//! heater wait), the file moves on by what was read and the rest is read again later;
+//! nothing is read while the reader waits. The job
+//! needs no host: a dead link or a new host does not park it (there is nothing to resend).
+//! A read that fails mid-print fails the job ([`CardFault::Removed`]): the heaters go off
+//! with it.
+
+use super::{Failure, MotionAccess, Printer, Stages};
+use crate::card::fat::{BlockRead, FatError, Unsupported, Volume};
+use crate::card::OpenFile;
+use crate::protocol::msg::ty;
+use crate::protocol::{
+    job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, Message,
+};
+
+/// Bytes of a card file read at a time at most (a buffer on the stack while it is read): a
+/// block, so that each block of the file is read through once.
+pub const CARD_CHUNK_BYTES: usize = crate::card::fat::BLOCK_BYTES;
+/// A part is read only once the move buffer has this share of its bytes free (1/4), so
+/// that the reader takes most of it: read too early, the reader would stop after a line
+/// and the rest of the block be read again.
+const CARD_READ_ROOM_DIV: usize = 4;
+/// Parts of a card file read per [`Printer::card_service`] call at most (1 KB: the main loop
+/// turns between them).
+const CARD_CHUNKS_PER_CALL: usize = 4;
+/// Bytes of a binary STL's header and triangle count.
+const STL_HEAD_BYTES: usize = 84;
+/// Bytes of a binary STL triangle record.
+const STL_RECORD_BYTES: u32 = 50;
+
+/// Whether `payload` is a card request (handled by [`Printer::card_service`]).
+pub fn is_card_request(payload: &[u8]) -> bool {
+    matches!(payload.first(), Some(&(ty::CARD_LIST | ty::CARD_PRINT)))
+}
+
+/// What the card's reader error means to the user.
+fn fault<E>(e: &FatError<E>) -> CardFault {
+    match e {
+        FatError::Device(_) => CardFault::Unreadable,
+        FatError::NoVolume => CardFault::Unformatted,
+        FatError::Unsupported(Unsupported::Fat12 | Unsupported::SectorBytes(_)) => {
+            CardFault::Unsupported
+        }
+        FatError::Corrupt { .. } => CardFault::Damaged,
+        FatError::NotFound => CardFault::NotFound,
+        FatError::IsDirectory => CardFault::IsDirectory,
+        FatError::Full | FatError::DirectoryFull => CardFault::Full,
+        FatError::BadName => CardFault::BadName,
+    }
+}
+
+/// What a file holds, from its first bytes and its size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FileKind {
+    /// Text: G-code.
+    Gcode,
+    /// An STL, binary (its size matches its triangle count) or text (`solid`).
+    Stl,
+    /// Neither (binary data, or empty).
+    Other,
+}
+
+/// What a file of `size` bytes whose first bytes are `head` (up to 84: a binary STL's header
+/// and triangle count) holds.
+pub fn file_kind(head: &[u8], size: u32) -> FileKind {
+    if let Some(count) = head.get(80..STL_HEAD_BYTES) {
+        let count = u32::from_le_bytes([count[0], count[1], count[2], count[3]]);
+        let records = count.checked_mul(STL_RECORD_BYTES);
+        if records.and_then(|r| r.checked_add(STL_HEAD_BYTES as u32)) == Some(size) {
+            return FileKind::Stl;
+        }
+    }
+    let text = head.trim_ascii_start();
+    if text.starts_with(b"solid") {
+        return FileKind::Stl;
+    }
+    // Text (G-code comments may hold UTF-8): no control bytes but tab, line feed, return.
+    let is_text =
+        head.iter().all(|&b| (b >= 0x20 && b != 0x7f) || matches!(b, b'\t' | b'\n' | b'\r'));
+    if head.is_empty() || !is_text {
+        return FileKind::Other;
+    }
+    FileKind::Gcode
+}
+
+/// The outcome of a card request, once its message is no longer borrowed.
+enum Request {
+    List { from: u16 },
+    Print(Result<u32, CardFault>),
+    Undecodable(u8),
+}
+
+impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES, P> {
+    /// Whether the card is wanted now: a card request heads the link, or a job from the card
+    /// reads its file. (A board starts its card only then.)
+    pub fn wants_card<const TX: usize, const RX: usize>(&self, ep: &Endpoint<TX, RX>) -> bool {
+        ep.peek().is_some_and(is_card_request) || self.card_reading()
+    }
+
+    /// A job from the card reads its file.
+    fn card_reading(&self) -> bool {
+        self.card_job && self.is_active() && !self.model_ended
+    }
+
+    /// The card's part of the link and of a job from the card: a card request at the head
+    /// of the link is answered (`card`: the board's card, `None` when the slot is empty), and
+    /// a job printing from the card reads its next parts. Call it beside
+    /// [`service`](Self::service) every turn (a card request waits for it).
+    #[inline(never)]
+    pub fn card_service<C: BlockRead, const TX: usize, const RX: usize, const Q: usize>(
+        &mut self,
+        ep: &mut Endpoint<TX, RX>,
+        mut card: Option<&mut C>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
+        if ep.tx_free() > 1 {
+            if let Some(request) = self.card_request(ep, card.as_deref_mut(), motion) {
+                match request {
+                    Request::List { from } => self.card_list(ep, card.as_deref_mut(), from),
+                    Request::Print(Ok(bytes)) => {
+                        super::send(ep, &Message::CardStarted { bytes });
+                    }
+                    Request::Print(Err(f)) => {
+                        super::send(ep, &Message::CardRefused(f));
+                    }
+                    Request::Undecodable(first_byte) => {
+                        self.fail(Failure::BadMessage { first_byte })
+                    }
+                }
+                ep.pop();
+            }
+        }
+        self.feed_from_card(card, motion);
+    }
+
+    /// The card request at the head of the link, decoded (a print started or refused).
+    fn card_request<C: BlockRead, const TX: usize, const RX: usize, const Q: usize>(
+        &mut self,
+        ep: &Endpoint<TX, RX>,
+        card: Option<&mut C>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> Option<Request> {
+        let p = ep.peek().filter(|p| is_card_request(p))?;
+        Some(match Message::decode(p) {
+            Ok(Message::CardList { from }) => Request::List { from },
+            Ok(Message::CardPrint(name)) => {
+                let fingerprint = job_fingerprint(p);
+                Request::Print(self.card_print(name, card, motion, fingerprint))
+            }
+            _ => Request::Undecodable(p[0]),
+        })
+    }
+
+    /// The root directory's entries from the `from`-th, as many as the send queue takes with
+    /// room for the closing [`Message::CardListed`].
+    fn card_list<C: BlockRead, const TX: usize, const RX: usize>(
+        &mut self,
+        ep: &mut Endpoint<TX, RX>,
+        card: Option<&mut C>,
+        from: u16,
+    ) {
+        let Some(dev) = card else {
+            super::send(ep, &Message::CardRefused(CardFault::Absent));
+            return;
+        };
+        let vol = match Volume::mount(dev) {
+            Ok(v) => v,
+            Err(e) => {
+                super::send(ep, &Message::CardRefused(fault(&e)));
+                return;
+            }
+        };
+        let mut dir = vol.root();
+        let mut index = 0u16;
+        loop {
+            let entry = match dir.next(&vol, dev) {
+                Ok(Some(e)) => e,
+                Ok(None) => break,
+                Err(e) => {
+                    super::send(ep, &Message::CardRefused(fault(&e)));
+                    return;
+                }
+            };
+            if index >= from {
+                // Room for this entry and the closing message (`card_service` starts with
+                // both: an answer holds an entry at least), and a count that goes on.
+                if ep.tx_free() < 2 || index == u16::MAX {
+                    super::send(ep, &Message::CardListed { next: index, done: false });
+                    return;
+                }
+                let name = entry.name();
+                let e = CardEntry { size: entry.size, is_dir: entry.is_dir, name };
+                super::send(ep, &Message::CardEntry(e));
+            }
+            index += 1;
+        }
+        super::send(ep, &Message::CardListed { next: index, done: true });
+    }
+
+    /// Starts printing the card's file `name` (its bytes), or says why not.
+    fn card_print<C: BlockRead, const Q: usize>(
+        &mut self,
+        name: &str,
+        card: Option<&mut C>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+        fingerprint: u32,
+    ) -> Result<u32, CardFault> {
+        if self.is_active() {
+            return Err(CardFault::Busy);
+        }
+        let dev = card.ok_or(CardFault::Absent)?;
+        let volume = Volume::mount(dev).map_err(|e| fault(&e))?;
+        let file = volume.open(dev, name).map_err(|e| fault(&e))?;
+        let mut head = [0u8; STL_HEAD_BYTES];
+        let mut peek = file;
+        let n = peek.read(&volume, dev, &mut head).map_err(|e| fault(&e))?;
+        match file_kind(&head[..n], file.size()) {
+            FileKind::Gcode => {}
+            FileKind::Stl => return Err(CardFault::Stl),
+            FileKind::Other => return Err(CardFault::NotPrintable),
+        }
+        let spec = GcodeSpec { bytes: file.size(), layers: 0 };
+        self.start_gcode(&spec, Some(OpenFile { volume, file }), motion);
+        self.card_job = true;
+        self.fingerprint = fingerprint;
+        let (allowed, flush) = self.motion_gate();
+        motion.gate(allowed, flush);
+        Ok(spec.bytes)
+    }
+
+    /// A job from the card reads its next parts while its reader takes them (see the
+    /// [module docs](self)).
+    fn feed_from_card<C: BlockRead, const Q: usize>(
+        &mut self,
+        mut card: Option<&mut C>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
+        for _ in 0..CARD_CHUNKS_PER_CALL {
+            // What the reader holds goes first: nothing is read while it waits.
+            if !self.card_reading() || self.take_gcode(&[], false, motion) == super::Accept::Busy {
+                return;
+            }
+            let room = motion.with(|m, _| m.moves().free_bytes() * CARD_READ_ROOM_DIV);
+            if room < MOVE_BYTES {
+                return;
+            }
+            let (Some(open), Some(dev)) = (self.pipeline.card_file().copied(), card.as_deref_mut())
+            else {
+                return self.card_failed(motion);
+            };
+            let mut ahead = open;
+            let mut chunk = [0u8; CARD_CHUNK_BYTES];
+            // To the end of the block the file is in.
+            let len = CARD_CHUNK_BYTES - ahead.file.position() as usize % CARD_CHUNK_BYTES;
+            let Ok(n) = ahead.file.read(&ahead.volume, dev, &mut chunk[..len]) else {
+                return self.card_failed(motion);
+            };
+            let end = ahead.file.position() == ahead.file.size();
+            let accept = self.take_gcode(&chunk[..n], end, motion);
+            if accept == super::Accept::Busy {
+                // The file moves on by what was read; the rest is read again.
+                ahead = open;
+                let read = core::mem::take(&mut self.batch_pos);
+                if ahead.file.skip(&ahead.volume, dev, read).is_err() {
+                    return self.card_failed(motion);
+                }
+            }
+            if let Some(f) = self.pipeline.card_file() {
+                *f = ahead;
+            }
+            let (allowed, flush) = self.motion_gate();
+            motion.gate(allowed, flush);
+            if accept == super::Accept::Busy || end {
+                return;
+            }
+        }
+    }
+
+    /// The card failed under a job printing from it: the job fails, its moves dropped.
+    #[inline(never)]
+    fn card_failed<const Q: usize>(&mut self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) {
+        if self.state == DeviceState::Printing || self.state == DeviceState::Paused {
+            self.fail(Failure::Card(CardFault::Removed));
+            motion.with(|m, _| m.moves_mut().clear());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn files_are_told_apart_by_their_first_bytes() {
+        let mut binary = [0u8; STL_HEAD_BYTES];
+        binary[80] = 2;
+        assert_eq!(file_kind(&binary, 84 + 2 * 50), FileKind::Stl);
+        assert_eq!(file_kind(&binary, 84 + 3 * 50), FileKind::Other);
+        assert_eq!(file_kind(b"  solid cube\n facet normal", 1000), FileKind::Stl);
+        assert_eq!(file_kind(b"; generated by PrusaSlicer\nG28\nG1 X1", 1000), FileKind::Gcode);
+        assert_eq!(file_kind(b"G1 X1 ; caf\xc3\xa9\r\n", 1000), FileKind::Gcode);
+        assert_eq!(file_kind(b"", 0), FileKind::Other);
+        assert_eq!(file_kind(b"PK\x03\x04", 1000), FileKind::Other);
+    }
+}
