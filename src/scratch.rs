@@ -31,7 +31,7 @@
 
 use core::mem::size_of;
 
-use crate::card::OpenFile;
+use crate::card::{OpenFile, WritingFile};
 use crate::gcode::input::GcodeInput;
 use crate::geom::Point2;
 use crate::machine::MachineConfig;
@@ -90,6 +90,8 @@ enum Tenant<const S: usize, const P: usize, const C: usize> {
     Fill(FillScratch<C>),
     /// A G-code job's input, and the card file it reads (a job from the card).
     Gcode(GcodeInput, Option<OpenFile>),
+    /// A file being written to the card (no job runs).
+    Upload(WritingFile),
 }
 
 impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C> {
@@ -143,6 +145,19 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     pub fn gcode_ref(&self) -> Option<&GcodeInput> {
         match self.tenant {
             Tenant::Gcode(ref g, _) => Some(g),
+            _ => None,
+        }
+    }
+
+    /// A file being written to the card takes the place.
+    pub fn start_upload(&mut self, file: WritingFile) {
+        self.tenant = Tenant::Upload(file);
+    }
+
+    /// The file being written to the card, while it has the place.
+    pub fn upload(&mut self) -> Option<&mut WritingFile> {
+        match self.tenant {
+            Tenant::Upload(ref mut w) => Some(w),
             _ => None,
         }
     }

@@ -453,7 +453,12 @@ fn golden_card_messages() {
     let mut print = vec![0x43];
     print.extend_from_slice("würfel.gcode".as_bytes());
     // Type byte, then little-endian fields; names are the rest of the payload, UTF-8.
-    let cases: [(Message<'_>, Vec<u8>); 6] = [
+    let cases: [(Message<'_>, Vec<u8>); 11] = [
+        (Message::CardRemove("a.g"), vec![0x46, b'a', b'.', b'g']),
+        (Message::CardCreate("a.g"), vec![0x47, b'a', b'.', b'g']),
+        (Message::CardData(&[0, 1, 0xff]), vec![0x48, 0, 1, 0xff]),
+        (Message::CardClose, vec![0x49]),
+        (Message::CardDone { bytes: 513 }, vec![0x4A, 0x01, 0x02, 0, 0]),
         (Message::CardList { from: 0x0102 }, vec![0x40, 0x02, 0x01]),
         (Message::CardEntry(entry), with_name),
         (Message::CardListed { next: 7, done: true }, vec![0x42, 7, 0, 1]),
@@ -470,15 +475,22 @@ fn golden_card_messages() {
     // Refused: an unknown fault, a flag not 0/1, a name not UTF-8, an empty name, short fields.
     for bad in [
         &[0x44, 0][..],
-        &[0x44, 14],
+        &[0x44, 15],
         &[0x42, 7, 0, 2],
         &[0x43, 0xff, 0xfe],
         &[0x43],
         &[0x40, 1],
         &[0x41, 1, 0, 0, 0],
         &[0x45, 1, 2, 3],
+        &[0x46],
+        &[0x47],
+        &[0x48],
+        &[0x49, 0],
+        &[0x4A, 1, 2, 3],
     ] {
         assert!(Message::decode(bad).is_err(), "{bad:?}");
     }
     assert!(Message::CardPrint("").encode(&mut [0u8; 8]).is_err());
+    assert!(Message::CardCreate("").encode(&mut [0u8; 8]).is_err());
+    assert!(Message::CardData(&[]).encode(&mut [0u8; 8]).is_err());
 }

@@ -1,6 +1,6 @@
 //! A card image in memory as the simulated printer's SD card (`strata simulate --card IMG`).
 
-use strata::card::fat::{BlockRead, BLOCK_BYTES};
+use strata::card::fat::{BlockRead, BlockWrite, BLOCK_BYTES};
 
 /// A card image: the bytes of a whole card (a partition table or a bare FAT volume).
 #[derive(Debug, Clone)]
@@ -21,6 +21,11 @@ impl ImageCard {
         Self { bytes }
     }
 
+    /// The card's bytes (as written).
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
     /// The image file at `path`.
     pub fn open(path: &std::path::Path) -> Result<Self, String> {
         std::fs::read(path).map(Self::new).map_err(|e| format!("{}: {e}", path.display()))
@@ -34,6 +39,15 @@ impl BlockRead for ImageCard {
         let at = block as usize * BLOCK_BYTES + offset;
         let src = self.bytes.get(at..at + out.len()).ok_or(BeyondImage { block })?;
         out.copy_from_slice(src);
+        Ok(())
+    }
+}
+
+impl BlockWrite for ImageCard {
+    fn write(&mut self, block: u32, data: &[u8; BLOCK_BYTES]) -> Result<(), Self::Error> {
+        let at = block as usize * BLOCK_BYTES;
+        let dst = self.bytes.get_mut(at..at + BLOCK_BYTES).ok_or(BeyondImage { block })?;
+        dst.copy_from_slice(data);
         Ok(())
     }
 }

@@ -42,9 +42,11 @@ enum Command {
     Print(print::PrintCmdArgs),
     /// List serial ports.
     Ports,
-    /// The printer's SD card.
+    /// The printer's SD card: list it, remove a file.
     #[command(subcommand)]
     Card(card_cmd::CardCommand),
+    /// Write a G-code file to the printer's SD card.
+    Upload(card_cmd::UploadArgs),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +58,7 @@ fn main() -> ExitCode {
         Command::Print(args) => print::run(args),
         Command::Ports => print::ports(),
         Command::Card(c) => card_cmd::run(c),
+        Command::Upload(args) => card_cmd::upload(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

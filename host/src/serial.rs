@@ -159,6 +159,29 @@ pub fn card_list<P: Read + Write>(
     }
 }
 
+/// Writes (or removes) a file on the printer's card, on a connected port: the file's bytes
+/// on the card once done (0 for a removal); `on_progress(bytes sent)` about every 100 ms.
+pub fn card_write<P: Read + Write>(
+    port: &mut Port<P>,
+    ep: &mut HostEndpoint,
+    clock: &mut impl LinkClock,
+    mut write: crate::session::CardWrite<'_>,
+    mut on_progress: impl FnMut(usize),
+) -> Result<u32, String> {
+    let mut last_report = 0u32;
+    loop {
+        let now = port.pump(ep, clock)?;
+        if let Some(bytes) = write.poll(now, ep)? {
+            return Ok(bytes);
+        }
+        port.pump(ep, clock)?;
+        if now.wrapping_sub(last_report) >= 100 {
+            last_report = now;
+            on_progress(write.sent);
+        }
+    }
+}
+
 /// Runs a job on a connected port until the device reports it done.
 ///
 /// `on_progress` is called about every 100 ms of the clock; `abort` (Ctrl-C) sends an abort and

@@ -496,6 +496,87 @@ impl CardListing {
     }
 }
 
+/// The host side of writing a file to the printer's card, or removing one.
+///
+/// [`CardWrite::upload`] or [`CardWrite::remove`]: the request, the file's bytes as the
+/// link's credits allow, then the printer's answer.
+#[derive(Debug)]
+pub struct CardWrite<'a> {
+    name: &'a str,
+    /// The file's bytes (`None`: a removal).
+    data: Option<&'a [u8]>,
+    /// Bytes handed to the link.
+    pub sent: usize,
+    started: bool,
+    closed: bool,
+}
+
+impl<'a> CardWrite<'a> {
+    /// Writes `data` as the card's file `name` (replacing one of that name).
+    pub fn upload(name: &'a str, data: &'a [u8]) -> Self {
+        Self { name, data: Some(data), sent: 0, started: false, closed: false }
+    }
+
+    /// Removes the card's file `name`.
+    pub fn remove(name: &'a str) -> Self {
+        Self { name, data: None, sent: 0, started: false, closed: false }
+    }
+
+    /// Handles what arrived and sends what the link takes; the file's bytes on the card
+    /// once the printer says it is done (0 for a removal). `Err`: the printer's refusal in
+    /// words, a bad message, or a dead link.
+    pub fn poll(&mut self, now_ms: u32, ep: &mut HostEndpoint) -> Result<Option<u32>, String> {
+        if let Err(LinkError::Dead { silent_ms }) = ep.check(now_ms) {
+            return Err(format!(
+                "the printer stopped answering: no valid frame for {:.1} s (link dead); {} \
+                 bytes sent",
+                silent_ms as f64 / 1000.0,
+                self.sent
+            ));
+        }
+        while let Some(p) = ep.peek() {
+            let m =
+                Message::decode(p).map_err(|e| format!("the printer sent a bad message: {e}"))?;
+            let answer = match m {
+                Message::CardRefused(fault) => Some(Err(format!("card: {fault}"))),
+                Message::CardDone { bytes } if self.closed => Some(Ok(Some(bytes))),
+                _ => None,
+            };
+            ep.pop();
+            if let Some(answer) = answer {
+                return answer;
+            }
+        }
+        let mut buf = [0u8; MAX_PAYLOAD];
+        while !self.closed && ep.tx_free() > 0 {
+            let m = match self.data {
+                _ if !self.started => match self.data {
+                    Some(_) => Message::CardCreate(self.name),
+                    None => Message::CardRemove(self.name),
+                },
+                Some(data) if self.sent < data.len() => {
+                    let rest = &data[self.sent..];
+                    Message::CardData(&rest[..rest.len().min(MAX_PAYLOAD - 1)])
+                }
+                _ => Message::CardClose,
+            };
+            let n = m
+                .encode(&mut buf)
+                .map_err(|_| format!("{}: not a name for the card", self.name))?;
+            if ep.send(&buf[..n]).is_err() {
+                break;
+            }
+            match m {
+                Message::CardCreate(_) => self.started = true,
+                Message::CardRemove(_) => (self.started, self.closed) = (true, true),
+                Message::CardData(part) => self.sent += part.len(),
+                _ => self.closed = true,
+            }
+        }
+        Ok(None)
+    }
+}
+
 /// What a device answers to a hello.
 #[derive(Debug, Clone, Copy)]
 pub struct Greeting {

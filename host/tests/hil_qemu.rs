@@ -61,7 +61,7 @@ use strata::step::StepConfig;
 use strata_host::gcode_file;
 use strata_host::hil::{self, banded_cylinder, Costs, Qemu, Relay, SimDevice};
 use strata_host::model;
-use strata_host::session::{Progress, Source};
+use strata_host::session::{CardWrite, Progress, Source};
 use strata_host::simjob::{simulate, simulate_source, Faults, SimOptions, SimReport};
 use strata_testkit::drive::job_spec;
 
@@ -1013,8 +1013,9 @@ fn qemu_card_listing() {
 
 /// Printing from the card with no host (issue 22's acceptance): a FAT32 card holding
 /// `xyz_20mm_cube.stl` and PrusaSlicer's G-code of it. The host lists the card (every file,
-/// its size), is told in words that the STL prints through the host, starts the G-code with
-/// one command and goes silent for good (the cable pulled): the firmware reads the file from
+/// its size), is told in words that the STL prints through the host, uploads a file and
+/// removes the STL (the card written over SSI0: `fatfs` reads the image back once QEMU is
+/// gone), starts the G-code with one command and goes silent for good (the cable pulled): the firmware reads the file from
 /// the card to its end, and every step edge (axis, direction, tick), the steps per axis, the
 /// final positions and the print time equal the host simulation of the same text streamed.
 #[test]
@@ -1057,6 +1058,27 @@ fn qemu_gcode_from_card_host_gone() {
     let e = hil::print_job(&mut port, &mut conn, &mut clock, stl_job, QEMU_JOB_MS, |_| {})
         .expect_err("an STL does not print from the card");
     assert!(e.contains("the file is an STL"), "{label}: {e}");
+    // A file uploaded (several clusters: SD block writes, the FAT writer), the STL removed.
+    let uploaded: Vec<u8> =
+        (0..3000).flat_map(|i| format!("G1 X{} Y10\n", i % 200).into_bytes()).collect();
+    let write = CardWrite::upload("uploaded square.gcode", &uploaded);
+    let n = strata_host::serial::card_write(&mut port, &mut conn.ep, &mut clock, write, |_| {})
+        .unwrap_or_else(|e| panic!("{label}: upload: {e}"));
+    assert_eq!(n as usize, uploaded.len());
+    let remove = CardWrite::remove("xyz_20mm_cube.stl");
+    strata_host::serial::card_write(&mut port, &mut conn.ep, &mut clock, remove, |_| {})
+        .unwrap_or_else(|e| panic!("{label}: rm: {e}"));
+    let listed = strata_host::serial::card_list(&mut port, &mut conn.ep, &mut clock)
+        .unwrap_or_else(|e| panic!("{label}: card ls: {e}"));
+    let mut got: Vec<(String, u32)> = listed.into_iter().map(|e| (e.name, e.size)).collect();
+    got.sort();
+    let mut want = vec![
+        ("old prints".to_string(), 0),
+        (gcode_name.to_string(), gcode.len() as u32),
+        ("uploaded square.gcode".to_string(), uploaded.len() as u32),
+    ];
+    want.sort();
+    assert_eq!(got, want, "{label}: the listing after the upload and the removal");
     let start = Source::Card { name: gcode_name, detach: true };
     let started = hil::print_job(&mut port, &mut conn, &mut clock, start, QEMU_JOB_MS, |_| {})
         .unwrap_or_else(|e| panic!("{label}: start: {e}"));
@@ -1088,6 +1110,17 @@ fn qemu_gcode_from_card_host_gone() {
     assert_eq!(steps.positions, reference.positions, "{label}: final positions");
     assert_eq!(steps.print_ticks, Some(reference.print_ticks), "{label}: print time, ticks");
     assert_eq!(steps.hash, Some(reference.board_hash), "{label}: every step edge");
+    // The card as `fatfs` reads it once QEMU is gone: the upload's bytes, no STL.
+    drop(q);
+    let bytes = std::fs::read(&image).unwrap();
+    let start = strata_testkit::card::PARTITION_START_BLOCK as usize * 512;
+    let mut vol = std::io::Cursor::new(bytes[start..].to_vec());
+    let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
+    let mut back = Vec::new();
+    let mut f = fs.root_dir().open_file("uploaded square.gcode").expect("the uploaded file");
+    std::io::Read::read_to_end(&mut f, &mut back).unwrap();
+    assert!(back == uploaded, "{label}: the uploaded file reads back as sent");
+    assert!(fs.root_dir().open_file("xyz_20mm_cube.stl").is_err(), "{label}: the STL is gone");
     eprintln!(
         "{label}: {} bytes read from the card, {:.1} s of print, {} steps, as streamed",
         gcode.len(),

@@ -322,12 +322,12 @@ fn resume_with_no_parked_job_says_so() {
     assert_eq!(state, DeviceState::Idle);
 }
 
-/// `strata card ls` and `strata print --from-card` against a simulated printer with a card
-/// (an image the `fatfs` crate wrote): the listing is the card's (names, sizes, the
-/// directory), the G-code file prints to the end from the card, and a missing file is
-/// refused in the printer's words.
+/// `strata upload`, `strata card ls`, `strata print --from-card` and `strata card rm`
+/// against a simulated printer with a card (an image the `fatfs` crate wrote): the uploaded
+/// file is listed at its size and prints to the end from the card; removed, it is gone from
+/// the listing; a missing file and a model are refused in words.
 #[test]
-fn card_ls_and_print_from_card_over_a_pty() {
+fn card_upload_ls_print_and_rm_over_a_pty() {
     // Two layers of a 20 mm square, Marlin style.
     let mut gcode = String::from("G28\nG90\nM83\n");
     for layer in 0..2 {
@@ -337,33 +337,53 @@ fn card_ls_and_print_from_card_over_a_pty() {
             gcode += &format!("G1 X{x} Y{y} E0.8 F1800\n");
         }
     }
-    let files: [(&str, &[u8]); 1] = [("square.gcode", gcode.as_bytes())];
-    let image = strata_testkit::card::image(fatfs::FatType::Fat16, 32, &files, false);
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("square.gcode");
+    std::fs::write(&file, &gcode).unwrap();
+    let model = dir.path().join("block.stl");
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    let image = strata_testkit::card::image(fatfs::FatType::Fat16, 32, &[], false);
     let strata = |name: &str, args: &[&str]| {
         let mut cmd = Command::cargo_bin("strata").unwrap();
         cmd.args(args).args(["--port", name, "--link-timeout", &LINK_TIMEOUT_S.to_string()]);
         cmd.timeout(hang_guard()).output().unwrap()
     };
     let opts = device(CREALITY_CAPACITIES, 50);
-    let ((ls, missing, print), state) =
-        serve_on_pty(opts, Some(ImageCard::new(image)), |name, _| {
-            let ls = strata(name, &["card", "ls"]);
-            let missing = strata(name, &["print", "--from-card", "nothing.gcode"]);
-            let print = strata(name, &["print", "--from-card", "square.gcode"]);
-            (ls, missing, print)
-        });
+    let file = file.to_str().unwrap();
+    let (outs, state) = serve_on_pty(opts, Some(ImageCard::new(image)), |name, _| {
+        [
+            strata(name, &["upload", file]),
+            strata(name, &["upload", model.to_str().unwrap()]),
+            strata(name, &["card", "ls"]),
+            strata(name, &["print", "--from-card", "nothing.gcode"]),
+            strata(name, &["card", "rm", "nothing.gcode"]),
+            strata(name, &["print", "--from-card", "square.gcode"]),
+            strata(name, &["card", "rm", "square.gcode"]),
+            strata(name, &["card", "ls"]),
+        ]
+    });
     let text = |o: &std::process::Output| {
         format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
     };
-    assert!(ls.status.success(), "{}", text(&ls));
+    let [upload, upload_model, ls, missing, rm_missing, print, rm, ls_after] = &outs;
+    assert!(upload.status.success(), "{}", text(upload));
+    assert!(text(upload).contains(&format!("{} bytes written", gcode.len())), "{}", text(upload));
+    assert!(!upload_model.status.success());
+    assert!(text(upload_model).contains("only G-code uploads"), "{}", text(upload_model));
+    assert!(ls.status.success(), "{}", text(ls));
     let listing = String::from_utf8_lossy(&ls.stdout);
     let line = format!("{:>10}  square.gcode", gcode.len());
     assert!(listing.lines().any(|l| l == line), "{listing}");
     assert!(listing.lines().any(|l| l.ends_with("old prints/")), "{listing}");
     assert!(listing.contains("1 files"), "{listing}");
-    assert!(!missing.status.success());
-    assert!(text(&missing).contains("card: no such file on the SD card"), "{}", text(&missing));
-    assert!(print.status.success(), "{}", text(&print));
-    assert!(text(&print).contains("printed from the card"), "{}", text(&print));
+    for refused in [missing, rm_missing] {
+        assert!(!refused.status.success());
+        assert!(text(refused).contains("card: no such file on the SD card"), "{}", text(refused));
+    }
+    assert!(print.status.success(), "{}", text(print));
+    assert!(text(print).contains("printed from the card"), "{}", text(print));
+    assert!(rm.status.success(), "{}", text(rm));
+    let listing = String::from_utf8_lossy(&ls_after.stdout);
+    assert!(!listing.contains("square.gcode") && listing.contains("0 files"), "{listing}");
     assert_eq!(state.unwrap(), DeviceState::Done);
 }

@@ -20,6 +20,18 @@ pub struct OpenFile {
     pub file: fat::File,
 }
 
+/// A file being written on its volume, with the writer's blocks: what an upload to the card
+/// keeps between messages (1.1 KB, in the scratch an idle printer leaves free).
+#[derive(Debug, Clone)]
+pub struct WritingFile {
+    /// The volume the file is on.
+    pub volume: fat::Volume,
+    /// The file.
+    pub writer: write::FileWriter,
+    /// The writer's blocks.
+    pub bufs: write::WriteBuffers,
+}
+
 /// The card of a board without a card slot: there is never one
 /// ([`Printer::card_service`](crate::printer::Printer::card_service) with `None`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -29,6 +41,12 @@ impl fat::BlockRead for NoCard {
     type Error = core::convert::Infallible;
 
     fn read(&mut self, _: u32, _: usize, _: &mut [u8]) -> Result<(), Self::Error> {
+        match *self {}
+    }
+}
+
+impl fat::BlockWrite for NoCard {
+    fn write(&mut self, _: u32, _: &[u8; fat::BLOCK_BYTES]) -> Result<(), Self::Error> {
         match *self {}
     }
 }

@@ -569,18 +569,20 @@ impl Volume {
 
 impl FileWriter {
     /// A writer of nothing (the chain operations of [`Volume::remove`] and the root's
-    /// growth use its FAT block handling).
+    /// growth use its FAT block handling; a place holder before [`Volume::create`]).
+    pub const EMPTY: Self = Self {
+        entry_block: 0,
+        entry_offset: 0,
+        first: 0,
+        last: 0,
+        size: 0,
+        hint: 2,
+        fat_block: None,
+        dirty: false,
+    };
+
     fn empty() -> Self {
-        Self {
-            entry_block: 0,
-            entry_offset: 0,
-            first: 0,
-            last: 0,
-            size: 0,
-            hint: 2,
-            fat_block: None,
-            dirty: false,
-        }
+        Self::EMPTY
     }
 }
 

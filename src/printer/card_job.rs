@@ -18,8 +18,10 @@
 //! with it.
 
 use super::{Failure, MotionAccess, Printer, Stages};
-use crate::card::fat::{BlockRead, FatError, Unsupported, Volume};
+use crate::card::fat::{BlockWrite, FatError, Unsupported, Volume};
+use crate::card::write::WriteBuffers;
 use crate::card::OpenFile;
+use crate::card::WritingFile;
 use crate::protocol::msg::ty;
 use crate::protocol::{
     job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, Message,
@@ -42,7 +44,17 @@ const STL_RECORD_BYTES: u32 = 50;
 
 /// Whether `payload` is a card request (handled by [`Printer::card_service`]).
 pub fn is_card_request(payload: &[u8]) -> bool {
-    matches!(payload.first(), Some(&(ty::CARD_LIST | ty::CARD_PRINT)))
+    matches!(
+        payload.first(),
+        Some(
+            &(ty::CARD_LIST
+                | ty::CARD_PRINT
+                | ty::CARD_REMOVE
+                | ty::CARD_CREATE
+                | ty::CARD_DATA
+                | ty::CARD_CLOSE)
+        )
+    )
 }
 
 /// What the card's reader error means to the user.
@@ -97,8 +109,14 @@ pub fn file_kind(head: &[u8], size: u32) -> FileKind {
 
 /// The outcome of a card request, once its message is no longer borrowed.
 enum Request {
-    List { from: u16 },
+    List {
+        from: u16,
+    },
     Print(Result<u32, CardFault>),
+    /// A removal, or a file closed (its bytes).
+    Done(Result<u32, CardFault>),
+    /// A file created, or bytes written: no answer unless it failed.
+    Written(Result<(), CardFault>),
     Undecodable(u8),
 }
 
@@ -119,7 +137,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// a job printing from the card reads its next parts. Call it beside
     /// [`service`](Self::service) every turn (a card request waits for it).
     #[inline(never)]
-    pub fn card_service<C: BlockRead, const TX: usize, const RX: usize, const Q: usize>(
+    pub fn card_service<C: BlockWrite, const TX: usize, const RX: usize, const Q: usize>(
         &mut self,
         ep: &mut Endpoint<TX, RX>,
         mut card: Option<&mut C>,
@@ -132,9 +150,13 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                     Request::Print(Ok(bytes)) => {
                         super::send(ep, &Message::CardStarted { bytes });
                     }
-                    Request::Print(Err(f)) => {
+                    Request::Print(Err(f)) | Request::Done(Err(f)) | Request::Written(Err(f)) => {
                         super::send(ep, &Message::CardRefused(f));
                     }
+                    Request::Done(Ok(bytes)) => {
+                        super::send(ep, &Message::CardDone { bytes });
+                    }
+                    Request::Written(Ok(())) => {}
                     Request::Undecodable(first_byte) => {
                         self.fail(Failure::BadMessage { first_byte })
                     }
@@ -146,7 +168,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     }
 
     /// The card request at the head of the link, decoded (a print started or refused).
-    fn card_request<C: BlockRead, const TX: usize, const RX: usize, const Q: usize>(
+    fn card_request<C: BlockWrite, const TX: usize, const RX: usize, const Q: usize>(
         &mut self,
         ep: &Endpoint<TX, RX>,
         card: Option<&mut C>,
@@ -159,13 +181,17 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 let fingerprint = job_fingerprint(p);
                 Request::Print(self.card_print(name, card, motion, fingerprint))
             }
+            Ok(Message::CardRemove(name)) => Request::Done(self.card_remove(name, card)),
+            Ok(Message::CardCreate(name)) => Request::Written(self.card_create(name, card)),
+            Ok(Message::CardData(bytes)) => Request::Written(self.card_append(bytes, card)),
+            Ok(Message::CardClose) => Request::Done(self.card_close(card)),
             _ => Request::Undecodable(p[0]),
         })
     }
 
     /// The root directory's entries from the `from`-th, as many as the send queue takes with
     /// room for the closing [`Message::CardListed`].
-    fn card_list<C: BlockRead, const TX: usize, const RX: usize>(
+    fn card_list<C: BlockWrite, const TX: usize, const RX: usize>(
         &mut self,
         ep: &mut Endpoint<TX, RX>,
         card: Option<&mut C>,
@@ -210,7 +236,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     }
 
     /// Starts printing the card's file `name` (its bytes), or says why not.
-    fn card_print<C: BlockRead, const Q: usize>(
+    fn card_print<C: BlockWrite, const Q: usize>(
         &mut self,
         name: &str,
         card: Option<&mut C>,
@@ -240,9 +266,90 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         Ok(spec.bytes)
     }
 
+    /// Removes the card's file `name` (no job may run: a job's own file could go).
+    #[inline(never)]
+    fn card_remove<C: BlockWrite>(
+        &mut self,
+        name: &str,
+        card: Option<&mut C>,
+    ) -> Result<u32, CardFault> {
+        if self.is_active() {
+            return Err(CardFault::Busy);
+        }
+        let dev = card.ok_or(CardFault::Absent)?;
+        let volume = Volume::mount(dev).map_err(|e| fault(&e))?;
+        let mut bufs = WriteBuffers::new();
+        volume.remove(dev, &mut bufs, name).map_err(|e| fault(&e))?;
+        Ok(0)
+    }
+
+    /// Creates the card's file `name`, empty: the upload takes the scratch (no job may run).
+    #[inline(never)]
+    fn card_create<C: BlockWrite>(
+        &mut self,
+        name: &str,
+        card: Option<&mut C>,
+    ) -> Result<(), CardFault> {
+        if self.is_active() {
+            return Err(CardFault::Busy);
+        }
+        let dev = card.ok_or(CardFault::Absent)?;
+        let volume = Volume::mount(dev).map_err(|e| fault(&e))?;
+        let empty = crate::card::write::FileWriter::EMPTY;
+        self.pipeline.start_upload(WritingFile {
+            volume,
+            writer: empty,
+            bufs: WriteBuffers::new(),
+        });
+        let up = self.pipeline.upload().ok_or(CardFault::NoUpload)?;
+        match volume.create(dev, &mut up.bufs, name) {
+            Ok(w) => {
+                up.writer = w;
+                self.uploading = true;
+                Ok(())
+            }
+            Err(e) => Err(fault(&e)),
+        }
+    }
+
+    /// The next bytes of the file being written; a failure ends the upload (the bytes that
+    /// follow are dropped unanswered: the host heard of it).
+    #[inline(never)]
+    fn card_append<C: BlockWrite>(
+        &mut self,
+        bytes: &[u8],
+        card: Option<&mut C>,
+    ) -> Result<(), CardFault> {
+        if !self.uploading {
+            return Ok(());
+        }
+        let r = match (self.pipeline.upload(), card) {
+            (Some(up), Some(dev)) => {
+                up.writer.append(&up.volume, dev, &mut up.bufs, bytes).map_err(|e| fault(&e))
+            }
+            (None, _) => Err(CardFault::NoUpload),
+            (_, None) => Err(CardFault::Absent),
+        };
+        self.uploading &= r.is_ok();
+        r
+    }
+
+    /// The file being written is complete: its bytes.
+    #[inline(never)]
+    fn card_close<C: BlockWrite>(&mut self, card: Option<&mut C>) -> Result<u32, CardFault> {
+        let uploading = core::mem::take(&mut self.uploading);
+        match (self.pipeline.upload().filter(|_| uploading), card) {
+            (Some(up), Some(dev)) => {
+                up.writer.close(&up.volume, dev, &mut up.bufs).map_err(|e| fault(&e))
+            }
+            (None, _) => Err(CardFault::NoUpload),
+            (_, None) => Err(CardFault::Absent),
+        }
+    }
+
     /// A job from the card reads its next parts while its reader takes them (see the
     /// [module docs](self)).
-    fn feed_from_card<C: BlockRead, const Q: usize>(
+    fn feed_from_card<C: BlockWrite, const Q: usize>(
         &mut self,
         mut card: Option<&mut C>,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,

@@ -179,6 +179,8 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     gcode_job: bool,
     /// The job's G-code comes from the card ([`card_job`]): it needs no host.
     card_job: bool,
+    /// A file is being written to the card (its writer has the scratch).
+    uploading: bool,
     /// Every triangle, or the whole G-code text, was taken.
     model_ended: bool,
     /// The model's last moves are in the move buffer (a G-code job's: and its last settings
@@ -244,6 +246,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             layers: 0,
             gcode_job: false,
             card_job: false,
+            uploading: false,
             model_ended: false,
             toolpath_done: false,
             done: Deque::new(),
@@ -499,6 +502,8 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.heat_wait_since_ms = None;
         self.gcode_job = false;
         self.card_job = false;
+        // A job takes the scratch: a file being written to the card is abandoned.
+        self.uploading = false;
         self.model_ended = false;
         self.toolpath_done = false;
         self.done.clear();

@@ -1,7 +1,7 @@
 //! The computing half of the job runner: the slicer and the toolpath stage in their shared
 //! scratch, and the toolpath stream that codes their moves into the move buffer.
 
-use crate::card::OpenFile;
+use crate::card::{OpenFile, WritingFile};
 use crate::gcode::input::GcodeInput;
 use crate::geom::{Point2, Triangle};
 use crate::machine::MachineConfig;
@@ -68,6 +68,10 @@ pub trait Stages {
     fn start_gcode(&mut self, machine: &MachineConfig, card: Option<OpenFile>);
     /// The card file the G-code job reads, while one runs from the card.
     fn card_file(&mut self) -> Option<&mut OpenFile>;
+    /// A file being written to the card takes the scratch (no job runs).
+    fn start_upload(&mut self, file: WritingFile);
+    /// The file being written to the card, while it has the scratch.
+    fn upload(&mut self) -> Option<&mut WritingFile>;
     /// The G-code job's input, while one runs.
     fn gcode(&mut self) -> Option<&mut GcodeInput>;
     /// The G-code job's input, while one runs.
@@ -189,6 +193,15 @@ impl<
 
     fn card_file(&mut self) -> Option<&mut OpenFile> {
         self.scratch.card_file()
+    }
+
+    #[inline(never)]
+    fn start_upload(&mut self, file: WritingFile) {
+        self.scratch.start_upload(file);
+    }
+
+    fn upload(&mut self) -> Option<&mut WritingFile> {
+        self.scratch.upload()
     }
 
     fn gcode(&mut self) -> Option<&mut GcodeInput> {

@@ -46,6 +46,11 @@ pub mod ty {
     pub const CARD_PRINT: u8 = 0x43;
     pub const CARD_REFUSED: u8 = 0x44;
     pub const CARD_STARTED: u8 = 0x45;
+    pub const CARD_REMOVE: u8 = 0x46;
+    pub const CARD_CREATE: u8 = 0x47;
+    pub const CARD_DATA: u8 = 0x48;
+    pub const CARD_CLOSE: u8 = 0x49;
+    pub const CARD_DONE: u8 = 0x4A;
 }
 
 /// What a device holds: announced in [`Message::Capabilities`], used for admission control.
@@ -342,6 +347,22 @@ pub enum Message<'a> {
         /// Bytes of the file.
         bytes: u32,
     },
+    /// Remove the card's file of this name (answered with [`Message::CardDone`] or
+    /// [`Message::CardRefused`]).
+    CardRemove(&'a str),
+    /// Create (or replace) the card's file of this name, empty; [`Message::CardData`] follows,
+    /// then [`Message::CardClose`] (answered with [`Message::CardDone`], or
+    /// [`Message::CardRefused`] at the first failure).
+    CardCreate(&'a str),
+    /// The next bytes of the file being written.
+    CardData(&'a [u8]),
+    /// The file being written is complete.
+    CardClose,
+    /// A card write is done: the bytes of the file written (0 for a removal).
+    CardDone {
+        /// Bytes of the file.
+        bytes: u32,
+    },
 }
 
 /// An entry of the card's root directory ([`Message::CardEntry`]).
@@ -386,6 +407,8 @@ pub enum CardFault {
     Full = 12,
     /// A file name the card cannot hold.
     BadName = 13,
+    /// No file is being written (none was created, or a job started meanwhile).
+    NoUpload = 14,
 }
 
 impl CardFault {
@@ -405,6 +428,7 @@ impl CardFault {
             11 => Self::Removed,
             12 => Self::Full,
             13 => Self::BadName,
+            14 => Self::NoUpload,
             _ => return None,
         })
     }
@@ -428,6 +452,7 @@ impl core::fmt::Display for CardFault {
             Self::Busy => "the printer is busy with a job",
             Self::Removed => "the SD card was removed or failed during the print",
             Self::Full => "the SD card is full",
+            Self::NoUpload => "no file is being written to the SD card (a job started meanwhile?)",
             Self::BadName => {
                 "a name the SD card cannot hold (printable ASCII without \"*/:<>?\\| and at \
                  most 64 characters)"
@@ -741,6 +766,25 @@ impl<'a> Message<'a> {
                 w.u8(ty::CARD_STARTED)?;
                 w.u32(*bytes)?;
             }
+            Self::CardRemove(name) | Self::CardCreate(name) => {
+                if name.is_empty() {
+                    return Err(EncodeError::OutOfRange);
+                }
+                w.u8(self.type_byte())?;
+                w.put(name.as_bytes())?;
+            }
+            Self::CardData(bytes) => {
+                if bytes.is_empty() {
+                    return Err(EncodeError::OutOfRange);
+                }
+                w.u8(ty::CARD_DATA)?;
+                w.put(bytes)?;
+            }
+            Self::CardClose => w.u8(ty::CARD_CLOSE)?,
+            Self::CardDone { bytes } => {
+                w.u8(ty::CARD_DONE)?;
+                w.u32(*bytes)?;
+            }
             Self::GcodeStart(g) => {
                 w.u8(ty::GCODE_START)?;
                 w.u32(g.bytes)?;
@@ -782,6 +826,11 @@ impl<'a> Message<'a> {
             Self::CardPrint(_) => ty::CARD_PRINT,
             Self::CardRefused(_) => ty::CARD_REFUSED,
             Self::CardStarted { .. } => ty::CARD_STARTED,
+            Self::CardRemove(_) => ty::CARD_REMOVE,
+            Self::CardCreate(_) => ty::CARD_CREATE,
+            Self::CardData(_) => ty::CARD_DATA,
+            Self::CardClose => ty::CARD_CLOSE,
+            Self::CardDone { .. } => ty::CARD_DONE,
         }
     }
 
@@ -922,13 +971,27 @@ impl<'a> Message<'a> {
                 Self::CardEntry(CardEntry { size, is_dir, name })
             }
             ty::CARD_LISTED => Self::CardListed { next: r.u16()?, done: r.bool()? },
-            ty::CARD_PRINT => {
+            ty::CARD_PRINT | ty::CARD_REMOVE | ty::CARD_CREATE => {
                 let name = r.take(r.bytes.len())?;
                 if name.is_empty() {
                     return Err(DecodeError::Length(t));
                 }
-                Self::CardPrint(core::str::from_utf8(name).map_err(|_| bad)?)
+                let name = core::str::from_utf8(name).map_err(|_| bad)?;
+                match t {
+                    ty::CARD_PRINT => Self::CardPrint(name),
+                    ty::CARD_REMOVE => Self::CardRemove(name),
+                    _ => Self::CardCreate(name),
+                }
             }
+            ty::CARD_DATA => {
+                let bytes = r.take(r.bytes.len())?;
+                if bytes.is_empty() {
+                    return Err(DecodeError::Length(t));
+                }
+                Self::CardData(bytes)
+            }
+            ty::CARD_CLOSE => Self::CardClose,
+            ty::CARD_DONE => Self::CardDone { bytes: r.u32()? },
             ty::CARD_REFUSED => Self::CardRefused(CardFault::from_u8(r.u8()?).ok_or(bad)?),
             ty::CARD_STARTED => Self::CardStarted { bytes: r.u32()? },
             other => return Err(DecodeError::UnknownType(other)),
