@@ -421,6 +421,10 @@ fn describe_code(code: ErrorCode, detail: u32) -> String {
              printer's move buffer holds",
             detail
         ),
+        // A new host's session ends the old one's at once (no silence).
+        ErrorCode::LinkDead if detail == 0 => "another host opened a link session: the printer \
+             printed what it had, parked and paused"
+            .to_string(),
         ErrorCode::LinkDead => format!(
             "the printer lost the link after {} ms of silence: it printed what it had, parked \
              and paused",
@@ -753,5 +757,11 @@ mod tests {
             describe_failure(&s, None),
             "print failed: slicing failed on the printer at layer 37 (layer 37 of 120)"
         );
+        // A job orphaned by a new host's session had no silence to report.
+        let taken = describe_code(ErrorCode::LinkDead, 0);
+        assert!(taken.starts_with("another host opened a link session"), "{taken}");
+        assert!(describe_code(ErrorCode::LinkDead, 3_000).contains("after 3000 ms of silence"));
+        let card = describe_code(ErrorCode::Card, CardFault::Removed as u32);
+        assert_eq!(card, "card: the SD card was removed or failed during the print");
     }
 }

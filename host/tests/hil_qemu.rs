@@ -166,7 +166,7 @@ fn run_job<C: LinkClock>(
                 panic!(
                     "{label}: refused by admission control against the device's capacities \
                      {:?}: {e}",
-                    conn.caps
+                    conn.greeting.capacities
                 )
             });
             assert_eq!(job.triangles as usize, tris.len());
@@ -188,7 +188,7 @@ fn run_job<C: LinkClock>(
     };
     // The simulated printer poses as the device: it offsets in bands where the device's
     // engine is too small for an island.
-    let opts = SimOptions { capacities: conn.caps, ..SimOptions::default() };
+    let opts = SimOptions { capacities: conn.greeting.capacities, ..SimOptions::default() };
     std::thread::scope(|s| {
         let reference = want_reference
             .then(|| s.spawn(|| simulate_source(source, &machine, &opts).map_err(|(e, _)| e)));
@@ -888,7 +888,7 @@ fn qemu_killed_host_resumed() {
     let mut first = {
         let mut host_clock = Killable { clock: clock.clone(), killed: &killed };
         let mut conn = hil::connect(&mut port, &mut host_clock).expect("handshake");
-        let opts = SimOptions { capacities: conn.caps, ..SimOptions::default() };
+        let opts = SimOptions { capacities: conn.greeting.capacities, ..SimOptions::default() };
         let reference = simulate(&tris, &machine, job, &opts).expect("reference simulation");
         let mut last = Progress::default();
         let source = Source::Model(&tris, job);

@@ -171,7 +171,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
 
     /// The retraction for parking, um, and the speeds of the park moves (retraction, lift,
     /// travel), mm/s: a sliced job's own, a G-code job's defaults.
-    fn park_moves(&self) -> (i32, [Rate; 3]) {
+    fn park_settings(&self) -> (i32, [Rate; 3]) {
         match self.job.get() {
             Some(j) if !self.gcode_job => {
                 let s = &j.settings;
@@ -188,7 +188,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Not inlined (nor is [`unpark`](Self::unpark)): cold paths stay off the deepest stack.
     #[inline(never)]
     fn park<const Q: usize>(&mut self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) {
-        let (retract_um, speeds) = self.park_moves();
+        let (retract_um, speeds) = self.park_settings();
         let volume = self.machine.build_volume_um;
         let (at, layer) = motion.with(|m, _| (m.planner().position_um(), m.generator().tag()));
         let layer = layer.unwrap_or(0);
@@ -229,7 +229,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) {
         let Some(point) = self.resume.get().copied() else { return };
-        let (_, speeds) = self.park_moves();
+        let (_, speeds) = self.park_settings();
         let mut to = motion.with(|m, _| m.planner().position_um());
         to[0] = point.position_um[0];
         to[1] = point.position_um[1];

@@ -45,13 +45,11 @@ pub fn hil_link() -> LinkConfig {
     LinkConfig::default()
 }
 
-/// A connected host: its endpoint and the device's capacities.
+/// A connected host: its endpoint and the device's answer to its hello.
 pub struct Connected {
     /// Host endpoint.
     pub ep: HostEndpoint,
-    /// What the device announced.
-    pub caps: Capacities,
-    /// Its whole answer to the hello (status, a parked job).
+    /// The device's answer to the hello: its capacities, status and a parked job.
     pub greeting: Greeting,
 }
 
@@ -62,7 +60,7 @@ pub fn connect<P: Read + Write>(
 ) -> Result<Connected, String> {
     let mut ep = HostEndpoint::new(hil_link());
     let greeting = crate::serial::connect(port, &mut ep, clock)?;
-    Ok(Connected { ep, caps: greeting.capacities, greeting })
+    Ok(Connected { ep, greeting })
 }
 
 /// [`admitted`] while the link is kept alive, as `strata print` does.
@@ -74,7 +72,7 @@ pub fn admitted_on_link<P: Read + Write>(
     job: JobSpec,
     max_deviation_mm: f64,
 ) -> Result<(Vec<Triangle>, JobSpec, Option<String>), String> {
-    let caps = conn.caps;
+    let caps = conn.greeting.capacities;
     crate::serial::keeping_link_alive(port, &mut conn.ep, clock, || {
         admitted(tris, job, &caps, max_deviation_mm)
     })?
