@@ -118,3 +118,18 @@ fn what_cannot_print_from_the_card_is_refused_in_words() {
         assert_eq!(rep.device_state, Some(DeviceState::Idle), "{name}");
     }
 }
+
+/// The card pulled out in the middle of the print: the job fails in words (the heaters go
+/// off with it), having run only part of the file.
+#[test]
+fn a_card_pulled_out_mid_print_fails_the_job_in_words() {
+    let want = streamed();
+    let source = Source::Card { name: GCODE, detach: false };
+    let card = card().removed_after(400);
+    let (e, got) =
+        simulate_with_card(source, &ENDER3, &SimOptions::default(), Some(card)).unwrap_err();
+    assert!(e.contains("card: the SD card was removed or failed during the print"), "{e}");
+    assert_eq!(got.device_state, Some(DeviceState::Failed));
+    let (ran, all): (u64, u64) = (got.steps.iter().sum(), want.steps.iter().sum());
+    assert!(ran > 0 && ran < all, "{ran} of {all} steps");
+}
