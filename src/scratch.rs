@@ -230,10 +230,11 @@ impl<const S: usize, const P: usize, const C: usize> ToolpathSpace<P, C> for Scr
 /// points, `pts` offset edges, `cross` infill crossings).
 ///
 /// The largest tenant, bytes (the value adds at most a tag and alignment padding); a G-code
-/// job's input at least.
+/// job's input with its card file, and a file being written to the card, at least.
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
-    cut.max(ToolpathNeeds::work_bytes_of(pts, cross)).max(size_of::<GcodeInput>())
+    let card = size_of::<(GcodeInput, Option<OpenFile>)>().max(size_of::<WritingFile>());
+    cut.max(ToolpathNeeds::work_bytes_of(pts, cross)).max(card)
 }
 
 // The documented bytes per capacity unit hold on every target (the thumbv7m-none-eabi build

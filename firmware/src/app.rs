@@ -232,7 +232,9 @@ impl MainLoop {
         let was_active = matches!(self.state, DeviceState::Printing | DeviceState::Paused);
         match new {
             DeviceState::Printing if !was_active => {
-                // A new job: clean queue, home X/Y/Z before the first step.
+                // A new job: clean queue, home X/Y/Z before the first step. Its steps
+                // generated before (dropped with the queue) would be lost motion: counted.
+                let early: u64 = self.motion.peek(|m, _| m.generator().stats().steps.iter().sum());
                 self.motion.reset_queue(&self.cfg);
                 board::with_motion(|m| m.start_homing(&MACHINE));
                 board::job_started();
@@ -240,7 +242,7 @@ impl MainLoop {
                 #[cfg(feature = "qemu")]
                 self.cost.job_started();
                 self.job_open = true;
-                log!("JOB start layers={}", self.printer.layer_count());
+                log!("JOB start layers={} early_steps={}", self.printer.layer_count(), early);
             }
             DeviceState::Stopped | DeviceState::Aborted | DeviceState::Failed => {
                 // Emergency stop (and abort, failure): no further step, queue cleared,

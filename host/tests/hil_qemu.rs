@@ -1105,6 +1105,11 @@ fn qemu_gcode_from_card_host_gone() {
     assert!(ended, "{label}: the job did not end: {jobs:?}");
     let done = DeviceState::Done as u32;
     assert!(jobs.iter().any(|l| l.starts_with(&format!("JOB end state={done} "))), "{jobs:?}");
+    // No step came before the board saw the job (they would go with its queue's reset).
+    assert!(
+        jobs.iter().any(|l| l.starts_with("JOB start") && l.ends_with(" early_steps=0")),
+        "{jobs:?}"
+    );
     let steps = Costs::parse(&lines).steps().expect("a STEPS line");
     assert_eq!(steps.steps, reference.steps, "{label}: steps per axis X, Y, Z, E");
     assert_eq!(steps.positions, reference.positions, "{label}: final positions");

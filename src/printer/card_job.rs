@@ -145,6 +145,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     ) {
         if ep.tx_free() > 1 {
             if let Some(request) = self.card_request(ep, card.as_deref_mut(), motion) {
+                // A job just started reads its file from the next call on: the board sees
+                // the new job (clears its step queue, homes) before its first move.
+                let started = matches!(request, Request::Print(Ok(_)));
                 match request {
                     Request::List { from } => self.card_list(ep, card.as_deref_mut(), from),
                     Request::Print(Ok(bytes)) => {
@@ -162,6 +165,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                     }
                 }
                 ep.pop();
+                if started {
+                    return;
+                }
             }
         }
         self.feed_from_card(card, motion);
