@@ -226,9 +226,14 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 }
             };
             if index >= from {
+                // Entries are counted in 16 bits: a listing ends at the 65,535th (`from` is
+                // at most that, so the count never goes past it).
+                if index == u16::MAX {
+                    break;
+                }
                 // Room for this entry and the closing message (`card_service` starts with
-                // both: an answer holds an entry at least), and a count that goes on.
-                if ep.tx_free() < 2 || index == u16::MAX {
+                // both: an answer holds an entry at least).
+                if ep.tx_free() < 2 {
                     super::send(ep, &Message::CardListed { next: index, done: false });
                     return;
                 }
