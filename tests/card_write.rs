@@ -13,6 +13,7 @@ use strata_testkit::card::{partitioned, PARTITION_START_BLOCK};
 /// A card image in memory.
 struct Image {
     bytes: Vec<u8>,
+    reads: u64,
     writes: u64,
 }
 
@@ -21,6 +22,7 @@ impl BlockRead for Image {
 
     fn read(&mut self, block: u32, offset: usize, out: &mut [u8]) -> Result<(), Self::Error> {
         assert!(offset + out.len() <= BLOCK_BYTES, "a read past its block");
+        self.reads += 1;
         let at = block as usize * BLOCK_BYTES + offset;
         let src = self.bytes.get(at..at + out.len()).ok_or("beyond the card")?;
         out.copy_from_slice(src);
@@ -127,7 +129,7 @@ fn check(fat: fatfs::FatType, mb: usize, cluster: u32, partition: bool) {
     let bytes =
         if partition { partitioned(vol_bytes, fat == fatfs::FatType::Fat32) } else { vol_bytes };
     let before = with_fatfs(&bytes, partition, files_of);
-    let mut card = Image { bytes, writes: 0 };
+    let mut card = Image { bytes, reads: 0, writes: 0 };
     let vol = Volume::mount(&mut card).unwrap();
     // New files of every size around blocks and clusters, appended in odd parts; one
     // replacing a file `fatfs` wrote; one removed.
@@ -226,7 +228,7 @@ fn a_full_root_grows_or_says_so() {
         let mut vol_bytes = Cursor::new(vec![0u8; mb << 20]);
         let opts = fatfs::FormatVolumeOptions::new().fat_type(fat).bytes_per_cluster(cluster);
         fatfs::format_volume(&mut vol_bytes, opts).unwrap();
-        let mut card = Image { bytes: vol_bytes.into_inner(), writes: 0 };
+        let mut card = Image { bytes: vol_bytes.into_inner(), reads: 0, writes: 0 };
         let vol = Volume::mount(&mut card).unwrap();
         let mut made = 0;
         for k in 0..600 {
@@ -259,7 +261,7 @@ fn a_full_card_and_bad_names_give_typed_errors() {
     let opts =
         fatfs::FormatVolumeOptions::new().fat_type(fatfs::FatType::Fat16).bytes_per_cluster(4096);
     fatfs::format_volume(&mut vol_bytes, opts).unwrap();
-    let mut card = Image { bytes: vol_bytes.into_inner(), writes: 0 };
+    let mut card = Image { bytes: vol_bytes.into_inner(), reads: 0, writes: 0 };
     let vol = Volume::mount(&mut card).unwrap();
     let mut bufs = WriteBuffers::new();
     let mut w = vol.create(&mut card, &mut bufs, "big.bin").unwrap();
@@ -283,4 +285,42 @@ fn a_full_card_and_bad_names_give_typed_errors() {
         );
     }
     assert_eq!(card.writes, writes, "a refused name wrote nothing");
+}
+
+/// Removing a file whose chain loops (a damaged FAT) frees the clusters its size takes and
+/// stops: no endless walk, no other file touched.
+#[test]
+fn removing_a_file_whose_chain_loops_stops_at_its_size() {
+    let mut vol_bytes = Cursor::new(vec![0u8; 32 << 20]);
+    let opts =
+        fatfs::FormatVolumeOptions::new().fat_type(fatfs::FatType::Fat16).bytes_per_cluster(2048);
+    fatfs::format_volume(&mut vol_bytes, opts).unwrap();
+    {
+        let fs = fatfs::FileSystem::new(&mut vol_bytes, fatfs::FsOptions::new()).unwrap();
+        let root = fs.root_dir();
+        root.create_file("loop.gcode").unwrap().write_all(&body(4096, 1)).unwrap();
+        root.create_file("other.gcode").unwrap().write_all(&body(5000, 2)).unwrap();
+    }
+    let mut bytes = vol_bytes.into_inner();
+    // loop.gcode has clusters 2 and 3 (the first file on a fresh volume): 3 points back to 2.
+    let fat = u16::from_le_bytes([bytes[14], bytes[15]]) as usize * BLOCK_BYTES;
+    for copy in 0..2 {
+        let fat_blocks = u16::from_le_bytes([bytes[22], bytes[23]]) as usize;
+        let at = fat + copy * fat_blocks * BLOCK_BYTES + 3 * 2;
+        assert_eq!(
+            u16::from_le_bytes([bytes[at], bytes[at + 1]]),
+            0xFFFF,
+            "cluster 3 ends its chain"
+        );
+        bytes[at..at + 2].copy_from_slice(&2u16.to_le_bytes());
+    }
+    let mut card = Image { bytes, reads: 0, writes: 0 };
+    let vol = Volume::mount(&mut card).unwrap();
+    let mut bufs = WriteBuffers::new();
+    let reads = card.reads;
+    vol.remove(&mut card, &mut bufs, "loop.gcode").unwrap();
+    assert!(card.reads - reads < 100, "{} reads", card.reads - reads);
+    assert!(card.writes < 20, "{} block writes", card.writes);
+    let got = with_fatfs(&card.bytes, false, files_of);
+    assert_eq!(got, [("other.gcode".to_string(), body(5000, 2))]);
 }

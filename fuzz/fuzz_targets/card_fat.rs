@@ -127,7 +127,9 @@ fuzz_target!(|data: &[u8]| {
         }
         assert!(total <= f.size() as usize);
     }
-    if mode & 4 == 0 {
+    // The writer searches the FAT for free clusters: a volume of at most 2^20 of them (a
+    // 32 GB card's) keeps an input's time to the fuzzer's, not the writer's, limits.
+    if mode & 4 == 0 || vol.clusters() > 1 << 20 {
         return;
     }
     let mut bufs = WriteBuffers::new();

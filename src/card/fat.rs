@@ -279,6 +279,11 @@ impl Volume {
         Ok(vol)
     }
 
+    /// Clusters on the volume.
+    pub fn clusters(&self) -> u32 {
+        self.clusters
+    }
+
     pub(super) fn is_cluster(&self, c: u32) -> bool {
         (2..self.clusters + 2).contains(&c)
     }

@@ -452,7 +452,10 @@ impl Volume {
         self.delete_slots(dev, bufs, &entry)?;
         let mut chain = FileWriter::empty();
         let mut c = entry.cluster;
-        let mut left = self.clusters;
+        // The clusters its size takes (at least one): a longer chain is damaged (it loops,
+        // or runs into another file's), and what lies past them is left alone.
+        let cluster_bytes = self.cluster_blocks * BLOCK_BYTES as u32;
+        let mut left = entry.size.div_ceil(cluster_bytes).max(1);
         while self.is_cluster(c) && left > 0 {
             let next = self.next_cluster(dev, c)?;
             chain.set_fat(self, dev, bufs, c, 0)?;
