@@ -23,4 +23,12 @@ impl<T> Slot<T> {
             Self::Full(v) => Some(v),
         }
     }
+
+    /// The value, if any, to change.
+    pub fn get_mut(&mut self) -> Option<&mut T> {
+        match self {
+            Self::Empty => None,
+            Self::Full(v) => Some(v),
+        }
+    }
 }

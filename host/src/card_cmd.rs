@@ -1,23 +1,34 @@
 //! `strata card ...` and `strata upload`: the printer's SD card over the link.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use strata_host::serial;
+use strata_host::admission::admit_job;
 use strata_host::session::CardWrite;
+use strata_host::{job_file, model, serial};
 
-use crate::print::open_port;
+use crate::print::{admitted_job, open_port};
+use crate::settings::{job_of, machine_of, PrintArgs};
 use crate::simulate::is_gcode;
+
+/// Extension of a model job's file on the card.
+const JOB_EXTENSION: &str = "sjob";
 
 /// Options of `strata upload`.
 #[derive(Debug, clap::Args)]
 pub struct UploadArgs {
-    /// A G-code file (`.gcode`, `.gco`, `.g`) to write to the printer's card.
+    /// A model (STL: placed, admitted for the printer and written as its job, with the
+    /// settings below, as `strata print` streams it) or a G-code file (`.gcode`, `.gco`, `.g`,
+    /// written as it is) for the printer's card.
     pub file: PathBuf,
-    /// Its name on the card (default: the file's name).
+    /// Its name on the card (default: the file's name; a model's job: its stem and `.sjob`).
     #[arg(long)]
     pub name: Option<String>,
+    /// Largest geometric error simplification may introduce, mm.
+    #[arg(long, value_name = "MM", default_value_t = 0.02)]
+    pub max_deviation: f64,
     /// Serial port of the printer (e.g. /dev/ttyUSB0).
     #[arg(long)]
     pub port: String,
@@ -27,23 +38,46 @@ pub struct UploadArgs {
     /// Seconds the printer may stay silent before the link counts as lost.
     #[arg(long, value_name = "S", default_value_t = 3.0)]
     pub link_timeout: f64,
+    /// Print settings (of a model's job).
+    #[command(flatten)]
+    pub print: Box<PrintArgs>,
 }
 
 /// Runs `strata upload`.
 pub fn upload(args: &UploadArgs) -> Result<(), String> {
     let shown = args.file.display();
-    if !is_gcode(&args.file) {
-        return Err(format!(
-            "{shown}: only G-code uploads to the card so far (a model's job is not built yet): \
-             `strata slice {shown} -o FILE.gcode`, then `strata upload FILE.gcode`"
-        ));
-    }
-    let data = std::fs::read(&args.file).map_err(|e| format!("{shown}: {e}"))?;
-    let file_name = args.file.file_name().and_then(|n| n.to_str()).unwrap_or_default();
-    let name = args.name.as_deref().unwrap_or(file_name);
-    let (mut port, mut ep, mut clock, _abort) =
-        open_port(&args.port, args.baud, args.link_timeout)?;
-    serial::connect(&mut port, &mut ep, &mut clock)?;
+    let machine = machine_of(&args.print)?;
+    let gcode = is_gcode(&args.file);
+    // A model is read and placed before the printer is contacted.
+    let placed = match gcode {
+        true => None,
+        false => Some(model::load(&args.file)?.placed_sorted(&machine)?),
+    };
+    let (mut port, mut ep, mut clock, abort) = open_port(&args.port, args.baud, args.link_timeout)?;
+    let greeting = serial::connect(&mut port, &mut ep, &mut clock)?;
+    let (data, default_name) = match placed {
+        None => {
+            let data = std::fs::read(&args.file).map_err(|e| format!("{shown}: {e}"))?;
+            let file_name = args.file.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+            (data, file_name.to_string())
+        }
+        Some(tris) => {
+            let job = job_of(&args.print, &tris)?;
+            let caps = greeting.capacities;
+            // Admission can take longer than the link's dead time: keep the link alive.
+            let admission = serial::keeping_link_alive(&mut port, &mut ep, &mut clock, || {
+                admit_job(&tris, &machine, &job, &caps, args.max_deviation)
+            })?
+            .map_err(|e| format!("{shown}: {e}"))?;
+            if abort.load(Ordering::Relaxed) {
+                return Err("aborted by the user (Ctrl-C) before the upload".into());
+            }
+            let (tris, job) = admitted_job(&args.file, &tris, job, admission);
+            let data = job_file::encode(&job, &tris).map_err(|e| format!("{shown}: {e}"))?;
+            (data, job_name(&args.file))
+        }
+    };
+    let name = args.name.as_deref().unwrap_or(&default_name);
     let terminal = std::io::stderr().is_terminal();
     let bar = ProgressBar::new(data.len() as u64);
     bar.set_style(
@@ -75,6 +109,12 @@ pub fn upload(args: &UploadArgs) -> Result<(), String> {
     }
     println!("{name}: {written} bytes written to the printer's card (`strata print --from-card {name:?}`)");
     Ok(())
+}
+
+/// A model's job's default name on the card: its stem and [`JOB_EXTENSION`].
+fn job_name(model: &Path) -> String {
+    let stem = model.file_stem().and_then(|n| n.to_str()).unwrap_or("model");
+    format!("{stem}.{JOB_EXTENSION}")
 }
 
 /// What to do with the card.

@@ -9,6 +9,7 @@ pub mod clock;
 pub mod gcode_file;
 #[cfg(unix)]
 pub mod hil;
+pub mod job_file;
 pub mod model;
 pub mod pace;
 pub mod preview;

@@ -45,7 +45,8 @@ enum Command {
     /// The printer's SD card: list it, remove a file.
     #[command(subcommand)]
     Card(card_cmd::CardCommand),
-    /// Write a G-code file to the printer's SD card.
+    /// Write a model's job (admitted and prepared here) or a G-code file to the printer's SD
+    /// card.
     Upload(card_cmd::UploadArgs),
 }
 

@@ -24,8 +24,9 @@ pub struct PrintCmdArgs {
     /// The STL model, or a G-code file (`.gcode`, `.gco`, `.g`) from any slicer.
     #[arg(required_unless_present = "from_card")]
     pub model: Option<PathBuf>,
-    /// Print this file of the printer's SD card instead (G-code; `strata card ls` lists
-    /// them): the printer reads it itself and needs no host once it started.
+    /// Print this file of the printer's SD card instead (G-code, or a job `strata upload`
+    /// wrote; `strata card ls` lists them): the printer reads it itself and needs no host
+    /// once it started.
     #[arg(long, value_name = "NAME", conflicts_with_all = ["model", "resume"])]
     pub from_card: Option<String>,
     /// With `--from-card`: leave once the printer started the job (it prints on alone).
@@ -274,7 +275,17 @@ fn admitted(
     if !paced.pace.keeps_ahead() {
         eprintln!("{}", paced.pace.warning(model, args.baud));
     }
-    let tris = match paced.admission {
+    Ok(admitted_job(model, tris, job, paced.admission))
+}
+
+/// The triangles admission let go (the simplification said), and their job.
+pub fn admitted_job(
+    model: &std::path::Path,
+    tris: &[strata::geom::Triangle],
+    job: strata::protocol::JobSpec,
+    admission: Admission,
+) -> (Vec<strata::geom::Triangle>, strata::protocol::JobSpec) {
+    let tris = match admission {
         Admission::Unchanged(_) => tris.to_vec(),
         Admission::Simplified(s) => {
             eprintln!(
@@ -290,7 +301,7 @@ fn admitted(
         }
     };
     let job = strata::protocol::JobSpec { triangles: tris.len() as u32, ..job };
-    Ok((tris, job))
+    (tris, job)
 }
 
 /// One progress report: triangles (or G-code bytes: the `unit`) and wire bytes streamed, the

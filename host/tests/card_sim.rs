@@ -133,3 +133,87 @@ fn a_card_pulled_out_mid_print_fails_the_job_in_words() {
     let (ran, all): (u64, u64) = (got.steps.iter().sum(), want.steps.iter().sum());
     assert!(ran > 0 && ran < all, "{ran} of {all} steps");
 }
+
+/// A model's job on the card (`strata upload MODEL`): `embodier_hotend_v2.stl` placed as
+/// `strata print` places it, its job file beside the cube's G-code.
+fn model_job() -> (Vec<strata::geom::Triangle>, strata::protocol::JobSpec, Vec<u8>) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/models/");
+    let m = strata_host::model::load(&path.join("embodier_hotend_v2.stl")).unwrap();
+    let tris = m.placed_sorted(&ENDER3).unwrap();
+    let job = strata_testkit::drive::job_spec(&tris);
+    let file = strata_host::job_file::encode(&job, &tris).unwrap();
+    (tris, job, file)
+}
+
+const JOB: &str = "embodier_hotend_v2.sjob";
+
+fn card_with_job(file: &[u8]) -> ImageCard {
+    let files: [(&str, &[u8]); 1] = [(JOB, file)];
+    ImageCard::new(strata_testkit::card::image(fatfs::FatType::Fat16, 32, &files, false))
+}
+
+/// The job file prints from the card step for step as the model streamed (every layer's
+/// hash, the job report, every step edge), with its host there to the end or gone 5 s after
+/// the start.
+#[test]
+fn a_models_job_prints_from_the_card_as_it_does_streamed() {
+    let (tris, job, file) = model_job();
+    let want = simulate_source(Source::Model(&tris, job), &ENDER3, &SimOptions::default()).unwrap();
+    let source = Source::Card { name: JOB, detach: false };
+    let got =
+        simulate_with_card(source, &ENDER3, &SimOptions::default(), Some(card_with_job(&file)))
+            .unwrap_or_else(|(e, _)| panic!("{e}"));
+    assert_same_motion("the job from the card", &got, &want);
+    assert!(want.layer_hashes.len() > 30, "{} layers", want.layer_hashes.len());
+    assert_eq!(got.layer_hashes, want.layer_hashes, "every layer's hash");
+    assert_eq!(got.job_report, want.job_report, "the job report");
+    let records = file.len().div_ceil(strata::protocol::MAX_PAYLOAD);
+    eprintln!(
+        "{JOB}: {} triangles, {} bytes (>= {records} records), {} layers as streamed",
+        tris.len(),
+        file.len(),
+        got.layer_hashes.len()
+    );
+    let opts = SimOptions {
+        faults: Faults { cut_at_ms: Some(5_000), ..Faults::default() },
+        device_outlives_host: true,
+        ..SimOptions::default()
+    };
+    let (e, gone) =
+        simulate_with_card(source, &ENDER3, &opts, Some(card_with_job(&file))).unwrap_err();
+    assert!(e.contains("link dead"), "{e}");
+    assert_same_motion("host gone", &gone, &want);
+    assert!(gone.parked_ms.is_none(), "a job from the card does not park");
+}
+
+/// A job file damaged on the card (a flipped byte in a triangle batch, or cut short before the
+/// model's end) fails the job in words once it reaches the damage; the records before it ran.
+#[test]
+fn a_damaged_job_file_fails_in_words_where_the_damage_is() {
+    let (tris, job, file) = model_job();
+    let want = simulate_source(Source::Model(&tris, job), &ENDER3, &SimOptions::default()).unwrap();
+    let mut flipped = file.clone();
+    flipped[file.len() * 2 / 3] ^= 0x10;
+    let cut = &file[..file.len() * 2 / 3];
+    let mut other_version = file.clone();
+    other_version[7] ^= 0x0f;
+    for (what, bytes, runs) in
+        [("flipped", &flipped[..], true), ("cut", cut, true), ("version", &other_version, false)]
+    {
+        let source = Source::Card { name: JOB, detach: false };
+        let opts = SimOptions { max_ms: 3_600_000, ..SimOptions::default() };
+        let (e, got) =
+            simulate_with_card(source, &ENDER3, &opts, Some(card_with_job(bytes))).unwrap_err();
+        assert!(e.contains("the job file is damaged or from another version"), "{what}: {e}");
+        let (ran, all): (u64, u64) = (got.steps.iter().sum(), want.steps.iter().sum());
+        if runs {
+            assert_eq!(got.device_state, Some(DeviceState::Failed), "{what}");
+            assert!(ran > 0 && ran < all, "{what}: {ran} of {all} steps");
+            let seen = got.layer_hashes.len();
+            assert_eq!(got.layer_hashes[..seen], want.layer_hashes[..seen], "{what}");
+        } else {
+            assert_eq!(got.device_state, Some(DeviceState::Idle), "{what}: refused");
+            assert_eq!(ran, 0, "{what}");
+        }
+    }
+}

@@ -16,16 +16,28 @@
 //! needs no host: a dead link or a new host does not park it (there is nothing to resend).
 //! A read that fails mid-print fails the job ([`CardFault::Removed`]): the heaters go off
 //! with it.
+//!
+//! A model job written by the host ([`crate::protocol::job_file`]: the job start and triangle
+//! batches it would stream) prints as it prints streamed. Its first record starts the job;
+//! each next record goes into the link's receive queue while that is empty
+//! ([`Endpoint::deliver_local`]), and [`Printer::service`] takes it there as it takes a
+//! host's message: the layers are computed on their usual stack, not under the card's code.
+//! The file stays at the record until the printer took it ([`CardRecords`], outside the
+//! scratch, which the slicer has); a new host's session empties the receive queue, and the
+//! record is read again (a batch taken in part resumes where it stopped). The volume is
+//! mounted again for each record (a few block reads): keeping it would cost 40 bytes of RAM.
 
 use super::{Failure, MotionAccess, Printer, Stages};
-use crate::card::fat::{BlockWrite, FatError, Unsupported, Volume};
+use crate::card::fat::{BlockWrite, FatError, File, Unsupported, Volume};
 use crate::card::write::WriteBuffers;
 use crate::card::OpenFile;
 use crate::card::WritingFile;
+use crate::protocol::job_file::{self, CRC_BYTES, LEN_BYTES, MAGIC, RECORD_OVERHEAD};
 use crate::protocol::msg::ty;
 use crate::protocol::{
-    job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, Message,
+    job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, Message, MAX_PAYLOAD,
 };
+use crate::slot::Slot;
 
 /// Bytes of a card file read at a time at most (a buffer on the stack while it is read): a
 /// block, so that each block of the file is read through once.
@@ -76,6 +88,8 @@ fn fault<E>(e: &FatError<E>) -> CardFault {
 /// What a file holds, from its first bytes and its size.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FileKind {
+    /// A model job the host wrote ([`crate::protocol::job_file`]).
+    Job,
     /// Text: G-code.
     Gcode,
     /// An STL, binary (its size matches its triangle count) or text (`solid`).
@@ -87,6 +101,9 @@ pub enum FileKind {
 /// What a file of `size` bytes whose first bytes are `head` (up to 84: a binary STL's header
 /// and triangle count) holds.
 pub fn file_kind(head: &[u8], size: u32) -> FileKind {
+    if job_file::is_job_file(head) {
+        return FileKind::Job;
+    }
     if let Some(count) = head.get(80..STL_HEAD_BYTES) {
         let count = u32::from_le_bytes([count[0], count[1], count[2], count[3]]);
         let records = count.checked_mul(STL_RECORD_BYTES);
@@ -105,6 +122,41 @@ pub fn file_kind(head: &[u8], size: u32) -> FileKind {
         return FileKind::Other;
     }
     FileKind::Gcode
+}
+
+/// Where a model job from the card stands in its file (see the [module docs](self)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct CardRecords {
+    /// The file, at the first record the printer has not taken.
+    file: File,
+    /// That record's bytes (length, payload, CRC) while it waits in the link's receive queue
+    /// (0: it is not there).
+    in_link: u16,
+    /// The printer took it: the file moves past it.
+    taken: bool,
+}
+
+/// Reads the record at `file` (its payload into `payload`: its bytes), its CRC checked.
+fn read_record<C: BlockWrite>(
+    volume: &Volume,
+    dev: &mut C,
+    file: &mut File,
+    payload: &mut [u8; MAX_PAYLOAD],
+) -> Result<usize, CardFault> {
+    let mut read = |out: &mut [u8]| match file.read(volume, dev, out) {
+        Ok(n) if n == out.len() => Ok(()),
+        // The file ends inside a record (or before the model's end).
+        Ok(_) => Err(CardFault::BadJob),
+        Err(_) => Err(CardFault::Removed),
+    };
+    let mut len = [0u8; LEN_BYTES];
+    read(&mut len)?;
+    let n = job_file::record_len(len).map_err(|_| CardFault::BadJob)?;
+    read(&mut payload[..n])?;
+    let mut crc = [0u8; CRC_BYTES];
+    read(&mut crc)?;
+    job_file::check_record(&payload[..n], crc).map_err(|_| CardFault::BadJob)?;
+    Ok(n)
 }
 
 /// The outcome of a card request, once its message is no longer borrowed.
@@ -170,7 +222,11 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 }
             }
         }
-        self.feed_from_card(card, motion);
+        if self.gcode_job {
+            self.feed_from_card(card, motion);
+        } else {
+            self.feed_records(ep, card);
+        }
     }
 
     /// The card request at the head of the link, decoded (a print started or refused).
@@ -265,6 +321,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let n = peek.read(&volume, dev, &mut head).map_err(|e| fault(&e))?;
         match file_kind(&head[..n], file.size()) {
             FileKind::Gcode => {}
+            FileKind::Job => return self.card_print_job(&volume, dev, file, motion),
             FileKind::Stl => return Err(CardFault::Stl),
             FileKind::Other => return Err(CardFault::NotPrintable),
         }
@@ -275,6 +332,31 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let (allowed, flush) = self.motion_gate();
         motion.gate(allowed, flush);
         Ok(spec.bytes)
+    }
+
+    /// Starts the model job of a job file from its first record (the job start): the records
+    /// after it go through the link's receive queue ([`feed_records`](Self::feed_records)).
+    #[inline(never)]
+    fn card_print_job<C: BlockWrite, const Q: usize>(
+        &mut self,
+        volume: &Volume,
+        dev: &mut C,
+        mut file: File,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> Result<u32, CardFault> {
+        let mut magic = [0u8; MAGIC.len()];
+        let n = file.read(volume, dev, &mut magic).map_err(|e| fault(&e))?;
+        job_file::check_magic(&magic[..n]).map_err(|_| CardFault::BadJob)?;
+        let mut payload = [0u8; MAX_PAYLOAD];
+        let n = read_record(volume, dev, &mut file, &mut payload)?;
+        let Ok(Message::JobStart(job)) = Message::decode(&payload[..n]) else {
+            return Err(CardFault::BadJob);
+        };
+        self.start(&job, motion);
+        self.card_job = true;
+        self.fingerprint = job_fingerprint(&payload[..n]);
+        self.card_records = Slot::Full(CardRecords { file, in_link: 0, taken: false });
+        Ok(file.size())
     }
 
     /// Removes the card's file `name` (no job may run: a job's own file could go).
@@ -404,6 +486,71 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 return;
             }
         }
+    }
+
+    /// A model job from the card: the record the printer took is passed, and the next goes
+    /// into the link's receive queue once that is empty (see the [module docs](self)).
+    #[inline(never)]
+    fn feed_records<C: BlockWrite, const TX: usize, const RX: usize>(
+        &mut self,
+        ep: &mut Endpoint<TX, RX>,
+        card: Option<&mut C>,
+    ) {
+        let reading = self.card_reading();
+        let Some(at) = self.card_records.get_mut() else { return };
+        let waits = at.in_link > 0 && !at.taken;
+        if waits || !reading || ep.rx_len() > 0 {
+            return;
+        }
+        let Some(dev) = card else { return self.fail(Failure::Card(CardFault::Removed)) };
+        let mut records = *at;
+        let r = (|| {
+            let volume = Volume::mount(dev).map_err(|_| CardFault::Removed)?;
+            if records.taken {
+                let bytes = u32::from(records.in_link);
+                records.file.skip(&volume, dev, bytes).map_err(|_| CardFault::Removed)?;
+                records.in_link = 0;
+                records.taken = false;
+            }
+            let mut ahead = records.file;
+            let mut payload = [0u8; MAX_PAYLOAD];
+            let n = read_record(&volume, dev, &mut ahead, &mut payload)?;
+            // Only the model's triangles and its end come after the job start.
+            if !matches!(payload[0], ty::TRIANGLES | ty::END_OF_MODEL) {
+                return Err(CardFault::BadJob);
+            }
+            ep.deliver_local(&payload[..n]).map_err(|_| CardFault::Busy)?;
+            records.in_link = (n + RECORD_OVERHEAD) as u16;
+            Ok(())
+        })();
+        self.card_records = Slot::Full(records);
+        if let Err(f) = r {
+            self.fail(Failure::Card(f));
+        }
+    }
+
+    /// The record at the head of the link's receive queue is from the card (it is taken or
+    /// dropped now).
+    pub(super) fn card_record_at_head(&self) -> bool {
+        self.card_records.get().is_some_and(|r| r.in_link > 0 && !r.taken)
+    }
+
+    /// The message at the head of the link's receive queue is taken: a card record is passed.
+    pub(super) fn head_taken(&mut self) {
+        if let Some(r) = self.card_records.get_mut() {
+            r.taken |= r.in_link > 0;
+        }
+    }
+
+    /// A new session emptied the link's receive queue: a card record that waited there is
+    /// read again (true: a batch taken in part resumes where it stopped).
+    pub(super) fn card_record_lost(&mut self) -> bool {
+        let Some(r) = self.card_records.get_mut() else { return false };
+        if r.in_link > 0 && !r.taken {
+            r.in_link = 0;
+            return true;
+        }
+        false
     }
 
     /// The card failed under a job printing from it: the job fails, its moves dropped.

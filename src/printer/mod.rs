@@ -179,6 +179,8 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     gcode_job: bool,
     /// The job's G-code comes from the card ([`card_job`]): it needs no host.
     card_job: bool,
+    /// A model job from the card: where its file stands ([`card_job`]).
+    card_records: Slot<card_job::CardRecords>,
     /// A file is being written to the card (its writer has the scratch).
     uploading: bool,
     /// Every triangle, or the whole G-code text, was taken.
@@ -187,7 +189,7 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     /// are in effect): once the motion half is idle, the job is done.
     toolpath_done: bool,
     /// Step-command hashes of completed layers, waiting to be reported.
-    done: Deque<(u32, u64), 8>,
+    done: Deque<LayerHash, 8>,
     layers_planned: u32,
     status_due_ms: u32,
     /// The host went silent during the job: where it stands since ([`orphan`]).
@@ -246,6 +248,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             layers: 0,
             gcode_job: false,
             card_job: false,
+            card_records: Slot::Empty,
             uploading: false,
             model_ended: false,
             toolpath_done: false,
@@ -502,6 +505,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.heat_wait_since_ms = None;
         self.gcode_job = false;
         self.card_job = false;
+        self.card_records = Slot::Empty;
         // A job takes the scratch: a file being written to the card is abandoned.
         self.uploading = false;
         self.model_ended = false;
@@ -817,7 +821,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
 
     /// Layer hashes completed since the last call.
     pub fn take_layer_done(&mut self) -> Option<(u32, u64)> {
-        self.done.pop_front()
+        self.done.pop_front().map(LayerHash::get)
     }
 
     /// Bounded work: moves into the planner, the toolpath stage's next paths into the move
@@ -868,7 +872,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         });
         if let Some(last) = end {
             if let Some((layer, hash)) = last {
-                let _ = self.done.push_back((layer, hash));
+                let _ = self.done.push_back(LayerHash::new(layer, hash));
                 self.layers_planned = layer + 1;
             }
             self.state = DeviceState::Done;
@@ -899,7 +903,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             if layer == PARK_TAG {
                 continue;
             }
-            let _ = self.done.push_back((layer, hash));
+            let _ = self.done.push_back(LayerHash::new(layer, hash));
             self.layers_planned = layer + 1;
             took = true;
         }
@@ -1009,7 +1013,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     #[inline(never)]
     fn new_session(&mut self, session: u16, now_ms: u32) {
         self.session = session;
-        self.batch_pos = 0;
+        // A record from the card is read again: a batch taken in part resumes.
+        if !self.card_record_lost() {
+            self.batch_pos = 0;
+        }
         self.waiting_for_room = false;
         self.link_lost(0, now_ms);
     }
@@ -1030,19 +1037,27 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         now_ms: u32,
         lend: bool,
     ) {
-        // An orphaned job takes what it received without room for answers (none go out).
-        while ep.tx_free() > 1 || self.orphan.get().is_some() {
+        // An orphaned job takes what it received without room for answers (none go out), and
+        // so does a job from the card (it needs no host).
+        while ep.tx_free() > 1 || self.orphan.get().is_some() || self.card_job {
             let Some(p) = ep.peek() else { break };
             // A card request waits for the card (`card_service`).
             if is_card_request(p) {
                 break;
+            }
+            // A job from the card takes no model or text from a host.
+            use crate::protocol::msg::ty;
+            let job_data =
+                matches!(p.first(), Some(&(ty::TRIANGLES | ty::END_OF_MODEL | ty::GCODE)));
+            if self.card_job && job_data && !self.card_record_at_head() {
+                ep.pop();
+                continue;
             }
             let emitting = self.is_active() && !self.gcode_job;
             if self.waiting_for_room && emitting && !self.emit_moves(motion) {
                 break;
             }
             self.waiting_for_room = false;
-            use crate::protocol::msg::ty;
             let starts = matches!(p.first(), Some(&(ty::JOB_START | ty::GCODE_START)));
             let fingerprint = if starts { job_fingerprint(p) } else { 0 };
             match Message::decode(p) {
@@ -1066,6 +1081,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                     self.fail(Failure::BadMessage { first_byte });
                 }
             }
+            self.head_taken();
             ep.pop();
         }
     }
@@ -1094,6 +1110,24 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let mut text = TextBuf::new();
         let _ = core::fmt::write(&mut text, format_args!("{failure}"));
         self.failure_sent = send(ep, &Message::Failure(text.as_str()));
+    }
+}
+
+/// A completed layer's hash waiting to be reported, packed into 12 bytes (a `(u32, u64)` takes
+/// 16: 32 bytes of RAM over the reports).
+#[derive(Debug, Clone, Copy)]
+struct LayerHash {
+    layer: u32,
+    hash: [u32; 2],
+}
+
+impl LayerHash {
+    fn new(layer: u32, hash: u64) -> Self {
+        Self { layer, hash: [hash as u32, (hash >> 32) as u32] }
+    }
+
+    fn get(self) -> (u32, u64) {
+        (self.layer, u64::from(self.hash[0]) | u64::from(self.hash[1]) << 32)
     }
 }
 

@@ -325,6 +325,24 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
         (i < self.rx_len).then(|| self.rx[(self.rx_head + i) % RX].bytes())
     }
 
+    /// Queues a message of this end's own (a job read from the card) after what the link
+    /// delivered: the application takes it as it takes the peer's. Its slot is not a credit
+    /// for the peer meanwhile (a frame the peer sent on the old credit is dropped and sent
+    /// again). `Err(Full)` without a free slot.
+    pub fn deliver_local(&mut self, payload: &[u8]) -> Result<(), SendError> {
+        if payload.len() > MAX_PAYLOAD {
+            return Err(SendError::TooLong);
+        }
+        if self.rx_len == RX {
+            return Err(SendError::Full);
+        }
+        let slot = &mut self.rx[(self.rx_head + self.rx_len) % RX];
+        slot.buf[..payload.len()].copy_from_slice(payload);
+        slot.len = payload.len() as u16;
+        self.rx_len += 1;
+        Ok(())
+    }
+
     /// Releases the oldest delivered message (its slot becomes a credit for the peer).
     pub fn pop(&mut self) {
         if self.rx_len > 0 {

@@ -24,6 +24,7 @@
 //! about 20.7 bytes per triangle.
 
 pub mod frame;
+pub mod job_file;
 pub mod link;
 pub mod msg;
 

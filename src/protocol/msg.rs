@@ -409,6 +409,8 @@ pub enum CardFault {
     BadName = 13,
     /// No file is being written (none was created, or a job started meanwhile).
     NoUpload = 14,
+    /// A job file whose records are damaged, or written for another protocol version.
+    BadJob = 15,
 }
 
 impl CardFault {
@@ -429,6 +431,7 @@ impl CardFault {
             12 => Self::Full,
             13 => Self::BadName,
             14 => Self::NoUpload,
+            15 => Self::BadJob,
             _ => return None,
         })
     }
@@ -452,6 +455,10 @@ impl core::fmt::Display for CardFault {
             Self::Busy => "the printer is busy with a job",
             Self::Removed => "the SD card was removed or failed during the print",
             Self::Full => "the SD card is full",
+            Self::BadJob => {
+                "the job file is damaged or from another version of strata: upload the model \
+                 again with `strata upload`"
+            }
             Self::NoUpload => "no file is being written to the SD card (a job started meanwhile?)",
             Self::BadName => {
                 "a name the SD card cannot hold (printable ASCII without \"*/:<>?\\| and at \
