@@ -1133,3 +1133,69 @@ fn qemu_gcode_from_card_host_gone() {
         steps.steps.iter().sum::<u64>()
     );
 }
+
+/// `strata upload MODEL` then `strata print --from-card`: `embodier_hotend_v2.stl`'s job,
+/// admitted as `strata print` admits it, is written to an empty card over the link; printed
+/// from the card (the host following its reports), it gives every layer hash, the job report,
+/// the steps and every step edge of the streamed simulation, and its stack stays clear of
+/// the statics.
+#[test]
+fn qemu_model_job_uploaded_prints_from_card_as_streamed() {
+    let label = "hil_qemu model job uploaded, printed from the card";
+    let Some((qemu, elf)) = qemu_or_skip(label, None) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let image = dir.path().join("card.img");
+    std::fs::write(&image, strata_testkit::card::image(fatfs::FatType::Fat32, 64, &[], true))
+        .unwrap();
+    let machine = MachineConfig::default();
+    let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
+    let (mut q, uart) = Qemu::start_with_card(&qemu, &elf, echo, Some(&image))
+        .unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut clock = q.clock().unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut port = Port::new(uart);
+    port.get_mut().set_read_timeout(Some(Duration::from_millis(1))).unwrap();
+    port.get_mut().set_write_timeout(Some(Duration::from_millis(1))).unwrap();
+    let mut conn = hil::connect(&mut port, &mut clock).unwrap_or_else(|e| panic!("{label}: {e}"));
+    let (tris, job) = load("embodier_hotend_v2.stl");
+    let caps = conn.greeting.capacities;
+    let admitted = strata_host::admission::admit_job(&tris, &machine, &job, &caps, 0.02)
+        .unwrap_or_else(|e| panic!("{label}: admission: {e}"));
+    assert!(
+        matches!(admitted, strata_host::admission::Admission::Unchanged(_)),
+        "{label}: the model fits unchanged"
+    );
+    let opts = SimOptions { capacities: caps, ..SimOptions::default() };
+    let reference = simulate_source(Source::Model(&tris, job), &machine, &opts)
+        .unwrap_or_else(|(e, _)| panic!("{label}: reference: {e}"));
+    let file = strata_host::job_file::encode(&job, &tris).unwrap();
+    let name = "embodier_hotend_v2.sjob";
+    let write = CardWrite::upload(name, &file);
+    let n = strata_host::serial::card_write(&mut port, &mut conn.ep, &mut clock, write, |_| {})
+        .unwrap_or_else(|e| panic!("{label}: upload: {e}"));
+    assert_eq!(n as usize, file.len(), "{label}: bytes on the card");
+    let source = Source::Card { name, detach: false };
+    let progress = hil::print_job(&mut port, &mut conn, &mut clock, source, QEMU_JOB_MS, |_| {})
+        .unwrap_or_else(|e| panic!("{label}: {e}"));
+    assert_eq!(progress.card_file_bytes, Some(file.len() as u32));
+    q.wait_for(&mut clock, CLOSING_LINES_MS, |l| l.iter().any(|l| l.starts_with("MEM ")))
+        .unwrap_or_else(|e| panic!("{label}: waiting for the closing lines: {e}"));
+    let lines = q.lines();
+    let costs = Costs::parse(&lines);
+    assert_same(label, &reference, &progress, Some(&costs));
+    assert_eq!(costs.steps().and_then(|s| s.hash), Some(reference.board_hash), "{label}: edges");
+    let jobs: Vec<&String> = lines.iter().filter(|l| l.starts_with("JOB")).collect();
+    assert!(
+        jobs.iter().any(|l| l.starts_with("JOB start") && l.ends_with(" early_steps=0")),
+        "{jobs:?}"
+    );
+    let (used, size) = (costs.get("MEM", &["stack_hwm"]), costs.get("MEM", &["stack_size"]));
+    let (Some(used), Some(size)) = (used, size) else { panic!("{label}: no MEM line") };
+    assert!(used + RAM_HEADROOM <= size, "{label}: the stack used {used} of its {size} B");
+    eprintln!(
+        "{label}: {} triangles, {} bytes on the card, {} layers, stack {used} of {size} B, as \
+         streamed",
+        tris.len(),
+        file.len(),
+        reference.layers
+    );
+}
