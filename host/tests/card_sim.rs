@@ -1,8 +1,9 @@
 //! Printing from the printer's SD card in the simulated printer: PrusaSlicer's G-code of
 //! `xyz_20mm_cube.stl` on a card image the `fatfs` crate wrote prints step for step as the
 //! same file streamed over the link (every layer hash, the job report, the board's step
-//! hash), with the host there to the end or gone after the start; what cannot print from the
-//! card is refused in words and starts nothing.
+//! hash), with the host there to the end or gone after the start, and so does a model's job
+//! `strata upload` wrote (as the model streamed); what cannot print from the card is refused
+//! in words and starts nothing, and a damaged job file fails where its damage is.
 
 use std::path::PathBuf;
 

@@ -359,23 +359,30 @@ fn card_upload_ls_print_and_rm_over_a_pty() {
             strata(name, &["card", "rm", "nothing.gcode"]),
             strata(name, &["print", "--from-card", "square.gcode"]),
             strata(name, &["card", "rm", "square.gcode"]),
+            strata(name, &["card", "rm", "block.sjob"]),
             strata(name, &["card", "ls"]),
         ]
     });
     let text = |o: &std::process::Output| {
         format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
     };
-    let [upload, upload_model, ls, missing, rm_missing, print, rm, ls_after] = &outs;
+    let [upload, upload_model, ls, missing, rm_missing, print, rm, rm_model, ls_after] = &outs;
     assert!(upload.status.success(), "{}", text(upload));
     assert!(text(upload).contains(&format!("{} bytes written", gcode.len())), "{}", text(upload));
-    assert!(!upload_model.status.success());
-    assert!(text(upload_model).contains("only G-code uploads"), "{}", text(upload_model));
+    // A model uploads as its job, under its stem's name.
+    assert!(upload_model.status.success(), "{}", text(upload_model));
+    let job_line = String::from_utf8_lossy(&upload_model.stdout);
+    assert!(
+        job_line.starts_with("block.sjob: ") && job_line.contains("bytes written"),
+        "{job_line}"
+    );
     assert!(ls.status.success(), "{}", text(ls));
     let listing = String::from_utf8_lossy(&ls.stdout);
     let line = format!("{:>10}  square.gcode", gcode.len());
     assert!(listing.lines().any(|l| l == line), "{listing}");
+    assert!(listing.lines().any(|l| l.ends_with("  block.sjob")), "{listing}");
     assert!(listing.lines().any(|l| l.ends_with("old prints/")), "{listing}");
-    assert!(listing.contains("1 files"), "{listing}");
+    assert!(listing.contains("2 files"), "{listing}");
     for refused in [missing, rm_missing] {
         assert!(!refused.status.success());
         assert!(text(refused).contains("card: no such file on the SD card"), "{}", text(refused));
@@ -383,7 +390,45 @@ fn card_upload_ls_print_and_rm_over_a_pty() {
     assert!(print.status.success(), "{}", text(print));
     assert!(text(print).contains("printed from the card"), "{}", text(print));
     assert!(rm.status.success(), "{}", text(rm));
+    assert!(rm_model.status.success(), "{}", text(rm_model));
     let listing = String::from_utf8_lossy(&ls_after.stdout);
     assert!(!listing.contains("square.gcode") && listing.contains("0 files"), "{listing}");
+    assert_eq!(state.unwrap(), DeviceState::Done);
+}
+
+/// `strata upload MODEL.stl` with settings, then `strata print --from-card`: the real binary
+/// writes the model's job and the printer prints it from its card to the end (the device
+/// double serves one job a session).
+#[test]
+fn a_models_job_uploads_and_prints_from_the_card_over_a_pty() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("block.stl");
+    write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
+    let image = strata_testkit::card::image(fatfs::FatType::Fat16, 32, &[], false);
+    let strata = |name: &str, args: &[&str]| {
+        let mut cmd = Command::cargo_bin("strata").unwrap();
+        cmd.args(args).args(["--port", name, "--link-timeout", &LINK_TIMEOUT_S.to_string()]);
+        cmd.timeout(hang_guard()).output().unwrap()
+    };
+    let opts = device(CREALITY_CAPACITIES, 50);
+    let model = model.to_str().unwrap();
+    let (outs, state) = serve_on_pty(opts, Some(ImageCard::new(image)), |name, _| {
+        [
+            strata(name, &["upload", model, "--name", "block job", "--layer-height", "0.3"]),
+            strata(name, &["print", "--from-card", "block job"]),
+        ]
+    });
+    let text = |o: &std::process::Output| {
+        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    };
+    let [upload, print] = &outs;
+    assert!(upload.status.success(), "{}", text(upload));
+    assert!(print.status.success(), "{}", text(print));
+    // 1.2 mm at 0.3 mm layers: the upload's settings went with the job.
+    assert!(
+        text(print).contains("printed from the card") && text(print).contains("4 layers"),
+        "{}",
+        text(print)
+    );
     assert_eq!(state.unwrap(), DeviceState::Done);
 }

@@ -449,8 +449,9 @@ impl core::fmt::Display for CardFault {
             Self::IsDirectory => "that name is a directory on the SD card",
             Self::NotPrintable => "the file is neither G-code nor STL",
             Self::Stl => {
-                "the file is an STL: the printer prints G-code from the card; print the STL \
-                 with `strata print FILE.stl` (it slices on board as it streams)"
+                "the file is an STL: the printer prints G-code and model jobs from the card; \
+                 write the model's job with `strata upload FILE.stl`, or print it with \
+                 `strata print FILE.stl` (it slices on board as it streams)"
             }
             Self::Busy => "the printer is busy with a job",
             Self::Removed => "the SD card was removed or failed during the print",
