@@ -120,6 +120,10 @@ pub struct SimOptions {
     /// With `device_outlives_host`: this long after the orphaned job parked, a new host
     /// opens a session on a sound link and resumes the job (`strata print --resume`).
     pub resume_after_ms: Option<u64>,
+    /// At this virtual time a new host opens its own session on a sound link and starts the
+    /// same job (another `strata print` on the same printer): the running job's host is gone,
+    /// and what the device's link held for it is dropped.
+    pub new_host_at_ms: Option<u64>,
 }
 
 impl Default for SimOptions {
@@ -135,6 +139,7 @@ impl Default for SimOptions {
             device_outlives_host: false,
             heat_hold_ms: strata::printer::DEFAULT_HEAT_HOLD_MS,
             resume_after_ms: None,
+            new_host_at_ms: None,
         }
     }
 }
@@ -192,6 +197,8 @@ pub struct SimReport {
     pub board_hash: u64,
     /// Triangles sent.
     pub triangles: usize,
+    /// Triangles the device took (a job from the card takes them with no host).
+    pub device_triangles: u32,
     /// Host link counters: retransmits, bad frames, duplicates.
     pub host_link: strata::protocol::LinkStats,
     /// Device link counters.
@@ -433,6 +440,13 @@ fn run(
                 checked += 1;
             }
         }
+        if opts.new_host_at_ms == Some(now_ms) {
+            host_ep = Endpoint::new(LinkConfig::default());
+            host_ep.open(2);
+            host = HostJob::of(source);
+            h2d = Wire::new(Faults::default(), 3, opts.baud);
+            d2h = Wire::new(Faults::default(), 4, opts.baud);
+        }
         // Host.
         let polled = if host_gone { Ok(Phase::Printing) } else { host.poll(t, &mut host_ep) };
         match polled {
@@ -560,6 +574,7 @@ fn run(
     rep.peak_contour_points = slice.peak_points;
     rep.device_ram_bytes = device_ram(&slice, &tp.needs);
     rep.triangles = host.progress.triangles_sent;
+    rep.device_triangles = printer.status(&mut *motion, 0).triangles;
     rep.wire_bytes_per_triangle = if rep.triangles > 0 {
         host.progress.triangle_wire_bytes as f64 / rep.triangles as f64
     } else {

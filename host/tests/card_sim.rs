@@ -164,6 +164,7 @@ fn a_models_job_prints_from_the_card_as_it_does_streamed() {
     let got =
         simulate_with_card(source, &ENDER3, &SimOptions::default(), Some(card_with_job(&file)))
             .unwrap_or_else(|(e, _)| panic!("{e}"));
+    assert_eq!(got.device_triangles as usize, tris.len(), "triangles taken");
     assert_same_motion("the job from the card", &got, &want);
     assert!(want.layer_hashes.len() > 30, "{} layers", want.layer_hashes.len());
     assert_eq!(got.layer_hashes, want.layer_hashes, "every layer's hash");
@@ -216,5 +217,28 @@ fn a_damaged_job_file_fails_in_words_where_the_damage_is() {
             assert_eq!(got.device_state, Some(DeviceState::Idle), "{what}: refused");
             assert_eq!(ran, 0, "{what}");
         }
+    }
+}
+
+/// Another host opens its own session in the middle of the job from the card (it finds the
+/// printer busy): the link's receive queue is emptied under the record waiting there, which is
+/// read again (its batch resumes where it stopped), and the print is the streamed one.
+#[test]
+fn a_new_host_mid_job_loses_no_record_of_a_job_from_the_card() {
+    let (tris, job, file) = model_job();
+    let want = simulate_source(Source::Model(&tris, job), &ENDER3, &SimOptions::default()).unwrap();
+    for at_ms in [2_000, 9_000, 30_000, 61_000] {
+        let opts = SimOptions {
+            new_host_at_ms: Some(at_ms),
+            device_outlives_host: true,
+            ..SimOptions::default()
+        };
+        let source = Source::Card { name: JOB, detach: false };
+        let (e, got) =
+            simulate_with_card(source, &ENDER3, &opts, Some(card_with_job(&file))).unwrap_err();
+        assert!(e.contains("the printer is busy"), "{at_ms} ms: {e}");
+        let what = format!("a new host at {at_ms} ms");
+        assert_eq!(got.device_triangles as usize, tris.len(), "{what}: triangles taken");
+        assert_same_motion(&what, &got, &want);
     }
 }
