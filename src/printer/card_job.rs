@@ -32,7 +32,7 @@ use crate::card::fat::{BlockWrite, FatError, File, Unsupported, Volume};
 use crate::card::write::WriteBuffers;
 use crate::card::OpenFile;
 use crate::card::WritingFile;
-use crate::protocol::job_file::{self, CRC_BYTES, LEN_BYTES, MAGIC, RECORD_OVERHEAD};
+use crate::protocol::job_file::{self, ReadError, MAGIC, RECORD_OVERHEAD};
 use crate::protocol::msg::ty;
 use crate::protocol::{
     job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, Message, MAX_PAYLOAD,
@@ -143,20 +143,10 @@ fn read_record<C: BlockWrite>(
     file: &mut File,
     payload: &mut [u8; MAX_PAYLOAD],
 ) -> Result<usize, CardFault> {
-    let mut read = |out: &mut [u8]| match file.read(volume, dev, out) {
-        Ok(n) if n == out.len() => Ok(()),
-        // The file ends inside a record (or before the model's end).
-        Ok(_) => Err(CardFault::BadJob),
-        Err(_) => Err(CardFault::Removed),
-    };
-    let mut len = [0u8; LEN_BYTES];
-    read(&mut len)?;
-    let n = job_file::record_len(len).map_err(|_| CardFault::BadJob)?;
-    read(&mut payload[..n])?;
-    let mut crc = [0u8; CRC_BYTES];
-    read(&mut crc)?;
-    job_file::check_record(&payload[..n], crc).map_err(|_| CardFault::BadJob)?;
-    Ok(n)
+    job_file::read_record(|out| file.read(volume, dev, out), payload).map_err(|e| match e {
+        ReadError::File(_) => CardFault::BadJob,
+        ReadError::Device(_) => CardFault::Removed,
+    })
 }
 
 /// The outcome of a card request, once its message is no longer borrowed.

@@ -35,6 +35,17 @@ pub enum JobFileError {
     Length(u16),
     /// A record's payload does not match its CRC.
     Crc,
+    /// The file ends inside a record (or where a record should start).
+    Truncated,
+}
+
+/// Why a record could not be read: the file's bytes, or the reader under them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadError<E> {
+    /// The bytes are not a record.
+    File(JobFileError),
+    /// The reader failed.
+    Device(E),
 }
 
 impl core::fmt::Display for JobFileError {
@@ -44,6 +55,7 @@ impl core::fmt::Display for JobFileError {
             Self::NotJob => f.write_str("not a job file"),
             Self::Length(n) => write!(f, "job record of {n} bytes (1..={MAX_PAYLOAD})"),
             Self::Crc => f.write_str("job record does not match its CRC"),
+            Self::Truncated => f.write_str("job file ends inside a record"),
         }
     }
 }
@@ -83,6 +95,28 @@ pub fn check_record(payload: &[u8], crc: [u8; CRC_BYTES]) -> Result<(), JobFileE
     Ok(())
 }
 
+/// Reads the next record through `read` (which fills its buffer from the file and says how
+/// many bytes it filled: fewer at the file's end): its payload into `payload`, its length
+/// and CRC checked; the payload's bytes.
+pub fn read_record<E>(
+    mut read: impl FnMut(&mut [u8]) -> Result<usize, E>,
+    payload: &mut [u8; MAX_PAYLOAD],
+) -> Result<usize, ReadError<E>> {
+    let mut exact = |out: &mut [u8]| match read(out) {
+        Ok(n) if n == out.len() => Ok(()),
+        Ok(_) => Err(ReadError::File(JobFileError::Truncated)),
+        Err(e) => Err(ReadError::Device(e)),
+    };
+    let mut len = [0u8; LEN_BYTES];
+    exact(&mut len)?;
+    let n = record_len(len).map_err(ReadError::File)?;
+    exact(&mut payload[..n])?;
+    let mut crc = [0u8; CRC_BYTES];
+    exact(&mut crc)?;
+    check_record(&payload[..n], crc).map_err(ReadError::File)?;
+    Ok(n)
+}
+
 /// Writes the record of `payload` (1..=[`MAX_PAYLOAD`] bytes) into `out`: its bytes, or `None`
 /// when the payload is out of range or `out` is too small.
 pub fn encode_record(payload: &[u8], out: &mut [u8]) -> Option<usize> {
@@ -114,6 +148,30 @@ mod tests {
             bad[bit / 8] ^= 1 << (bit % 8);
             assert_eq!(check_record(&bad, crc), Err(JobFileError::Crc));
         }
+    }
+
+    #[test]
+    fn records_read_back_in_turn_and_a_short_file_is_truncated() {
+        let mut file = MAGIC.to_vec();
+        for payload in [&[0x12][..], &[0x11, 0, 5, 6, 7]] {
+            let mut rec = [0u8; 16];
+            let n = encode_record(payload, &mut rec).unwrap();
+            file.extend_from_slice(&rec[..n]);
+        }
+        let mut at = MAGIC.len();
+        let mut read = |out: &mut [u8]| -> Result<usize, ()> {
+            let n = out.len().min(file.len() - at);
+            out[..n].copy_from_slice(&file[at..at + n]);
+            at += n;
+            Ok(n)
+        };
+        let mut payload = [0u8; MAX_PAYLOAD];
+        assert_eq!(read_record(&mut read, &mut payload), Ok(1));
+        assert_eq!(payload[0], 0x12);
+        assert_eq!(read_record(&mut read, &mut payload), Ok(5));
+        assert_eq!(payload[..5], [0x11, 0, 5, 6, 7]);
+        let end = read_record(&mut read, &mut payload);
+        assert_eq!(end, Err(ReadError::File(JobFileError::Truncated)));
     }
 
     #[test]
