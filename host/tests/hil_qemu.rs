@@ -1036,14 +1036,7 @@ fn qemu_gcode_from_card_host_gone() {
     let reference =
         simulate_source(Source::Gcode(&gcode, scan.spec), &machine, &SimOptions::default())
             .unwrap_or_else(|(e, _)| panic!("{label}: reference: {e}"));
-    let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
-    let (mut q, uart) = Qemu::start_with_card(&qemu, &elf, echo, Some(&image))
-        .unwrap_or_else(|e| panic!("{label}: {e}"));
-    let mut clock = q.clock().unwrap_or_else(|e| panic!("{label}: {e}"));
-    let mut port = Port::new(uart);
-    port.get_mut().set_read_timeout(Some(Duration::from_millis(1))).unwrap();
-    port.get_mut().set_write_timeout(Some(Duration::from_millis(1))).unwrap();
-    let mut conn = hil::connect(&mut port, &mut clock).unwrap_or_else(|e| panic!("{label}: {e}"));
+    let (mut q, mut clock, mut port, mut conn) = with_card(label, &qemu, &elf, &image);
     let listed = strata_host::serial::card_list(&mut port, &mut conn.ep, &mut clock)
         .unwrap_or_else(|e| panic!("{label}: card ls: {e}"));
     let mut got: Vec<(String, u32, bool)> =
@@ -1134,6 +1127,25 @@ fn qemu_gcode_from_card_host_gone() {
     );
 }
 
+/// QEMU with `image` as its SD card, its clock, and a link to its firmware (`label` names a
+/// failure).
+fn with_card(
+    label: &str,
+    qemu: &std::path::Path,
+    elf: &std::path::Path,
+    image: &std::path::Path,
+) -> (Qemu, hil::QemuClock, Port<UnixStream>, hil::Connected) {
+    let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
+    let (mut q, uart) = Qemu::start_with_card(qemu, elf, echo, Some(image))
+        .unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut clock = q.clock().unwrap_or_else(|e| panic!("{label}: {e}"));
+    let mut port = Port::new(uart);
+    port.get_mut().set_read_timeout(Some(Duration::from_millis(1))).unwrap();
+    port.get_mut().set_write_timeout(Some(Duration::from_millis(1))).unwrap();
+    let conn = hil::connect(&mut port, &mut clock).unwrap_or_else(|e| panic!("{label}: {e}"));
+    (q, clock, port, conn)
+}
+
 /// `strata upload MODEL` then `strata print --from-card`: `embodier_hotend_v2.stl`'s job,
 /// admitted as `strata print` admits it, is written to an empty card over the link; printed
 /// from the card (the host following its reports), it gives every layer hash, the job report,
@@ -1148,14 +1160,7 @@ fn qemu_model_job_uploaded_prints_from_card_as_streamed() {
     std::fs::write(&image, strata_testkit::card::image(fatfs::FatType::Fat32, 64, &[], true))
         .unwrap();
     let machine = MachineConfig::default();
-    let echo = std::env::var_os("STRATA_HIL_ECHO").is_some();
-    let (mut q, uart) = Qemu::start_with_card(&qemu, &elf, echo, Some(&image))
-        .unwrap_or_else(|e| panic!("{label}: {e}"));
-    let mut clock = q.clock().unwrap_or_else(|e| panic!("{label}: {e}"));
-    let mut port = Port::new(uart);
-    port.get_mut().set_read_timeout(Some(Duration::from_millis(1))).unwrap();
-    port.get_mut().set_write_timeout(Some(Duration::from_millis(1))).unwrap();
-    let mut conn = hil::connect(&mut port, &mut clock).unwrap_or_else(|e| panic!("{label}: {e}"));
+    let (mut q, mut clock, mut port, mut conn) = with_card(label, &qemu, &elf, &image);
     let (tris, job) = load("embodier_hotend_v2.stl");
     let caps = conn.greeting.capacities;
     let admitted = strata_host::admission::admit_job(&tris, &machine, &job, &caps, 0.02)

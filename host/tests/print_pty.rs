@@ -212,6 +212,18 @@ fn ctrl_c_aborts_the_print_and_the_printer() {
 
 /// How long a test may wait for `strata print` before it counts as hung, wall time: several
 /// link timeouts.
+/// `strata ARGS` on the printer at port `name` (the tests' link timeout, the hang guard).
+fn strata(name: &str, args: &[&str]) -> std::process::Output {
+    let mut cmd = Command::cargo_bin("strata").unwrap();
+    cmd.args(args).args(["--port", name, "--link-timeout", &LINK_TIMEOUT_S.to_string()]);
+    cmd.timeout(hang_guard()).output().unwrap()
+}
+
+/// What a command printed, out then err.
+fn text(o: &std::process::Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
 fn hang_guard() -> Duration {
     Duration::from_secs(5 * LINK_TIMEOUT_S as u64)
 }
@@ -343,11 +355,6 @@ fn card_upload_ls_print_and_rm_over_a_pty() {
     let model = dir.path().join("block.stl");
     write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let image = strata_testkit::card::image(fatfs::FatType::Fat16, 32, &[], false);
-    let strata = |name: &str, args: &[&str]| {
-        let mut cmd = Command::cargo_bin("strata").unwrap();
-        cmd.args(args).args(["--port", name, "--link-timeout", &LINK_TIMEOUT_S.to_string()]);
-        cmd.timeout(hang_guard()).output().unwrap()
-    };
     let opts = device(CREALITY_CAPACITIES, 50);
     let file = file.to_str().unwrap();
     let (outs, state) = serve_on_pty(opts, Some(ImageCard::new(image)), |name, _| {
@@ -363,9 +370,6 @@ fn card_upload_ls_print_and_rm_over_a_pty() {
             strata(name, &["card", "ls"]),
         ]
     });
-    let text = |o: &std::process::Output| {
-        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-    };
     let [upload, upload_model, ls, missing, rm_missing, print, rm, rm_model, ls_after] = &outs;
     assert!(upload.status.success(), "{}", text(upload));
     assert!(text(upload).contains(&format!("{} bytes written", gcode.len())), "{}", text(upload));
@@ -405,11 +409,6 @@ fn a_models_job_uploads_and_prints_from_the_card_over_a_pty() {
     let model = dir.path().join("block.stl");
     write_mesh(&model, &holed_block(-5.0, 5.0, -2.0, 2.0, 1.2));
     let image = strata_testkit::card::image(fatfs::FatType::Fat16, 32, &[], false);
-    let strata = |name: &str, args: &[&str]| {
-        let mut cmd = Command::cargo_bin("strata").unwrap();
-        cmd.args(args).args(["--port", name, "--link-timeout", &LINK_TIMEOUT_S.to_string()]);
-        cmd.timeout(hang_guard()).output().unwrap()
-    };
     let opts = device(CREALITY_CAPACITIES, 50);
     let model = model.to_str().unwrap();
     let (outs, state) = serve_on_pty(opts, Some(ImageCard::new(image)), |name, _| {
@@ -418,9 +417,6 @@ fn a_models_job_uploads_and_prints_from_the_card_over_a_pty() {
             strata(name, &["print", "--from-card", "block job"]),
         ]
     });
-    let text = |o: &std::process::Output| {
-        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-    };
     let [upload, print] = &outs;
     assert!(upload.status.success(), "{}", text(upload));
     assert!(print.status.success(), "{}", text(print));

@@ -95,9 +95,10 @@ pub fn check_record(payload: &[u8], crc: [u8; CRC_BYTES]) -> Result<(), JobFileE
     Ok(())
 }
 
-/// Reads the next record through `read` (which fills its buffer from the file and says how
-/// many bytes it filled: fewer at the file's end): its payload into `payload`, its length
-/// and CRC checked; the payload's bytes.
+/// Reads the next record's payload into `payload`, its length and CRC checked: its bytes.
+///
+/// `read` fills its buffer from the file and says how many bytes it filled (fewer at the
+/// file's end).
 pub fn read_record<E>(
     mut read: impl FnMut(&mut [u8]) -> Result<usize, E>,
     payload: &mut [u8; MAX_PAYLOAD],

@@ -148,6 +148,24 @@ impl Slot {
     }
 }
 
+/// Queues `payload` (at most [`MAX_PAYLOAD`] bytes) after the `len` slots from `head` of a
+/// ring of slots.
+fn push<const N: usize>(
+    ring: &mut [Slot; N],
+    head: usize,
+    len: &mut usize,
+    payload: &[u8],
+) -> Result<(), SendError> {
+    if *len == N {
+        return Err(SendError::Full);
+    }
+    let slot = &mut ring[(head + *len) % N];
+    slot.buf[..payload.len()].copy_from_slice(payload);
+    slot.len = payload.len() as u16;
+    *len += 1;
+    Ok(())
+}
+
 /// One end of the link with `TX` transmit slots (unacknowledged frames) and `RX` receive
 /// slots (delivered, not yet taken by the application). `TX` and `RX` must be 1..=64.
 #[derive(Debug, Clone)]
@@ -305,14 +323,7 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
         if payload.len() > MAX_PAYLOAD {
             return Err(SendError::TooLong);
         }
-        if self.tx_len == TX {
-            return Err(SendError::Full);
-        }
-        let slot = &mut self.tx[(self.tx_head + self.tx_len) % TX];
-        slot.buf[..payload.len()].copy_from_slice(payload);
-        slot.len = payload.len() as u16;
-        self.tx_len += 1;
-        Ok(())
+        push(&mut self.tx, self.tx_head, &mut self.tx_len, payload)
     }
 
     /// The oldest delivered message, if any (stays until [`Endpoint::pop`]).
@@ -333,14 +344,7 @@ impl<const TX: usize, const RX: usize> Endpoint<TX, RX> {
         if payload.len() > MAX_PAYLOAD {
             return Err(SendError::TooLong);
         }
-        if self.rx_len == RX {
-            return Err(SendError::Full);
-        }
-        let slot = &mut self.rx[(self.rx_head + self.rx_len) % RX];
-        slot.buf[..payload.len()].copy_from_slice(payload);
-        slot.len = payload.len() as u16;
-        self.rx_len += 1;
-        Ok(())
+        push(&mut self.rx, self.rx_head, &mut self.rx_len, payload)
     }
 
     /// Releases the oldest delivered message (its slot becomes a credit for the peer).
