@@ -292,6 +292,20 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         super::send(ep, &Message::CardListed { next: index, done: true });
     }
 
+    /// The card and its volume, for a request that needs the printer idle (a job may read or
+    /// hold the card's files).
+    fn idle_volume<'c, C: BlockWrite>(
+        &self,
+        card: Option<&'c mut C>,
+    ) -> Result<(&'c mut C, Volume), CardFault> {
+        if self.is_active() {
+            return Err(CardFault::Busy);
+        }
+        let dev = card.ok_or(CardFault::Absent)?;
+        let volume = Volume::mount(dev).map_err(|e| fault(&e))?;
+        Ok((dev, volume))
+    }
+
     /// Starts printing the card's file `name` (its bytes), or says why not.
     fn card_print<C: BlockWrite, const Q: usize>(
         &mut self,
@@ -300,11 +314,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
         fingerprint: u32,
     ) -> Result<u32, CardFault> {
-        if self.is_active() {
-            return Err(CardFault::Busy);
-        }
-        let dev = card.ok_or(CardFault::Absent)?;
-        let volume = Volume::mount(dev).map_err(|e| fault(&e))?;
+        let (dev, volume) = self.idle_volume(card)?;
         let file = volume.open(dev, name).map_err(|e| fault(&e))?;
         let mut head = [0u8; STL_HEAD_BYTES];
         let mut peek = file;
@@ -356,11 +366,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         name: &str,
         card: Option<&mut C>,
     ) -> Result<u32, CardFault> {
-        if self.is_active() {
-            return Err(CardFault::Busy);
-        }
-        let dev = card.ok_or(CardFault::Absent)?;
-        let volume = Volume::mount(dev).map_err(|e| fault(&e))?;
+        let (dev, volume) = self.idle_volume(card)?;
         let mut bufs = WriteBuffers::new();
         volume.remove(dev, &mut bufs, name).map_err(|e| fault(&e))?;
         Ok(0)
@@ -373,11 +379,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         name: &str,
         card: Option<&mut C>,
     ) -> Result<(), CardFault> {
-        if self.is_active() {
-            return Err(CardFault::Busy);
-        }
-        let dev = card.ok_or(CardFault::Absent)?;
-        let volume = Volume::mount(dev).map_err(|e| fault(&e))?;
+        let (dev, volume) = self.idle_volume(card)?;
         let empty = crate::card::write::FileWriter::EMPTY;
         self.pipeline.start_upload(WritingFile {
             volume,
