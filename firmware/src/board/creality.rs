@@ -43,7 +43,7 @@ use heapless::spsc::{Consumer as QConsumer, Producer as QProducer, Queue};
 use static_cell::ConstStaticCell;
 use stm32f1xx_hal::adc::{Adc, SampleTime};
 use stm32f1xx_hal::gpio::{
-    Analog, ErasedPin, Input, Output, PinState, PullUp, PushPull, PA5, PA6, PA7, PC4, PC5,
+    Analog, ErasedPin, Input, Output, PinState, PullUp, PushPull, PA5, PA6, PA7, PC4, PC5, PC7,
 };
 use stm32f1xx_hal::pac::{self, interrupt, Interrupt, ADC1, TIM2, TIM5, USART1};
 use stm32f1xx_hal::prelude::*;
@@ -251,8 +251,8 @@ fn TIM2() {
 }
 
 /// USART1, the millisecond clock and the thermistors.
-/// The board's SD card: the SDIO reader is not built yet (the slot reads as empty).
-pub type Card = strata::card::NoCard;
+/// The board's SD card, on SDIO.
+pub type Card = super::sdio::Sdio;
 
 pub struct Board {
     tx: Tx<USART1>,
@@ -262,12 +262,27 @@ pub struct Board {
     adc: Adc<ADC1>,
     hotend_sensor: PC5<Analog>,
     bed_sensor: PC4<Analog>,
+    /// The card detect switch (low with a card in).
+    card_detect: PC7<Input<PullUp>>,
+    /// The card, once it started (dropped when it leaves the slot).
+    card: Option<Card>,
 }
 
 impl Board {
-    /// The SD card: none until the SDIO reader is built.
+    /// The SD card, started when it is in the slot and has not started yet; `None` when the
+    /// slot is empty or the card does not start.
     pub fn card(&mut self) -> Option<&mut Card> {
-        None
+        if self.card_detect.is_high() {
+            self.card = None;
+            return None;
+        }
+        if self.card.is_none() {
+            match Card::start() {
+                Ok(card) => self.card = Some(card),
+                Err(e) => log!("CARD none: {}", e),
+            }
+        }
+        self.card.as_mut()
     }
 
     /// Milliseconds since start-up (the cycle counter, extended to 64 bits here).
@@ -365,6 +380,7 @@ pub fn init(cfg: &StepConfig) -> Board {
     let mut gpioa = dp.GPIOA.split(&mut rcc);
     let mut gpiob = dp.GPIOB.split(&mut rcc);
     let mut gpioc = dp.GPIOC.split(&mut rcc);
+    let mut gpiod = dp.GPIOD.split(&mut rcc);
 
     // The IWDG first (500 ms): fed by SysTick from here on while the main loop runs.
     let mut iwdg = IndependentWatchdog::new(dp.IWDG);
@@ -417,11 +433,21 @@ pub fn init(cfg: &StepConfig) -> Board {
     let hotend_sensor = gpioc.pc5.into_analog(&mut gpioc.crl);
     let bed_sensor = gpioc.pc4.into_analog(&mut gpioc.crl);
 
+    // The SD card: SDIO (its clock is HCLK's), D0-D3 PC8-PC11, CK PC12, CMD PD2; detect PC7.
+    let _d0 = gpioc.pc8.into_alternate_push_pull(&mut gpioc.crh);
+    let _d1 = gpioc.pc9.into_alternate_push_pull(&mut gpioc.crh);
+    let _d2 = gpioc.pc10.into_alternate_push_pull(&mut gpioc.crh);
+    let _d3 = gpioc.pc11.into_alternate_push_pull(&mut gpioc.crh);
+    let _ck = gpioc.pc12.into_alternate_push_pull(&mut gpioc.crh);
+    let _cmd = gpiod.pd2.into_alternate_push_pull(&mut gpiod.crl);
+    let card_detect = gpioc.pc7.into_pull_up_input(&mut gpioc.crl);
+
     // Heater and fan PWM: TIM5 (72 MHz: APB1 36 MHz x 2), 10 Hz, every duty 0 before the
     // pins become its outputs.
-    // SAFETY: as for TIM2 below (TIM5's clock enable bit only, single thread).
+    // SAFETY: as for TIM2 below (TIM5's and SDIO's clock enable bits only, single thread).
     let rcc_regs = unsafe { &*pac::RCC::ptr() };
     rcc_regs.apb1enr().modify(|_, w| w.tim5en().set_bit());
+    rcc_regs.ahbenr().modify(|_, w| w.sdioen().set_bit());
     let tim5 = dp.TIM5;
     // SAFETY (the `bits` writes): PSC, ARR and CCRx take any 16-bit value; CCMR1/2 = PWM
     // mode 1 (OCxM = 110) without preload on channels 1-3; CCER enables their outputs,
@@ -490,7 +516,17 @@ pub fn init(cfg: &StepConfig) -> Board {
         NVIC::unmask(Interrupt::USART1);
     }
     log!("board creality: 72 MHz, USART1 {} baud", BAUD);
-    Board { tx, rx: rx_cons, last: DWT::cycle_count(), cycles: 0, adc, hotend_sensor, bed_sensor }
+    Board {
+        tx,
+        rx: rx_cons,
+        last: DWT::cycle_count(),
+        cycles: 0,
+        adc,
+        hotend_sensor,
+        bed_sensor,
+        card_detect,
+        card: None,
+    }
 }
 
 /// Runs `f` on the interrupt's motion state (inside a critical section).
@@ -542,5 +578,9 @@ pub fn job_ended() {
     log!("STEPS x={} y={} z={} e={}", steps[0], steps[1], steps[2], steps[3]);
 }
 
-/// The card is on SDIO here (PC8-PC12, PD2; detect PC7): not read yet.
-pub fn card_report(_board: &mut Board) {}
+/// Whether a card started at boot (its files are listed over the link: `strata card ls`).
+pub fn card_report(board: &mut Board) {
+    if board.card().is_some() {
+        log!("CARD started");
+    }
+}

@@ -5,6 +5,8 @@
 #[cfg(feature = "creality")]
 mod creality;
 #[cfg(feature = "creality")]
+mod sdio;
+#[cfg(feature = "creality")]
 pub use creality::*;
 
 #[cfg(feature = "qemu")]
