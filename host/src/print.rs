@@ -214,22 +214,37 @@ fn from_card(args: &PrintCmdArgs, name: &str) -> Result<(), String> {
     let (mut port, mut ep, mut clock, abort) = open_port(&args.port, args.baud, args.link_timeout)?;
     let greeting = serial::connect(&mut port, &mut ep, &mut clock)?;
     let source = Source::Card { name, detach: args.detach };
+    // A bar over the layers on a terminal (a model's job knows its count; G-code counts
+    // them as it goes); plain lines at every layer otherwise.
+    let terminal = std::io::stderr().is_terminal();
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} layer {pos}/{len} {msg}",
+        )
+        .map_err(|e| e.to_string())?,
+    );
     let mut last_layer = None;
     let result =
         serial::print(&mut port, &mut ep, &mut clock, &greeting, source, false, &abort, |p| {
-            let layer = p.status.map(|s| s.layer);
-            if let (Some(s), true) = (p.status, p.card_file_bytes.is_some() && layer != last_layer)
-            {
-                last_layer = layer;
-                let (hotend, bed) = (s.hotend_c_x10 as f64 / 10.0, s.bed_c_x10 as f64 / 10.0);
-                eprintln!(
-                "progress: layer {} | {:?} | printed {} s | hotend {hotend:.1} C bed {bed:.1} C",
-                s.layer,
+            let Some(s) = p.status.filter(|_| p.card_file_bytes.is_some()) else { return };
+            let (hotend, bed) = (s.hotend_c_x10 as f64 / 10.0, s.bed_c_x10 as f64 / 10.0);
+            let eta = eta_s(&s).map_or("--".into(), |t| format!("{}:{:02}", t / 60, t % 60));
+            let text = format!(
+                "{:?} | printed {} s | ETA {eta} | hotend {hotend:.1} C bed {bed:.1} C",
                 s.state,
                 s.done_ms / 1000
             );
+            if terminal {
+                bar.set_length(u64::from(s.layers.max(s.layer)));
+                bar.set_position(u64::from(s.layer));
+                bar.set_message(text);
+            } else if last_layer != Some(s.layer) {
+                last_layer = Some(s.layer);
+                eprintln!("progress: layer {} | {text}", s.layer);
             }
         });
+    bar.finish_and_clear();
     let progress = result.map_err(|e| format!("{name}: {e}"))?;
     let bytes = progress.card_file_bytes.unwrap_or(0);
     if args.detach {
