@@ -20,13 +20,18 @@ pub struct Model {
 /// Reads and parses an STL file; errors carry the path and, for parse errors, the byte offset.
 pub fn load(path: &Path) -> Result<Model, String> {
     let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    load_bytes(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Parses an STL file's bytes.
+pub fn load_bytes(bytes: &[u8]) -> Result<Model, String> {
     let mut triangles = Vec::new();
     let mut bounds = Bounds::EMPTY;
-    let summary = stl::read_all(&bytes, &mut |t| {
+    let summary = stl::read_all(bytes, &mut |t| {
         bounds.include(&t);
         triangles.push(t);
     })
-    .map_err(|e| format!("{}: {e}", path.display()))?;
+    .map_err(|e| e.to_string())?;
     Ok(Model { summary, triangles, bounds })
 }
 

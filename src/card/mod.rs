@@ -9,6 +9,7 @@
 pub mod fat;
 pub mod sd;
 pub mod write;
+pub mod zsort;
 
 /// A file open for reading on its volume: what a print from the card keeps between reads
 /// (48 bytes, in the scratch a G-code job leaves free).

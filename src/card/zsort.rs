@@ -1,0 +1,373 @@
+//! An STL file on the card, placed on the bed and sorted by its triangles' lowest z in
+//! bounded RAM: how the printer prints an STL copied to its card (the slicer takes triangles
+//! in zmin order).
+//!
+//! Three passes, each a bounded amount of work per [`StlSort::step`] (the main loop turns
+//! between):
+//! 1. **bounds**: the file through the STL reader; its bounds give the placement on the bed
+//!    ([`Placement::on_bed`], as the host places a model);
+//! 2. **runs**: the file again; each placed triangle, with its index in the file, into RAM
+//!    ([`RUN_RECORDS`] at a time), sorted by (lowest z, index) and written as a run of
+//!    [`RECORD_BYTES`]-byte records to a temporary file ([`RUNS_NAME`]);
+//! 3. **merge**: the head of every run (up to [`MAX_RUNS`], in the RAM a run took), the least
+//!    taken in turn ([`StlSort::next`]).
+//!
+//! The order is the host's stable sort by lowest z: the same triangles in the same order as
+//! `strata print` streams them. A model of more than `RUN_RECORDS * MAX_RUNS` triangles is
+//! refused ([`SortError::TooManyTriangles`]: one merge pass only).
+
+use crate::card::fat::{BlockWrite, FatError, File, Volume, BLOCK_BYTES};
+use crate::card::write::{FileWriter, WriteBuffers};
+use crate::geom::{Point3, Triangle};
+use crate::machine::MachineConfig;
+use crate::place::{Bounds, PlaceError, Placement};
+use crate::stl::{StlError, StlReader};
+
+/// Bytes of a run's record: the nine coordinates (um) and the index in the file, LE.
+pub const RECORD_BYTES: usize = 40;
+/// Triangles sorted in RAM at a time (a run: 10 KB).
+pub const RUN_RECORDS: usize = 250;
+/// Runs merged at once (their heads take the run's RAM).
+pub const MAX_RUNS: usize = RUN_RECORDS * RECORD_BYTES / core::mem::size_of::<Option<Head>>();
+/// Blocks of the STL file read per [`StlSort::step`].
+const BLOCKS_PER_STEP: usize = 4;
+/// The temporary file of the runs (removed once merged: [`StlSort::remove_runs`]).
+pub const RUNS_NAME: &str = "strata-sort.tmp";
+
+/// Why the model cannot be sorted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SortError<E> {
+    /// The card failed, or has no room for the runs.
+    Card(FatError<E>),
+    /// The file is not a readable STL.
+    Stl(StlError),
+    /// The model does not fit the bed (or has no triangles).
+    Place(PlaceError),
+    /// More triangles than one merge pass sorts (their count).
+    TooManyTriangles(u32),
+}
+
+impl<E> From<FatError<E>> for SortError<E> {
+    fn from(e: FatError<E>) -> Self {
+        Self::Card(e)
+    }
+}
+
+/// Where the sort stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Reading the bounds.
+    Bounds,
+    /// Writing the runs.
+    Runs,
+    /// The triangles come out in order ([`StlSort::next`]).
+    Merge,
+}
+
+/// A triangle with its index in the file: the sort key is (lowest z, index).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Keyed {
+    tri: Triangle,
+    index: u32,
+}
+
+const NO_POINT: Point3 = Point3 { x: 0, y: 0, z: 0 };
+const NO_KEYED: Keyed = Keyed { tri: Triangle { v: [NO_POINT; 3] }, index: 0 };
+
+impl Keyed {
+    fn key(&self) -> (i32, u32) {
+        (self.tri.z_min(), self.index)
+    }
+
+    fn encode(&self) -> [u8; RECORD_BYTES] {
+        let mut out = [0u8; RECORD_BYTES];
+        let words = self.tri.v.iter().flat_map(|p| [p.x, p.y, p.z]);
+        for (chunk, w) in out.chunks_exact_mut(4).zip(words) {
+            chunk.copy_from_slice(&w.to_le_bytes());
+        }
+        out[36..].copy_from_slice(&self.index.to_le_bytes());
+        out
+    }
+
+    fn decode(b: &[u8; RECORD_BYTES]) -> Self {
+        let w = |i: usize| i32::from_le_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
+        let p = |i: usize| Point3 { x: w(3 * i), y: w(3 * i + 1), z: w(3 * i + 2) };
+        Self { tri: Triangle { v: [p(0), p(1), p(2)] }, index: w(9) as u32 }
+    }
+}
+
+/// A run being merged: where its next record is, how many are left, its head.
+#[derive(Debug, Clone, Copy)]
+struct Head {
+    at: File,
+    left: u32,
+    head: Keyed,
+}
+
+/// The RAM of the sort: a run's triangles, then the runs' heads.
+// The two overlay one another (no allocator).
+#[allow(clippy::large_enum_variant)]
+enum Work {
+    Run([Keyed; RUN_RECORDS]),
+    Heads([Option<Head>; MAX_RUNS]),
+}
+
+/// An STL file being placed and sorted (see the [module docs](self)); about 11.6 KB.
+pub struct StlSort {
+    /// The card's volume.
+    pub volume: Volume,
+    /// The STL file, at its start.
+    stl: File,
+    /// Where the pass reads it.
+    at: File,
+    reader: StlReader,
+    bounds: Bounds,
+    placement: Placement,
+    phase: Phase,
+    /// Triangles of the model (known after the bounds), and read in the runs pass.
+    triangles: u32,
+    read: u32,
+    /// The placed model's highest z, um.
+    top_um: i32,
+    /// Triangles in the run being filled; runs written.
+    run_len: usize,
+    runs: usize,
+    runs_writer: FileWriter,
+    /// The blocks the card's writers work in (the runs, then the caller's output file).
+    pub bufs: WriteBuffers,
+    work: Work,
+}
+
+impl StlSort {
+    /// A sort of `stl` on `volume`, about to read its bounds.
+    pub fn new(volume: Volume, stl: File) -> Self {
+        Self {
+            volume,
+            stl,
+            at: stl,
+            reader: StlReader::new(),
+            bounds: Bounds::EMPTY,
+            placement: Placement { offset_mm: [0.0; 3] },
+            phase: Phase::Bounds,
+            triangles: 0,
+            read: 0,
+            top_um: 0,
+            run_len: 0,
+            runs: 0,
+            runs_writer: FileWriter::EMPTY,
+            bufs: WriteBuffers::new(),
+            work: Work::Run([NO_KEYED; RUN_RECORDS]),
+        }
+    }
+
+    /// Where the sort stands.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Triangles of the model (once the bounds are read).
+    pub fn triangles(&self) -> u32 {
+        self.triangles
+    }
+
+    /// The placed model's highest z, um (once the runs are written).
+    pub fn top_um(&self) -> i32 {
+        self.top_um
+    }
+
+    /// Does the next bounded part of the bounds and runs passes (`machine`: the bed the model
+    /// is placed on); nothing in the merge.
+    pub fn step<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+        machine: &MachineConfig,
+    ) -> Result<Phase, SortError<D::Error>> {
+        match self.phase {
+            Phase::Bounds => self.bounds_step(dev, machine)?,
+            Phase::Runs => self.runs_step(dev)?,
+            Phase::Merge => {}
+        }
+        Ok(self.phase)
+    }
+
+    /// The next chunk of the STL file (to the end of its block) into `chunk`: its bytes (0 at
+    /// the end).
+    fn read_chunk<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+        chunk: &mut [u8; BLOCK_BYTES],
+    ) -> Result<usize, SortError<D::Error>> {
+        let len = BLOCK_BYTES - self.at.position() as usize % BLOCK_BYTES;
+        Ok(self.at.read(&self.volume, dev, &mut chunk[..len])?)
+    }
+
+    fn bounds_step<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+        machine: &MachineConfig,
+    ) -> Result<(), SortError<D::Error>> {
+        let mut chunk = [0u8; BLOCK_BYTES];
+        for _ in 0..BLOCKS_PER_STEP {
+            let n = self.read_chunk(dev, &mut chunk)?;
+            if n == 0 {
+                self.reader.finish().map_err(SortError::Stl)?;
+                self.placement =
+                    Placement::on_bed(&self.bounds, machine).map_err(SortError::Place)?;
+                if self.triangles as usize > RUN_RECORDS * MAX_RUNS {
+                    return Err(SortError::TooManyTriangles(self.triangles));
+                }
+                self.at = self.stl;
+                self.reader = StlReader::new();
+                self.runs_writer = self.volume.create(dev, &mut self.bufs, RUNS_NAME)?;
+                self.phase = Phase::Runs;
+                return Ok(());
+            }
+            let Self { reader, bounds, triangles, .. } = self;
+            reader
+                .feed(&chunk[..n], &mut |t| {
+                    bounds.include(&t);
+                    *triangles += 1;
+                })
+                .map_err(SortError::Stl)?;
+        }
+        Ok(())
+    }
+
+    fn runs_step<D: BlockWrite>(&mut self, dev: &mut D) -> Result<(), SortError<D::Error>> {
+        let mut chunk = [0u8; BLOCK_BYTES];
+        for _ in 0..BLOCKS_PER_STEP {
+            let n = self.read_chunk(dev, &mut chunk)?;
+            let Self { reader, placement, work, read, run_len, top_um, runs, .. } = self;
+            let Work::Run(run) = work else { return Ok(()) };
+            let mut out = RunsOut {
+                volume: &self.volume,
+                writer: &mut self.runs_writer,
+                bufs: &mut self.bufs,
+                runs,
+            };
+            if n == 0 {
+                reader.finish().map_err(SortError::Stl)?;
+                out.write(dev, &mut run[..*run_len])?;
+                *run_len = 0;
+                return self.start_merge(dev);
+            }
+            let mut failed = Ok(());
+            reader
+                .feed(&chunk[..n], &mut |t| {
+                    let tri = placement.apply(&t);
+                    *top_um = (*top_um).max(tri.z_max());
+                    run[*run_len] = Keyed { tri, index: *read };
+                    *read += 1;
+                    *run_len += 1;
+                    // Every run but the last has RUN_RECORDS triangles.
+                    if *run_len == RUN_RECORDS {
+                        *run_len = 0;
+                        if failed.is_ok() {
+                            failed = out.write(dev, run);
+                        }
+                    }
+                })
+                .map_err(SortError::Stl)?;
+            failed?;
+        }
+        Ok(())
+    }
+
+    /// The runs file closed and reopened, each run's head read.
+    fn start_merge<D: BlockWrite>(&mut self, dev: &mut D) -> Result<(), SortError<D::Error>> {
+        if self.runs > MAX_RUNS {
+            return Err(SortError::TooManyTriangles(self.read));
+        }
+        let writer = core::mem::replace(&mut self.runs_writer, FileWriter::EMPTY);
+        writer.close(&self.volume, dev, &mut self.bufs)?;
+        let mut at = self.volume.open(dev, RUNS_NAME)?;
+        let total = self.read;
+        self.work = Work::Heads([None; MAX_RUNS]);
+        let Work::Heads(heads) = &mut self.work else { return Ok(()) };
+        for (r, slot) in heads.iter_mut().take(self.runs).enumerate() {
+            let left = (total - (r * RUN_RECORDS) as u32).min(RUN_RECORDS as u32);
+            let start = at;
+            at.skip(&self.volume, dev, left * RECORD_BYTES as u32)?;
+            let mut h = Head { at: start, left, head: NO_KEYED };
+            h.head = read_record(&self.volume, dev, &mut h.at)?;
+            *slot = Some(h);
+        }
+        self.phase = Phase::Merge;
+        Ok(())
+    }
+
+    /// The next triangle in order (lowest z, then index in the file); `None` once all came.
+    pub fn next<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+    ) -> Result<Option<Triangle>, SortError<D::Error>> {
+        let Work::Heads(heads) = &mut self.work else { return Ok(None) };
+        let Some(least) = heads
+            .iter_mut()
+            .take(self.runs)
+            .filter_map(|h| h.as_mut())
+            .min_by_key(|h| h.head.key())
+        else {
+            return Ok(None);
+        };
+        let tri = least.head.tri;
+        least.left -= 1;
+        if least.left > 0 {
+            least.head = read_record(&self.volume, dev, &mut least.at)?;
+        }
+        // An empty run leaves the merge.
+        for h in heads.iter_mut() {
+            if h.is_some_and(|h| h.left == 0) {
+                *h = None;
+            }
+        }
+        Ok(Some(tri))
+    }
+
+    /// Removes the runs file (once merged and the caller's output file is closed).
+    pub fn remove_runs<D: BlockWrite>(&mut self, dev: &mut D) -> Result<(), SortError<D::Error>> {
+        Ok(self.volume.remove(dev, &mut self.bufs, RUNS_NAME)?)
+    }
+}
+
+/// Where runs go: the runs file's writer and its blocks, and the count of runs written.
+struct RunsOut<'a> {
+    volume: &'a Volume,
+    writer: &'a mut FileWriter,
+    bufs: &'a mut WriteBuffers,
+    runs: &'a mut usize,
+}
+
+impl RunsOut<'_> {
+    /// `run`, sorted by (lowest z, index), onto the runs file (nothing when empty).
+    fn write<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+        run: &mut [Keyed],
+    ) -> Result<(), SortError<D::Error>> {
+        if run.is_empty() {
+            return Ok(());
+        }
+        run.sort_unstable_by_key(Keyed::key);
+        for k in run.iter() {
+            self.writer.append(self.volume, dev, self.bufs, &k.encode())?;
+        }
+        *self.runs += 1;
+        Ok(())
+    }
+}
+
+/// The record at `at`, which moves past it.
+fn read_record<D: BlockWrite>(
+    volume: &Volume,
+    dev: &mut D,
+    at: &mut File,
+) -> Result<Keyed, FatError<D::Error>> {
+    let mut b = [0u8; RECORD_BYTES];
+    let n = at.read(volume, dev, &mut b)?;
+    if n != RECORD_BYTES {
+        // The runs file is shorter than its runs: changed under the sort.
+        return Err(FatError::Corrupt { block: 0 });
+    }
+    Ok(Keyed::decode(&b))
+}
