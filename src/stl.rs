@@ -156,6 +156,9 @@ pub enum StlErrorKind {
     TooShort,
     /// `feed` or `finish` was called after `finish` had succeeded. Offset: the end of the input.
     AfterFinish,
+    /// An ASCII file, for a reader of binary STL only ([`StlReader::binary_only`]). Offset:
+    /// where the format was decided (84, or the end of a shorter file).
+    Ascii,
 }
 
 impl StlErrorKind {
@@ -173,6 +176,7 @@ impl StlErrorKind {
             Self::UnexpectedEnd => "ASCII STL ends inside a facet",
             Self::TooShort => "ASCII STL under 84 bytes: one facet is no solid",
             Self::AfterFinish => "STL reader used after finish",
+            Self::Ascii => "ASCII STL, where only binary STL is read",
         }
     }
 }
@@ -195,6 +199,9 @@ impl fmt::Display for StlError {
 
 /// Where the reader is in the file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+// A tag of its own, `Detect` = 0: a reader at its start is all zero bytes (the card's sort
+// of an STL is cleared in place with it, see `card::zsort`).
+#[repr(u8)]
 enum Phase {
     /// Buffering the first 84 bytes.
     Detect,
@@ -209,7 +216,9 @@ enum Phase {
 }
 
 /// The ASCII token the grammar expects next.
+// A tag of its own, `Solid` = 0 (see `Phase`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
 enum Expect {
     /// `solid` or `facet` (start of file, or after `endsolid`, where the file may also end).
     Solid,
@@ -332,8 +341,12 @@ fn step(expect: Expect, word: Word) -> Option<Action> {
 }
 
 /// The push parser. See the [module docs](self) for formats, checks and findings.
+///
+/// `ASCII = false` ([`StlReader::binary_only`]) refuses ASCII files
+/// ([`StlErrorKind::Ascii`]): its build holds no text or float parsing (about 20 KB of a
+/// board's flash).
 #[derive(Debug, Clone)]
-pub struct StlReader {
+pub struct StlReader<const ASCII: bool = true> {
     phase: Phase,
     /// Bytes consumed so far (the offset of the next byte); the error offset once failed.
     pos: u64,
@@ -369,9 +382,22 @@ impl Default for StlReader {
     }
 }
 
-impl StlReader {
+impl StlReader<true> {
     /// A reader at the start of a file.
     pub const fn new() -> Self {
+        Self::blank()
+    }
+}
+
+impl StlReader<false> {
+    /// A reader of binary STL only, at the start of a file.
+    pub const fn binary_only() -> Self {
+        Self::blank()
+    }
+}
+
+impl<const ASCII: bool> StlReader<ASCII> {
+    const fn blank() -> Self {
         Self {
             phase: Phase::Detect,
             pos: 0,
@@ -417,7 +443,8 @@ impl StlReader {
             Phase::Binary => self.feed_binary(chunk, sink),
             // One non-generic copy of the ASCII parser: a dynamic call per facet is nothing
             // next to parsing its twelve numbers.
-            Phase::Ascii => self.feed_ascii(chunk, sink),
+            Phase::Ascii if ASCII => self.feed_ascii(chunk, sink),
+            Phase::Ascii => Err(self.error(StlErrorKind::Ascii)),
         }
     }
 
@@ -466,7 +493,8 @@ impl StlReader {
             Phase::Done => Err(self.error(StlErrorKind::AfterFinish)),
             Phase::Detect => Err(self.error(StlErrorKind::TruncatedHeader)),
             Phase::Binary => self.finish_binary(),
-            Phase::Ascii => self.finish_ascii(),
+            Phase::Ascii if ASCII => self.finish_ascii(),
+            Phase::Ascii => Err(self.error(StlErrorKind::Ascii)),
         }
     }
 
@@ -526,6 +554,9 @@ impl StlReader {
         let head = header.get(..usize::from(self.held)).unwrap_or(&[]);
         self.held = 0;
         if looks_ascii(head) {
+            if !ASCII {
+                return Err(self.error(StlErrorKind::Ascii));
+            }
             // Replay the header through the ASCII parser from offset 0.
             self.phase = Phase::Ascii;
             self.pos = 0;

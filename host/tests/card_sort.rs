@@ -1,13 +1,14 @@
 //! An STL on the card placed and sorted by the printer in bounded RAM
 //! (`strata::card::zsort`): the triangles come out as the host's `placed_sorted` gives them
 //! (same placement, same stable zmin order), over runs written to and merged from the card,
-//! whose temporary file goes again; models beyond the bed, unreadable STLs and models beyond
-//! one merge pass are refused with their reason.
+//! whose temporary file goes again; models beyond the bed, ASCII and unreadable STLs and
+//! models beyond one merge pass are refused with their reason.
 
 use strata::card::fat::{BlockRead, Volume};
 use strata::card::zsort::{Phase, SortError, StlSort, MAX_RUNS, RUNS_NAME, RUN_RECORDS};
 use strata::geom::Triangle;
 use strata::machine::MachineConfig;
+use strata::stl::StlErrorKind;
 use strata_host::card_image::ImageCard;
 
 const ENDER3: MachineConfig = MachineConfig::ENDER3;
@@ -31,7 +32,8 @@ fn sort_on_card(
         ImageCard::new(strata_testkit::card::image(fatfs::FatType::Fat16, 32, &files, true));
     let volume = Volume::mount(&mut card).unwrap();
     let file = volume.open(&mut card, name).unwrap();
-    let mut sort = Box::new(StlSort::new(volume, file));
+    let mut sort = Box::new(StlSort::EMPTY);
+    sort.begin(volume, file);
     let mut steps = 0;
     while sort.step(&mut card, &ENDER3)? != Phase::Merge {
         steps += 1;
@@ -47,7 +49,7 @@ fn sort_on_card(
 
 #[test]
 fn models_sort_on_the_card_as_the_host_sorts_them() {
-    for name in ["xyz_20mm_cube.stl", "embodier_hotend_v2.stl", "embodier_LM8UU_8p2pi.stl"] {
+    for name in ["xyz_20mm_cube.stl", "embodier_bin.stl", "embodier_LM8UU_8p2pi.stl"] {
         let stl = model_bytes(name);
         let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
             .join("../../shared/models")
@@ -89,6 +91,18 @@ fn binary_stl(n: u32) -> Vec<u8> {
     b
 }
 
+/// `StlSort::EMPTY` is all zero bytes: where it lives it is cleared with a memset, not copied
+/// from a constant of its size.
+#[test]
+fn an_empty_sort_is_zero_bytes() {
+    let empty = Box::new(StlSort::EMPTY);
+    let n = std::mem::size_of::<StlSort>();
+    // SAFETY: reads the bytes of a live value of `n` bytes; every field is plain data.
+    let bytes = unsafe { std::slice::from_raw_parts(&*empty as *const StlSort as *const u8, n) };
+    let nonzero: Vec<usize> = (0..n).filter(|&i| bytes[i] != 0).collect();
+    assert!(nonzero.is_empty(), "non-zero bytes at {nonzero:?} of {n}");
+}
+
 #[test]
 fn what_cannot_be_sorted_is_refused_with_its_reason() {
     // Several runs merged: as the host sorts them.
@@ -106,7 +120,11 @@ fn what_cannot_be_sorted_is_refused_with_its_reason() {
     wide[84 + 12..84 + 16].copy_from_slice(&(-150.0f32).to_le_bytes());
     wide[84 + 24..84 + 28].copy_from_slice(&150.0f32.to_le_bytes());
     assert!(matches!(sort_on_card("wide.stl", &wide), Err(SortError::Place(_))));
-    // Not an STL's text.
-    let text = b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 1 2\n";
-    assert!(matches!(sort_on_card("bad.stl", text), Err(SortError::Stl(_))));
+    // ASCII (binary only on the card), and a binary file cut inside a record.
+    let text = model_bytes("embodier_hotend_v2.stl");
+    let ascii = sort_on_card("text.stl", &text).unwrap_err();
+    assert!(matches!(ascii, SortError::Stl(e) if e.kind == StlErrorKind::Ascii), "{ascii:?}");
+    let cut = &binary_stl(40)[..84 + 50 * 20 + 7];
+    let e = sort_on_card("cut.stl", cut).unwrap_err();
+    assert!(matches!(e, SortError::Stl(e) if e.kind == StlErrorKind::TruncatedRecord), "{e:?}");
 }

@@ -126,7 +126,7 @@ pub enum FatType {
 /// A mounted volume: where its tables and clusters are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Volume {
-    /// FAT16 or FAT32.
+    /// FAT16 or FAT32 (see [`Volume::EMPTY`] for a place holder).
     pub fat_type: FatType,
     /// First block of the first FAT.
     pub(super) fat_start: u32,
@@ -182,6 +182,22 @@ impl Bpb {
             && le16(h, 14) != 0
             && h[16] != 0
     }
+}
+
+impl Volume {
+    /// A place holder before a volume is mounted (no blocks).
+    pub const EMPTY: Self = Self {
+        fat_type: FatType::Fat16,
+        fat_start: 0,
+        cluster_blocks: 0,
+        data_start: 0,
+        clusters: 0,
+        root_start: 0,
+        root_blocks: 0,
+        fats: 0,
+        fat_blocks: 0,
+        info_block: 0,
+    };
 }
 
 impl Volume {
@@ -626,6 +642,12 @@ pub struct File {
     /// Bytes of the file, and read so far.
     size: u32,
     pos: u32,
+}
+
+impl File {
+    /// A place holder before a file is opened (empty).
+    pub const EMPTY: Self =
+        Self { at: Cursor { cluster: 0, block: 0, offset: 0 }, size: 0, pos: 0 };
 }
 
 impl File {

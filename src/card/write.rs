@@ -584,6 +584,10 @@ impl FileWriter {
         dirty: false,
     };
 
+    /// A place holder only (all zero bytes: cleared in place with what holds it), replaced
+    /// by [`Volume::create`] before any use.
+    pub const PLACE_HOLDER: Self = Self { hint: 0, ..Self::EMPTY };
+
     fn empty() -> Self {
         Self::EMPTY
     }

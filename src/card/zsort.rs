@@ -1,6 +1,12 @@
-//! An STL file on the card, placed on the bed and sorted by its triangles' lowest z in
-//! bounded RAM: how the printer prints an STL copied to its card (the slicer takes triangles
-//! in zmin order).
+//! An STL file on the card, placed on the bed and sorted by lowest z in bounded RAM.
+//!
+//! This is the part of printing an STL copied to the card that the slicer needs first (it
+//! takes triangles in zmin order).
+//!
+//! Not wired into the printer yet: as a tenant of the printer's scratch (11 KB, not its
+//! largest), switching to it builds the value in a stack temporary on the Cortex-M3 (the
+//! optimised build clears a temporary and copies it into place), which the board's stack
+//! cannot hold; it needs a tenant switch that writes in place first.
 //!
 //! Three passes, each a bounded amount of work per [`StlSort::step`] (the main loop turns
 //! between):
@@ -9,11 +15,13 @@
 //! 2. **runs**: the file again; each placed triangle, with its index in the file, into RAM
 //!    ([`RUN_RECORDS`] at a time), sorted by (lowest z, index) and written as a run of
 //!    [`RECORD_BYTES`]-byte records to a temporary file ([`RUNS_NAME`]);
-//! 3. **merge**: the head of every run (up to [`MAX_RUNS`], in the RAM a run took), the least
-//!    taken in turn ([`StlSort::next`]).
+//! 3. **merge**: the head of every run (up to [`MAX_RUNS`], in the RAM a run took, beside
+//!    where each run goes on), the least taken in turn ([`StlSort::next`]).
 //!
 //! The order is the host's stable sort by lowest z: the same triangles in the same order as
-//! `strata print` streams them. A model of more than `RUN_RECORDS * MAX_RUNS` triangles is
+//! `strata print` streams them. Binary STL only (an ASCII file is refused,
+//! [`StlErrorKind::Ascii`](crate::stl::StlErrorKind::Ascii): parsing text floats would take
+//! 20 KB of the board's flash). A model of more than `RUN_RECORDS * MAX_RUNS` triangles is
 //! refused ([`SortError::TooManyTriangles`]: one merge pass only).
 
 use crate::card::fat::{BlockWrite, FatError, File, Volume, BLOCK_BYTES};
@@ -25,10 +33,12 @@ use crate::stl::{StlError, StlReader};
 
 /// Bytes of a run's record: the nine coordinates (um) and the index in the file, LE.
 pub const RECORD_BYTES: usize = 40;
-/// Triangles sorted in RAM at a time (a run: 10 KB).
-pub const RUN_RECORDS: usize = 250;
-/// Runs merged at once (their heads take the run's RAM).
-pub const MAX_RUNS: usize = RUN_RECORDS * RECORD_BYTES / core::mem::size_of::<Option<Head>>();
+/// Triangles sorted in RAM at a time (a run: 8.6 KB).
+pub const RUN_RECORDS: usize = 216;
+/// Runs merged at once (their heads take the run's first places; where each goes on, 24
+/// bytes, is kept beside).
+pub const MAX_RUNS: usize = 72;
+const _: () = assert!(MAX_RUNS <= RUN_RECORDS);
 /// Blocks of the STL file read per [`StlSort::step`].
 const BLOCKS_PER_STEP: usize = 4;
 /// The temporary file of the runs (removed once merged: [`StlSort::remove_runs`]).
@@ -96,21 +106,15 @@ impl Keyed {
     }
 }
 
-/// A run being merged: where its next record is, how many are left, its head.
+/// Where a run being merged goes on: its next record, and how many are left (its head
+/// included; 0: the run is done).
 #[derive(Debug, Clone, Copy)]
-struct Head {
+struct RunCursor {
     at: File,
     left: u32,
-    head: Keyed,
 }
 
-/// The RAM of the sort: a run's triangles, then the runs' heads.
-// The two overlay one another (no allocator).
-#[allow(clippy::large_enum_variant)]
-enum Work {
-    Run([Keyed; RUN_RECORDS]),
-    Heads([Option<Head>; MAX_RUNS]),
-}
+const NO_CURSOR: RunCursor = RunCursor { at: File::EMPTY, left: 0 };
 
 /// An STL file being placed and sorted (see the [module docs](self)); about 11.6 KB.
 pub struct StlSort {
@@ -120,7 +124,7 @@ pub struct StlSort {
     stl: File,
     /// Where the pass reads it.
     at: File,
-    reader: StlReader,
+    reader: StlReader<false>,
     bounds: Bounds,
     placement: Placement,
     phase: Phase,
@@ -133,31 +137,58 @@ pub struct StlSort {
     run_len: usize,
     runs: usize,
     runs_writer: FileWriter,
-    /// The blocks the card's writers work in (the runs, then the caller's output file).
-    pub bufs: WriteBuffers,
-    work: Work,
+    /// The blocks the card's writers work in (the runs, then the output file).
+    bufs: WriteBuffers,
+    /// The output file, once the merge began ([`StlSort::create_output`]; a place holder
+    /// before: no `Option`, whose empty value is not zero bytes).
+    out: FileWriter,
+    has_out: bool,
+    /// The run being filled; in the merge, run `r`'s head at `r`.
+    run: [Keyed; RUN_RECORDS],
+    /// In the merge, where each run goes on.
+    cursors: [RunCursor; MAX_RUNS],
 }
 
 impl StlSort {
-    /// A sort of `stl` on `volume`, about to read its bounds.
-    pub fn new(volume: Volume, stl: File) -> Self {
-        Self {
-            volume,
-            stl,
-            at: stl,
-            reader: StlReader::new(),
-            bounds: Bounds::EMPTY,
-            placement: Placement { offset_mm: [0.0; 3] },
-            phase: Phase::Bounds,
-            triangles: 0,
-            read: 0,
-            top_um: 0,
-            run_len: 0,
-            runs: 0,
-            runs_writer: FileWriter::EMPTY,
-            bufs: WriteBuffers::new(),
-            work: Work::Run([NO_KEYED; RUN_RECORDS]),
-        }
+    /// No sort, all zero bytes (a test checks it): cleared where it lives, then
+    /// [`begin`](Self::begin).
+    pub const EMPTY: Self = Self {
+        volume: Volume::EMPTY,
+        stl: File::EMPTY,
+        at: File::EMPTY,
+        reader: StlReader::binary_only(),
+        bounds: Bounds { min: [0.0; 3], max: [0.0; 3] },
+        placement: Placement { offset_mm: [0.0; 3] },
+        phase: Phase::Bounds,
+        triangles: 0,
+        read: 0,
+        top_um: 0,
+        run_len: 0,
+        runs: 0,
+        runs_writer: FileWriter::PLACE_HOLDER,
+        bufs: WriteBuffers::new(),
+        out: FileWriter::PLACE_HOLDER,
+        has_out: false,
+        run: [NO_KEYED; RUN_RECORDS],
+        cursors: [NO_CURSOR; MAX_RUNS],
+    };
+
+    /// Starts sorting `stl` on `volume`: its bounds are read first (the run's and the
+    /// cursors' places are overwritten as they are used).
+    pub fn begin(&mut self, volume: Volume, stl: File) {
+        self.volume = volume;
+        self.stl = stl;
+        self.at = stl;
+        self.reader = StlReader::binary_only();
+        self.bounds = Bounds::EMPTY;
+        self.phase = Phase::Bounds;
+        self.triangles = 0;
+        self.read = 0;
+        self.top_um = 0;
+        self.run_len = 0;
+        self.runs = 0;
+        self.runs_writer = FileWriter::PLACE_HOLDER;
+        self.has_out = false;
     }
 
     /// Where the sort stands.
@@ -217,7 +248,7 @@ impl StlSort {
                     return Err(SortError::TooManyTriangles(self.triangles));
                 }
                 self.at = self.stl;
-                self.reader = StlReader::new();
+                self.reader = StlReader::binary_only();
                 self.runs_writer = self.volume.create(dev, &mut self.bufs, RUNS_NAME)?;
                 self.phase = Phase::Runs;
                 return Ok(());
@@ -237,8 +268,7 @@ impl StlSort {
         let mut chunk = [0u8; BLOCK_BYTES];
         for _ in 0..BLOCKS_PER_STEP {
             let n = self.read_chunk(dev, &mut chunk)?;
-            let Self { reader, placement, work, read, run_len, top_um, runs, .. } = self;
-            let Work::Run(run) = work else { return Ok(()) };
+            let Self { reader, placement, run, read, run_len, top_um, runs, .. } = self;
             let mut out = RunsOut {
                 volume: &self.volume,
                 writer: &mut self.runs_writer,
@@ -278,19 +308,18 @@ impl StlSort {
         if self.runs > MAX_RUNS {
             return Err(SortError::TooManyTriangles(self.read));
         }
-        let writer = core::mem::replace(&mut self.runs_writer, FileWriter::EMPTY);
+        let writer = core::mem::replace(&mut self.runs_writer, FileWriter::PLACE_HOLDER);
         writer.close(&self.volume, dev, &mut self.bufs)?;
         let mut at = self.volume.open(dev, RUNS_NAME)?;
         let total = self.read;
-        self.work = Work::Heads([None; MAX_RUNS]);
-        let Work::Heads(heads) = &mut self.work else { return Ok(()) };
-        for (r, slot) in heads.iter_mut().take(self.runs).enumerate() {
+        let runs = self.runs;
+        for (r, (head, cursor)) in self.run.iter_mut().zip(&mut self.cursors).take(runs).enumerate()
+        {
             let left = (total - (r * RUN_RECORDS) as u32).min(RUN_RECORDS as u32);
-            let start = at;
+            let mut next = at;
             at.skip(&self.volume, dev, left * RECORD_BYTES as u32)?;
-            let mut h = Head { at: start, left, head: NO_KEYED };
-            h.head = read_record(&self.volume, dev, &mut h.at)?;
-            *slot = Some(h);
+            *head = read_record(&self.volume, dev, &mut next)?;
+            *cursor = RunCursor { at: next, left };
         }
         self.phase = Phase::Merge;
         Ok(())
@@ -301,32 +330,65 @@ impl StlSort {
         &mut self,
         dev: &mut D,
     ) -> Result<Option<Triangle>, SortError<D::Error>> {
-        let Work::Heads(heads) = &mut self.work else { return Ok(None) };
-        let Some(least) = heads
-            .iter_mut()
-            .take(self.runs)
-            .filter_map(|h| h.as_mut())
-            .min_by_key(|h| h.head.key())
+        if self.phase != Phase::Merge {
+            return Ok(None);
+        }
+        let live = self.run.iter().zip(&self.cursors).take(self.runs).enumerate();
+        let Some((r, _)) = live.filter(|(_, (_, c))| c.left > 0).min_by_key(|(_, (h, _))| h.key())
         else {
             return Ok(None);
         };
-        let tri = least.head.tri;
-        least.left -= 1;
-        if least.left > 0 {
-            least.head = read_record(&self.volume, dev, &mut least.at)?;
-        }
-        // An empty run leaves the merge.
-        for h in heads.iter_mut() {
-            if h.is_some_and(|h| h.left == 0) {
-                *h = None;
-            }
+        let tri = self.run[r].tri;
+        let cursor = &mut self.cursors[r];
+        cursor.left -= 1;
+        if cursor.left > 0 {
+            self.run[r] = read_record(&self.volume, dev, &mut cursor.at)?;
         }
         Ok(Some(tri))
     }
 
-    /// Removes the runs file (once merged and the caller's output file is closed).
+    /// Removes the runs file (once merged and the output file is closed).
     pub fn remove_runs<D: BlockWrite>(&mut self, dev: &mut D) -> Result<(), SortError<D::Error>> {
         Ok(self.volume.remove(dev, &mut self.bufs, RUNS_NAME)?)
+    }
+
+    /// Creates the output file `name` (replacing one of that name): what the merge gives goes
+    /// there ([`append_output`](Self::append_output)). Only once the runs are written (they
+    /// share the writer's blocks).
+    pub fn create_output<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+        name: &str,
+    ) -> Result<(), SortError<D::Error>> {
+        self.out = self.volume.create(dev, &mut self.bufs, name)?;
+        self.has_out = true;
+        Ok(())
+    }
+
+    /// Whether the output file was created.
+    pub fn has_output(&self) -> bool {
+        self.has_out
+    }
+
+    /// Appends `bytes` to the output file (none created: nothing is written).
+    pub fn append_output<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+        bytes: &[u8],
+    ) -> Result<(), SortError<D::Error>> {
+        if self.has_out {
+            self.out.append(&self.volume, dev, &mut self.bufs, bytes)?;
+        }
+        Ok(())
+    }
+
+    /// Closes the output file: its bytes.
+    pub fn close_output<D: BlockWrite>(&mut self, dev: &mut D) -> Result<u32, SortError<D::Error>> {
+        if !core::mem::take(&mut self.has_out) {
+            return Ok(0);
+        }
+        let out = core::mem::replace(&mut self.out, FileWriter::PLACE_HOLDER);
+        Ok(out.close(&self.volume, dev, &mut self.bufs)?)
     }
 }
 
@@ -348,12 +410,41 @@ impl RunsOut<'_> {
         if run.is_empty() {
             return Ok(());
         }
-        run.sort_unstable_by_key(Keyed::key);
+        heap_sort(run);
         for k in run.iter() {
             self.writer.append(self.volume, dev, self.bufs, &k.encode())?;
         }
         *self.runs += 1;
         Ok(())
+    }
+}
+
+/// Sorts `run` by (lowest z, index) in place: a heap sort (a few hundred bytes of code;
+/// `sort_unstable` takes 10 KB of the board's flash).
+fn heap_sort(run: &mut [Keyed]) {
+    // Moves the entry at `root` down the max-heap of the first `end` entries.
+    fn sift(run: &mut [Keyed], mut root: usize, end: usize) {
+        loop {
+            let mut child = 2 * root + 1;
+            if child >= end {
+                return;
+            }
+            if child + 1 < end && run[child + 1].key() > run[child].key() {
+                child += 1;
+            }
+            if run[root].key() >= run[child].key() {
+                return;
+            }
+            run.swap(root, child);
+            root = child;
+        }
+    }
+    for root in (0..run.len() / 2).rev() {
+        sift(run, root, run.len());
+    }
+    for end in (1..run.len()).rev() {
+        run.swap(0, end);
+        sift(run, 0, end);
     }
 }
 
