@@ -1160,9 +1160,10 @@ fn qemu_model_job_uploaded_prints_from_card_as_streamed() {
     std::fs::write(&image, strata_testkit::card::image(fatfs::FatType::Fat32, 64, &[], true))
         .unwrap();
     let machine = MachineConfig::default();
-    let (mut q, mut clock, mut port, mut conn) = with_card(label, &qemu, &elf, &image);
+    // Admission and the reference before QEMU starts (slow in a debug build): an emulator
+    // whose UART nobody reads meanwhile stalls once the socket is full.
     let (tris, job) = load("embodier_hotend_v2.stl");
-    let caps = conn.greeting.capacities;
+    let caps = strata::printer::BOARD_CAPACITIES;
     let admitted = strata_host::admission::admit_job(&tris, &machine, &job, &caps, 0.02)
         .unwrap_or_else(|e| panic!("{label}: admission: {e}"));
     assert!(
@@ -1172,6 +1173,8 @@ fn qemu_model_job_uploaded_prints_from_card_as_streamed() {
     let opts = SimOptions { capacities: caps, ..SimOptions::default() };
     let reference = simulate_source(Source::Model(&tris, job), &machine, &opts)
         .unwrap_or_else(|(e, _)| panic!("{label}: reference: {e}"));
+    let (mut q, mut clock, mut port, mut conn) = with_card(label, &qemu, &elf, &image);
+    assert_eq!(conn.greeting.capacities, caps, "{label}: the board's capacities");
     let file = strata_host::job_file::encode(&job, &tris).unwrap();
     let name = "embodier_hotend_v2.sjob";
     let write = CardWrite::upload(name, &file);

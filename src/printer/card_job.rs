@@ -35,7 +35,8 @@ use crate::card::WritingFile;
 use crate::protocol::job_file::{self, ReadError, MAGIC, RECORD_OVERHEAD};
 use crate::protocol::msg::ty;
 use crate::protocol::{
-    job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, Message, MAX_PAYLOAD,
+    job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, JobSpec, Message,
+    MAX_PAYLOAD,
 };
 use crate::slot::Slot;
 
@@ -134,6 +135,25 @@ pub(super) struct CardRecords {
     in_link: u16,
     /// The printer took it: the file moves past it.
     taken: bool,
+}
+
+/// A job file's magic and first record, the job start: the job and its fingerprint. Never
+/// inlined: its record buffer is off the stack when the job starts.
+#[inline(never)]
+fn job_start<C: BlockWrite>(
+    volume: &Volume,
+    dev: &mut C,
+    file: &mut File,
+) -> Result<(JobSpec, u32), CardFault> {
+    let mut magic = [0u8; MAGIC.len()];
+    let n = file.read(volume, dev, &mut magic).map_err(|e| fault(&e))?;
+    job_file::check_magic(&magic[..n]).map_err(|_| CardFault::BadJob)?;
+    let mut payload = [0u8; MAX_PAYLOAD];
+    let n = read_record(volume, dev, file, &mut payload)?;
+    let Ok(Message::JobStart(job)) = Message::decode(&payload[..n]) else {
+        return Err(CardFault::BadJob);
+    };
+    Ok((job, job_fingerprint(&payload[..n])))
 }
 
 /// Reads the record at `file` (its payload into `payload`: its bytes), its CRC checked.
@@ -344,17 +364,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         mut file: File,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) -> Result<u32, CardFault> {
-        let mut magic = [0u8; MAGIC.len()];
-        let n = file.read(volume, dev, &mut magic).map_err(|e| fault(&e))?;
-        job_file::check_magic(&magic[..n]).map_err(|_| CardFault::BadJob)?;
-        let mut payload = [0u8; MAX_PAYLOAD];
-        let n = read_record(volume, dev, &mut file, &mut payload)?;
-        let Ok(Message::JobStart(job)) = Message::decode(&payload[..n]) else {
-            return Err(CardFault::BadJob);
-        };
+        let (job, fingerprint) = job_start(volume, dev, &mut file)?;
         self.start(&job, motion);
         self.card_job = true;
-        self.fingerprint = job_fingerprint(&payload[..n]);
+        self.fingerprint = fingerprint;
         self.card_records = Slot::Full(CardRecords { file, in_link: 0, taken: false });
         Ok(file.size())
     }
