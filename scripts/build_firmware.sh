@@ -75,6 +75,19 @@ case "$printer_type" in
   *) fail "the PRINTER static is not in .bss (llvm-nm type '${printer_type:-missing}'):" \
        "Printer::empty() has a non-zero byte; see src/slot.rs for the usual cause" ;;
 esac
+# No function's frame may take more than FRAME_LIMIT: a large value built on the stack (an
+# enum's variant assigned through a temporary of its size, say) overflows it on the board only
+# when that path runs. The deepest frames are about 900 B (the card's service).
+FRAME_LIMIT=1536
+objdump="$(command -v llvm-objdump || echo "$bin_dir/llvm-objdump")"
+big_frame="$("$objdump" -d --no-show-raw-insn "$out/strata-firmware.elf" | awk -v limit=$FRAME_LIMIT '
+  /^[0-9a-f]+ <.*>:$/ { name = $2; frame = 0 }
+  $2 ~ /^sub(\.w)?$/ && $3 == "sp," && $NF ~ /^#[0-9]+$/ {
+    frame += substr($NF, 2)
+    if (frame > limit && !found) { found = name " " frame }
+  }
+  END { print found }')"
+[ -z "$big_frame" ] || fail "a stack frame over $FRAME_LIMIT B: $big_frame"
 "$objcopy" -O binary "$out/strata-firmware.elf" "$out/firmware.bin"
 read -r flash ram < <("$size" -A "$out/strata-firmware.elf" | awk '
   $1 == ".text" || $1 == ".rodata" || $1 == ".vector_table" { flash += $2 }

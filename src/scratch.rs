@@ -31,6 +31,8 @@
 
 use core::mem::size_of;
 
+use crate::card::fat::{File, Volume};
+use crate::card::zsort::StlSort;
 use crate::card::{OpenFile, WritingFile};
 use crate::gcode::input::GcodeInput;
 use crate::geom::Point2;
@@ -92,6 +94,12 @@ enum Tenant<const S: usize, const P: usize, const C: usize> {
     Gcode(GcodeInput, Option<OpenFile>),
     /// A file being written to the card (no job runs).
     Upload(WritingFile),
+    /// An STL on the card being placed and sorted (no job runs). The sort is 8-aligned: the
+    /// word after the 4-byte tag would be padding, whose undefined bytes keep the optimised
+    /// build from clearing the place in place (it clears an 11 KB stack temporary and copies
+    /// it, which overflows the board's stack); a defined zero word there (written, never
+    /// read) lets it. `scripts/build_firmware.sh` fails a build with such a frame.
+    Stl(#[allow(dead_code)] u32, StlSort),
 }
 
 impl<const S: usize, const P: usize, const C: usize> Default for Scratch<S, P, C> {
@@ -158,6 +166,23 @@ impl<const S: usize, const P: usize, const C: usize> Scratch<S, P, C> {
     pub fn upload(&mut self) -> Option<&mut WritingFile> {
         match self.tenant {
             Tenant::Upload(ref mut w) => Some(w),
+            _ => None,
+        }
+    }
+
+    /// The STL file `stl` on `volume` takes the place to be sorted (written in place, then
+    /// begun: no temporary of its size).
+    pub fn start_stl(&mut self, volume: Volume, stl: File) {
+        self.tenant = Tenant::Stl(0, StlSort::EMPTY);
+        if let Tenant::Stl(_, ref mut s) = self.tenant {
+            s.begin(volume, stl);
+        }
+    }
+
+    /// The STL being sorted, while it has the place.
+    pub fn stl(&mut self) -> Option<&mut StlSort> {
+        match self.tenant {
+            Tenant::Stl(_, ref mut s) => Some(s),
             _ => None,
         }
     }
@@ -230,10 +255,13 @@ impl<const S: usize, const P: usize, const C: usize> ToolpathSpace<P, C> for Scr
 /// points, `pts` offset edges, `cross` infill crossings).
 ///
 /// The largest tenant, bytes (the value adds at most a tag and alignment padding); a G-code
-/// job's input with its card file, and a file being written to the card, at least.
+/// job's input with its card file, a file being written to the card and an STL on the card
+/// being sorted, at least.
 pub fn bytes(segments: usize, pts: usize, cross: usize) -> usize {
     let cut = size_of::<CutScratch<0>>() + segments * CUT_BYTES;
-    let card = size_of::<(GcodeInput, Option<OpenFile>)>().max(size_of::<WritingFile>());
+    let card = size_of::<(GcodeInput, Option<OpenFile>)>()
+        .max(size_of::<WritingFile>())
+        .max(size_of::<StlSort>());
     cut.max(ToolpathNeeds::work_bytes_of(pts, cross)).max(card)
 }
 

@@ -476,7 +476,7 @@ fn golden_card_messages() {
     // Refused: an unknown fault, a flag not 0/1, a name not UTF-8, an empty name, short fields.
     for bad in [
         &[0x44, 0][..],
-        &[0x44, 16],
+        &[0x44, 20],
         &[0x42, 7, 0, 2],
         &[0x43, 0xff, 0xfe],
         &[0x43],

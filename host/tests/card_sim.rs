@@ -103,8 +103,7 @@ fn a_detached_host_leaves_once_the_job_started() {
 #[test]
 fn what_cannot_print_from_the_card_is_refused_in_words() {
     let blank = ImageCard::new(vec![0; 8 << 20]);
-    let cases: [(&str, Option<ImageCard>, &str); 5] = [
-        ("xyz_20mm_cube.stl", Some(card()), "the file is an STL"),
+    let cases: [(&str, Option<ImageCard>, &str); 4] = [
         ("photo.jpg", Some(card()), "neither G-code nor STL"),
         ("nothing.gcode", Some(card()), "no such file"),
         (GCODE, Some(blank), "not formatted"),
@@ -240,5 +239,75 @@ fn a_new_host_mid_job_loses_no_record_of_a_job_from_the_card() {
         let what = format!("a new host at {at_ms} ms");
         assert_eq!(got.device_triangles as usize, tris.len(), "{what}: triangles taken");
         assert_same_motion(&what, &got, &want);
+    }
+}
+
+/// An STL copied to the card: the printer places it and sorts it on the card (runs and a
+/// merge), writes its job (default settings) and prints it step for step as the host's
+/// placement streamed, its host gone a minute after the start. What cannot be sorted is
+/// refused in words, nothing moving.
+#[test]
+fn an_stl_on_the_card_prints_as_the_host_places_and_streams_it() {
+    for (name, fat, partition) in [
+        ("xyz_20mm_cube.stl", fatfs::FatType::Fat32, true),
+        ("embodier_LM8UU_8p2pi.stl", fatfs::FatType::Fat16, false),
+    ] {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/models").join(name);
+        let stl = std::fs::read(&path).unwrap();
+        let tris = strata_host::model::load(&path).unwrap().placed_sorted(&ENDER3).unwrap();
+        let job = strata_testkit::drive::job_spec(&tris);
+        let want =
+            simulate_source(Source::Model(&tris, job), &ENDER3, &SimOptions::default()).unwrap();
+        let files: [(&str, &[u8]); 1] = [(name, &stl)];
+        let card = ImageCard::new(strata_testkit::card::image(fat, 64, &files, partition));
+        let opts = SimOptions {
+            faults: Faults { cut_at_ms: Some(60_000), ..Faults::default() },
+            device_outlives_host: true,
+            ..SimOptions::default()
+        };
+        let source = Source::Card { name, detach: false };
+        let (e, got) = simulate_with_card(source, &ENDER3, &opts, Some(card)).unwrap_err();
+        assert!(e.contains("link dead"), "{name}: {e}");
+        assert_eq!(got.device_triangles as usize, tris.len(), "{name}: triangles taken");
+        assert_same_motion(name, &got, &want);
+        let seen = got.layer_hashes.len();
+        assert!(seen > 0, "{name}: the host saw layers before it went");
+        assert_eq!(got.layer_hashes[..seen], want.layer_hashes[..seen], "{name}");
+        eprintln!(
+            "{name}: {} triangles sorted on the card, {} layers as streamed",
+            tris.len(),
+            want.layers
+        );
+    }
+}
+
+#[test]
+fn an_stl_that_cannot_print_from_the_card_is_refused_in_words() {
+    let mut wide = vec![0u8; 80];
+    wide.extend_from_slice(&1u32.to_le_bytes());
+    wide.extend_from_slice(&[0u8; 12]);
+    for v in [-150.0f32, 0.0, 0.0, 150.0, 0.0, 0.0, 0.0, 10.0, 1.0] {
+        wide.extend_from_slice(&v.to_le_bytes());
+    }
+    wide.extend_from_slice(&[0u8; 2]);
+    // A corner that is not a number.
+    let mut nan = wide.clone();
+    nan[84 + 12..84 + 16].copy_from_slice(&f32::NAN.to_le_bytes());
+    let text = b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 1 2 3\n".repeat(3);
+    for (name, stl, words) in [
+        ("wide.stl", wide, "larger than the bed"),
+        ("nan.stl", nan, "cannot be read"),
+        ("text.stl", text, "the STL is ASCII"),
+    ] {
+        let files: [(&str, &[u8]); 1] = [(name, &stl)];
+        let card =
+            ImageCard::new(strata_testkit::card::image(fatfs::FatType::Fat16, 32, &files, false));
+        let opts = SimOptions { max_ms: 20_000, ..SimOptions::default() };
+        let (e, rep) =
+            simulate_with_card(Source::Card { name, detach: false }, &ENDER3, &opts, Some(card))
+                .unwrap_err();
+        assert!(e.starts_with("card: ") && e.contains(words), "{name}: {e}");
+        assert_eq!(rep.steps, [0; 4], "{name}: no step");
+        assert_eq!(rep.device_state, Some(DeviceState::Idle), "{name}");
     }
 }

@@ -1,12 +1,6 @@
-//! An STL file on the card, placed on the bed and sorted by lowest z in bounded RAM.
-//!
-//! This is the part of printing an STL copied to the card that the slicer needs first (it
-//! takes triangles in zmin order).
-//!
-//! Not wired into the printer yet: as a tenant of the printer's scratch (11 KB, not its
-//! largest), switching to it builds the value in a stack temporary on the Cortex-M3 (the
-//! optimised build clears a temporary and copies it into place), which the board's stack
-//! cannot hold; it needs a tenant switch that writes in place first.
+//! An STL file on the card, placed on the bed and sorted by its triangles' lowest z in
+//! bounded RAM: how the printer prints an STL copied to its card (the slicer takes triangles
+//! in zmin order).
 //!
 //! Three passes, each a bounded amount of work per [`StlSort::step`] (the main loop turns
 //! between):

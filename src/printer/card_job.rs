@@ -30,15 +30,20 @@
 use super::{Failure, MotionAccess, Printer, Stages};
 use crate::card::fat::{BlockWrite, FatError, File, Unsupported, Volume};
 use crate::card::write::WriteBuffers;
+use crate::card::zsort::{Phase, SortError, StlSort};
 use crate::card::OpenFile;
 use crate::card::WritingFile;
+use crate::machine::PrintSettings;
+use crate::place::PlaceError;
 use crate::protocol::job_file::{self, ReadError, MAGIC, RECORD_OVERHEAD};
 use crate::protocol::msg::ty;
 use crate::protocol::{
     job_fingerprint, CardEntry, CardFault, DeviceState, Endpoint, GcodeSpec, JobSpec, Message,
     MAX_PAYLOAD,
 };
+use crate::protocol::{BatchBuilder, JobOptions};
 use crate::slot::Slot;
+use crate::stl::StlErrorKind;
 
 /// Bytes of a card file read at a time at most (a buffer on the stack while it is read): a
 /// block, so that each block of the file is read through once.
@@ -50,6 +55,12 @@ const CARD_READ_ROOM_DIV: usize = 4;
 /// Parts of a card file read per [`Printer::card_service`] call at most (1 KB: the main loop
 /// turns between them).
 const CARD_CHUNKS_PER_CALL: usize = 4;
+/// The job file an STL on the card is prepared into (replaced by the next one).
+pub const STL_JOB_NAME: &str = "strata-stl.sjob";
+/// Triangles of a batch of a prepared STL's job (at most 24 bytes each: a frame's payload).
+const STL_BATCH: usize = 16;
+/// Batches of a prepared STL's job written per [`Printer::card_service`] call.
+const STL_BATCHES_PER_CALL: usize = 4;
 /// Bytes of a binary STL's header and triangle count.
 const STL_HEAD_BYTES: usize = 84;
 /// Bytes of a binary STL triangle record.
@@ -156,6 +167,28 @@ fn job_start<C: BlockWrite>(
     Ok((job, job_fingerprint(&payload[..n])))
 }
 
+/// The record of `payload` onto the sort's output file.
+fn append_record<C: BlockWrite>(
+    sort: &mut StlSort,
+    dev: &mut C,
+    payload: &[u8],
+) -> Result<(), CardFault> {
+    let mut rec = [0u8; MAX_PAYLOAD + RECORD_OVERHEAD];
+    let n = job_file::encode_record(payload, &mut rec).ok_or(CardFault::BadJob)?;
+    sort.append_output(dev, &rec[..n]).map_err(|e| sort_fault(&e))
+}
+
+/// What the sort's error means to the user.
+fn sort_fault<E>(e: &SortError<E>) -> CardFault {
+    match e {
+        SortError::Card(e) => fault(e),
+        SortError::Stl(e) if e.kind == StlErrorKind::Ascii => CardFault::AsciiStl,
+        SortError::Stl(_) | SortError::Place(PlaceError::EmptyModel) => CardFault::BadStl,
+        SortError::Place(_) => CardFault::TooLarge,
+        SortError::TooManyTriangles(_) => CardFault::TooManyTriangles,
+    }
+}
+
 /// Reads the record at `file` (its payload into `payload`: its bytes), its CRC checked.
 fn read_record<C: BlockWrite>(
     volume: &Volume,
@@ -174,7 +207,9 @@ enum Request {
     List {
         from: u16,
     },
-    Print(Result<u32, CardFault>),
+    /// A print started (its file's bytes), begun (an STL being sorted: answered once it
+    /// starts), or refused.
+    Print(Result<Option<u32>, CardFault>),
     /// A removal, or a file closed (its bytes).
     Done(Result<u32, CardFault>),
     /// A file created, or bytes written: no answer unless it failed.
@@ -186,7 +221,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// Whether the card is wanted now: a card request heads the link, or a job from the card
     /// reads its file. (A board starts its card only then.)
     pub fn wants_card<const TX: usize, const RX: usize>(&self, ep: &Endpoint<TX, RX>) -> bool {
-        ep.peek().is_some_and(is_card_request) || self.card_reading()
+        ep.peek().is_some_and(is_card_request) || self.card_reading() || self.preparing
     }
 
     /// A job from the card reads its file.
@@ -212,9 +247,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 let started = matches!(request, Request::Print(Ok(_)));
                 match request {
                     Request::List { from } => self.card_list(ep, card.as_deref_mut(), from),
-                    Request::Print(Ok(bytes)) => {
+                    Request::Print(Ok(Some(bytes))) => {
                         super::send(ep, &Message::CardStarted { bytes });
                     }
+                    Request::Print(Ok(None)) => {}
                     Request::Print(Err(f)) | Request::Done(Err(f)) | Request::Written(Err(f)) => {
                         super::send(ep, &Message::CardRefused(f));
                     }
@@ -232,7 +268,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 }
             }
         }
-        if self.gcode_job {
+        if self.preparing {
+            self.prepare_stl(ep, card, motion);
+        } else if self.gcode_job {
             self.feed_from_card(card, motion);
         } else {
             self.feed_records(ep, card);
@@ -318,7 +356,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         &self,
         card: Option<&'c mut C>,
     ) -> Result<(&'c mut C, Volume), CardFault> {
-        if self.is_active() {
+        if self.is_active() || self.preparing {
             return Err(CardFault::Busy);
         }
         let dev = card.ok_or(CardFault::Absent)?;
@@ -333,7 +371,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         card: Option<&mut C>,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
         fingerprint: u32,
-    ) -> Result<u32, CardFault> {
+    ) -> Result<Option<u32>, CardFault> {
         let (dev, volume) = self.idle_volume(card)?;
         let file = volume.open(dev, name).map_err(|e| fault(&e))?;
         let mut head = [0u8; STL_HEAD_BYTES];
@@ -341,8 +379,14 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         let n = peek.read(&volume, dev, &mut head).map_err(|e| fault(&e))?;
         match file_kind(&head[..n], file.size()) {
             FileKind::Gcode => {}
-            FileKind::Job => return self.card_print_job(&volume, dev, file, motion),
-            FileKind::Stl => return Err(CardFault::Stl),
+            FileKind::Job => return self.card_print_job(&volume, dev, file, motion).map(Some),
+            FileKind::Stl => {
+                // The scratch sorts it (a file being written to the card is abandoned).
+                self.uploading = false;
+                self.pipeline.start_stl(volume, file);
+                self.preparing = true;
+                return Ok(None);
+            }
             FileKind::Other => return Err(CardFault::NotPrintable),
         }
         let spec = GcodeSpec { bytes: file.size(), layers: 0 };
@@ -351,7 +395,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.fingerprint = fingerprint;
         let (allowed, flush) = self.motion_gate();
         motion.gate(allowed, flush);
-        Ok(spec.bytes)
+        Ok(Some(spec.bytes))
     }
 
     /// Starts the model job of a job file from its first record (the job start): the records
@@ -532,6 +576,81 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         if let Err(f) = r {
             self.fail(Failure::Card(f));
         }
+    }
+
+    /// An STL on the card being placed and sorted for a print: the next bounded part of its
+    /// passes, then of its job file ([`STL_JOB_NAME`]: the job start, batches of
+    /// [`STL_BATCH`] triangles in order, the end), which then prints as a job file does; the
+    /// request is answered then, or refused in words.
+    #[inline(never)]
+    fn prepare_stl<C: BlockWrite, const TX: usize, const RX: usize, const Q: usize>(
+        &mut self,
+        ep: &mut Endpoint<TX, RX>,
+        card: Option<&mut C>,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) {
+        let r = match card {
+            Some(dev) => self.stl_step(dev, motion),
+            None => Err(CardFault::Absent),
+        };
+        match r {
+            Ok(None) => {}
+            Ok(Some(bytes)) => {
+                self.preparing = false;
+                super::send(ep, &Message::CardStarted { bytes });
+            }
+            Err(f) => {
+                self.preparing = false;
+                super::send(ep, &Message::CardRefused(f));
+            }
+        }
+    }
+
+    /// One bounded part of the STL's preparation; the job file's bytes once its job started.
+    fn stl_step<C: BlockWrite, const Q: usize>(
+        &mut self,
+        dev: &mut C,
+        motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
+    ) -> Result<Option<u32>, CardFault> {
+        let machine = self.machine;
+        let sort = self.pipeline.stl().ok_or(CardFault::NoUpload)?;
+        if sort.step(dev, &machine).map_err(|e| sort_fault(&e))? != Phase::Merge {
+            return Ok(None);
+        }
+        let mut payload = [0u8; MAX_PAYLOAD];
+        let mut message = |sort: &mut StlSort, dev: &mut C, m: &Message<'_>| {
+            let n = m.encode(&mut payload).map_err(|_| CardFault::BadJob)?;
+            append_record(sort, dev, &payload[..n])
+        };
+        if !sort.has_output() {
+            sort.create_output(dev, STL_JOB_NAME).map_err(|e| sort_fault(&e))?;
+            sort.append_output(dev, &MAGIC).map_err(|e| sort_fault(&e))?;
+            let job = JobSpec {
+                settings: PrintSettings::default(),
+                options: JobOptions::default(),
+                model_height_um: sort.top_um(),
+                triangles: sort.triangles(),
+            };
+            message(sort, dev, &Message::JobStart(job))?;
+        }
+        for _ in 0..STL_BATCHES_PER_CALL {
+            let mut batch = BatchBuilder::new();
+            for _ in 0..STL_BATCH {
+                let Some(t) = sort.next(dev).map_err(|e| sort_fault(&e))? else { break };
+                // Within the wire's range: the model is on the bed.
+                batch.push(&t).map_err(|_| CardFault::TooLarge)?;
+            }
+            if batch.is_empty() {
+                message(sort, dev, &Message::EndOfModel)?;
+                sort.close_output(dev).map_err(|e| sort_fault(&e))?;
+                sort.remove_runs(dev).map_err(|e| sort_fault(&e))?;
+                let volume = sort.volume;
+                let file = volume.open(dev, STL_JOB_NAME).map_err(|e| fault(&e))?;
+                return self.card_print_job(&volume, dev, file, motion).map(Some);
+            }
+            append_record(sort, dev, batch.payload())?;
+        }
+        Ok(None)
     }
 
     /// The record at the head of the link's receive queue is from the card (it is taken or

@@ -183,6 +183,9 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     card_records: Slot<card_job::CardRecords>,
     /// A file is being written to the card (its writer has the scratch).
     uploading: bool,
+    /// An STL on the card is being sorted for a print (the sort has the scratch; the print
+    /// request is answered once the job starts).
+    preparing: bool,
     /// Every triangle, or the whole G-code text, was taken.
     model_ended: bool,
     /// The model's last moves are in the move buffer (a G-code job's: and its last settings
@@ -250,6 +253,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             card_job: false,
             card_records: Slot::Empty,
             uploading: false,
+            preparing: false,
             model_ended: false,
             toolpath_done: false,
             done: Deque::new(),
@@ -506,8 +510,10 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.gcode_job = false;
         self.card_job = false;
         self.card_records = Slot::Empty;
-        // A job takes the scratch: a file being written to the card is abandoned.
+        // A job takes the scratch: a file being written to the card, or an STL being sorted,
+        // is abandoned.
         self.uploading = false;
+        self.preparing = false;
         self.model_ended = false;
         self.toolpath_done = false;
         self.done.clear();

@@ -1,6 +1,8 @@
 //! The computing half of the job runner: the slicer and the toolpath stage in their shared
 //! scratch, and the toolpath stream that codes their moves into the move buffer.
 
+use crate::card::fat::{File, Volume};
+use crate::card::zsort::StlSort;
 use crate::card::{OpenFile, WritingFile};
 use crate::gcode::input::GcodeInput;
 use crate::geom::{Point2, Triangle};
@@ -72,6 +74,10 @@ pub trait Stages {
     fn start_upload(&mut self, file: WritingFile);
     /// The file being written to the card, while it has the scratch.
     fn upload(&mut self) -> Option<&mut WritingFile>;
+    /// An STL file on the card takes the scratch to be sorted (no job runs).
+    fn start_stl(&mut self, volume: Volume, stl: File);
+    /// The STL being sorted, while it has the scratch.
+    fn stl(&mut self) -> Option<&mut StlSort>;
     /// The G-code job's input, while one runs.
     fn gcode(&mut self) -> Option<&mut GcodeInput>;
     /// The G-code job's input, while one runs.
@@ -202,6 +208,15 @@ impl<
 
     fn upload(&mut self) -> Option<&mut WritingFile> {
         self.scratch.upload()
+    }
+
+    #[inline(never)]
+    fn start_stl(&mut self, volume: Volume, stl: File) {
+        self.scratch.start_stl(volume, stl);
+    }
+
+    fn stl(&mut self) -> Option<&mut StlSort> {
+        self.scratch.stl()
     }
 
     fn gcode(&mut self) -> Option<&mut GcodeInput> {

@@ -396,8 +396,8 @@ pub enum CardFault {
     IsDirectory = 7,
     /// The file is neither G-code nor STL.
     NotPrintable = 8,
-    /// The file is an STL: it prints through the host (slicing it on board from the card
-    /// is not built yet).
+    /// The file is an STL (no longer refused: an STL on the card is placed, sorted and
+    /// printed; the code stays reserved).
     Stl = 9,
     /// A job is running or paused.
     Busy = 10,
@@ -411,6 +411,14 @@ pub enum CardFault {
     NoUpload = 14,
     /// A job file whose records are damaged, or written for another protocol version.
     BadJob = 15,
+    /// An STL file that cannot be read (damaged, or no triangles).
+    BadStl = 16,
+    /// A model larger than the bed.
+    TooLarge = 17,
+    /// A model of more triangles than the printer sorts on its card.
+    TooManyTriangles = 18,
+    /// An ASCII STL (the printer reads binary STL from its card).
+    AsciiStl = 19,
 }
 
 impl CardFault {
@@ -432,6 +440,10 @@ impl CardFault {
             13 => Self::BadName,
             14 => Self::NoUpload,
             15 => Self::BadJob,
+            16 => Self::BadStl,
+            17 => Self::TooLarge,
+            18 => Self::TooManyTriangles,
+            19 => Self::AsciiStl,
             _ => return None,
         })
     }
@@ -459,6 +471,17 @@ impl core::fmt::Display for CardFault {
             Self::BadJob => {
                 "the job file is damaged or from another version of strata: upload the model \
                  again with `strata upload`"
+            }
+            Self::BadStl => "the STL file cannot be read (damaged, or it holds no triangles)",
+            Self::TooLarge => "the model is larger than the bed",
+            Self::AsciiStl => {
+                "the STL is ASCII: the printer reads binary STL from its card (save it as binary \
+                 STL, or write its job with `strata upload FILE.stl`)"
+            }
+            Self::TooManyTriangles => {
+                "the model has more triangles than the printer sorts on its card: print it with \
+                 `strata print FILE.stl` or write its job with `strata upload FILE.stl` (both \
+                 simplify it to fit)"
             }
             Self::NoUpload => "no file is being written to the SD card (a job started meanwhile?)",
             Self::BadName => {
