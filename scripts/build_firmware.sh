@@ -82,7 +82,7 @@ FRAME_LIMIT=1536
 objdump="$(command -v llvm-objdump || echo "$bin_dir/llvm-objdump")"
 big_frame="$("$objdump" -d --no-show-raw-insn "$out/strata-firmware.elf" | awk -v limit=$FRAME_LIMIT '
   /^[0-9a-f]+ <.*>:$/ { name = $2; frame = 0 }
-  $2 ~ /^sub(\.w)?$/ && $3 == "sp," && $NF ~ /^#[0-9]+$/ {
+  $2 ~ /^sub(\.w|w)?$/ && $3 == "sp," && $NF ~ /^#[0-9]+$/ {
     frame += substr($NF, 2)
     if (frame > limit && !found) { found = name " " frame }
   }

@@ -453,7 +453,7 @@ fn golden_card_messages() {
     let mut print = vec![0x43];
     print.extend_from_slice("würfel.gcode".as_bytes());
     // Type byte, then little-endian fields; names are the rest of the payload, UTF-8.
-    let cases: [(Message<'_>, Vec<u8>); 12] = [
+    let cases: [(Message<'_>, Vec<u8>); 13] = [
         (Message::CardRemove("a.g"), vec![0x46, b'a', b'.', b'g']),
         (Message::CardCreate("a.g"), vec![0x47, b'a', b'.', b'g']),
         (Message::CardData(&[0, 1, 0xff]), vec![0x48, 0, 1, 0xff]),
@@ -465,6 +465,7 @@ fn golden_card_messages() {
         (Message::CardPrint("würfel.gcode"), print),
         (Message::CardRefused(CardFault::Stl), vec![0x44, 9]),
         (Message::CardRefused(CardFault::BadJob), vec![0x44, 15]),
+        (Message::CardRefused(CardFault::TooComplex), vec![0x44, 20]),
         (Message::CardStarted { bytes: 436_000 }, vec![0x45, 0x20, 0xa7, 0x06, 0x00]),
     ];
     for (m, golden) in cases {
@@ -476,7 +477,7 @@ fn golden_card_messages() {
     // Refused: an unknown fault, a flag not 0/1, a name not UTF-8, an empty name, short fields.
     for bad in [
         &[0x44, 0][..],
-        &[0x44, 20],
+        &[0x44, 21],
         &[0x42, 7, 0, 2],
         &[0x43, 0xff, 0xfe],
         &[0x43],

@@ -124,3 +124,34 @@ proptest! {
         let _ = strata::slice::peak_needs(&soup, &cfg);
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// The active set counted as the triangles stream in z_min order, in lent words, peaks
+    /// where `peak_needs` says (its own pass per band of planes); lent one word fewer than
+    /// that peak needs (the count and a heap of the peak), it says the words are full.
+    #[test]
+    fn streamed_active_count_peaks_as_peak_needs_says(
+        mut soup in proptest::collection::vec(any_triangle(), 1..120),
+        layer_um in 50..400i32,
+    ) {
+        use strata::slice::{ActiveCount, SliceConfig, WordsFull};
+        soup.retain(|t| t.v.iter().all(|p| [p.x, p.y, p.z].iter().all(|c| (0..=3_000).contains(c))));
+        soup.sort_by_key(strata::geom::Triangle::z_min);
+        let mut settings = strata::machine::PrintSettings::default();
+        settings.layer_height_um = layer_um;
+        let Ok(cfg) = SliceConfig::new(&settings, 3_000) else { return Ok(()) };
+        let want = strata::slice::peak_needs(&soup, &cfg).unwrap().active_triangles;
+        let mut words = vec![-1; want as usize + 1];
+        let mut count = ActiveCount::start(&mut words);
+        let peak = soup.iter().map(|t| count.push(&cfg, t).unwrap()).max().unwrap_or(0);
+        prop_assert_eq!(peak, want);
+        if want > 0 {
+            let mut words = vec![-1; want as usize];
+            let mut count = ActiveCount::start(&mut words);
+            let full = soup.iter().map(|t| count.push(&cfg, t)).find(|r| r.is_err());
+            prop_assert_eq!(full, Some(Err(WordsFull)));
+        }
+    }
+}

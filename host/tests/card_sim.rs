@@ -281,6 +281,72 @@ fn an_stl_on_the_card_prints_as_the_host_places_and_streams_it() {
     }
 }
 
+/// A binary STL of a prism of `sides` sides around (110, 110) mm, radius 30 mm, 0.8 mm tall:
+/// each side two triangles that cross every plane, the caps fans that cross none.
+fn prism_stl(sides: u32) -> Vec<u8> {
+    let corner = |k: u32| {
+        let a = std::f32::consts::TAU * k as f32 / sides as f32;
+        (110.0 + 30.0 * a.cos(), 110.0 + 30.0 * a.sin())
+    };
+    let mut tris = Vec::new();
+    for k in 0..sides {
+        let ((x0, y0), (x1, y1)) = (corner(k), corner(k + 1));
+        tris.push([[x0, y0, 0.0], [x1, y1, 0.0], [x1, y1, 0.8]]);
+        tris.push([[x0, y0, 0.0], [x1, y1, 0.8], [x0, y0, 0.8]]);
+        tris.push([[110.0, 110.0, 0.0], [x1, y1, 0.0], [x0, y0, 0.0]]);
+        tris.push([[110.0, 110.0, 0.8], [x0, y0, 0.8], [x1, y1, 0.8]]);
+    }
+    let mut b = vec![0u8; 80];
+    b.extend_from_slice(&(tris.len() as u32).to_le_bytes());
+    for t in tris {
+        b.extend_from_slice(&[0u8; 12]);
+        for c in t.iter().flatten() {
+            b.extend_from_slice(&c.to_le_bytes());
+        }
+        b.extend_from_slice(&[0u8; 2]);
+    }
+    b
+}
+
+/// An STL whose layers cross more triangles than the printer's slicer holds is refused before
+/// it prints (counted as the card's merge gives its triangles), in words that name the
+/// resource and `strata upload`; one of just as many as the slicer holds prints as streamed.
+/// The oracle: a prism of `sides` sides crosses `2 * sides` triangles in each layer, and
+/// cuts as many segments.
+#[test]
+fn an_stl_beyond_the_slicer_is_refused_before_it_prints() {
+    // Each side cuts each plane in two segments: the contour points bound them too.
+    let caps = strata_host::simjob::SimPrinter::CAPACITIES;
+    let holds = caps.active_triangles.min(caps.contour_points);
+    for (sides, fits) in [(holds / 2, true), (holds / 2 + 1, false)] {
+        let name = "prism.stl";
+        let stl = prism_stl(sides);
+        let files: [(&str, &[u8]); 1] = [(name, &stl)];
+        let card =
+            ImageCard::new(strata_testkit::card::image(fatfs::FatType::Fat32, 64, &files, true));
+        let source = Source::Card { name, detach: false };
+        let got = simulate_with_card(source, &ENDER3, &SimOptions::default(), Some(card));
+        let model = strata_host::model::load_bytes(&stl).unwrap();
+        let tris = model.placed_sorted(&ENDER3).unwrap();
+        let job = strata_testkit::drive::job_spec(&tris);
+        let config = strata::slice::SliceConfig::new(&job.settings, job.model_height_um).unwrap();
+        let needs = strata::slice::peak_needs(&tris, &config).unwrap();
+        assert_eq!(needs.active_triangles, 2 * sides, "{sides} sides: the oracle");
+        if fits {
+            let got = got.unwrap_or_else(|(e, _)| panic!("{sides} sides: {e}"));
+            let want = simulate_source(Source::Model(&tris, job), &ENDER3, &SimOptions::default())
+                .unwrap();
+            assert_same_motion(name, &got, &want);
+            assert_eq!(got.layer_hashes, want.layer_hashes, "{sides} sides");
+        } else {
+            let (e, rep) = got.unwrap_err();
+            assert!(e.contains("active triangles") && e.contains("strata upload"), "{e}");
+            assert_eq!(rep.steps, [0; 4], "{sides} sides: no step");
+            assert_eq!(rep.device_state, Some(DeviceState::Idle));
+        }
+    }
+}
+
 #[test]
 fn an_stl_that_cannot_print_from_the_card_is_refused_in_words() {
     let mut wide = vec![0u8; 80];

@@ -68,36 +68,47 @@ pub enum Phase {
     Merge,
 }
 
-/// A triangle with its index in the file: the sort key is (lowest z, index).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Keyed {
-    tri: Triangle,
-    index: u32,
+/// A triangle with its index in the file, as words: the nine coordinates (um), then the
+/// index. Words, so that the records' RAM is also plain words once the merge needs only the
+/// runs' heads ([`StlSort::spare_words`]). The sort key is (lowest z, index).
+type Keyed = [i32; KEYED_WORDS];
+/// Words of a [`Keyed`] triangle.
+const KEYED_WORDS: usize = 10;
+const _: () = assert!(KEYED_WORDS * 4 == RECORD_BYTES);
+const NO_KEYED: Keyed = [0; KEYED_WORDS];
+
+fn keyed(tri: &Triangle, index: u32) -> Keyed {
+    let mut k = NO_KEYED;
+    for (w, c) in k.iter_mut().zip(tri.v.iter().flat_map(|p| [p.x, p.y, p.z])) {
+        *w = c;
+    }
+    k[KEYED_WORDS - 1] = index as i32;
+    k
 }
 
-const NO_POINT: Point3 = Point3 { x: 0, y: 0, z: 0 };
-const NO_KEYED: Keyed = Keyed { tri: Triangle { v: [NO_POINT; 3] }, index: 0 };
+fn key(k: &Keyed) -> (i32, u32) {
+    (k[2].min(k[5]).min(k[8]), k[KEYED_WORDS - 1] as u32)
+}
 
-impl Keyed {
-    fn key(&self) -> (i32, u32) {
-        (self.tri.z_min(), self.index)
-    }
+fn keyed_triangle(k: &Keyed) -> Triangle {
+    let p = |i: usize| Point3 { x: k[3 * i], y: k[3 * i + 1], z: k[3 * i + 2] };
+    Triangle { v: [p(0), p(1), p(2)] }
+}
 
-    fn encode(&self) -> [u8; RECORD_BYTES] {
-        let mut out = [0u8; RECORD_BYTES];
-        let words = self.tri.v.iter().flat_map(|p| [p.x, p.y, p.z]);
-        for (chunk, w) in out.chunks_exact_mut(4).zip(words) {
-            chunk.copy_from_slice(&w.to_le_bytes());
-        }
-        out[36..].copy_from_slice(&self.index.to_le_bytes());
-        out
+fn encode(k: &Keyed) -> [u8; RECORD_BYTES] {
+    let mut out = [0u8; RECORD_BYTES];
+    for (chunk, w) in out.chunks_exact_mut(4).zip(k) {
+        chunk.copy_from_slice(&w.to_le_bytes());
     }
+    out
+}
 
-    fn decode(b: &[u8; RECORD_BYTES]) -> Self {
-        let w = |i: usize| i32::from_le_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
-        let p = |i: usize| Point3 { x: w(3 * i), y: w(3 * i + 1), z: w(3 * i + 2) };
-        Self { tri: Triangle { v: [p(0), p(1), p(2)] }, index: w(9) as u32 }
+fn decode(b: &[u8; RECORD_BYTES]) -> Keyed {
+    let mut k = NO_KEYED;
+    for (w, chunk) in k.iter_mut().zip(b.chunks_exact(4)) {
+        *w = i32::from_le_bytes([chunk[0], chunk[1], chunk[2], chunk[3]]);
     }
+    k
 }
 
 /// Where a run being merged goes on: its next record, and how many are left (its head
@@ -280,7 +291,7 @@ impl StlSort {
                 .feed(&chunk[..n], &mut |t| {
                     let tri = placement.apply(&t);
                     *top_um = (*top_um).max(tri.z_max());
-                    run[*run_len] = Keyed { tri, index: *read };
+                    run[*run_len] = keyed(&tri, *read);
                     *read += 1;
                     *run_len += 1;
                     // Every run but the last has RUN_RECORDS triangles.
@@ -328,11 +339,11 @@ impl StlSort {
             return Ok(None);
         }
         let live = self.run.iter().zip(&self.cursors).take(self.runs).enumerate();
-        let Some((r, _)) = live.filter(|(_, (_, c))| c.left > 0).min_by_key(|(_, (h, _))| h.key())
+        let Some((r, _)) = live.filter(|(_, (_, c))| c.left > 0).min_by_key(|(_, (h, _))| key(h))
         else {
             return Ok(None);
         };
-        let tri = self.run[r].tri;
+        let tri = keyed_triangle(&self.run[r]);
         let cursor = &mut self.cursors[r];
         cursor.left -= 1;
         if cursor.left > 0 {
@@ -341,9 +352,27 @@ impl StlSort {
         Ok(Some(tri))
     }
 
+    /// The record RAM the merge leaves free (the runs' heads take the first places), as
+    /// words; none before the merge. Its user keeps what it needs there between calls.
+    pub fn spare_words(&mut self) -> &mut [i32] {
+        match self.phase {
+            Phase::Merge => self.run[self.runs..].as_flattened_mut(),
+            _ => &mut [],
+        }
+    }
+
     /// Removes the runs file (once merged and the output file is closed).
     pub fn remove_runs<D: BlockWrite>(&mut self, dev: &mut D) -> Result<(), SortError<D::Error>> {
-        Ok(self.volume.remove(dev, &mut self.bufs, RUNS_NAME)?)
+        self.remove(dev, RUNS_NAME)
+    }
+
+    /// Removes the card's file `name` (through the sort's blocks: none on the stack).
+    pub fn remove<D: BlockWrite>(
+        &mut self,
+        dev: &mut D,
+        name: &str,
+    ) -> Result<(), SortError<D::Error>> {
+        Ok(self.volume.remove(dev, &mut self.bufs, name)?)
     }
 
     /// Creates the output file `name` (replacing one of that name): what the merge gives goes
@@ -406,7 +435,7 @@ impl RunsOut<'_> {
         }
         heap_sort(run);
         for k in run.iter() {
-            self.writer.append(self.volume, dev, self.bufs, &k.encode())?;
+            self.writer.append(self.volume, dev, self.bufs, &encode(k))?;
         }
         *self.runs += 1;
         Ok(())
@@ -423,10 +452,10 @@ fn heap_sort(run: &mut [Keyed]) {
             if child >= end {
                 return;
             }
-            if child + 1 < end && run[child + 1].key() > run[child].key() {
+            if child + 1 < end && key(&run[child + 1]) > key(&run[child]) {
                 child += 1;
             }
-            if run[root].key() >= run[child].key() {
+            if key(&run[root]) >= key(&run[child]) {
                 return;
             }
             run.swap(root, child);
@@ -454,5 +483,5 @@ fn read_record<D: BlockWrite>(
         // The runs file is shorter than its runs: changed under the sort.
         return Err(FatError::Corrupt { block: 0 });
     }
-    Ok(Keyed::decode(&b))
+    Ok(decode(&b))
 }

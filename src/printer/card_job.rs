@@ -33,7 +33,8 @@ use crate::card::write::WriteBuffers;
 use crate::card::zsort::{Phase, SortError, StlSort};
 use crate::card::OpenFile;
 use crate::card::WritingFile;
-use crate::machine::PrintSettings;
+use crate::geom::Triangle;
+use crate::machine::{MachineConfig, PrintSettings};
 use crate::place::PlaceError;
 use crate::protocol::job_file::{self, ReadError, MAGIC, RECORD_OVERHEAD};
 use crate::protocol::msg::ty;
@@ -42,6 +43,7 @@ use crate::protocol::{
     MAX_PAYLOAD,
 };
 use crate::protocol::{BatchBuilder, JobOptions};
+use crate::slice::{ActiveCount, SliceConfig, WordsFull};
 use crate::slot::Slot;
 use crate::stl::StlErrorKind;
 
@@ -176,6 +178,36 @@ fn append_record<C: BlockWrite>(
     let mut rec = [0u8; MAX_PAYLOAD + RECORD_OVERHEAD];
     let n = job_file::encode_record(payload, &mut rec).ok_or(CardFault::BadJob)?;
     sort.append_output(dev, &rec[..n]).map_err(|e| sort_fault(&e))
+}
+
+/// The next bounded part of the sort's bounds and runs passes: where it stands. Never inlined:
+/// its block buffer is off the stack of the job file's writing.
+#[inline(never)]
+fn sort_step<C: BlockWrite>(
+    sort: &mut StlSort,
+    dev: &mut C,
+    machine: &MachineConfig,
+) -> Result<Phase, CardFault> {
+    sort.step(dev, machine).map_err(|e| sort_fault(&e))
+}
+
+/// `t`, the sort's next triangle, into the active set counted in the words the merge leaves
+/// free; refused when the set grows beyond `capacity`. Never inlined: its frame (the job's
+/// slicing) is off the stack when the job file is written.
+#[inline(never)]
+fn count_active(sort: &mut StlSort, t: &Triangle, capacity: u32) -> Result<(), CardFault> {
+    // The job's slicing: default settings, the placed model's height.
+    let slicing = SliceConfig::new(&PrintSettings::default(), sort.top_um())
+        .map_err(|_| CardFault::TooLarge)?;
+    let words = sort.spare_words();
+    let holds = words.len() as u32;
+    match ActiveCount::resume(words).push(&slicing, t) {
+        Ok(n) if n > capacity => Err(CardFault::TooComplex),
+        // More active triangles than the words hold: refused when that is more than the
+        // slicer holds too (else, a printer of a larger slicer, the slicer's own check stands).
+        Err(WordsFull) if holds > capacity => Err(CardFault::TooComplex),
+        _ => Ok(()),
+    }
 }
 
 /// What the sort's error means to the user.
@@ -589,11 +621,22 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         card: Option<&mut C>,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) {
-        let r = match card {
-            Some(dev) => self.stl_step(dev, motion),
-            None => Err(CardFault::Absent),
+        let Some(dev) = card else {
+            self.preparing = false;
+            super::send(ep, &Message::CardRefused(CardFault::Absent));
+            return;
         };
-        match r {
+        let machine = self.machine;
+        let sorted = match self.pipeline.stl() {
+            Some(sort) => sort_step(sort, dev, &machine).map(|phase| phase == Phase::Merge),
+            None => Err(CardFault::NoUpload),
+        };
+        let step = match sorted {
+            Ok(true) => self.stl_job_step(dev, motion),
+            Ok(false) => Ok(None),
+            Err(f) => Err(f),
+        };
+        match step {
             Ok(None) => {}
             Ok(Some(bytes)) => {
                 self.preparing = false;
@@ -601,22 +644,31 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             }
             Err(f) => {
                 self.preparing = false;
+                // What the sort wrote is of no use now (a card that failed may refuse this).
+                if let Some(sort) = self.pipeline.stl() {
+                    let _ = sort.close_output(dev);
+                    let _ = sort.remove(dev, STL_JOB_NAME);
+                    let _ = sort.remove_runs(dev);
+                }
                 super::send(ep, &Message::CardRefused(f));
             }
         }
     }
 
-    /// One bounded part of the STL's preparation; the job file's bytes once its job started.
-    fn stl_step<C: BlockWrite, const Q: usize>(
+    /// One bounded part of the sorted STL's job file; the job file's bytes once its job
+    /// started. Never inlined: its buffers are off the stack of the sort's passes.
+    #[inline(never)]
+    fn stl_job_step<C: BlockWrite, const Q: usize>(
         &mut self,
         dev: &mut C,
         motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>,
     ) -> Result<Option<u32>, CardFault> {
-        let machine = self.machine;
+        // A layer's active triangles bound its cut segments: the two capacities' smaller one
+        // (on the boards they are equal; a larger segment capacity would refuse a model that
+        // cuts fewer segments than it crosses triangles, which the host's admission takes).
+        let caps = Self::CAPACITIES;
+        let active_capacity = caps.active_triangles.min(caps.contour_points);
         let sort = self.pipeline.stl().ok_or(CardFault::NoUpload)?;
-        if sort.step(dev, &machine).map_err(|e| sort_fault(&e))? != Phase::Merge {
-            return Ok(None);
-        }
         let mut payload = [0u8; MAX_PAYLOAD];
         let mut message = |sort: &mut StlSort, dev: &mut C, m: &Message<'_>| {
             let n = m.encode(&mut payload).map_err(|_| CardFault::BadJob)?;
@@ -632,11 +684,13 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 triangles: sort.triangles(),
             };
             message(sort, dev, &Message::JobStart(job))?;
+            ActiveCount::start(sort.spare_words());
         }
         for _ in 0..STL_BATCHES_PER_CALL {
             let mut batch = BatchBuilder::new();
             for _ in 0..STL_BATCH {
                 let Some(t) = sort.next(dev).map_err(|e| sort_fault(&e))? else { break };
+                count_active(sort, &t, active_capacity)?;
                 // Within the wire's range: the model is on the bed.
                 batch.push(&t).map_err(|_| CardFault::TooLarge)?;
             }

@@ -419,6 +419,9 @@ pub enum CardFault {
     TooManyTriangles = 18,
     /// An ASCII STL (the printer reads binary STL from its card).
     AsciiStl = 19,
+    /// A model whose layers cross more triangles than the printer's slicer holds (its active
+    /// triangles).
+    TooComplex = 20,
 }
 
 impl CardFault {
@@ -444,6 +447,7 @@ impl CardFault {
             17 => Self::TooLarge,
             18 => Self::TooManyTriangles,
             19 => Self::AsciiStl,
+            20 => Self::TooComplex,
             _ => return None,
         })
     }
@@ -477,6 +481,11 @@ impl core::fmt::Display for CardFault {
             Self::AsciiStl => {
                 "the STL is ASCII: the printer reads binary STL from its card (save it as binary \
                  STL, or write its job with `strata upload FILE.stl`)"
+            }
+            Self::TooComplex => {
+                "the model crosses more triangles in a layer than the printer's slicer holds \
+                 (its active triangles): write its job with `strata upload FILE.stl`, which \
+                 simplifies it to fit"
             }
             Self::TooManyTriangles => {
                 "the model has more triangles than the printer sorts on its card: print it with \

@@ -57,7 +57,7 @@ use packed::PackedTriangle;
 pub use chain::CutScratch;
 
 pub use packed::MAX_COORD_UM;
-pub use peak::{peak_needs, PeakNeeds};
+pub use peak::{peak_needs, ActiveCount, PeakNeeds, WordsFull};
 
 /// Where a slicer cuts its layers.
 ///

@@ -82,3 +82,79 @@ pub fn peak_needs(triangles: &[Triangle], config: &SliceConfig) -> Result<PeakNe
     }
     Ok(needs)
 }
+
+/// The active set of a triangle stream sorted by lowest z, counted as it streams.
+///
+/// In words its caller lends ([`ActiveCount::push`]): on the device, where the whole model is
+/// never in RAM (an STL sorted on the card). The largest count it gives is [`peak_needs`]'s
+/// `active_triangles`.
+///
+/// `words[0]` is the count; `words[1..]` a min-heap of the last plane each active triangle
+/// crosses, so that the triangles below a newcomer's first plane leave first.
+pub struct ActiveCount<'a> {
+    words: &'a mut [i32],
+}
+
+/// The lent words cannot hold one more active triangle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WordsFull;
+
+impl<'a> ActiveCount<'a> {
+    /// Counts in `words` as they stand (a count begun earlier goes on).
+    pub fn resume(words: &'a mut [i32]) -> Self {
+        Self { words }
+    }
+
+    /// Starts a new count in `words`.
+    pub fn start(words: &'a mut [i32]) -> Self {
+        if let Some(len) = words.first_mut() {
+            *len = 0;
+        }
+        Self { words }
+    }
+
+    /// `t`, the next triangle of the stream (no lower z_min than the one before), counted:
+    /// the active set at its first plane (or the count unchanged, if it crosses no plane).
+    pub fn push(&mut self, config: &SliceConfig, t: &Triangle) -> Result<u32, WordsFull> {
+        let Some((len, heap)) = self.words.split_first_mut() else { return Err(WordsFull) };
+        let mut n = (*len as usize).min(heap.len());
+        let Some((first, last)) = config.crossed_planes(t.z_min(), t.z_max()) else {
+            return Ok(n as u32);
+        };
+        // Triangles whose last plane is below this one's first left the active set.
+        while n > 0 && (heap[0] as u32) < first {
+            n -= 1;
+            heap.swap(0, n);
+            sift_down(&mut heap[..n], 0);
+        }
+        *len = n as i32;
+        if n == heap.len() {
+            return Err(WordsFull);
+        }
+        heap[n] = last as i32;
+        let mut i = n;
+        while i > 0 && heap[(i - 1) / 2] > heap[i] {
+            heap.swap(i, (i - 1) / 2);
+            i = (i - 1) / 2;
+        }
+        *len = (n + 1) as i32;
+        Ok(n as u32 + 1)
+    }
+}
+
+/// Moves `heap[i]` down the min-heap `heap`.
+fn sift_down(heap: &mut [i32], mut i: usize) {
+    loop {
+        let mut least = i;
+        for child in [2 * i + 1, 2 * i + 2] {
+            if child < heap.len() && heap[child] < heap[least] {
+                least = child;
+            }
+        }
+        if least == i {
+            return;
+        }
+        heap.swap(i, least);
+        i = least;
+    }
+}
