@@ -1150,7 +1150,11 @@ fn qemu_stl_from_card_host_gone() {
     let name = "xyz_20mm_cube.stl";
     let path = strata_testkit::models::dir().join(name);
     let stl = std::fs::read(&path).expect("the cube");
-    let files: [(&str, &[u8]); 1] = [(name, &stl)];
+    // The card of `qemu_gcode_from_card_host_gone`: the cube and PrusaSlicer's G-code of it.
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let gcode_name = "xyz_20mm_cube_prusaslicer.gcode";
+    let gcode = std::fs::read(root.join("../tests/data/gcode").join(gcode_name)).expect("G-code");
+    let files: [(&str, &[u8]); 2] = [(name, &stl), (gcode_name, &gcode)];
     let dir = tempfile::tempdir().unwrap();
     let image = dir.path().join("card.img");
     std::fs::write(&image, strata_testkit::card::image(fatfs::FatType::Fat32, 64, &files, true))
@@ -1175,12 +1179,41 @@ fn qemu_stl_from_card_host_gone() {
     let (used, size) = (costs.get("MEM", &["stack_hwm"]), costs.get("MEM", &["stack_size"]));
     let (Some(used), Some(size)) = (used, size) else { panic!("{label}: no MEM line") };
     assert!(used + RAM_HEADROOM <= size, "{label}: the stack used {used} of its {size} B");
+    // The card as `fatfs` reads it once QEMU is gone: the job the firmware wrote holds the
+    // host's placed triangles in the host's order; the sort's runs file is gone.
+    drop(q);
+    let bytes = std::fs::read(&image).unwrap();
+    let start = strata_testkit::card::PARTITION_START_BLOCK as usize * 512;
+    let mut vol = std::io::Cursor::new(bytes[start..].to_vec());
+    let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
+    let mut written = Vec::new();
+    let mut f = fs.root_dir().open_file(strata::printer::STL_JOB_NAME).expect("the STL's job");
+    std::io::Read::read_to_end(&mut f, &mut written).unwrap();
+    assert_eq!(job_file_triangles(&written), tris, "{label}: the job's triangles");
+    assert!(fs.root_dir().open_file(strata::card::zsort::RUNS_NAME).is_err(), "{label}: runs");
     eprintln!(
         "{label}: {} triangles sorted on the card, {} layers, stack {used} of {size} B, as \
          streamed",
         tris.len(),
         reference.layers
     );
+}
+
+/// The triangles of a job file's batches, in order.
+fn job_file_triangles(file: &[u8]) -> Vec<Triangle> {
+    use strata::protocol::{job_file, Message, MAX_PAYLOAD};
+    job_file::check_magic(file).expect("a job file");
+    let mut rest = &file[job_file::MAGIC.len()..];
+    let mut tris = Vec::new();
+    let mut payload = [0u8; MAX_PAYLOAD];
+    while !rest.is_empty() {
+        let read = |out: &mut [u8]| std::io::Read::read(&mut rest, out);
+        let n = job_file::read_record(read, &mut payload).expect("a whole record");
+        if let Ok(Message::Triangles(batch)) = Message::decode(&payload[..n]) {
+            tris.extend(batch.iter());
+        }
+    }
+    tris
 }
 
 /// QEMU with `image` as its SD card, its clock, and a link to its firmware (`label` names a

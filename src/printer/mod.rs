@@ -67,7 +67,7 @@ use crate::step::StepConfig;
 use crate::thermal::{ThermalFault, HEAT_WAIT_LIMIT_MS};
 
 pub use board::{job_toolpath_config, BoardPrinter, BOARD_CAPACITIES, CREALITY_CAPACITIES};
-pub use card_job::{file_kind, is_card_request, FileKind, CARD_CHUNK_BYTES};
+pub use card_job::{file_kind, is_card_request, FileKind, CARD_CHUNK_BYTES, STL_JOB_NAME};
 pub use failure::{Failure, Refusal};
 pub use motion::{Motion, MotionAccess, MotionHalf};
 use orphan::Orphan;
