@@ -21,12 +21,7 @@ pub fn encode(job: &JobSpec, tris: &[Triangle]) -> Result<Vec<u8>, String> {
     let mut batch = BatchBuilder::new();
     let mut next = 0;
     while next < tris.len() {
-        while next < tris.len() && batch.push(&tris[next]).is_ok() {
-            next += 1;
-        }
-        if batch.is_empty() {
-            return Err(format!("triangle {next} is outside the wire range (0..1048 mm)"));
-        }
+        next += crate::session::fill_batch(&mut batch, tris, next)?;
         record(batch.payload());
         batch.clear();
     }

@@ -350,16 +350,8 @@ impl<'a> HostJob<'a> {
     fn stream_triangles(&mut self, tris: &[Triangle], ep: &mut HostEndpoint) -> Result<(), String> {
         while self.phase == Phase::Streaming && ep.tx_free() > 0 {
             if self.next < tris.len() {
-                while self.next < tris.len() && self.batch.push(&tris[self.next]).is_ok() {
-                    self.next += 1;
-                }
-                if self.batch.is_empty() {
-                    return Err(format!(
-                        "triangle {} is outside the wire range (0..1048 mm)",
-                        self.next
-                    ));
-                }
-                let n = self.batch.len();
+                let n = fill_batch(&mut self.batch, tris, self.next)?;
+                self.next += n;
                 let payload = self.batch.payload().to_vec();
                 if !self.send(ep, &payload) {
                     // Keep the batch for the next poll: rewind.
@@ -377,6 +369,19 @@ impl<'a> HostJob<'a> {
             }
         }
         Ok(())
+    }
+}
+
+/// The next batch of `tris` from `next` into the empty `batch`: how many it took (an error
+/// names a triangle outside the wire's range).
+pub(crate) fn fill_batch(
+    batch: &mut BatchBuilder,
+    tris: &[Triangle],
+    next: usize,
+) -> Result<usize, String> {
+    match batch.fill(&tris[next..]) {
+        0 => Err(format!("triangle {next} is outside the wire range (0..1048 mm)")),
+        n => Ok(n),
     }
 }
 

@@ -420,10 +420,20 @@ fn a_models_job_uploads_and_prints_from_the_card_over_a_pty() {
     let [upload, print] = &outs;
     assert!(upload.status.success(), "{}", text(upload));
     assert!(print.status.success(), "{}", text(print));
-    // 1.2 mm at 0.3 mm layers: the upload's settings went with the job.
+    // The block is 1.2 mm tall: its layers at 0.3 mm by the slicer's plane rule, not at the
+    // default height: the upload's settings went with the job.
+    let layers = |layer_height_um| {
+        let mut settings = strata::machine::PrintSettings::default();
+        settings.layer_height_um = layer_height_um;
+        strata::slice::SliceConfig::new(&settings, 1_200).unwrap().layer_count()
+    };
+    let (want, default) =
+        (layers(300), layers(strata::machine::PrintSettings::default().layer_height_um));
+    assert_ne!(want, default, "the setting changes the layers");
     assert!(
-        text(print).contains("printed from the card") && text(print).contains("4 layers"),
-        "{}",
+        text(print).contains("printed from the card")
+            && text(print).contains(&format!("{want} layers")),
+        "{want} layers: {}",
         text(print)
     );
     assert_eq!(state.unwrap(), DeviceState::Done);

@@ -450,7 +450,7 @@ impl Volume {
             return Err(FatError::IsDirectory);
         }
         self.delete_slots(dev, bufs, &entry)?;
-        let mut chain = FileWriter::empty();
+        let mut chain = FileWriter::EMPTY;
         let mut c = entry.cluster;
         // The clusters its size takes (at least one): a longer chain is damaged (it loops,
         // or runs into another file's), and what lies past them is left alone.
@@ -558,7 +558,7 @@ impl Volume {
             return Err(FatError::DirectoryFull);
         }
         // A new cluster for the root, zeroed, after its last.
-        let mut grow = FileWriter { hint: last_cluster, ..FileWriter::empty() };
+        let mut grow = FileWriter { hint: last_cluster, ..FileWriter::EMPTY };
         let c = grow.take_cluster(self, dev, bufs)?;
         grow.set_fat(self, dev, bufs, last_cluster, c)?;
         grow.flush_fat(self, dev, bufs)?;
@@ -587,10 +587,6 @@ impl FileWriter {
     /// A place holder only (all zero bytes: cleared in place with what holds it), replaced
     /// by [`Volume::create`] before any use.
     pub const PLACE_HOLDER: Self = Self { hint: 0, ..Self::EMPTY };
-
-    fn empty() -> Self {
-        Self::EMPTY
-    }
 }
 
 /// The bit of alias number `n` (`n - 1`) when the 8.3 name `raw` is `BASE~n` of `base`.

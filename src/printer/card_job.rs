@@ -141,13 +141,21 @@ pub fn file_kind(head: &[u8], size: u32) -> FileKind {
 /// Where a model job from the card stands in its file (see the [module docs](self)).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct CardRecords {
-    /// The file, at the first record the printer has not taken.
+    /// The file, at the first record the printer has not passed.
     file: File,
-    /// That record's bytes (length, payload, CRC) while it waits in the link's receive queue
-    /// (0: it is not there).
-    in_link: u16,
-    /// The printer took it: the file moves past it.
-    taken: bool,
+    /// Where that record is.
+    record: Record,
+}
+
+/// Where the file's next record is; its bytes (length, payload, CRC) once read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Record {
+    /// Still on the card.
+    OnCard,
+    /// In the link's receive queue, waiting to be taken.
+    InLink(u16),
+    /// Taken by the printer: the file moves past it.
+    Taken(u16),
 }
 
 /// A job file's magic and first record, the job start: the job and its fingerprint. Never
@@ -444,7 +452,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.start(&job, motion);
         self.card_job = true;
         self.fingerprint = fingerprint;
-        self.card_records = Slot::Full(CardRecords { file, in_link: 0, taken: false });
+        self.card_records = Slot::Full(CardRecords { file, record: Record::OnCard });
         Ok(file.size())
     }
 
@@ -579,19 +587,19 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     ) {
         let reading = self.card_reading();
         let Some(at) = self.card_records.get_mut() else { return };
-        let waits = at.in_link > 0 && !at.taken;
-        if waits || !reading || ep.rx_len() > 0 {
+        if matches!(at.record, Record::InLink(_)) || !reading || ep.rx_len() > 0 {
             return;
         }
         let Some(dev) = card else { return self.fail(Failure::Card(CardFault::Removed)) };
         let mut records = *at;
         let r = (|| {
             let volume = Volume::mount(dev).map_err(|_| CardFault::Removed)?;
-            if records.taken {
-                let bytes = u32::from(records.in_link);
-                records.file.skip(&volume, dev, bytes).map_err(|_| CardFault::Removed)?;
-                records.in_link = 0;
-                records.taken = false;
+            if let Record::Taken(bytes) = records.record {
+                records
+                    .file
+                    .skip(&volume, dev, u32::from(bytes))
+                    .map_err(|_| CardFault::Removed)?;
+                records.record = Record::OnCard;
             }
             let mut ahead = records.file;
             let mut payload = [0u8; MAX_PAYLOAD];
@@ -601,7 +609,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
                 return Err(CardFault::BadJob);
             }
             ep.deliver_local(&payload[..n]).map_err(|_| CardFault::Busy)?;
-            records.in_link = (n + RECORD_OVERHEAD) as u16;
+            records.record = Record::InLink((n + RECORD_OVERHEAD) as u16);
             Ok(())
         })();
         self.card_records = Slot::Full(records);
@@ -710,13 +718,15 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// The record at the head of the link's receive queue is from the card (it is taken or
     /// dropped now).
     pub(super) fn card_record_at_head(&self) -> bool {
-        self.card_records.get().is_some_and(|r| r.in_link > 0 && !r.taken)
+        self.card_records.get().is_some_and(|r| matches!(r.record, Record::InLink(_)))
     }
 
     /// The message at the head of the link's receive queue is taken: a card record is passed.
     pub(super) fn head_taken(&mut self) {
         if let Some(r) = self.card_records.get_mut() {
-            r.taken |= r.in_link > 0;
+            if let Record::InLink(bytes) = r.record {
+                r.record = Record::Taken(bytes);
+            }
         }
     }
 
@@ -724,11 +734,11 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// read again (true: a batch taken in part resumes where it stopped).
     pub(super) fn card_record_lost(&mut self) -> bool {
         let Some(r) = self.card_records.get_mut() else { return false };
-        if r.in_link > 0 && !r.taken {
-            r.in_link = 0;
-            return true;
+        let lost = matches!(r.record, Record::InLink(_));
+        if lost {
+            r.record = Record::OnCard;
         }
-        false
+        lost
     }
 
     /// The card failed under a job printing from it: the job fails, its moves dropped.

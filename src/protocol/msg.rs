@@ -1165,6 +1165,11 @@ impl BatchBuilder {
         self.count += 1;
         Ok(())
     }
+    /// Adds the leading triangles of `tris` that fit: how many. An empty batch takes none
+    /// only when the first is outside the wire's range.
+    pub fn fill(&mut self, tris: &[Triangle]) -> usize {
+        tris.iter().take_while(|t| self.push(t).is_ok()).count()
+    }
     /// Triangles in the batch.
     pub fn len(&self) -> usize {
         self.count as usize

@@ -175,15 +175,13 @@ pub fn batch(tris: &[Triangle]) -> Vec<u8> {
 pub fn batches(tris: &[Triangle]) -> Vec<Vec<u8>> {
     let mut out = Vec::new();
     let mut b = BatchBuilder::new();
-    for t in tris {
-        if b.push(t).is_err() {
-            out.push(b.payload().to_vec());
-            b.clear();
-            b.push(t).expect("one triangle fits a batch");
-        }
-    }
-    if !b.is_empty() {
+    let mut rest = tris;
+    while !rest.is_empty() {
+        let n = b.fill(rest);
+        assert!(n > 0, "a triangle outside the wire range");
         out.push(b.payload().to_vec());
+        b.clear();
+        rest = &rest[n..];
     }
     out
 }
