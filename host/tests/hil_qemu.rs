@@ -1077,15 +1077,9 @@ fn qemu_gcode_from_card_host_gone() {
     assert_eq!(steps.hash, Some(reference.board_hash), "{label}: every step edge");
     // The card as `fatfs` reads it once QEMU is gone: the upload's bytes, no STL.
     drop(q);
-    let bytes = std::fs::read(&image).unwrap();
-    let start = strata_testkit::card::PARTITION_START_BLOCK as usize * 512;
-    let mut vol = std::io::Cursor::new(bytes[start..].to_vec());
-    let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
-    let mut back = Vec::new();
-    let mut f = fs.root_dir().open_file("uploaded square.gcode").expect("the uploaded file");
-    std::io::Read::read_to_end(&mut f, &mut back).unwrap();
+    let back = card_file(&image, "uploaded square.gcode").expect("the uploaded file");
     assert!(back == uploaded, "{label}: the uploaded file reads back as sent");
-    assert!(fs.root_dir().open_file("xyz_20mm_cube.stl").is_err(), "{label}: the STL is gone");
+    assert!(card_file(&image, "xyz_20mm_cube.stl").is_none(), "{label}: the STL is gone");
     eprintln!(
         "{label}: {} bytes read from the card, {:.1} s of print, {} steps, as streamed",
         gcode.len(),
@@ -1182,21 +1176,27 @@ fn qemu_stl_from_card_host_gone() {
     // The card as `fatfs` reads it once QEMU is gone: the job the firmware wrote holds the
     // host's placed triangles in the host's order; the sort's runs file is gone.
     drop(q);
-    let bytes = std::fs::read(&image).unwrap();
-    let start = strata_testkit::card::PARTITION_START_BLOCK as usize * 512;
-    let mut vol = std::io::Cursor::new(bytes[start..].to_vec());
-    let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
-    let mut written = Vec::new();
-    let mut f = fs.root_dir().open_file(strata::printer::STL_JOB_NAME).expect("the STL's job");
-    std::io::Read::read_to_end(&mut f, &mut written).unwrap();
+    let written = card_file(&image, strata::printer::STL_JOB_NAME).expect("the STL's job");
     assert_eq!(job_file_triangles(&written), tris, "{label}: the job's triangles");
-    assert!(fs.root_dir().open_file(strata::card::zsort::RUNS_NAME).is_err(), "{label}: runs");
+    assert!(card_file(&image, strata::card::zsort::RUNS_NAME).is_none(), "{label}: runs");
     eprintln!(
         "{label}: {} triangles sorted on the card, {} layers, stack {used} of {size} B, as \
          streamed",
         tris.len(),
         reference.layers
     );
+}
+
+/// The file `name` of the partitioned card `image` as `fatfs` reads it (QEMU gone), if any.
+fn card_file(image: &std::path::Path, name: &str) -> Option<Vec<u8>> {
+    let bytes = std::fs::read(image).unwrap();
+    let start = strata_testkit::card::PARTITION_START_BLOCK as usize * 512;
+    let mut vol = std::io::Cursor::new(bytes[start..].to_vec());
+    let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
+    let mut f = fs.root_dir().open_file(name).ok()?;
+    let mut back = Vec::new();
+    std::io::Read::read_to_end(&mut f, &mut back).unwrap();
+    Some(back)
 }
 
 /// The triangles of a job file's batches, in order.
