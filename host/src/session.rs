@@ -215,7 +215,11 @@ impl<'a> HostJob<'a> {
                             self.phase = Phase::Done
                         }
                         DeviceState::Failed => {
-                            return Err(describe_failure(&s, self.progress.failure.as_deref()))
+                            let text = describe_failure(&s, self.progress.failure.as_deref());
+                            return Err(match self.source {
+                                Source::Card { name, .. } => with_card_stl_hint(text, name, &s),
+                                _ => text,
+                            });
                         }
                         DeviceState::Aborted if self.phase != Phase::Hello => {
                             return Err("the job was aborted".into())
@@ -405,6 +409,20 @@ pub fn describe_failure(s: &Status, words: Option<&str>) -> String {
         (None, code) => describe_code(code, s.detail),
     };
     format!("print failed: {what} (layer {} of {})", s.layer, s.layers)
+}
+
+/// `text`, the failure of the card's file `name`, with what to do when it is an STL the
+/// printer could not hold (its slicer's, toolpath's or move buffer's capacity): the printer
+/// checks its slicer's before it prints, the rest only as it prints.
+fn with_card_stl_hint(text: String, name: &str, s: &Status) -> String {
+    let stl = name.to_ascii_lowercase().ends_with(".stl");
+    if !stl || !matches!(s.error, ErrorCode::Slice | ErrorCode::Toolpath | ErrorCode::Moves) {
+        return text;
+    }
+    format!(
+        "{text}: the model does not fit the printer as it is; write its job with `strata \
+         upload {name}`, which simplifies it to fit"
+    )
 }
 
 /// The status' error code and detail in words (a device that did not send its own).
@@ -762,6 +780,11 @@ mod tests {
             describe_failure(&s, None),
             "print failed: slicing failed on the printer at layer 37 (layer 37 of 120)"
         );
+        // An STL printing from the card that the printer could not hold: what to do.
+        let hinted = with_card_stl_hint(describe_failure(&s, Some(words)), "Boat.STL", &s);
+        assert!(hinted.ends_with("`strata upload Boat.STL`, which simplifies it to fit"));
+        let gcode = with_card_stl_hint(describe_failure(&s, None), "boat.gcode", &s);
+        assert_eq!(gcode, describe_failure(&s, None), "no hint for G-code");
         // A job orphaned by a new host's session had no silence to report.
         let taken = describe_code(ErrorCode::LinkDead, 0);
         assert!(taken.starts_with("another host opened a link session"), "{taken}");
