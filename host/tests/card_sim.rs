@@ -347,6 +347,8 @@ fn an_stl_beyond_the_slicer_is_refused_before_it_prints() {
     }
 }
 
+/// An STL that cannot print from the card is refused in words before anything moves: wider
+/// than the bed, a corner that is not a number, ASCII, and a card without room for its sort.
 #[test]
 fn an_stl_that_cannot_print_from_the_card_is_refused_in_words() {
     let mut wide = vec![0u8; 80];
@@ -376,4 +378,28 @@ fn an_stl_that_cannot_print_from_the_card_is_refused_in_words() {
         assert_eq!(rep.steps, [0; 4], "{name}: no step");
         assert_eq!(rep.device_state, Some(DeviceState::Idle), "{name}");
     }
+    // A card with room for the cube but not for its sort's runs (40 B a triangle).
+    let name = "xyz_20mm_cube.stl";
+    let stl = std::fs::read(strata_testkit::models::dir().join(name)).unwrap();
+    let cube_only = strata_testkit::card::image(fatfs::FatType::Fat16, 32, &[(name, &stl)], false);
+    let free = {
+        let mut vol = std::io::Cursor::new(cube_only);
+        let fs = fatfs::FileSystem::new(&mut vol, fatfs::FsOptions::new()).unwrap();
+        let stats = fs.stats().unwrap();
+        u64::from(stats.free_clusters()) * u64::from(stats.cluster_size())
+    };
+    let runs_bytes = (stl.len() as u64 - 84) / 50 * 40;
+    let filler = vec![0u8; (free - runs_bytes / 2) as usize];
+    let files: [(&str, &[u8]); 2] = [(name, &stl), ("filler.bin", &filler)];
+    let card =
+        ImageCard::new(strata_testkit::card::image(fatfs::FatType::Fat16, 32, &files, false));
+    let (e, rep) = simulate_with_card(
+        Source::Card { name, detach: false },
+        &ENDER3,
+        &SimOptions::default(),
+        Some(card),
+    )
+    .unwrap_err();
+    assert!(e.contains("the SD card is full"), "{e}");
+    assert_eq!(rep.steps, [0; 4], "a full card: no step");
 }
