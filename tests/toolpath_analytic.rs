@@ -460,3 +460,32 @@ fn a_layer_too_small_for_the_minimum_time_waits_the_rest_lifted_off_the_part() {
         assert_eq!(top, (l.z_um + 3_000).min(1_000).max(l.z_um), "layer {}", l.index);
     }
 }
+
+/// The infill density is the percentage's, not the nearest "every k-th line": each percentage
+/// from 5 to 100 puts more sparse infill into a plate than the one below it, for lines and
+/// zigzag. The oracle: the plate is a square turned 45 degrees, so every infill line (45 and
+/// 135 degrees) crosses it at one length, and the sparse lines among its n solid-spacing
+/// lines (about 212 here) grow by more than n / 100 - 2 > 0 from one percentage to the next.
+#[test]
+fn every_infill_percentage_prints_more_sparse_infill_than_the_one_below() {
+    let (cx, cy, r) = (110.0, 110.0, 60.0);
+    let corners = [[cx + r, cy], [cx, cy + r], [cx - r, cy], [cx, cy - r]];
+    let plate = to_um(&strata_testkit::mesh::prism(&corners, 0.0, 0.6));
+    for pattern in [InfillPattern::Lines, InfillPattern::Zigzag] {
+        let mut settings = PrintSettings::default();
+        (settings.top_layers, settings.bottom_layers, settings.infill_pattern) = (1, 1, pattern);
+        let mut below = 0i64;
+        for percent in 5..=100u8 {
+            settings.infill_percent = percent;
+            let sparse: i64 = run(&plate, &settings)
+                .layers
+                .iter()
+                .flat_map(|l| &l.moves)
+                .filter(|m| m.feature == Feature::InternalInfill && m.e_um > 0)
+                .map(|m| i64::from(m.e_um))
+                .sum();
+            assert!(sparse > below, "{pattern:?} {percent} %: {sparse} um of filament");
+            below = sparse;
+        }
+    }
+}

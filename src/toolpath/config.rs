@@ -181,18 +181,11 @@ impl ToolpathConfig {
         }
     }
 
-    /// Every how many solid-spacing lines a sparse line runs (per direction), 0 for none.
-    pub fn sparse_every(&self) -> i32 {
-        let p = i32::from(self.infill_percent);
-        if p == 0 {
-            return 0;
-        }
-        let k = ((100 + p / 2) / p).max(1);
-        if self.infill_pattern == InfillPattern::Grid {
-            2 * k
-        } else {
-            k
-        }
+    /// Which solid-spacing lines are sparse infill lines (per direction): the infill
+    /// percentage exactly, a grid's half of it in each of its two directions.
+    pub fn sparse_lines(&self) -> SparseLines {
+        let den = if self.infill_pattern == InfillPattern::Grid { 200 } else { 100 };
+        SparseLines { num: i32::from(self.infill_percent), den }
     }
 
     /// Offset of the infill domain from the contour, um.
@@ -204,6 +197,51 @@ impl ToolpathConfig {
         } else {
             p * w + w / 2 - self.infill_overlap_um
         }
+    }
+}
+
+/// The sparse infill lines among the solid-spacing lines: a fraction `num / den` of them,
+/// spread evenly.
+///
+/// Line `i` is sparse when `floor(i * num / den)` steps up at it, so that any
+/// run of `n` lines holds `n * num / den` of them (rounded either way) and the spacing is
+/// `den / num` lines on average (alternating between its floor and ceiling): the density is
+/// the percentage's, not the nearest "every k-th line". With `num / den = 1 / k` the sparse
+/// lines are those with `i % k == 0`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SparseLines {
+    /// Sparse lines per `den` lines (0: no sparse infill; at most `den`).
+    pub num: i32,
+    /// Lines the fraction counts over (line indices times it stay far inside `i32`: a line
+    /// is at least 0.1 mm, the bed under 2^31 / 200 of them).
+    pub den: i32,
+}
+
+impl SparseLines {
+    /// Whether there are sparse lines at all.
+    pub fn any(&self) -> bool {
+        self.num > 0
+    }
+
+    /// Sparse lines before line `i`, counted from line 0 (negative below it).
+    fn count(&self, i: i32) -> i32 {
+        (i * self.num).div_euclid(self.den)
+    }
+
+    /// Whether line `i` is a sparse line.
+    pub fn is_sparse(&self, i: i32) -> bool {
+        self.any() && self.count(i) != self.count(i - 1)
+    }
+
+    /// The nearest sparse line above line `i` (`up`) or below it; `None` without sparse
+    /// lines.
+    pub fn next(&self, i: i32, up: bool) -> Option<i32> {
+        if !self.any() {
+            return None;
+        }
+        // The first line whose count reaches `c`: ceil(c * den / num).
+        let first = |c: i32| -(-c * self.den).div_euclid(self.num);
+        Some(if up { first(self.count(i) + 1) } else { first(self.count(i - 1)) })
     }
 }
 
@@ -241,3 +279,37 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     max_z_um: 0,
     measure_thin_area: false,
 };
+
+#[cfg(test)]
+mod tests {
+    use super::SparseLines;
+
+    #[test]
+    fn sparse_lines_are_the_fraction_spread_evenly() {
+        // One in k: the lines with i % k == 0, as "every k-th line" had them.
+        for k in 1..=20 {
+            let s = SparseLines { num: 1, den: k };
+            assert!((-500..500).all(|i| s.is_sparse(i) == (i.rem_euclid(k) == 0)), "1/{k}");
+        }
+        for (num, den) in [(3, 10), (7, 20), (37, 100), (99, 100), (100, 100), (13, 200)] {
+            let s = SparseLines { num, den };
+            let sparse: Vec<i32> = (-1000..1000).filter(|&i| s.is_sparse(i)).collect();
+            // Any window of n lines holds n * num / den of them, rounded either way.
+            for n in [1, 7, 50, 333] {
+                for a in (-900..600).step_by(37) {
+                    let got = sparse.iter().filter(|&&i| i >= a && i < a + n).count() as f64;
+                    let want = f64::from(n * num) / f64::from(den);
+                    assert!((got - want).abs() < 1.0, "{num}/{den}: {got} in {n} from {a}");
+                }
+            }
+            // The nearest ones either way, from any line.
+            for i in -800..800 {
+                let up = sparse.iter().copied().find(|&j| j > i);
+                let down = sparse.iter().copied().rev().find(|&j| j < i);
+                assert_eq!((s.next(i, true), s.next(i, false)), (up, down), "{num}/{den} at {i}");
+            }
+        }
+        let none = SparseLines { num: 0, den: 100 };
+        assert!(!none.any() && !none.is_sparse(0) && none.next(3, true).is_none());
+    }
+}

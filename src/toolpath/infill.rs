@@ -27,7 +27,7 @@ use super::scan::{
     Interval, Loops,
 };
 use super::window::{self, StoredRings};
-use super::{Buffer, Feature};
+use super::{Buffer, Feature, SparseLines};
 
 /// No crossing / no segment end (a `u16` index).
 pub const NONE: u16 = u16::MAX;
@@ -260,8 +260,8 @@ pub struct FillParams {
     pub step: i64,
     /// Line spacing in um.
     pub spacing_um: i32,
-    /// Sparse lines are those with `line % sparse_every == 0` (0: no sparse infill).
-    pub sparse_every: i32,
+    /// Which lines are sparse infill lines.
+    pub sparse: SparseLines,
     /// Print solid and top skins in this pass.
     pub solid: bool,
     /// Link sparse segments into runs (zigzag, grid).
@@ -394,7 +394,7 @@ impl Builder<'_> {
     fn interval(&mut self, iv: Interval, skin: &mut Skin<'_>) -> Result<(), Buffer> {
         skin.set_line(iv.line)?;
         let p = self.params;
-        let sparse_line = p.sparse_every > 0 && iv.line.rem_euclid(p.sparse_every) == 0;
+        let sparse_line = p.sparse.is_sparse(iv.line);
         // Stretches of this interval, then the solid ones grown by `margin_u` into their
         // non-solid neighbours (skins overlap the sparse zone instead of ending exactly on
         // the surface's edge).
@@ -809,12 +809,19 @@ fn interior_link(
 ) -> Option<End> {
     let here = at.point(p, segs);
     let cur = segs.get(at.seg);
-    let k = p.sparse_every.max(1);
     let steps: &[i32] = if cur.solid { &[1, -1, 2, -2] } else { &[1, -1] };
     let mut best: Option<((i32, bool, i64), End)> = None;
     for &dl in steps {
-        let dl = if cur.solid { dl } else { dl * k };
-        let target = cur.line + dl;
+        // A sparse segment links to the next sparse line either way.
+        let target = if cur.solid {
+            cur.line + dl
+        } else {
+            match p.sparse.next(cur.line, dl > 0) {
+                Some(t) => t,
+                None => continue,
+            }
+        };
+        let dl = target - cur.line;
         // Segments come line by line: the first on `target`.
         let (mut lo, mut hi) = (0, segs.nseg);
         while lo < hi {

@@ -133,7 +133,7 @@ mod thin;
 pub mod window;
 
 use config::IDLE_CONFIG;
-pub use config::{Seam, ToolpathConfig};
+pub use config::{Seam, SparseLines, ToolpathConfig};
 pub use error::{Buffer, ToolpathError};
 pub use events::{Emitted, Feature, Moves, Room, ToolEvent, ToolMove};
 pub use space::{Engine, ToolpathScratch, ToolpathSpace};
@@ -794,7 +794,7 @@ impl<
             let grid = cfg.infill_pattern == InfillPattern::Grid;
             let mut progress = || sink(&ToolEvent::Progress);
             self.infill_pass(work, l, angle, true, &mut progress)?;
-            if grid && cfg.sparse_every() > 0 {
+            if grid && cfg.sparse_lines().any() {
                 self.infill_pass(work, l, angle.other(), false, &mut progress)?;
             }
         }
@@ -1096,7 +1096,7 @@ impl<
             angle,
             step: self.step,
             spacing_um: spacing,
-            sparse_every: cfg.sparse_every(),
+            sparse: cfg.sparse_lines(),
             solid,
             link_sparse: cfg.infill_pattern != InfillPattern::Lines,
             min_len_u: (i64::from(spacing) * 1414 / 1000 / 3) as i32,
