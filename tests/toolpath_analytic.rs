@@ -462,18 +462,26 @@ fn a_layer_too_small_for_the_minimum_time_waits_the_rest_lifted_off_the_part() {
 }
 
 /// The infill density is the percentage's, not the nearest "every k-th line": each percentage
-/// from 5 to 100 puts more sparse infill into a plate than the one below it, for lines and
-/// zigzag. The oracle: the plate is a square turned 45 degrees, so every infill line (45 and
-/// 135 degrees) crosses it at one length, and the sparse lines among its n solid-spacing
-/// lines (about 212 here) grow by more than n / 100 - 2 > 0 from one percentage to the next.
+/// from 5 to 100 puts more sparse infill into a plate than the one below it, for lines,
+/// zigzag and grid. The oracle: the plate is a square turned 45 degrees, so every infill line
+/// (45 and 135 degrees) crosses it at one length, and a direction's sparse lines among its n
+/// solid-spacing lines grow by more than n * f - 2 > 0 from one percentage to the next, f the
+/// share of a percent a direction takes (1 / 100; a grid's two directions 1 / 200 each):
+/// n = 212 at 0.4 mm lines on the 85 mm plate, 480 at 0.25 mm on the 120 mm one for the grid.
 #[test]
 fn every_infill_percentage_prints_more_sparse_infill_than_the_one_below() {
-    let (cx, cy, r) = (110.0, 110.0, 60.0);
-    let corners = [[cx + r, cy], [cx, cy + r], [cx - r, cy], [cx, cy - r]];
-    let plate = to_um(&strata_testkit::mesh::prism(&corners, 0.0, 0.6));
-    for pattern in [InfillPattern::Lines, InfillPattern::Zigzag] {
+    let cases = [
+        (InfillPattern::Lines, 60.0, 400),
+        (InfillPattern::Zigzag, 60.0, 400),
+        (InfillPattern::Grid, 85.0, 250),
+    ];
+    for (pattern, half_diagonal_mm, line_width_um) in cases {
+        let (c, r) = (110.0, half_diagonal_mm);
+        let corners = [[c + r, c], [c, c + r], [c - r, c], [c, c - r]];
+        let plate = to_um(&strata_testkit::mesh::prism(&corners, 0.0, 0.6));
         let mut settings = PrintSettings::default();
-        (settings.top_layers, settings.bottom_layers, settings.infill_pattern) = (1, 1, pattern);
+        (settings.top_layers, settings.bottom_layers) = (1, 1);
+        (settings.infill_pattern, settings.line_width_um) = (pattern, line_width_um);
         let mut below = 0i64;
         for percent in 5..=100u8 {
             settings.infill_percent = percent;
