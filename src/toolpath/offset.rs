@@ -217,11 +217,17 @@ fn normal(dx: i64, dy: i64, len: i64, d: i64) -> (i64, i64) {
 
 /// `v` scaled to length `r` (engine units).
 fn scale_to(v: (i64, i64), r: i64) -> (i64, i64) {
-    let len = isqrt_u64((v.0 * v.0 + v.1 * v.1) as u64) as i64;
+    // Halved until its squared length fits: a round join's direction is a product of two
+    // edge lengths (2^42 for two 100 mm edges), whose square would overflow.
+    let (mut x, mut y) = v;
+    while x.unsigned_abs().max(y.unsigned_abs()) >= 1 << 31 {
+        (x, y) = (x / 2, y / 2);
+    }
+    let len = isqrt_u64((x * x + y * y) as u64) as i64;
     if len == 0 {
         return (0, 0);
     }
-    (div_round(v.0 * r, len), div_round(v.1 * r, len))
+    (div_round(x * r, len), div_round(y * r, len))
 }
 
 impl<const E: usize> Offsetter<E> {
@@ -1647,6 +1653,20 @@ mod tests {
         assert!((got - exact).abs() < exact * 2e-3, "{got} vs {exact}");
         let r = out.rings()[0];
         assert_eq!((r.min, r.max), (Point2::new(-3_000, -3_000), Point2::new(13_000, 13_000)));
+    }
+
+    /// A part as wide as the bed: its long edges' round joins stay within range (their
+    /// direction, a product of two edge lengths, once overflowed when squared).
+    #[test]
+    fn outward_round_offset_of_a_bed_wide_square_is_a_rounded_square() {
+        let sq = rect(0, 0, 200_000, 200_000);
+        let out = offset_loops(&[&sq], -3_000, Join::Round);
+        assert_eq!(out.rings().len(), 1);
+        let exact = 200.0 * 200.0 + 4.0 * 200.0 * 3.0 + core::f64::consts::PI * 9.0;
+        let got = area_mm2(&out);
+        assert!((got - exact).abs() < 0.05, "{got} vs {exact} mm^2");
+        let r = out.rings()[0];
+        assert_eq!((r.min, r.max), (Point2::new(-3_000, -3_000), Point2::new(203_000, 203_000)));
     }
 
     /// Deterministic pseudo-random numbers (64-bit LCG, high bits).
