@@ -185,7 +185,7 @@ impl ToolpathConfig {
     /// percentage exactly, a grid's half of it in each of its two directions.
     pub fn sparse_lines(&self) -> SparseLines {
         let den = if self.infill_pattern == InfillPattern::Grid { 200 } else { 100 };
-        SparseLines { num: i32::from(self.infill_percent), den }
+        SparseLines { num: self.infill_percent, den }
     }
 
     /// Offset of the infill domain from the contour, um.
@@ -211,10 +211,11 @@ impl ToolpathConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SparseLines {
     /// Sparse lines per `den` lines (0: no sparse infill; at most `den`).
-    pub num: i32,
-    /// Lines the fraction counts over (line indices times it stay far inside `i32`: a line
-    /// is at least 0.1 mm, the bed under 2^31 / 200 of them).
-    pub den: i32,
+    pub num: u8,
+    /// Lines the fraction counts over, at least 1 (line indices times it stay far inside
+    /// `i32`: a line is at least 0.1 mm, the bed under 2^31 / 255 of them). One byte each
+    /// keeps the infill pass's stack frame as it was.
+    pub den: u8,
 }
 
 impl SparseLines {
@@ -225,7 +226,7 @@ impl SparseLines {
 
     /// Sparse lines before line `i`, counted from line 0 (negative below it).
     fn count(&self, i: i32) -> i32 {
-        (i * self.num).div_euclid(self.den)
+        (i * i32::from(self.num)).div_euclid(i32::from(self.den))
     }
 
     /// Whether line `i` is a sparse line.
@@ -240,7 +241,7 @@ impl SparseLines {
             return None;
         }
         // The first line whose count reaches `c`: ceil(c * den / num).
-        let first = |c: i32| -(-c * self.den).div_euclid(self.num);
+        let first = |c: i32| -(-c * i32::from(self.den)).div_euclid(i32::from(self.num));
         Some(if up { first(self.count(i) + 1) } else { first(self.count(i - 1)) })
     }
 }
@@ -287,18 +288,19 @@ mod tests {
     #[test]
     fn sparse_lines_are_the_fraction_spread_evenly() {
         // One in k: the lines with i % k == 0, as "every k-th line" had them.
-        for k in 1..=20 {
+        for k in 1..=20u8 {
             let s = SparseLines { num: 1, den: k };
-            assert!((-500..500).all(|i| s.is_sparse(i) == (i.rem_euclid(k) == 0)), "1/{k}");
+            let every_kth = |i: i32| i.rem_euclid(i32::from(k)) == 0;
+            assert!((-500..500).all(|i| s.is_sparse(i) == every_kth(i)), "1/{k}");
         }
-        for (num, den) in [(3, 10), (7, 20), (37, 100), (99, 100), (100, 100), (13, 200)] {
+        for (num, den) in [(3u8, 10u8), (7, 20), (37, 100), (99, 100), (100, 100), (13, 200)] {
             let s = SparseLines { num, den };
             let sparse: Vec<i32> = (-1000..1000).filter(|&i| s.is_sparse(i)).collect();
             // Any window of n lines holds n * num / den of them, rounded either way.
             for n in [1, 7, 50, 333] {
                 for a in (-900..600).step_by(37) {
                     let got = sparse.iter().filter(|&&i| i >= a && i < a + n).count() as f64;
-                    let want = f64::from(n * num) / f64::from(den);
+                    let want = f64::from(n) * f64::from(num) / f64::from(den);
                     assert!((got - want).abs() < 1.0, "{num}/{den}: {got} in {n} from {a}");
                 }
             }
