@@ -1,6 +1,6 @@
 //! Toolpaths of analytic parts against independent f64 models: extruded volume, containment
 //! of every extrusion in the contour shrunk by half a line width, coverage of top surfaces,
-//! solid first and last layers, bottom skins over a bridge, skins around a pocket.
+//! solid first and last layers, a bridge and bottom skins over a gap, skins around a pocket.
 
 mod toolpath_support;
 
@@ -179,19 +179,20 @@ fn bridge_plate_gets_bottom_skins_and_pocket_gets_top_skins() {
     bridge.extend(cuboid([100.0, 100.0, 4.0], [120.0, 110.0, 8.0]));
     let r = default_run(&bridge);
     assert_eq!(r.layers.len(), 40);
-    // Layers 20..24 are the plate's bottom: solid over the gap (x in 104..116 mm).
+    // Layers 20..24 are the plate's bottom over the gap (x in 104..116 mm): a bridge on the
+    // first (over air), solid on the rest.
     let starts = layer_starts(&r);
     for (l, &start) in starts.iter().enumerate().take(24).skip(20) {
         let mid: Vec<_> = extrusions(&r.layers[l], start)
             .into_iter()
             .filter(|(a, b, _, _)| (106_000..114_000).contains(&((a.x + b.x) / 2)))
             .map(|s| s.2)
-            .filter(|f| matches!(f, Feature::InternalInfill | Feature::SolidInfill))
+            .filter(|f| {
+                matches!(f, Feature::InternalInfill | Feature::SolidInfill | Feature::BridgeInfill)
+            })
             .collect();
-        assert!(
-            !mid.is_empty() && mid.iter().all(|&f| f == Feature::SolidInfill),
-            "layer {l}: {mid:?}"
-        );
+        let want = if l == 20 { Feature::BridgeInfill } else { Feature::SolidInfill };
+        assert!(!mid.is_empty() && mid.iter().all(|&f| f == want), "layer {l}: {mid:?}");
     }
     // Layer 27 (3 mm into the 4 mm plate): sparse in the middle.
     assert!(features(&r.layers[27]).contains(&Feature::InternalInfill));

@@ -376,6 +376,8 @@ fn reference_spans(loops: &[Vec<Point2>], angle: Angle, t: i64) -> (Vec<(i32, i3
         match angle {
             Angle::D45 => (y - x, x + y),
             Angle::D135 => (x + y, y - x),
+            Angle::D0 => (y, x),
+            Angle::D90 => (x, y),
         }
     };
     let mut cross = Vec::new();
@@ -410,14 +412,14 @@ fn window_line_spans_skipping_loops_match_every_edge_of_every_loop() {
         prop::collection::vec(scan_loop(), 0..7),
         0usize..2048,
         prop::sample::select(vec![1i64, 636, 1414, 40_000]),
-        any::<(bool, u16, i32)>(),
+        any::<(u8, u16, i32)>(),
     );
     let mut runner = TestRunner::new_with_rng(
         Config::with_cases(400),
         TestRng::deterministic_rng(RngAlgorithm::ChaCha),
     );
     runner
-        .run(&strategy, |(loops, skip, step, (d45, pick, line))| {
+        .run(&strategy, |(loops, skip, step, (dir, pick, line))| {
             // The loops stored as the window stores a layer, from anywhere in its storage.
             let mut fifo = Fifo::<u32, 2048>::new(0);
             fifo.reserve(skip).unwrap();
@@ -432,7 +434,7 @@ fn window_line_spans_skipping_loops_match_every_edge_of_every_loop() {
             let words = enc.finish(loops.len() as u32, loops.len() as u16);
             fifo.commit(1, words);
             let data = fifo.data(&fifo.find(1).unwrap());
-            let angle = if d45 { Angle::D45 } else { Angle::D135 };
+            let angle = [Angle::D45, Angle::D135, Angle::D0, Angle::D90][usize::from(dir % 4)];
             // Lines through vertices (step 1), near them, and anywhere.
             let vertex_t: Vec<i64> = loops.iter().flatten().map(|&p| angle.key(p).0).collect();
             let mut lines = vec![i64::from(line / 4096)];

@@ -158,6 +158,7 @@ pub fn type_name(f: Feature) -> &'static str {
         Feature::SolidInfill => "Solid infill",
         Feature::TopSolidInfill => "Top solid infill",
         Feature::Skirt => "Skirt",
+        Feature::BridgeInfill => "Bridge infill",
         Feature::Travel | Feature::Retract | Feature::Unretract | Feature::Dwell => "Custom",
     }
 }

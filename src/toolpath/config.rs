@@ -11,6 +11,10 @@ use super::*;
 /// ("Lift Head"), clear of the part's tip.
 pub const COOL_LIFT_UM: i32 = 3_000;
 
+/// The default bridge speed, mm/s: slow enough for a thread over air to set under the fan
+/// (about half the default infill speed).
+pub const BRIDGE_SPEED_MM_S: u16 = 25;
+
 /// Where loops start.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -65,6 +69,12 @@ pub struct ToolpathConfig {
     pub skirt_loops: u8,
     /// Where loops start.
     pub seam: Seam,
+    /// Skin over no material of the layer below prints as bridges: straight lines in the
+    /// direction that anchors most of them on both sides, at `bridge_speed_mm_s`, each a
+    /// round thread one line wide ([`Feature::BridgeInfill`]).
+    pub bridges: bool,
+    /// Bridge speed, mm/s.
+    pub bridge_speed_mm_s: Rate,
     /// Contour simplification tolerance, um.
     pub simplify_tolerance_um: i32,
     /// Once a layer is built, its contours stay in the skin window only for the bottom skins
@@ -120,6 +130,8 @@ impl ToolpathConfig {
             skirt_distance_um: 3_000,
             skirt_loops: 1,
             seam: Seam::Rear,
+            bridges: true,
+            bridge_speed_mm_s: Rate::from_num(BRIDGE_SPEED_MM_S),
             simplify_tolerance_um: 10,
             below_tolerance_um: 0,
             min_retract_travel_um: 1_500,
@@ -152,6 +164,7 @@ impl ToolpathConfig {
             ("below_tolerance_um", (0..=self.line_width_um).contains(&self.below_tolerance_um)),
             ("min_retract_travel_um", self.min_retract_travel_um >= 0),
             ("travel_speed_mm_s", self.travel_speed_mm_s > 0),
+            ("bridge_speed_mm_s", self.bridge_speed_mm_s > 0),
             ("perimeter_speed_mm_s", self.perimeter_speed_mm_s > 0),
             ("infill_speed_mm_s", self.infill_speed_mm_s > 0),
             ("first_layer_speed_mm_s", self.first_layer_speed_mm_s > 0),
@@ -270,6 +283,8 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     skirt_distance_um: 0,
     skirt_loops: 0,
     seam: Seam::Rear,
+    bridges: false,
+    bridge_speed_mm_s: Rate::ZERO,
     simplify_tolerance_um: 0,
     below_tolerance_um: 0,
     min_retract_travel_um: 0,

@@ -59,16 +59,47 @@ pub enum Kind {
     Solid = 2,
     /// Solid infill under no material (the top surface).
     Top = 3,
+    /// Over no material of the layer below, left to the bridge pass
+    /// ([`OverAir::Leave`]): nothing in this pass, and no skin grows into it (never stored in
+    /// a piece, whose kind has two bits).
+    Air = 4,
 }
 
 impl Kind {
-    fn feature(self) -> Feature {
+    /// The feature of a stretch of this kind in a pass of `p` (all of a bridge pass's are
+    /// bridges).
+    fn feature(self, p: &FillParams) -> Feature {
         match self {
-            Kind::Sparse | Kind::None => Feature::InternalInfill,
+            _ if p.over_air == OverAir::Bridge => Feature::BridgeInfill,
+            Kind::Sparse | Kind::None | Kind::Air => Feature::InternalInfill,
             Kind::Solid => Feature::SolidInfill,
             Kind::Top => Feature::TopSolidInfill,
         }
     }
+}
+
+/// What a pass makes of the stretches over no material of the layer below (a bottom surface
+/// over air, not within half a line of that layer's region).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OverAir {
+    /// Solid skin like any bottom surface (no bridges, or the first layer).
+    Solid,
+    /// Nothing: a later [`OverAir::Bridge`] pass prints them; counted in [`BridgeTally`].
+    Leave,
+    /// Only them, as bridges ([`Feature::BridgeInfill`]), each grown by the skin margin onto
+    /// the material around it (its anchors).
+    Bridge,
+    /// Like `Bridge`, but only counted ([`BridgeTally`]): nothing is printed.
+    Measure,
+}
+
+/// The stretches over air one pass met ([`OverAir`]), in um along their lines.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct BridgeTally {
+    /// All of them.
+    pub over_air_um: i64,
+    /// Those with material of the layer below at both ends along their line (anchored).
+    pub anchored_um: i64,
 }
 
 /// A printed stretch of one line: pieces `piece0 .. piece0 + npieces` give its kinds.
@@ -264,6 +295,8 @@ pub struct FillParams {
     pub sparse: SparseLines,
     /// Print solid and top skins in this pass.
     pub solid: bool,
+    /// What the pass makes of stretches over air.
+    pub over_air: OverAir,
     /// Link sparse segments into runs (zigzag, grid).
     pub link_sparse: bool,
     /// Segments shorter than this (in `u` units) are dropped.
@@ -335,6 +368,8 @@ struct Builder<'a> {
     /// The segment being built: (start u, start crossing, first piece).
     open: Option<(i32, u16, usize)>,
     params: FillParams,
+    /// Stretches over air met, in `u` units.
+    tally: BridgeTally,
 }
 
 impl Builder<'_> {
@@ -343,6 +378,10 @@ impl Builder<'_> {
     }
 
     fn add_stretch(&mut self, iv: &Interval, u0: i32, u1: i32, kind: Kind) -> Result<(), Buffer> {
+        if kind == Kind::Air {
+            self.close(iv, u0, NONE)?;
+            return self.block(iv, u0, u1);
+        }
         if kind == Kind::None {
             return self.close(iv, u0, NONE);
         }
@@ -363,6 +402,31 @@ impl Builder<'_> {
             return self.segs.set_piece(self.segs.npieces - 1, LinePiece { u1, kind });
         }
         self.segs.push_piece(LinePiece { u1, kind })
+    }
+
+    /// A stretch left for the bridge pass that reaches the boundary: a used segment there, so
+    /// that boundary links stop at its crossing instead of walking over the air.
+    fn block(&mut self, iv: &Interval, u0: i32, u1: i32) -> Result<(), Buffer> {
+        let c0 = if u0 == iv.u0 { iv.c0 } else { NONE };
+        let c1 = if u1 == iv.u1 { iv.c1 } else { NONE };
+        if c0 == NONE && c1 == NONE {
+            return Ok(());
+        }
+        let piece0 = self.segs.npieces as u32;
+        self.segs.push_piece(LinePiece { u1, kind: Kind::None })?;
+        self.segs.push_seg(&LineSeg {
+            line: iv.line,
+            u0,
+            u1,
+            c0,
+            c1,
+            piece0,
+            npieces: 1,
+            island: 0,
+            used: true,
+            solid: false,
+            linkable: false,
+        })
     }
 
     /// Ends the open segment at `u1` (crossing `c1`).
@@ -404,9 +468,14 @@ impl Builder<'_> {
         let mut kinds = [Kind::None; MAX_STRETCHES];
         let mut ns = 0;
         let mut pos = iv.u0;
+        let air = if p.over_air == OverAir::Leave { Kind::Air } else { Kind::Solid };
         while pos < iv.u1 {
-            let (covered, in_next, next) = skin.probe(pos, iv.u1);
-            let kind = if !covered {
+            let (covered, in_next, in_prev, next) = skin.probe(pos, iv.u1);
+            let kind = if p.over_air != OverAir::Solid && !in_prev {
+                air
+            } else if matches!(p.over_air, OverAir::Bridge | OverAir::Measure) {
+                Kind::None
+            } else if !covered {
                 if !p.solid {
                     Kind::None
                 } else if in_next {
@@ -434,10 +503,16 @@ impl Builder<'_> {
             }
             pos = next;
         }
+        if p.over_air != OverAir::Solid {
+            self.tally_air(&at[..=ns], &kinds[..ns], air);
+            if p.over_air == OverAir::Measure {
+                return Ok(());
+            }
+        }
         let m = p.margin_u;
         if m > 0 && p.solid {
             for i in 0..ns {
-                if kinds[i] < Kind::Solid {
+                if kinds[i] < Kind::Solid || kinds[i] == Kind::Air {
                     continue;
                 }
                 if i + 1 < ns && kinds[i + 1] < Kind::Solid {
@@ -454,6 +529,21 @@ impl Builder<'_> {
             }
         }
         self.close(&iv, iv.u1, iv.c1)
+    }
+
+    /// Counts the stretches of kind `air` of one interval (stretch `k` is `at[k]..at[k + 1]`):
+    /// anchored when stretches with material below lie on both sides within the interval.
+    fn tally_air(&mut self, at: &[i32], kinds: &[Kind], air: Kind) {
+        for (k, &kind) in kinds.iter().enumerate() {
+            if kind != air {
+                continue;
+            }
+            let len = i64::from(at[k + 1] - at[k]);
+            self.tally.over_air_um += len;
+            if k > 0 && k + 1 < kinds.len() {
+                self.tally.anchored_um += len;
+            }
+        }
     }
 }
 
@@ -527,12 +617,12 @@ impl<'a> Skin<'a> {
     }
 
     /// At `pos`: covered by every layer of the window (no surface near), covered by layer
-    /// L + 1, and where that next changes (at most `end`).
-    fn probe(&mut self, pos: i32, end: i32) -> (bool, bool, i32) {
+    /// L + 1, covered by layer L - 1, and where that next changes (at most `end`).
+    fn probe(&mut self, pos: i32, end: i32) -> (bool, bool, bool, i32) {
         let mut next = end;
         let mut all_above = self.top == 0 || self.view.above_complete;
         let mut all_below = self.bottom == 0 || self.view.below_complete;
-        let mut in_next = false;
+        let (mut in_next, mut in_prev) = (false, false);
         let (spans, g) = (&*self.spans, self.grow);
         for (k, c) in self.above.iter_mut().take(self.view.n_above).enumerate() {
             let (cov, b) = c.probe(spans, g, pos);
@@ -551,11 +641,14 @@ impl<'a> Skin<'a> {
             if let Some(b) = b {
                 next = next.min(b);
             }
+            if k == 0 {
+                in_prev = cov;
+            }
             if k < self.bottom {
                 all_below &= cov;
             }
         }
-        (all_above && all_below, in_next, next.max(pos + 1))
+        (all_above && all_below, in_next, in_prev, next.max(pos + 1))
     }
 }
 
@@ -627,7 +720,7 @@ pub fn fill<const N: usize>(
     paths: &mut PathBuf<N>,
     usage: &mut FillUse,
     progress: &mut dyn FnMut(),
-) -> Result<(), Buffer> {
+) -> Result<BridgeTally, Buffer> {
     let mut n = 0;
     crossings(points, rings, params.angle, params.step, work.cross, &mut n)?;
     if n > work.idx.len() {
@@ -638,7 +731,9 @@ pub fn fill<const N: usize>(
     sort_by_line(cross, &loops, &mut work.idx[..n]);
     usage.crossings = usage.crossings.max(n);
     let mut skin = Skin::new(view, top, bottom, &params, &mut *work.spans);
-    let mut b = Builder { segs: Segs::new(&mut *work.pool), cross, rings, open: None, params };
+    let tally = BridgeTally::default();
+    let mut b =
+        Builder { segs: Segs::new(&mut *work.pool), cross, rings, open: None, params, tally };
     let mut count = 0u32;
     let r = intervals(cross, &loops, &work.idx[..n], |iv| {
         count += 1;
@@ -649,6 +744,10 @@ pub fn fill<const N: usize>(
     });
     usage.spans = usage.spans.max(skin.peak);
     r?;
+    // Along-line units to um.
+    let um = |u: i64| u * 1000 / params.angle.scale_milli();
+    let tally =
+        BridgeTally { over_air_um: um(b.tally.over_air_um), anchored_um: um(b.tally.anchored_um) };
     let mut segs = b.segs;
     usage.segments = usage.segments.max(segs.used_words().div_ceil(POOL_WORDS));
     if segs.nseg > MAX_SEGS {
@@ -667,7 +766,8 @@ pub fn fill<const N: usize>(
             }
         }
     }
-    link(points, rings, &params, cross, cend, &mut segs, paths)
+    link(points, rings, &params, cross, cend, &mut segs, paths)?;
+    Ok(tally)
 }
 
 /// Emits segment `s` (forward: from `u0`) into the open path.
@@ -683,16 +783,16 @@ fn emit_seg<const N: usize>(
     let last = pieces.end.saturating_sub(1);
     let first_kind = segs.piece(if forward { pieces.start } else { last }).kind;
     if forward {
-        paths.push(seg_point(p, sg.line, sg.u0), first_kind.feature())?;
+        paths.push(seg_point(p, sg.line, sg.u0), first_kind.feature(p))?;
         for k in pieces {
             let pc = segs.piece(k);
-            paths.push(seg_point(p, sg.line, pc.u1), pc.kind.feature())?;
+            paths.push(seg_point(p, sg.line, pc.u1), pc.kind.feature(p))?;
         }
     } else {
-        paths.push(seg_point(p, sg.line, sg.u1), first_kind.feature())?;
+        paths.push(seg_point(p, sg.line, sg.u1), first_kind.feature(p))?;
         for k in pieces.clone().rev() {
             let u = if k == pieces.start { sg.u0 } else { segs.piece(k - 1).u1 };
-            paths.push(seg_point(p, sg.line, u), segs.piece(k).kind.feature())?;
+            paths.push(seg_point(p, sg.line, u), segs.piece(k).kind.feature(p))?;
         }
     }
     Ok(())
@@ -898,7 +998,7 @@ fn link<const N: usize>(
                 let sg = segs.get(e.seg);
                 let k =
                     if e.at_u1 { (sg.piece0 + sg.npieces).saturating_sub(1) } else { sg.piece0 };
-                segs.piece(k as usize).kind.feature()
+                segs.piece(k as usize).kind.feature(p)
             };
             if let Some((from, k, fwd)) = walk {
                 let mut err = Ok(());

@@ -107,7 +107,7 @@ use crate::machine::{InfillPattern, Rate};
 use crate::math;
 use crate::slice::{CutSpace, Layer, SlicedLayer};
 
-use infill::{FillParams, FillUse, FillWork, SkinView, Span, POOL_WORDS};
+use infill::{BridgeTally, FillParams, FillUse, FillWork, OverAir, SkinView, Span, POOL_WORDS};
 use offset::Join;
 use order::{Ctx, Emission, Emitter, FEED_SCALE_ONE};
 use paths::{PathBuf, PathKind};
@@ -211,8 +211,8 @@ pub struct Toolpath<
     const SPANS: usize,
 > {
     cfg: ToolpathConfig,
-    step: i64,
     ring: Fifo<u32, RING>,
+
     contour: LoopBuf<PTS, LOOPS>,
     /// Loops between offsets (their points are in the offset engine's place of the scratch).
     tmp: LoopMeta<LOOPS>,
@@ -265,8 +265,6 @@ impl<
     pub const fn empty() -> Self {
         Self {
             cfg: IDLE_CONFIG,
-            // The scanline step of IDLE_CONFIG's zero line width (never used: `reset` sets it).
-            step: 0,
             ring: Fifo::new(0),
             contour: LoopBuf::new(),
             tmp: LoopMeta::new(),
@@ -314,7 +312,6 @@ impl<
     pub fn reset(&mut self, cfg: ToolpathConfig) -> Result<(), ToolpathError> {
         cfg.validate()?;
         self.cfg = cfg;
-        self.step = scan::line_step(cfg.line_width_um);
         self.ring.clear();
         self.em = Emitter::new();
         self.emission = Emission::new();
@@ -793,9 +790,15 @@ impl<
             let angle = if l % 2 == 0 { Angle::D45 } else { Angle::D135 };
             let grid = cfg.infill_pattern == InfillPattern::Grid;
             let mut progress = || sink(&ToolEvent::Progress);
-            self.infill_pass(work, l, angle, true, &mut progress)?;
+            let bridges = cfg.bridges && l > FIRST_LAYER;
+            let over_air = if bridges { OverAir::Leave } else { OverAir::Solid };
+            let air = self.infill_pass(work, l, angle, true, over_air, &mut progress)?;
             if grid && cfg.sparse_lines().any() {
-                self.infill_pass(work, l, angle.other(), false, &mut progress)?;
+                self.infill_pass(work, l, angle.other(), false, OverAir::Solid, &mut progress)?;
+            }
+            if air.over_air_um > 0 {
+                let angle = self.bridge_angle(work, l, &mut progress)?;
+                self.infill_pass(work, l, angle, true, OverAir::Bridge, &mut progress)?;
             }
         }
         layer.paths = self.paths.len() as u32;
@@ -903,8 +906,9 @@ impl<
             st.max_thin_area_layer = l;
         }
         st.max_unit_moves = st.max_unit_moves.max(ls.max_unit_moves);
-        // Drop what no later layer needs (the next one looks `bottom` layers down).
-        let bottom = u32::from(self.cfg.bottom_layers);
+        // Drop what no later layer needs (the next one looks `bottom` layers down, at least
+        // one for its bridges).
+        let bottom = u32::from(self.cfg.bottom_layers).max(u32::from(self.cfg.bridges));
         if bottom > 0 {
             self.coarsen_below(l);
         }
@@ -1032,15 +1036,37 @@ impl<
         Ok(())
     }
 
-    /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only).
+    /// The direction of layer `l`'s bridges: the one whose lines have most of their length
+    /// over air anchored on both sides (then the least over air in all; then the first of
+    /// [`Angle::ALL`]), measured by a pass in each that prints nothing.
+    fn bridge_angle<W: ToolpathSpace<PTS, CROSS>>(
+        &mut self,
+        work: &mut W,
+        l: u32,
+        progress: &mut dyn FnMut(),
+    ) -> Result<Angle, Buffer> {
+        let mut best = (Angle::ALL[0], (i64::MIN, i64::MIN));
+        for angle in Angle::ALL {
+            let t = self.infill_pass(work, l, angle, true, OverAir::Measure, progress)?;
+            let score = (t.anchored_um, -t.over_air_um);
+            if score > best.1 {
+                best = (angle, score);
+            }
+        }
+        Ok(best.0)
+    }
+
+    /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only), with
+    /// what it makes of skin over air; the stretches over air it met.
     fn infill_pass<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         work: &mut W,
         l: u32,
         angle: Angle,
         solid: bool,
+        over_air: OverAir,
         progress: &mut dyn FnMut(),
-    ) -> Result<(), Buffer> {
+    ) -> Result<BridgeTally, Buffer> {
         self.park_engine(work);
         let cfg = self.cfg;
         let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
@@ -1079,7 +1105,9 @@ impl<
                 view.has_next = true;
             }
         }
-        for k in 1..=bottom as u32 {
+        // Bridges need the layer below even without bottom skins.
+        let below = if over_air == OverAir::Solid { bottom } else { bottom.max(1) };
+        for k in 1..=below as u32 {
             match l.checked_sub(k).and_then(stored) {
                 Some(d) => {
                     view.below[view.n_below] = d;
@@ -1092,18 +1120,20 @@ impl<
             }
         }
         let spacing = cfg.line_width_um;
+        let step = angle.line_step(spacing);
         let params = FillParams {
             angle,
-            step: self.step,
+            step,
             spacing_um: spacing,
             sparse: cfg.sparse_lines(),
             solid,
+            over_air,
             link_sparse: cfg.infill_pattern != InfillPattern::Lines,
-            min_len_u: (i64::from(spacing) * 1414 / 1000 / 3) as i32,
+            min_len_u: (i64::from(spacing) * angle.scale_milli() / 1000 / 3) as i32,
             width_um: cfg.line_width_um,
-            erode_u: (self.step / 2) as i32,
-            margin_u: (3 * self.step / 2) as i32,
-            end_ext_u: if cfg.perimeters > 0 { (self.step / 2) as i32 } else { 0 },
+            erode_u: (step / 2) as i32,
+            margin_u: (3 * step / 2) as i32,
+            end_ext_u: if cfg.perimeters > 0 { (step / 2) as i32 } else { 0 },
         };
         let scratch = work.fill();
         let mut fill_work = FillWork {

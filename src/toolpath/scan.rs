@@ -1,10 +1,11 @@
-//! Scanlines at 45 and 135 degrees: exact crossings of loops with parallel lines, and the
-//! intervals inside (non-zero winding) along every line.
+//! Scanlines at 45, 135, 0 and 90 degrees: exact crossings of loops with parallel lines, and
+//! the intervals inside (non-zero winding) along every line.
 //!
-//! Both directions are exact in integers without rotation: for 45 degrees a point's line key
+//! Every direction is exact in integers without rotation: for 45 degrees a point's line key
 //! is `t = y - x` and its position along the line `u = x + y` (135 degrees: `t = x + y`,
-//! `u = y - x`). Both scale distances by `sqrt 2`, so lines `spacing` um apart are
-//! `round(spacing x sqrt 2)` apart in `t`. Line
+//! `u = y - x`; 0 degrees: `t = y`, `u = x`; 90 degrees: `t = x`, `u = y`). The diagonals
+//! scale distances by `sqrt 2`, so their lines `spacing` um apart are `round(spacing x sqrt 2)`
+//! apart in `t`. Line
 //! `j` is `t = j x step`. An edge from `p` to `q` crosses line `t` when `t` lies in the
 //! half-open range between `t(p)` and `t(q)` (`min <= t < max`), so a vertex on a line is
 //! counted once and every crossing is exact; only `u` is rounded (to 1 unit = 0.7 um).
@@ -26,14 +27,23 @@ pub enum Angle {
     D45,
     /// Lines along (-1, 1).
     D135,
+    /// Lines along (1, 0): `t = y`, `u = x`.
+    D0,
+    /// Lines along (0, 1): `t = x`, `u = y`.
+    D90,
 }
 
 impl Angle {
-    /// The other direction.
+    /// Every direction, the infill's two first.
+    pub const ALL: [Angle; 4] = [Angle::D45, Angle::D135, Angle::D0, Angle::D90];
+
+    /// The other direction of the infill's two (the axes: each other).
     pub fn other(self) -> Self {
         match self {
             Self::D45 => Self::D135,
             Self::D135 => Self::D45,
+            Self::D0 => Self::D90,
+            Self::D90 => Self::D0,
         }
     }
 
@@ -44,6 +54,8 @@ impl Angle {
         match self {
             Self::D45 => (y - x, x + y),
             Self::D135 => (x + y, y - x),
+            Self::D0 => (y, x),
+            Self::D90 => (x, y),
         }
     }
 
@@ -52,12 +64,30 @@ impl Angle {
         let (x2, y2) = match self {
             Self::D45 => (u - t, u + t),
             Self::D135 => (t - u, t + u),
+            Self::D0 => (2 * u, 2 * t),
+            Self::D90 => (2 * t, 2 * u),
         };
         Point2::new(div_round(x2, 2) as i32, div_round(y2, 2) as i32)
     }
+
+    /// How much `t` and `u` scale distances, x 1000: `sqrt 2` on the diagonals.
+    pub fn scale_milli(self) -> i64 {
+        match self {
+            Self::D45 | Self::D135 => 1414,
+            Self::D0 | Self::D90 => 1000,
+        }
+    }
+
+    /// The `t` step for lines `spacing_um` apart in this direction.
+    pub fn line_step(self, spacing_um: i32) -> i64 {
+        match self {
+            Self::D45 | Self::D135 => line_step(spacing_um),
+            Self::D0 | Self::D90 => i64::from(spacing_um),
+        }
+    }
 }
 
-/// The `t` step for lines `spacing_um` apart: `round(spacing x sqrt 2)`.
+/// The `t` step for diagonal lines `spacing_um` apart: `round(spacing x sqrt 2)`.
 pub fn line_step(spacing_um: i32) -> i64 {
     let s2 = 2 * i64::from(spacing_um) * i64::from(spacing_um);
     let r = isqrt_u64(s2 as u64) as i64;
@@ -424,13 +454,18 @@ mod tests {
 
     #[test]
     fn keys_round_trip() {
-        for a in [Angle::D45, Angle::D135] {
+        for a in Angle::ALL {
             let p = Point2::new(12_345, -678);
             let (t, u) = a.key(p);
             assert_eq!(a.point(t, u), p);
+            // 1000 units along the line are 1000 / scale um.
+            let q = a.point(t, u + 1000);
+            let d = f64::from(q.x - p.x).hypot(f64::from(q.y - p.y));
+            assert!((d - 1e6 / a.scale_milli() as f64).abs() < 1.0, "{a:?} {d}");
         }
         assert_eq!(line_step(450), 636);
         assert_eq!(line_step(1000), 1414);
+        assert_eq!(Angle::D0.line_step(450), 450);
     }
 
     #[test]

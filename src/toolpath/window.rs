@@ -309,6 +309,9 @@ fn sext(v: u32, bits: u32) -> i32 {
 /// [`Angle::D45`] and [`Angle::D135`] (in 32 `t` units, see [`LoopPoints::t_range`]).
 pub const LOOP_HEADER: usize = 4;
 
+/// The header words of the [`Angle::D45`] and [`Angle::D135`] ranges.
+const DIAGONAL_WORDS: [usize; 2] = [2, 3];
+
 /// Largest count of points, or words of points, of a stored loop (24 bits of a header word).
 const LOOP_MAX: usize = (1 << 24) - 1;
 
@@ -333,11 +336,27 @@ fn unpack_range(w: u32) -> (i64, i64) {
     (lo, hi)
 }
 
-/// Index of `angle`'s range word in a loop header.
-fn range_word(angle: Angle) -> usize {
+/// Index of `angle`'s range word in a loop header (stored for the diagonals only).
+fn range_word(angle: Angle) -> Option<usize> {
     match angle {
-        Angle::D45 => 2,
-        Angle::D135 => 3,
+        Angle::D45 => Some(2),
+        Angle::D135 => Some(3),
+        Angle::D0 | Angle::D90 => None,
+    }
+}
+
+/// Bounds `(lo, hi)` of the points' `t` for `angle` from their packed diagonal ranges
+/// `[D45, D135]`: the axes' `t` are half sums of the diagonals' (`y = (t45 + t135) / 2`,
+/// `x = (t135 - t45) / 2`), rounded outwards; unbounded when a diagonal is.
+fn t_range_of(range: [u32; 2], angle: Angle) -> (i64, i64) {
+    let (d45, d135) = (unpack_range(range[0]), unpack_range(range[1]));
+    let bounded = |(lo, hi): (i64, i64)| lo != i64::MIN && hi != i64::MAX;
+    match angle {
+        Angle::D45 => d45,
+        Angle::D135 => d135,
+        _ if !bounded(d45) || !bounded(d135) => (i64::MIN, i64::MAX),
+        Angle::D0 => ((d45.0 + d135.0).div_euclid(2), (d45.1 + d135.1 + 1).div_euclid(2)),
+        Angle::D90 => ((d135.0 - d45.1).div_euclid(2), (d135.1 - d45.0 + 1).div_euclid(2)),
     }
 }
 
@@ -529,15 +548,18 @@ impl<'a> StoredRings<'a> {
         // `t` in range units, rounded down: `lo x 32 <= t` is `lo <= tq` and `t < hi x 32` is
         // `tq < hi`; clamped to `i16` (the saturated bounds compare as unbounded).
         let tq = (t >> T_SHIFT).clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16;
-        NearLine { rings: self, word: range_word(angle), tq }
+        NearLine { rings: self, word: range_word(angle), angle, t, tq }
     }
 }
 
 /// The loops of a stored layer that may cross one line ([`StoredRings::near_line`]).
 pub struct NearLine<'a> {
     rings: StoredRings<'a>,
-    /// The line direction's range word in a loop header, and the line's `t` in its units.
-    word: usize,
+    /// The line direction's range word in a loop header (`None`: from both diagonals'), and
+    /// the line's `t` in its units.
+    word: Option<usize>,
+    angle: Angle,
+    t: i64,
     tq: i16,
 }
 
@@ -551,12 +573,22 @@ impl<'a> Iterator for NearLine<'a> {
             let head = r.at;
             let h = |i: usize| r.data.get(head + i).copied();
             let (n, _, words) = unpack_head(h(0)?, h(1)?);
-            let range = h(self.word)?;
+            let ranges = [h(DIAGONAL_WORDS[0])?, h(DIAGONAL_WORDS[1])?];
             r.at = head.checked_add(LOOP_HEADER + words)?;
             // An edge crosses `t` when `min <= t < max` of its ends' `t`.
-            let (lo, hi) = (range as u16 as i16, (range >> 16) as u16 as i16);
-            if n >= 3 && lo <= self.tq && (self.tq < hi || hi == i16::MAX) {
-                let range = [h(range_word(Angle::D45))?, h(range_word(Angle::D135))?];
+            let near = match self.word {
+                Some(w) => {
+                    let range = h(w)?;
+                    let (lo, hi) = (range as u16 as i16, (range >> 16) as u16 as i16);
+                    lo <= self.tq && (self.tq < hi || hi == i16::MAX)
+                }
+                None => {
+                    let (lo, hi) = t_range_of(ranges, self.angle);
+                    lo <= self.t && self.t <= hi
+                }
+            };
+            if n >= 3 && near {
+                let range = ranges;
                 let words = r.data.sub(head + LOOP_HEADER, words);
                 return Some(LoopCut(LoopPoints::new(words, range, n)));
             }
@@ -574,7 +606,7 @@ impl<'a> Iterator for StoredRings<'a> {
             let head = self.at;
             let h = |i: usize| self.data.get(head + i).copied();
             let (n, island, words) = unpack_head(h(0)?, h(1)?);
-            let range = [h(range_word(Angle::D45))?, h(range_word(Angle::D135))?];
+            let range = [h(DIAGONAL_WORDS[0])?, h(DIAGONAL_WORDS[1])?];
             self.at = head.checked_add(LOOP_HEADER + words)?;
             if n >= 3 {
                 let words = self.data.sub(head + LOOP_HEADER, words);
@@ -590,21 +622,22 @@ impl<'a> Iterator for StoredRings<'a> {
 pub struct LoopCut<'a>(pub LoopPoints<'a>);
 
 impl LoopCut<'_> {
-    /// [`ScanLoop::crossing_edges`] with `t` of a point `y - x` (`D45`) or `y + x`. Not
-    /// inlined: its loop keeps its state in registers (inlined into the infill pass, it
-    /// spilled to the stack).
+    /// [`ScanLoop::crossing_edges`] with `t` of a point `y - x` (`A` 0: `D45`), `y + x` (1),
+    /// `y` (2) or `x` (3). Not inlined: its loop keeps its state in registers (inlined into
+    /// the infill pass, it spilled to the stack).
     #[inline(never)]
-    fn walk<const D45: bool>(
+    fn walk<const A: u8>(
         self,
         t: i64,
         mut f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
     ) -> Result<(), Buffer> {
         let key = |p: Point2| {
             let (x, y) = (i64::from(p.x), i64::from(p.y));
-            if D45 {
-                y - x
-            } else {
-                y + x
+            match A {
+                0 => y - x,
+                1 => y + x,
+                2 => y,
+                _ => x,
             }
         };
         let mut pts = self.0;
@@ -628,8 +661,10 @@ impl ScanLoop for LoopCut<'_> {
         f: impl FnMut(Point2, Point2) -> Result<(), Buffer>,
     ) -> Result<(), Buffer> {
         match angle {
-            Angle::D45 => self.walk::<true>(t, f),
-            Angle::D135 => self.walk::<false>(t, f),
+            Angle::D45 => self.walk::<0>(t, f),
+            Angle::D135 => self.walk::<1>(t, f),
+            Angle::D0 => self.walk::<2>(t, f),
+            Angle::D90 => self.walk::<3>(t, f),
         }
     }
 }
@@ -714,7 +749,7 @@ impl<'a> LoopPoints<'a> {
     /// Bounds `(lo, hi)` of the loop's points' `t` for `angle` (from its header): every
     /// point has `lo <= t <= hi`.
     pub fn t_range(&self, angle: Angle) -> (i64, i64) {
-        unpack_range(self.range[range_word(angle) - range_word(Angle::D45)])
+        t_range_of(self.range, angle)
     }
 }
 
@@ -831,11 +866,15 @@ mod tests {
             assert_eq!(got.len(), want.len(), "case {case}");
             for ((island, pts), (w_island, w_pts)) in got.into_iter().zip(want) {
                 assert_eq!(island, w_island, "case {case}");
-                for angle in [Angle::D45, Angle::D135] {
+                for angle in Angle::ALL {
                     let (lo, hi) = pts.t_range(angle);
                     let ts = w_pts.iter().map(|&p| angle.key(p).0);
                     let (min, max) = (ts.clone().min().unwrap(), ts.max().unwrap());
                     assert!(lo <= min && max <= hi, "case {case}: {lo}..{hi} {min}..{max}");
+                    if matches!(angle, Angle::D0 | Angle::D90) {
+                        // The axes' bounds come from the diagonals': only containing.
+                        continue;
+                    }
                     // Within a unit of the points unless saturated.
                     let (lo_sat, hi_sat) =
                         (lo == i64::MIN || lo == lim, hi == i64::MAX || hi == -lim - 32);
@@ -934,7 +973,7 @@ mod tests {
             for (_, p) in StoredRings::new(data).take(100) {
                 n += p.take(1000).count();
             }
-            for angle in [Angle::D45, Angle::D135] {
+            for angle in Angle::ALL {
                 for t in [i64::MIN, -70_000, 0, 70_000, i64::MAX] {
                     for cut in StoredRings::new(data).near_line(angle, t).take(100) {
                         let _ = cut.crossing_edges(angle, t, |_, _| {

@@ -114,6 +114,7 @@ impl Ctx<'_> {
             Feature::InternalInfill | Feature::SolidInfill | Feature::TopSolidInfill => {
                 c.infill_speed_mm_s
             }
+            Feature::BridgeInfill => c.bridge_speed_mm_s,
         }
     }
 
@@ -313,7 +314,13 @@ impl Emitter {
             self.extruding = true;
         }
         let len16 = crate::math::isqrt_u64((dist2(self.pos, to) * 256) as u64) as i64;
-        self.vol16 += i64::from(ctx.cfg.line_width_um) * i64::from(ctx.height_um) * len16;
+        let w = i64::from(ctx.cfg.line_width_um);
+        self.vol16 += if feature == Feature::BridgeInfill {
+            // A round thread one line wide (it hangs below the layer): pi w^2 / 4, pi = 355/113.
+            355 * w * w * len16 / (4 * 113)
+        } else {
+            w * i64::from(ctx.height_um) * len16
+        };
         let e_abs = filament_um(self.vol16, ctx.cfg.filament_diameter_um);
         let e = (e_abs - self.e_abs) as i32;
         self.e_abs = e_abs;
