@@ -69,7 +69,7 @@ fn an_overhang_over_a_coarsened_layer_still_gets_its_bottom_skins() {
         assert_eq!(r.layers.len(), 30);
         let starts = layer_starts(&r);
         // Layers 20..24 (the ring's first four): every infill line over the air (radius
-        // 11 to 14 mm, clear of the perimeters) is solid.
+        // 11 to 14 mm, clear of the perimeters) is a bridge on the first, solid on the rest.
         for (l, &start) in starts.iter().enumerate().take(24).skip(20) {
             let over_air: Vec<Feature> = extrusions(&r.layers[l], start)
                 .into_iter()
@@ -79,10 +79,16 @@ fn an_overhang_over_a_coarsened_layer_still_gets_its_bottom_skins() {
                     (11.0..14.0).contains(&x.hypot(y))
                 })
                 .map(|s| s.2)
-                .filter(|f| matches!(f, Feature::InternalInfill | Feature::SolidInfill))
+                .filter(|f| {
+                    matches!(
+                        f,
+                        Feature::InternalInfill | Feature::SolidInfill | Feature::BridgeInfill
+                    )
+                })
                 .collect();
+            let want = if l == 20 { Feature::BridgeInfill } else { Feature::SolidInfill };
             assert!(
-                !over_air.is_empty() && over_air.iter().all(|&f| f == Feature::SolidInfill),
+                !over_air.is_empty() && over_air.iter().all(|&f| f == want),
                 "below {below} um, layer {l}: {over_air:?}"
             );
         }

@@ -93,13 +93,19 @@ pub enum OverAir {
     Measure,
 }
 
-/// The stretches over air one pass met ([`OverAir`]), in um along their lines.
+/// The stretches over air one pass met ([`OverAir`]), in its along-line units (saturating:
+/// a bed-wide layer's lines are far fewer than `2^32` units).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct BridgeTally {
     /// All of them.
-    pub over_air_um: i64,
+    pub over_air_u: u32,
     /// Those with material of the layer below at both ends along their line (anchored).
-    pub anchored_um: i64,
+    pub anchored_u: u32,
+}
+
+impl BridgeTally {
+    /// Nothing met.
+    pub const NONE: Self = Self { over_air_u: 0, anchored_u: 0 };
 }
 
 /// A printed stretch of one line: pieces `piece0 .. piece0 + npieces` give its kinds.
@@ -335,6 +341,8 @@ pub struct FillUse {
     pub segments: usize,
     /// Window crossings on one line.
     pub spans: usize,
+    /// The stretches over air the last pass met (kept here, not on the stack).
+    pub bridge: BridgeTally,
 }
 
 /// Cursor over one window layer's spans on the current line, `spans[idx..end]` left (its
@@ -367,9 +375,9 @@ struct Builder<'a> {
     rings: &'a [Ring],
     /// The segment being built: (start u, start crossing, first piece).
     open: Option<(i32, u16, usize)>,
-    params: FillParams,
-    /// Stretches over air met, in `u` units.
-    tally: BridgeTally,
+    params: &'a FillParams,
+    /// Stretches over air met.
+    tally: &'a mut BridgeTally,
 }
 
 impl Builder<'_> {
@@ -457,7 +465,7 @@ impl Builder<'_> {
 
     fn interval(&mut self, iv: Interval, skin: &mut Skin<'_>) -> Result<(), Buffer> {
         skin.set_line(iv.line)?;
-        let p = self.params;
+        let p = *self.params;
         let sparse_line = p.sparse.is_sparse(iv.line);
         // Stretches of this interval, then the solid ones grown by `margin_u` into their
         // non-solid neighbours (skins overlap the sparse zone instead of ending exactly on
@@ -538,10 +546,10 @@ impl Builder<'_> {
             if kind != air {
                 continue;
             }
-            let len = i64::from(at[k + 1] - at[k]);
-            self.tally.over_air_um += len;
+            let len = at[k + 1].abs_diff(at[k]);
+            self.tally.over_air_u = self.tally.over_air_u.saturating_add(len);
             if k > 0 && k + 1 < kinds.len() {
-                self.tally.anchored_um += len;
+                self.tally.anchored_u = self.tally.anchored_u.saturating_add(len);
             }
         }
     }
@@ -720,7 +728,7 @@ pub fn fill<const N: usize>(
     paths: &mut PathBuf<N>,
     usage: &mut FillUse,
     progress: &mut dyn FnMut(),
-) -> Result<BridgeTally, Buffer> {
+) -> Result<(), Buffer> {
     let mut n = 0;
     crossings(points, rings, params.angle, params.step, work.cross, &mut n)?;
     if n > work.idx.len() {
@@ -731,9 +739,16 @@ pub fn fill<const N: usize>(
     sort_by_line(cross, &loops, &mut work.idx[..n]);
     usage.crossings = usage.crossings.max(n);
     let mut skin = Skin::new(view, top, bottom, &params, &mut *work.spans);
-    let tally = BridgeTally::default();
-    let mut b =
-        Builder { segs: Segs::new(&mut *work.pool), cross, rings, open: None, params, tally };
+    usage.bridge = BridgeTally::NONE;
+    let tally = &mut usage.bridge;
+    let mut b = Builder {
+        segs: Segs::new(&mut *work.pool),
+        cross,
+        rings,
+        open: None,
+        params: &params,
+        tally,
+    };
     let mut count = 0u32;
     let r = intervals(cross, &loops, &work.idx[..n], |iv| {
         count += 1;
@@ -744,10 +759,6 @@ pub fn fill<const N: usize>(
     });
     usage.spans = usage.spans.max(skin.peak);
     r?;
-    // Along-line units to um.
-    let um = |u: i64| u * 1000 / params.angle.scale_milli();
-    let tally =
-        BridgeTally { over_air_um: um(b.tally.over_air_um), anchored_um: um(b.tally.anchored_um) };
     let mut segs = b.segs;
     usage.segments = usage.segments.max(segs.used_words().div_ceil(POOL_WORDS));
     if segs.nseg > MAX_SEGS {
@@ -766,8 +777,7 @@ pub fn fill<const N: usize>(
             }
         }
     }
-    link(points, rings, &params, cross, cend, &mut segs, paths)?;
-    Ok(tally)
+    link(points, rings, &params, cross, cend, &mut segs, paths)
 }
 
 /// Emits segment `s` (forward: from `u0`) into the open path.

@@ -290,7 +290,7 @@ impl<
             emission: Emission::new(),
             next_in: 0,
             next_out: 0,
-            fill_use: FillUse { crossings: 0, segments: 0, spans: 0 },
+            fill_use: FillUse { crossings: 0, segments: 0, spans: 0, bridge: BridgeTally::NONE },
             stats: ToolpathStats::EMPTY,
             stopped: Some(ToolpathError::Finished),
         }
@@ -792,11 +792,12 @@ impl<
             let mut progress = || sink(&ToolEvent::Progress);
             let bridges = cfg.bridges && l > FIRST_LAYER;
             let over_air = if bridges { OverAir::Leave } else { OverAir::Solid };
-            let air = self.infill_pass(work, l, angle, true, over_air, &mut progress)?;
+            self.infill_pass(work, l, angle, true, over_air, &mut progress)?;
+            let air = self.fill_use.bridge.over_air_u > 0;
             if grid && cfg.sparse_lines().any() {
                 self.infill_pass(work, l, angle.other(), false, OverAir::Solid, &mut progress)?;
             }
-            if air.over_air_um > 0 {
+            if air {
                 let angle = self.bridge_angle(work, l, &mut progress)?;
                 self.infill_pass(work, l, angle, true, OverAir::Bridge, &mut progress)?;
             }
@@ -1038,7 +1039,9 @@ impl<
 
     /// The direction of layer `l`'s bridges: the one whose lines have most of their length
     /// over air anchored on both sides (then the least over air in all; then the first of
-    /// [`Angle::ALL`]), measured by a pass in each that prints nothing.
+    /// [`Angle::ALL`]), measured by a pass in each that prints nothing. Inlined: the passes
+    /// stack no deeper than the layer's others.
+    #[inline(always)]
     fn bridge_angle<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         work: &mut W,
@@ -1047,8 +1050,11 @@ impl<
     ) -> Result<Angle, Buffer> {
         let mut best = (Angle::ALL[0], (i64::MIN, i64::MIN));
         for angle in Angle::ALL {
-            let t = self.infill_pass(work, l, angle, true, OverAir::Measure, progress)?;
-            let score = (t.anchored_um, -t.over_air_um);
+            self.infill_pass(work, l, angle, true, OverAir::Measure, progress)?;
+            // In um: the diagonals' units are shorter.
+            let t = self.fill_use.bridge;
+            let um = |u: u32| i64::from(u) * 1000 / angle.scale_milli();
+            let score = (um(t.anchored_u), -um(t.over_air_u));
             if score > best.1 {
                 best = (angle, score);
             }
@@ -1057,7 +1063,7 @@ impl<
     }
 
     /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only), with
-    /// what it makes of skin over air; the stretches over air it met.
+    /// what it makes of skin over air (what it met of it: [`FillUse::bridge`]).
     fn infill_pass<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         work: &mut W,
@@ -1066,10 +1072,16 @@ impl<
         solid: bool,
         over_air: OverAir,
         progress: &mut dyn FnMut(),
-    ) -> Result<BridgeTally, Buffer> {
+    ) -> Result<(), Buffer> {
         self.park_engine(work);
         let cfg = self.cfg;
-        let (top, bottom) = (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers));
+        // A bridge pass sees only the layer below (fewer window spans a line).
+        let bridging = matches!(over_air, OverAir::Bridge | OverAir::Measure);
+        let (top, bottom) = if bridging {
+            (0, 0)
+        } else {
+            (usize::from(cfg.top_layers), usize::from(cfg.bottom_layers))
+        };
         let ring = &self.ring;
         let mut view = SkinView {
             ring: ring.storage(),
@@ -1097,7 +1109,7 @@ impl<
                 }
             }
         }
-        if top == 0 {
+        if top == 0 && !bridging {
             // No top skins, but the layer above still tells top surfaces apart.
             if let Some(d) = stored(l + 1) {
                 view.above[0] = d;

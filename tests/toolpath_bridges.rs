@@ -1,0 +1,124 @@
+//! Bridges against the parts' own geometry: skin over no material of the layer below prints
+//! as straight lines across the gap, anchored on both sides, at the bridge speed and with a
+//! round thread's filament.
+
+mod toolpath_support;
+
+use strata::geom::Point2;
+use strata::machine::{MachineConfig, PrintSettings};
+use strata::toolpath::{Feature, ToolMove, ToolpathConfig};
+use strata_testkit::mesh::{cuboid, to_um, TriMm};
+use toolpath_support::{extrusions, layer_starts, run_cfg, TpRun};
+
+/// Line width and filament diameter of the default settings, um.
+const W: f64 = 450.0;
+const FILAMENT: f64 = 1750.0;
+
+/// Two 10 x 10 x 10 mm posts `gap` mm apart along x (along y when `along_y`), joined by a
+/// 2 mm plate on top as wide as the posts.
+fn posts_and_plate(gap: f64, along_y: bool) -> Vec<TriMm> {
+    let swap = |[a, b, c]: [f64; 3]| if along_y { [b, a, c] } else { [a, b, c] };
+    let box_ = |min: [f64; 3], max: [f64; 3]| cuboid(swap(min), swap(max));
+    let (x0, x1) = (100.0, 120.0 + gap);
+    let mut mesh = box_([x0, 100.0, 0.0], [x0 + 10.0, 110.0, 10.0]);
+    mesh.extend(box_([x1 - 10.0, 100.0, 0.0], [x1, 110.0, 10.0]));
+    mesh.extend(box_([x0, 100.0, 10.0], [x1, 110.0, 12.0]));
+    mesh
+}
+
+fn run_with(mesh: &[TriMm], bridges: bool) -> TpRun {
+    let settings = PrintSettings::default();
+    let mut cfg = ToolpathConfig::new(&MachineConfig::default(), &settings);
+    cfg.bridges = bridges;
+    run_cfg(&to_um(mesh), &settings, cfg).expect("toolpath run")
+}
+
+/// The first layer above `z_um`.
+fn layer_above(run: &TpRun, z_um: i32) -> usize {
+    run.layers.iter().position(|l| l.z_um > z_um).expect("a layer above")
+}
+
+/// The moves of layer `l` that extrude, each with where it starts.
+fn extruding_moves(run: &TpRun, l: usize) -> Vec<(Point2, ToolMove)> {
+    let mut pos = layer_starts(run)[l];
+    let mut out = Vec::new();
+    for m in &run.layers[l].moves {
+        if m.e_um > 0 && m.to != pos {
+            out.push((pos, *m));
+        }
+        pos = m.to;
+    }
+    out
+}
+
+#[test]
+fn a_20mm_bridge_between_two_posts_prints_straight_anchored_lines_at_bridge_speed() {
+    for along_y in [false, true] {
+        let what = if along_y { "gap along y" } else { "gap along x" };
+        let run = run_with(&posts_and_plate(20.0, along_y), true);
+        let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+        // (along the gap, across it) of a point: the gap is 110..130 mm along the first.
+        let axes = |p: Point2| if along_y { (p.y, p.x) } else { (p.x, p.y) };
+        let l = layer_above(&run, 10_000);
+        let moves = extruding_moves(&run, l);
+        let bridges: Vec<_> =
+            moves.iter().filter(|(_, m)| m.feature == Feature::BridgeInfill).collect();
+        assert!(!bridges.is_empty(), "{what}: no bridge on layer {l}");
+        // Every extrusion crossing the gap's middle is a bridge line straight across it,
+        // resting on both posts (its ends at least a line width onto them).
+        let mut across = Vec::new();
+        for &(from, m) in &moves {
+            let ((a, a_side), (b, b_side)) = (axes(from), axes(m.to));
+            if (a - 120_000).signum() == (b - 120_000).signum() || a_side != b_side {
+                continue;
+            }
+            if m.feature == Feature::ExternalPerimeter || m.feature == Feature::Perimeter {
+                continue;
+            }
+            assert_eq!(m.feature, Feature::BridgeInfill, "{what}: {from:?} -> {:?}", m.to);
+            assert!(a.min(b) <= 110_000 - W as i32 && a.max(b) >= 130_000 + W as i32, "{what}");
+            across.push(a_side);
+        }
+        // The lines side by side, one line width apart, fill the plate between its
+        // perimeters: two loops on each side (centres at 0.5 and 1.5 widths in).
+        across.sort_unstable();
+        across.dedup();
+        let inner = (100_000.0 + 2.0 * W, 110_000.0 - 2.0 * W);
+        let lines = ((inner.1 - inner.0) / W).round() as usize;
+        assert_eq!(across.len(), lines, "{what}: {across:?}");
+        for pair in across.windows(2) {
+            assert!((f64::from(pair[1] - pair[0]) - W).abs() <= 2.0, "{what}: {pair:?}");
+        }
+        assert!(f64::from(across[0]) - inner.0 <= W, "{what}: {across:?}");
+        assert!(inner.1 - f64::from(*across.last().unwrap()) <= W, "{what}: {across:?}");
+        // Bridge speed, and the filament of a round thread one line wide.
+        for (from, m) in &bridges {
+            assert_eq!(m.feed_mm_s, cfg.bridge_speed_mm_s, "{what}");
+            let len = f64::from(m.to.x - from.x).hypot(f64::from(m.to.y - from.y));
+            let want = len * (W / FILAMENT).powi(2);
+            assert!((f64::from(m.e_um) - want).abs() <= 1.0 + want * 1e-3, "{what}: {m:?}");
+        }
+        // The layer above is ordinary solid skin.
+        let above: Vec<_> = extrusions(&run.layers[l + 1], layer_starts(&run)[l + 1])
+            .into_iter()
+            .filter(|e| e.2 == Feature::BridgeInfill)
+            .collect();
+        assert!(above.is_empty(), "{what}: bridges on layer {}", l + 1);
+    }
+}
+
+#[test]
+fn without_bridges_the_gap_gets_ordinary_solid_skin() {
+    let run = run_with(&posts_and_plate(20.0, false), false);
+    let l = layer_above(&run, 10_000);
+    let over_gap: Vec<Feature> = extruding_moves(&run, l)
+        .into_iter()
+        .filter(|(a, m)| (112_000..128_000).contains(&((a.x + m.to.x) / 2)))
+        .map(|(_, m)| m.feature)
+        .filter(|f| !matches!(f, Feature::ExternalPerimeter | Feature::Perimeter))
+        .collect();
+    assert!(!over_gap.is_empty() && over_gap.iter().all(|&f| f == Feature::SolidInfill));
+    for layer in &run.layers {
+        assert!(layer.moves.iter().all(|m| m.feature != Feature::BridgeInfill));
+    }
+}
