@@ -222,6 +222,63 @@ fn a_thin_fin_is_reported_in_the_json_and_the_text_output() {
 }
 
 #[test]
+fn a_bridge_is_tagged_and_printed_straight_across_at_bridge_speed() {
+    // Two 6 x 6 x 3 mm posts 20 mm apart joined by a 1 mm plate: its first layer (z 3.2 mm)
+    // is bridge lines along x across the gap (x 106..126 mm), at 25 mm/s (F1500).
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("bridge.stl");
+    let mut mesh = strata_testkit::mesh::cuboid([100.0, 100.0, 0.0], [106.0, 106.0, 3.0]);
+    mesh.extend(strata_testkit::mesh::cuboid([126.0, 100.0, 0.0], [132.0, 106.0, 3.0]));
+    mesh.extend(strata_testkit::mesh::cuboid([100.0, 100.0, 3.0], [132.0, 106.0, 4.0]));
+    write_mesh(&model, &mesh);
+    let out = dir.path().join("bridge.gcode");
+    Command::cargo_bin("strata")
+        .unwrap()
+        .args(["slice", model.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .assert()
+        .success();
+    let gcode = std::fs::read_to_string(&out).unwrap();
+    // The bridge lines: the moves after `;TYPE:Bridge infill` up to the next `;TYPE:`; the
+    // part's middle (placement centres it) from the first layer's extrusions.
+    let (mut in_bridge, mut z, mut feed, mut pos) = (false, 0.0, 0.0, (0.0, 0.0));
+    let (mut first, mut bridges) = (Vec::new(), Vec::new());
+    for line in print_body(&gcode) {
+        if let Some(t) = line.strip_prefix(";TYPE:") {
+            in_bridge = t == "Bridge infill";
+        }
+        let Some(m) = parse(line) else { continue };
+        (z, feed) = (m.z.unwrap_or(z), m.f.unwrap_or(feed));
+        let to = (m.x.unwrap_or(pos.0), m.y.unwrap_or(pos.1));
+        if m.e.is_some_and(|e| e > 0.0) && to != pos {
+            if z < 0.3 {
+                first.push(to.0);
+            }
+            if in_bridge {
+                assert!((z - 3.2).abs() < 1e-6, "a bridge at z {z}: {line}");
+                assert_eq!(feed, 1500.0, "{line}");
+                bridges.push((pos, to));
+            }
+        }
+        pos = to;
+    }
+    let mid = (first.iter().copied().fold(f64::MAX, f64::min)
+        + first.iter().copied().fold(f64::MIN, f64::max))
+        / 2.0;
+    // Across the gap (mid +- 10 mm): straight along x, resting on both posts.
+    let across: Vec<_> =
+        bridges.iter().filter(|(a, b)| (a.0 - mid).signum() != (b.0 - mid).signum()).collect();
+    for (a, b) in &across {
+        assert_eq!(a.1, b.1, "not along x: {a:?} {b:?}");
+        assert!(a.0.min(b.0) < mid - 10.0 && a.0.max(b.0) > mid + 10.0, "{a:?} {b:?}");
+    }
+    // Plate 6 mm wide, two 0.45 mm perimeters on each side: lines on a 0.45 mm grid across
+    // the 4.2 mm between them, floor(4.2 / 0.45) or one more.
+    let n = across.len() as f64;
+    let fit = ((6.0 - 4.0 * 0.45) / 0.45_f64).floor();
+    assert!(n == fit || n == fit + 1.0, "{n} lines: {across:?}");
+}
+
+#[test]
 fn settings_flags_change_the_gcode() {
     // Absolute E: M82, E grows within a layer and restarts at every G92 E0.
     let (g, _) = slice(&["--absolute-e"]);

@@ -388,6 +388,19 @@ fn qemu_small_cylinder() {
     qemu_job("cylinder r4 h0.6 16 sides", &tris, job_spec(&tris), true);
 }
 
+/// A 20 mm bridge: two 6 x 6 x 3 mm posts joined by a 1 mm plate (its first layer is
+/// bridge lines across the gap, chosen from four directions by passes over the layer below).
+#[test]
+fn qemu_bridge_between_two_posts() {
+    use strata_testkit::mesh::{cuboid, to_um};
+    let mut mesh = cuboid([100.0, 100.0, 0.0], [106.0, 106.0, 3.0]);
+    mesh.extend(cuboid([126.0, 100.0, 0.0], [132.0, 106.0, 3.0]));
+    mesh.extend(cuboid([100.0, 100.0, 3.0], [132.0, 106.0, 4.0]));
+    let mut tris = to_um(&mesh);
+    tris.sort_by_key(Triangle::z_min);
+    qemu_job("bridge 20 mm between two posts", &tris, job_spec(&tris), false);
+}
+
 /// A taller one in 0.2 mm bands (512 triangles, 15 layers: skins, infill, about a minute of
 /// print).
 #[test]
