@@ -161,9 +161,13 @@ fn top_surfaces_of_a_cube_and_a_stepped_block_are_covered() {
     }
     assert_eq!(tops, 3, "three top surfaces (14, 29, 44)");
     // Solid skins: the top layer of each step and the 3 under it are solid where exposed
-    // (the top one labelled top solid); the layer below them has sparse infill only.
-    for l in [11, 12, 13] {
+    // (the top one labelled top solid, the lowest one an internal bridge over the sparse
+    // infill below); the layer below them has sparse infill only.
+    assert!(features(&r.layers[11]).contains(&Feature::BridgeInfill), "layer 11");
+    assert!(!features(&r.layers[11]).contains(&Feature::SolidInfill), "layer 11");
+    for l in [12, 13] {
         assert!(features(&r.layers[l]).contains(&Feature::SolidInfill), "layer {l}");
+        assert!(!features(&r.layers[l]).contains(&Feature::BridgeInfill), "layer {l}");
     }
     let f10 = features(&r.layers[10]);
     assert!(!f10.contains(&Feature::SolidInfill) && f10.contains(&Feature::InternalInfill));
@@ -215,7 +219,9 @@ fn bridge_plate_gets_bottom_skins_and_pocket_gets_top_skins() {
     assert!((area - 100.0).abs() < 2.0 && cov >= 0.99, "{area} {cov}");
     let (cov, area) = top_coverage(&r, 49);
     assert!((area - 300.0).abs() < 3.0 && cov >= 0.99, "{area} {cov}");
-    for l in 26..29 {
+    // Under the pocket floor: an internal bridge over the sparse infill, then solid.
+    assert!(features(&r.layers[26]).contains(&Feature::BridgeInfill), "layer 26");
+    for l in 27..29 {
         assert!(features(&r.layers[l]).contains(&Feature::SolidInfill), "layer {l}");
     }
     assert!(features(&r.layers[29]).contains(&Feature::TopSolidInfill));

@@ -7,22 +7,26 @@ mod toolpath_support;
 use strata::geom::Point2;
 use strata::machine::{MachineConfig, PrintSettings};
 use strata::toolpath::{Feature, ToolMove, ToolpathConfig};
-use strata_testkit::mesh::{cuboid, to_um, TriMm};
+use strata_testkit::mesh::{bridge_part, to_um, TriMm};
 use toolpath_support::{extrusions, layer_starts, run_cfg, TpRun};
 
 /// Line width and filament diameter of the default settings, um.
 const W: f64 = 450.0;
 const FILAMENT: f64 = 1750.0;
 
-/// Two 10 x 10 x 10 mm posts `gap` mm apart along x (along y when `along_y`), joined by a
-/// 2 mm plate on top as wide as the posts.
-fn posts_and_plate(gap: f64, along_y: bool) -> Vec<TriMm> {
-    let swap = |[a, b, c]: [f64; 3]| if along_y { [b, a, c] } else { [a, b, c] };
-    let box_ = |min: [f64; 3], max: [f64; 3]| cuboid(swap(min), swap(max));
-    let (x0, x1) = (100.0, 120.0 + gap);
-    let mut mesh = box_([x0, 100.0, 0.0], [x0 + 10.0, 110.0, 10.0]);
-    mesh.extend(box_([x1 - 10.0, 100.0, 0.0], [x1, 110.0, 10.0]));
-    mesh.extend(box_([x0, 100.0, 10.0], [x1, 110.0, 12.0]));
+/// [`bridge_part`] at (100, 100) mm: two 10 x 10 x 10 mm posts 20 mm apart along x (along y
+/// when `along_y`: mirrored about x = y), joined by a 2 mm plate on top as wide as the posts.
+fn posts_and_plate(along_y: bool) -> Vec<TriMm> {
+    let mut mesh = bridge_part(100.0, 100.0);
+    if along_y {
+        for tri in &mut mesh {
+            for v in tri.iter_mut() {
+                v.swap(0, 1);
+            }
+            // Mirrored: the other winding keeps the normals outwards.
+            tri.swap(1, 2);
+        }
+    }
     mesh
 }
 
@@ -55,7 +59,7 @@ fn extruding_moves(run: &TpRun, l: usize) -> Vec<(Point2, ToolMove)> {
 fn a_20mm_bridge_between_two_posts_prints_straight_anchored_lines_at_bridge_speed() {
     for along_y in [false, true] {
         let what = if along_y { "gap along y" } else { "gap along x" };
-        let run = run_with(&posts_and_plate(20.0, along_y), true);
+        let run = run_with(&posts_and_plate(along_y), true);
         let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
         // (along the gap, across it) of a point: the gap is 110..130 mm along the first.
         let axes = |p: Point2| if along_y { (p.y, p.x) } else { (p.x, p.y) };
@@ -64,21 +68,25 @@ fn a_20mm_bridge_between_two_posts_prints_straight_anchored_lines_at_bridge_spee
         let bridges: Vec<_> =
             moves.iter().filter(|(_, m)| m.feature == Feature::BridgeInfill).collect();
         assert!(!bridges.is_empty(), "{what}: no bridge on layer {l}");
-        // Every extrusion crossing the gap's middle is a bridge line straight across it,
-        // resting on both posts (its ends at least a line width onto them).
-        let mut across = Vec::new();
+        // Every extrusion crossing the gap's middle runs straight across it, resting on both
+        // posts (its ends at least a line width onto them): the plate's perimeters along its
+        // free sides (overhang perimeters, four: two loops a side) and bridge lines.
+        let (mut across, mut overhangs) = (Vec::new(), 0);
         for &(from, m) in &moves {
             let ((a, a_side), (b, b_side)) = (axes(from), axes(m.to));
-            if (a - 120_000).signum() == (b - 120_000).signum() || a_side != b_side {
+            if (a - 120_000).signum() == (b - 120_000).signum() {
                 continue;
             }
-            if m.feature == Feature::ExternalPerimeter || m.feature == Feature::Perimeter {
+            assert_eq!(a_side, b_side, "{what}: not straight: {from:?} -> {:?}", m.to);
+            assert!(a.min(b) <= 110_000 - W as i32 && a.max(b) >= 130_000 + W as i32, "{what}");
+            if m.feature == Feature::OverhangPerimeter {
+                overhangs += 1;
                 continue;
             }
             assert_eq!(m.feature, Feature::BridgeInfill, "{what}: {from:?} -> {:?}", m.to);
-            assert!(a.min(b) <= 110_000 - W as i32 && a.max(b) >= 130_000 + W as i32, "{what}");
             across.push(a_side);
         }
+        assert_eq!(overhangs, 4, "{what}");
         // The lines side by side, one line width apart, fill the plate between its
         // perimeters: two loops on each side (centres at 0.5 and 1.5 widths in).
         across.sort_unstable();
@@ -110,7 +118,7 @@ fn a_20mm_bridge_between_two_posts_prints_straight_anchored_lines_at_bridge_spee
 
 #[test]
 fn without_bridges_the_gap_gets_ordinary_solid_skin() {
-    let run = run_with(&posts_and_plate(20.0, false), false);
+    let run = run_with(&posts_and_plate(false), false);
     let l = layer_above(&run, 10_000);
     let over_gap: Vec<Feature> = extruding_moves(&run, l)
         .into_iter()
@@ -120,6 +128,7 @@ fn without_bridges_the_gap_gets_ordinary_solid_skin() {
         .collect();
     assert!(!over_gap.is_empty() && over_gap.iter().all(|&f| f == Feature::SolidInfill));
     for layer in &run.layers {
-        assert!(layer.moves.iter().all(|m| m.feature != Feature::BridgeInfill));
+        let bridge = |f| matches!(f, Feature::BridgeInfill | Feature::OverhangPerimeter);
+        assert!(layer.moves.iter().all(|m| !bridge(m.feature)));
     }
 }

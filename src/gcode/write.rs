@@ -159,6 +159,7 @@ pub fn type_name(f: Feature) -> &'static str {
         Feature::TopSolidInfill => "Top solid infill",
         Feature::Skirt => "Skirt",
         Feature::BridgeInfill => "Bridge infill",
+        Feature::OverhangPerimeter => "Overhang perimeter",
         Feature::Travel | Feature::Retract | Feature::Unretract | Feature::Dwell => "Custom",
     }
 }

@@ -71,9 +71,11 @@ pub struct ToolpathConfig {
     pub seam: Seam,
     /// Skin over no material of the layer below prints as bridges: straight lines in the
     /// direction that anchors most of them on both sides, at `bridge_speed_mm_s`, each a
-    /// round thread one line wide ([`Feature::BridgeInfill`]).
+    /// round thread one line wide ([`Feature::BridgeInfill`]); so does the lowest layer of a
+    /// top skin over sparse infill (an internal bridge); perimeters over no material slow to
+    /// the bridge speed ([`Feature::OverhangPerimeter`]).
     pub bridges: bool,
-    /// Bridge speed, mm/s.
+    /// Bridge and overhang perimeter speed, mm/s.
     pub bridge_speed_mm_s: Rate,
     /// Contour simplification tolerance, um.
     pub simplify_tolerance_um: i32,

@@ -36,11 +36,13 @@ pub enum Feature {
     Dwell,
     /// Skin over no material of the layer below, in straight lines across the gap.
     BridgeInfill,
+    /// A perimeter over no material of the layer below.
+    OverhangPerimeter,
 }
 
 impl Feature {
     /// Every feature, at the index of its code (`as u8`).
-    pub const ALL: [Feature; 11] = [
+    pub const ALL: [Feature; 12] = [
         Feature::ExternalPerimeter,
         Feature::Perimeter,
         Feature::InternalInfill,
@@ -52,6 +54,7 @@ impl Feature {
         Feature::Unretract,
         Feature::Dwell,
         Feature::BridgeInfill,
+        Feature::OverhangPerimeter,
     ];
 }
 

@@ -59,10 +59,13 @@ pub enum Kind {
     Solid = 2,
     /// Solid infill under no material (the top surface).
     Top = 3,
+    /// Solid infill over sparse infill (the lowest layer of a top skin, far from any bottom
+    /// surface): an internal bridge across the sparse lines below (with bridges on).
+    OverSparse = 4,
     /// Over no material of the layer below, left to the bridge pass
     /// ([`OverAir::Leave`]): nothing in this pass, and no skin grows into it (never stored in
-    /// a piece, whose kind has two bits).
-    Air = 4,
+    /// a piece).
+    Air = 5,
 }
 
 impl Kind {
@@ -74,6 +77,7 @@ impl Kind {
             Kind::Sparse | Kind::None | Kind::Air => Feature::InternalInfill,
             Kind::Solid => Feature::SolidInfill,
             Kind::Top => Feature::TopSolidInfill,
+            Kind::OverSparse => Feature::BridgeInfill,
         }
     }
 }
@@ -91,6 +95,10 @@ pub enum OverAir {
     Bridge,
     /// Like `Bridge`, but only counted ([`BridgeTally`]): nothing is printed.
     Measure,
+    /// Over the layer's own region (its contour, not the infill domain): the perimeters'
+    /// moves whose middle lies over air on both lines around it become
+    /// [`Feature::OverhangPerimeter`]; nothing is printed.
+    Locate,
 }
 
 /// The stretches over air one pass met ([`OverAir`]), in its along-line units (saturating:
@@ -158,7 +166,7 @@ impl LineSeg {
 ///
 /// Segment `s` in the 5 words from `5 s` (`line x 8 + flags`, `u0`, `c0 + c1 x 2^16`, `piece0`,
 /// `npieces + island x 2^16`; its `u1` is its last piece's), piece `k` in the word `len - 1 - k`
-/// from the back (`u1 x 4 + kind`). A line beyond `2^28`, a `u1` beyond `2^29` or a segment of more
+/// from the back (`u1 x 8 + kind`). A line beyond `2^28`, a `u1` beyond `2^28` or a segment of more
 /// than 65535 pieces is [`Buffer::LineSegments`], like a full pool.
 pub struct Segs<'a> {
     w: &'a mut [u32],
@@ -241,19 +249,20 @@ impl<'a> Segs<'a> {
         let Some(&w) = self.piece_slot(k).and_then(|i| self.w.get(i)) else {
             return LinePiece::EMPTY;
         };
-        let kind = match w & 3 {
+        let kind = match w & 7 {
             0 => Kind::None,
             1 => Kind::Sparse,
             2 => Kind::Solid,
-            _ => Kind::Top,
+            3 => Kind::Top,
+            _ => Kind::OverSparse,
         };
-        LinePiece { u1: (w as i32) >> 2, kind }
+        LinePiece { u1: (w as i32) >> 3, kind }
     }
 
     fn set_piece(&mut self, k: usize, p: LinePiece) -> Result<(), Buffer> {
-        let i = self.piece_slot(k).filter(|_| (-(1 << 29)..1 << 29).contains(&p.u1));
+        let i = self.piece_slot(k).filter(|_| (-(1 << 28)..1 << 28).contains(&p.u1));
         let slot = i.and_then(|i| self.w.get_mut(i)).ok_or(Buffer::LineSegments)?;
-        *slot = (p.u1 as u32) << 2 | p.kind as u32;
+        *slot = (p.u1 as u32) << 3 | p.kind as u32;
         Ok(())
     }
 
@@ -478,18 +487,21 @@ impl Builder<'_> {
         let mut pos = iv.u0;
         let air = if p.over_air == OverAir::Leave { Kind::Air } else { Kind::Solid };
         while pos < iv.u1 {
-            let (covered, in_next, in_prev, next) = skin.probe(pos, iv.u1);
-            let kind = if p.over_air != OverAir::Solid && !in_prev {
+            let at_pos = skin.probe(pos, iv.u1);
+            let next = at_pos.next;
+            let kind = if p.over_air != OverAir::Solid && !at_pos.in_prev {
                 air
-            } else if matches!(p.over_air, OverAir::Bridge | OverAir::Measure) {
+            } else if matches!(p.over_air, OverAir::Bridge | OverAir::Measure | OverAir::Locate) {
                 Kind::None
-            } else if !covered {
+            } else if !at_pos.covered {
                 if !p.solid {
                     Kind::None
-                } else if in_next {
-                    Kind::Solid
-                } else {
+                } else if !at_pos.in_next {
                     Kind::Top
+                } else if p.over_air == OverAir::Leave && at_pos.over_sparse {
+                    Kind::OverSparse
+                } else {
+                    Kind::Solid
                 }
             } else if sparse_line {
                 Kind::Sparse
@@ -624,13 +636,15 @@ impl<'a> Skin<'a> {
         Ok(())
     }
 
-    /// At `pos`: covered by every layer of the window (no surface near), covered by layer
-    /// L + 1, covered by layer L - 1, and where that next changes (at most `end`).
-    fn probe(&mut self, pos: i32, end: i32) -> (bool, bool, bool, i32) {
+    /// What the window says at `pos` ([`Probe`]).
+    fn probe(&mut self, pos: i32, end: i32) -> Probe {
         let mut next = end;
         let mut all_above = self.top == 0 || self.view.above_complete;
         let mut all_below = self.bottom == 0 || self.view.below_complete;
         let (mut in_next, mut in_prev) = (false, false);
+        // Layers L + 1 .. L + top - 1 cover `pos` (there are that many), L + top does not.
+        let mut upper = self.top >= 2 && self.view.n_above + 1 >= self.top;
+        let mut deepest = false;
         let (spans, g) = (&*self.spans, self.grow);
         for (k, c) in self.above.iter_mut().take(self.view.n_above).enumerate() {
             let (cov, b) = c.probe(spans, g, pos);
@@ -642,6 +656,11 @@ impl<'a> Skin<'a> {
             }
             if k < self.top {
                 all_above &= cov;
+            }
+            if k + 1 < self.top {
+                upper &= cov;
+            } else if k + 1 == self.top {
+                deepest = cov;
             }
         }
         for (k, c) in self.below.iter_mut().take(self.view.n_below).enumerate() {
@@ -656,8 +675,25 @@ impl<'a> Skin<'a> {
                 all_below &= cov;
             }
         }
-        (all_above && all_below, in_next, in_prev, next.max(pos + 1))
+        let covered = all_above && all_below;
+        let over_sparse = upper && !deepest && all_below;
+        Probe { covered, in_next, in_prev, over_sparse, next: next.max(pos + 1) }
     }
+}
+
+/// What the skin window says at a point of a line ([`Skin::probe`]).
+struct Probe {
+    /// Every layer of the window covers it: no surface near.
+    covered: bool,
+    /// Layer L + 1 covers it.
+    in_next: bool,
+    /// Layer L - 1 covers it.
+    in_prev: bool,
+    /// Layer L is the lowest of a top skin there and no bottom surface is near: the layer
+    /// below was sparse infill.
+    over_sparse: bool,
+    /// Where this next changes (at most the line's end).
+    next: i32,
 }
 
 fn seg_point(p: &FillParams, line: i32, u: i32) -> Point2 {
@@ -764,6 +800,10 @@ pub fn fill<const N: usize>(
     if segs.nseg > MAX_SEGS {
         return Err(Buffer::LineSegments);
     }
+    if params.over_air == OverAir::Locate {
+        tag_overhangs(&params, &segs, paths);
+        return Ok(());
+    }
     // The order is done with: segment ends at crossings instead.
     let cend = &mut work.idx[..n];
     cend.fill(NONE);
@@ -778,6 +818,50 @@ pub fn fill<const N: usize>(
         }
     }
     link(points, rings, &params, cross, cend, &mut segs, paths)
+}
+
+/// Marks the perimeters' moves over air ([`OverAir::Locate`]; `segs`: the stretches of the
+/// region over air, line by line). Not inlined: the infill pass's frame stays as it was.
+#[inline(never)]
+fn tag_overhangs<const N: usize>(p: &FillParams, segs: &Segs<'_>, paths: &mut PathBuf<N>) {
+    if segs.nseg == 0 {
+        return;
+    }
+    // Whether position `u` of line `line` lies in a stretch over air.
+    let air = |line: i64, u: i64| {
+        let (mut lo, mut hi) = (0, segs.nseg);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if i64::from(segs.get(mid).line) < line {
+                lo = mid + 1;
+            } else {
+                hi = mid;
+            }
+        }
+        (lo..segs.nseg)
+            .map(|s| segs.get(s))
+            .take_while(|s| i64::from(s.line) == line)
+            .any(|s| i64::from(s.u0) <= u && u <= i64::from(s.u1))
+    };
+    for i in 0..paths.len() {
+        let r = paths.rec(i);
+        if !matches!(r.kind, PathKind::Perimeter(_)) {
+            continue;
+        }
+        let n = r.len as usize;
+        for k in 0..n {
+            // The move reaching point k (a loop's first from its last point).
+            let pts = paths.points(&r);
+            let (a, b) = (pts.at((k + n - 1) % n), pts.at(k));
+            let mid = Point2::new(a.x + (b.x - a.x) / 2, a.y + (b.y - a.y) / 2);
+            let (t, u) = p.angle.key(mid);
+            // The nearest line, half a step away at most.
+            let line = (2 * t + p.step).div_euclid(2 * p.step);
+            if air(line, u) {
+                paths.set_feature(i, k, Feature::OverhangPerimeter);
+            }
+        }
+    }
 }
 
 /// Emits segment `s` (forward: from `u0`) into the open path.

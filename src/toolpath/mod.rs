@@ -802,6 +802,11 @@ impl<
                 self.infill_pass(work, l, angle, true, OverAir::Bridge, &mut progress)?;
             }
         }
+        // Perimeters over air.
+        if cfg.bridges && l > FIRST_LAYER && !self.paths.is_empty() {
+            let mut progress = || sink(&ToolEvent::Progress);
+            self.infill_pass(work, l, Angle::D45, true, OverAir::Locate, &mut progress)?;
+        }
         layer.paths = self.paths.len() as u32;
         // Emit.
         self.em.layer = layer;
@@ -1076,7 +1081,7 @@ impl<
         self.park_engine(work);
         let cfg = self.cfg;
         // A bridge pass sees only the layer below (fewer window spans a line).
-        let bridging = matches!(over_air, OverAir::Bridge | OverAir::Measure);
+        let bridging = matches!(over_air, OverAir::Bridge | OverAir::Measure | OverAir::Locate);
         let (top, bottom) = if bridging {
             (0, 0)
         } else {
@@ -1144,7 +1149,8 @@ impl<
             min_len_u: (i64::from(spacing) * angle.scale_milli() / 1000 / 3) as i32,
             width_um: cfg.line_width_um,
             erode_u: (step / 2) as i32,
-            margin_u: (3 * step / 2) as i32,
+            // Stretches over air are located as they are.
+            margin_u: if over_air == OverAir::Locate { 0 } else { (3 * step / 2) as i32 },
             end_ext_u: if cfg.perimeters > 0 { (step / 2) as i32 } else { 0 },
         };
         let scratch = work.fill();
@@ -1154,9 +1160,11 @@ impl<
             pool: scratch.pool.as_flattened_mut(),
             spans: &mut self.spans,
         };
+        // Overhangs are located over the layer's region, the infill over its domain.
+        let loops = if over_air == OverAir::Locate { &self.contour } else { &self.fill };
         infill::fill(
-            self.fill.points(),
-            self.fill.rings(),
+            loops.points(),
+            loops.rings(),
             params,
             &view,
             top,

@@ -133,7 +133,7 @@ fn unpack_feature(s: Slot) -> Feature {
 }
 
 // Every feature's code fits the bits; a point's fields fill the slot.
-const _: () = assert!((Feature::Dwell as u32) < 1 << FEATURE_BITS);
+const _: () = assert!(Feature::ALL.len() <= 1 << FEATURE_BITS);
 const _: () = assert!(FEATURE_BITS + 2 * COORD_BITS == 48);
 
 /// The points of one path, unpacked on access.
@@ -396,6 +396,14 @@ impl<const N: usize> PathBuf<N> {
             if j != i {
                 self.write_rec(j, &r);
             }
+        }
+    }
+
+    /// Sets the feature of the move reaching point `k` of path `i`.
+    pub fn set_feature(&mut self, i: usize, k: usize, feature: Feature) {
+        let Some(r) = self.get(i).filter(|r| k < r.len as usize) else { return };
+        if let Some(s) = self.pts.get_mut(r.start as usize + k) {
+            s[0] = s[0] & !((1 << FEATURE_BITS) - 1) | feature as u16;
         }
     }
 

@@ -114,7 +114,7 @@ impl Ctx<'_> {
             Feature::InternalInfill | Feature::SolidInfill | Feature::TopSolidInfill => {
                 c.infill_speed_mm_s
             }
-            Feature::BridgeInfill => c.bridge_speed_mm_s,
+            Feature::BridgeInfill | Feature::OverhangPerimeter => c.bridge_speed_mm_s,
         }
     }
 
