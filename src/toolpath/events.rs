@@ -34,11 +34,13 @@ pub enum Feature {
     Unretract,
     /// The head waits in place (`G4`), its move's feed the wait in seconds.
     Dwell,
+    /// A brim loop around the first layer's islands (last: the codes before it predate it).
+    Brim,
 }
 
 impl Feature {
     /// Every feature, at the index of its code (`as u8`).
-    pub const ALL: [Feature; 10] = [
+    pub const ALL: [Feature; 11] = [
         Feature::ExternalPerimeter,
         Feature::Perimeter,
         Feature::InternalInfill,
@@ -49,6 +51,7 @@ impl Feature {
         Feature::Retract,
         Feature::Unretract,
         Feature::Dwell,
+        Feature::Brim,
     ];
 }
 
