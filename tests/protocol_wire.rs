@@ -33,19 +33,19 @@ fn decode_all(bytes: &[u8]) -> Vec<Result<Owned, FrameError>> {
 
 #[test]
 fn golden_ack_frame() {
-    // [0x71 (v7, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
-    assert_eq!(VERSION, 7);
+    // [0x81 (v8, ack), seq 0, ack 3, credits 4] + CRC-32/ISO-HDLC LE, COBS, 0x00.
+    assert_eq!(VERSION, 8);
     let w = wire(FrameType::Ack, 0, 3, 4, &[]);
-    let crc = crc32(&[0x71, 0x00, 0x03, 0x04]);
-    let mut raw = vec![0x71, 0x00, 0x03, 0x04];
+    let crc = crc32(&[0x81, 0x00, 0x03, 0x04]);
+    let mut raw = vec![0x81, 0x00, 0x03, 0x04];
     raw.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(w, cobs(&raw));
     assert_eq!(w, GOLDEN_ACK.to_vec());
 }
 
 // Derived with Python's zlib.crc32 (CRC-32/ISO-HDLC) and a hand COBS.
-// CRC 0xde878f3f; COBS: [0x71] then the six non-zero bytes after the zero seq byte.
-const GOLDEN_ACK: [u8; 10] = [2, 113, 7, 3, 4, 63, 143, 135, 222, 0];
+// CRC 0x58e19998; COBS: [0x81] then the six non-zero bytes after the zero seq byte.
+const GOLDEN_ACK: [u8; 10] = [2, 129, 7, 3, 4, 152, 153, 225, 88, 0];
 
 #[test]
 fn golden_open_frame() {
@@ -55,22 +55,22 @@ fn golden_open_frame() {
     assert_eq!(r, vec![Ok((FrameType::Open, 0xa5, 0, 4, vec![]))]);
 }
 
-// [0x72 (v7, open), nonce 0xa5, ack 0, credits 4, CRC 0x38acec99]: the zero ack byte ends
+// [0x82 (v8, open), nonce 0xa5, ack 0, credits 4, CRC 0xbecafa3e]: the zero ack byte ends
 // the first COBS run.
-const GOLDEN_OPEN: [u8; 10] = [3, 114, 165, 6, 4, 153, 236, 172, 56, 0];
+const GOLDEN_OPEN: [u8; 10] = [3, 130, 165, 6, 4, 62, 250, 202, 190, 0];
 
 #[test]
 fn golden_hello_frame() {
     let mut buf = [0u8; 8];
     let n = Message::Hello { version: VERSION }.encode(&mut buf).unwrap();
-    assert_eq!(&buf[..n], &[0x01, 0x07]);
+    assert_eq!(&buf[..n], &[0x01, 0x08]);
     let w = wire(FrameType::Data, 7, 0, 8, &buf[..n]);
     assert_eq!(w, GOLDEN_HELLO.to_vec());
 }
 
-// [0x70 (v7, data), seq 7, ack 0, credits 8, 0x01 Hello, version 7, CRC 0x81ac8528] COBS: the
+// [0x80 (v8, data), seq 7, ack 0, credits 8, 0x01 Hello, version 8, CRC 0x048181a0] COBS: the
 // zero ack byte becomes a code byte.
-const GOLDEN_HELLO: [u8; 12] = [3, 112, 7, 8, 8, 1, 7, 40, 133, 172, 129, 0];
+const GOLDEN_HELLO: [u8; 12] = [3, 128, 7, 8, 8, 1, 8, 160, 129, 129, 4, 0];
 
 /// Capacities used by the golden and round-trip tests.
 const SAMPLE_CAPS: Capacities = Capacities {
@@ -95,15 +95,15 @@ fn golden_capabilities() {
     let n = Message::Capabilities { version: VERSION, capacities: caps }.encode(&mut buf).unwrap();
     assert_eq!(&buf[..n], &GOLDEN_CAPABILITIES);
     let back = Message::decode(&GOLDEN_CAPABILITIES).unwrap();
-    assert_eq!(back, Message::Capabilities { version: 7, capacities: caps });
+    assert_eq!(back, Message::Capabilities { version: 8, capacities: caps });
 }
 
-// Type 0x02, version 7, then little-endian: active triangles 1024, contour points 768, loops 48,
+// Type 0x02, version 8, then little-endian: active triangles 1024, contour points 768, loops 48,
 // move buffer bytes 4096 (u32 each), layer window 4 (u16), RAM 65536 (u32), then the toolpath's
 // PTS 80, LOOPS 4, CROSS 128, PATH 320, RING 192, SPANS 64 (u32 each): 48 bytes.
 #[rustfmt::skip]
 const GOLDEN_CAPABILITIES: [u8; 48] = [
-    0x02, 7,
+    0x02, 8,
     0x00, 0x04, 0, 0,  0x00, 0x03, 0, 0,  48, 0, 0, 0,  0x00, 0x10, 0, 0,
     4, 0,
     0x00, 0x00, 0x01, 0,
@@ -162,21 +162,56 @@ const GOLDEN_SHORT: [u8; 20] = [2, 0, 64, 0, 0, 6, 0, 32, 0, 0, 0, 0, 0, 0, 0, 3
 const GOLDEN_LONG: [u8; 24] =
     [1, 0, 0, 0, 0, 0, 0, 0, 212, 48, 0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0];
 
-fn all_messages() -> Vec<Vec<u8>> {
+/// The job of the golden and round-trip tests: the default settings but a 0.16 mm layer and
+/// 35 % infill; outer perimeter first, nearest seams, two skirt loops 4 mm out, a 5 mm brim.
+fn sample_job() -> JobSpec {
     let mut settings = PrintSettings::default();
     settings.layer_height_um = 160;
     settings.infill_percent = 35;
-    let job = JobSpec {
+    JobSpec {
         settings,
         options: JobOptions {
             outer_perimeter_last: false,
             seam: 1,
             skirt_loops: 2,
             skirt_distance_um: 4000,
+            brim_width_um: 5000,
         },
         model_height_um: 48_000,
         triangles: 225_154,
-    };
+    }
+}
+
+#[test]
+fn golden_job_start() {
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = Message::JobStart(sample_job()).encode(&mut buf).unwrap();
+    assert_eq!(&buf[..n], &GOLDEN_JOB_START);
+    assert_eq!(Message::decode(&GOLDEN_JOB_START).unwrap(), Message::JobStart(sample_job()));
+}
+
+// Type 0x10, then little-endian: layer 160, first layer 200, line width 450 (i32 each),
+// perimeters 2, infill 35, pattern 1 (zigzag), top 4, bottom 4 (u8 each), hotend 200, bed 60
+// (u16), speeds 45, 60, 150, 20 mm/s (U32F32 bits: the whole mm/s in the high word),
+// retraction 5000 um (i32) at 45 mm/s, minimum loop area 10,000 um^2 (u64); the options:
+// outer perimeter last 0, seam 1, skirt loops 2 (u8 each), skirt distance 4000, brim 5000 um
+// (i32 each); model height 48,000 um (i32), triangles 225,154 (u32): 93 bytes.
+#[rustfmt::skip]
+const GOLDEN_JOB_START: [u8; 93] = [
+    0x10,
+    160, 0, 0, 0,  200, 0, 0, 0,  0xc2, 0x01, 0, 0,
+    2, 35, 1, 4, 4,
+    200, 0,  60, 0,
+    0, 0, 0, 0, 45, 0, 0, 0,  0, 0, 0, 0, 60, 0, 0, 0,
+    0, 0, 0, 0, 150, 0, 0, 0,  0, 0, 0, 0, 20, 0, 0, 0,
+    0x88, 0x13, 0, 0,  0, 0, 0, 0, 45, 0, 0, 0,
+    0x10, 0x27, 0, 0, 0, 0, 0, 0,
+    0, 1, 2,  0xa0, 0x0f, 0, 0,  0x88, 0x13, 0, 0,
+    0x80, 0xbb, 0, 0,  0x82, 0x6f, 0x03, 0,
+];
+
+fn all_messages() -> Vec<Vec<u8>> {
+    let job = sample_job();
     let caps = SAMPLE_CAPS;
     let status = Status {
         state: DeviceState::Failed,

@@ -10,7 +10,7 @@ use strata::geom::Point2;
 use strata::machine::{InfillPattern, MachineConfig, PrintSettings};
 use strata::toolpath::{Feature, ToolpathConfig};
 use strata_testkit::check::{pt, seg_seg_dist};
-use strata_testkit::mesh::{cuboid, four_holed_discs, holed_prism, loft, ngon, to_um};
+use strata_testkit::mesh::{cuboid, four_holed_discs, holed_block, holed_prism, loft, ngon, to_um};
 use toolpath_support::{default_run, extrusions, layer_starts, run, run_cfg, TpLayer, TpRun};
 
 const W: f64 = 450.0; // line width, um
@@ -503,4 +503,215 @@ fn every_infill_percentage_prints_more_sparse_infill_than_the_one_below() {
             below = sparse;
         }
     }
+}
+
+/// Distance (um) from `p` to the axis-aligned square [`lo`, `hi`]^2 (um), 0 inside: the
+/// distance to a square is the distance to its nearest edge or corner.
+fn square_dist(p: (f64, f64), lo: (f64, f64), hi: (f64, f64)) -> f64 {
+    let dx = (lo.0 - p.0).max(p.0 - hi.0).max(0.0);
+    let dy = (lo.1 - p.1).max(p.1 - hi.1).max(0.0);
+    dx.hypot(dy)
+}
+
+/// The loops one feature's extrusions draw on a layer, in print order: each a run of
+/// consecutive extrusions of `feature` (its first point where the run starts), and whether it
+/// ends where it starts.
+fn feature_loops(l: &TpLayer, start: Point2, feature: Feature) -> Vec<(Vec<(f64, f64)>, bool)> {
+    let (mut out, mut pos, mut open) = (Vec::new(), start, false);
+    for m in &l.moves {
+        let draws = m.e_um > 0 && m.feature == feature && m.to != pos;
+        if draws {
+            if !open {
+                out.push(vec![pt(pos)]);
+            }
+            out.last_mut().unwrap().push(pt(m.to));
+        }
+        // Priming in place (an unretraction) does not break a run.
+        open = draws || (open && m.to == pos && m.feature == Feature::Unretract);
+        pos = m.to;
+    }
+    out.into_iter()
+        .map(|mut p| {
+            let closed = p.len() > 3 && p.first() == p.last();
+            if closed {
+                p.pop();
+            }
+            (p, closed)
+        })
+        .collect()
+}
+
+/// Length (um) of a closed loop.
+fn loop_len(p: &[(f64, f64)]) -> f64 {
+    (0..p.len())
+        .map(|i| (p[(i + 1) % p.len()].0 - p[i].0).hypot(p[(i + 1) % p.len()].1 - p[i].1))
+        .sum()
+}
+
+/// The brim (`--brim`): on the first layer only, floor(width / line width) closed loops around
+/// a 20 mm cube, loop k's every vertex (k + 1/2) line widths from the square (round corners:
+/// the distance to the square, f64), its chords no closer than the tolerances allow (10 um
+/// simplification, 4 um arcs), outermost first and before the part; their length the rounded
+/// squares' 4 s + 2 pi d each within 1 %. With a skirt, the skirt goes first, its distance
+/// counted from the brim's outer edge.
+#[test]
+fn a_brim_rings_the_first_layer_with_whole_loops_outermost_first() {
+    let (lo, hi) = ((100_000.0, 100_000.0), (120_000.0, 120_000.0));
+    let cube = to_um(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 1.0]));
+    let settings = PrintSettings::default();
+    let mut cfg = ToolpathConfig::new(&MachineConfig::default(), &settings);
+    (cfg.brim_width_um, cfg.skirt_loops) = (5_000, 0);
+    assert_eq!(cfg.line_width_um, 450);
+    // 11 x 0.45 = 4.95 mm fit in 5 mm; a 12th would reach 5.4 mm.
+    let n = 11;
+    assert_eq!(cfg.brim_loops(), n);
+    let r = run_cfg(&cube, &settings, cfg).unwrap();
+    let starts = layer_starts(&r);
+    let loops = feature_loops(&r.layers[0], starts[0], Feature::Brim);
+    assert_eq!(loops.len(), n as usize, "one run per loop");
+    let mut want_len = 0.0;
+    for (i, (p, closed)) in loops.iter().enumerate() {
+        assert!(closed, "loop {i} is not closed");
+        // Outermost first: loop i is k = n - 1 - i.
+        let d = (f64::from(n - 1 - i as i32) + 0.5) * W;
+        for (j, &q) in p.iter().enumerate() {
+            let got = square_dist(q, lo, hi);
+            assert!((got - d).abs() <= 3.0, "loop {i} vertex {q:?} at {got:.1} um, not {d}");
+            let b = p[(j + 1) % p.len()];
+            let mid = square_dist(((q.0 + b.0) / 2.0, (q.1 + b.1) / 2.0), lo, hi);
+            assert!(mid >= d - 15.0 && mid <= d + 3.0, "loop {i} chord at {mid:.1} um, not {d}");
+        }
+        want_len += 4.0 * 20_000.0 + 2.0 * PI * d;
+    }
+    let got_len: f64 = loops.iter().map(|(p, _)| loop_len(p)).sum();
+    assert!((got_len - want_len).abs() < want_len * 0.01, "{got_len:.0} um vs {want_len:.0} um");
+    // Before the part, on the first layer only.
+    let l0 = &r.layers[0].moves;
+    let last_brim = l0.iter().rposition(|m| m.feature == Feature::Brim).unwrap();
+    let first_part = l0
+        .iter()
+        .position(|m| m.e_um > 0 && m.feature != Feature::Brim && m.feature != Feature::Unretract);
+    assert!(first_part.unwrap() > last_brim);
+    for l in &r.layers[1..] {
+        assert!(l.moves.iter().all(|m| m.feature != Feature::Brim), "layer {}", l.index);
+    }
+    // With the default skirt: one loop 3 mm + w/2 beyond the brim's outer edge (11 w out),
+    // printed first; the brim as before.
+    cfg.skirt_loops = 1;
+    let r = run_cfg(&cube, &settings, cfg).unwrap();
+    let skirt = feature_loops(&r.layers[0], starts[0], Feature::Skirt);
+    assert_eq!(skirt.len(), 1);
+    let d = 3_000.0 + f64::from(n) * W + W / 2.0;
+    for &q in &skirt[0].0 {
+        let got = square_dist(q, lo, hi);
+        assert!((got - d).abs() <= 3.0, "skirt vertex {q:?} at {got:.1} um, not {d}");
+    }
+    let first = r.layers[0].moves.iter().find(|m| m.e_um > 0 && m.feature != Feature::Unretract);
+    assert_eq!(first.map(|m| m.feature), Some(Feature::Skirt));
+    let with_skirt = feature_loops(&r.layers[0], starts[0], Feature::Brim);
+    assert_eq!(with_skirt.len(), loops.len());
+    for ((a, _), (b, _)) in with_skirt.iter().zip(&loops) {
+        let mut b_sorted = b.clone();
+        let mut a_sorted = a.clone();
+        a_sorted.sort_by(|x, y| x.partial_cmp(y).unwrap());
+        b_sorted.sort_by(|x, y| x.partial_cmp(y).unwrap());
+        assert_eq!(a_sorted, b_sorted, "the same loops (entered elsewhere)");
+    }
+}
+
+/// Two 10 mm cubes 1 mm apart with a 3 mm brim (6 loops): their brims merge (from the
+/// second loop, 675 um out, on: 2 x 675 > 1,000), no brim point lies in either cube, every
+/// one is within the brim width of one, each loop's vertices at their loop's distance from
+/// the nearer cube, and no two loops come closer than 0.9 line widths.
+#[test]
+fn brims_of_close_islands_merge_without_overlapping() {
+    let a = ((100_000.0, 100_000.0), (110_000.0, 110_000.0));
+    let b = ((111_000.0, 100_000.0), (121_000.0, 110_000.0));
+    let mut parts = cuboid([100.0, 100.0, 0.0], [110.0, 110.0, 1.0]);
+    parts.extend(cuboid([111.0, 100.0, 0.0], [121.0, 110.0, 1.0]));
+    let settings = PrintSettings::default();
+    let mut cfg = ToolpathConfig::new(&MachineConfig::default(), &settings);
+    (cfg.brim_width_um, cfg.skirt_loops) = (3_000, 0);
+    let r = run_cfg(&to_um(&parts), &settings, cfg).unwrap();
+    assert_eq!(r.layers[0].stats.islands, 2);
+    let loops = feature_loops(&r.layers[0], layer_starts(&r)[0], Feature::Brim);
+    let dist = |q: (f64, f64)| square_dist(q, a.0, a.1).min(square_dist(q, b.0, b.1));
+    // Loops 5..1 around both cubes, then loop 0 around each: 7 runs.
+    assert_eq!(loops.len(), 7);
+    let mut merged = 0;
+    for (p, closed) in &loops {
+        assert!(closed);
+        let d = dist(p[0]);
+        let k = (d / W - 0.5).round();
+        for (j, &q) in p.iter().enumerate() {
+            let got = dist(q);
+            assert!(got > W / 2.0 - 3.0, "{q:?} in or at a cube ({got:.1} um)");
+            assert!(got <= 3_000.0, "{q:?} beyond the brim ({got:.1} um)");
+            assert!((got - (k + 0.5) * W).abs() <= 3.0, "{q:?} at {got:.1} um, loop {k}");
+            let e = p[(j + 1) % p.len()];
+            let mid = dist(((q.0 + e.0) / 2.0, (q.1 + e.1) / 2.0));
+            assert!(mid > W / 2.0 - 20.0 && mid <= 3_000.0, "chord from {q:?} at {mid:.1} um");
+        }
+        let around_both = p.iter().any(|q| q.0 < a.1 .0) && p.iter().any(|q| q.0 > b.0 .0);
+        merged += usize::from(around_both);
+    }
+    assert_eq!(merged, 5, "loops 1 to 5 go around both cubes");
+    let mut closest = f64::MAX;
+    for (i, (p, _)) in loops.iter().enumerate() {
+        for (q, _) in &loops[i + 1..] {
+            for s in 0..p.len() {
+                for t in 0..q.len() {
+                    let d = seg_seg_dist(p[s], p[(s + 1) % p.len()], q[t], q[(t + 1) % q.len()]);
+                    closest = closest.min(d);
+                }
+            }
+        }
+    }
+    assert!(closest >= 0.9 * W, "loops {closest:.1} um apart");
+}
+
+/// A 20 mm square tube with a 10 mm hole: the brim goes around the outside only (every brim
+/// point outside the outer square), one loop per 0.45 mm of the 3 mm.
+#[test]
+fn no_brim_inside_a_hole() {
+    let tube = to_um(&holed_block(100.0, 120.0, 105.0, 115.0, 1.0));
+    let settings = PrintSettings::default();
+    let mut cfg = ToolpathConfig::new(&MachineConfig::default(), &settings);
+    (cfg.brim_width_um, cfg.skirt_loops) = (3_000, 0);
+    let r = run_cfg(&tube, &settings, cfg).unwrap();
+    let loops = feature_loops(&r.layers[0], layer_starts(&r)[0], Feature::Brim);
+    assert_eq!(loops.len(), 6);
+    for (p, closed) in &loops {
+        assert!(closed);
+        for &q in p {
+            let d = square_dist(q, (100_000.0, 100_000.0), (120_000.0, 120_000.0));
+            assert!(
+                d >= W / 2.0 - 3.0,
+                "{q:?} {d:.1} um from the outside: in the tube or its hole"
+            );
+        }
+    }
+}
+
+/// No brim by default, and a brim narrower than a line (0.4 mm at 0.45 mm lines: no loop fits)
+/// changes nothing: the moves are those of the default run, whose only first-layer loops
+/// besides the part's are its one skirt loop.
+#[test]
+fn a_brim_of_zero_or_under_a_line_adds_nothing() {
+    let cube = to_um(&cuboid([100.0, 100.0, 0.0], [120.0, 120.0, 1.0]));
+    let settings = PrintSettings::default();
+    let cfg = ToolpathConfig::new(&MachineConfig::default(), &settings);
+    assert_eq!((cfg.brim_width_um, cfg.brim_loops(), cfg.skirt_loops), (0, 0, 1));
+    let plain = run_cfg(&cube, &settings, cfg).unwrap();
+    let l0 = &plain.layers[0];
+    assert!(l0.moves.iter().all(|m| m.feature != Feature::Brim));
+    assert_eq!(feature_loops(l0, Point2::new(0, 0), Feature::Skirt).len(), 1);
+    // Skirt, two perimeters, the infill run.
+    assert_eq!(l0.stats.paths, 4);
+    let mut narrow = cfg;
+    narrow.brim_width_um = 400;
+    assert_eq!(narrow.brim_loops(), 0);
+    let r = run_cfg(&cube, &settings, narrow).unwrap();
+    let moves = |r: &TpRun| r.layers.iter().flat_map(|l| l.moves.clone()).collect::<Vec<_>>();
+    assert_eq!(moves(&r), moves(&plain));
 }

@@ -4,7 +4,7 @@
 use strata::geom::Triangle;
 use strata::machine::{InfillPattern, MachineConfig, PrintSettings, Rate};
 use strata::protocol::{JobOptions, JobSpec};
-use strata::toolpath::{Seam, ToolpathConfig};
+use strata::toolpath::{Seam, ToolpathConfig, MAX_BRIM_WIDTH_UM};
 
 /// The print-setting options of `strata slice`, `simulate` and `print`.
 #[derive(Debug, clap::Args)]
@@ -72,6 +72,10 @@ pub struct PrintArgs {
     /// Gap between the skirt and the first layer in mm (default 3).
     #[arg(long, value_name = "MM")]
     pub skirt_distance: Option<f64>,
+    /// Brim width in mm around the first layer's parts (default 0: none): as many loops as
+    /// fit, floor(width / line width); the skirt goes around it.
+    #[arg(long, value_name = "MM")]
+    pub brim: Option<f64>,
     /// Build volume X,Y,Z in mm (default 220,220,250).
     #[arg(long, value_name = "X,Y,Z", value_delimiter = ',')]
     pub bed: Option<Vec<f64>>,
@@ -119,6 +123,16 @@ fn length_um(
             Ok((v * 1000.0).round() as i32)
         }
         Some(v) => Err(format!("--{flag} {v}: must be a positive length in mm")),
+    }
+}
+
+/// The `--brim` width in mm to um: 0 to [`MAX_BRIM_WIDTH_UM`].
+fn brim_um(value: Option<f64>, default_um: i32) -> Result<i32, String> {
+    let max_mm = f64::from(MAX_BRIM_WIDTH_UM) / 1000.0;
+    match value {
+        None => Ok(default_um),
+        Some(v) if v.is_finite() && (0.0..=max_mm).contains(&v) => Ok((v * 1000.0).round() as i32),
+        Some(v) => Err(format!("--brim {v}: must be a brim width from 0 to {max_mm} mm")),
     }
 }
 
@@ -195,6 +209,7 @@ pub fn toolpath_config_of(
     cfg.skirt_loops = args.skirt_loops.unwrap_or(cfg.skirt_loops);
     cfg.skirt_distance_um =
         length_um(args.skirt_distance, cfg.skirt_distance_um, "skirt-distance", true)?;
+    cfg.brim_width_um = brim_um(args.brim, cfg.brim_width_um)?;
     cfg.validate().map_err(|e| e.to_string())?;
     Ok(cfg)
 }
@@ -212,6 +227,7 @@ pub fn job_of(args: &PrintArgs, tris: &[Triangle]) -> Result<JobSpec, String> {
             seam: matches!(cfg.seam, Seam::Nearest) as u8,
             skirt_loops: cfg.skirt_loops,
             skirt_distance_um: cfg.skirt_distance_um,
+            brim_width_um: cfg.brim_width_um,
         },
         model_height_um: top,
         triangles: tris.len() as u32,

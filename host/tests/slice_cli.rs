@@ -107,3 +107,101 @@ fn model_larger_than_the_bed_is_refused() {
     let err = text(&bad.get_output().stderr);
     assert!(err.contains("along X"), "{err}");
 }
+
+/// One G-code extrusion: layer, `;TYPE:` name, from, to (mm).
+type Extrusion = (u32, String, (f64, f64), (f64, f64));
+
+/// Extrusions of a G-code text: (layer, `;TYPE:` name, from, to) in mm, from its `;LAYER:`
+/// and `;TYPE:` comments and its `G0`/`G1` words (relative E: an extrusion has `E` > 0);
+/// those before the first layer (the prime line) are left out.
+fn gcode_extrusions(gcode: &str) -> Vec<Extrusion> {
+    let (mut layer, mut ty, mut pos) = (None, String::new(), (0.0, 0.0));
+    let mut out = Vec::new();
+    for line in gcode.lines() {
+        if let Some(n) = line.strip_prefix(";LAYER:") {
+            layer = Some(n.parse().unwrap());
+        } else if let Some(t) = line.strip_prefix(";TYPE:") {
+            ty = t.to_string();
+        }
+        let code = line.split(';').next().unwrap().trim();
+        let mut words = code.split_whitespace();
+        if !matches!(words.next(), Some("G0" | "G1")) {
+            continue;
+        }
+        let (mut to, mut e) = (pos, 0.0);
+        for w in words {
+            let v: f64 = w[1..].parse().unwrap();
+            match &w[..1] {
+                "X" => to.0 = v,
+                "Y" => to.1 = v,
+                "E" => e = v,
+                _ => {}
+            }
+        }
+        if let Some(l) = layer.filter(|_| e > 0.0 && to != pos) {
+            out.push((l, ty.clone(), pos, to));
+        }
+        pos = to;
+    }
+    out
+}
+
+#[test]
+fn brim_loops_surround_the_first_layer_and_bad_widths_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("holed.stl");
+    write_mesh(&model, &holed_block(-10.0, 10.0, -4.0, 4.0, 10.0));
+    let out = dir.path().join("holed.gcode");
+    Command::cargo_bin("strata")
+        .unwrap()
+        .args(["slice", model.to_str().unwrap(), "-o", out.to_str().unwrap(), "--brim", "4"])
+        .assert()
+        .success();
+    let gcode = std::fs::read_to_string(&out).unwrap();
+    let ex = gcode_extrusions(&gcode);
+    // Distance (mm) from the block's 20 mm square, centred on the bed: 100..120 mm.
+    let dist = |p: (f64, f64)| {
+        let dx = (100.0 - p.0).max(p.0 - 120.0).max(0.0);
+        let dy = (100.0 - p.1).max(p.1 - 120.0).max(0.0);
+        dx.hypot(dy)
+    };
+    let brim: Vec<_> = ex.iter().filter(|e| e.1 == "Skirt/Brim").collect();
+    assert!(brim.iter().all(|e| e.0 == 0), "brim on the first layer only");
+    // floor(4 / 0.45) = 8 loops, their centre lines 0.225 to 3.375 mm out (none in the 8 mm
+    // hole: inside the square the distance is 0).
+    let ends: Vec<(f64, f64)> = brim.iter().map(|e| e.3).collect();
+    let (near, far) =
+        ends.iter().map(|&p| dist(p)).fold((f64::MAX, 0.0f64), |(a, b), d| (a.min(d), b.max(d)));
+    assert!((near - 0.225).abs() < 0.005 && (far - 3.375).abs() < 0.005, "{near} .. {far}");
+    for side in [
+        ends.iter().any(|p| p.0 < 100.0),
+        ends.iter().any(|p| p.0 > 120.0),
+        ends.iter().any(|p| p.1 < 100.0),
+        ends.iter().any(|p| p.1 > 120.0),
+    ] {
+        assert!(side, "the brim surrounds the part");
+    }
+    // Whole loops: 8 around a 20 mm square, 80 mm + 2 pi d each (chords a little shorter).
+    let len: f64 = brim.iter().map(|e| (e.3 .0 - e.2 .0).hypot(e.3 .1 - e.2 .1)).sum();
+    let want: f64 =
+        (0..8).map(|k| 80.0 + 2.0 * std::f64::consts::PI * (k as f64 + 0.5) * 0.45).sum();
+    assert!((len - want).abs() < want * 0.01, "{len} mm vs {want} mm");
+    // The skirt 3 mm beyond the brim's outer edge (3.6 mm), printed before it.
+    let skirt: Vec<_> = ex.iter().filter(|e| e.1 == "Skirt").collect();
+    assert!(skirt.iter().all(|e| (dist(e.3) - 6.825).abs() < 0.005), "{skirt:?}");
+    let first = ex.iter().position(|e| e.1 == "Skirt").unwrap();
+    assert!(first < ex.iter().position(|e| e.1 == "Skirt/Brim").unwrap());
+    // The part comes after the whole brim.
+    let last_brim = ex.iter().rposition(|e| e.1 == "Skirt/Brim").unwrap();
+    assert!(ex[..last_brim].iter().all(|e| e.1.starts_with("Skirt")));
+    // Negative or wider than 50 mm: refused, naming the flag and the range.
+    for width in ["--brim=-1", "--brim=50.5"] {
+        let bad = Command::cargo_bin("strata")
+            .unwrap()
+            .args(["slice", model.to_str().unwrap(), "-o", out.to_str().unwrap(), width])
+            .assert()
+            .failure();
+        let err = text(&bad.get_output().stderr);
+        assert!(err.contains("--brim") && err.contains("from 0 to 50 mm"), "{width}: {err}");
+    }
+}

@@ -14,8 +14,9 @@
 //!   absolute E (`M83`/`M82`), `G92 E0`, a prime line along the left edge of the bed;
 //! - per layer: `;LAYER_CHANGE`, `;Z:`, `;HEIGHT:` (as PrusaSlicer writes them), `;LAYER:n`
 //!   (as Cura writes it), then moves; `;TYPE:` (External perimeter, Perimeter, Internal infill,
-//!   Solid infill, Top solid infill, Skirt) and `;WIDTH:` whenever the extrusion feature
-//!   changes; travels are `G0`, extrusions `G1`, the feed rate only when it changes;
+//!   Solid infill, Top solid infill, Skirt, Skirt/Brim for the brim) and `;WIDTH:` whenever
+//!   the extrusion feature changes; travels are `G0`, extrusions `G1`, the feed rate only
+//!   when it changes;
 //!   absolute E is reset with `G92 E0` at every layer (Marlin keeps E in a `float`);
 //!   the part-cooling fan goes on at the second layer;
 //! - the end sequence ([`GcodeWriter::end`]): retract, lift 10 mm, park at the back, fan,
@@ -149,7 +150,7 @@ fn mm_per_min(feed: Rate) -> i64 {
 }
 
 /// The `;TYPE:` name of a feature (PrusaSlicer's role names; `Skirt` is accepted by its
-/// viewer as the pre-2.4 name of `Skirt/Brim`).
+/// viewer as the pre-2.4 name of `Skirt/Brim`, the brim's).
 pub fn type_name(f: Feature) -> &'static str {
     match f {
         Feature::ExternalPerimeter => "External perimeter",
@@ -160,6 +161,7 @@ pub fn type_name(f: Feature) -> &'static str {
         Feature::Skirt => "Skirt",
         Feature::BridgeInfill => "Bridge infill",
         Feature::OverhangPerimeter => "Overhang perimeter",
+        Feature::Brim => "Skirt/Brim",
         Feature::Travel | Feature::Retract | Feature::Unretract | Feature::Dwell => "Custom",
     }
 }

@@ -155,6 +155,7 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
     cfg.skirt_loops = job.options.skirt_loops;
     cfg.skirt_distance_um = job.options.skirt_distance_um;
+    cfg.brim_width_um = job.options.brim_width_um;
     // The thin-area figures are a host report (`strata slice`); the printer makes the same
     // toolpaths without them and saves an offset per island and layer.
     cfg.measure_thin_area = false;

@@ -55,7 +55,7 @@ use heapless::Deque;
 
 use crate::gcode::input::{GcodeSink, Hold};
 use crate::geom::Triangle;
-use crate::machine::MachineConfig;
+use crate::machine::{MachineConfig, PrintSettings};
 use crate::move_ring::{PackedMove, RingFull};
 use crate::plan::PlanConfig;
 use crate::protocol::{
@@ -154,7 +154,9 @@ pub struct Printer<Pl, const MOVE_BYTES: usize, const P: usize> {
     failure: Slot<Failure>,
     /// The failure went to the host in words (`Message::Failure`).
     failure_sent: bool,
-    job: Slot<JobSpec>,
+    /// The sliced job's settings (its heater targets and park moves; the rest of its start
+    /// message is used up when it starts).
+    job_settings: Slot<PrintSettings>,
     triangles: u32,
     /// Triangles of the batch being taken that are already in (it waits for room).
     batch_pos: u32,
@@ -238,7 +240,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             state: DeviceState::Idle,
             failure: Slot::Empty,
             failure_sent: false,
-            job: Slot::Empty,
+            job_settings: Slot::Empty,
             triangles: 0,
             batch_pos: 0,
             waiting_for_room: false,
@@ -285,7 +287,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.plan_cfg = PlanConfig::from_machine(machine);
         self.step_cfg = StepConfig::from_machine(machine);
         self.state = DeviceState::Idle;
-        self.job = Slot::Empty;
+        self.job_settings = Slot::Empty;
     }
 
     /// What this runner holds (announced to the host): [`Self::CAPACITIES`].
@@ -381,9 +383,9 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         if !self.is_active() || self.orphan.get() == Some(&Orphan::Cooled) {
             return (0, 0);
         }
-        match (self.job.get(), self.pipeline.gcode_ref()) {
+        match (self.job_settings.get(), self.pipeline.gcode_ref()) {
             (_, Some(g)) if self.gcode_job => g.targets(),
-            (Some(j), _) => (j.settings.hotend_temp_c, j.settings.bed_temp_c),
+            (Some(s), _) => (s.hotend_temp_c, s.bed_temp_c),
             _ => (0, 0),
         }
     }
@@ -478,7 +480,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
             }
         }
         self.begin(motion);
-        self.job = Slot::Full(*job);
+        self.job_settings = Slot::Full(job.settings);
     }
 
     /// Starts a G-code job: its input takes the pipeline's scratch (see [`start`](Self::start)
@@ -495,7 +497,7 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.pipeline.start_gcode(&self.machine, card);
         self.layers = spec.layers;
         self.begin(motion);
-        self.job = Slot::Empty;
+        self.job_settings = Slot::Empty;
         self.gcode_job = true;
     }
 

@@ -172,14 +172,11 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
     /// The retraction for parking, um, and the speeds of the park moves (retraction, lift,
     /// travel), mm/s: a sliced job's own, a G-code job's defaults.
     fn park_settings(&self) -> (i32, [Rate; 3]) {
-        match self.job.get() {
-            Some(j) if !self.gcode_job => {
-                let s = &j.settings;
-                (
-                    s.retract_length_um,
-                    [s.retract_speed_mm_s, Rate::from_num(5), s.travel_speed_mm_s],
-                )
-            }
+        match self.job_settings.get() {
+            Some(s) if !self.gcode_job => (
+                s.retract_length_um,
+                [s.retract_speed_mm_s, Rate::from_num(5), s.travel_speed_mm_s],
+            ),
             _ => (GCODE_PARK_RETRACT_UM, GCODE_PARK_SPEEDS_MM_S.map(Rate::from_num)),
         }
     }

@@ -12,8 +12,9 @@ use crc::{Crc, CRC_32_ISO_HDLC};
 /// 2: the capabilities carry the toolpath stage's capacities. 3: status carries the temperatures.
 /// 4: the capabilities' move buffer is in bytes of delta-coded moves, filled a path (with the
 /// travel before it) at a time: it must hold the job's largest such unit, not a layer.
-/// 5: G-code jobs (`GcodeStart`, `Gcode`).
-pub const VERSION: u8 = 7;
+/// 5: G-code jobs (`GcodeStart`, `Gcode`). 6: link sessions and parked jobs. 7: the printer's
+/// SD card (files, G-code printed from it). 8: the job's options carry the brim width.
+pub const VERSION: u8 = 8;
 /// Header bytes before the payload.
 pub const HEADER_LEN: usize = 4;
 /// CRC bytes after the payload.

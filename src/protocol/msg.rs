@@ -100,13 +100,21 @@ pub struct JobOptions {
     pub seam: u8,
     /// Skirt loops.
     pub skirt_loops: u8,
-    /// Gap between skirt and first layer, um.
+    /// Gap between skirt and first layer (or its brim), um.
     pub skirt_distance_um: i32,
+    /// Brim width, um (0: none).
+    pub brim_width_um: i32,
 }
 
 impl Default for JobOptions {
     fn default() -> Self {
-        Self { outer_perimeter_last: true, seam: 0, skirt_loops: 1, skirt_distance_um: 3000 }
+        Self {
+            outer_perimeter_last: true,
+            seam: 0,
+            skirt_loops: 1,
+            skirt_distance_um: 3000,
+            brim_width_um: 0,
+        }
     }
 }
 
@@ -723,6 +731,7 @@ impl<'a> Message<'a> {
                 w.u8(j.options.seam)?;
                 w.u8(j.options.skirt_loops)?;
                 w.i32(j.options.skirt_distance_um)?;
+                w.i32(j.options.brim_width_um)?;
                 w.i32(j.model_height_um)?;
                 w.u32(j.triangles)?;
             }
@@ -928,6 +937,7 @@ impl<'a> Message<'a> {
                     seam: r.u8()?,
                     skirt_loops: r.u8()?,
                     skirt_distance_um: r.i32()?,
+                    brim_width_um: r.i32()?,
                 };
                 if options.seam > 1 {
                     return Err(bad);

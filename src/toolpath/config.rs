@@ -15,6 +15,10 @@ pub const COOL_LIFT_UM: i32 = 3_000;
 /// (about half the default infill speed).
 pub const BRIDGE_SPEED_MM_S: u16 = 25;
 
+/// The widest brim [`ToolpathConfig::validate`] takes, um (PrusaSlicer's brim width is
+/// typically 3-10 mm; 50 mm is already a plate's worth of loops).
+pub const MAX_BRIM_WIDTH_UM: i32 = 50_000;
+
 /// Where loops start.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -67,6 +71,9 @@ pub struct ToolpathConfig {
     pub skirt_distance_um: i32,
     /// Skirt loops (0: no skirt).
     pub skirt_loops: u8,
+    /// Brim width around the first layer's islands, um (0: no brim): as many loops as fit
+    /// ([`brim_loops`](Self::brim_loops)); the skirt goes around the brim.
+    pub brim_width_um: i32,
     /// Where loops start.
     pub seam: Seam,
     /// Skin over no material of the layer below prints as bridges: straight lines in the
@@ -108,7 +115,7 @@ pub struct ToolpathConfig {
 impl ToolpathConfig {
     /// The toolpath settings of `settings` on `machine`, with this stage's defaults: outer
     /// perimeter last, infill overlap half a line (infill lines reach the innermost
-    /// perimeter's inner edge), a 3 mm skirt of one loop, rear seams,
+    /// perimeter's inner edge), a 3 mm skirt of one loop, no brim, rear seams,
     /// 10 um simplification, combing, retraction for travels over 1.5 mm that leave the part.
     pub fn new(machine: &MachineConfig, settings: &PrintSettings) -> Self {
         Self {
@@ -131,6 +138,7 @@ impl ToolpathConfig {
             infill_overlap_um: settings.line_width_um / 2,
             skirt_distance_um: 3_000,
             skirt_loops: 1,
+            brim_width_um: 0,
             seam: Seam::Rear,
             bridges: true,
             bridge_speed_mm_s: Rate::from_num(BRIDGE_SPEED_MM_S),
@@ -147,7 +155,8 @@ impl ToolpathConfig {
     }
 
     /// Checks ranges: positive widths and heights, at most 16 top/bottom layers and 20
-    /// perimeters, density at most 100 %, non-negative distances.
+    /// perimeters, density at most 100 %, non-negative distances, a brim of at most
+    /// [`MAX_BRIM_WIDTH_UM`].
     pub fn validate(&self) -> Result<(), ToolpathError> {
         let checks = [
             ("line_width_um", (100..=5_000).contains(&self.line_width_um)),
@@ -162,6 +171,7 @@ impl ToolpathConfig {
             ("infill_overlap_um", (0..=self.line_width_um).contains(&self.infill_overlap_um)),
             ("skirt_distance_um", (0..=100_000).contains(&self.skirt_distance_um)),
             ("skirt_loops", self.skirt_loops <= 20),
+            ("brim_width_um", (0..=MAX_BRIM_WIDTH_UM).contains(&self.brim_width_um)),
             ("simplify_tolerance_um", (0..=200).contains(&self.simplify_tolerance_um)),
             ("below_tolerance_um", (0..=self.line_width_um).contains(&self.below_tolerance_um)),
             ("min_retract_travel_um", self.min_retract_travel_um >= 0),
@@ -201,6 +211,21 @@ impl ToolpathConfig {
     pub fn sparse_lines(&self) -> SparseLines {
         let den = if self.infill_pattern == InfillPattern::Grid { 200 } else { 100 };
         SparseLines { num: self.infill_percent, den }
+    }
+
+    /// Brim loops: as many as fit in the brim width, floor(width / line width)
+    /// (PrusaSlicer's count), so the outermost loop's outer edge is at most the width out.
+    pub fn brim_loops(&self) -> i32 {
+        if self.line_width_um > 0 {
+            self.brim_width_um.max(0) / self.line_width_um
+        } else {
+            0
+        }
+    }
+
+    /// How far the brim reaches out from the part, um: its loops' outer edge (0 without).
+    pub fn brim_extent_um(&self) -> i32 {
+        self.brim_loops() * self.line_width_um
     }
 
     /// Offset of the infill domain from the contour, um.
@@ -284,6 +309,7 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     infill_overlap_um: 0,
     skirt_distance_um: 0,
     skirt_loops: 0,
+    brim_width_um: 0,
     seam: Seam::Rear,
     bridges: false,
     bridge_speed_mm_s: Rate::ZERO,
@@ -300,7 +326,27 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
 
 #[cfg(test)]
 mod tests {
-    use super::SparseLines;
+    use super::*;
+
+    #[test]
+    fn a_brim_is_whole_loops_within_its_width_and_at_most_50_mm() {
+        let mut cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
+        assert_eq!((cfg.line_width_um, cfg.brim_width_um, cfg.brim_loops()), (450, 0, 0));
+        for (width, loops) in [(449, 0), (450, 1), (899, 1), (900, 2), (5_000, 11)] {
+            cfg.brim_width_um = width;
+            assert_eq!((cfg.brim_loops(), cfg.brim_extent_um()), (loops, loops * 450), "{width}");
+        }
+        for (width, ok) in [(-1, false), (0, true), (50_000, true), (50_001, false)] {
+            cfg.brim_width_um = width;
+            let want = if ok {
+                Ok(())
+            } else {
+                Err(ToolpathError::InvalidConfig { field: "brim_width_um" })
+            };
+            assert_eq!(cfg.validate(), want, "{width}");
+        }
+        assert_eq!(IDLE_CONFIG.brim_loops(), 0);
+    }
 
     #[test]
     fn sparse_lines_are_the_fraction_spread_evenly() {

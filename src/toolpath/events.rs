@@ -38,11 +38,13 @@ pub enum Feature {
     BridgeInfill,
     /// A perimeter over no material of the layer below.
     OverhangPerimeter,
+    /// A brim loop around the first layer's islands.
+    Brim,
 }
 
 impl Feature {
     /// Every feature, at the index of its code (`as u8`).
-    pub const ALL: [Feature; 12] = [
+    pub const ALL: [Feature; 13] = [
         Feature::ExternalPerimeter,
         Feature::Perimeter,
         Feature::InternalInfill,
@@ -55,6 +57,7 @@ impl Feature {
         Feature::Dwell,
         Feature::BridgeInfill,
         Feature::OverhangPerimeter,
+        Feature::Brim,
     ];
 }
 

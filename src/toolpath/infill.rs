@@ -19,6 +19,7 @@
 //! zigzag and grid patterns.
 
 use crate::geom::Point2;
+use crate::math::isqrt_u64;
 
 use super::paths::{PathBuf, PathKind};
 use super::poly::{dist, segment_touches_rings, Ring};
@@ -853,9 +854,16 @@ fn tag_overhangs<const N: usize>(p: &FillParams, segs: &Segs<'_>, paths: &mut Pa
             // The move reaching point k (a loop's first from its last point).
             let pts = paths.points(&r);
             let (a, b) = (pts.at((k + n - 1) % n), pts.at(k));
-            let mid = Point2::new(a.x + (b.x - a.x) / 2, a.y + (b.y - a.y) / 2);
+            // Its middle, moved half a line into the material (on the loops' left): the
+            // nearest line, half a step away at most, then still crosses the layer there.
+            let (dx, dy) = (i64::from(b.x - a.x), i64::from(b.y - a.y));
+            let len = isqrt_u64((dx * dx + dy * dy) as u64).max(1) as i64;
+            let half = i64::from(p.width_um / 2);
+            let mid = Point2::new(
+                (i64::from(a.x) + dx / 2 - dy * half / len) as i32,
+                (i64::from(a.y) + dy / 2 + dx * half / len) as i32,
+            );
             let (t, u) = p.angle.key(mid);
-            // The nearest line, half a step away at most.
             let line = (2 * t + p.step).div_euclid(2 * p.step);
             if air(line, u) {
                 paths.set_feature(i, k, Feature::OverhangPerimeter);

@@ -37,7 +37,10 @@
 //!    line elsewhere; segments are
 //!    linked into long runs along the domain boundary (zigzag) and straight between the
 //!    inner ends of skin segments;
-//! 4. the first layer gets a skirt: the convex hull offset 3 mm + width/2 with round joins;
+//! 4. the first layer gets a skirt: the convex hull offset 3 mm + width/2 with round joins
+//!    (plus the brim's width); and a brim if asked ([`ToolpathConfig::brim_width_um`]):
+//!    `floor(width / line width)` loops, the union of its outer loops (not its holes) offset
+//!    by `(k + 1/2) x line width` with round joins, printed after the skirt, outermost first;
 //! 5. paths are ordered and turned into moves ([`order`]): islands nearest first; in each,
 //!    inner perimeters before the external one (each hole's loops together), then the infill
 //!    runs, nearest first from either end; loops start at the rear-most vertex; the nearest
@@ -133,7 +136,7 @@ mod thin;
 pub mod window;
 
 use config::IDLE_CONFIG;
-pub use config::{Seam, SparseLines, ToolpathConfig};
+pub use config::{Seam, SparseLines, ToolpathConfig, MAX_BRIM_WIDTH_UM};
 pub use error::{Buffer, ToolpathError};
 pub use events::{Emitted, Feature, Moves, Room, ToolEvent, ToolMove};
 pub use space::{Engine, ToolpathScratch, ToolpathSpace};
@@ -741,9 +744,12 @@ impl<
         let islands = StoredRings::islands(self.ring.data(&blk));
         layer.islands = u32::from(islands);
         let w = cfg.line_width_um;
-        // Skirt around the first layer.
+        // Skirt around the first layer (and its brim), then the brim.
         if l == FIRST_LAYER && cfg.skirt_loops > 0 && !self.contour.rings().is_empty() {
             self.skirt(work)?;
+        }
+        if l == FIRST_LAYER && cfg.brim_loops() > 0 {
+            self.brim(work, &mut || sink(&ToolEvent::Progress))?;
         }
         // Perimeters and the infill domain, island by island.
         let min_width = i64::from(w / 8);
@@ -984,9 +990,13 @@ impl<
         }
     }
 
-    /// The skirt: convex hull of the first layer, offset outwards with round joins.
+    /// The skirt: convex hull of the first layer, offset outwards with round joins (past the
+    /// brim: the skirt distance counts from the brim's outer edge).
     fn skirt<W: ToolpathSpace<PTS, CROSS>>(&mut self, work: &mut W) -> Result<(), Buffer> {
-        let (cfg, limit) = (self.cfg, self.offset_limit());
+        let limit = self.offset_limit();
+        // Line width, loops and the first loop's offset, um (no copy of the settings on the stack).
+        let (w, loops) = (self.cfg.line_width_um, i32::from(self.cfg.skirt_loops));
+        let first = self.cfg.skirt_distance_um + self.cfg.brim_extent_um() + w / 2;
         // Sort all points (in `tmp`), then Andrew's monotone chain into `fill`.
         let (engine, points) = work.engine_and_points();
         let mut tmp = Loops::new(points, &mut self.tmp);
@@ -1024,8 +1034,8 @@ impl<
         self.fill.close(u16::MAX, 0, Ring::NO_PARENT)?;
         tmp.clear();
         let Some(&hull_ring) = self.fill.rings().first() else { return Ok(()) };
-        for k in 0..i32::from(cfg.skirt_loops) {
-            let d = cfg.skirt_distance_um + cfg.line_width_um / 2 + k * cfg.line_width_um;
+        for k in 0..loops {
+            let d = first + k * w;
             let hull = self.fill.ring_points(&hull_ring);
             tmp.clear();
             engine.union_into(&mut tmp, u16::MAX, 0, 1, limit, |engine| {
@@ -1065,6 +1075,45 @@ impl<
             }
         }
         Ok(best.0)
+    }
+
+    /// The brim: loop `k` (of [`ToolpathConfig::brim_loops`]) is the union of the first
+    /// layer's outer loops (holes left out: no brim inside them) offset outwards by
+    /// `(k + 1/2) x width` with round joins, simplified like the contours; outermost first.
+    /// Islands whose loops meet share them. `progress` after each loop.
+    fn brim<W: ToolpathSpace<PTS, CROSS>>(
+        &mut self,
+        work: &mut W,
+        progress: &mut dyn FnMut(),
+    ) -> Result<(), Buffer> {
+        let limit = self.offset_limit();
+        let (w, loops) = (self.cfg.line_width_um, self.cfg.brim_loops());
+        let tol = i64::from(self.cfg.simplify_tolerance_um);
+        let (engine, points) = work.engine_and_points();
+        let mut tmp = Loops::new(points, &mut self.tmp);
+        let contour = &self.contour;
+        for k in (0..loops).rev() {
+            let d = w / 2 + k * w;
+            tmp.clear();
+            engine.union_into(&mut tmp, u16::MAX, 0, 1, limit, |engine| {
+                for r in contour.rings().iter().filter(|r| !r.is_hole()) {
+                    engine.add_loop(contour.ring_points(r), -d, Join::Round)?;
+                }
+                Ok(())
+            })?;
+            // Every loop of the union, its holes too (the gaps islands enclose).
+            for r in tmp.rings() {
+                let mut pushed = Ok(());
+                simplify::simplify_closed_each(tmp.ring_points(r), tol, |p| {
+                    pushed = pushed.and_then(|()| self.paths.push(p, Feature::Brim));
+                });
+                pushed?;
+                self.paths.end(u16::MAX, PathKind::Brim, true, true)?;
+            }
+            progress();
+        }
+        tmp.clear();
+        Ok(())
     }
 
     /// One infill pass of layer `l` at `angle` (`solid`: skins too, else sparse only), with

@@ -16,6 +16,8 @@ use super::{Buffer, Feature};
 pub enum PathKind {
     /// The skirt loop (first layer).
     Skirt,
+    /// A brim loop (first layer): printed after the skirt, nearest first.
+    Brim,
     /// A perimeter loop; 0 is the external one.
     Perimeter(u8),
     /// An infill run (sparse, solid or top, possibly mixed).
@@ -31,7 +33,7 @@ pub struct PathRec {
     pub len: u32,
     /// The island it belongs to.
     pub island: u16,
-    /// Skirt, perimeter or infill.
+    /// Skirt, brim, perimeter or infill.
     pub kind: PathKind,
     /// Closed loop (the last point joins the first).
     pub closed: bool,
@@ -79,7 +81,7 @@ impl<const N: usize> Default for PathBuf<N> {
 /// One stored point (or half a record): 48 bits, low word first.
 pub type Slot = [u16; 3];
 
-/// Record flags (above the kind code, whose largest value `2 + 255` takes 9 bits).
+/// Record flags (above the kind code, whose largest value `3 + 255` takes 9 bits).
 const CLOSED: u16 = 1 << 12;
 const REVERSIBLE: u16 = 1 << 13;
 const DONE: u16 = 1 << 14;
@@ -181,12 +183,13 @@ impl PathPoints<'_> {
 }
 
 impl PathKind {
-    /// 0 skirt, 1 infill, `2 + depth` perimeter.
+    /// 0 skirt, 1 infill, 2 brim, `3 + depth` perimeter.
     fn code(self) -> u16 {
         match self {
             Self::Skirt => 0,
             Self::Infill => 1,
-            Self::Perimeter(d) => 2 + u16::from(d),
+            Self::Brim => 2,
+            Self::Perimeter(d) => 3 + u16::from(d),
         }
     }
 
@@ -194,7 +197,8 @@ impl PathKind {
         match c {
             0 => Self::Skirt,
             1 => Self::Infill,
-            _ => Self::Perimeter((c - 2).clamp(0, 255) as u8),
+            2 => Self::Brim,
+            _ => Self::Perimeter((c - 3).clamp(0, 255) as u8),
         }
     }
 }
@@ -428,6 +432,29 @@ impl<const N: usize> PathBuf<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_kind_survives_its_record() {
+        let kinds = [
+            PathKind::Skirt,
+            PathKind::Brim,
+            PathKind::Infill,
+            PathKind::Perimeter(0),
+            PathKind::Perimeter(255),
+        ];
+        let mut b = PathBuf::<64>::new();
+        for (i, &kind) in kinds.iter().enumerate() {
+            let pts = [Point2::new(0, 0), Point2::new(10, 0), Point2::new(i as i32, 10)];
+            b.add_loop(&pts, Feature::Brim, i as u16, kind).unwrap();
+        }
+        for (i, &kind) in kinds.iter().enumerate() {
+            let r = b.rec(i);
+            assert_eq!((r.kind, r.island, r.closed, r.done), (kind, i as u16, true, false));
+            assert_eq!(b.points(&r).feature(1), Feature::Brim);
+        }
+        b.set_done(1);
+        assert_eq!((b.rec(1).kind, b.rec(1).done), (PathKind::Brim, true));
+    }
 
     #[test]
     fn records_share_the_points_and_sort_by_island() {

@@ -108,7 +108,7 @@ impl Ctx<'_> {
             Feature::Travel | Feature::Dwell => c.travel_speed_mm_s,
             Feature::Retract | Feature::Unretract => c.retract_speed_mm_s,
             _ if self.first_layer => c.first_layer_speed_mm_s,
-            Feature::ExternalPerimeter | Feature::Perimeter | Feature::Skirt => {
+            Feature::ExternalPerimeter | Feature::Perimeter | Feature::Skirt | Feature::Brim => {
                 c.perimeter_speed_mm_s
             }
             Feature::InternalInfill | Feature::SolidInfill | Feature::TopSolidInfill => {

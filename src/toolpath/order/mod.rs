@@ -1,5 +1,9 @@
 //! Ordering: one layer's paths become units of moves, in the order they print.
 //!
+//! The first layer's skirt loops go first, in the order they were made, then its brim loops,
+//! each the nearest one left (from the outermost inwards, one brim after the other when the
+//! islands' brims are apart).
+//!
 //! Islands are visited nearest first. Within an island the perimeters go inner to outer (the
 //! external perimeter last, by default) and then the infill runs, each stage nearest first
 //! from where the nozzle is; loops start at their seam (the rear-most vertex, or the nearest
@@ -85,10 +89,30 @@ fn entry<const N: usize>(
     }
 }
 
+/// The brim loop not yet printed whose nearest vertex is nearest to `from` (lowest index
+/// among equals): (index, start point, reversed).
+fn nearest_brim<const N: usize>(
+    paths: &PathBuf<N>,
+    seam: Seam,
+    from: Point2,
+) -> Option<(usize, usize, bool)> {
+    let mut best: Option<(i64, usize, usize, bool)> = None;
+    for i in 0..paths.len() {
+        let r = paths.rec(i);
+        if r.kind == PathKind::Brim && !r.done {
+            let (start, rev, d) = entry(paths, &r, seam, from);
+            if best.map_or(true, |b| d < b.0) {
+                best = Some((d, i, start, rev));
+            }
+        }
+    }
+    best.map(|(_, i, start, rev)| (i, start, rev))
+}
+
 /// Stage of a path within its island: lower first.
 fn stage(r: &PathRec, cfg: &ToolpathConfig) -> u8 {
     match r.kind {
-        PathKind::Skirt => 0,
+        PathKind::Skirt | PathKind::Brim => 0,
         PathKind::Perimeter(d) => {
             if cfg.outer_perimeter_last {
                 cfg.perimeters.saturating_sub(d)
@@ -393,7 +417,8 @@ struct IslandCursor {
 enum Phase {
     /// No layer is being emitted.
     Idle,
-    /// The skirt loops, in path order, from path `from` on.
+    /// The skirt loops, in path order, from path `from` on; then the brim loops, nearest
+    /// first.
     Skirt { from: usize },
     /// The islands, nearest first (`None`: between two islands).
     Islands(Option<IslandCursor>),
@@ -407,8 +432,9 @@ enum Phase {
 
 /// The emission of one layer's paths, resumable between units.
 ///
-/// The skirt first (in order), then the islands nearest first, in each the stages in order and the
-/// nearest path first (see the [module docs](self)), then the wait for the rest of the layer's
+/// The skirt first (in order), then the brim (nearest loop first), then the islands nearest
+/// first, in each the stages in order and the nearest path first (see the
+/// [module docs](self)), then the wait for the rest of the layer's
 /// minimum time if it has one ([`Ctx::cool_wait_ms`]), then a move to the layer's height if none
 /// went there. Each [`emit`](Self::emit) call emits whole units while the room it was given takes them
 /// (each opened with its exact moves, kept or undone at its end); the state between calls is this
@@ -562,6 +588,13 @@ impl Emission {
                         *from = i + 1;
                         let (start, rev, _) = entry(paths, &paths.rec(i), seam, em.pos);
                         return plan(paths, i, start, rev, 0);
+                    }
+                    // The brim loops (first layer only), each from its vertex nearest the
+                    // nozzle: a scan of the layer's paths per loop.
+                    if ctx.first_layer && cfg.brim_width_um > 0 {
+                        if let Some((i, start, rev)) = nearest_brim(paths, seam, em.pos) {
+                            return plan(paths, i, start, rev, 0);
+                        }
                     }
                     // Rear seams: every perimeter loop starts at its rear-most vertex.
                     if seam == Seam::Rear {
