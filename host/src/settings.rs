@@ -199,6 +199,9 @@ pub fn toolpath_config_of(
     settings: &PrintSettings,
 ) -> Result<ToolpathConfig, String> {
     let mut cfg = ToolpathConfig::new(machine, settings);
+    // Small layers slow down (then wait, lifted) to the printer's minimum layer time, as
+    // they do when it slices them itself.
+    cfg.min_layer_time_ms = strata::printer::board::MIN_LAYER_TIME_MS;
     cfg.outer_perimeter_last = !args.outer_perimeter_first;
     if let Some(seam) = args.seam {
         cfg.seam = match seam {

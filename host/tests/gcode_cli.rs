@@ -115,8 +115,11 @@ fn gcode_has_start_layers_types_and_end_and_matches_the_summary() {
     let (mut extrusions, mut travels, mut retractions) = (0u64, 0u64, 0u64);
     let (mut filament, mut travel) = (0.0f64, 0.0f64);
     let mut feeds = std::collections::BTreeSet::new();
-    let mut last_z = 0.0;
+    let (mut last_z, mut bridge) = (0.0, false);
     for l in print_body(&g) {
+        if let Some(t) = l.strip_prefix(";TYPE:") {
+            bridge = t == "Bridge infill";
+        }
         let Some(m) = parse(l) else { continue };
         let (nx, ny, nz) = (m.x.unwrap_or(x), m.y.unwrap_or(y), m.z.unwrap_or(z));
         let moved = nx != x || ny != y;
@@ -129,9 +132,12 @@ fn gcode_has_start_layers_types_and_end_and_matches_the_summary() {
                 assert!(e > 0.0, "{l}");
                 extrusions += 1;
                 filament += e;
-                // E = w h L / (pi 1.75^2 / 4) within rounding.
-                let want = 0.45 * 0.2 * (nx - x).hypot(ny - y)
-                    / (std::f64::consts::PI * 1.75 * 1.75 / 4.0);
+                // E = w h L / (pi 1.75^2 / 4) within rounding; a bridge (the skin's lowest
+                // layer over sparse infill) a round thread: pi w^2 / 4 for w h.
+                let section =
+                    if bridge { std::f64::consts::PI * 0.45 * 0.45 / 4.0 } else { 0.45 * 0.2 };
+                let want =
+                    section * (nx - x).hypot(ny - y) / (std::f64::consts::PI * 1.75 * 1.75 / 4.0);
                 assert!((e - want).abs() <= 0.0015, "{l}: E {e} vs {want}");
             }
             (false, Some(e)) if e < 0.0 => retractions += 1,
@@ -159,8 +165,9 @@ fn gcode_has_start_layers_types_and_end_and_matches_the_summary() {
         "{travel} vs {}",
         j["travel_mm"]
     );
-    // Feed rates: first layer 20 mm/s, perimeters 45, infill 60, travel 150, retraction 45.
-    for f in [1200, 2700, 3600, 9000] {
+    // Feed rates: first layer 20 mm/s, perimeters 45, infill 60, travel 150, retraction 45,
+    // bridges 25.
+    for f in [1200, 2700, 3600, 9000, 1500] {
         assert!(feeds.contains(&f), "F{f} missing: {feeds:?}");
     }
     // The part: one island with a hole, so the only retraction is the skirt-to-part travel.
@@ -224,7 +231,7 @@ fn a_thin_fin_is_reported_in_the_json_and_the_text_output() {
 #[test]
 fn a_bridge_is_tagged_and_printed_straight_across_at_bridge_speed() {
     // Two 6 x 6 x 3 mm posts 20 mm apart joined by a 1 mm plate: its first layer (z 3.2 mm)
-    // is bridge lines along x across the gap (x 106..126 mm), at 25 mm/s (F1500).
+    // is bridge lines along x across the gap, at 25 mm/s (F1500).
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("bridge.stl");
     let mut mesh = strata_testkit::mesh::cuboid([100.0, 100.0, 0.0], [106.0, 106.0, 3.0]);
@@ -254,9 +261,11 @@ fn a_bridge_is_tagged_and_printed_straight_across_at_bridge_speed() {
                 first.push(to.0);
             }
             if in_bridge {
-                assert!((z - 3.2).abs() < 1e-6, "a bridge at z {z}: {line}");
                 assert_eq!(feed, 1500.0, "{line}");
-                bridges.push((pos, to));
+                // The plate's first layer; above it, internal bridges over the posts.
+                if (z - 3.2).abs() < 1e-6 {
+                    bridges.push((pos, to));
+                }
             }
         }
         pos = to;
@@ -276,6 +285,44 @@ fn a_bridge_is_tagged_and_printed_straight_across_at_bridge_speed() {
     let n = across.len() as f64;
     let fit = ((6.0 - 4.0 * 0.45) / 0.45_f64).floor();
     assert!(n == fit || n == fit + 1.0, "{n} lines: {across:?}");
+}
+
+#[test]
+fn small_layers_take_at_least_the_minimum_layer_time() {
+    // A 4 x 4 x 2 mm block: each layer prints in about a second at full speed; the G-code
+    // slows it (and waits with G4 beyond the slowest feed) to 5 s a layer, as the printer
+    // does when it slices.
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("small.stl");
+    write_mesh(&model, &strata_testkit::mesh::cuboid([0.0, 0.0, 0.0], [4.0, 4.0, 2.0]));
+    let out = dir.path().join("small.gcode");
+    Command::cargo_bin("strata")
+        .unwrap()
+        .args(["slice", model.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .assert()
+        .success();
+    let gcode = std::fs::read_to_string(&out).unwrap();
+    // Each layer's time from its moves (length / feed, no acceleration: a lower bound) and
+    // its dwells.
+    let (mut times, mut pos, mut feed) = (Vec::new(), (0.0f64, 0.0f64), 1.0f64);
+    for line in print_body(&gcode) {
+        if line == ";LAYER_CHANGE" {
+            times.push(0.0);
+        }
+        let Some(t) = times.last_mut() else { continue };
+        if let Some(ms) = line.strip_prefix("G4 P") {
+            *t += ms.split_whitespace().next().unwrap().parse::<f64>().unwrap() / 1000.0;
+        }
+        let Some(m) = parse(line) else { continue };
+        feed = m.f.unwrap_or(feed * 60.0) / 60.0;
+        let to = (m.x.unwrap_or(pos.0), m.y.unwrap_or(pos.1));
+        *t += (to.0 - pos.0).hypot(to.1 - pos.1) / feed;
+        pos = to;
+    }
+    assert_eq!(times.len(), 10);
+    for (l, t) in times.iter().enumerate() {
+        assert!(*t >= 5.0 * 0.999, "layer {l}: {t:.2} s");
+    }
 }
 
 #[test]

@@ -854,18 +854,19 @@ fn tag_overhangs<const N: usize>(p: &FillParams, segs: &Segs<'_>, paths: &mut Pa
             // The move reaching point k (a loop's first from its last point).
             let pts = paths.points(&r);
             let (a, b) = (pts.at((k + n - 1) % n), pts.at(k));
-            // Its middle, moved half a line into the material (on the loops' left): the
-            // nearest line, half a step away at most, then still crosses the layer there.
+            // Its middle, moved a line width into the material (on the loops' left, a width
+            // and a half from the edge): the lines either side (two widths apart) then cross
+            // the layer there unless the edge runs along them; over air on both.
             let (dx, dy) = (i64::from(b.x - a.x), i64::from(b.y - a.y));
             let len = isqrt_u64((dx * dx + dy * dy) as u64).max(1) as i64;
-            let half = i64::from(p.width_um / 2);
+            let w = i64::from(p.width_um);
             let mid = Point2::new(
-                (i64::from(a.x) + dx / 2 - dy * half / len) as i32,
-                (i64::from(a.y) + dy / 2 + dx * half / len) as i32,
+                (i64::from(a.x) + dx / 2 - dy * w / len) as i32,
+                (i64::from(a.y) + dy / 2 + dx * w / len) as i32,
             );
             let (t, u) = p.angle.key(mid);
-            let line = (2 * t + p.step).div_euclid(2 * p.step);
-            if air(line, u) {
+            let line = t.div_euclid(p.step);
+            if air(line, u) && air(line + 1, u) {
                 paths.set_feature(i, k, Feature::OverhangPerimeter);
             }
         }

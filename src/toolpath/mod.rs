@@ -1186,7 +1186,9 @@ impl<
             }
         }
         let spacing = cfg.line_width_um;
-        let step = angle.line_step(spacing);
+        // Overhangs are located on lines two widths apart: fewer crossings of the layer's
+        // outline than the infill's of its domain.
+        let step = angle.line_step(if over_air == OverAir::Locate { 2 * spacing } else { spacing });
         let params = FillParams {
             angle,
             step,
