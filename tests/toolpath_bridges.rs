@@ -5,8 +5,8 @@
 mod toolpath_support;
 
 use strata::geom::Point2;
-use strata::machine::{MachineConfig, PrintSettings};
-use strata::toolpath::{Feature, ToolMove, ToolpathConfig};
+use strata::machine::{MachineConfig, PrintSettings, Rate};
+use strata::toolpath::{Feature, ToolMove, ToolpathConfig, BRIDGE_SPEED_MM_S};
 use strata_testkit::mesh::{bridge_part, to_um, TriMm};
 use toolpath_support::{extrusions, layer_starts, run_cfg, TpRun};
 
@@ -60,7 +60,6 @@ fn a_20mm_bridge_between_two_posts_prints_straight_anchored_lines_at_bridge_spee
     for along_y in [false, true] {
         let what = if along_y { "gap along y" } else { "gap along x" };
         let run = run_with(&posts_and_plate(along_y), true);
-        let cfg = ToolpathConfig::new(&MachineConfig::default(), &PrintSettings::default());
         // (along the gap, across it) of a point: the gap is 110..130 mm along the first.
         let axes = |p: Point2| if along_y { (p.y, p.x) } else { (p.x, p.y) };
         let l = layer_above(&run, 10_000);
@@ -102,7 +101,7 @@ fn a_20mm_bridge_between_two_posts_prints_straight_anchored_lines_at_bridge_spee
         assert!(inner.1 - f64::from(*across.last().unwrap()) <= W, "{what}: {across:?}");
         // Bridge speed, and the filament of a round thread one line wide.
         for (from, m) in &bridges {
-            assert_eq!(m.feed_mm_s, cfg.bridge_speed_mm_s, "{what}");
+            assert_eq!(m.feed_mm_s, Rate::from_num(BRIDGE_SPEED_MM_S), "{what}");
             let len = f64::from(m.to.x - from.x).hypot(f64::from(m.to.y - from.y));
             let want = len * (W / FILAMENT).powi(2);
             assert!((f64::from(m.e_um) - want).abs() <= 1.0 + want * 1e-3, "{what}: {m:?}");

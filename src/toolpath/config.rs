@@ -11,8 +11,9 @@ use super::*;
 /// ("Lift Head"), clear of the part's tip.
 pub const COOL_LIFT_UM: i32 = 3_000;
 
-/// The default bridge speed, mm/s: slow enough for a thread over air to set under the fan
-/// (about half the default infill speed).
+/// The bridge and overhang perimeter speed, mm/s: slow enough for a thread over air to set
+/// under the fan (about half the default infill speed). A constant, not a setting: every
+/// copy of the settings on the board's stack stays as it was.
 pub const BRIDGE_SPEED_MM_S: u16 = 25;
 
 /// The widest brim [`ToolpathConfig::validate`] takes, um (PrusaSlicer's brim width is
@@ -77,13 +78,11 @@ pub struct ToolpathConfig {
     /// Where loops start.
     pub seam: Seam,
     /// Skin over no material of the layer below prints as bridges: straight lines in the
-    /// direction that anchors most of them on both sides, at `bridge_speed_mm_s`, each a
+    /// direction that anchors most of them on both sides, at [`BRIDGE_SPEED_MM_S`], each a
     /// round thread one line wide ([`Feature::BridgeInfill`]); so does the lowest layer of a
     /// top skin over sparse infill (an internal bridge); perimeters over no material slow to
     /// the bridge speed ([`Feature::OverhangPerimeter`]).
     pub bridges: bool,
-    /// Bridge and overhang perimeter speed, mm/s.
-    pub bridge_speed_mm_s: Rate,
     /// Contour simplification tolerance, um.
     pub simplify_tolerance_um: i32,
     /// Once a layer is built, its contours stay in the skin window only for the bottom skins
@@ -141,7 +140,6 @@ impl ToolpathConfig {
             brim_width_um: 0,
             seam: Seam::Rear,
             bridges: true,
-            bridge_speed_mm_s: Rate::from_num(BRIDGE_SPEED_MM_S),
             simplify_tolerance_um: 10,
             below_tolerance_um: 0,
             min_retract_travel_um: 1_500,
@@ -176,7 +174,6 @@ impl ToolpathConfig {
             ("below_tolerance_um", (0..=self.line_width_um).contains(&self.below_tolerance_um)),
             ("min_retract_travel_um", self.min_retract_travel_um >= 0),
             ("travel_speed_mm_s", self.travel_speed_mm_s > 0),
-            ("bridge_speed_mm_s", self.bridge_speed_mm_s > 0),
             ("perimeter_speed_mm_s", self.perimeter_speed_mm_s > 0),
             ("infill_speed_mm_s", self.infill_speed_mm_s > 0),
             ("first_layer_speed_mm_s", self.first_layer_speed_mm_s > 0),
@@ -312,7 +309,6 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     brim_width_um: 0,
     seam: Seam::Rear,
     bridges: false,
-    bridge_speed_mm_s: Rate::ZERO,
     simplify_tolerance_um: 0,
     below_tolerance_um: 0,
     min_retract_travel_um: 0,

@@ -353,6 +353,9 @@ pub struct FillUse {
     pub spans: usize,
     /// The stretches over air the last pass met (kept here, not on the stack).
     pub bridge: BridgeTally,
+    /// Segments and pieces an [`OverAir::Locate`] pass left in the pool, for
+    /// [`tag_overhangs`].
+    pub located: (usize, usize),
 }
 
 /// Cursor over one window layer's spans on the current line, `spans[idx..end]` left (its
@@ -802,7 +805,7 @@ pub fn fill<const N: usize>(
         return Err(Buffer::LineSegments);
     }
     if params.over_air == OverAir::Locate {
-        tag_overhangs(&params, &segs, paths);
+        usage.located = (segs.nseg, segs.npieces);
         return Ok(());
     }
     // The order is done with: segment ends at crossings instead.
@@ -821,10 +824,19 @@ pub fn fill<const N: usize>(
     link(points, rings, &params, cross, cend, &mut segs, paths)
 }
 
-/// Marks the perimeters' moves over air ([`OverAir::Locate`]; `segs`: the stretches of the
-/// region over air, line by line). Not inlined: the infill pass's frame stays as it was.
-#[inline(never)]
-fn tag_overhangs<const N: usize>(p: &FillParams, segs: &Segs<'_>, paths: &mut PathBuf<N>) {
+/// Marks the perimeters' moves over air: `pool` holds the stretches of the layer's region
+/// over air, line by line, that an [`OverAir::Locate`] pass at `angle` (lines `step` apart)
+/// left ([`FillUse::located`]). Called by the layer's builder after that pass, not inside
+/// it: the stack stays as deep as the infill's.
+pub fn tag_overhangs<const N: usize>(
+    pool: &mut [u32],
+    (nseg, npieces): (usize, usize),
+    angle: Angle,
+    step: i64,
+    width_um: i32,
+    paths: &mut PathBuf<N>,
+) {
+    let segs = Segs { w: pool, nseg, npieces };
     if segs.nseg == 0 {
         return;
     }
@@ -859,13 +871,13 @@ fn tag_overhangs<const N: usize>(p: &FillParams, segs: &Segs<'_>, paths: &mut Pa
             // the layer there unless the edge runs along them; over air on both.
             let (dx, dy) = (i64::from(b.x - a.x), i64::from(b.y - a.y));
             let len = isqrt_u64((dx * dx + dy * dy) as u64).max(1) as i64;
-            let w = i64::from(p.width_um);
+            let w = i64::from(width_um);
             let mid = Point2::new(
                 (i64::from(a.x) + dx / 2 - dy * w / len) as i32,
                 (i64::from(a.y) + dy / 2 + dx * w / len) as i32,
             );
-            let (t, u) = p.angle.key(mid);
-            let line = t.div_euclid(p.step);
+            let (t, u) = angle.key(mid);
+            let line = t.div_euclid(step);
             if air(line, u) && air(line + 1, u) {
                 paths.set_feature(i, k, Feature::OverhangPerimeter);
             }

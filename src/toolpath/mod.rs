@@ -136,7 +136,7 @@ mod thin;
 pub mod window;
 
 use config::IDLE_CONFIG;
-pub use config::{Seam, SparseLines, ToolpathConfig, MAX_BRIM_WIDTH_UM};
+pub use config::{Seam, SparseLines, ToolpathConfig, BRIDGE_SPEED_MM_S, MAX_BRIM_WIDTH_UM};
 pub use error::{Buffer, ToolpathError};
 pub use events::{Emitted, Feature, Moves, Room, ToolEvent, ToolMove};
 pub use space::{Engine, ToolpathScratch, ToolpathSpace};
@@ -180,6 +180,10 @@ macro_rules! toolpath_type {
 
 /// Layers (0 and 1 for the ring) the window must hold beyond `top` and `bottom`.
 const FIRST_LAYER: u32 = 0;
+
+/// Overhang perimeters are located on lines this many line widths apart: fewer crossings of
+/// the layer's outline than the infill's of its domain.
+const LOCATE_SPACING: i32 = 2;
 
 /// The infill scratch (`CROSS` entries each).
 ///
@@ -293,7 +297,13 @@ impl<
             emission: Emission::new(),
             next_in: 0,
             next_out: 0,
-            fill_use: FillUse { crossings: 0, segments: 0, spans: 0, bridge: BridgeTally::NONE },
+            fill_use: FillUse {
+                crossings: 0,
+                segments: 0,
+                spans: 0,
+                bridge: BridgeTally::NONE,
+                located: (0, 0),
+            },
             stats: ToolpathStats::EMPTY,
             stopped: Some(ToolpathError::Finished),
         }
@@ -812,6 +822,16 @@ impl<
         if cfg.bridges && l > FIRST_LAYER && !self.paths.is_empty() {
             let mut progress = || sink(&ToolEvent::Progress);
             self.infill_pass(work, l, Angle::D45, true, OverAir::Locate, &mut progress)?;
+            let (step, w) = (Angle::D45.line_step(LOCATE_SPACING * w), cfg.line_width_um);
+            let pool = work.fill().pool.as_flattened_mut();
+            infill::tag_overhangs(
+                pool,
+                self.fill_use.located,
+                Angle::D45,
+                step,
+                w,
+                &mut self.paths,
+            );
         }
         layer.paths = self.paths.len() as u32;
         // Emit.
@@ -1128,7 +1148,8 @@ impl<
         progress: &mut dyn FnMut(),
     ) -> Result<(), Buffer> {
         self.park_engine(work);
-        let cfg = self.cfg;
+        // Borrowed, not copied: the pass's frame is the deepest of the layer's.
+        let cfg = &self.cfg;
         // A bridge pass sees only the layer below (fewer window spans a line).
         let bridging = matches!(over_air, OverAir::Bridge | OverAir::Measure | OverAir::Locate);
         let (top, bottom) = if bridging {
@@ -1186,9 +1207,11 @@ impl<
             }
         }
         let spacing = cfg.line_width_um;
-        // Overhangs are located on lines two widths apart: fewer crossings of the layer's
-        // outline than the infill's of its domain.
-        let step = angle.line_step(if over_air == OverAir::Locate { 2 * spacing } else { spacing });
+        let step = angle.line_step(if over_air == OverAir::Locate {
+            LOCATE_SPACING * spacing
+        } else {
+            spacing
+        });
         let params = FillParams {
             angle,
             step,

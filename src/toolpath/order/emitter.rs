@@ -114,7 +114,9 @@ impl Ctx<'_> {
             Feature::InternalInfill | Feature::SolidInfill | Feature::TopSolidInfill => {
                 c.infill_speed_mm_s
             }
-            Feature::BridgeInfill | Feature::OverhangPerimeter => c.bridge_speed_mm_s,
+            Feature::BridgeInfill | Feature::OverhangPerimeter => {
+                Rate::from_num(super::super::BRIDGE_SPEED_MM_S)
+            }
         }
     }
 
