@@ -163,7 +163,7 @@ const GOLDEN_LONG: [u8; 24] =
     [1, 0, 0, 0, 0, 0, 0, 0, 212, 48, 0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0];
 
 /// The job of the golden and round-trip tests: the default settings but a 0.16 mm layer and
-/// 35 % infill; outer perimeter first, nearest seams, two skirt loops 4 mm out, a 5 mm brim.
+/// 35 % infill; outer perimeter first, nearest seams, two skirt loops 4 mm out, 11 brim loops.
 fn sample_job() -> JobSpec {
     let mut settings = PrintSettings::default();
     settings.layer_height_um = 160;
@@ -175,7 +175,7 @@ fn sample_job() -> JobSpec {
             seam: 1,
             skirt_loops: 2,
             skirt_distance_um: 4000,
-            brim_width_um: 5000,
+            brim_loops: 11,
         },
         model_height_um: 48_000,
         triangles: 225_154,
@@ -194,7 +194,7 @@ fn golden_job_start() {
 // perimeters 2, infill 35, pattern 1 (zigzag), top 4, bottom 4 (u8 each), hotend 200, bed 60
 // (u16), speeds 45, 60, 150, 20 mm/s (U32F32 bits: the whole mm/s in the high word),
 // retraction 5000 um (i32) at 45 mm/s, minimum loop area 10,000 um^2 (u64); the options:
-// outer perimeter last 0, seam 1, skirt loops 2 (u8 each), skirt distance 4000, brim 5000 um
+// outer perimeter last 0, seam 1, skirt loops 2 (u8 each), skirt distance 4000, brim loops 11
 // (i32 each); model height 48,000 um (i32), triangles 225,154 (u32): 93 bytes.
 #[rustfmt::skip]
 const GOLDEN_JOB_START: [u8; 93] = [
@@ -206,7 +206,7 @@ const GOLDEN_JOB_START: [u8; 93] = [
     0, 0, 0, 0, 150, 0, 0, 0,  0, 0, 0, 0, 20, 0, 0, 0,
     0x88, 0x13, 0, 0,  0, 0, 0, 0, 45, 0, 0, 0,
     0x10, 0x27, 0, 0, 0, 0, 0, 0,
-    0, 1, 2,  0xa0, 0x0f, 0, 0,  0x88, 0x13, 0, 0,
+    0, 1, 2,  0xa0, 0x0f, 0, 0,  11, 0, 0, 0,
     0x80, 0xbb, 0, 0,  0x82, 0x6f, 0x03, 0,
 ];
 

@@ -230,7 +230,9 @@ pub fn job_of(args: &PrintArgs, tris: &[Triangle]) -> Result<JobSpec, String> {
             seam: matches!(cfg.seam, Seam::Nearest) as u8,
             skirt_loops: cfg.skirt_loops,
             skirt_distance_um: cfg.skirt_distance_um,
-            brim_width_um: cfg.brim_width_um,
+            brim_loops: u8::try_from(cfg.brim_loops()).map_err(|_| {
+                format!("--brim: {} loops of this line width; at most 255", cfg.brim_loops())
+            })?,
         },
         model_height_um: top,
         triangles: tris.len() as u32,

@@ -155,7 +155,8 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     cfg.seam = if job.options.seam == 1 { Seam::Nearest } else { Seam::Rear };
     cfg.skirt_loops = job.options.skirt_loops;
     cfg.skirt_distance_um = job.options.skirt_distance_um;
-    cfg.brim_width_um = job.options.brim_width_um;
+    // The loops the host counted, as the width that holds exactly them.
+    cfg.brim_width_um = i32::from(job.options.brim_loops) * cfg.line_width_um;
     // The thin-area figures are a host report (`strata slice`); the printer makes the same
     // toolpaths without them and saves an offset per island and layer.
     cfg.measure_thin_area = false;
@@ -165,5 +166,9 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     // words at 25 um, 1,201 so; stanford_bunny_x60: 2,217, 1,719 so).
     cfg.below_tolerance_um = cfg.line_width_um / 2;
     cfg.min_layer_time_ms = MIN_LAYER_TIME_MS;
+    // Bridges and overhang perimeters stay with the host's G-code for now: their passes
+    // (four direction measurements, the outline's overhang pass) raise the 64 KB board's
+    // stack and scan-crossing needs past what models that print today leave.
+    cfg.bridges = false;
     cfg
 }

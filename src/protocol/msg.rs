@@ -102,8 +102,10 @@ pub struct JobOptions {
     pub skirt_loops: u8,
     /// Gap between skirt and first layer (or its brim), um.
     pub skirt_distance_um: i32,
-    /// Brim width, um (0: none).
-    pub brim_width_um: i32,
+    /// Brim loops (0: none): the host's width over the line width, rounded down. One byte in
+    /// memory (the job message keeps its size on the board's stack), an `i32` on the wire
+    /// (0..=255).
+    pub brim_loops: u8,
 }
 
 impl Default for JobOptions {
@@ -113,7 +115,7 @@ impl Default for JobOptions {
             seam: 0,
             skirt_loops: 1,
             skirt_distance_um: 3000,
-            brim_width_um: 0,
+            brim_loops: 0,
         }
     }
 }
@@ -731,7 +733,7 @@ impl<'a> Message<'a> {
                 w.u8(j.options.seam)?;
                 w.u8(j.options.skirt_loops)?;
                 w.i32(j.options.skirt_distance_um)?;
-                w.i32(j.options.brim_width_um)?;
+                w.i32(i32::from(j.options.brim_loops))?;
                 w.i32(j.model_height_um)?;
                 w.u32(j.triangles)?;
             }
@@ -937,7 +939,7 @@ impl<'a> Message<'a> {
                     seam: r.u8()?,
                     skirt_loops: r.u8()?,
                     skirt_distance_um: r.i32()?,
-                    brim_width_um: r.i32()?,
+                    brim_loops: u8::try_from(r.i32()?).map_err(|_| bad)?,
                 };
                 if options.seam > 1 {
                     return Err(bad);

@@ -9,11 +9,13 @@ use super::*;
 
 /// The nozzle's lift while a small layer waits out its minimum time, um: Cura's 3 mm
 /// ("Lift Head"), clear of the part's tip.
-pub const COOL_LIFT_UM: i32 = 3_000;
+pub const COOL_LIFT_UM: u16 = 3_000;
 
-/// The bridge and overhang perimeter speed, mm/s: slow enough for a thread over air to set
-/// under the fan (about half the default infill speed). A constant, not a setting: every
-/// copy of the settings on the board's stack stays as it was.
+/// The bridge and overhang perimeter speed, mm/s.
+///
+/// Slow enough for a thread over air to set under the fan (about half the default infill
+/// speed). A constant, not a setting: every copy of the settings on the board's stack stays
+/// as it was.
 pub const BRIDGE_SPEED_MM_S: u16 = 25;
 
 /// The widest brim [`ToolpathConfig::validate`] takes, um (PrusaSlicer's brim width is
@@ -67,7 +69,7 @@ pub struct ToolpathConfig {
     /// Print the external perimeter after the inner ones.
     pub outer_perimeter_last: bool,
     /// How far infill lines reach into the innermost perimeter, um.
-    pub infill_overlap_um: i32,
+    pub infill_overlap_um: u16,
     /// Gap between the first layer and the skirt, um.
     pub skirt_distance_um: i32,
     /// Skirt loops (0: no skirt).
@@ -102,7 +104,7 @@ pub struct ToolpathConfig {
     /// A layer still shorter than `min_layer_time_ms` at `min_print_speed_mm_s` waits for
     /// the rest at its end, retracted and with the nozzle lifted this much off the part
     /// (Cura's "lift head"), um.
-    pub cool_lift_um: i32,
+    pub cool_lift_um: u16,
     /// The build volume's height, um: the lift stays below it.
     pub max_z_um: i32,
     /// Measure each island's area thinner than a line ([`LayerStats::thin_area_um2`]): one
@@ -134,7 +136,8 @@ impl ToolpathConfig {
             retract_speed_mm_s: settings.retract_speed_mm_s,
             filament_diameter_um: machine.filament_diameter_um,
             outer_perimeter_last: true,
-            infill_overlap_um: settings.line_width_um / 2,
+            // Within u16: the line width is validated at most 5 mm.
+            infill_overlap_um: (settings.line_width_um / 2).clamp(0, i32::from(u16::MAX)) as u16,
             skirt_distance_um: 3_000,
             skirt_loops: 1,
             brim_width_um: 0,
@@ -166,7 +169,7 @@ impl ToolpathConfig {
             ("bottom_layers", self.bottom_layers <= 16),
             ("retract_length_um", (0..=50_000).contains(&self.retract_length_um)),
             ("filament_diameter_um", (100..=10_000).contains(&self.filament_diameter_um)),
-            ("infill_overlap_um", (0..=self.line_width_um).contains(&self.infill_overlap_um)),
+            ("infill_overlap_um", i32::from(self.infill_overlap_um) <= self.line_width_um),
             ("skirt_distance_um", (0..=100_000).contains(&self.skirt_distance_um)),
             ("skirt_loops", self.skirt_loops <= 20),
             ("brim_width_um", (0..=MAX_BRIM_WIDTH_UM).contains(&self.brim_width_um)),
@@ -180,7 +183,7 @@ impl ToolpathConfig {
             ("retract_speed_mm_s", self.retract_speed_mm_s > 0),
             ("min_layer_time_ms", self.min_layer_time_ms <= 600_000),
             ("min_print_speed_mm_s", self.min_print_speed_mm_s > 0),
-            ("cool_lift_um", (0..=50_000).contains(&self.cool_lift_um)),
+            ("cool_lift_um", self.cool_lift_um <= 50_000),
             ("max_z_um", self.max_z_um > 0),
         ];
         match checks.iter().find(|(_, ok)| !ok) {
@@ -232,7 +235,7 @@ impl ToolpathConfig {
         if p == 0 {
             w / 2
         } else {
-            p * w + w / 2 - self.infill_overlap_um
+            p * w + w / 2 - i32::from(self.infill_overlap_um)
         }
     }
 }
@@ -342,6 +345,14 @@ mod tests {
             assert_eq!(cfg.validate(), want, "{width}");
         }
         assert_eq!(IDLE_CONFIG.brim_loops(), 0);
+    }
+
+    /// The settings are copied on the board's deepest stack (job start, the layer's passes):
+    /// 112 B, as before bridges and the brim; one more word there took HIL runs past the
+    /// stack headroom.
+    #[test]
+    fn the_settings_keep_their_size() {
+        assert!(core::mem::size_of::<super::ToolpathConfig>() <= 112);
     }
 
     #[test]

@@ -824,10 +824,12 @@ pub fn fill<const N: usize>(
     link(points, rings, &params, cross, cend, &mut segs, paths)
 }
 
-/// Marks the perimeters' moves over air: `pool` holds the stretches of the layer's region
-/// over air, line by line, that an [`OverAir::Locate`] pass at `angle` (lines `step` apart)
-/// left ([`FillUse::located`]). Called by the layer's builder after that pass, not inside
-/// it: the stack stays as deep as the infill's.
+/// Marks the perimeters' moves over air.
+///
+/// `pool` holds the stretches of the layer's region over air, line by line, that an
+/// [`OverAir::Locate`] pass at `angle` (lines `step` apart) left ([`FillUse::located`]).
+/// Called by the layer's builder after that pass, not inside it: the stack stays as deep as
+/// the infill's.
 pub fn tag_overhangs<const N: usize>(
     pool: &mut [u32],
     (nseg, npieces): (usize, usize),

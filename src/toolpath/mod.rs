@@ -894,9 +894,10 @@ impl<
     }
 
     /// The built layer's extrusion lengths per feature (index: the feature's code), um:
-    /// `len(|dx|, |dy|)` summed over their segments.
-    fn extrusion_lengths(&self, len: impl Fn(u64, u64) -> u64) -> [u64; Feature::ALL.len()] {
-        let mut per_feature = [0u64; Feature::ALL.len()];
+    /// `len(|dx|, |dy|)` summed over their segments (saturating: a bed-wide solid layer is
+    /// about 100 m, far below 2^32 um; 32 bits keep the planning's frame small).
+    fn extrusion_lengths(&self, len: impl Fn(u64, u64) -> u64) -> [u32; Feature::ALL.len()] {
+        let mut per_feature = [0u32; Feature::ALL.len()];
         for i in 0..self.paths.len() {
             let r = self.paths.rec(i);
             let pts = self.paths.points(&r);
@@ -910,7 +911,7 @@ impl<
                 let b = pts.at(k % n);
                 let d = len(u64::from(a.x.abs_diff(b.x)), u64::from(a.y.abs_diff(b.y)));
                 if let Some(sum) = per_feature.get_mut(pts.feature(k % n) as usize) {
-                    *sum = sum.saturating_add(d);
+                    *sum = sum.saturating_add(u32::try_from(d).unwrap_or(u32::MAX));
                 }
                 a = b;
             }
@@ -1283,7 +1284,7 @@ fn decode<const P: usize, const L: usize>(
 
 /// The time of `lengths` (um per feature, [`Toolpath::extrusion_lengths`]) at the feeds `feed`
 /// gives, us, rounded down per feature.
-fn time_us(lengths: &[u64; Feature::ALL.len()], feed: impl Fn(Feature) -> Rate) -> u64 {
+fn time_us(lengths: &[u32; Feature::ALL.len()], feed: impl Fn(Feature) -> Rate) -> u64 {
     let mut us: u64 = 0;
     for (&f, &um) in Feature::ALL.iter().zip(lengths) {
         if um > 0 {

@@ -366,7 +366,7 @@ impl Emitter {
     /// The nozzle's height while the layer cools: lifted, never above the build volume nor
     /// below where it is.
     fn lifted_z(&self, ctx: &Ctx<'_>) -> i32 {
-        self.z.saturating_add(ctx.cfg.cool_lift_um).min(ctx.cfg.max_z_um).max(self.z)
+        self.z.saturating_add(i32::from(ctx.cfg.cool_lift_um)).min(ctx.cfg.max_z_um).max(self.z)
     }
 
     /// Total filament extruded so far, um.
