@@ -13,6 +13,7 @@
 //! - [`models`]: the shared model files (`../shared/models` beside the checkout), placed;
 //! - [`card`]: SD card images written by the `fatfs` crate;
 //! - [`check`]: `f64` geometry oracles independent of the core's integer code;
+//! - [`overhang`]: extrusion over air, the instrument for bridges and supports;
 //! - [`on_big_stack`]: a closure on a thread with room for host-sized pipeline values.
 //!
 //! Only integration tests, benches and examples may use the kit: they link the same `strata`
@@ -29,6 +30,7 @@ pub mod check;
 pub mod drive;
 pub mod mesh;
 pub mod models;
+pub mod overhang;
 pub mod rng;
 pub mod stl;
 
