@@ -8,7 +8,9 @@
 //!
 //! The shapes are closed (watertight) unless said otherwise: rings lofted into walls with
 //! fan caps ([`loft`], [`prism`], [`cuboid`]), a prism with a hole ([`holed_prism`],
-//! [`holed_block`]), parametric grids ([`sphere`], [`torus`]).
+//! [`holed_block`]), parametric grids ([`sphere`], [`torus`]), profiles swept along y
+//! ([`sweep_y`]) for the overhang parts ([`bridge_part`], [`tee_part`], [`wedges_part`],
+//! [`arch_part`], [`tunnel_part`]).
 
 use std::f64::consts::PI;
 
@@ -164,6 +166,133 @@ pub fn torus(c: [f64; 3], big_r: f64, r: f64, nu: usize, nv: usize) -> Vec<TriMm
     })
 }
 
+/// Triangles (corner indices, counter-clockwise) of a simple counter-clockwise polygon, by ear
+/// clipping (no new corners: a cap that shares its edges with the walls).
+pub fn triangulate(poly: &[[f64; 2]]) -> Vec<[usize; 3]> {
+    let turn = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
+    let mut left: Vec<usize> = (0..poly.len()).collect();
+    let mut out = Vec::new();
+    while left.len() > 3 {
+        let n = left.len();
+        let ear = (0..n)
+            .find(|&k| {
+                let (i, j, l) = (left[(k + n - 1) % n], left[k], left[(k + 1) % n]);
+                let (a, b, c) = (poly[i], poly[j], poly[l]);
+                turn(a, b, c) > 0.0
+                    && left.iter().filter(|&&m| m != i && m != j && m != l).all(|&m| {
+                        let p = poly[m];
+                        turn(a, b, p) < 0.0 || turn(b, c, p) < 0.0 || turn(c, a, p) < 0.0
+                    })
+            })
+            .expect("a simple counter-clockwise polygon has an ear");
+        out.push([left[(ear + n - 1) % n], left[ear], left[(ear + 1) % n]]);
+        left.remove(ear);
+    }
+    out.push([left[0], left[1], left[2]]);
+    out
+}
+
+/// A profile in the XZ plane (points (x, z) in mm, a simple polygon counter-clockwise with x
+/// to the right and z up) swept along y from `y0` to `y1`: walls and ear-clipped caps.
+pub fn sweep_y(profile: &[[f64; 2]], y0: f64, y1: f64) -> Vec<TriMm> {
+    let n = profile.len();
+    let at = |j: usize, y: f64| [profile[j % n][0], y, profile[j % n][1]];
+    let mut out = Vec::new();
+    for j in 0..n {
+        // Edge j -> j+1 turns its outside to the right (counter-clockwise profile).
+        out.push([at(j, y0), at(j + 1, y1), at(j + 1, y0)]);
+        out.push([at(j, y0), at(j, y1), at(j + 1, y1)]);
+    }
+    for [i, j, k] in triangulate(profile) {
+        // Seen from -y, x right and z up: counter-clockwise faces -y.
+        out.push([at(i, y0), at(j, y0), at(k, y0)]);
+        out.push([at(i, y1), at(k, y1), at(j, y1)]);
+    }
+    out
+}
+
+/// `profile` moved by (`dx`, `dz`) mm.
+fn shifted(profile: &[[f64; 2]], dx: f64, dz: f64) -> Vec<[f64; 2]> {
+    profile.iter().map(|&[x, z]| [x + dx, z + dz]).collect()
+}
+
+/// Overhang part: a plain bridge, corner (`x`, `y`) mm. Two 10 x 10 x 10 mm posts 20 mm apart
+/// (x 0..10 and 30..40) joined by a 40 x 10 x 2 mm slab on top (z 10..12); one body.
+pub fn bridge_part(x: f64, y: f64) -> Vec<TriMm> {
+    let profile = [
+        [0.0, 0.0],
+        [10.0, 0.0],
+        [10.0, 10.0],
+        [30.0, 10.0],
+        [30.0, 0.0],
+        [40.0, 0.0],
+        [40.0, 12.0],
+        [0.0, 12.0],
+    ];
+    sweep_y(&shifted(&profile, x, 0.0), y, y + 10.0)
+}
+
+/// Overhang part: a T, corner (`x`, `y`) mm. A 10 mm square stem 15 mm tall (x 15..25)
+/// under a 40 x 10 x 3 mm bar (z 15..18): 15 mm of bar overhangs on each side.
+pub fn tee_part(x: f64, y: f64) -> Vec<TriMm> {
+    let profile = [
+        [15.0, 0.0],
+        [25.0, 0.0],
+        [25.0, 15.0],
+        [40.0, 15.0],
+        [40.0, 18.0],
+        [0.0, 18.0],
+        [0.0, 15.0],
+        [15.0, 15.0],
+    ];
+    sweep_y(&shifted(&profile, x, 0.0), y, y + 10.0)
+}
+
+/// Overhang part: three wedges, corner (`x`, `y`) mm, each 10 mm deep (y) and 8 mm tall, 15 mm
+/// apart: a 5 mm base whose +x face leans out at 45, 60 and 75 degrees from vertical.
+pub fn wedges_part(x: f64, y: f64) -> Vec<TriMm> {
+    let mut out = Vec::new();
+    for (k, deg) in [45.0f64, 60.0, 75.0].into_iter().enumerate() {
+        let reach = 8.0 * deg.to_radians().tan();
+        let profile = [[0.0, 0.0], [5.0, 0.0], [5.0 + reach, 8.0], [0.0, 8.0]];
+        let y0 = y + 15.0 * k as f64;
+        out.extend(sweep_y(&shifted(&profile, x, 0.0), y0, y0 + 10.0));
+    }
+    out
+}
+
+/// Overhang part: an arch, corner (`x`, `y`) mm. A 30 x 10 x 15 mm block with a half-cylinder
+/// tunnel of radius 10 mm along y through it (axis at x 15 on the bed, a 48-gon half).
+pub fn arch_part(x: f64, y: f64) -> Vec<TriMm> {
+    let mut profile = vec![[0.0, 0.0]];
+    let n = 48;
+    for k in 0..=n {
+        let a = PI * k as f64 / n as f64;
+        profile.push([15.0 - 10.0 * a.cos(), 10.0 * a.sin()]);
+    }
+    profile.extend([[30.0, 0.0], [30.0, 15.0], [0.0, 15.0]]);
+    sweep_y(&shifted(&profile, x, 0.0), y, y + 10.0)
+}
+
+/// Overhang part: an upside-down U, corner (`x`, `y`) mm. Two 2 mm walls 10 mm tall and 30 mm
+/// long (y), 20 mm apart (x 0..2 and 22..24), under a 2 mm roof (z 10..12): a bridge held
+/// along both its sides.
+pub fn tunnel_part(x: f64, y: f64) -> Vec<TriMm> {
+    let profile = [
+        [0.0, 0.0],
+        [2.0, 0.0],
+        [2.0, 10.0],
+        [22.0, 10.0],
+        [22.0, 0.0],
+        [24.0, 0.0],
+        [24.0, 12.0],
+        [0.0, 12.0],
+    ];
+    sweep_y(&shifted(&profile, x, 0.0), y, y + 30.0)
+}
+
 /// The same surface with every triangle's winding reversed (normals inward: a cavity).
 pub fn inverted(mesh: Vec<TriMm>) -> Vec<TriMm> {
     mesh.into_iter().map(|[a, b, c]| [a, c, b]).collect()
@@ -224,5 +353,46 @@ mod tests {
         assert!(closed(&to_um(&sphere([10.0, 10.0, 5.0], 5.0, 24, 12))));
         assert!(closed(&to_um(&torus([20.0, 20.0, 4.0], 8.0, 3.0, 32, 12))));
         assert!(closed(&to_um(&four_holed_discs(30.0, 1.0))));
+        for part in overhang_parts() {
+            assert!(closed(&to_um(&part)));
+        }
+    }
+
+    fn overhang_parts() -> [Vec<TriMm>; 5] {
+        let at = (100.0, 100.0);
+        [
+            bridge_part(at.0, at.1),
+            tee_part(at.0, at.1),
+            wedges_part(at.0, at.1),
+            arch_part(at.0, at.1),
+            tunnel_part(at.0, at.1),
+        ]
+    }
+
+    /// Enclosed volume (divergence theorem): positive when the triangles face outward.
+    fn volume(mesh: &[TriMm]) -> f64 {
+        let det = |[a, b, c]: &TriMm| {
+            a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                + a[2] * (b[0] * c[1] - b[1] * c[0])
+        };
+        mesh.iter().map(det).sum::<f64>() / 6.0
+    }
+
+    #[test]
+    fn overhang_parts_face_outward_and_enclose_their_volumes() {
+        let tan = |deg: f64| deg.to_radians().tan();
+        // Half a 48-gon of radius 10 mm inscribed in the half circle.
+        let half_48gon = 0.5 * 100.0 * 48.0 * (PI / 48.0).sin();
+        let want = [
+            2.0 * 1000.0 + 40.0 * 10.0 * 2.0,
+            10.0 * 10.0 * 15.0 + 40.0 * 10.0 * 3.0,
+            [45.0, 60.0, 75.0].map(|d| (5.0 * 8.0 + 0.5 * 8.0 * 8.0 * tan(d)) * 10.0).iter().sum(),
+            (30.0 * 15.0 - half_48gon) * 10.0,
+            (2.0 * 2.0 * 10.0 + 24.0 * 2.0) * 30.0,
+        ];
+        for (part, want) in overhang_parts().iter().zip(want) {
+            let v = volume(part);
+            assert!((v - want).abs() < 1e-6 * want, "{v} mm^3, want {want}");
+        }
     }
 }
