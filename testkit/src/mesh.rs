@@ -9,8 +9,8 @@
 //! The shapes are closed (watertight) unless said otherwise: rings lofted into walls with
 //! fan caps ([`loft`], [`prism`], [`cuboid`]), a prism with a hole ([`holed_prism`],
 //! [`holed_block`]), parametric grids ([`sphere`], [`torus`]), profiles swept along y
-//! ([`sweep_y`]) for the overhang parts ([`bridge_part`], [`tee_part`], [`wedges_part`],
-//! [`arch_part`], [`tunnel_part`]).
+//! ([`sweep_y`]) for the overhang parts ([`bridge_part`], [`tee_part`], [`wedge_part`],
+//! [`arch_part`], [`tunnel_part`]; all of them: [`overhang_parts`]).
 
 use std::f64::consts::PI;
 
@@ -250,17 +250,21 @@ pub fn tee_part(x: f64, y: f64) -> Vec<TriMm> {
     sweep_y(&shifted(&profile, x, 0.0), y, y + 10.0)
 }
 
-/// Overhang part: three wedges, corner (`x`, `y`) mm, each 10 mm deep (y) and 8 mm tall, 15 mm
-/// apart: a 5 mm base whose +x face leans out at 45, 60 and 75 degrees from vertical.
+/// Overhang part: a wedge, corner (`x`, `y`) mm, 10 mm deep (y) and 8 mm tall: a 5 mm base
+/// whose +x face leans out at `deg` degrees from vertical.
+pub fn wedge_part(x: f64, y: f64, deg: f64) -> Vec<TriMm> {
+    let reach = 8.0 * deg.to_radians().tan();
+    let profile = [[0.0, 0.0], [5.0, 0.0], [5.0 + reach, 8.0], [0.0, 8.0]];
+    sweep_y(&shifted(&profile, x, 0.0), y, y + 10.0)
+}
+
+/// Overhang part: three [`wedge_part`]s 15 mm apart in y, leaning out at 45, 60 and 75 degrees.
 pub fn wedges_part(x: f64, y: f64) -> Vec<TriMm> {
-    let mut out = Vec::new();
-    for (k, deg) in [45.0f64, 60.0, 75.0].into_iter().enumerate() {
-        let reach = 8.0 * deg.to_radians().tan();
-        let profile = [[0.0, 0.0], [5.0, 0.0], [5.0 + reach, 8.0], [0.0, 8.0]];
-        let y0 = y + 15.0 * k as f64;
-        out.extend(sweep_y(&shifted(&profile, x, 0.0), y0, y0 + 10.0));
-    }
-    out
+    [45.0, 60.0, 75.0]
+        .into_iter()
+        .enumerate()
+        .flat_map(|(k, deg)| wedge_part(x, y + 15.0 * k as f64, deg))
+        .collect()
 }
 
 /// Overhang part: an arch, corner (`x`, `y`) mm. A 30 x 10 x 15 mm block with a half-cylinder
@@ -291,6 +295,20 @@ pub fn tunnel_part(x: f64, y: f64) -> Vec<TriMm> {
         [0.0, 12.0],
     ];
     sweep_y(&shifted(&profile, x, 0.0), y, y + 30.0)
+}
+
+/// The overhang parts with their corner at (`x`, `y`) mm, named: the bridge, the T, the
+/// three wedges apart, the arch and the upside-down U.
+pub fn overhang_parts(x: f64, y: f64) -> Vec<(&'static str, Vec<TriMm>)> {
+    vec![
+        ("bridge", bridge_part(x, y)),
+        ("T", tee_part(x, y)),
+        ("wedge 45 deg", wedge_part(x, y, 45.0)),
+        ("wedge 60 deg", wedge_part(x, y, 60.0)),
+        ("wedge 75 deg", wedge_part(x, y, 75.0)),
+        ("arch r10", arch_part(x, y)),
+        ("upside-down U", tunnel_part(x, y)),
+    ]
 }
 
 /// The same surface with every triangle's winding reversed (normals inward: a cavity).
@@ -353,20 +371,9 @@ mod tests {
         assert!(closed(&to_um(&sphere([10.0, 10.0, 5.0], 5.0, 24, 12))));
         assert!(closed(&to_um(&torus([20.0, 20.0, 4.0], 8.0, 3.0, 32, 12))));
         assert!(closed(&to_um(&four_holed_discs(30.0, 1.0))));
-        for part in overhang_parts() {
-            assert!(closed(&to_um(&part)));
+        for (name, part) in overhang_parts(100.0, 100.0) {
+            assert!(closed(&to_um(&part)), "{name}");
         }
-    }
-
-    fn overhang_parts() -> [Vec<TriMm>; 5] {
-        let at = (100.0, 100.0);
-        [
-            bridge_part(at.0, at.1),
-            tee_part(at.0, at.1),
-            wedges_part(at.0, at.1),
-            arch_part(at.0, at.1),
-            tunnel_part(at.0, at.1),
-        ]
     }
 
     /// Enclosed volume (divergence theorem): positive when the triangles face outward.
@@ -383,16 +390,23 @@ mod tests {
         let tan = |deg: f64| deg.to_radians().tan();
         // Half a 48-gon of radius 10 mm inscribed in the half circle.
         let half_48gon = 0.5 * 100.0 * 48.0 * (PI / 48.0).sin();
+        let wedge = |deg: f64| (5.0 * 8.0 + 0.5 * 8.0 * 8.0 * tan(deg)) * 10.0;
         let want = [
             2.0 * 1000.0 + 40.0 * 10.0 * 2.0,
             10.0 * 10.0 * 15.0 + 40.0 * 10.0 * 3.0,
-            [45.0, 60.0, 75.0].map(|d| (5.0 * 8.0 + 0.5 * 8.0 * 8.0 * tan(d)) * 10.0).iter().sum(),
+            wedge(45.0),
+            wedge(60.0),
+            wedge(75.0),
             (30.0 * 15.0 - half_48gon) * 10.0,
             (2.0 * 2.0 * 10.0 + 24.0 * 2.0) * 30.0,
         ];
-        for (part, want) in overhang_parts().iter().zip(want) {
+        let parts = overhang_parts(100.0, 100.0);
+        assert_eq!(parts.len(), want.len());
+        for ((name, part), want) in parts.iter().zip(want) {
             let v = volume(part);
-            assert!((v - want).abs() < 1e-6 * want, "{v} mm^3, want {want}");
+            assert!((v - want).abs() < 1e-6 * want, "{name}: {v} mm^3, want {want}");
         }
+        let three: f64 = [45.0, 60.0, 75.0].map(wedge).iter().sum();
+        assert!((volume(&wedges_part(0.0, 0.0)) - three).abs() < 1e-6 * three);
     }
 }

@@ -22,16 +22,25 @@
 //!
 //! ## Anchored bridges and true air
 //!
-//! A *run* is a maximal chain of consecutive bridge segments ([`BRIDGE`]) of one path (each
+//! A *run* is a maximal chain of consecutive bridge segments ([`BRIDGE`], or
+//! [`OVERHANG_PERIMETER`]: PrusaSlicer's perimeters printed as bridges) of one path (each
 //! starts where the one before ends, [`JOIN_UM`]) that stays straight (within
 //! [`RUN_TURN_DEG`] of its first segment's direction); any other segment is a run by itself.
-//! The over-air length of a bridge run whose two ends are supported is an *anchored bridge*;
-//! all other over-air length is *true air*.
+//! The over-air length of a bridge run whose two ends are supported is an *anchored bridge*.
+//! Sparse infill ([`SPARSE`]) crosses the lines of the layer below and spans the gaps between
+//! them by design: its over-air length is counted apart. All other over-air length is *true
+//! air*.
 
 use std::fmt::Write as _;
 
 /// The `;TYPE:` name of bridge extrusions (PrusaSlicer's role name).
 pub const BRIDGE: &str = "Bridge infill";
+
+/// The `;TYPE:` name of perimeters printed with bridge settings (PrusaSlicer's role name).
+pub const OVERHANG_PERIMETER: &str = "Overhang perimeter";
+
+/// The `;TYPE:` name of sparse infill (PrusaSlicer's role name).
+pub const SPARSE: &str = "Internal infill";
 
 /// Steepest overhang printed without support, degrees from vertical: a layer may reach
 /// `h tan 50°` (1.19 h) beyond the edge of the line below it.
@@ -58,14 +67,16 @@ pub struct Extrusion {
     pub width_um: f64,
     /// Feature name (PrusaSlicer's `;TYPE:` names).
     pub feature: &'static str,
-    /// A bridge line (feature [`BRIDGE`] for [`Extrusion::new`]).
+    /// A bridge line (feature [`BRIDGE`] or [`OVERHANG_PERIMETER`] for [`Extrusion::new`]).
     pub bridge: bool,
 }
 
 impl Extrusion {
-    /// The segment a-b of `feature`, a bridge when the feature is [`BRIDGE`].
+    /// The segment a-b of `feature`, a bridge when the feature is [`BRIDGE`] or
+    /// [`OVERHANG_PERIMETER`].
     pub fn new(a: (f64, f64), b: (f64, f64), width_um: f64, feature: &'static str) -> Self {
-        Self { a, b, width_um, feature, bridge: feature == BRIDGE }
+        let bridge = feature == BRIDGE || feature == OVERHANG_PERIMETER;
+        Self { a, b, width_um, feature, bridge }
     }
 
     /// Length, um.
@@ -82,6 +93,10 @@ pub struct Layer {
     /// The extrusions, in print order.
     pub extrusions: Vec<Extrusion>,
 }
+
+/// Head of the markdown table of [`OverAir::row`]s (two lines).
+pub const TABLE_HEAD: &str = "| part | extruded mm | anchored bridge % | sparse % | true air % |\n\
+                              |---|---:|---:|---:|---:|";
 
 /// The segment of a layer with the most true air.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -103,6 +118,8 @@ pub struct LayerAir {
     pub extruded_mm: f64,
     /// Over-air length in anchored bridge runs, mm.
     pub anchored_bridge_mm: f64,
+    /// Over-air length of sparse infill, mm.
+    pub sparse_mm: f64,
     /// Other over-air length, mm.
     pub true_air_mm: f64,
     /// The segment with the most true air, if any.
@@ -116,6 +133,8 @@ pub struct OverAir {
     pub extruded_mm: f64,
     /// Over-air length in anchored bridge runs, mm.
     pub anchored_bridge_mm: f64,
+    /// Over-air length of sparse infill, mm.
+    pub sparse_mm: f64,
     /// Other over-air length, mm.
     pub true_air_mm: f64,
     /// True air per feature, mm, in order of first appearance.
@@ -128,6 +147,23 @@ impl OverAir {
     /// Anchored bridge length, percent of the extruded length.
     pub fn anchored_bridge_percent(&self) -> f64 {
         percent(self.anchored_bridge_mm, self.extruded_mm)
+    }
+
+    /// A markdown row under [`TABLE_HEAD`]: `name`, extruded mm, then anchored bridge, sparse
+    /// infill and true air in percent of it.
+    pub fn row(&self, name: &str) -> String {
+        format!(
+            "| {name} | {:.1} | {:.2} | {:.2} | {:.2} |",
+            self.extruded_mm,
+            self.anchored_bridge_percent(),
+            self.sparse_percent(),
+            self.true_air_percent()
+        )
+    }
+
+    /// Sparse infill over air, percent of the extruded length.
+    pub fn sparse_percent(&self) -> f64 {
+        percent(self.sparse_mm, self.extruded_mm)
     }
 
     /// True air, percent of the extruded length.
@@ -189,6 +225,7 @@ pub fn over_air(layers: &[Layer]) -> OverAir {
         let la = measure_layer(index, layer.z_um, &segs, support, &mut out.true_air_by_feature);
         out.extruded_mm += la.extruded_mm;
         out.anchored_bridge_mm += la.anchored_bridge_mm;
+        out.sparse_mm += la.sparse_mm;
         out.true_air_mm += la.true_air_mm;
         out.layers.push(la);
         below = Some((Grid::new(&segs), layer.z_um));
@@ -227,6 +264,7 @@ fn measure_layer(
         z_um,
         extruded_mm: segs.iter().map(Extrusion::length).sum::<f64>() / 1000.0,
         anchored_bridge_mm: 0.0,
+        sparse_mm: 0.0,
         true_air_mm: 0.0,
         worst: None,
     };
@@ -238,6 +276,8 @@ fn measure_layer(
             let mm = a.air_um / 1000.0;
             if anchored {
                 la.anchored_bridge_mm += mm;
+            } else if e.feature == SPARSE {
+                la.sparse_mm += mm;
             } else if mm > 0.0 {
                 la.true_air_mm += mm;
                 match by_feature.iter_mut().find(|(f, _)| *f == e.feature) {
@@ -614,6 +654,7 @@ mod tests {
 
     #[test]
     fn a_bridge_between_two_pads_is_anchored_not_true_air() {
+        assert_eq!(over_air(&bridge(OVERHANG_PERIMETER)).true_air_mm, 0.0);
         let air = over_air(&bridge(BRIDGE));
         assert!(
             close(air.anchored_bridge_mm, bridge_gap_air_mm(), 1e-9),
@@ -668,6 +709,19 @@ mod tests {
         let want_mm = (8_000.0 - reach() + 9_000.0 - reach()) / 1000.0;
         assert!(close(air.true_air_mm, want_mm, 1e-9), "{} vs {want_mm}", air.true_air_mm);
         assert_eq!(air.anchored_bridge_mm, 0.0);
+    }
+
+    #[test]
+    fn sparse_infill_over_air_is_counted_apart() {
+        let layers = vec![
+            layer(0, vec![line((0.0, 0.0), (10_000.0, 0.0), SPARSE)]),
+            layer(1, vec![line((5_000.0, -5_000.0), (5_000.0, 5_000.0), SPARSE)]),
+        ];
+        let air = over_air(&layers);
+        // Crossing the line below, the line is held for the reach on each side.
+        let want_mm = (10_000.0 - 2.0 * reach()) / 1000.0;
+        assert!(close(air.sparse_mm, want_mm, 1e-9), "{} vs {want_mm}", air.sparse_mm);
+        assert_eq!((air.true_air_mm, air.anchored_bridge_mm), (0.0, 0.0));
     }
 
     #[test]
