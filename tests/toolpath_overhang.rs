@@ -2,7 +2,8 @@
 //! checker `strata_testkit::overhang` on the toolpath stage's extrusions (default settings).
 //!
 //! Prints a table (`--nocapture`): part, extruded mm, and over air in % of it: anchored
-//! bridges, sparse infill (counted apart: it spans the lines below by design), true air.
+//! bridges, sparse infill and supports (counted apart: they span the lines below by design),
+//! true air.
 //! The assertions hold today; the acceptance bound for bridges waits, ignored, in
 //! [`bridges_leave_almost_no_true_air`] for the bridge work to un-ignore.
 

@@ -10,7 +10,12 @@
 //! A point of a layer's extrusion is *supported* when it lies within `w / 2 + h tan 50°` of some
 //! extrusion centre line of the layer below (`w`: the extrusion's own line width, `h`: the
 //! layer's height above the layer below, [`SUPPORT_ANGLE_DEG`]); otherwise it is *over air*.
-//! The first layer sits on the bed and is never over air.
+//! The first layer sits on the bed and is never over air. Support extrusions ([`is_support`])
+//! hold across the air gap a support leaves under the part ([`CONTACT_GAP_UM`]): those of the
+//! layers up to that far under the layer below count as the layer below's. The layer below of
+//! a part extrusion is the highest lower layer with part extrusions, that of a support
+//! extrusion the highest with support extrusions (other slicers' supports may have heights
+//! of their own); the layers between count too.
 //!
 //! ## Exact lengths
 //!
@@ -26,10 +31,13 @@
 //! [`OVERHANG_PERIMETER`]: PrusaSlicer's perimeters printed as bridges) of one path (each
 //! starts where the one before ends, [`JOIN_UM`]) that stays straight (within
 //! [`RUN_TURN_DEG`] of its first segment's direction); any other segment is a run by itself.
-//! The over-air length of a bridge run whose two ends are supported is an *anchored bridge*.
-//! Sparse infill ([`SPARSE`]) crosses the lines of the layer below and spans the gaps between
-//! them by design: its over-air length is counted apart. All other over-air length is *true
-//! air*.
+//! The over-air length of a bridge run between its first and its last supported point is an
+//! *anchored bridge* (all of it when both ends are supported); the stretches beyond them
+//! hang from one side only.
+//!
+//! Sparse infill ([`SPARSE`]) and supports ([`is_support`]) cross the lines of the layer
+//! below and span the gaps between them by design: their over-air length is counted apart. All
+//! other over-air length is *true air*.
 
 use std::fmt::Write as _;
 
@@ -45,6 +53,15 @@ pub const SPARSE: &str = "Internal infill";
 /// Steepest overhang printed without support, degrees from vertical: a layer may reach
 /// `h tan 50°` (1.19 h) beyond the edge of the line below it.
 pub const SUPPORT_ANGLE_DEG: f64 = 50.0;
+
+/// How far under a layer's layer below a support's top may be and still hold the layer, um.
+///
+/// PrusaSlicer's default contact distance, 0.2 mm, under a first layer printed as a bridge
+/// 0.4 mm thick (its nozzle's diameter): 0.2 mm more than under a 0.2 mm layer.
+pub const CONTACT_GAP_UM: f64 = 400.0;
+
+/// Heights closer than this are the same, um.
+const Z_TOLERANCE_UM: f64 = 1.0;
 
 /// Largest turn from a run's first direction that keeps a bridge run going, degrees.
 pub const RUN_TURN_DEG: f64 = 15.0;
@@ -95,7 +112,8 @@ pub struct Layer {
 }
 
 /// Head of the markdown table of [`OverAir::row`]s (two lines).
-pub const TABLE_HEAD: &str = "| part | extruded mm | anchored bridge % | sparse % | true air % |\n\
+pub const TABLE_HEAD: &str =
+    "| part | extruded mm | anchored bridge % | sparse/support % | true air % |\n\
                               |---|---:|---:|---:|---:|";
 
 /// The segment of a layer with the most true air.
@@ -118,8 +136,8 @@ pub struct LayerAir {
     pub extruded_mm: f64,
     /// Over-air length in anchored bridge runs, mm.
     pub anchored_bridge_mm: f64,
-    /// Over-air length of sparse infill, mm.
-    pub sparse_mm: f64,
+    /// Over-air length of sparse infill and supports, mm.
+    pub sparse_support_mm: f64,
     /// Other over-air length, mm.
     pub true_air_mm: f64,
     /// The segment with the most true air, if any.
@@ -133,8 +151,8 @@ pub struct OverAir {
     pub extruded_mm: f64,
     /// Over-air length in anchored bridge runs, mm.
     pub anchored_bridge_mm: f64,
-    /// Over-air length of sparse infill, mm.
-    pub sparse_mm: f64,
+    /// Over-air length of sparse infill and supports, mm.
+    pub sparse_support_mm: f64,
     /// Other over-air length, mm.
     pub true_air_mm: f64,
     /// True air per feature, mm, in order of first appearance.
@@ -150,20 +168,20 @@ impl OverAir {
     }
 
     /// A markdown row under [`TABLE_HEAD`]: `name`, extruded mm, then anchored bridge, sparse
-    /// infill and true air in percent of it.
+    /// infill and supports, and true air in percent of it.
     pub fn row(&self, name: &str) -> String {
         format!(
             "| {name} | {:.1} | {:.2} | {:.2} | {:.2} |",
             self.extruded_mm,
             self.anchored_bridge_percent(),
-            self.sparse_percent(),
+            self.sparse_support_percent(),
             self.true_air_percent()
         )
     }
 
-    /// Sparse infill over air, percent of the extruded length.
-    pub fn sparse_percent(&self) -> f64 {
-        percent(self.sparse_mm, self.extruded_mm)
+    /// Sparse infill and supports over air, percent of the extruded length.
+    pub fn sparse_support_percent(&self) -> f64 {
+        percent(self.sparse_support_mm, self.extruded_mm)
     }
 
     /// True air, percent of the extruded length.
@@ -215,48 +233,82 @@ fn percent(part: f64, whole: f64) -> f64 {
 
 /// Measures the extrusion over air of a print, layers bottom first (the first on the bed).
 pub fn over_air(layers: &[Layer]) -> OverAir {
-    let tan = SUPPORT_ANGLE_DEG.to_radians().tan();
+    let segs: Vec<Vec<Extrusion>> = layers
+        .iter()
+        .map(|l| l.extrusions.iter().copied().filter(|e| e.length() > 0.0).collect())
+        .collect();
     let mut out = OverAir::default();
-    let mut below: Option<(Grid, f64)> = None;
     for (index, layer) in layers.iter().enumerate() {
-        let segs: Vec<Extrusion> =
-            layer.extrusions.iter().copied().filter(|e| e.length() > 0.0).collect();
-        let support = below.as_ref().map(|(grid, z)| (grid, (layer.z_um - z).max(0.0) * tan));
-        let la = measure_layer(index, layer.z_um, &segs, support, &mut out.true_air_by_feature);
+        let holds = [false, true].map(|support| holding(layers, &segs, index, support));
+        let la =
+            measure_layer(index, layer.z_um, &segs[index], &holds, &mut out.true_air_by_feature);
         out.extruded_mm += la.extruded_mm;
         out.anchored_bridge_mm += la.anchored_bridge_mm;
-        out.sparse_mm += la.sparse_mm;
+        out.sparse_support_mm += la.sparse_support_mm;
         out.true_air_mm += la.true_air_mm;
         out.layers.push(la);
-        below = Some((Grid::new(&segs), layer.z_um));
     }
     out
 }
 
-/// A segment's over-air length (um) and whether its ends are supported.
-#[derive(Debug, Clone, Copy)]
-struct SegAir {
-    air_um: f64,
-    start_held: bool,
-    end_held: bool,
+/// What holds layer `index`'s part extrusions (or its support extrusions, `support`): a grid
+/// of the extrusions of the layers from the layer below up, with the support extrusions down
+/// to [`CONTACT_GAP_UM`] under it, and the reach `h tan 50°` (um); `None` on the bed.
+///
+/// The layer below is the highest lower layer with extrusions of the same kind (another
+/// slicer's supports may have heights of their own), else the next lower layer.
+fn holding(
+    layers: &[Layer],
+    segs: &[Vec<Extrusion>],
+    index: usize,
+    support: bool,
+) -> Option<(Grid, f64)> {
+    let kind = |k: usize| segs[k].iter().any(|e| is_support(e.feature) == support);
+    if !kind(index) {
+        return None;
+    }
+    let below = (0..index).rev().find(|&k| kind(k)).or(index.checked_sub(1))?;
+    let z_below = layers[below].z_um;
+    let lowest = z_below - CONTACT_GAP_UM - Z_TOLERANCE_UM;
+    let mut held = Vec::new();
+    for k in (0..index).rev().take_while(|&k| layers[k].z_um >= lowest) {
+        let all = layers[k].z_um >= z_below - Z_TOLERANCE_UM;
+        held.extend(segs[k].iter().filter(|e| all || is_support(e.feature)));
+    }
+    let h = (layers[index].z_um - z_below).max(0.0);
+    Some((Grid::new(&held), h * SUPPORT_ANGLE_DEG.to_radians().tan()))
 }
 
-/// One layer's figures; `support`: the layer below's grid and the reach `h tan 50°` (um),
-/// `None` on the bed.
+/// A support feature: its name starts with `support` in any case (PrusaSlicer's `Support
+/// material` and `Support material interface`, Cura's `SUPPORT`, `SUPPORT-INTERFACE`).
+pub fn is_support(feature: &str) -> bool {
+    feature.get(..7).is_some_and(|s| s.eq_ignore_ascii_case("support"))
+}
+
+/// The parts of a segment (parameter intervals in [0, 1], sorted, disjoint) within reach of
+/// what holds it; all of it on the bed.
+type Held = Vec<(f64, f64)>;
+
+/// One layer's figures; `holds`: what holds its part and its support extrusions
+/// ([`holding`]).
 fn measure_layer(
     index: usize,
     z_um: f64,
     segs: &[Extrusion],
-    support: Option<(&Grid, f64)>,
+    holds: &[Option<(Grid, f64)>; 2],
     by_feature: &mut Vec<(&'static str, f64)>,
 ) -> LayerAir {
-    let mut stamp = vec![usize::MAX; support.map_or(0, |(g, _)| g.segs.len())];
-    let air: Vec<SegAir> = segs
+    let mut stamps =
+        holds.each_ref().map(|h| vec![usize::MAX; h.as_ref().map_or(0, |(g, _)| g.segs.len())]);
+    let held: Vec<Held> = segs
         .iter()
         .enumerate()
-        .map(|(i, e)| match support {
-            None => SegAir { air_um: 0.0, start_held: true, end_held: true },
-            Some((grid, reach)) => grid.seg_air(e, e.width_um / 2.0 + reach, i, &mut stamp),
+        .map(|(i, e)| {
+            let kind = usize::from(is_support(e.feature));
+            match &holds[kind] {
+                None => vec![(0.0, 1.0)],
+                Some((grid, reach)) => grid.held(e, e.width_um / 2.0 + reach, i, &mut stamps[kind]),
+            }
         })
         .collect();
     let mut la = LayerAir {
@@ -264,34 +316,70 @@ fn measure_layer(
         z_um,
         extruded_mm: segs.iter().map(Extrusion::length).sum::<f64>() / 1000.0,
         anchored_bridge_mm: 0.0,
-        sparse_mm: 0.0,
+        sparse_support_mm: 0.0,
         true_air_mm: 0.0,
         worst: None,
     };
     let mut start = 0;
     while start < segs.len() {
         let end = run_end(segs, start);
-        let anchored = segs[start].bridge && air[start].start_held && air[end - 1].end_held;
-        for (e, a) in segs[start..end].iter().zip(&air[start..end]) {
-            let mm = a.air_um / 1000.0;
-            if anchored {
-                la.anchored_bridge_mm += mm;
-            } else if e.feature == SPARSE {
-                la.sparse_mm += mm;
-            } else if mm > 0.0 {
-                la.true_air_mm += mm;
+        for (e, [anchored, air]) in
+            segs[start..end].iter().zip(run_air(&segs[start..end], &held[start..end]))
+        {
+            let (anchored, air) = (anchored / 1000.0, air / 1000.0);
+            la.anchored_bridge_mm += anchored;
+            if e.feature == SPARSE || is_support(e.feature) {
+                la.sparse_support_mm += air;
+            } else if air > 0.0 {
+                la.true_air_mm += air;
                 match by_feature.iter_mut().find(|(f, _)| *f == e.feature) {
-                    Some((_, total)) => *total += mm,
-                    None => by_feature.push((e.feature, mm)),
+                    Some((_, total)) => *total += air,
+                    None => by_feature.push((e.feature, air)),
                 }
-                if la.worst.map_or(true, |w| w.air_mm < mm) {
-                    la.worst = Some(Offender { extrusion: *e, air_mm: mm });
+                if la.worst.map_or(true, |w| w.air_mm < air) {
+                    la.worst = Some(Offender { extrusion: *e, air_mm: air });
                 }
             }
         }
         start = end;
     }
     la
+}
+
+/// Per segment of a run: its over air (um) between the run's first and last held points
+/// when the run is a bridge (anchored), and the rest of its over air.
+fn run_air(run: &[Extrusion], held: &[Held]) -> Vec<[f64; 2]> {
+    let mut at = 0.0;
+    let starts: Vec<f64> = run
+        .iter()
+        .map(|e| {
+            at += e.length();
+            at - e.length()
+        })
+        .collect();
+    let arc = |k: usize, t: f64| starts[k] + t * run[k].length();
+    let first = held.iter().enumerate().find_map(|(k, h)| Some(arc(k, h.first()?.0)));
+    let last = held.iter().enumerate().rev().find_map(|(k, h)| Some(arc(k, h.last()?.1)));
+    let anchor = match (run[0].bridge, first, last) {
+        (true, Some(first), Some(last)) => (first, last),
+        _ => (0.0, 0.0),
+    };
+    (0..run.len())
+        .map(|k| {
+            let (mut anchored, mut air) = (0.0, 0.0);
+            let mut from = 0.0;
+            for &(lo, hi) in held[k].iter().chain([&(1.0, 1.0)]) {
+                let (p, q) = (arc(k, from), arc(k, lo));
+                if q > p {
+                    let inside = (q.min(anchor.1) - p.max(anchor.0)).max(0.0);
+                    anchored += inside;
+                    air += q - p - inside;
+                }
+                from = hi;
+            }
+            [anchored, air]
+        })
+        .collect()
 }
 
 /// One past the last segment of the run that starts at `start`.
@@ -378,9 +466,9 @@ impl Grid {
         }
     }
 
-    /// Over-air length of `e` (the `query`-th of its layer) with support within `r` of these
-    /// segments; `stamp` (one per segment here) keeps each candidate to one test per query.
-    fn seg_air(&self, e: &Extrusion, r: f64, query: usize, stamp: &mut [usize]) -> SegAir {
+    /// The parts of `e` (the `query`-th of its layer) within `r` of these segments;
+    /// `stamp` (one per segment here) keeps each candidate to one test per query.
+    fn held(&self, e: &Extrusion, r: f64, query: usize, stamp: &mut [usize]) -> Held {
         let mut candidates = Vec::new();
         self.cells_along(e.a, e.b, r, |cell| {
             for &id in &self.cells[cell] {
@@ -395,18 +483,14 @@ impl Grid {
             .filter_map(|id| capsule_span(e.a, e.b, self.segs[id].0, self.segs[id].1, r))
             .collect();
         spans.sort_by(|x, y| x.0.total_cmp(&y.0));
-        let (mut held, mut reach) = (0.0, 0.0f64);
-        let (mut start_held, mut end_held) = (false, false);
+        let mut held: Held = Vec::new();
         for (lo, hi) in spans {
-            start_held |= lo <= 0.0;
-            end_held |= hi >= 1.0;
-            let lo = lo.max(reach);
-            if hi > lo {
-                held += hi - lo;
-                reach = hi;
+            match held.last_mut() {
+                Some(last) if lo <= last.1 => last.1 = last.1.max(hi),
+                _ => held.push((lo, hi)),
             }
         }
-        SegAir { air_um: (1.0 - held).max(0.0) * e.length(), start_held, end_held }
+        held
     }
 }
 
@@ -540,7 +624,8 @@ pub fn layers_from_gcode(text: &str, default_width_um: f64) -> Vec<Layer> {
                 e += de;
                 if de > 0.0 && (to[0], to[1]) != (pos[0], pos[1]) {
                     let z_um = to[2] * 1000.0;
-                    if layers.last().map_or(true, |l| (l.z_um - z_um).abs() > 0.5) {
+                    if layers.last().map_or(true, |l| (l.z_um - z_um).abs() > Z_TOLERANCE_UM / 2.0)
+                    {
                         layers.push(Layer { z_um, extrusions: Vec::new() });
                     }
                     let (a, b) =
@@ -685,6 +770,26 @@ mod tests {
     }
 
     #[test]
+    fn a_bridge_past_its_pads_hangs_beyond_them() {
+        // Pads 0..5 and 25..30 mm; the bridge from -2 to 32 mm, its tails over air.
+        let layers = vec![
+            layer(
+                0,
+                vec![
+                    line((0.0, 0.0), (5_000.0, 0.0), "Solid infill"),
+                    line((25_000.0, 0.0), (30_000.0, 0.0), "Solid infill"),
+                ],
+            ),
+            layer(1, vec![line((-2_000.0, 0.0), (32_000.0, 0.0), BRIDGE)]),
+        ];
+        let air = over_air(&layers);
+        let gap_mm = (20_000.0 - 2.0 * reach()) / 1000.0;
+        let tails_mm = 2.0 * (2_000.0 - reach()) / 1000.0;
+        assert!(close(air.anchored_bridge_mm, gap_mm, 1e-9), "{}", air.anchored_bridge_mm);
+        assert!(close(air.true_air_mm, tails_mm, 1e-9), "{}", air.true_air_mm);
+    }
+
+    #[test]
     fn a_bridge_run_breaks_at_a_corner() {
         // An L of two bridge lines, held at its two ends only: its corner is in the air.
         let layers = vec![
@@ -712,7 +817,7 @@ mod tests {
     }
 
     #[test]
-    fn sparse_infill_over_air_is_counted_apart() {
+    fn sparse_infill_and_support_over_air_is_counted_apart() {
         let layers = vec![
             layer(0, vec![line((0.0, 0.0), (10_000.0, 0.0), SPARSE)]),
             layer(1, vec![line((5_000.0, -5_000.0), (5_000.0, 5_000.0), SPARSE)]),
@@ -720,8 +825,72 @@ mod tests {
         let air = over_air(&layers);
         // Crossing the line below, the line is held for the reach on each side.
         let want_mm = (10_000.0 - 2.0 * reach()) / 1000.0;
-        assert!(close(air.sparse_mm, want_mm, 1e-9), "{} vs {want_mm}", air.sparse_mm);
+        assert!(
+            close(air.sparse_support_mm, want_mm, 1e-9),
+            "{} vs {want_mm}",
+            air.sparse_support_mm
+        );
         assert_eq!((air.true_air_mm, air.anchored_bridge_mm), (0.0, 0.0));
+        let support = |e: Extrusion| Extrusion { feature: "Support material interface", ..e };
+        let on_support: Vec<Layer> = layers
+            .iter()
+            .map(|l| Layer {
+                extrusions: l.extrusions.iter().copied().map(support).collect(),
+                ..*l
+            })
+            .collect();
+        let air = over_air(&on_support);
+        assert!(close(air.sparse_support_mm, want_mm, 1e-9), "{}", air.sparse_support_mm);
+        assert_eq!((air.true_air_mm, air.anchored_bridge_mm), (0.0, 0.0));
+    }
+
+    /// A support interface line `gap_layers` layers under a part's line; beside them a wall
+    /// in every layer.
+    fn over_support(gap_layers: usize) -> OverAir {
+        let wall = line((0.0, 5_000.0), (10_000.0, 5_000.0), "Perimeter");
+        let interface = line((0.0, 0.0), (10_000.0, 0.0), "Support material interface");
+        let mut layers = vec![layer(0, vec![interface, wall])];
+        for i in 1..gap_layers {
+            layers.push(layer(i, vec![wall]));
+        }
+        layers.push(layer(gap_layers, vec![line((0.0, 0.0), (10_000.0, 0.0), BRIDGE), wall]));
+        over_air(&layers)
+    }
+
+    #[test]
+    fn supports_hold_across_the_contact_gap() {
+        // Right below, and with one or two 0.2 mm layers of air between.
+        for gap_layers in [1, 2, 3] {
+            let air = over_support(gap_layers);
+            assert_eq!((air.true_air_mm, air.anchored_bridge_mm), (0.0, 0.0), "{gap_layers}");
+        }
+        // Three layers of air: 10 mm of line over air, held at neither end.
+        assert!(close(over_support(4).true_air_mm, 10.0, 1e-12));
+        assert!(is_support("SUPPORT-INTERFACE") && !is_support("Supp"));
+    }
+
+    #[test]
+    fn supports_at_heights_of_their_own_hold_and_are_held() {
+        let wall = line((0.0, 5_000.0), (10_000.0, 5_000.0), "Perimeter");
+        let support = line((0.0, 0.0), (10_000.0, 0.0), "Support material");
+        let at = |z_um: f64, extrusions: Vec<Extrusion>| Layer { z_um, extrusions };
+        let bridge = line((0.0, 0.0), (10_000.0, 0.0), BRIDGE);
+        let mut layers = vec![
+            at(200.0, vec![wall, support]),
+            at(400.0, vec![wall]),
+            // 0.3 mm over the support below it, 0.3 mm under the bridge's layer below.
+            at(500.0, vec![support]),
+            at(600.0, vec![wall]),
+            at(800.0, vec![wall]),
+            at(1000.0, vec![wall, bridge]),
+        ];
+        let air = over_air(&layers);
+        let (true_air, anchored) = (air.true_air_mm, air.anchored_bridge_mm);
+        assert_eq!((true_air, anchored), (0.0, 0.0), "{}", air.describe_worst(3));
+        // The bridge a layer higher: the support is out of the contact gap's reach.
+        layers[5].extrusions.pop();
+        layers.push(at(1200.0, vec![wall, bridge]));
+        assert!(close(over_air(&layers).true_air_mm, 10.0, 1e-12));
     }
 
     #[test]
