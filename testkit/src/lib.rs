@@ -13,6 +13,7 @@
 //! - [`models`]: the shared model files (`../shared/models` beside the checkout), placed;
 //! - [`card`]: SD card images written by the `fatfs` crate;
 //! - [`check`]: `f64` geometry oracles independent of the core's integer code;
+//! - [`coverage`]: top and bottom surface coverage, the instrument for skins and gap fill;
 //! - [`overhang`]: extrusion over air, the instrument for bridges and supports;
 //! - [`on_big_stack`]: a closure on a thread with room for host-sized pipeline values.
 //!
@@ -27,6 +28,7 @@
 
 pub mod card;
 pub mod check;
+pub mod coverage;
 pub mod drive;
 pub mod mesh;
 pub mod models;
