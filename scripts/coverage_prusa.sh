@@ -7,6 +7,7 @@
 # does nothing without prusa-slicer.
 #
 #   scripts/coverage_prusa.sh [OUT_DIR] [EROSION_UM,...]   (default target/coverage_prusa)
+# G-code already in OUT_DIR is reused: delete it to slice again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! command -v prusa-slicer >/dev/null; then
