@@ -80,13 +80,21 @@ esac
 # when that path runs. The deepest frames are about 900 B (the card's service).
 FRAME_LIMIT=1536
 objdump="$(command -v llvm-objdump || echo "$bin_dir/llvm-objdump")"
+# Immediates in decimal (LLVM 14's objdump) or hex (`#0x1b4`, newer ones); a listing with no
+# frame read at all fails too, so that another format cannot pass unchecked.
 big_frame="$("$objdump" -d --no-show-raw-insn "$out/strata-firmware.elf" | awk -v limit=$FRAME_LIMIT '
+  function value(s,   v, i) {
+    if (s !~ /^0x/) return s + 0
+    v = 0
+    for (i = 3; i <= length(s); i++) v = v * 16 + index("0123456789abcdef", tolower(substr(s, i, 1))) - 1
+    return v
+  }
   /^[0-9a-f]+ <.*>:$/ { name = $2; frame = 0 }
-  $2 ~ /^sub(\.w|w)?$/ && $3 == "sp," && $NF ~ /^#[0-9]+$/ {
-    frame += substr($NF, 2)
+  $2 ~ /^sub(\.w|w)?$/ && $3 == "sp," && $NF ~ /^#(0x[0-9a-fA-F]+|[0-9]+)$/ {
+    frame += value(substr($NF, 2)); seen++
     if (frame > limit && !found) { found = name " " frame }
   }
-  END { print found }')"
+  END { print (seen ? found : "none read (objdump format?)") }')"
 [ -z "$big_frame" ] || fail "a stack frame over $FRAME_LIMIT B: $big_frame"
 "$objcopy" -O binary "$out/strata-firmware.elf" "$out/firmware.bin"
 read -r flash ram < <("$size" -A "$out/strata-firmware.elf" | awk '
