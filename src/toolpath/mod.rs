@@ -739,26 +739,26 @@ impl<
 
     /// Builds layer `l`'s paths in `work` and begins their emission
     /// ([`emit_next`](Self::emit_next)).
+    #[inline(never)]
     fn build<W: ToolpathSpace<PTS, CROSS>>(
         &mut self,
         l: u32,
         work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), Buffer> {
-        let cfg = self.cfg;
         let blk = self.ring.find(l).ok_or(Buffer::RingPoints)?;
         decode(self.ring.data(&blk), &mut self.contour)?;
         self.paths.clear();
         self.fill.clear();
-        let mut layer = LayerStats { index: l, z_um: cfg.layer_z_um(l), ..LayerStats::EMPTY };
+        let mut layer = LayerStats { index: l, z_um: self.cfg.layer_z_um(l), ..LayerStats::EMPTY };
         let islands = StoredRings::islands(self.ring.data(&blk));
         layer.islands = u32::from(islands);
-        let w = cfg.line_width_um;
+        let w = self.cfg.line_width_um;
         // Skirt around the first layer (and its brim), then the brim.
-        if l == FIRST_LAYER && cfg.skirt_loops > 0 && !self.contour.rings().is_empty() {
+        if l == FIRST_LAYER && self.cfg.skirt_loops > 0 && !self.contour.rings().is_empty() {
             self.skirt(work)?;
         }
-        if l == FIRST_LAYER && cfg.brim_loops() > 0 {
+        if l == FIRST_LAYER && self.cfg.brim_loops() > 0 {
             self.brim(work, &mut || sink(&ToolEvent::Progress))?;
         }
         // Perimeters and the infill domain, island by island.
@@ -768,7 +768,7 @@ impl<
             // Doubled area of the island's opening by half a line (what lines can cover):
             // `Some(None)` when the measurement did not fit the offset buffers.
             let mut opened2: Option<Option<i64>> = None;
-            for depth in 0..cfg.perimeters {
+            for depth in 0..self.cfg.perimeters {
                 let d = i32::from(depth) * w + w / 2;
                 let (engine, points) = work.engine_and_points();
                 let mut tmp = Loops::new(points, &mut self.tmp);
@@ -789,14 +789,14 @@ impl<
                     let pts = tmp.ring_points(r);
                     self.paths.add_loop(pts, feature, island, PathKind::Perimeter(depth))?;
                 }
-                if depth == 0 && cfg.measure_thin_area {
+                if depth == 0 && self.cfg.measure_thin_area {
                     opened2 = Some(self.opening_of_tmp(work, island));
                 }
             }
-            if cfg.measure_thin_area {
+            if self.cfg.measure_thin_area {
                 self.measure_thin_area(work, island, opened2, &mut layer);
             }
-            let curves = island_curves(&self.contour, island, cfg.infill_inset_um());
+            let curves = island_curves(&self.contour, island, self.cfg.infill_inset_um());
             let out = &mut self.fill.loops();
             work.engine().union_into(out, island, 0, min_width, limit, curves)?;
             sink(&ToolEvent::Progress);
@@ -804,13 +804,13 @@ impl<
         // Infill.
         if !self.fill.rings().is_empty() {
             let angle = if l % 2 == 0 { Angle::D45 } else { Angle::D135 };
-            let grid = cfg.infill_pattern == InfillPattern::Grid;
+            let grid = self.cfg.infill_pattern == InfillPattern::Grid;
             let mut progress = || sink(&ToolEvent::Progress);
-            let bridges = cfg.bridges && l > FIRST_LAYER;
+            let bridges = self.cfg.bridges && l > FIRST_LAYER;
             let over_air = if bridges { OverAir::Leave } else { OverAir::Solid };
             self.infill_pass(work, l, angle, true, over_air, &mut progress)?;
             let air = self.fill_use.bridge.over_air_u > 0;
-            if grid && cfg.sparse_lines().any() {
+            if grid && self.cfg.sparse_lines().any() {
                 self.infill_pass(work, l, angle.other(), false, OverAir::Solid, &mut progress)?;
             }
             if air {
@@ -819,10 +819,10 @@ impl<
             }
         }
         // Perimeters over air.
-        if cfg.bridges && l > FIRST_LAYER && !self.paths.is_empty() {
+        if self.cfg.bridges && l > FIRST_LAYER && !self.paths.is_empty() {
             let mut progress = || sink(&ToolEvent::Progress);
             self.infill_pass(work, l, Angle::D45, true, OverAir::Locate, &mut progress)?;
-            let (step, w) = (Angle::D45.line_step(LOCATE_SPACING * w), cfg.line_width_um);
+            let (step, w) = (Angle::D45.line_step(LOCATE_SPACING * w), self.cfg.line_width_um);
             let pool = work.fill().pool.as_flattened_mut();
             infill::tag_overhangs(
                 pool,
@@ -840,7 +840,7 @@ impl<
         sink(&ToolEvent::LayerStart {
             index: l,
             z_um: layer.z_um,
-            height_um: cfg.layer_height_of(l),
+            height_um: self.cfg.layer_height_of(l),
         });
         // The infill scratch keeps the place (the nearest-path grid goes into its pool).
         self.park_engine(work);
