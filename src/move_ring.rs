@@ -6,10 +6,12 @@
 //! 6.3 on average over the sample models, at most [`MAX_RECORD`]):
 //!
 //! - a header byte: bits 0-1 the kind (0 print, 1 travel, 2 retract, 3 dwell), bit 2 the layer
-//!   changed, bit 3 the feed changed, bits 4-7 which of the X, Y, Z, E deltas follow;
-//! - the non-zero deltas of X, Y, Z, E (um, in that order), the layer delta when the layer
-//!   changed, each a zigzag LEB128 varint (deltas taken in `i64`: no overflow at the `i32`
-//!   extremes);
+//!   or the fan changed, bit 3 the feed changed, bits 4-7 which of the X, Y, Z, E deltas
+//!   follow;
+//! - the non-zero deltas of X, Y, Z, E (um, in that order), each a zigzag LEB128 varint
+//!   (deltas taken in `i64`: no overflow at the `i32` extremes), then, when the layer or the
+//!   fan changed, the layer delta's zigzag shifted left by 8 with the fan duty in the low
+//!   byte, as an LEB128 varint (a layer's first move: 2 bytes);
 //! - the feed bits when the feed changed, halves swapped (whole mm/s, the usual case, then
 //!   fit one or two bytes), as an LEB128 varint.
 //!
@@ -52,6 +54,9 @@ pub struct PackedMove {
     pub feed_bits: u32,
     /// Layer (saturated at `u16::MAX`).
     pub layer: u16,
+    /// The part-cooling fan's duty from this move on, 0..=255 ([`ToolMove::fan`]; 0 for a
+    /// G-code job's moves, whose fan is a setting timed to the motion).
+    pub fan: u8,
     /// Print, travel or retract.
     pub kind: MoveKind,
 }
@@ -59,13 +64,14 @@ pub struct PackedMove {
 impl PackedMove {
     /// Where both coder states start: the origin, feed 0, layer 0.
     pub const ORIGIN: Self =
-        Self { target_um: [0; AXES], feed_bits: 0, layer: 0, kind: MoveKind::Print };
+        Self { target_um: [0; AXES], feed_bits: 0, layer: 0, fan: 0, kind: MoveKind::Print };
 
-    /// `mv` of `layer`; the feed keeps 16 fractional bits (saturating at 65,536 mm/s).
+    /// `mv` of `layer`, fan off; the feed keeps 16 fractional bits (saturating at 65,536
+    /// mm/s).
     pub fn pack(layer: u32, mv: &Move) -> Self {
         let feed_bits = (mv.feed_mm_s.to_bits() >> 16).min(u32::MAX as u64) as u32;
         let layer = layer.min(u16::MAX as u32) as u16;
-        Self { target_um: mv.target_um, feed_bits, layer, kind: mv.kind }
+        Self { target_um: mv.target_um, feed_bits, layer, fan: 0, kind: mv.kind }
     }
 
     /// The move for the planner.
@@ -106,7 +112,8 @@ impl MoveStream {
     pub fn next(&mut self, m: &ToolMove) -> PackedMove {
         if m.feature == Feature::Dwell {
             let at = [self.xyz[0], self.xyz[1], self.xyz[2], self.e_um];
-            return PackedMove::pack(self.layer, &Move::dwell(at, m.feed_mm_s));
+            let dwell = Move::dwell(at, m.feed_mm_s);
+            return PackedMove { fan: m.fan, ..PackedMove::pack(self.layer, &dwell) };
         }
         self.e_um = self.e_um.wrapping_add(m.e_um);
         let xyz = [m.to.x, m.to.y, m.z_um];
@@ -119,15 +126,17 @@ impl MoveStream {
         };
         self.xyz = xyz;
         let mv = Move::new([xyz[0], xyz[1], xyz[2], self.e_um], m.feed_mm_s, kind);
-        PackedMove::pack(self.layer, &mv)
+        PackedMove { fan: m.fan, ..PackedMove::pack(self.layer, &mv) }
     }
 }
 
 /// The longest record: the header, four axis deltas of up to 33 zigzag bits (5 bytes each),
-/// a layer delta of up to 17 zigzag bits (3 bytes) and the feed's 32 bits (5 bytes).
-pub const MAX_RECORD: usize = 1 + 4 * 5 + 3 + 5;
+/// a layer delta of up to 17 zigzag bits with the fan's 8 (4 bytes) and the feed's 32 bits
+/// (5 bytes).
+pub const MAX_RECORD: usize = 1 + 4 * 5 + 4 + 5;
 
-/// Header bit: the layer changed (its delta follows the axis deltas).
+/// Header bit: the layer or the fan changed (the layer delta and the fan follow the axis
+/// deltas).
 const NEW_LAYER: u8 = 1 << 2;
 /// Header bit: the feed changed (its bits end the record).
 const NEW_FEED: u8 = 1 << 3;
@@ -169,9 +178,10 @@ impl MoveEncoder {
                 w.varint(zigzag(delta));
             }
         }
-        if mv.layer != self.prev.layer {
+        if mv.layer != self.prev.layer || mv.fan != self.prev.fan {
             header |= NEW_LAYER;
-            w.varint(zigzag(i64::from(mv.layer) - i64::from(self.prev.layer)));
+            let delta = zigzag(i64::from(mv.layer) - i64::from(self.prev.layer));
+            w.varint(delta << 8 | u64::from(mv.fan));
         }
         if mv.feed_bits != self.prev.feed_bits {
             header |= NEW_FEED;
@@ -253,7 +263,9 @@ fn decode(prev: &PackedMove, bytes: &mut impl Iterator<Item = u8>) -> Option<Pac
         }
     }
     if header & NEW_LAYER != 0 {
-        let delta = unzigzag(read_varint(bytes)?);
+        let v = read_varint(bytes)?;
+        mv.fan = v as u8;
+        let delta = unzigzag(v >> 8);
         mv.layer = u16::try_from(i64::from(mv.layer).checked_add(delta)?).ok()?;
     }
     if header & NEW_FEED != 0 {
@@ -681,6 +693,10 @@ mod tests {
             3 => prev.layer.wrapping_add(1),
             _ => prev.layer,
         };
+        mv.fan = match next() % 4 {
+            0 => next() as u8,
+            _ => prev.fan,
+        };
         mv.kind = KINDS[(next() % 4) as usize];
         mv
     }
@@ -709,9 +725,13 @@ mod tests {
         // A travel at 40 mm/s (U16F16 40 << 16; halves swapped: 40).
         let f = PackedMove { feed_bits: 40 << 16, kind: MoveKind::Travel, ..o };
         assert_eq!(record(&o, &f), [0x01 | 0x08, 40]);
-        // A retraction of E -1 um into layer 3: E delta zigzag 1, layer delta zigzag 6.
+        // A retraction of E -1 um into layer 3: E delta zigzag 1, layer delta zigzag 6 with
+        // the fan (0) in its low byte: 6 << 8 = 1536 = 0b1100_0000000 -> 0x80 0x0c.
         let r = PackedMove { target_um: [0, 0, 0, -1], layer: 3, kind: MoveKind::Retract, ..o };
-        assert_eq!(record(&o, &r), [0x02 | 0x04 | 0x80, 1, 6]);
+        assert_eq!(record(&o, &r), [0x02 | 0x04 | 0x80, 1, 0x80, 0x0c]);
+        // The fan to 255 on the same layer: layer delta 0, 255 -> 0xff 0x01.
+        let fan = PackedMove { fan: 255, ..o };
+        assert_eq!(record(&o, &fan), [0x04, 0xff, 0x01]);
         // The same move again: the header alone.
         assert_eq!(record(&x, &x), [0x00]);
     }
@@ -722,22 +742,25 @@ mod tests {
             target_um: [i32::MIN; AXES],
             feed_bits: 0,
             layer: 0,
+            fan: 0,
             kind: MoveKind::Print,
         };
         let high = PackedMove {
             target_um: [i32::MAX; AXES],
             feed_bits: u32::MAX,
             layer: u16::MAX,
+            fan: u8::MAX,
             kind: MoveKind::Retract,
         };
         for (a, b) in [(low, high), (high, low)] {
             let r = record(&a, &b);
-            // 1 header + 4 x 5 (33 bits) + 3 (17 bits) + feed (5 bytes for u32::MAX, 1 for 0).
+            // 1 header + 4 x 5 (33 bits) + 4 (17 + 8 bits) + feed (5 bytes for u32::MAX, 1
+            // for 0).
             let feed = if b.feed_bits == 0 { 1 } else { 5 };
-            assert_eq!(r.len(), 1 + 20 + 3 + feed);
+            assert_eq!(r.len(), 1 + 20 + 4 + feed);
             assert_eq!(decoded(&a, &r), Some(b));
         }
-        assert_eq!(MAX_RECORD, 29);
+        assert_eq!(MAX_RECORD, 30);
     }
 
     #[test]
@@ -928,6 +951,7 @@ mod tests {
             e_um,
             feed_mm_s: Rate::from_num(40),
             feature: Feature::InternalInfill,
+            fan: 0,
         };
         [at(1_000, 0), at(2_000, 30), at(2_000, -500)]
     }
@@ -952,7 +976,8 @@ mod tests {
         // Past the i32 range, the u16 layer range and the u32 feed.
         let top = PackedMove { target_um: [i32::MAX, 0, 0, 0], layer: u16::MAX, ..o };
         assert_eq!(decoded(&top, &[0x10, 2]), None);
-        assert_eq!(decoded(&top, &[0x04, 2]), None);
+        // Layer +1 (zigzag 2, shifted past the fan's byte: 512 -> 0x80 0x04).
+        assert_eq!(decoded(&top, &[0x04, 0x80, 0x04]), None);
         assert_eq!(decoded(&o, &[0x08, 0x80, 0x80, 0x80, 0x80, 0x10]), None);
         // Random bytes never panic.
         let mut next = xorshift(77);
@@ -972,6 +997,7 @@ mod tests {
             e_um,
             feed_mm_s: feed,
             feature: Feature::InternalInfill,
+            fan: 0,
         };
         s.start_layer(2);
         let travel = s.next(&at(1_000, 0, 0));

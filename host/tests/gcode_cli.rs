@@ -325,6 +325,100 @@ fn small_layers_take_at_least_the_minimum_layer_time() {
     }
 }
 
+/// An extrusion of the print body: its layer, `;TYPE:`, the fan duty in effect (0..=255), its
+/// ends (mm) and feed (mm/s).
+type Extrusion = (usize, String, u32, (f64, f64), (f64, f64), f64);
+
+/// Every extrusion of `gcode`'s print body, the fan from its `M106 S` / `M107` lines.
+fn fan_at_extrusions(gcode: &str) -> Vec<Extrusion> {
+    let (mut layer, mut kind, mut fan) = (0usize, String::new(), 0u32);
+    let (mut pos, mut feed, mut out) = ((0.0f64, 0.0f64), 1.0f64, Vec::new());
+    for line in print_body(gcode) {
+        if let Some(n) = line.strip_prefix(";LAYER:") {
+            layer = n.parse().unwrap();
+        }
+        if let Some(t) = line.strip_prefix(";TYPE:") {
+            kind = t.to_string();
+        }
+        if let Some(d) = line.strip_prefix("M106 S") {
+            fan = d.parse().unwrap();
+        }
+        if line.starts_with("M107") {
+            fan = 0;
+        }
+        let Some(m) = parse(line) else { continue };
+        feed = m.f.unwrap_or(feed * 60.0) / 60.0;
+        let to = (m.x.unwrap_or(pos.0), m.y.unwrap_or(pos.1));
+        if m.e.is_some_and(|e| e > 0.0) && to != pos {
+            out.push((layer, kind.clone(), fan, pos, to, feed));
+        }
+        pos = to;
+    }
+    out
+}
+
+#[test]
+fn the_fan_follows_the_layer_time_and_bridges_get_full_fan() {
+    // PrusaSlicer's cooling: off on the first layer; 35 % (duty 89) for layers of 60 s and
+    // more, 100 % at the 5 s minimum layer time and below, linear in between; bridges 100 %.
+    // A 50 x 50 mm slab (long layers), a 20 x 20 mm block on it (between), a 5 x 5 mm tip
+    // (short), and two posts joined by a plate (a bridge).
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("steps.stl");
+    let mut mesh = strata_testkit::mesh::cuboid([0.0, 0.0, 0.0], [50.0, 50.0, 1.0]);
+    mesh.extend(strata_testkit::mesh::cuboid([15.0, 15.0, 1.0], [35.0, 35.0, 4.0]));
+    mesh.extend(strata_testkit::mesh::cuboid([22.5, 22.5, 4.0], [27.5, 27.5, 5.0]));
+    mesh.extend(strata_testkit::mesh::cuboid([60.0, 0.0, 0.0], [66.0, 6.0, 3.0]));
+    mesh.extend(strata_testkit::mesh::cuboid([86.0, 0.0, 0.0], [92.0, 6.0, 3.0]));
+    mesh.extend(strata_testkit::mesh::cuboid([60.0, 0.0, 3.0], [92.0, 6.0, 4.0]));
+    write_mesh(&model, &mesh);
+    let out = dir.path().join("steps.gcode");
+    Command::cargo_bin("strata")
+        .unwrap()
+        .args(["slice", model.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .assert()
+        .success();
+    let gcode = std::fs::read_to_string(&out).unwrap();
+    let extrusions = fan_at_extrusions(&gcode);
+    // Each layer's extrusion time from the G-code (length / feed): its full-speed time, or
+    // about the 5 s minimum for a slowed layer (full fan either way).
+    let layers = extrusions.iter().map(|e| e.0).max().unwrap() + 1;
+    let mut seconds = vec![0.0f64; layers];
+    for (l, _, _, a, b, feed) in &extrusions {
+        seconds[*l] += (b.0 - a.0).hypot(b.1 - a.1) / feed;
+    }
+    let duty = |t: f64| {
+        let (lo, hi) = (255.0 * 0.35, 255.0);
+        if t >= 60.0 {
+            lo
+        } else if t <= 5.0 {
+            hi
+        } else {
+            lo + (hi - lo) * (60.0 - t) / 55.0
+        }
+    };
+    let mut duties = std::collections::BTreeSet::new();
+    for (l, kind, fan, ..) in &extrusions {
+        let want = match (l, kind.as_str()) {
+            (0, _) => 0.0,
+            (_, "Bridge infill" | "Overhang perimeter") => 255.0,
+            _ => duty(seconds[*l]),
+        };
+        assert!(
+            (f64::from(*fan) - want).abs() <= 2.0,
+            "layer {l} ({:.1} s) {kind}: fan {fan}, want {want:.1}",
+            seconds[*l]
+        );
+        if *l > 0 && !kind.starts_with("Bridge") {
+            duties.insert(*fan);
+        }
+    }
+    // Long, short and in-between layers all printed, and a bridge.
+    assert!(duties.contains(&89) && duties.contains(&255), "{duties:?}");
+    assert!(duties.iter().any(|d| (100..240).contains(d)), "{duties:?}");
+    assert!(extrusions.iter().any(|e| e.1 == "Bridge infill"));
+}
+
 #[test]
 fn settings_flags_change_the_gcode() {
     // Absolute E: M82, E grows within a layer and restarts at every G92 E0.

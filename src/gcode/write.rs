@@ -18,7 +18,8 @@
 //!   the extrusion feature changes; travels are `G0`, extrusions `G1`, the feed rate only
 //!   when it changes;
 //!   absolute E is reset with `G92 E0` at every layer (Marlin keeps E in a `float`);
-//!   the part-cooling fan goes on at the second layer;
+//!   the part-cooling fan (`M106 S`, `M107` for off) wherever the moves' duty changes (by
+//!   layer time, on bridges; [`crate::toolpath::Cooling`]);
 //! - the end sequence ([`GcodeWriter::end`]): retract, lift 10 mm, park at the back, fan,
 //!   hotend and bed off, motors off.
 
@@ -34,18 +35,14 @@ use crate::toolpath::{Feature, ToolEvent, ToolMove, ToolpathConfig};
 pub struct GcodeOptions {
     /// Relative extrusion (`M83`, every `E` a delta); otherwise absolute (`M82`).
     pub relative_e: bool,
-    /// Layer index at which the part-cooling fan starts (`None`: never).
-    pub fan_from_layer: Option<u32>,
-    /// Fan PWM, 0..=255.
-    pub fan_speed: u8,
     /// Draw a prime line before the print.
     pub prime_line: bool,
 }
 
 impl Default for GcodeOptions {
-    /// Relative E, fan on from the second layer at full speed, prime line.
+    /// Relative E, prime line.
     fn default() -> Self {
-        Self { relative_e: true, fan_from_layer: Some(1), fan_speed: 255, prime_line: true }
+        Self { relative_e: true, prime_line: true }
     }
 }
 
@@ -179,6 +176,8 @@ pub struct GcodeWriter<W: Write> {
     feature: Option<Feature>,
     width_um: i32,
     retracted: bool,
+    /// The fan duty last written (0 from the start sequence's `M107` on).
+    fan: u8,
     stats: GcodeStats,
 }
 
@@ -196,6 +195,7 @@ impl<W: Write> GcodeWriter<W> {
             feature: None,
             width_um: cfg.line_width_um,
             retracted: false,
+            fan: 0,
             stats: GcodeStats::default(),
         }
     }
@@ -342,10 +342,6 @@ impl<W: Write> GcodeWriter<W> {
                     self.comment("G92 E0")?;
                     self.e_abs = 0;
                 }
-                if self.opts.fan_from_layer == Some(index) {
-                    self.line.s("M106 S").int(self.opts.fan_speed.into());
-                    self.emit()?;
-                }
                 self.feature = None;
                 Ok(())
             }
@@ -355,6 +351,14 @@ impl<W: Write> GcodeWriter<W> {
     }
 
     fn tool_move(&mut self, m: &ToolMove) -> fmt::Result {
+        if m.fan != self.fan {
+            self.fan = m.fan;
+            match m.fan {
+                0 => self.line.s("M107"),
+                d => self.line.s("M106 S").int(d.into()),
+            };
+            self.emit()?;
+        }
         match m.feature {
             Feature::Retract | Feature::Unretract => {
                 if m.feature == Feature::Retract {
@@ -476,6 +480,7 @@ mod tests {
                 e_um: 0,
                 feed_mm_s: Rate::from_num(seconds),
                 feature: Feature::Dwell,
+                fan: 0,
             };
             w.event(&ToolEvent::Move(m)).unwrap();
             let line = format!("G4 P{ms} ; minimum layer time\n");

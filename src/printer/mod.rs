@@ -390,20 +390,17 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         }
     }
 
-    /// The part-cooling fan's duty (0..=255) the job wants: full from the second layer on
-    /// (the layer whose blocks are being turned into steps), off on the first layer (for bed
-    /// adhesion, like slicers' defaults) and without an active job.
+    /// The part-cooling fan's duty (0..=255) the job wants where the motion is: a sliced
+    /// job's moves carry it (by layer time, on bridges, off on the first layer:
+    /// [`crate::toolpath::Cooling`]), a G-code job's is its `M106`; off without an active job.
     pub fn fan_duty<const Q: usize>(&self, motion: &mut impl MotionAccess<MOVE_BYTES, P, Q>) -> u8 {
+        if self.state != DeviceState::Printing {
+            return 0;
+        }
         if self.gcode_job {
-            let fan = self.pipeline.gcode_ref().map_or(0, |g| g.fan());
-            return if self.state == DeviceState::Printing { fan } else { 0 };
+            return self.pipeline.gcode_ref().map_or(0, |g| g.fan());
         }
-        let layer = motion.with(|m, _| m.generator().tag());
-        if self.state == DeviceState::Printing && layer.is_some_and(|layer| layer >= 1) {
-            255
-        } else {
-            0
-        }
+        motion.with(|m, _| m.fan())
     }
 
     /// What the heaters measure (0.1 degC, for the status reports) and whether they are at

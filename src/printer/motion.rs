@@ -25,11 +25,14 @@ use crate::step::{StepConfig, StepGenerator, StepProducer};
 pub struct Motion<const MOVE_BYTES: usize, const P: usize> {
     moves: MoveRing<MOVE_BYTES>,
     planner: Planner<P>,
-    /// Layer of every move in the planner that makes a block.
+    /// Layer (low 16 bits) and fan duty (the next 8) of every move in the planner that
+    /// makes a block.
     tags: Deque<u32, P>,
     /// The layer of the last move into the planner, plus one (0: none yet).
     planned_layer: u32,
     gen: StepGenerator,
+    /// The fan duty of the last block into the generator (0..=255).
+    fan: u8,
 }
 
 impl<const MOVE_BYTES: usize, const P: usize> Default for Motion<MOVE_BYTES, P> {
@@ -46,6 +49,7 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         tags: Deque::new(),
         planned_layer: 0,
         gen: StepGenerator::empty(),
+        fan: 0,
     };
 
     /// Empties every buffer and starts the planner and the generator at the origin.
@@ -55,6 +59,7 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
         self.tags.clear();
         self.planned_layer = 0;
         self.gen.reset(step, [0; AXES]);
+        self.fan = 0;
     }
 
     /// The move buffer.
@@ -75,6 +80,12 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
     /// The step generator (its statistics, motor positions).
     pub fn generator(&self) -> &StepGenerator {
         &self.gen
+    }
+
+    /// The part-cooling fan's duty the toolpath asks for where the motion is (the last block
+    /// into the step generator's), 0..=255.
+    pub fn fan(&self) -> u8 {
+        self.fan
     }
 
     /// The step generator, to take its layer marks.
@@ -116,9 +127,11 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
                 self.planner.pop()
             };
             let Some(b) = block else { break };
-            let layer = self.tags.pop_front().unwrap_or(0);
-            // `wants_block` was true: the generator takes it.
-            let _ = self.gen.load_tagged(b, layer);
+            let tag = self.tags.pop_front().unwrap_or(0);
+            self.fan = (tag >> 16) as u8;
+            // `wants_block` was true: the generator takes it (tagged with its layer: the
+            // generator's commands start afresh where the tag changes).
+            let _ = self.gen.load_tagged(b, tag & 0xffff);
             released = true;
         }
         released
@@ -159,7 +172,7 @@ impl<const MOVE_BYTES: usize, const P: usize> Motion<MOVE_BYTES, P> {
             worked = true;
             // A move that goes nowhere makes no block and has no tag (a dwell makes one).
             if self.planner.len() > queued {
-                let _ = self.tags.push_back(u32::from(t.layer));
+                let _ = self.tags.push_back(u32::from(t.layer) | u32::from(t.fan) << 16);
             }
         }
         Ok(worked)

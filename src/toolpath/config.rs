@@ -22,6 +22,61 @@ pub const BRIDGE_SPEED_MM_S: u16 = 25;
 /// typically 3-10 mm; 50 mm is already a plate's worth of loops).
 pub const MAX_BRIM_WIDTH_UM: i32 = 50_000;
 
+/// The part-cooling fan by layer time.
+///
+/// PrusaSlicer's cooling logic and its built-in defaults: off on the first layers; a layer whose extrusions take at least `slow_below_s` at full
+/// speed gets `min_duty`, one that takes at most the minimum layer time
+/// ([`ToolpathConfig::min_layer_time_ms`]) `max_duty`, linearly in between; bridges and
+/// overhang perimeters `bridge_duty`. Duties 0..=255.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cooling {
+    /// Duty of layers of `slow_below_s` or more.
+    pub min_duty: u8,
+    /// Duty of layers of the minimum layer time or less.
+    pub max_duty: u8,
+    /// Duty while printing bridges and overhang perimeters.
+    pub bridge_duty: u8,
+    /// Layers from the bed up with the fan off (adhesion).
+    pub off_layers: u8,
+    /// Layers shorter than this (s) get more than `min_duty`.
+    pub slow_below_s: u16,
+}
+
+impl Cooling {
+    /// PrusaSlicer's defaults: 35 % from 60 s up, 100 % at the minimum layer time and on
+    /// bridges, the first layer without fan.
+    pub const DEFAULT: Self = Self {
+        min_duty: duty_of_percent(35),
+        max_duty: 255,
+        bridge_duty: 255,
+        off_layers: 1,
+        slow_below_s: 60,
+    };
+
+    /// The fan duty of layer `index` whose extrusions take `layer_us` at full speed, with a
+    /// minimum layer time of `min_layer_us`.
+    pub fn layer_duty(&self, index: u32, layer_us: u64, min_layer_us: u64) -> u8 {
+        let slow_us = u64::from(self.slow_below_s) * 1_000_000;
+        if index < u32::from(self.off_layers) {
+            0
+        } else if layer_us >= slow_us {
+            self.min_duty
+        } else if layer_us <= min_layer_us {
+            self.max_duty
+        } else {
+            // From `max_duty` at `min_layer_us` down to `min_duty` at `slow_us`, rounded.
+            let (lo, hi) = (i64::from(self.min_duty), i64::from(self.max_duty));
+            let (span, left) = ((slow_us - min_layer_us) as i64, (slow_us - layer_us) as i64);
+            (lo + ((hi - lo) * left * 2 + span).div_euclid(2 * span)).clamp(0, 255) as u8
+        }
+    }
+}
+
+/// A fan duty (0..=255) of `percent`, rounded.
+pub const fn duty_of_percent(percent: u32) -> u8 {
+    ((percent * 255 + 50) / 100) as u8
+}
+
 /// Where loops start.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -107,6 +162,8 @@ pub struct ToolpathConfig {
     pub cool_lift_um: u16,
     /// The build volume's height, um: the lift stays below it.
     pub max_z_um: i32,
+    /// The part-cooling fan.
+    pub cooling: Cooling,
     /// Measure each island's area thinner than a line ([`LayerStats::thin_area_um2`]): one
     /// more offset per island and layer, for reports only (the toolpaths do not depend on
     /// it); the printer leaves it out.
@@ -117,7 +174,8 @@ impl ToolpathConfig {
     /// The toolpath settings of `settings` on `machine`, with this stage's defaults: outer
     /// perimeter last, infill overlap half a line (infill lines reach the innermost
     /// perimeter's inner edge), a 3 mm skirt of one loop, no brim, rear seams,
-    /// 10 um simplification, combing, retraction for travels over 1.5 mm that leave the part.
+    /// 10 um simplification, combing, retraction for travels over 1.5 mm that leave the part,
+    /// PrusaSlicer's cooling ([`Cooling::DEFAULT`]).
     pub fn new(machine: &MachineConfig, settings: &PrintSettings) -> Self {
         Self {
             line_width_um: settings.line_width_um,
@@ -151,6 +209,7 @@ impl ToolpathConfig {
             min_print_speed_mm_s: Rate::from_num(10),
             cool_lift_um: COOL_LIFT_UM,
             max_z_um: machine.build_volume_um[2],
+            cooling: Cooling::DEFAULT,
             measure_thin_area: true,
         }
     }
@@ -184,6 +243,7 @@ impl ToolpathConfig {
             ("min_layer_time_ms", self.min_layer_time_ms <= 600_000),
             ("min_print_speed_mm_s", self.min_print_speed_mm_s > 0),
             ("cool_lift_um", self.cool_lift_um <= 50_000),
+            ("cooling.slow_below_s", self.cooling.slow_below_s <= 3_600),
             ("max_z_um", self.max_z_um > 0),
         ];
         match checks.iter().find(|(_, ok)| !ok) {
@@ -320,6 +380,7 @@ pub(super) const IDLE_CONFIG: ToolpathConfig = ToolpathConfig {
     min_print_speed_mm_s: Rate::ZERO,
     cool_lift_um: 0,
     max_z_um: 0,
+    cooling: Cooling { min_duty: 0, max_duty: 0, bridge_duty: 0, off_layers: 0, slow_below_s: 0 },
     measure_thin_area: false,
 };
 
@@ -347,12 +408,11 @@ mod tests {
         assert_eq!(IDLE_CONFIG.brim_loops(), 0);
     }
 
-    /// The settings are copied on the board's deepest stack (job start, the layer's passes):
-    /// 112 B, as before bridges and the brim; one more word there took HIL runs past the
-    /// stack headroom.
+    /// The settings are copied on the stack at a job's start; the layer's build reads them
+    /// in place (it copied them once, on the board's deepest stack). 120 B with the cooling.
     #[test]
     fn the_settings_keep_their_size() {
-        assert!(core::mem::size_of::<super::ToolpathConfig>() <= 112);
+        assert!(core::mem::size_of::<super::ToolpathConfig>() <= 120);
     }
 
     #[test]

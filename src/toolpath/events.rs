@@ -158,6 +158,9 @@ pub struct ToolMove {
     pub feed_mm_s: Rate,
     /// What the move is.
     pub feature: Feature,
+    /// The part-cooling fan's duty from this move on, 0..=255 (it changes on a layer's first
+    /// move and on extrusions only: the travels between a bridge's lines keep its fan).
+    pub fan: u8,
 }
 
 /// What the toolpath stage emits.

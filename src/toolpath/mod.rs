@@ -136,7 +136,10 @@ mod thin;
 pub mod window;
 
 use config::IDLE_CONFIG;
-pub use config::{Seam, SparseLines, ToolpathConfig, BRIDGE_SPEED_MM_S, MAX_BRIM_WIDTH_UM};
+pub use config::{
+    duty_of_percent, Cooling, Seam, SparseLines, ToolpathConfig, BRIDGE_SPEED_MM_S,
+    MAX_BRIM_WIDTH_UM,
+};
 pub use error::{Buffer, ToolpathError};
 pub use events::{Emitted, Feature, Moves, Room, ToolEvent, ToolMove};
 pub use space::{Engine, ToolpathScratch, ToolpathSpace};
@@ -239,6 +242,8 @@ pub struct Toolpath<
     feed_scale_q16: u32,
     /// The built layer's wait at its end for the rest of its minimum time, ms.
     cool_wait_ms: u32,
+    /// The built layer's fan duty, and its bridges' ([`Ctx::fan`]).
+    fan: [u8; 2],
     /// Where the built layer's emission stands.
     emission: Emission,
     next_in: u32,
@@ -294,6 +299,7 @@ impl<
             // all zero bytes (`.bss`).
             feed_scale_q16: 0,
             cool_wait_ms: 0,
+            fan: [0; 2],
             emission: Emission::new(),
             next_in: 0,
             next_out: 0,
@@ -557,6 +563,7 @@ impl<
             first_layer: l == FIRST_LAYER,
             feed_scale_q16: self.feed_scale_q16,
             cool_wait_ms: self.cool_wait_ms,
+            fan: self.fan,
         };
         // The infill pool is free since the layer was built: the nearest-path grid's cells
         // and entries, untouched until the layer is complete (without it: scans).
@@ -844,53 +851,59 @@ impl<
         });
         // The infill scratch keeps the place (the nearest-path grid goes into its pool).
         self.park_engine(work);
-        (self.feed_scale_q16, self.cool_wait_ms) = self.min_time_plan(l == FIRST_LAYER);
+        let fan;
+        (self.feed_scale_q16, self.cool_wait_ms, fan) = self.min_time_plan(l);
+        let fan_on = l >= u32::from(self.cfg.cooling.off_layers);
+        self.fan = [fan, if fan_on { self.cfg.cooling.bridge_duty } else { 0 }];
         self.emission.begin(&self.cfg, &self.paths, &mut self.island_stage);
         Ok(())
     }
 
     /// The extrusion feed scale (q16) that makes the built layer's extrusions take at least the
     /// minimum layer time ([`ToolpathConfig::min_layer_time_ms`]), from their lengths (travels
-    /// and acceleration left out: the layer takes at least that long), and the wait (ms) at
+    /// and acceleration left out: the layer takes at least that long), the wait (ms) at
     /// the layer's end for what the slowest print feed still leaves of that time (0 for a
-    /// layer without extrusion: nothing to cool).
-    fn min_time_plan(&self, first_layer: bool) -> (u32, u32) {
+    /// layer without extrusion: nothing to cool), and the layer's fan duty from its time at
+    /// full speed ([`Cooling::layer_duty`]).
+    fn min_time_plan(&self, l: u32) -> (u32, u32, u8) {
         let min_us = u64::from(self.cfg.min_layer_time_ms) * 1_000;
-        if min_us == 0 {
-            return (FEED_SCALE_ONE, 0);
-        }
+        let cooling = &self.cfg.cooling;
+        let slow_us = u64::from(cooling.slow_below_s) * 1_000_000;
         let mut ctx = Ctx {
             cfg: &self.cfg,
             points: &[],
             rings: &[],
             height_um: 0,
-            first_layer,
+            first_layer: l == FIRST_LAYER,
             feed_scale_q16: FEED_SCALE_ONE,
             cool_wait_ms: 0,
+            fan: [0; 2],
         };
-        // Most layers take longer: shown without a square root per segment, from each
-        // segment's longer side (at most its length).
+        // Most layers take longer than both: shown without a square root per segment, from
+        // each segment's longer side (at most its length).
         let sides = self.extrusion_lengths(|dx, dy| dx.max(dy));
-        if time_us(&sides, |f| ctx.full_feed(f)) >= min_us {
-            return (FEED_SCALE_ONE, 0);
+        let sides_us = time_us(&sides, |f| ctx.full_feed(f));
+        if sides_us >= min_us.max(slow_us) {
+            return (FEED_SCALE_ONE, 0, cooling.layer_duty(l, sides_us, min_us));
         }
         let lengths = self.extrusion_lengths(|dx, dy| math::isqrt_u64(dx * dx + dy * dy));
         let us = time_us(&lengths, |f| ctx.full_feed(f));
+        let fan = cooling.layer_duty(l, us, min_us);
         if us >= min_us {
-            return (FEED_SCALE_ONE, 0);
+            return (FEED_SCALE_ONE, 0, fan);
         }
         ctx.feed_scale_q16 = ((us << 16) / min_us) as u32;
         if us == 0 {
-            return (ctx.feed_scale_q16, 0);
+            return (ctx.feed_scale_q16, 0, fan);
         }
         // Short of the minimum (by more than the sums' rounding, 1 us a feature) only where
         // the slowest print feed binds.
         let short_us = min_us.saturating_sub(time_us(&lengths, |f| ctx.feed(f)));
         if short_us <= lengths.len() as u64 {
-            return (ctx.feed_scale_q16, 0);
+            return (ctx.feed_scale_q16, 0, fan);
         }
         // Whole ms, rounded up: the layer takes at least its minimum.
-        (ctx.feed_scale_q16, short_us.div_ceil(1_000).min(u64::from(u32::MAX)) as u32)
+        (ctx.feed_scale_q16, short_us.div_ceil(1_000).min(u64::from(u32::MAX)) as u32, fan)
     }
 
     /// The built layer's extrusion lengths per feature (index: the feature's code), um:

@@ -29,6 +29,8 @@ pub struct Emitter {
     e_abs: i64,
     /// The last move extruded (a travel ends an extrusion run).
     extruding: bool,
+    /// The part-cooling fan's duty, 0..=255 ([`ToolMove::fan`]).
+    fan: u8,
     /// Counters of the layer being emitted.
     pub layer: LayerStats,
 }
@@ -44,6 +46,7 @@ impl Emitter {
             vol16: 0,
             e_abs: 0,
             extruding: false,
+            fan: 0,
             layer: LayerStats::EMPTY,
         }
     }
@@ -79,6 +82,8 @@ pub struct Ctx<'a> {
     pub feed_scale_q16: u32,
     /// The wait at the layer's end for the rest of its minimum time, ms (0: none).
     pub cool_wait_ms: u32,
+    /// The layer's fan duty, and its bridges' and overhang perimeters' (0..=255).
+    pub fan: [u8; 2],
 }
 
 /// [`Ctx::feed_scale_q16`] at full speed.
@@ -243,12 +248,15 @@ impl Emitter {
     fn move_z(&mut self, ctx: &Ctx<'_>, z: i32, sink: &mut impl FnMut(&ToolEvent<'_>)) {
         self.z = z;
         self.layer.travel_moves += 1;
+        // A layer's fan goes on with its height.
+        self.fan = ctx.fan[0];
         let m = ToolMove {
             to: self.pos,
             z_um: z,
             e_um: 0,
             feed_mm_s: ctx.feed(Feature::Travel),
             feature: Feature::Travel,
+            fan: self.fan,
         };
         self.send(sink, m);
     }
@@ -263,6 +271,7 @@ impl Emitter {
             e_um: -ctx.cfg.retract_length_um,
             feed_mm_s: ctx.feed(Feature::Retract),
             feature: Feature::Retract,
+            fan: self.fan,
         };
         self.send(sink, m);
     }
@@ -285,6 +294,7 @@ impl Emitter {
             e_um: 0,
             feed_mm_s: ctx.feed(Feature::Travel),
             feature: Feature::Travel,
+            fan: self.fan,
         };
         self.send(sink, m);
     }
@@ -308,6 +318,7 @@ impl Emitter {
                 e_um: ctx.cfg.retract_length_um,
                 feed_mm_s: ctx.feed(Feature::Unretract),
                 feature: Feature::Unretract,
+                fan: self.fan,
             };
             self.send(sink, m);
         }
@@ -329,7 +340,16 @@ impl Emitter {
         self.layer.extrusion_moves += 1;
         self.layer.filament_um += i64::from(e);
         self.pos = to;
-        let m = ToolMove { to, z_um: self.z, e_um: e, feed_mm_s: ctx.feed(feature), feature };
+        let bridge = matches!(feature, Feature::BridgeInfill | Feature::OverhangPerimeter);
+        self.fan = ctx.fan[usize::from(bridge)];
+        let m = ToolMove {
+            to,
+            z_um: self.z,
+            e_um: e,
+            feed_mm_s: ctx.feed(feature),
+            feature,
+            fan: self.fan,
+        };
         self.send(sink, m);
     }
 
@@ -352,6 +372,7 @@ impl Emitter {
             e_um: 0,
             feed_mm_s: seconds,
             feature: Feature::Dwell,
+            fan: self.fan,
         };
         self.send(sink, m);
         self.extruding = false;

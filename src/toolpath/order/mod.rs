@@ -731,6 +731,7 @@ mod tests {
             first_layer: false,
             feed_scale_q16: FEED_SCALE_ONE,
             cool_wait_ms: 0,
+            fan: [0; 2],
         };
         let to = Point2::new(20_000, 0);
         for n in [3, ROUTE_POINTS, ROUTE_POINTS + 1, 2 * ROUTE_POINTS] {
