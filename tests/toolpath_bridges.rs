@@ -8,7 +8,7 @@ use strata::geom::Point2;
 use strata::machine::{MachineConfig, PrintSettings, Rate};
 use strata::toolpath::{Feature, ToolMove, ToolpathConfig, BRIDGE_SPEED_MM_S};
 use strata_testkit::mesh::{bridge_part, to_um, TriMm};
-use toolpath_support::{extrusions, layer_starts, run_cfg, TpRun};
+use toolpath_support::{extrusions, layer_starts, run_cfg, run_cfg_bridge_limited, TpRun};
 
 /// Line width and filament diameter of the default settings, um.
 const W: f64 = 450.0;
@@ -130,4 +130,66 @@ fn without_bridges_the_gap_gets_ordinary_solid_skin() {
         let bridge = |f| matches!(f, Feature::BridgeInfill | Feature::OverhangPerimeter);
         assert!(layer.moves.iter().all(|m| !bridge(m.feature)));
     }
+}
+
+/// A layer whose bridges need more path points or scanline crossings than the stage may use
+/// is built without them (as solid skin), and the job goes on: bridges never make a model
+/// that fits without them refused. Each limit in turn sits between the job's needs without
+/// bridges and with them.
+#[test]
+fn bridges_beyond_the_limits_give_way_to_solid_skin() {
+    let mesh = to_um(&posts_and_plate(false));
+    let settings = PrintSettings::default();
+    let mut cfg = ToolpathConfig::new(&MachineConfig::default(), &settings);
+    let with = run_cfg(&mesh, &settings, cfg).expect("with bridges");
+    cfg.bridges = false;
+    let without = run_cfg(&mesh, &settings, cfg).expect("without bridges");
+    cfg.bridges = true;
+    let bridged = |r: &TpRun| {
+        r.layers
+            .iter()
+            .filter(|l| l.moves.iter().any(|m| m.feature == Feature::BridgeInfill))
+            .count()
+    };
+    assert!(bridged(&with) > 0 && bridged(&without) == 0);
+    let (n0, n1) = (without.stats.needs, with.stats.needs);
+    let cases = [
+        ((n0.path_points as usize, usize::MAX), n1.path_points > n0.path_points),
+        ((usize::MAX, n0.crossings as usize), n1.crossings > n0.crossings),
+    ];
+    let mut tried = 0;
+    for (limits, bridges_need_more) in cases {
+        if !bridges_need_more {
+            continue;
+        }
+        tried += 1;
+        let limited = run_cfg_bridge_limited(&mesh, &settings, cfg, limits).expect("limited");
+        let l = limited.stats.needs;
+        let within = l.path_points as usize <= limits.0 && l.crossings as usize <= limits.1;
+        assert!(within, "{limits:?}: {l:?}");
+        // Some layers lost their bridges, the others kept them; every layer printed.
+        assert!(bridged(&limited) < bridged(&with), "{limits:?}");
+        assert_eq!(limited.layers.len(), with.layers.len());
+    }
+    assert!(tried > 0, "bridges needed no more than solid skin: {n0:?} {n1:?}");
+}
+
+/// The printer's own jobs bridge too: the settings it derives from a job (what the 64 KB
+/// board and the host's simulation of it run, bit-exact in `qemu_bridge_between_two_posts`)
+/// print the plate's first layer as bridge lines at the bridge speed.
+#[test]
+fn the_printers_jobs_print_bridges() {
+    let mut mesh = to_um(&posts_and_plate(false));
+    mesh.sort_by_key(strata::geom::Triangle::z_min);
+    let job = strata_testkit::drive::job_spec(&mesh);
+    let cfg = strata::printer::job_toolpath_config(&MachineConfig::default(), &job);
+    let run = run_cfg(&mesh, &job.settings, cfg).expect("toolpath run");
+    let plate = layer_above(&run, 10_000);
+    let bridge: Vec<_> = extruding_moves(&run, plate)
+        .into_iter()
+        .filter(|(_, m)| m.feature == Feature::BridgeInfill)
+        .collect();
+    assert!(!bridge.is_empty(), "no bridge lines on the plate's first layer");
+    let speed = Rate::from_num(BRIDGE_SPEED_MM_S);
+    assert!(bridge.iter().all(|(_, m)| m.feed_mm_s <= speed), "{bridge:?}");
 }

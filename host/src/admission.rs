@@ -199,8 +199,7 @@ fn toolpath_fit(
 ) -> Result<Result<(ToolpathPeaks, LayerTimes), Vec<String>>, String> {
     // Offsets as the device does them: in bands where its engine holds less than one needs.
     // If even that fails, the needs of offsets done whole say what does not fit.
-    let limit = caps.toolpath_points as usize;
-    Ok(match toolpath_pass(streamed, machine, job, Some(limit)) {
+    Ok(match toolpath_pass(streamed, machine, job, Some(caps)) {
         Ok((peaks, times)) => {
             let short = toolpath_shortfalls(&peaks, caps);
             if short.is_empty() {
@@ -529,19 +528,20 @@ pub fn toolpath_peaks(
     toolpath_peaks_limited(tris, machine, job, None)
 }
 
-/// [`toolpath_peaks`] with the offset engine limited to `offset_limit` edges.
+/// [`toolpath_peaks`] as a device with `device`'s capacities builds the layers.
 ///
-/// That is how a device with that `PTS` has it: offsets that need more are done in bands, which
-/// may change them within the output's tolerance.
+/// Its offset engine's edges (`PTS`): offsets that need more are done in bands, which may
+/// change them within the output's tolerance; its path points and scanline crossings: a layer
+/// whose bridges need more is built without them.
 ///
 /// An offset that does not fit even in the thinnest bands is the error.
 pub fn toolpath_peaks_limited(
     tris: &[Triangle],
     machine: &MachineConfig,
     job: &JobSpec,
-    offset_limit: Option<usize>,
+    device: Option<&Capacities>,
 ) -> Result<ToolpathPeaks, String> {
-    toolpath_pass(tris, machine, job, offset_limit).map(|(peaks, _)| peaks)
+    toolpath_pass(tris, machine, job, device).map(|(peaks, _)| peaks)
 }
 
 /// Print time of each layer's start and of the whole job, s (a [`LayerClock`]'s).
@@ -561,7 +561,7 @@ pub fn toolpath_pass(
     tris: &[Triangle],
     machine: &MachineConfig,
     job: &JobSpec,
-    offset_limit: Option<usize>,
+    device: Option<&Capacities>,
 ) -> Result<(ToolpathPeaks, LayerTimes), String> {
     let slice_cfg =
         SliceConfig::new(&job.settings, job.model_height_um).map_err(|e| e.to_string())?;
@@ -570,7 +570,7 @@ pub fn toolpath_pass(
         std::thread::Builder::new()
             .name("admission".into())
             .stack_size(256 << 20)
-            .spawn_scoped(scope, || measure(tris, slice_cfg, cfg, offset_limit, machine))
+            .spawn_scoped(scope, || measure(tris, slice_cfg, cfg, device, machine))
             .map_err(|e| format!("cannot start the admission thread: {e}"))?
             .join()
             .map_err(|_| "the admission thread panicked".to_string())?
@@ -581,14 +581,15 @@ fn measure(
     tris: &[Triangle],
     slice_cfg: SliceConfig,
     cfg: ToolpathConfig,
-    offset_limit: Option<usize>,
+    device: Option<&Capacities>,
     machine: &MachineConfig,
 ) -> Result<(ToolpathPeaks, LayerTimes), String> {
     let clock = std::cell::RefCell::new(LayerClock::new(machine));
     let mut slicer = Box::new(HostSlicer::new(slice_cfg).map_err(|e| e.to_string())?);
     let mut tp = Box::new(HostToolpath::new(cfg).map_err(|e| e.to_string())?);
-    if let Some(limit) = offset_limit {
-        tp.set_offset_limit(limit);
+    if let Some(caps) = device {
+        tp.set_offset_limit(caps.toolpath_points as usize);
+        tp.set_bridge_limits(caps.path_points as usize, caps.scan_crossings as usize);
     }
     let mut work = Box::new(HostScratch::new());
     tp.set_position(Point2::new(0, 0), 0);

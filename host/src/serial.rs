@@ -298,6 +298,8 @@ pub fn serve_device<P: Read + Write>(
 ) -> Result<DeviceState, String> {
     let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
     printer.set_offset_limit(opts.capacities.toolpath_points as usize);
+    let caps = &opts.capacities;
+    printer.set_bridge_limits(caps.path_points as usize, caps.scan_crossings as usize);
     let step_cfg = *printer.step_config();
     let ticks_per_ms = step_cfg.timer_hz as u64 / 1000;
     let start_tick = 1_000u64;

@@ -386,6 +386,8 @@ fn run(
 ) -> Result<SimReport, (String, Box<SimReport>)> {
     let mut printer: Box<SimPrinter> = Box::new(SimPrinter::new(machine));
     printer.set_offset_limit(opts.capacities.toolpath_points as usize);
+    let caps = &opts.capacities;
+    printer.set_bridge_limits(caps.path_points as usize, caps.scan_crossings as usize);
     let step_cfg = *printer.step_config();
     let timer_hz = step_cfg.timer_hz as u64;
     let ticks_per_ms = timer_hz / 1000;

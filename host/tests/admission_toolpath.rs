@@ -26,7 +26,7 @@ fn loop_points_beyond_the_device_are_simplified_away() {
     };
     let machine = MachineConfig::default();
     let job = job_spec(&tris);
-    let limit = Some(caps.toolpath_points as usize);
+    let limit = Some(&caps);
     let whole = toolpath_peaks_limited(&tris, &machine, &job, limit);
     assert!(
         whole.map_or(true, |p| !toolpath_shortfalls(&p, &caps).is_empty()),

@@ -388,9 +388,9 @@ fn qemu_small_cylinder() {
     qemu_job("cylinder r4 h0.6 16 sides", &tris, job_spec(&tris), true);
 }
 
-/// A 20 mm bridge: two 6 x 6 x 3 mm posts joined by a 1 mm plate. The board prints it as
-/// solid skin over the gap for now (bridges are in `strata slice`'s G-code: their passes'
-/// stack and scan-crossing needs do not fit the 64 KB board's headroom yet).
+/// A 20 mm bridge: two 6 x 6 x 3 mm posts joined by a 1 mm plate, printed with bridge lines
+/// across the gap (the printer's jobs bridge: `toolpath_bridges::the_printers_jobs_print_bridges`)
+/// bit-exact with the host's simulation of the board.
 #[test]
 fn qemu_bridge_between_two_posts() {
     use strata_testkit::mesh::{cuboid, to_um};

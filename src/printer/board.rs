@@ -166,9 +166,8 @@ pub fn job_toolpath_config(machine: &MachineConfig, job: &JobSpec) -> ToolpathCo
     // words at 25 um, 1,201 so; stanford_bunny_x60: 2,217, 1,719 so).
     cfg.below_tolerance_um = cfg.line_width_um / 2;
     cfg.min_layer_time_ms = MIN_LAYER_TIME_MS;
-    // Bridges and overhang perimeters stay with the host's G-code for now: their passes
-    // (four direction measurements, the outline's overhang pass) raise the 64 KB board's
-    // stack and scan-crossing needs past what models that print today leave.
-    cfg.bridges = false;
+    // Bridges and overhang perimeters as in `strata slice`'s G-code; a layer whose bridges
+    // need more path points or scanline crossings than the board holds goes without them
+    // (`Toolpath::set_bridge_limits`: the board's own capacities).
     cfg
 }

@@ -302,6 +302,12 @@ impl<Pl: Stages, const MOVE_BYTES: usize, const P: usize> Printer<Pl, MOVE_BYTES
         self.pipeline.set_offset_limit(edges);
     }
 
+    /// Builds layers with bridges within `path_points` and `crossings`, and without bridges
+    /// where they need more, as a device with those capacities does.
+    pub fn set_bridge_limits(&mut self, path_points: usize, crossings: usize) {
+        self.pipeline.set_bridge_limits(path_points, crossings);
+    }
+
     /// State.
     pub fn state(&self) -> DeviceState {
         self.state

@@ -63,6 +63,8 @@ pub trait Stages {
     fn largest_unit_bytes(&self) -> usize;
     /// Offsets with at most `edges` edges an island (in bands beyond).
     fn set_offset_limit(&mut self, edges: usize);
+    /// Layers with bridges within `path_points` and `crossings` (built again without beyond).
+    fn set_bridge_limits(&mut self, path_points: usize, crossings: usize);
     /// Sets the stages up for `job` on `machine`: its layers, or the stage that refused it.
     fn start(&mut self, machine: &MachineConfig, job: &JobSpec) -> Result<u32, Failure>;
     /// Starts a G-code job on `machine`: its input takes the scratch (nothing is sliced),
@@ -190,6 +192,10 @@ impl<
 
     fn set_offset_limit(&mut self, edges: usize) {
         self.tp.set_offset_limit(edges);
+    }
+
+    fn set_bridge_limits(&mut self, path_points: usize, crossings: usize) {
+        self.tp.set_bridge_limits(path_points, crossings);
     }
 
     #[inline(never)]

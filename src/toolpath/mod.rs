@@ -233,6 +233,12 @@ pub struct Toolpath<
     /// `PTS` less the edge slots and pieces an offset may use before it is done in bands
     /// (zero in a new stage: all of them).
     offset_shortfall: usize,
+    /// `PATH` and `CROSS` less the path points and scanline crossings a layer with bridges
+    /// may use before it is built again without them ([`Self::set_bridge_limits`]; zero in a
+    /// new stage: all of them).
+    bridge_shortfall: [usize; 2],
+    /// `CROSS` less the crossings the layer being built may use.
+    cross_shortfall: usize,
     spans: [Span; SPANS],
     paths: PathBuf<PATH>,
     island_map: [u16; LOOPS],
@@ -289,6 +295,8 @@ impl<
                 bands: 0,
             },
             offset_shortfall: 0,
+            bridge_shortfall: [0; 2],
+            cross_shortfall: 0,
             open_chains: 0,
             spans: [Span { u0: 0, u1: 0 }; SPANS],
             paths: PathBuf::new(),
@@ -320,6 +328,14 @@ impl<
     /// offsets exactly as that device does. Kept across [`reset`](Self::reset).
     pub fn set_offset_limit(&mut self, edges: usize) {
         self.offset_shortfall = PTS - edges.min(PTS);
+    }
+
+    /// Lets a layer with bridges use at most `path_points` path points and `crossings`
+    /// scanline crossings (`PATH` and `CROSS` at most); one that needs more is built again
+    /// without bridges. A device does that at its own capacities: a stage posing as one with
+    /// smaller capacities builds the layers it does. Kept across [`reset`](Self::reset).
+    pub fn set_bridge_limits(&mut self, path_points: usize, crossings: usize) {
+        self.bridge_shortfall = [PATH - path_points.min(PATH), CROSS - crossings.min(CROSS)];
     }
 
     /// Edge slots and pieces an offset may use before it is done in bands.
@@ -739,7 +755,16 @@ impl<
         work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
     ) -> Result<(), Buffer> {
-        let built = self.build(l, work, sink);
+        let bridges = self.cfg.bridges && l > FIRST_LAYER;
+        let mut built = self.build(l, work, sink, bridges);
+        // Bridges are worth less than the layer: one they do not leave room for goes without.
+        let full = matches!(
+            built,
+            Err(Buffer::Crossings | Buffer::LineSegments | Buffer::PathPoints | Buffer::Paths)
+        );
+        if bridges && full {
+            built = self.build(l, work, sink, false);
+        }
         self.collect_engine_counters(work);
         built
     }
@@ -752,7 +777,12 @@ impl<
         l: u32,
         work: &mut W,
         sink: &mut impl FnMut(&ToolEvent<'_>),
+        bridges: bool,
     ) -> Result<(), Buffer> {
+        // A layer with bridges within its limits ([`Self::set_bridge_limits`]).
+        let [path_unused, cross_unused] = if bridges { self.bridge_shortfall } else { [0; 2] };
+        self.paths.set_limit(PATH - path_unused);
+        self.cross_shortfall = cross_unused;
         let blk = self.ring.find(l).ok_or(Buffer::RingPoints)?;
         decode(self.ring.data(&blk), &mut self.contour)?;
         self.paths.clear();
@@ -813,7 +843,6 @@ impl<
             let angle = if l % 2 == 0 { Angle::D45 } else { Angle::D135 };
             let grid = self.cfg.infill_pattern == InfillPattern::Grid;
             let mut progress = || sink(&ToolEvent::Progress);
-            let bridges = self.cfg.bridges && l > FIRST_LAYER;
             let over_air = if bridges { OverAir::Leave } else { OverAir::Solid };
             self.infill_pass(work, l, angle, true, over_air, &mut progress)?;
             let air = self.fill_use.bridge.over_air_u > 0;
@@ -826,11 +855,12 @@ impl<
             }
         }
         // Perimeters over air.
-        if self.cfg.bridges && l > FIRST_LAYER && !self.paths.is_empty() {
+        if bridges && !self.paths.is_empty() {
             let mut progress = || sink(&ToolEvent::Progress);
             self.infill_pass(work, l, Angle::D45, true, OverAir::Locate, &mut progress)?;
             let (step, w) = (Angle::D45.line_step(LOCATE_SPACING * w), self.cfg.line_width_um);
-            let pool = work.fill().pool.as_flattened_mut();
+            // The pool as the pass had it (its pieces are stored from its end).
+            let pool = work.fill().pool[..CROSS - self.cross_shortfall].as_flattened_mut();
             infill::tag_overhangs(
                 pool,
                 self.fill_use.located,
@@ -1242,10 +1272,12 @@ impl<
             end_ext_u: if cfg.perimeters > 0 { (step / 2) as i32 } else { 0 },
         };
         let scratch = work.fill();
+        // The crossings the layer may use, and the segments' pool in proportion.
+        let cross = CROSS - self.cross_shortfall;
         let mut fill_work = FillWork {
-            cross: &mut scratch.cross,
-            idx: &mut scratch.idx,
-            pool: scratch.pool.as_flattened_mut(),
+            cross: &mut scratch.cross[..cross],
+            idx: &mut scratch.idx[..cross],
+            pool: scratch.pool[..cross].as_flattened_mut(),
             spans: &mut self.spans,
         };
         // Overhangs are located over the layer's region, the infill over its domain.

@@ -70,6 +70,9 @@ pub struct PathBuf<const N: usize> {
     pub peak_points: usize,
     /// Largest path count seen.
     pub peak_paths: usize,
+    /// Slots not to use ([`set_limit`](Self::set_limit)): 0 in a new buffer, which is then
+    /// all zero bytes (a `static` of it stays in `.bss`).
+    unused: usize,
 }
 
 impl<const N: usize> Default for PathBuf<N> {
@@ -214,7 +217,14 @@ impl<const N: usize> PathBuf<N> {
             out_of_range: false,
             peak_points: 0,
             peak_paths: 0,
+            unused: 0,
         }
+    }
+
+    /// Uses at most `limit` of the `N` slots (records included) from now on, as a smaller
+    /// buffer would: pushes beyond fail with [`Buffer::PathPoints`] or [`Buffer::Paths`].
+    pub fn set_limit(&mut self, limit: usize) {
+        self.unused = N - limit.min(N);
     }
 
     /// Index of the first of record `i`'s two slots.
@@ -224,7 +234,7 @@ impl<const N: usize> PathBuf<N> {
 
     /// Points free between the paths and the records.
     fn room(&self) -> usize {
-        N - 2 * self.nr - self.n
+        (N - self.unused).saturating_sub(2 * self.nr + self.n)
     }
 
     fn write_rec(&mut self, i: usize, r: &PathRec) {

@@ -90,6 +90,23 @@ pub fn run_cfg(
     run_sized::<16384, 1024, 32768, 65536, 65536, 65536>(tris, settings, cfg)
 }
 
+/// [`run_cfg`] with layers with bridges limited to `path_points` and `crossings`
+/// ([`Toolpath::set_bridge_limits`]).
+#[allow(dead_code)]
+pub fn run_cfg_bridge_limited(
+    tris: &[Triangle],
+    settings: &PrintSettings,
+    cfg: ToolpathConfig,
+    (path_points, crossings): (usize, usize),
+) -> Result<TpRun, String> {
+    run_sized_limited::<16384, 1024, 32768, 65536, 65536, 65536>(
+        tris,
+        settings,
+        cfg,
+        Some((path_points, crossings)),
+    )
+}
+
 /// [`run_cfg`] with a toolpath stage of the given capacities (PTS, LOOPS, CROSS, PATH,
 /// RING, SPANS).
 pub fn run_sized<
@@ -104,6 +121,23 @@ pub fn run_sized<
     settings: &PrintSettings,
     cfg: ToolpathConfig,
 ) -> Result<TpRun, String> {
+    run_sized_limited::<PTS, LOOPS, CROSS, PATH, RING, SPANS>(tris, settings, cfg, None)
+}
+
+/// [`run_sized`], with bridge limits if any.
+fn run_sized_limited<
+    const PTS: usize,
+    const LOOPS: usize,
+    const CROSS: usize,
+    const PATH: usize,
+    const RING: usize,
+    const SPANS: usize,
+>(
+    tris: &[Triangle],
+    settings: &PrintSettings,
+    cfg: ToolpathConfig,
+    bridge_limits: Option<(usize, usize)>,
+) -> Result<TpRun, String> {
     let top = tris.iter().map(Triangle::z_max).max().unwrap_or(0);
     let slice_cfg = SliceConfig::new(settings, top).map_err(|e| e.to_string())?;
     strata_testkit::on_big_stack(move || -> Result<TpRun, String> {
@@ -112,6 +146,9 @@ pub fn run_sized<
             Toolpath::<PTS, LOOPS, CROSS, PATH, RING, SPANS>::new(cfg)
                 .map_err(|e| e.to_string())?,
         );
+        if let Some((path_points, crossings)) = bridge_limits {
+            tp.set_bridge_limits(path_points, crossings);
+        }
         let mut work = Box::new(TestScratch::<PTS, CROSS>::new());
         let mut layers: Vec<TpLayer> = Vec::new();
         let mut contours: Vec<Vec<(Vec<Point2>, bool)>> = Vec::new();
