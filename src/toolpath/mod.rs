@@ -236,9 +236,9 @@ pub struct Toolpath<
     /// `PATH` and `CROSS` less the path points and scanline crossings a layer with bridges
     /// may use before it is built again without them ([`Self::set_bridge_limits`]; zero in a
     /// new stage: all of them).
-    bridge_shortfall: [usize; 2],
-    /// `CROSS` less the crossings the layer being built may use.
-    cross_shortfall: usize,
+    bridge_shortfall: [u32; 2],
+    /// The layer being built has bridges (within `bridge_shortfall`).
+    bridging: bool,
     spans: [Span; SPANS],
     paths: PathBuf<PATH>,
     island_map: [u16; LOOPS],
@@ -296,7 +296,7 @@ impl<
             },
             offset_shortfall: 0,
             bridge_shortfall: [0; 2],
-            cross_shortfall: 0,
+            bridging: false,
             open_chains: 0,
             spans: [Span { u0: 0, u1: 0 }; SPANS],
             paths: PathBuf::new(),
@@ -335,7 +335,18 @@ impl<
     /// without bridges. A device does that at its own capacities: a stage posing as one with
     /// smaller capacities builds the layers it does. Kept across [`reset`](Self::reset).
     pub fn set_bridge_limits(&mut self, path_points: usize, crossings: usize) {
-        self.bridge_shortfall = [PATH - path_points.min(PATH), CROSS - crossings.min(CROSS)];
+        // Within u32: a stage's capacities are far below 2^32 (the board's a few thousand).
+        let short = |cap: usize, n: usize| (cap - n.min(cap)) as u32;
+        self.bridge_shortfall = [short(PATH, path_points), short(CROSS, crossings)];
+    }
+
+    /// Path points (`which` 0) or crossings (1) the layer being built may not use.
+    fn unused_for_bridges(&self, which: usize) -> usize {
+        if self.bridging {
+            self.bridge_shortfall[which] as usize
+        } else {
+            0
+        }
     }
 
     /// Edge slots and pieces an offset may use before it is done in bands.
@@ -780,9 +791,8 @@ impl<
         bridges: bool,
     ) -> Result<(), Buffer> {
         // A layer with bridges within its limits ([`Self::set_bridge_limits`]).
-        let [path_unused, cross_unused] = if bridges { self.bridge_shortfall } else { [0; 2] };
-        self.paths.set_limit(PATH - path_unused);
-        self.cross_shortfall = cross_unused;
+        self.bridging = bridges;
+        self.paths.set_limit(PATH - self.unused_for_bridges(0));
         let blk = self.ring.find(l).ok_or(Buffer::RingPoints)?;
         decode(self.ring.data(&blk), &mut self.contour)?;
         self.paths.clear();
@@ -860,7 +870,7 @@ impl<
             self.infill_pass(work, l, Angle::D45, true, OverAir::Locate, &mut progress)?;
             let (step, w) = (Angle::D45.line_step(LOCATE_SPACING * w), self.cfg.line_width_um);
             // The pool as the pass had it (its pieces are stored from its end).
-            let pool = work.fill().pool[..CROSS - self.cross_shortfall].as_flattened_mut();
+            let pool = work.fill().pool[..CROSS - self.unused_for_bridges(1)].as_flattened_mut();
             infill::tag_overhangs(
                 pool,
                 self.fill_use.located,
@@ -1273,7 +1283,7 @@ impl<
         };
         let scratch = work.fill();
         // The crossings the layer may use, and the segments' pool in proportion.
-        let cross = CROSS - self.cross_shortfall;
+        let cross = CROSS - self.unused_for_bridges(1);
         let mut fill_work = FillWork {
             cross: &mut scratch.cross[..cross],
             idx: &mut scratch.idx[..cross],
@@ -1454,7 +1464,7 @@ mod tests {
         assert_eq!(ToolpathNeeds::PATH_BYTES, 6);
         assert_eq!((ToolpathNeeds::RING_BYTES, ToolpathNeeds::SPAN_BYTES), (4, 8));
         let fixed = size_of::<Toolpath<0, 0, 0, 0, 0, 0>>();
-        assert!(fixed < 1600, "{fixed}");
+        assert!(fixed < 1640, "{fixed}");
         let needs = ToolpathNeeds {
             layer_points: 64,
             layer_loops: 8,
