@@ -10,7 +10,8 @@
 # G-code already in OUT_DIR is reused: delete it to slice again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if ! command -v prusa-slicer >/dev/null; then
+. scripts/prusa_common.sh
+if ! have_prusa; then
   echo "prusa-slicer not found (apt-get install prusa-slicer): nothing to calibrate against"
   exit 0
 fi
@@ -21,11 +22,9 @@ models=../shared/models
 cargo build --release -q --example coverage_gcode
 check=target/release/examples/coverage_gcode
 mkdir -p "$out"
-version="$(prusa-slicer --help 2>&1 | grep -m1 -o 'PrusaSlicer-[^ ]*' || true)"
+version="$(prusa_version)"
 # The model's bounding box centred at (200, 200) mm on a 400 mm bed: the checker's placement.
-settings=(--layer-height 0.2 --first-layer-height 0.2 --extrusion-width 0.45 --perimeters 2
-  --fill-density 20% --fill-pattern rectilinear --top-solid-layers 4 --bottom-solid-layers 4
-  --bed-shape 0x0,400x0,400x400,0x400 --center 200,200)
+bed=(--bed-shape 0x0,400x0,400x400,0x400 --center 200,200)
 # The models of tests/toolpath_coverage.rs (the same skips: the broken embodier_bin.stl, the
 # originals about 1 mm in size, numpy-stl's parser cases of 2 to 4 mm).
 files=(xyz_20mm_cube.stl embodier_asc.stl embodier_LM8UU_8p2pi.stl embodier_hotend_v2.stl
@@ -39,11 +38,8 @@ for f in "${files[@]}"; do
   [ -f "$stl" ] || { echo "$f: missing"; continue; }
   name="$(basename "$f" .stl)"
   gcode="$out/$name.gcode"
-  if [ -s "$gcode" ] || prusa-slicer --export-gcode "${settings[@]}" -o "$gcode" "$stl" \
-    >"$gcode.log" 2>&1; then
+  if prusa_slice "$stl" "$gcode" "${bed[@]}"; then
     args+=("$name=$stl=$gcode")
-  else
-    echo "$name: prusa-slicer failed (see $gcode.log)"
   fi
 done
 echo "## $version"

@@ -8,7 +8,8 @@
 #   scripts/overhang_prusa.sh [OUT_DIR]     (default target/overhang_prusa)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if ! command -v prusa-slicer >/dev/null; then
+. scripts/prusa_common.sh
+if ! have_prusa; then
   echo "prusa-slicer not found (apt-get install prusa-slicer): nothing to calibrate against"
   exit 0
 fi
@@ -19,9 +20,7 @@ mkdir -p "$out/stl" "$out/plain" "$out/support"
 "$check" stl "$out/stl" >/dev/null
 benchy=../shared/models/3DBenchy.stl
 [ -f "$benchy" ] && cp "$benchy" "$out/stl/3DBenchy.stl"
-version="$(prusa-slicer --help 2>&1 | grep -m1 -o 'PrusaSlicer-[^ ]*' || true)"
-settings=(--layer-height 0.2 --first-layer-height 0.2 --extrusion-width 0.45 --perimeters 2
-  --fill-density 20% --fill-pattern rectilinear --top-solid-layers 4 --bottom-solid-layers 4)
+version="$(prusa_version)"
 for mode in plain support; do
   extra=()
   [ "$mode" = support ] && extra=(--support-material)
@@ -29,11 +28,10 @@ for mode in plain support; do
   for stl in "$out"/stl/*.stl; do
     name="$(basename "$stl" .stl)"
     gcode="$out/$mode/$name.gcode"
-    if prusa-slicer --export-gcode "${settings[@]}" "${extra[@]}" -o "$gcode" "$stl" \
-      >"$gcode.log" 2>&1; then
+    # Sliced afresh each run (the parts may change).
+    rm -f "$gcode"
+    if prusa_slice "$stl" "$gcode" "${extra[@]}"; then
       files+=("$name=$gcode")
-    else
-      echo "$name: prusa-slicer failed (see $gcode.log)"
     fi
   done
   echo "## $version, $mode"

@@ -10,14 +10,13 @@
 #   scripts/print_path_table.sh [OUT_DIR]   (default target/print_path; G-code there is reused)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+. scripts/prusa_common.sh
 out="${1:-target/print_path}"
 models=../shared/models
 mkdir -p "$out"
 cargo build --release -q -p strata-host --bin strata
 strata=target/release/strata
-prusa_settings=(--layer-height 0.2 --first-layer-height 0.2 --extrusion-width 0.45 --perimeters 2
-  --fill-density 20% --fill-pattern rectilinear --top-solid-layers 4 --bottom-solid-layers 4
-  --bed-shape 0x0,220x0,220x220,0x220 --center 110,110)
+bed=(--bed-shape 0x0,220x0,220x220,0x220 --center 110,110)
 files=(xyz_20mm_cube.stl embodier_LM8UU_8p2pi.stl embodier_hotend_v2.stl
   prusashape_M3_hex_nut.stl 3DBenchy.stl scaled_mm/torus3_genus3_x30.stl
   scaled_mm/stanford_bunny_x60.stl)
@@ -61,12 +60,8 @@ for f in "${files[@]}"; do
   }
   read -r sr st < <(path_figures "$out/$name.strata.gcode")
   pr="" pt=""
-  if command -v prusa-slicer >/dev/null; then
-    gcode="$out/$name.prusa.gcode"
-    if [ -s "$gcode" ] || prusa-slicer --export-gcode "${prusa_settings[@]}" -o "$gcode" "$stl" \
-      >"$gcode.log" 2>&1; then
-      read -r pr pt < <(path_figures "$gcode")
-    fi
+  if have_prusa && prusa_slice "$stl" "$out/$name.prusa.gcode" "${bed[@]}"; then
+    read -r pr pt < <(path_figures "$out/$name.prusa.gcode")
   fi
   echo "| $name | $sr | $st | $pr | $pt |"
 done
