@@ -93,7 +93,9 @@ fn overhang_table_and_the_checker_counts_every_extrusion() {
         table += &format!("{}\n", air.row("3DBenchy"));
         notes += &format!(
             "3DBenchy: {segments} segments checked in {took:?}; {}\n",
-            air.describe_worst(std::env::var("WORST").ok().and_then(|v| v.parse().ok()).unwrap_or(3))
+            air.describe_worst(
+                std::env::var("WORST").ok().and_then(|v| v.parse().ok()).unwrap_or(3)
+            )
         );
     }
     eprintln!("{table}\n{notes}");
